@@ -1,0 +1,208 @@
+"""The ``cosim`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from cosim import __version__
+from cosim.errors import CosimError
+
+EXAMPLES = """\
+examples:
+  cosim run                          run the default scenario (masses-bias)
+  cosim run masses-bias --seed 3     a built-in scenario with another seed
+  cosim run my.toml --out my.mcap    a scenario file of your own
+  cosim scenarios                    list the built-in scenarios
+  cosim inspect runs/my.mcap --json  summarize a log for other tools
+  cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
+"""
+
+
+def _console(stderr: bool = False) -> Console:
+    return Console(stderr=stderr, highlight=False)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from cosim import scenario
+    from cosim.runner import Run
+
+    loaded = scenario.load(args.scenario)
+    s = loaded.scenario
+    seed = s.seed if args.seed is None else args.seed
+    out = Path(args.out) if args.out else Path("runs") / f"{s.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    run = Run(loaded, out, args.seed)
+    console = _console(stderr=True)
+    console.print(
+        f"[bold]{s.name}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {seed}, "
+        f"estimators: {', '.join(run.estimators) or 'none'}; bus: {s.bus.interface} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
+    )
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        if args.quiet:
+            result = run.execute()
+        else:
+            result = _with_progress(run, console)
+    except KeyboardInterrupt:
+        r = getattr(run, "result", None)
+        done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
+        console.print(f"[yellow]interrupted{done}[/yellow]; the log up to that point is in {out}")
+        return 130
+    except CosimError as error:
+        console.print(f"[red]error:[/red] {escape(str(error))}\nthe log up to that point is in {escape(str(out))}")
+        return 1
+    console.print(
+        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s "
+        f"(real-time factor {result.realtime_factor:.1f})"
+    )
+    print(out)
+    return 0
+
+
+def _raise_interrupt(signum, frame) -> None:  # SIGTERM ends a run like Ctrl-C: the log is finished
+    raise KeyboardInterrupt
+
+
+def _with_progress(run, console: Console):
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = (
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        TextColumn("t = {task.fields[sim]:>7.2f} s"),
+        TextColumn("{task.fields[rtf]:>6.1f}x real time"),
+        TextColumn("{task.fields[frames]:>8d} frames"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task("simulating", total=run.scenario.ticks, sim=0.0, rtf=0.0, frames=0)
+
+        def update(p) -> None:
+            progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)
+
+        return run.execute(update)
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    from cosim import scenario
+
+    table = Table(box=None, pad_edge=False, show_header=True, header_style="bold")
+    table.add_column("name")
+    table.add_column("description")
+    for name in scenario.builtin_names():
+        try:
+            description = scenario.load(name).scenario.description
+        except CosimError as error:
+            description = f"[red]invalid: {escape(str(error))}[/red]"
+        marker = " (default)" if name == scenario.DEFAULT_SCENARIO else ""
+        table.add_row(name + marker, description)
+    _console().print(table)
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    import orjson
+
+    from cosim.inspect import summarize
+
+    report = summarize(args.log)
+    if args.json:
+        sys.stdout.write(orjson.dumps(report, option=orjson.OPT_INDENT_2).decode() + "\n")
+        return 0
+    console = _console()
+    console.print(f"[bold]{report['file']}[/bold]")
+    for warning in report["warnings"]:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    onset = report["fault_onset"]
+    console.print(
+        f"scenario {report['scenario']} ({report['source']}), seed {report['seed']}, status {report['status']}\n"
+        f"{report['ticks']} ticks, {report['duration_s']} s simulated; frames {report['frames']['total']} "
+        f"({report['frames']['lost']} lost); first fault at {'-' if onset is None else f'{onset:g} s'}"
+    )
+    channels = Table(title="channels", box=None, header_style="bold", title_justify="left")
+    channels.add_column("topic")
+    channels.add_column("messages", justify="right")
+    for topic, count in report["channels"].items():
+        channels.add_row(topic, str(count))
+    console.print(channels)
+    if report["estimators"]:
+        table = Table(title="estimation error |x - x̂|", box=None, header_style="bold", title_justify="left")
+        for column in ("estimator", "kind", "RMS before fault", "RMS after fault", "final"):
+            table.add_column(column, justify="left" if column in ("estimator", "kind") else "right")
+        fmt = lambda v: "-" if v is None else f"{v:.3e}"  # noqa: E731
+        for name, e in report["estimators"].items():
+            table.add_row(name, e["kind"], fmt(e["rms_pre_fault"]), fmt(e["rms_post_fault"]), fmt(e["final_error"]))
+        console.print(table)
+    return 0
+
+
+def cmd_dbc(args: argparse.Namespace) -> int:
+    from cosim import scenario
+    from cosim.runner import Run
+
+    loaded = scenario.load(args.scenario)
+    text = Run(loaded, Path("/dev/null")).codec.dbc
+    if args.out:
+        Path(args.out).write_text(text)
+        _console(stderr=True).print(f"wrote {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cosim",
+        description="Co-simulation testbed for fault-tolerant state estimation: a MuJoCo plant, injected "
+        "faults, sensor readings and estimates as CAN frames, everything logged to MCAP.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"cosim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("run", help="run a scenario and log it to MCAP", description="Run a scenario: simulate the plant, "
+                       "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.")
+    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or path to a TOML file (default: masses-bias)")
+    p.add_argument("--out", "-o", metavar="FILE.mcap", help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap)")
+    p.add_argument("--seed", type=int, metavar="N", help="random seed for noise and faults (default: the scenario's)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("scenarios", help="list the built-in scenarios", description="List the built-in scenarios.")
+    p.set_defaults(func=cmd_scenarios)
+
+    p = sub.add_parser("inspect", help="summarize a log", description="Summarize a run log: channels and message counts, "
+                       "duration, scenario, frame counts, and per estimator the RMS of |x - x̂| before and after the first fault.")
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--json", action="store_true", help="print one JSON object (stable keys, for other tools)")
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("dbc", help="write the CAN database of a scenario", description="Write the DBC database of a "
+                       "scenario's bus, so that external tools can decode its frames.")
+    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or TOML path (default: masses-bias)")
+    p.add_argument("--out", "-o", metavar="FILE.dbc", help="output file (default: standard output)")
+    p.set_defaults(func=cmd_dbc)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except CosimError as error:
+        _console(stderr=True).print(f"[red]error:[/red] {escape(str(error))}")
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""What a run writes into its MCAP log: topics, their JSON Schemas, and the run's metadata.
+
+Topics (``log_time`` is simulated time in ns; every message also carries ``tick`` and ``t`` [s]):
+
+- ``/can/frames``: every frame on the bus in bus order: ``seq`` (position on the bus), ``id``,
+  ``extended``, ``fd``, ``brs``, ``dlc`` (payload bytes), ``data`` (hex), ``sender`` (the DBC
+  node that transmits this id, ``unknown`` for ids outside the DBC), ``message`` (DBC name).
+- ``/can/<MessageName>``: the decoded physical signals of each DBC message, named as in the DBC.
+- ``/truth/state``: the simulator's state, one field per state component.
+- ``/truth/sensors``: the true (fault-free, noise-free) sensor readings.
+- ``/truth/inputs``: ``commanded`` and ``effective`` (after actuator faults) inputs per actuator.
+- ``/truth/faults``: what the fault layer applied: ``noise`` and ``fault`` (additive parts, per
+  sensor), ``measured`` (what went on the bus; null where the frame was not sent), ``dropped``
+  (sensors whose frame was not sent), ``effectiveness`` (δ per actuator) and ``active`` (labels
+  of the active faults).
+- ``/cosim/events``: runner events (start, stop, frame loss, errors).
+
+Metadata records: ``cosim.run`` (scenario name, seed, timing, plant, names, estimators and their
+messages, fault onset, bus), ``cosim.scenario`` (the TOML as given and the validated scenario
+as JSON), ``cosim.versions``, and at the end ``cosim.result`` (status, ticks, frame counts).
+Attachments: the MJCF model and the DBC.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import can
+import numpy as np
+
+from cosim.codec import Codec, Decoded
+from cosim.log import McapLog, number, object_schema
+
+FRAMES = "/can/frames"
+STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
+EVENTS = "/cosim/events"
+
+_TICK = {"type": "integer", "description": "tick counter k of the runner"}
+_TIME = number("simulated time t_k = k τ", "s")
+
+
+def _named(names: tuple[str, ...], units: dict[str, str], description: str, nullable: bool = False) -> dict[str, Any]:
+    return {"type": "object", "description": description, "properties": {n: number(n, units.get(n, ""), nullable) for n in names}}
+
+
+def message_topic(name: str) -> str:
+    return f"/can/{name}"
+
+
+class RunRecorder:
+    """Writes one run's frames, truth and events into a McapLog."""
+
+    def __init__(
+        self,
+        log: McapLog,
+        codec: Codec,
+        *,
+        states: tuple[str, ...],
+        sensors: tuple[str, ...],
+        actuators: tuple[str, ...],
+        units: dict[str, dict[str, str]],
+    ) -> None:
+        self.log = log
+        self.codec = codec
+        self.states, self.sensors, self.actuators = states, sensors, actuators
+        self.frames = 0
+        self._frames = log.channel(FRAMES, object_schema("cosim.CanFrame", {
+            "tick": _TICK, "t": _TIME,
+            "seq": {"type": "integer", "description": "position of the frame on the bus in this run"},
+            "id": {"type": "integer", "description": "arbitration id"},
+            "extended": {"type": "boolean", "description": "29-bit identifier"},
+            "fd": {"type": "boolean", "description": "CAN FD frame"},
+            "brs": {"type": "boolean", "description": "CAN FD bit rate switch"},
+            "dlc": {"type": "integer", "description": "payload length in bytes"},
+            "data": {"type": "string", "description": "payload, hex"},
+            "sender": {"type": "string", "description": "transmitting node (from the DBC)"},
+            "message": {"type": ["string", "null"], "description": "DBC message name"},
+        }, "A frame on the run's CAN bus"))
+        self._decoded: dict[str, int] = {}
+        for spec in codec.specs.values():
+            properties = {"tick": {"type": "integer", "description": "tick counter signal as carried by the frame"}}
+            for channel, signal in zip(spec.channels, spec.signals):
+                properties[signal] = number(channel.description, channel.unit)
+            if spec.role == "sync":
+                properties["frames"] = {"type": "integer", "description": "data frames announced for this tick"}
+            self._decoded[spec.name] = log.channel(
+                message_topic(spec.name), object_schema(f"cosim.{spec.name}", properties, f"Decoded signals of {spec.name}")
+            )
+        self._state = log.channel(STATE, object_schema("cosim.TruthState", {
+            "tick": _TICK, "t": _TIME, **{n: number(n, units["states"].get(n, "")) for n in states},
+        }, "State of the simulated plant"))
+        self._sensors = log.channel(SENSORS, object_schema("cosim.TruthSensors", {
+            "tick": _TICK, "t": _TIME, **{n: number(n, units["sensors"].get(n, "")) for n in sensors},
+        }, "True (fault-free, noise-free) sensor readings"))
+        self._inputs = log.channel(INPUTS, object_schema("cosim.TruthInputs", {
+            "tick": _TICK, "t": _TIME,
+            "commanded": _named(actuators, units["actuators"], "commanded input per actuator"),
+            "effective": _named(actuators, units["actuators"], "input acting on the plant after actuator faults"),
+        }, "Actuator inputs"))
+        self._faults = log.channel(FAULTS, object_schema("cosim.TruthFaults", {
+            "tick": _TICK, "t": _TIME,
+            "noise": _named(sensors, units["sensors"], "measurement noise added per sensor"),
+            "fault": _named(sensors, units["sensors"], "deviation added by faults per sensor", nullable=True),
+            "measured": _named(sensors, units["sensors"], "reading sent on the bus (null: not sent)", nullable=True),
+            "dropped": {"type": "array", "items": {"type": "string"}, "description": "sensors whose frame was not sent"},
+            "effectiveness": _named(actuators, {}, "actuator effectiveness factor δ"),
+            "active": {"type": "array", "items": {"type": "string"}, "description": "labels of the active faults"},
+        }, "Faults and noise applied by the fault layer"))
+        self._events = log.channel(EVENTS, object_schema("cosim.Event", {
+            "tick": _TICK, "t": _TIME,
+            "level": {"type": "string", "enum": ["info", "warning", "error"]},
+            "event": {"type": "string"},
+            "detail": {"type": "string"},
+        }, "Runner events"))
+
+    def frame(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
+        spec = decoded.spec if decoded is not None else None
+        self.log.write(self._frames, t_ns, {
+            "tick": tick, "t": t, "seq": self.frames, "id": frame.arbitration_id, "extended": frame.is_extended_id,
+            "fd": frame.is_fd, "brs": frame.bitrate_switch, "dlc": len(frame.data), "data": bytes(frame.data).hex(),
+            "sender": spec.sender if spec else "unknown", "message": spec.name if spec else None,
+        })
+        self.frames += 1
+        if decoded is not None:
+            self.log.write(self._decoded[spec.name], t_ns, {"tick": decoded.tick, **decoded.values})
+
+    def truth(
+        self, tick: int, t: float, t_ns: int, *, x: np.ndarray, y_true: np.ndarray, noise: np.ndarray,
+        fault: np.ndarray, measured: np.ndarray, active: tuple[str, ...], u_cmd: np.ndarray, u_eff: np.ndarray,
+        delta: np.ndarray,
+    ) -> None:
+        log = self.log
+        log.write(self._state, t_ns, {"tick": tick, "t": t, **dict(zip(self.states, x.tolist()))})
+        log.write(self._sensors, t_ns, {"tick": tick, "t": t, **dict(zip(self.sensors, y_true.tolist()))})
+        log.write(self._inputs, t_ns, {
+            "tick": tick, "t": t,
+            "commanded": dict(zip(self.actuators, u_cmd.tolist())), "effective": dict(zip(self.actuators, u_eff.tolist())),
+        })
+        log.write(self._faults, t_ns, {
+            "tick": tick, "t": t,
+            "noise": dict(zip(self.sensors, noise.tolist())), "fault": dict(zip(self.sensors, fault.tolist())),
+            "measured": dict(zip(self.sensors, measured.tolist())),
+            "dropped": [name for name, value in zip(self.sensors, measured) if value != value],
+            "effectiveness": dict(zip(self.actuators, delta.tolist())), "active": list(active),
+        })
+
+    def event(self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info") -> None:
+        self.log.write(self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail})

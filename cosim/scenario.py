@@ -1,0 +1,428 @@
+"""Scenarios: one TOML file names the plant, timing, inputs, noise, faults, bus and estimators.
+
+Loading validates everything that can be checked without running MuJoCo: unknown keys, wrong
+types and shapes, impossible values, names that the plant does not have. All problems are
+reported together in one ScenarioError, each naming its field (``faults[0].value``) and the fix.
+
+A scalar may stand for a vector (it applies to every channel) and a number for a waveform (a
+constant). Waveforms are tables with a ``kind``: constant, sine, square, ramp, exponential, sum.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, ValidationError, model_validator
+
+import faults as fm
+import mjcf
+from cosim.errors import ScenarioError
+from estimators import ESTIMATORS
+
+BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+DEFAULT_SCENARIO = "masses-bias"
+
+Identifier = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,23}$")]
+NonNegative = Annotated[float, Field(ge=0)]
+Positive = Annotated[float, Field(gt=0)]
+Probability = Annotated[float, Field(ge=0, le=1)]
+
+
+def _as_list(value: Any) -> Any:
+    return [value] if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+
+
+def _as_waveform(value: Any) -> Any:
+    return {"kind": "constant", "value": value} if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+
+
+#: A list of numbers; a single number applies to every channel.
+Vector = Annotated[list[float], BeforeValidator(_as_list)]
+
+
+class Strict(BaseModel):
+    """A table whose keys are all known; an unknown key is reported with the allowed ones."""
+
+    model_config = ConfigDict(frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_keys(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            allowed = list(cls.model_fields)
+            for key in data:
+                if key not in allowed:
+                    close = difflib.get_close_matches(str(key), allowed, n=1)
+                    hint = f" (did you mean {close[0]!r}?)" if close else ""
+                    raise ValueError(f"unknown key {key!r}{hint}; allowed keys: {', '.join(allowed)}")
+        return data
+
+
+# -- waveforms --------------------------------------------------------------------------------
+
+
+class ConstantSpec(Strict):
+    kind: Literal["constant"]
+    value: float
+
+
+class SineSpec(Strict):
+    kind: Literal["sine"]
+    amplitude: float
+    frequency: NonNegative
+    phase: float = 0.0
+    offset: float = 0.0
+
+
+class SquareSpec(Strict):
+    kind: Literal["square"]
+    amplitude: float
+    frequency: Positive
+    duty: Annotated[float, Field(gt=0, lt=1)] = 0.5
+    offset: float = 0.0
+
+
+class RampSpec(Strict):
+    kind: Literal["ramp"]
+    slope: float
+    offset: float = 0.0
+
+
+class ExponentialSpec(Strict):
+    kind: Literal["exponential"]
+    rate: float
+    initial: float = 1.0
+    final: float = 0.0
+
+
+class SumSpec(Strict):
+    kind: Literal["sum"]
+    terms: list[WaveformSpec] = Field(min_length=1)
+
+
+WaveformSpec = Annotated[
+    Union[ConstantSpec, SineSpec, SquareSpec, RampSpec, ExponentialSpec, SumSpec],
+    Discriminator("kind"),
+    BeforeValidator(_as_waveform),
+]
+SumSpec.model_rebuild()
+
+
+def build_waveform(spec: Any) -> fm.Waveform:
+    if isinstance(spec, SumSpec):
+        return fm.Sum(tuple(build_waveform(term) for term in spec.terms))
+    cls = {
+        "constant": fm.Constant, "sine": fm.Sine, "square": fm.Square, "ramp": fm.Ramp, "exponential": fm.Exponential,
+    }[spec.kind]
+    return cls(**spec.model_dump(exclude={"kind"}))
+
+
+# -- noise and faults -------------------------------------------------------------------------
+
+
+class Windowed(Strict):
+    name: Identifier | None = None
+    start: NonNegative = 0.0
+    end: float = math.inf
+
+    @model_validator(mode="after")
+    def _window(self) -> Windowed:
+        if not self.end > self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        return self
+
+
+class OnSensors(Windowed):
+    sensors: list[str] | None = None
+    """Sensors affected, by name; default: every transmitted sensor."""
+
+
+class BiasSpec(OnSensors):
+    kind: Literal["bias"]
+    value: Vector
+    amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
+
+
+class DriftSpec(OnSensors):
+    kind: Literal["drift"]
+    rate: Vector
+
+
+class GainSpec(OnSensors):
+    kind: Literal["gain"]
+    gain: Annotated[list[WaveformSpec], BeforeValidator(_as_list)]
+
+
+class GaussianNoiseSpec(OnSensors):
+    kind: Literal["gaussian_noise"]
+    std: Annotated[Vector, Field(min_length=1)]
+
+
+class UniformNoiseSpec(OnSensors):
+    kind: Literal["uniform_noise"]
+    bound: Annotated[Vector, Field(min_length=1)]
+
+
+class StuckSpec(OnSensors):
+    kind: Literal["stuck"]
+    value: Vector | None = None
+
+
+class DropoutSpec(OnSensors):
+    kind: Literal["dropout"]
+    probability: Probability
+
+
+class OutliersSpec(OnSensors):
+    kind: Literal["outliers"]
+    probability: Probability
+    magnitude: Vector
+
+
+class ActuatorEffectivenessSpec(Windowed):
+    kind: Literal["actuator_effectiveness"]
+    actuators: list[str] | None = None
+    effectiveness: Annotated[list[WaveformSpec], BeforeValidator(_as_list)]
+
+
+NoiseSpec = Annotated[Union[GaussianNoiseSpec, UniformNoiseSpec], Discriminator("kind")]
+FaultSpec = Annotated[
+    Union[
+        BiasSpec, DriftSpec, GainSpec, GaussianNoiseSpec, UniformNoiseSpec, StuckSpec, DropoutSpec, OutliersSpec,
+        ActuatorEffectivenessSpec,
+    ],
+    Discriminator("kind"),
+]
+
+# -- the rest ---------------------------------------------------------------------------------
+
+
+class PlantSpec(Strict):
+    model: str
+    sensors: list[str] | None = None
+    """Transmitted sensors, in order; default: all the plant declares."""
+    initial_state: dict[str, float] = {}
+    """Initial state components by name; the others come from the plant's keyframe."""
+
+
+class InputSpec(Strict):
+    actuator: str
+    signal: WaveformSpec
+
+
+class ChannelOverride(Strict):
+    minimum: float | None = None
+    maximum: float | None = None
+    resolution: Positive | None = None
+
+
+class BusSpec(Strict):
+    interface: Literal["virtual"] = "virtual"
+    fd: bool = False
+    bitrate: Annotated[int, Field(gt=0)] = 500_000
+    data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
+    sensors: dict[str, ChannelOverride] = {}
+    actuators: dict[str, ChannelOverride] = {}
+    states: dict[str, ChannelOverride] = {}
+
+
+class EstimatorSpec(Strict):
+    name: Identifier
+    kind: str
+    params: dict[str, Any] = {}
+
+
+class Scenario(Strict):
+    name: str
+    description: str = ""
+    seed: Annotated[int, Field(ge=0)] = 0
+    duration: Positive
+    sample_time: Positive
+    plant: PlantSpec
+    inputs: list[InputSpec] = []
+    noise: list[NoiseSpec] = []
+    faults: list[FaultSpec] = []
+    bus: BusSpec = BusSpec()
+    estimators: list[EstimatorSpec] = []
+
+    @property
+    def ticks(self) -> int:
+        """Ticks k = 0 … N−1 at t_k = k τ, N = duration / τ."""
+        return max(1, round(self.duration / self.sample_time))
+
+    @property
+    def plant_info(self) -> mjcf.PlantInfo:
+        return mjcf.get(self.plant.model)
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        return tuple(self.plant.sensors) if self.plant.sensors is not None else tuple(s.name for s in self.plant_info.sensors)
+
+    @property
+    def actuators(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.plant_info.actuators)
+
+
+# -- loading ----------------------------------------------------------------------------------
+
+
+class LoadedScenario(BaseModel):
+    """A validated scenario with where it came from and its original text."""
+
+    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
+    scenario: Scenario
+    source: str
+    text: str
+
+
+def builtin_names() -> list[str]:
+    return sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+
+
+def load(name_or_path: str | Path | None = None) -> LoadedScenario:
+    """Load a scenario by built-in name or TOML path (default: the default scenario)."""
+    target = DEFAULT_SCENARIO if name_or_path is None else str(name_or_path)
+    path = Path(target)
+    if path.suffix != ".toml" and (BUILTIN_DIR / f"{target}.toml").exists():
+        path, source = BUILTIN_DIR / f"{target}.toml", f"builtin:{target}"
+    elif path.exists():
+        source = str(path)
+    else:
+        known = ", ".join(builtin_names())
+        raise ScenarioError(f"no scenario {target!r}: not a file and not a built-in scenario (built-in: {known})")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{source}: cannot read the scenario ({error})") from None
+    return LoadedScenario(scenario=parse(text, source), source=source, text=text)
+
+
+def parse(text: str, source: str = "<scenario>") -> Scenario:
+    """Validate scenario TOML text; raises one ScenarioError listing every problem."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ScenarioError(f"{source}: invalid TOML: {error}") from None
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as error:
+        problems = [f"{_path(e['loc'], data)}: {_message(e)}" for e in error.errors()]
+        raise ScenarioError(_report(source, problems)) from None
+    problems = check(scenario)
+    if problems:
+        raise ScenarioError(_report(source, problems))
+    return scenario
+
+
+def _report(source: str, problems: list[str]) -> str:
+    if len(problems) == 1:
+        return f"{source}: {problems[0]}"
+    return f"{source}: {len(problems)} problems:\n" + "\n".join(f"  - {p}" for p in problems)
+
+
+def _path(loc: tuple[Any, ...], data: Any) -> str:
+    """A readable field path, without the union tags pydantic inserts (``faults[0].bias.value``
+    becomes ``faults[0].value``): a tag is the first item that names the current table's kind."""
+    parts: list[str] = []
+    node, tag_pending = data, True
+    for item in loc:
+        if isinstance(item, int):
+            parts.append(f"[{item}]")
+            node = node[item] if isinstance(node, list) and item < len(node) else None
+        elif tag_pending and isinstance(node, dict) and node.get("kind") == item:
+            tag_pending = False
+            continue
+        else:
+            parts.append(f".{item}" if parts else str(item))
+            node = node.get(item) if isinstance(node, dict) else None
+        tag_pending = True
+    return "".join(parts) or "(top level)"
+
+
+def _message(error: dict[str, Any]) -> str:
+    kind = error["type"]
+    if kind == "missing":
+        return "required but missing"
+    if kind == "union_tag_invalid":
+        tags = error.get("ctx", {}).get("expected_tags", "")
+        return f"unknown kind {error['input'].get('kind')!r}; expected one of {tags}"
+    if kind == "union_tag_not_found":
+        return "needs a 'kind' key"
+    if kind in ("model_attributes_type", "dict_type"):
+        return f"expected a table (where a waveform is expected, a number also works), got {error['input']!r}"
+    message = error["msg"]
+    return message.removeprefix("Value error, ")
+
+
+def check(s: Scenario) -> list[str]:
+    """The problems that need the plant's names and the scenario as a whole."""
+    problems: list[str] = []
+    try:
+        info = s.plant_info
+    except KeyError as error:
+        return [f"plant.model: {error.args[0]}"]
+    sensor_names = [c.name for c in info.sensors]
+    actuator_names = [c.name for c in info.actuators]
+    state_names = [c.name for c in info.states]
+
+    def unknown(field: str, names: list[str], known: list[str], what: str) -> None:
+        for name in names:
+            if name not in known:
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                problems.append(f"{field}: {info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
+
+    if s.sample_time > s.duration:
+        problems.append(f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s")
+    if s.plant.sensors is not None:
+        unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
+        if len(set(s.plant.sensors)) != len(s.plant.sensors):
+            problems.append("plant.sensors: a sensor is listed twice")
+    unknown("plant.initial_state", list(s.plant.initial_state), state_names, "state")
+    transmitted = list(s.sensors)
+    seen_inputs: set[str] = set()
+    for i, spec in enumerate(s.inputs):
+        unknown(f"inputs[{i}].actuator", [spec.actuator], actuator_names, "actuator")
+        if spec.actuator in seen_inputs:
+            problems.append(f"inputs[{i}].actuator: {spec.actuator!r} already has an input signal")
+        seen_inputs.add(spec.actuator)
+    for group, specs in (("noise", s.noise), ("faults", s.faults)):
+        for i, spec in enumerate(specs):
+            field = f"{group}[{i}]"
+            if isinstance(spec, ActuatorEffectivenessSpec):
+                channels = spec.actuators if spec.actuators is not None else actuator_names
+                unknown(f"{field}.actuators", channels, actuator_names, "actuator")
+                _lengths(problems, field, spec, len(channels), ("effectiveness",))
+            else:
+                channels = spec.sensors if spec.sensors is not None else transmitted
+                unknown(f"{field}.sensors", channels, transmitted, "transmitted sensor")
+                _lengths(problems, field, spec, len(channels), ("value", "rate", "gain", "std", "bound", "magnitude"))
+                for key in ("std", "bound", "magnitude"):
+                    if any(v < 0 for v in getattr(spec, key, None) or []):
+                        problems.append(f"{field}.{key}: must be non-negative")
+    names = [spec.name for spec in s.faults if spec.name]
+    if len(set(names)) != len(names):
+        problems.append("faults: two faults have the same name")
+    for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"), ("states", state_names, "state")):
+        overrides = getattr(s.bus, table)
+        unknown(f"bus.{table}", list(overrides), known, what)
+    estimator_names = [e.name for e in s.estimators]
+    for i, spec in enumerate(s.estimators):
+        if spec.kind not in ESTIMATORS:
+            close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.append(f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}")
+        if estimator_names.count(spec.name) > 1:
+            problems.append(f"estimators[{i}].name: {spec.name!r} is used by two estimators")
+    return problems
+
+
+def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tuple[str, ...]) -> None:
+    for key in keys:
+        value = getattr(spec, key, None)
+        if value is not None and len(value) not in (1, channels):
+            problems.append(f"{field}.{key}: has {len(value)} values for {channels} channels; give one per channel (or one for all)")

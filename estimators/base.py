@@ -1,0 +1,85 @@
+"""The estimator interface: one sample in, one estimate out, no I/O.
+
+Estimators run the same in a bus node, in replay, in tests and in batch campaigns. They are built
+from a LinearModel and parameters, and fed one tick at a time.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from estimators.model import LinearModel
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The estimate x̂_k of the plant state at the tick just received, with named diagnostics."""
+
+    x: np.ndarray
+    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class ParameterError(ValueError):
+    """An estimator parameter is unknown, missing or has an impossible value."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        super().__init__(f"{parameter}: {message}")
+        self.parameter = parameter
+
+
+class Estimator(ABC):
+    """Base class of state estimators for a LinearModel in discrete time.
+
+    ``step(y, u)`` receives the measurements y_k (shape (p,), NaN where a sensor's frame did not
+    arrive) and the commanded inputs u_k (shape (m,)) of tick k, and returns the estimate of x_k.
+    Subclasses implement ``_step`` in deviation coordinates about the model's operating point.
+    Each subclass declares its parameters as a dataclass ``Params``.
+    """
+
+    kind: ClassVar[str]
+    Params: ClassVar[type]
+
+    def __init__(self, model: LinearModel, params: Any) -> None:
+        if model.dt is None:
+            raise ParameterError("model", f"{self.kind} needs a discrete-time model (got a continuous one)")
+        self.model = model
+        self.params = params
+
+    @classmethod
+    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None) -> Estimator:
+        """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
+        params = dict(params or {})
+        known = {f.name for f in fields(cls.Params)}
+        for name in params:
+            if name not in known:
+                raise ParameterError(name, f"unknown parameter of {cls.kind} (known: {', '.join(sorted(known))})")
+        try:
+            return cls(model, cls.Params(**params))
+        except TypeError as error:  # a required parameter is missing
+            raise ParameterError("params", str(error)) from None
+
+    def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
+        y = np.asarray(y, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if y.shape != (self.model.p,) or u.shape != (self.model.m,):
+            raise ValueError(f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}")
+        estimate = self._step(y - self.model.y_op, u - self.model.u_op)
+        return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
+
+    @abstractmethod
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
+        """One tick in deviation coordinates; returns the deviation estimate δx̂_k."""
+
+
+def initial_state(model: LinearModel, x0: tuple[float, ...] | None) -> np.ndarray:
+    """The initial deviation estimate: the given absolute x̂_0 minus the operating point, or 0."""
+    if x0 is None:
+        return np.zeros(model.n)
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (model.n,):
+        raise ParameterError("x0", f"expected {model.n} values ({', '.join(model.states)}), got {x0.size}")
+    return x0 - model.x_op

@@ -1,0 +1,62 @@
+"""Linear state-space models, the common currency between plants and estimators."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    """x⁺ = A x + B u, y = C x + D u about an operating point (discrete time, ``dt`` seconds),
+    or ẋ = A x + B u, y = C x + D u when ``dt`` is None (continuous time).
+
+    The matrices act on deviations from the operating point (x_op, u_op, y_op): the plant's
+    x ≈ x_op + δx, u = u_op + δu, y ≈ y_op + C δx + D δu. Shapes: A (n, n), B (n, m),
+    C (p, n), D (p, m).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    dt: float | None
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    x_op: np.ndarray = field(default=None)  # type: ignore[assignment]
+    u_op: np.ndarray = field(default=None)  # type: ignore[assignment]
+    y_op: np.ndarray = field(default=None)  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        n, m, p = len(self.states), len(self.inputs), len(self.outputs)
+        for name, shape in (("A", (n, n)), ("B", (n, m)), ("C", (p, n)), ("D", (p, m))):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != shape:
+                raise ValueError(f"LinearModel.{name} has shape {value.shape}, expected {shape}")
+            object.__setattr__(self, name, value)
+        for name, size in (("x_op", n), ("u_op", m), ("y_op", p)):
+            value = getattr(self, name)
+            value = np.zeros(size) if value is None else np.asarray(value, dtype=float).reshape(size)
+            object.__setattr__(self, name, value)
+
+    @property
+    def n(self) -> int:
+        return len(self.states)
+
+    @property
+    def m(self) -> int:
+        return len(self.inputs)
+
+    @property
+    def p(self) -> int:
+        return len(self.outputs)
+
+    def select_outputs(self, names: list[str] | tuple[str, ...]) -> LinearModel:
+        """The same model with only the named outputs, in the given order."""
+        rows = [self.outputs.index(name) for name in names]
+        return LinearModel(
+            self.A, self.B, self.C[rows], self.D[rows], self.dt, self.states, self.inputs, tuple(names),
+            self.x_op, self.u_op, self.y_op[rows],
+        )

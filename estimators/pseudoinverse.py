@@ -1,0 +1,82 @@
+"""Luenberger observer with a static weighted pseudoinverse of redundant outputs.
+
+The observer (13)–(14) of Cristofaro & Zaccarian, IEEE TAC 2024, with the selector s held constant:
+
+    x̂⁺ = A x̂ + B u + L Π(s) (y − C x̂),   Π(s) = (Yᵀ diag(s) Y)⁻¹ Yᵀ diag(s),
+
+where C = Y H (eq. (2), Example 1) and L places the spectrum of A − L H. With the uniform weights
+s = 𝟙/√p it is the paper's baseline "observer based on a constant pseudoinverse with uniform
+weights" (Sec. VII-A), which carries a steady error Π(s)φ under a constant bias φ (eq. (19)).
+
+Missing readings (frames not received) get weight 0 for that tick, provided the remaining weights
+keep R(s) invertible; otherwise the tick is an open-loop prediction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.base import Estimate, Estimator, ParameterError, initial_state
+from estimators.design import observer_gain, output_factorization, weighted_pseudoinverse
+from estimators.model import LinearModel
+
+
+@dataclass(frozen=True)
+class PseudoinverseParams:
+    poles: tuple[float, ...] = (0.75, 0.8, 0.85, 0.9)
+    """Spectrum of A − L H (TAC 2024, Sec. VII-A: {0.75, 0.8, 0.85, 0.9})."""
+    weights: tuple[float, ...] | None = None
+    """The selector s; None gives the uniform weights 𝟙/√p. Scale does not matter (Π(μs) = Π(s))."""
+    x0: tuple[float, ...] | None = None
+    """Initial estimate x̂_0 (absolute); None starts at the operating point."""
+    min_det: float = 1e-9
+    """|det R(s)| below which a tick's weights are deemed singular (the set S_ε of eq. (15))."""
+
+
+class PseudoinverseObserver(Estimator):
+    """Observer (13) with a constant weighted pseudoinverse (14)."""
+
+    kind = "pseudoinverse"
+    Params = PseudoinverseParams
+
+    def __init__(self, model: LinearModel, params: PseudoinverseParams) -> None:
+        super().__init__(model, params)
+        self.Y, self.H = output_factorization(model.C)
+        q, p = self.H.shape[0], model.p
+        if q >= p:
+            raise ParameterError("model", f"outputs are not redundant: rank(C) = {q} is not below p = {p} (TAC 2024, Assumption 1.1)")
+        weights = np.full(p, 1.0 / np.sqrt(p)) if params.weights is None else np.asarray(params.weights, dtype=float)
+        if weights.shape != (p,):
+            raise ParameterError("weights", f"expected {p} weights (one per output: {', '.join(model.outputs)}), got {weights.size}")
+        self.weights = weights / np.linalg.norm(weights)
+        if abs(np.linalg.det(self.Y.T @ (self.weights[:, None] * self.Y))) < params.min_det:
+            raise ParameterError("weights", "R(s) = Yᵀ diag(s) Y is singular for these weights (eq. (14))")
+        try:
+            self.L = observer_gain(model.A, self.H, params.poles)
+        except ValueError as error:
+            raise ParameterError("poles", str(error)) from None
+        self.Pi = weighted_pseudoinverse(self.Y, self.weights)
+        self.x_hat = initial_state(model, params.x0)
+
+    def _allocation(self, available: np.ndarray) -> np.ndarray | None:
+        """Π(s) for this tick: missing readings get weight 0; None if R(s) becomes singular."""
+        if available.all():
+            return self.Pi
+        s = np.where(available, self.weights, 0.0)
+        if abs(np.linalg.det(self.Y.T @ (s[:, None] * self.Y))) < self.params.min_det:
+            return None
+        return weighted_pseudoinverse(self.Y, s)
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
+        A, B, C = self.model.A, self.model.B, self.model.C
+        x_k = self.x_hat
+        available = ~np.isnan(dy)
+        Pi = self._allocation(available)
+        correction = np.zeros(self.model.n)
+        if Pi is not None:
+            innovation = np.where(available, dy - C @ x_k, 0.0)
+            correction = self.L @ (Pi @ innovation)
+        self.x_hat = A @ x_k + B @ du + correction  # eq. (13)
+        return Estimate(x_k.copy())

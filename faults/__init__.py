@@ -1,0 +1,117 @@
+"""Fault models and their injection between the plant and the bus.
+
+``FaultInjector`` composes measurement noise and faults on the sensor readings, and loss of
+effectiveness on the actuators, all seeded from the scenario's seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from faults.models import (
+    SENSOR_FAULTS,
+    ActuatorEffectiveness,
+    Bias,
+    Drift,
+    Dropout,
+    Fault,
+    Gain,
+    GaussianNoise,
+    Outliers,
+    SensorFault,
+    StuckAt,
+    UniformNoise,
+)
+from faults.waveforms import Constant, Exponential, Ramp, Sine, Square, Sum, Waveform
+
+# Random streams are keyed by (group, index) so that each fault draws from its own generator.
+_NOISE, _FAULT, _ACTUATOR = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class SensorOutcome:
+    """What the fault layer did to one tick's sensor readings.
+
+    ``measured`` is what goes on the bus (NaN: frame not sent); ``noise`` is the part added by
+    measurement noise and ``fault`` the deviation the faults added on top of it
+    (measured = true + noise + fault wherever a frame is sent). ``active`` names the faults active.
+    """
+
+    measured: np.ndarray
+    noise: np.ndarray
+    fault: np.ndarray
+    active: tuple[str, ...]
+
+
+class FaultInjector:
+    """Applies measurement noise, then sensor faults in order, and actuator faults.
+
+    Noise models are part of the healthy sensor; they do not count as faults (a fault's onset is
+    what the metrics measure from).
+    """
+
+    def __init__(
+        self,
+        noise: list[SensorFault],
+        sensor_faults: list[SensorFault],
+        actuator_faults: list[ActuatorEffectiveness],
+        seed: int,
+    ) -> None:
+        self.noise = list(noise)
+        self.sensor_faults = list(sensor_faults)
+        self.actuator_faults = list(actuator_faults)
+        for group, models in ((_NOISE, self.noise), (_FAULT, self.sensor_faults), (_ACTUATOR, self.actuator_faults)):
+            for index, model in enumerate(models):
+                model.reset(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(group, index))))
+
+    @property
+    def faults(self) -> list[Fault]:
+        return [*self.sensor_faults, *self.actuator_faults]
+
+    @property
+    def first_onset(self) -> float | None:
+        """The earliest start time of any fault (noise excluded), or None without faults."""
+        return min((f.start for f in self.faults), default=None)
+
+    def sensors(self, y_true: np.ndarray, t: float) -> SensorOutcome:
+        noisy = y_true
+        for model in self.noise:
+            noisy = model.apply(noisy, t)
+        measured = noisy
+        for model in self.sensor_faults:
+            measured = model.apply(measured, t)
+        active = tuple(f.label for f in self.faults if f.active(t))
+        return SensorOutcome(measured, noisy - y_true, measured - noisy, active)
+
+    def actuators(self, u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The effective inputs δ ∘ u and the effectiveness factors δ."""
+        delta = np.ones(len(u))
+        for model in self.actuator_faults:
+            delta = delta * model.factors(t, len(u))
+        return delta * u, delta
+
+
+__all__ = [
+    "SENSOR_FAULTS",
+    "ActuatorEffectiveness",
+    "Bias",
+    "Constant",
+    "Drift",
+    "Dropout",
+    "Exponential",
+    "FaultInjector",
+    "Gain",
+    "GaussianNoise",
+    "Outliers",
+    "Ramp",
+    "SensorFault",
+    "SensorOutcome",
+    "Sine",
+    "Square",
+    "StuckAt",
+    "Sum",
+    "UniformNoise",
+    "Waveform",
+]

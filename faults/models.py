@@ -1,0 +1,220 @@
+"""Fault models applied between the plant's true signals and the bus.
+
+Sensor faults act on a vector of readings y (one entry per transmitted sensor) and return the
+faulty readings; a NaN reading means the sensor's frame is not sent. Actuator faults scale the
+commanded inputs. Every model is active on the window start <= t < end, acts on a subset of
+channels (indices into y or u), and draws its randomness from its own generator, so that adding
+or removing one fault never changes the random sequence of another.
+
+Sources: additive bias φ (TAC 2024, eq. (1)); bias of constant direction and time-varying
+amplitude φ_k = g_k φ̄ (TAC 2024, eq. (35)); sensor loss of effectiveness y_i ← γ_i y_i (IJC 2018,
+eq. (2)–(4)); actuator loss of effectiveness u_eff = Δ u (Cristofaro & Johansen, eq. (1)).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from faults.waveforms import Constant, Waveform
+
+
+@dataclass
+class Fault(ABC):
+    """A fault acting on some channels of a signal vector during [start, end)."""
+
+    channels: tuple[int, ...]
+    start: float = 0.0
+    end: float = math.inf
+    label: str = ""
+    _rng: np.random.Generator = field(default=None, init=False, repr=False, compare=False)  # type: ignore[assignment]
+
+    kind = "fault"
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Prepare for a new run with this fault's own random generator."""
+        self._rng = rng
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.end
+
+
+class SensorFault(Fault):
+    """A fault on sensor readings: y ← f(y, t)."""
+
+    def apply(self, y: np.ndarray, t: float) -> np.ndarray:
+        """The readings after this fault at time t (a new array; y is not modified)."""
+        if not self.active(t):
+            return y
+        out = y.copy()
+        index = list(self.channels)
+        out[index] = self._affect(y[index], t - self.start)
+        return out
+
+    @abstractmethod
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        """The faulty values of this fault's channels, ``elapsed`` seconds after onset."""
+
+
+def _vector(values: float | tuple[float, ...], channels: tuple[int, ...], what: str) -> np.ndarray:
+    """One value per channel; a scalar applies to every channel."""
+    array = np.asarray(values, dtype=float)
+    if array.ndim == 0:
+        array = np.full(len(channels), float(array))
+    if array.shape != (len(channels),):
+        raise ValueError(f"{what}: expected {len(channels)} values (one per channel), got {array.size}")
+    return array.copy()
+
+
+@dataclass
+class Bias(SensorFault):
+    """Additive bias φ(t) = g(t − start) · value: constant (g ≡ 1) or of constant direction and
+    time-varying amplitude, φ_k = g_k φ̄ (TAC 2024, eq. (35))."""
+
+    value: tuple[float, ...] = ()
+    amplitude: Waveform = Constant(1.0)
+    kind = "bias"
+
+    def __post_init__(self) -> None:
+        self._value = _vector(self.value, self.channels, "bias value")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self.amplitude(elapsed) * self._value
+
+
+@dataclass
+class Drift(SensorFault):
+    """Additive ramp (drift) φ(t) = rate · (t − start)."""
+
+    rate: tuple[float, ...] = ()
+    kind = "drift"
+
+    def __post_init__(self) -> None:
+        self._rate = _vector(self.rate, self.channels, "drift rate")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self._rate * elapsed
+
+
+@dataclass
+class Gain(SensorFault):
+    """Loss of effectiveness y_i ← γ_i(t − start) · y_i (IJC 2018, eq. (2)–(4))."""
+
+    gain: tuple[Waveform, ...] = ()
+    kind = "gain"
+
+    def __post_init__(self) -> None:
+        if len(self.gain) != len(self.channels):
+            raise ValueError(f"gain: expected {len(self.channels)} profiles (one per channel), got {len(self.gain)}")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y * np.array([g(elapsed) for g in self.gain])
+
+
+@dataclass
+class GaussianNoise(SensorFault):
+    """Additive white Gaussian noise with standard deviation ``std`` per channel."""
+
+    std: tuple[float, ...] = ()
+    kind = "gaussian_noise"
+
+    def __post_init__(self) -> None:
+        self._std = _vector(self.std, self.channels, "noise std")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self._std * self._rng.standard_normal(len(self.channels))
+
+
+@dataclass
+class UniformNoise(SensorFault):
+    """Additive noise uniform on [−bound, bound] per channel."""
+
+    bound: tuple[float, ...] = ()
+    kind = "uniform_noise"
+
+    def __post_init__(self) -> None:
+        self._bound = _vector(self.bound, self.channels, "noise bound")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self._bound * self._rng.uniform(-1.0, 1.0, len(self.channels))
+
+
+@dataclass
+class StuckAt(SensorFault):
+    """The reading freezes: at ``value`` if given, else at the reading at onset."""
+
+    value: tuple[float, ...] | None = None
+    kind = "stuck"
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self._held = None if self.value is None else _vector(self.value, self.channels, "stuck value")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        if self._held is None:
+            self._held = y.copy()
+        return self._held.copy()
+
+
+@dataclass
+class Dropout(SensorFault):
+    """Intermittent loss: each tick, each channel's frame is not sent with ``probability``."""
+
+    probability: float = 0.0
+    kind = "dropout"
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.probability <= 1.0:
+            raise ValueError("dropout probability must be in [0, 1]")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        lost = self._rng.random(len(self.channels)) < self.probability
+        return np.where(lost, np.nan, y)
+
+
+@dataclass
+class Outliers(SensorFault):
+    """Spikes: each tick, with ``probability`` per channel, add ±magnitude (random sign)."""
+
+    probability: float = 0.0
+    magnitude: tuple[float, ...] = ()
+    kind = "outliers"
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.probability <= 1.0:
+            raise ValueError("outlier probability must be in [0, 1]")
+        self._magnitude = _vector(self.magnitude, self.channels, "outlier magnitude")
+
+    def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        hit = self._rng.random(len(self.channels)) < self.probability
+        sign = np.where(self._rng.random(len(self.channels)) < 0.5, -1.0, 1.0)
+        return y + hit * sign * self._magnitude
+
+
+@dataclass
+class ActuatorEffectiveness(Fault):
+    """Actuator loss of effectiveness u_eff,i = δ_i(t − start) · u_i (Cristofaro & Johansen, eq. (1))."""
+
+    effectiveness: tuple[Waveform, ...] = ()
+    kind = "actuator_effectiveness"
+
+    def __post_init__(self) -> None:
+        if len(self.effectiveness) != len(self.channels):
+            raise ValueError(
+                f"effectiveness: expected {len(self.channels)} profiles (one per actuator), got {len(self.effectiveness)}"
+            )
+
+    def factors(self, t: float, n: int) -> np.ndarray:
+        """The multiplicative factor on each of the n inputs at time t (1 where unaffected)."""
+        delta = np.ones(n)
+        if self.active(t):
+            delta[list(self.channels)] = [d(t - self.start) for d in self.effectiveness]
+        return delta
+
+
+SENSOR_FAULTS: dict[str, type[SensorFault]] = {
+    cls.kind: cls for cls in (Bias, Drift, Gain, GaussianNoise, UniformNoise, StuckAt, Dropout, Outliers)
+}

@@ -1,0 +1,90 @@
+"""Scalar time profiles: input signals and the time-varying amplitudes of faults.
+
+A waveform is a callable ``w(t) -> float``. Fault profiles are evaluated at the time since the
+fault's onset, input signals at the simulated time. Examples from the papers:
+``Sine(amplitude=0.1, frequency=100 * 0.01 / (2 * pi), offset=1)`` is γ_k = 1 + 0.1 sin(100 τ k) of
+TAC 2024 Sec. VII-A, and ``Exponential(initial=1, rate=0.03)`` is δ1 = e^(−0.03 t) of
+Cristofaro & Johansen Sec. 4.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+class Waveform:
+    """Base class of scalar time profiles."""
+
+    def __call__(self, t: float) -> float:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class Constant(Waveform):
+    """w(t) = value."""
+
+    value: float
+
+    def __call__(self, t: float) -> float:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Sine(Waveform):
+    """w(t) = offset + amplitude · sin(2π · frequency · t + phase); frequency in Hz, phase in rad."""
+
+    amplitude: float
+    frequency: float
+    phase: float = 0.0
+    offset: float = 0.0
+
+    def __call__(self, t: float) -> float:
+        return self.offset + self.amplitude * math.sin(2.0 * math.pi * self.frequency * t + self.phase)
+
+
+@dataclass(frozen=True)
+class Square(Waveform):
+    """w(t) = offset ± amplitude: +amplitude for the first ``duty`` fraction of each period."""
+
+    amplitude: float
+    frequency: float
+    duty: float = 0.5
+    offset: float = 0.0
+
+    def __call__(self, t: float) -> float:
+        phase = (t * self.frequency) % 1.0
+        return self.offset + (self.amplitude if phase < self.duty else -self.amplitude)
+
+
+@dataclass(frozen=True)
+class Ramp(Waveform):
+    """w(t) = offset + slope · t."""
+
+    slope: float
+    offset: float = 0.0
+
+    def __call__(self, t: float) -> float:
+        return self.offset + self.slope * t
+
+
+@dataclass(frozen=True)
+class Exponential(Waveform):
+    """w(t) = final + (initial − final) · exp(−rate · t)."""
+
+    rate: float
+    initial: float = 1.0
+    final: float = 0.0
+
+    def __call__(self, t: float) -> float:
+        return self.final + (self.initial - self.final) * math.exp(-self.rate * t)
+
+
+@dataclass(frozen=True)
+class Sum(Waveform):
+    """w(t) = Σ terms_i(t)."""
+
+    terms: tuple[Waveform, ...]
+
+    def __call__(self, t: float) -> float:
+        return math.fsum(term(t) for term in self.terms)

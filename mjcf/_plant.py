@@ -1,0 +1,83 @@
+"""What a plant module declares beside its MJCF model.
+
+Each plant is an MJCF file paired with one small module (dm_control suite style) that names its
+sensors, actuators and state, gives their units and the ranges the CAN codec needs, and lists the
+physical parameters with their sources. Physics lives in the XML; nothing here integrates anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+MODEL_DIR = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A named scalar signal of a plant: a sensor reading, an actuator input or a state component.
+
+    ``minimum``/``maximum`` bound the values the signal may take on the bus and ``resolution`` is
+    its quantum in a classic-CAN frame (scaled integer); CAN FD frames carry it as float64.
+    """
+
+    name: str
+    unit: str
+    description: str
+    minimum: float
+    maximum: float
+    resolution: float
+
+    def __post_init__(self) -> None:
+        if not self.minimum < self.maximum:
+            raise ValueError(f"channel {self.name}: minimum must be below maximum")
+        if not self.resolution > 0:
+            raise ValueError(f"channel {self.name}: resolution must be positive")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A physical parameter with its unit and where its value comes from."""
+
+    value: float
+    unit: str
+    source: str
+
+
+@dataclass(frozen=True)
+class PlantInfo:
+    """Everything the testbed needs to know about a plant besides its physics.
+
+    ``states`` name the components of the MuJoCo state [qpos, qvel, act] in that order.
+    ``sensors`` and ``actuators`` name MuJoCo sensors and actuators of the model (same names).
+    """
+
+    name: str
+    description: str
+    model_file: str
+    states: tuple[Channel, ...]
+    sensors: tuple[Channel, ...]
+    actuators: tuple[Channel, ...]
+    parameters: dict[str, Parameter] = field(default_factory=dict)
+    keyframe: str = "rest"
+
+    @property
+    def model_path(self) -> Path:
+        return MODEL_DIR / self.model_file
+
+    def sensor(self, name: str) -> Channel:
+        return _lookup(self.sensors, name, "sensor", self.name)
+
+    def actuator(self, name: str) -> Channel:
+        return _lookup(self.actuators, name, "actuator", self.name)
+
+    def state(self, name: str) -> Channel:
+        return _lookup(self.states, name, "state", self.name)
+
+
+def _lookup(channels: tuple[Channel, ...], name: str, kind: str, plant: str) -> Channel:
+    for channel in channels:
+        if channel.name == name:
+            return channel
+    known = ", ".join(c.name for c in channels)
+    raise KeyError(f"plant {plant!r} has no {kind} {name!r} (it has: {known})")
