@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import time
 from pathlib import Path
@@ -27,7 +26,7 @@ examples:
 
 
 def _console(stderr: bool = False) -> Console:
-    return Console(stderr=stderr, highlight=False)
+    return Console(stderr=stderr, highlight=False, soft_wrap=True)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -44,7 +43,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"[bold]{s.name}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {seed}, "
         f"estimators: {', '.join(run.estimators) or 'none'}; bus: {s.bus.interface} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
     )
-    signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         if args.quiet:
             result = run.execute()
@@ -64,10 +62,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     print(out)
     return 0
-
-
-def _raise_interrupt(signum, frame) -> None:  # SIGTERM ends a run like Ctrl-C: the log is finished
-    raise KeyboardInterrupt
 
 
 def _with_progress(run, console: Console):

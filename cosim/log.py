@@ -12,11 +12,13 @@ run writes a byte-identical log.
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
 import orjson
+import zstandard
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
@@ -25,6 +27,10 @@ from cosim import __version__
 from cosim.errors import LogError
 
 _JSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
+
+
+#: What the mcap reader raises on truncated or corrupted input.
+READ_ERRORS = (McapError, ValueError, EOFError, struct.error, zstandard.ZstdError)
 
 
 def dumps(payload: Any) -> bytes:
@@ -121,7 +127,7 @@ class LogReader:
         try:
             self._reader = make_reader(self._stream)
             self.header = self._reader.get_header()
-        except (McapError, ValueError, EOFError) as error:
+        except READ_ERRORS as error:
             self._stream.close()
             raise LogError(f"{self.path}: not a readable MCAP file ({error})") from None
 
@@ -135,19 +141,19 @@ class LogReader:
         """The summary section, or None when the file has none (e.g. the writer was killed)."""
         try:
             return self._reader.get_summary()
-        except (McapError, ValueError, EOFError):
+        except READ_ERRORS:
             return None
 
     def metadata(self) -> dict[str, dict[str, str]]:
         try:
             return {record.name: dict(record.metadata) for record in self._reader.iter_metadata()}
-        except (McapError, ValueError, EOFError):
+        except READ_ERRORS:
             return {}
 
     def attachments(self) -> dict[str, bytes]:
         try:
             return {record.name: bytes(record.data) for record in self._reader.iter_attachments()}
-        except (McapError, ValueError, EOFError):
+        except READ_ERRORS:
             return {}
 
     def messages(self, topics: list[str] | None = None) -> Iterator[tuple[str, int, dict[str, Any]]]:
@@ -155,5 +161,5 @@ class LogReader:
         try:
             for _schema, channel, message in self._reader.iter_messages(topics=topics, log_time_order=False):
                 yield channel.topic, message.log_time, orjson.loads(message.data)
-        except (McapError, ValueError, EOFError) as error:
+        except READ_ERRORS as error:
             raise LogError(f"{self.path}: the log is damaged after this point ({error})") from None

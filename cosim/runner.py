@@ -32,6 +32,7 @@ import faults as fm
 from cosim import __version__
 from cosim.codec import Codec
 from cosim.errors import CosimError, ModelError, ScenarioError
+from cosim.interrupts import DeferredInterrupts
 from cosim.log import McapLog
 from cosim.node import EstimatorNode, NodeDriver
 from cosim.plant import Plant
@@ -212,7 +213,7 @@ class Run:
         status, error, k, frames_lost = "completed", "", 0, 0
         start = time.perf_counter()
         last_report = start
-        with McapLog(self.out) as log, can.Bus(interface="virtual", channel=channel) as bus:
+        with DeferredInterrupts() as interrupts, McapLog(self.out) as log, can.Bus(interface="virtual", channel=channel) as bus:
             recorder = RunRecorder(
                 log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units
             )
@@ -225,6 +226,7 @@ class Run:
             recorder.event(0, 0.0, 0, "start", f"{s.name} seed={s.seed} ticks={s.ticks}")
             try:
                 for k in range(s.ticks):
+                    interrupts.check()
                     t, t_ns = k * s.sample_time, k * dt_ns
                     x, y_true = plant.state(), plant.sensors()
                     u_cmd = np.array([w(t) for w in self.inputs])

@@ -47,7 +47,7 @@ Vector = Annotated[list[float], BeforeValidator(_as_list)]
 class Strict(BaseModel):
     """A table whose keys are all known; an unknown key is reported with the allowed ones."""
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, strict=True)
 
     @model_validator(mode="before")
     @classmethod

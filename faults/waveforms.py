@@ -2,8 +2,8 @@
 
 A waveform is a callable ``w(t) -> float``. Fault profiles are evaluated at the time since the
 fault's onset, input signals at the simulated time. Examples from the papers:
-``Sine(amplitude=0.1, frequency=100 * 0.01 / (2 * pi), offset=1)`` is γ_k = 1 + 0.1 sin(100 τ k) of
-TAC 2024 Sec. VII-A, and ``Exponential(initial=1, rate=0.03)`` is δ1 = e^(−0.03 t) of
+``Sine(amplitude=0.1, frequency=100 / (2 * pi), offset=1)`` is γ_k = 1 + 0.1 sin(100 τ k) = 1 + 0.1 sin(100 t)
+of TAC 2024 Sec. VII-A, and ``Exponential(initial=1, rate=0.03)`` is δ1 = e^(−0.03 t) of
 Cristofaro & Johansen Sec. 4.
 """
 

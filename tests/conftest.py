@@ -1,0 +1,31 @@
+"""Shared fixtures: a short version of the default scenario, run once per session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cosim import scenario
+from cosim.runner import run
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def default_loaded():
+    return scenario.load()
+
+
+@pytest.fixture(scope="session")
+def default_run(tmp_path_factory, default_loaded):
+    """The default scenario, run once; its log is shared by the end-to-end tests."""
+    out = tmp_path_factory.mktemp("run") / "default.mcap"
+    result = run(default_loaded, out)
+    return result
+
+
+def short_scenario(text: str, duration: float) -> str:
+    """The scenario text with another duration."""
+    lines = [f"duration = {duration}" if line.startswith("duration") else line for line in text.splitlines()]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,118 @@
+"""The generated DBC and the frames: round trips, range checks, layout, and external decoding."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import mjcf
+from cosim.codec import SYNC_ID, Codec, load_dbc, signal_bits
+from cosim.errors import CodecError
+from mjcf import Channel
+
+INFO = mjcf.get("masses")
+SENSORS = INFO.sensors[:3]
+
+
+def codec(fd: bool) -> Codec:
+    return Codec(SENSORS, INFO.actuators, {"uniform": INFO.states, "kalman": INFO.states}, fd=fd, cycle_time=0.01)
+
+
+def test_signal_bits_cover_the_range_at_the_resolution():
+    assert signal_bits(Channel("p", "m", "", -8.0, 8.0, 1e-6)) == 24  # 8e6 < 2^23
+    assert signal_bits(Channel("f", "N", "", -100.0, 100.0, 1e-4)) == 21
+    assert signal_bits(Channel("h", "m", "", 0.0, 1.0, 2**-10)) == 12
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_round_trip(fd):
+    c = codec(fd)
+    rng = np.random.default_rng(1)
+    for spec in c.messages():
+        if spec.role == "sync":
+            continue
+        values = [rng.uniform(ch.minimum, ch.maximum) for ch in spec.channels]
+        frame = c.encode(spec.name, 123456, values)
+        decoded = c.decode(frame)
+        assert decoded.spec is spec and frame.is_fd == fd and not frame.is_extended_id
+        assert decoded.tick == (123456 if fd else 123456 % 65536)
+        for ch, signal, value in zip(spec.channels, spec.signals, values):
+            if fd:
+                assert decoded.values[signal] == value  # float64: exact
+            else:
+                assert abs(decoded.values[signal] - value) <= ch.resolution / 2 * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_range_limits_are_inclusive_and_errors_name_the_signal(fd):
+    c = codec(fd)
+    for value in (-8.0, 8.0):
+        assert c.decode(c.encode("SENSOR_x1", 0, [value])).values["x1"] == pytest.approx(value, abs=1e-6)
+    with pytest.raises(CodecError, match=r"SENSOR_x1\.x1 at tick 7 = 8\.5 m is outside its declared range \[-8, 8\] m.*\[bus\.sensors\.x1\]"):
+        c.encode("SENSOR_x1", 7, [8.5])
+    with pytest.raises(CodecError, match=r"EST_kalman.*xhat_v2 at tick 0 = -9 m/s.*\[bus\.states\.v2\]"):
+        c.encode(c.messages(sender="kalman")[-1].name, 0, [0.0] * (len(c.messages(sender="kalman")[-1].channels) - 1) + [-9.0])
+    with pytest.raises(CodecError, match=r"COMMAND_force\.force at tick 0 is not a number"):
+        c.encode("COMMAND_force", 0, [float("nan")])
+
+
+def test_classic_layout_packs_estimates_into_8_byte_frames():
+    c = codec(False)
+    est = c.messages(sender="uniform")
+    assert [s.signals for s in est] == [("xhat_x1", "xhat_x2"), ("xhat_v1", "xhat_v2")]
+    assert [s.frame_id for s in est] == [0x200, 0x201]
+    assert [s.frame_id for s in c.messages(sender="kalman")] == [0x220, 0x221]
+    for message in c.database.messages:
+        assert message.length <= 8 and not message.is_fd
+    assert c.messages(role="sensor")[0].frame_id == 0x100 and c.messages(role="command")[0].frame_id == 0x180
+
+
+def test_fd_layout_is_one_float64_frame_per_estimator():
+    c = codec(True)
+    (est,) = c.messages(sender="uniform")
+    assert est.signals == ("xhat_x1", "xhat_x2", "xhat_v1", "xhat_v2")
+    assert c.database.get_message_by_name(est.name).length == 48  # 4 + 32 bytes, next FD length
+
+
+def test_a_signal_too_wide_for_classic_can_is_refused_with_the_fix():
+    fine = Channel("x", "m", "", -1e3, 1e3, 1e-12)
+    with pytest.raises(CodecError, match="coarsen its resolution or narrow its range, or use CAN FD"):
+        Codec([fine], [], {})
+    Codec([fine], [], {}, fd=True)  # float64 in FD has no such limit
+
+
+def test_sync_frame_is_canopen_style():
+    c = codec(False)
+    frame = c.sync(70000, 4)
+    assert frame.arbitration_id == SYNC_ID == 0x80 and frame.dlc == 5
+    decoded = c.decode(frame)
+    assert decoded.tick == 70000 and decoded.values == {"frames": 4}
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_the_dbc_text_decodes_frames_like_the_codec(fd):
+    """An external tool loading the DBC text decodes every frame to the same values."""
+    c = codec(fd)
+    db = load_dbc(c.dbc)
+    assert {m.name for m in db.messages} == set(c.specs)
+    for spec in c.messages():
+        message = db.get_message_by_frame_id(spec.frame_id)
+        assert message.is_fd == (fd and spec.role != "sync")
+        assert message.senders == [spec.sender]
+        frame = c.sync(9, 3) if spec.role == "sync" else c.encode(spec.name, 9, [0.125] * len(spec.channels))
+        external = db.decode_message(frame.arbitration_id, bytes(frame.data))
+        ours = c.decode(frame)
+        assert external.pop("tick") == ours.tick
+        assert external == pytest.approx(ours.values)
+    if fd:
+        assert 'BA_ "BusType" "CAN FD";' in c.dbc
+
+
+def test_unknown_and_malformed_frames():
+    import can
+
+    c = codec(False)
+    assert c.decode(can.Message(arbitration_id=0x7FF, data=b"\x00", is_extended_id=False)) is None
+    assert c.decode(can.Message(arbitration_id=0x100, data=b"\x00" * 5, is_extended_id=True)) is None
+    with pytest.raises(CodecError, match=r"frame 0x100 \(SENSOR_x1\) cannot be decoded"):
+        c.decode(can.Message(arbitration_id=0x100, data=b"\x00", is_extended_id=False))

@@ -1,0 +1,142 @@
+"""Every fault model: what it adds, when, and with which statistics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import faults as fm
+
+
+def injector(*sensor_faults, noise=(), actuator=(), seed=0):
+    return fm.FaultInjector(list(noise), list(sensor_faults), list(actuator), seed)
+
+
+Y = np.array([1.0, 2.0, -3.0])
+
+
+def test_waveforms():
+    assert fm.Constant(2.5)(7.0) == 2.5
+    assert fm.Sine(2.0, 0.25, offset=1.0)(1.0) == pytest.approx(3.0)  # sin(π/2)
+    assert fm.Sine(2.0, 0.25, phase=math.pi / 2)(0.0) == pytest.approx(2.0)
+    assert fm.Square(1.0, 1.0, duty=0.25)(0.1) == 1.0 and fm.Square(1.0, 1.0, duty=0.25)(0.3) == -1.0
+    assert fm.Ramp(0.5, offset=1.0)(4.0) == 3.0
+    assert fm.Exponential(rate=0.03)(10.0) == pytest.approx(math.exp(-0.3))  # δ1 of Cristofaro & Johansen
+    assert fm.Exponential(rate=1.0, initial=2.0, final=1.0)(0.0) == 2.0
+    assert fm.Sum((fm.Constant(1.0), fm.Ramp(1.0)))(2.0) == 3.0
+
+
+def test_constant_bias_only_inside_its_window():
+    inj = injector(fm.Bias(channels=(0, 2), start=5.0, end=8.0, label="b", value=(1.0, 0.5)))
+    before, during, after = inj.sensors(Y, 4.99), inj.sensors(Y, 5.0), inj.sensors(Y, 8.0)
+    np.testing.assert_array_equal(before.measured, Y)
+    np.testing.assert_array_equal(during.measured, Y + [1.0, 0.0, 0.5])
+    np.testing.assert_array_equal(during.fault, [1.0, 0.0, 0.5])
+    assert during.active == ("b",) and before.active == () and after.active == ()
+    np.testing.assert_array_equal(after.measured, Y)
+
+
+def test_bias_of_constant_direction_and_varying_amplitude():
+    """φ_k = g_k φ̄ (TAC 2024, eq. (35)) with g_k = 1 + 0.1 sin(100 τ k), τ = 0.01."""
+    tau, direction = 0.01, np.array([1.0, -1.5, 0.5])
+    g = fm.Sine(amplitude=0.1, frequency=100 / (2 * math.pi), offset=1.0)  # sin(100 τ k) = sin(100 t)
+    inj = injector(fm.Bias(channels=(0, 1, 2), value=tuple(direction), amplitude=g))
+    for k in range(50):
+        out = inj.sensors(np.zeros(3), k * tau)
+        np.testing.assert_allclose(out.fault, (1 + 0.1 * math.sin(100 * tau * k)) * direction, atol=1e-14)
+
+
+def test_drift_grows_linearly_from_onset():
+    inj = injector(fm.Drift(channels=(1,), start=2.0, rate=(0.1,)))
+    np.testing.assert_allclose(inj.sensors(Y, 7.0).fault, [0.0, 0.5, 0.0])
+    np.testing.assert_allclose(inj.sensors(Y, 1.0).fault, [0.0, 0.0, 0.0])
+
+
+def test_gain_fault_scales_the_reading():
+    """y_i ← γ_i y_i (IJC 2018, eq. (2)–(4)), with a time-varying γ."""
+    inj = injector(fm.Gain(channels=(0, 2), start=1.0, gain=(fm.Constant(0.6), fm.Ramp(-0.1, offset=1.0))))
+    out = inj.sensors(Y, 3.0)
+    np.testing.assert_allclose(out.measured, [0.6, 2.0, -3.0 * 0.8])
+
+
+def test_gaussian_noise_statistics_and_reproducibility():
+    std = (0.5, 2.0)
+    inj = injector(noise=[fm.GaussianNoise(channels=(0, 1), std=std)], seed=4)
+    samples = np.array([inj.sensors(np.zeros(3), k * 0.01).noise for k in range(40000)])
+    # sample std within 2% (its standard error is std/sqrt(2N) = 0.35%), mean within 4 standard errors
+    np.testing.assert_allclose(samples[:, :2].std(axis=0), std, rtol=0.02)
+    assert np.all(np.abs(samples[:, :2].mean(axis=0)) < 4 * np.array(std) / np.sqrt(40000))
+    assert np.all(samples[:, 2] == 0)
+    again = injector(noise=[fm.GaussianNoise(channels=(0, 1), std=std)], seed=4)
+    np.testing.assert_array_equal(again.sensors(np.zeros(3), 0.0).noise, samples[0])
+    other = injector(noise=[fm.GaussianNoise(channels=(0, 1), std=std)], seed=5)
+    assert not np.array_equal(other.sensors(np.zeros(3), 0.0).noise, samples[0])
+
+
+def test_noise_is_not_a_fault_and_streams_are_independent():
+    """Adding a random fault does not change the noise sequence (each model has its own stream)."""
+    noise = lambda: [fm.GaussianNoise(channels=(0, 1, 2), std=1.0)]  # noqa: E731
+    alone = injector(noise=noise(), seed=1)
+    with_fault = injector(fm.Dropout(channels=(0,), probability=0.5), noise=noise(), seed=1)
+    for k in range(100):
+        a, b = alone.sensors(Y, k * 0.01), with_fault.sensors(Y, k * 0.01)
+        np.testing.assert_array_equal(a.noise, b.noise)
+    assert alone.first_onset is None and with_fault.first_onset == 0.0
+
+
+def test_uniform_noise_is_bounded_with_the_right_variance():
+    inj = injector(noise=[fm.UniformNoise(channels=(0,), bound=(0.3,))], seed=2)
+    samples = np.array([inj.sensors(np.zeros(1), 0.0).noise[0] for _ in range(40000)])
+    assert samples.min() >= -0.3 and samples.max() <= 0.3
+    assert samples.var() == pytest.approx(0.3**2 / 3, rel=0.03)
+
+
+def test_stuck_at_holds_the_onset_reading_or_a_given_value():
+    held = injector(fm.StuckAt(channels=(0,), start=1.0))
+    assert held.sensors(np.array([5.0]), 0.5).measured[0] == 5.0
+    assert held.sensors(np.array([6.0]), 1.0).measured[0] == 6.0
+    assert held.sensors(np.array([9.0]), 2.0).measured[0] == 6.0
+    fixed = injector(fm.StuckAt(channels=(0,), value=(0.25,)))
+    assert fixed.sensors(np.array([9.0]), 0.0).measured[0] == 0.25
+
+
+def test_dropout_drops_frames_at_the_given_rate():
+    inj = injector(fm.Dropout(channels=(0, 1), probability=0.2), seed=3)
+    dropped = np.array([np.isnan(inj.sensors(Y, 0.0).measured) for _ in range(20000)])
+    assert dropped[:, 2].sum() == 0
+    # binomial: standard error sqrt(0.2*0.8/20000) = 0.0028
+    np.testing.assert_allclose(dropped[:, :2].mean(axis=0), 0.2, atol=0.012)
+
+
+def test_outliers_are_spikes_of_the_given_magnitude():
+    inj = injector(fm.Outliers(channels=(0,), probability=0.1, magnitude=(4.0,)), seed=3)
+    deviations = np.array([inj.sensors(np.zeros(1), 0.0).fault[0] for _ in range(20000)])
+    assert set(np.unique(deviations)) <= {-4.0, 0.0, 4.0}
+    assert np.mean(deviations != 0) == pytest.approx(0.1, abs=0.01)
+    assert np.mean(deviations[deviations != 0] > 0) == pytest.approx(0.5, abs=0.05)
+
+
+def test_actuator_loss_of_effectiveness():
+    """u_eff = δ(t) u with δ1 = e^(−0.03 t) (Cristofaro & Johansen, Sec. 4) on a group of inputs."""
+    inj = injector(actuator=[fm.ActuatorEffectiveness(channels=(0, 1), start=0.0, effectiveness=(fm.Exponential(0.03),) * 2)])
+    u_eff, delta = inj.actuators(np.array([2.0, 4.0, 1.0]), 10.0)
+    np.testing.assert_allclose(delta, [math.exp(-0.3), math.exp(-0.3), 1.0])
+    np.testing.assert_allclose(u_eff, [2 * math.exp(-0.3), 4 * math.exp(-0.3), 1.0])
+    assert inj.first_onset == 0.0
+
+
+def test_measured_is_true_plus_noise_plus_fault():
+    inj = injector(
+        fm.Bias(channels=(0, 1, 2), value=(1.0, -1.5, 0.5)), fm.Gain(channels=(1,), gain=(fm.Constant(0.5),)),
+        noise=[fm.GaussianNoise(channels=(0, 1, 2), std=0.1)], seed=7,
+    )
+    out = inj.sensors(Y, 1.0)
+    np.testing.assert_allclose(out.measured, Y + out.noise + out.fault, atol=1e-15)
+    np.testing.assert_allclose(out.measured[1], 0.5 * (Y[1] + out.noise[1] - 1.5))
+
+
+def test_vector_length_is_checked():
+    with pytest.raises(ValueError, match="expected 2 values"):
+        fm.Bias(channels=(0, 1), value=(1.0, 2.0, 3.0))

@@ -1,0 +1,218 @@
+"""End to end: the default scenario's log, its frames, its truth, determinism and interruptions."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter, defaultdict
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from cosim import scenario
+from cosim.cli import main
+from cosim.codec import load_dbc
+from cosim.errors import CodecError
+from cosim.log import LogReader
+from cosim.runner import Run, run
+from tests.conftest import short_scenario
+
+PER_TICK = {"SYNC": 1, "SENSOR_x1": 1, "SENSOR_x2": 1, "SENSOR_x1_minus_x2": 1, "COMMAND_force": 1,
+            "EST_uniform_0": 1, "EST_uniform_1": 1, "EST_kalman_0": 1, "EST_kalman_1": 1}
+
+
+def frames_by_tick(path):
+    ticks = defaultdict(list)
+    with LogReader(path) as reader:
+        for _, _, msg in reader.messages(["/can/frames"]):
+            ticks[msg["tick"]].append(msg)
+    return ticks
+
+
+def inspect_json(path) -> dict:
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["inspect", str(path), "--json"]) == 0
+    return json.loads(out.getvalue())
+
+
+def write_short(tmp_path, text, duration, name="short.toml"):
+    path = tmp_path / name
+    path.write_text(short_scenario(text, duration))
+    return scenario.load(path)
+
+
+def test_every_tick_has_its_sync_sensor_and_estimator_frames(default_run):
+    assert default_run.status == "completed" and default_run.ticks == 3000 and default_run.frames_lost == 0
+    ticks = frames_by_tick(default_run.path)
+    assert sorted(ticks) == list(range(3000))
+    seq = 0
+    for k, frames in ticks.items():
+        assert Counter(f["message"] for f in frames) == PER_TICK, k
+        assert frames[0]["message"] == "SYNC"
+        for f in frames:
+            assert f["seq"] == seq and f["t"] == pytest.approx(k * 0.01)
+            seq += 1
+    assert {f["sender"] for f in ticks[0]} == {"runner", "plant", "controller", "uniform", "kalman"}
+
+
+def test_frames_decode_with_the_dbc_from_cosim_dbc(default_run, tmp_path):
+    dbc_path = tmp_path / "bus.dbc"
+    assert main(["dbc", "--out", str(dbc_path)]) == 0
+    db = load_dbc(dbc_path.read_text())
+    decoded_topics = defaultdict(list)
+    frames = []
+    with LogReader(default_run.path) as reader:
+        for topic, _, msg in reader.messages():
+            if topic == "/can/frames":
+                frames.append(msg)
+            elif topic.startswith("/can/"):
+                decoded_topics[topic.removeprefix("/can/")].append(msg)
+    position = Counter()
+    for frame in frames:
+        message = db.get_message_by_frame_id(frame["id"])
+        assert message.name == frame["message"] and message.senders == [frame["sender"]]
+        values = db.decode_message(frame["id"], bytes.fromhex(frame["data"]))
+        logged = decoded_topics[message.name][position[message.name]]
+        position[message.name] += 1
+        assert values == pytest.approx(logged)
+
+
+def test_inspect_reports_counts_and_errors(default_run, default_loaded):
+    report = inspect_json(default_run.path)
+    assert report["scenario"] == "masses-bias" and report["seed"] == 0 and report["status"] == "completed"
+    assert report["ticks"] == 3000 and report["duration_s"] == 30.0
+    assert report["frames"] == {"total": 27000, "lost": 0}
+    assert report["channels"]["/can/frames"] == 27000
+    for topic in ("/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults", "/can/SYNC", "/can/EST_uniform_1"):
+        assert report["channels"][topic] == 3000
+    assert report["fault_onset"] == 5.0
+    uniform, kalman = report["estimators"]["uniform"], report["estimators"]["kalman"]
+    # The uniform-weight observer settles to the steady error of eq. (19) under the constant bias.
+    r = Run(default_loaded, "/dev/null")
+    obs = r.estimators["uniform"]
+    phi = np.array([1.0, -1.5, 0.5])
+    steady = np.linalg.norm(np.linalg.solve(np.eye(4) - obs.model.A + obs.L @ obs.H, obs.L @ obs.Pi @ phi))
+    assert uniform["final_error"] == pytest.approx(steady, rel=0.02)  # 1 mm noise on a 0.9 m error
+    assert steady < uniform["rms_post_fault"] < 1.1 * steady  # the steady error plus the onset transient
+    for e in (uniform, kalman):
+        assert e["rms_pre_fault"] < e["rms_post_fault"]
+    assert kalman["rms_pre_fault"] < 0.02 and kalman["final_error"] > 0.5  # biased too, as expected
+
+
+def test_log_is_valid_for_the_official_reader(default_run, default_loaded):
+    with open(default_run.path, "rb") as stream:
+        reader = make_reader(stream, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary.statistics.message_count == sum(summary.statistics.channel_message_counts.values())
+        assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+        assert all(ci.message_index_offsets for ci in summary.chunk_indexes)  # message indexes present
+        for schema in summary.schemas.values():
+            assert schema.encoding == "jsonschema" and json.loads(schema.data)["type"] == "object"
+        assert {c.message_encoding for c in summary.channels.values()} == {"json"}
+        count = sum(1 for _ in reader.iter_messages())
+        assert count == summary.statistics.message_count
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        attachments = {a.name: a.data for a in reader.iter_attachments()}
+    assert set(meta) == {"cosim.run", "cosim.scenario", "cosim.versions", "cosim.result"}
+    assert meta["cosim.run"]["seed"] == "0" and meta["cosim.scenario"]["toml"] == default_loaded.text
+    assert meta["cosim.result"]["status"] == "completed"
+    assert attachments["masses.xml"] == Path(default_loaded.scenario.plant_info.model_path).read_bytes()
+    assert attachments["cosim.dbc"].decode() == Run(default_loaded, "/dev/null").codec.dbc
+
+
+def test_truth_faults_and_sent_readings_agree(default_run):
+    faults, sensors = [], {}
+    with LogReader(default_run.path) as reader:
+        for topic, _, msg in reader.messages(["/truth/faults", "/truth/sensors", "/can/SENSOR_x1_minus_x2"]):
+            if topic == "/truth/faults":
+                faults.append(msg)
+            elif topic == "/truth/sensors":
+                sensors[msg["tick"]] = msg
+            else:
+                sensors[("sent", msg["tick"])] = msg  # the tick counter: k mod 65536, and k < 3000
+    for f in faults:
+        k, true = f["tick"], sensors[f["tick"]]
+        bias = [1.0, -1.5, 0.5] if f["t"] >= 5.0 else [0.0, 0.0, 0.0]
+        assert list(f["fault"].values()) == pytest.approx(bias, abs=1e-12)
+        assert f["active"] == (["bias"] if f["t"] >= 5.0 else [])
+        for name in ("x1", "x2", "x1_minus_x2"):
+            assert f["measured"][name] == pytest.approx(true[name] + f["noise"][name] + f["fault"][name], abs=1e-12)
+        sent = sensors[("sent", k)]["x1_minus_x2"]
+        assert abs(sent - f["measured"]["x1_minus_x2"]) <= 0.5e-6 + 1e-12
+    noise = np.array([f["noise"]["x1"] for f in faults])
+    assert noise.std() == pytest.approx(1e-3, rel=0.05)
+
+
+def test_same_seed_gives_the_same_log_bytes(tmp_path, default_loaded):
+    loaded = write_short(tmp_path, default_loaded.text, 6.0)
+    a, b, c = (run(loaded, tmp_path / f"{n}.mcap", seed=s) for n, s in (("a", 1), ("b", 1), ("c", 2)))
+    digest = lambda r: hashlib.sha256(r.path.read_bytes()).hexdigest()  # noqa: E731
+    assert digest(a) == digest(b)
+    assert digest(a) != digest(c)
+    fa, fc = frames_by_tick(a.path), frames_by_tick(c.path)
+    assert [f["data"] for f in fa[100] if f["message"] == "SENSOR_x1"] != [f["data"] for f in fc[100] if f["message"] == "SENSOR_x1"]
+
+
+def test_an_interrupted_run_leaves_a_valid_log_up_to_that_tick(tmp_path, default_loaded):
+    r = Run(default_loaded, tmp_path / "cut.mcap")
+
+    def stop(progress):
+        if progress.tick >= 700:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        r.execute(stop, progress_every=0.0)
+    report = inspect_json(tmp_path / "cut.mcap")
+    assert report["status"] == "interrupted" and report["ticks"] == 700 and report["duration_s"] == 7.0
+    assert report["channels"]["/truth/state"] == 700 and report["frames"]["total"] == 700 * 9
+    assert report["estimators"]["uniform"]["rms_post_fault"] > 0.5
+
+
+def test_an_error_mid_run_is_recorded_and_the_log_stays_valid(tmp_path, default_loaded):
+    path = tmp_path / "narrow.toml"
+    path.write_text(short_scenario(default_loaded.text, 10.0) + "\n[bus.sensors.x1]\nmaximum = 0.9\n")
+    # x1 stays below 0.35 m; the +1 m bias from t = 5 s pushes the reading past 0.9 m at once
+    with pytest.raises(CodecError, match=r"SENSOR_x1\.x1 at tick 500 = 0\.9\d+ m is outside its declared range \[-8, 0\.9\] m"):
+        run(scenario.load(path), tmp_path / "err.mcap")
+    report = inspect_json(tmp_path / "err.mcap")
+    assert report["status"] == "error" and report["ticks"] == 500
+    with LogReader(tmp_path / "err.mcap") as reader:
+        assert "outside its declared range" in reader.metadata()["cosim.result"]["error"]
+
+
+def test_ctrl_c_in_the_terminal(tmp_path):
+    out = tmp_path / "ctrlc.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 200_000):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "interrupted after" in stderr and "Traceback" not in stderr
+    report = inspect_json(out)
+    assert report["status"] == "interrupted" and 0 < report["ticks"] < 3000
+    assert report["frames"]["total"] == report["channels"]["/can/frames"]
+
+
+def test_sigterm_also_finishes_the_log(tmp_path):
+    out = tmp_path / "term.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ})
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 100_000):
+        time.sleep(0.05)
+    proc.terminate()
+    proc.communicate(timeout=60)
+    assert inspect_json(out)["status"] == "interrupted"
