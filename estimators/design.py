@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 
 
 def output_factorization(C: np.ndarray, tol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
@@ -40,6 +39,8 @@ def observer_gain(A: np.ndarray, H: np.ndarray, poles: np.ndarray | list[float],
     Placement is done on the dual pair (Aᵀ, Hᵀ); the achieved spectrum is checked.
     Returns L with shape (n, q).
     """
+    import scipy.signal  # imported here: it takes a second or two to import, and only design needs it
+
     A = np.asarray(A, dtype=float)
     H = np.asarray(H, dtype=float)
     poles = np.asarray(poles)
