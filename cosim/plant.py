@@ -34,7 +34,7 @@ class Plant:
         self.sample_time = float(sample_time)
         self.substeps = substeps(self.sample_time, self.model.opt.timestep, info.model_file)
         self.sensor_names = tuple(sensors) if sensors is not None else tuple(s.name for s in info.sensors)
-        self._sensor_index = np.array([sensor_address(self.model, info, name) for name in self.sensor_names], dtype=int)
+        self.sensor_index = np.array([sensor_address(self.model, info, name) for name in self.sensor_names], dtype=int)
         self.actuator_names = tuple(a.name for a in info.actuators)
         self.state_names = tuple(s.name for s in info.states)
         self.reset()
@@ -73,7 +73,7 @@ class Plant:
 
     def sensors(self) -> np.ndarray:
         """The selected sensors' true readings at the current state, a copy."""
-        return self.data.sensordata[self._sensor_index]
+        return self.data.sensordata[self.sensor_index]
 
     def step(self, ctrl: np.ndarray) -> None:
         """Hold ``ctrl`` for one sample time (zero-order hold) and advance the physics."""
@@ -163,7 +163,7 @@ def linearize(
     if u is not None:
         d.ctrl[:] = u
     qpos0, qvel0, act0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy()
-    sensors = plant._sensor_index
+    sensors = plant.sensor_index
     nv, na, nu = m.nv, m.na, m.nu
     ndx = 2 * nv + na
 

@@ -234,7 +234,7 @@ class Run:
                     u_eff, delta = self.faults.actuators(u_cmd, t)
                     frames = [
                         codec.encode(spec.name, k, (value,))
-                        for spec, value in zip(sensor_specs, outcome.measured) if value == value
+                        for spec, value in zip(sensor_specs, outcome.measured) if not np.isnan(value)  # NaN: not sent
                     ]
                     frames += [codec.encode(spec.name, k, (value,)) for spec, value in zip(command_specs, u_cmd)]
                     frames.insert(0, codec.sync(k, len(frames)))

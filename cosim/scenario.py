@@ -13,6 +13,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -33,7 +34,8 @@ Probability = Annotated[float, Field(ge=0, le=1)]
 
 
 def _as_list(value: Any) -> Any:
-    return [value] if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+    """A single number or table stands for a one-element list (applied to every channel)."""
+    return [value] if isinstance(value, (int, float, dict)) and not isinstance(value, bool) else value
 
 
 def _as_waveform(value: Any) -> Any:
@@ -270,10 +272,10 @@ class Scenario(Strict):
 # -- loading ----------------------------------------------------------------------------------
 
 
-class LoadedScenario(BaseModel):
+@dataclass(frozen=True)
+class LoadedScenario:
     """A validated scenario with where it came from and its original text."""
 
-    model_config = ConfigDict(frozen=True, arbitrary_types_allowed=True)
     scenario: Scenario
     source: str
     text: str

@@ -216,3 +216,44 @@ def test_sigterm_also_finishes_the_log(tmp_path):
     proc.terminate()
     proc.communicate(timeout=60)
     assert inspect_json(out)["status"] == "interrupted"
+
+
+def test_fault_tour_on_can_fd(tmp_path):
+    """Every fault kind end to end on a CAN FD bus: dropped frames are absent (and not lost),
+    stuck readings hold, the actuator loses effectiveness, FD frames carry exact float64 values."""
+    loaded = scenario.load("masses-faults-fd")
+    result = run(loaded, tmp_path / "tour.mcap")
+    assert result.status == "completed" and result.frames_lost == 0
+    ticks = frames_by_tick(tmp_path / "tour.mcap")
+    faults, inputs, sent = {}, {}, defaultdict(dict)
+    with LogReader(tmp_path / "tour.mcap") as reader:
+        for topic, _, msg in reader.messages(["/truth/faults", "/truth/inputs", "/can/SENSOR_x2_minus_x1", "/can/SENSOR_x1_minus_x2"]):
+            if topic == "/truth/faults":
+                faults[msg["tick"]] = msg
+            elif topic == "/truth/inputs":
+                inputs[msg["tick"]] = msg
+            else:
+                sent[topic.removeprefix("/can/SENSOR_")][msg["tick"]] = msg
+    dropped = [k for k, f in faults.items() if f["dropped"]]
+    assert dropped and all(faults[k]["dropped"] == ["x2_minus_x1"] and k >= 1000 for k in dropped)
+    assert 0.15 < len(dropped) / 1000 < 0.25  # probability 0.2 over t in [10, 20)
+    for k, frames in ticks.items():
+        names = [f["message"] for f in frames]
+        assert ("SENSOR_x2_minus_x1" in names) == (k not in dropped)
+        sync = next(f for f in frames if f["message"] == "SYNC")
+        assert int.from_bytes(bytes.fromhex(sync["data"])[4:5], "little") == 5 - (k in dropped)
+        assert all(f["fd"] for f in frames if f["message"] != "SYNC")
+    for k in dropped:
+        assert k not in sent["x2_minus_x1"]
+    for k in range(0, 2000, 7):  # FD: the sent value is the measured value, exactly
+        if k not in dropped:
+            assert sent["x2_minus_x1"][k]["x2_minus_x1"] == faults[k]["measured"]["x2_minus_x1"]
+    stuck = {faults[k]["measured"]["x1_minus_x2"] for k in range(800, 1200)}
+    assert len(stuck) == 1 and len({faults[k]["measured"]["x1_minus_x2"] for k in range(1200, 1210)}) == 10
+    assert faults[1399]["active"] and "force_loss" not in faults[1399]["active"] and "force_loss" in faults[1400]["active"]
+    for k in (1400, 1700, 1999):
+        delta = np.exp(-0.1 * (k * 0.01 - 14.0))
+        assert inputs[k]["effective"]["force"] == pytest.approx(delta * inputs[k]["commanded"]["force"], rel=1e-12)
+    assert inputs[1399]["effective"] == inputs[1399]["commanded"]
+    report = inspect_json(tmp_path / "tour.mcap")
+    assert report["fault_onset"] == 2.0 and report["frames"]["lost"] == 0
