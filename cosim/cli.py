@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from pathlib import Path
@@ -48,11 +49,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             result = run.execute()
         else:
             result = _with_progress(run, console)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         r = getattr(run, "result", None)
         done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
-        console.print(f"[yellow]interrupted{done}[/yellow]; the log up to that point is in {out}")
-        return 130
+        console.print(f"[yellow]interrupted{done}[/yellow]; the log up to that point is in {escape(str(out))}")
+        return 128 + getattr(interrupt, "signum", signal.SIGINT)
     except CosimError as error:
         console.print(f"[red]error:[/red] {escape(str(error))}\nthe log up to that point is in {escape(str(out))}")
         return 1
@@ -151,6 +152,16 @@ def cmd_dbc(args: argparse.Namespace) -> int:
     return 0
 
 
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; seeds are >= 0")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cosim",
@@ -166,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.")
     p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or path to a TOML file (default: masses-bias)")
     p.add_argument("--out", "-o", metavar="FILE.mcap", help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap)")
-    p.add_argument("--seed", type=int, metavar="N", help="random seed for noise and faults (default: the scenario's)")
+    p.add_argument("--seed", type=_seed, metavar="N", help="random seed for noise and faults, >= 0 (default: the scenario's)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_run)
 
@@ -194,8 +205,11 @@ def main(argv: list[str] | None = None) -> int:
     except CosimError as error:
         _console(stderr=True).print(f"[red]error:[/red] {escape(str(error))}")
         return 1
-    except KeyboardInterrupt:
-        return 130
+    except OSError as error:  # the log or DBC cannot be written, a path is a directory, ...
+        _console(stderr=True).print(f"[red]error:[/red] {escape(str(error))}")
+        return 1
+    except KeyboardInterrupt as interrupt:
+        return 128 + getattr(interrupt, "signum", signal.SIGINT)
 
 
 if __name__ == "__main__":

@@ -49,6 +49,11 @@ FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 SYNC, SENSOR, COMMAND, ESTIMATE = "sync", "sensor", "command", "estimate"
 RUNNER, PLANT, CONTROLLER = "runner", "plant", "controller"
 
+#: The scenario table that overrides a channel's range, per message role.
+OVERRIDE_TABLE = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "states"}
+#: Identifier blocks: [first, end) per role. Estimators get ESTIMATE_STRIDE ids each.
+ID_BLOCKS = {SENSOR: (SENSOR_BASE, COMMAND_BASE), COMMAND: (COMMAND_BASE, ESTIMATE_BASE), ESTIMATE: (ESTIMATE_BASE, 0x700)}
+
 
 @dataclass(frozen=True)
 class MessageSpec:
@@ -97,8 +102,9 @@ def pack_channels(
         if bits > capacity:
             raise CodecError(
                 f"signal {signal_prefix}{channel.name} needs {bits} bits at resolution {channel.resolution:g} "
-                f"{channel.unit} over [{channel.minimum:g}, {channel.maximum:g}]; at most {capacity} fit a classic "
-                f"frame: coarsen its resolution or narrow its range, or use CAN FD (bus.fd = true)"
+                f"{channel.unit} over [{channel.minimum:g}, {channel.maximum:g}], and at most {capacity} fit a classic "
+                f"frame: set a coarser resolution or a narrower range with [bus.{OVERRIDE_TABLE[role]}.{channel.name}], "
+                f"or use CAN FD (bus.fd = true)"
             )
         if used + bits > capacity:
             groups.append([])
@@ -135,6 +141,12 @@ class Codec:
         self.fd = fd
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
+        for role, count in ((SENSOR, len(sensors)), (COMMAND, len(actuators)), (ESTIMATE, len(estimators) * ESTIMATE_STRIDE)):
+            first, end = ID_BLOCKS[role]
+            if count > end - first:
+                what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators"}[role]
+                limit = (end - first) // (ESTIMATE_STRIDE if role == ESTIMATE else 1)
+                raise CodecError(f"too many {what} for the bus: at most {limit} fit ids 0x{first:03X}-0x{end - 1:03X}")
         specs = [MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames"))]
         for i, channel in enumerate(sensors):
             specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], "", fd)
@@ -196,10 +208,13 @@ class Codec:
             )
         nodes = sorted({spec.sender for spec in specs})
         bus_type = DbcAttributeDefinition("BusType", default_value="CAN", type_name="STRING")
-        dbc = DbcSpecifics(
-            attributes=OrderedDict(BusType=DbcAttribute("CAN FD" if self.fd else "CAN", bus_type)),
-            attribute_definitions=OrderedDict(BusType=bus_type),
-        )
+        attributes = OrderedDict(BusType=DbcAttribute("CAN FD" if self.fd else "CAN", bus_type))
+        definitions = OrderedDict(BusType=bus_type)
+        if self.fd:  # Vector's attribute for the data-phase bit rate
+            fd_rate = DbcAttributeDefinition("BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000)
+            attributes["BaudrateCANFD"] = DbcAttribute(self.data_bitrate, fd_rate)
+            definitions["BaudrateCANFD"] = fd_rate
+        dbc = DbcSpecifics(attributes=attributes, attribute_definitions=definitions)
         bus = Bus("cosim", baudrate=self.bitrate, fd_baudrate=self.data_bitrate if self.fd else None)
         return Database(messages, [Node(n) for n in nodes], buses=[bus], version="cosim", dbc_specifics=dbc)
 
@@ -218,6 +233,8 @@ class Codec:
     # -- frames ---------------------------------------------------------------------------------
 
     def sync(self, tick: int, frames: int) -> can.Message:
+        if not 0 <= frames <= 255:
+            raise CodecError(f"tick {tick} has {frames} data frames; a SYNC can announce at most 255")
         data = self._messages["SYNC"].encode({"tick": tick % 2**32, "frames": frames}, strict=False)
         return can.Message(arbitration_id=SYNC_ID, data=data, is_extended_id=False)
 
@@ -249,10 +266,6 @@ class Codec:
             raise CodecError(f"frame 0x{frame.arbitration_id:03X} ({spec.name}) cannot be decoded: {error}") from None
         tick = int(values.pop("tick"))
         return Decoded(spec, tick, values)
-
-
-#: The scenario table that overrides a channel's range, per message role.
-OVERRIDE_TABLE = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "states"}
 
 
 def _range_message(spec: MessageSpec, signal: str, channel: Channel, value: float, tick: int) -> str:

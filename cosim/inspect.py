@@ -27,8 +27,6 @@ def summarize(path: str | Path) -> dict[str, Any]:
         run = meta.get("cosim.run")
         result = meta.get("cosim.result", {})
         summary = reader.summary()
-        if summary is None:
-            warnings.append("the file has no summary section (the writer did not finish); counts come from a full scan")
         if run is None:
             warnings.append("no cosim.run metadata: not a cosim log, or written by another program; estimator errors are unavailable")
         channels: dict[str, int] = {}
@@ -42,7 +40,7 @@ def summarize(path: str | Path) -> dict[str, Any]:
             "scenario": run.get("scenario") if run else None,
             "source": run.get("source") if run else None,
             "seed": int(run["seed"]) if run else None,
-            "status": result.get("status", "unknown"),
+            "status": result.get("status", "incomplete"),
             "sample_time": float(run["sample_time"]) if run else None,
         }
         estimation: dict[str, Any] = {}
@@ -69,7 +67,7 @@ def summarize(path: str | Path) -> dict[str, Any]:
         },
         "fault_onset": json.loads(run["fault_onset"]) if run else None,
         "estimators": estimation,
-        "warnings": warnings,
+        "warnings": reader.warnings + warnings,
     })
     return report
 
@@ -77,7 +75,7 @@ def summarize(path: str | Path) -> dict[str, Any]:
 def _estimation(reader: LogReader, run: dict[str, str], scanned: dict[str, int], need_counts: bool):
     states = json.loads(run["states"])
     ests = json.loads(run["estimators"])
-    onset = json.loads(run["fault_onset"])
+    onset_tick = json.loads(run.get("fault_onset_tick", "null"))
     dt_ns = round(float(run["sample_time"]) * 1e9)
     topic_owner = {message_topic(m): name for name, e in ests.items() for m in e["messages"]}
     wanted = None if need_counts else [STATE, EVENTS, *topic_owner]
@@ -97,7 +95,7 @@ def _estimation(reader: LogReader, run: dict[str, str], scanned: dict[str, int],
             estimates = partial.pop(k, {})
             for old in [t for t in partial if t < k]:
                 del partial[old]
-            window = "post" if onset is not None and msg["t"] >= onset - 1e-12 else "pre"
+            window = "post" if onset_tick is not None and k >= onset_tick else "pre"
             for name in ests:
                 x_hat = estimates.get(name, {})
                 if any(x_hat.get(s) is None for s in states):
@@ -107,7 +105,7 @@ def _estimation(reader: LogReader, run: dict[str, str], scanned: dict[str, int],
                 sums[name][window][1] += 1
                 sums[name]["final"] = error
         elif topic == EVENTS and msg.get("event") == "frames_lost":
-            lost += 1
+            lost += msg.get("count", 1)
 
     def rms(acc: list) -> float | None:
         return math.sqrt(acc[0] / acc[1]) if acc[1] else None

@@ -13,6 +13,14 @@ import signal
 import threading
 
 
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by a signal; ``signum`` says which (the CLI exits with 128 + signum)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
 class DeferredInterrupts:
     def __init__(self) -> None:
         self.requested: int | None = None
@@ -31,10 +39,10 @@ class DeferredInterrupts:
 
     def _handle(self, signum: int, frame: object) -> None:
         if self.requested is not None:
-            raise KeyboardInterrupt
+            raise Interrupted(signum)
         self.requested = signum
 
     def check(self) -> None:
         """Raise KeyboardInterrupt if a signal arrived since the run started."""
         if self.requested is not None:
-            raise KeyboardInterrupt
+            raise Interrupted(self.requested)

@@ -11,6 +11,7 @@ run writes a byte-identical log.
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 from collections.abc import Iterator
@@ -19,8 +20,10 @@ from typing import IO, Any
 
 import orjson
 import zstandard
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
+from mcap import records
 from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cosim import __version__
@@ -117,19 +120,38 @@ def number(description: str = "", unit: str = "", nullable: bool = False) -> dic
 
 
 class LogReader:
-    """Reads a cosim (or any JSON-encoded) MCAP log, with clear errors for unreadable files."""
+    """Reads a cosim (or any JSON-encoded) MCAP log.
+
+    Damage never raises past the first readable byte: a file without a summary section (its
+    writer was killed, or it was cut) is read sequentially, and reading stops at the first damaged
+    or missing record, with a warning in ``warnings`` that says where. Only a file that is not an
+    MCAP file at all raises LogError.
+    """
+
+    MAGIC = b"\x89MCAP0\r\n"
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.exists():
             raise LogError(f"{self.path}: no such file")
+        if self.path.is_dir():
+            raise LogError(f"{self.path}: is a directory, not an MCAP file")
+        self.warnings: list[str] = []
         self._stream = open(self.path, "rb")
-        try:
-            self._reader = make_reader(self._stream)
-            self.header = self._reader.get_header()
-        except READ_ERRORS as error:
+        if self._stream.read(len(self.MAGIC)) != self.MAGIC:
             self._stream.close()
-            raise LogError(f"{self.path}: not a readable MCAP file ({error})") from None
+            raise LogError(f"{self.path}: not a readable MCAP file (it does not start with the MCAP magic bytes)")
+        self._stream.seek(0)
+        self._reader = make_reader(self._stream, validate_crcs=True)
+        try:
+            self._summary = self._reader.get_summary()
+        except READ_ERRORS:
+            self._summary = None
+        if self._summary is None:
+            self.warnings.append(
+                "the file has no summary section (its writer did not finish: killed, or the file was cut); "
+                "it is read sequentially up to the first damaged record"
+            )
 
     def __enter__(self) -> LogReader:
         return self
@@ -138,28 +160,96 @@ class LogReader:
         self._stream.close()
 
     def summary(self):  # mcap.records.Summary | None
-        """The summary section, or None when the file has none (e.g. the writer was killed)."""
-        try:
-            return self._reader.get_summary()
-        except READ_ERRORS:
-            return None
+        """The summary section, or None when the file has none."""
+        return self._summary
 
     def metadata(self) -> dict[str, dict[str, str]]:
-        try:
-            return {record.name: dict(record.metadata) for record in self._reader.iter_metadata()}
-        except READ_ERRORS:
-            return {}
+        if self._summary is not None:
+            try:
+                return {record.name: dict(record.metadata) for record in self._reader.iter_metadata()}
+            except READ_ERRORS:
+                pass
+        return {r.name: dict(r.metadata) for r in self._records(quiet=True) if isinstance(r, records.Metadata)}
 
     def attachments(self) -> dict[str, bytes]:
-        try:
-            return {record.name: bytes(record.data) for record in self._reader.iter_attachments()}
-        except READ_ERRORS:
-            return {}
+        if self._summary is not None:
+            try:
+                return {record.name: bytes(record.data) for record in self._reader.iter_attachments()}
+            except READ_ERRORS:
+                pass
+        return {r.name: bytes(r.data) for r in self._records(quiet=True) if isinstance(r, records.Attachment)}
 
     def messages(self, topics: list[str] | None = None) -> Iterator[tuple[str, int, dict[str, Any]]]:
-        """(topic, log_time_ns, decoded JSON) in file order, optionally only some topics."""
+        """(topic, log_time_ns, decoded JSON) in file order, optionally only some topics. Stops,
+        with a warning, at the first damaged record."""
+        count, last = 0, None
         try:
-            for _schema, channel, message in self._reader.iter_messages(topics=topics, log_time_order=False):
-                yield channel.topic, message.log_time, orjson.loads(message.data)
+            if self._summary is not None and self._summary.chunk_indexes:
+                source = self._indexed_messages(topics)
+            else:
+                source = self._stream_messages(topics)
+            for topic, message in source:
+                payload = orjson.loads(message.data)
+                count, last = count + 1, message.log_time
+                yield topic, message.log_time, payload
         except READ_ERRORS as error:
-            raise LogError(f"{self.path}: the log is damaged after this point ({error})") from None
+            where = "at its start" if last is None else f"after t = {last / 1e9:g} s"
+            reason = str(error) or type(error).__name__
+            self.warnings.append(f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read")
+
+    def _indexed_messages(self, topics: list[str] | None) -> Iterator[tuple[str, records.Message]]:
+        """Messages chunk by chunk from the chunk index; a damaged chunk is skipped with a warning."""
+        summary = self._summary
+        channels = {cid: channel.topic for cid, channel in summary.channels.items()}
+        wanted = None if topics is None else {cid for cid, topic in channels.items() if topic in topics}
+        for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            if wanted is not None and not wanted.intersection(index.message_index_offsets):
+                continue
+            self._stream.seek(index.chunk_start_offset)
+            data = self._stream.read(index.chunk_length)
+            try:
+                inner = _chunk_messages(data, index.chunk_length)
+            except READ_ERRORS as error:
+                self.warnings.append(
+                    f"a damaged chunk was skipped: bytes {index.chunk_start_offset}-{index.chunk_start_offset + index.chunk_length}, "
+                    f"t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s ({error})"
+                )
+                continue
+            for message in inner:
+                if wanted is None or message.channel_id in wanted:
+                    yield channels.get(message.channel_id, ""), message
+
+    def _stream_messages(self, topics: list[str] | None) -> Iterator[tuple[str, records.Message]]:
+        channels: dict[int, str] = {}
+        for record in self._records(quiet=False):
+            if isinstance(record, records.Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, records.Message):
+                topic = channels.get(record.channel_id, "")
+                if topics is None or topic in topics:
+                    yield topic, record
+
+    def _records(self, quiet: bool) -> Iterator[Any]:
+        """Every record in file order; at damage, stop (quiet) or raise for ``messages`` to report."""
+        self._stream.seek(0)
+        try:
+            yield from StreamReader(self._stream, validate_crcs=True).records
+        except READ_ERRORS:
+            if not quiet:
+                raise
+
+
+def _chunk_messages(data: bytes, length: int) -> list[records.Message]:
+    """The messages of one chunk record (its bytes as the chunk index locates them)."""
+    if len(data) != length:
+        raise EndOfFile(f"the file ends {length - len(data)} bytes into this chunk")
+    buffer = io.BytesIO(data)
+    messages = []
+    try:
+        for record in StreamReader(buffer, skip_magic=True, validate_crcs=True).records:
+            if isinstance(record, records.Message):
+                messages.append(record)
+    except EndOfFile:
+        if buffer.tell() != length:  # a record ended early: damage, not the end of the chunk
+            raise
+    return messages

@@ -3,7 +3,8 @@
 Topics (``log_time`` is simulated time in ns; every message also carries ``tick`` and ``t`` [s]):
 
 - ``/can/frames``: every frame on the bus in bus order: ``seq`` (position on the bus), ``id``,
-  ``extended``, ``fd``, ``brs``, ``dlc`` (payload bytes), ``data`` (hex), ``sender`` (the DBC
+  ``extended``, ``fd``, ``brs``, ``dlc`` (the data length code), ``length`` (payload bytes),
+  ``data`` (hex), ``sender`` (the DBC
   node that transmits this id, ``unknown`` for ids outside the DBC), ``message`` (DBC name).
 - ``/can/<MessageName>``: the decoded physical signals of each DBC message, named as in the DBC.
 - ``/truth/state``: the simulator's state, one field per state component.
@@ -27,6 +28,7 @@ from typing import Any
 
 import can
 import numpy as np
+from can.util import len2dlc
 
 from cosim.codec import Codec, Decoded
 from cosim.log import McapLog, number, object_schema
@@ -71,7 +73,8 @@ class RunRecorder:
             "extended": {"type": "boolean", "description": "29-bit identifier"},
             "fd": {"type": "boolean", "description": "CAN FD frame"},
             "brs": {"type": "boolean", "description": "CAN FD bit rate switch"},
-            "dlc": {"type": "integer", "description": "payload length in bytes"},
+            "dlc": {"type": "integer", "description": "data length code (0-8; 9-15 code 12-64 bytes in CAN FD)"},
+            "length": {"type": "integer", "description": "payload length in bytes"},
             "data": {"type": "string", "description": "payload, hex"},
             "sender": {"type": "string", "description": "transmitting node (from the DBC)"},
             "message": {"type": ["string", "null"], "description": "DBC message name"},
@@ -111,13 +114,15 @@ class RunRecorder:
             "level": {"type": "string", "enum": ["info", "warning", "error"]},
             "event": {"type": "string"},
             "detail": {"type": "string"},
+            "count": {"type": "integer", "description": "how many (frames lost, deadlines missed, ...)"},
         }, "Runner events"))
 
     def frame(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
         spec = decoded.spec if decoded is not None else None
         self.log.write(self._frames, t_ns, {
             "tick": tick, "t": t, "seq": self.frames, "id": frame.arbitration_id, "extended": frame.is_extended_id,
-            "fd": frame.is_fd, "brs": frame.bitrate_switch, "dlc": len(frame.data), "data": bytes(frame.data).hex(),
+            "fd": frame.is_fd, "brs": frame.bitrate_switch, "dlc": len2dlc(len(frame.data)), "length": len(frame.data),
+            "data": bytes(frame.data).hex(),
             "sender": spec.sender if spec else "unknown", "message": spec.name if spec else None,
         })
         self.frames += 1
@@ -144,5 +149,5 @@ class RunRecorder:
             "effectiveness": dict(zip(self.actuators, delta.tolist())), "active": list(active),
         })
 
-    def event(self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info") -> None:
-        self.log.write(self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail})
+    def event(self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info", count: int = 0) -> None:
+        self.log.write(self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail, "count": count})

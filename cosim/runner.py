@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -71,17 +72,6 @@ class RunResult:
         return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
 
 
-def _override(channel: Channel, overrides: dict) -> Channel:
-    spec = overrides.get(channel.name)
-    if spec is None:
-        return channel
-    changes = {k: v for k, v in spec.model_dump().items() if v is not None}
-    try:
-        return replace(channel, **changes)
-    except ValueError as error:
-        raise ScenarioError(f"bus: override of {channel.name}: {error}") from None
-
-
 def build_faults(s: Scenario) -> fm.FaultInjector:
     """The scenario's noise and faults as fault models on the transmitted sensors and actuators."""
     sensors, actuators = list(s.sensors), list(s.actuators)
@@ -111,10 +101,10 @@ def build_faults(s: Scenario) -> fm.FaultInjector:
                 return fm.Outliers(**common, probability=spec.probability, magnitude=widen(spec.magnitude))
         raise AssertionError(spec.kind)
 
-    noise = [sensor_model(spec, spec.name or f"noise{i}") for i, spec in enumerate(s.noise)]
+    noise_labels, fault_labels = s.fault_labels()
+    noise = [sensor_model(spec, label) for spec, label in zip(s.noise, noise_labels)]
     sensor_faults, actuator_faults = [], []
-    for i, spec in enumerate(s.faults):
-        label = spec.name or f"{spec.kind}{i}"
+    for spec, label in zip(s.faults, fault_labels):
         if isinstance(spec, ActuatorEffectivenessSpec):
             names = spec.actuators if spec.actuators is not None else actuators
             profiles = tuple(build_waveform(w) for w in spec.effectiveness)
@@ -128,14 +118,22 @@ def build_faults(s: Scenario) -> fm.FaultInjector:
     return fm.FaultInjector(noise, sensor_faults, actuator_faults, s.seed)
 
 
-def build_estimators(s: Scenario, model: LinearModel) -> dict[str, Estimator]:
+def build_estimators(s: Scenario, model: LinearModel, source: str) -> dict[str, Estimator]:
     built = {}
     for i, spec in enumerate(s.estimators):
         try:
             built[spec.name] = estimators.create(spec.kind, model, spec.params)
         except ParameterError as error:
-            raise ScenarioError(f"estimators[{i}] ({spec.name}): params.{error}") from None
+            raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
     return built
+
+
+def first_tick_at(s: Scenario, start: float) -> int:
+    """The first tick k with t_k >= start: where a fault starting at ``start`` is first active."""
+    k = max(0, math.ceil(start / s.sample_time) - 1)
+    while s.time(k) < start:
+        k += 1
+    return k
 
 
 def versions() -> dict[str, str]:
@@ -152,7 +150,7 @@ class Run:
     """One co-simulation run of a loaded scenario into an MCAP file."""
 
     def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None) -> None:
-        scenario = loaded.scenario if seed is None else loaded.scenario.model_copy(update={"seed": seed})
+        scenario = loaded.scenario.with_seed(seed)
         self.loaded, self.scenario, self.out = loaded, scenario, Path(out)
         s = scenario
         info = s.plant_info
@@ -163,15 +161,15 @@ class Run:
         # Estimators are designed on the linearization at the plant's keyframe (its operating point).
         self.model = self.plant.linearize()
         self.plant.reset(s.plant.initial_state)
-        self.estimators = build_estimators(s, self.model)
+        self.estimators = build_estimators(s, self.model, loaded.source)
         self.faults = build_faults(s)
+        onset = self.faults.first_onset
+        self.onset_tick = None if onset is None else first_tick_at(s, onset)
         self.inputs = [
             next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
             for name in s.actuators
         ]
-        sensors = [_override(info.sensor(n), s.bus.sensors) for n in s.sensors]
-        actuators = [_override(info.actuator(n), s.bus.actuators) for n in s.actuators]
-        states = [_override(c, s.bus.states) for c in info.states]
+        sensors, actuators, states = s.channels()
         self.codec = Codec(
             sensors, actuators, {name: states for name in self.estimators}, fd=s.bus.fd, bitrate=s.bus.bitrate,
             data_bitrate=s.bus.data_bitrate, cycle_time=s.sample_time,
@@ -194,6 +192,7 @@ class Run:
             "states": json.dumps(list(self.plant.state_names)), "sensors": json.dumps(list(s.sensors)),
             "actuators": json.dumps(list(s.actuators)), "estimators": json.dumps(est),
             "fault_onset": json.dumps(self.faults.first_onset),
+            "fault_onset_tick": json.dumps(self.onset_tick),
             "faults": json.dumps([{"label": f.label, "kind": f.kind, "start": f.start, "end": f.end if np.isfinite(f.end) else None} for f in self.faults.faults]),
             "bus": json.dumps({"interface": s.bus.interface, "fd": s.bus.fd, "bitrate": s.bus.bitrate, "data_bitrate": s.bus.data_bitrate}),
         })
@@ -227,16 +226,21 @@ class Run:
             try:
                 for k in range(s.ticks):
                     interrupts.check()
-                    t, t_ns = k * s.sample_time, k * dt_ns
+                    t, t_ns = s.time(k), k * dt_ns
                     x, y_true = plant.state(), plant.sensors()
-                    u_cmd = np.array([w(t) for w in self.inputs])
                     outcome = self.faults.sensors(y_true, t)
-                    u_eff, delta = self.faults.actuators(u_cmd, t)
                     frames = [
                         codec.encode(spec.name, k, (value,))
-                        for spec, value in zip(sensor_specs, outcome.measured) if not np.isnan(value)  # NaN: not sent
+                        for spec, value, sent in zip(sensor_specs, outcome.measured, outcome.sent) if sent
                     ]
-                    frames += [codec.encode(spec.name, k, (value,)) for spec, value in zip(command_specs, u_cmd)]
+                    commands = [codec.encode(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
+                    # The actuators receive what the command frames carry (quantized in classic CAN).
+                    u_cmd = np.array([codec.decode(frame).values[spec.signals[0]] for frame, spec in zip(commands, command_specs)])
+                    u_eff, delta = self.faults.actuators(u_cmd, t)
+                    if not np.all(np.isfinite(u_eff)):
+                        bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
+                        raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
+                    frames += commands
                     frames.insert(0, codec.sync(k, len(frames)))
                     for frame in frames:
                         bus.send(frame)
@@ -254,15 +258,16 @@ class Run:
                     for name, count in received.items():
                         if count < expected[name]:
                             frames_lost += expected[name] - count
-                            recorder.event(k, t, t_ns, "frames_lost", f"{name}: {expected[name] - count} of {expected[name]}", "warning")
+                            recorder.event(k, t, t_ns, "frames_lost", f"{name}: {expected[name] - count} of {expected[name]}", "warning", expected[name] - count)
                     recorder.truth(
                         k, t, t_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
-                        measured=outcome.measured, active=outcome.active, u_cmd=u_cmd, u_eff=u_eff, delta=delta,
+                        measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=u_cmd,
+                        u_eff=u_eff, delta=delta,
                     )
                     plant.step(u_eff)
                     if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
                         last_report = now
-                        on_progress(Progress(k + 1, s.ticks, (k + 1) * s.sample_time, now - start, recorder.frames))
+                        on_progress(Progress(k + 1, s.ticks, s.time(k + 1), now - start, recorder.frames))
                 k = s.ticks
             except KeyboardInterrupt:
                 status = "interrupted"
@@ -275,7 +280,7 @@ class Run:
                 raise
             finally:
                 t_end_ns = k * dt_ns
-                recorder.event(k, k * s.sample_time, t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
+                recorder.event(k, s.time(k), t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
                 log.metadata("cosim.result", {
                     "status": status, "ticks": str(k), "frames_total": str(recorder.frames),
                     "frames_lost": str(frames_lost), "error": error,
@@ -283,10 +288,10 @@ class Run:
                 for node_bus in buses:
                     node_bus.shutdown()
                 self.result = RunResult(
-                    self.out, status, k, recorder.frames, frames_lost, time.perf_counter() - start, k * s.sample_time, error
+                    self.out, status, k, recorder.frames, frames_lost, time.perf_counter() - start, s.time(k), error
                 )
         if on_progress is not None:
-            on_progress(Progress(k, s.ticks, k * s.sample_time, time.perf_counter() - start, self.result.frames))
+            on_progress(Progress(k, s.ticks, s.time(k), time.perf_counter() - start, self.result.frames))
         return self.result
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -21,8 +21,9 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Fiel
 
 import faults as fm
 import mjcf
-from cosim.errors import ScenarioError
-from estimators import ESTIMATORS
+from cosim.codec import Codec
+from cosim.errors import CodecError, ScenarioError
+from estimators import ESTIMATORS, ParameterError
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 DEFAULT_SCENARIO = "masses-bias"
@@ -49,7 +50,7 @@ Vector = Annotated[list[float], BeforeValidator(_as_list)]
 class Strict(BaseModel):
     """A table whose keys are all known; an unknown key is reported with the allowed ones."""
 
-    model_config = ConfigDict(frozen=True, strict=True)
+    model_config = ConfigDict(frozen=True, strict=True, allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
@@ -129,7 +130,7 @@ def build_waveform(spec: Any) -> fm.Waveform:
 class Windowed(Strict):
     name: Identifier | None = None
     start: NonNegative = 0.0
-    end: float = math.inf
+    end: Annotated[float, Field(allow_inf_nan=True)] = math.inf
 
     @model_validator(mode="after")
     def _window(self) -> Windowed:
@@ -239,7 +240,7 @@ class EstimatorSpec(Strict):
 
 
 class Scenario(Strict):
-    name: str
+    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
     description: str = ""
     seed: Annotated[int, Field(ge=0)] = 0
     duration: Positive
@@ -253,8 +254,42 @@ class Scenario(Strict):
 
     @property
     def ticks(self) -> int:
-        """Ticks k = 0 … N−1 at t_k = k τ, N = duration / τ."""
+        """Ticks k = 0 … N−1 at t_k = k τ, N = duration / τ (a whole number, checked on load)."""
         return max(1, round(self.duration / self.sample_time))
+
+    @property
+    def dt_ns(self) -> int:
+        """The sample time in nanoseconds; t_k = k · dt_ns exactly."""
+        return round(self.sample_time * 1e9)
+
+    def time(self, k: int) -> float:
+        """t_k in seconds, as the float nearest to k τ (so that a fault starting at a multiple of τ,
+        written as a decimal in the scenario, starts exactly at that tick)."""
+        return k * self.dt_ns / 1e9
+
+    def with_seed(self, seed: int | None) -> Scenario:
+        """The same scenario with another seed (None keeps it)."""
+        if seed is None:
+            return self
+        if seed < 0:
+            raise ScenarioError(f"seed: {seed} is negative; use a seed >= 0")
+        return self.model_copy(update={"seed": seed})
+
+    def fault_labels(self) -> tuple[list[str], list[str]]:
+        """Labels of the noise models and of the faults: their name, or kind and position."""
+        noise = [spec.name or f"noise{i}" for i, spec in enumerate(self.noise)]
+        faults = [spec.name or f"{spec.kind}{i}" for i, spec in enumerate(self.faults)]
+        return noise, faults
+
+    def channels(self) -> tuple[list[mjcf.Channel], list[mjcf.Channel], list[mjcf.Channel]]:
+        """The transmitted sensors, the actuators and the states as bus signals, with the [bus]
+        overrides of their range and resolution applied."""
+        info = self.plant_info
+        return (
+            [_override(info.sensor(n), self.bus.sensors, "sensors") for n in self.sensors],
+            [_override(info.actuator(n), self.bus.actuators, "actuators") for n in self.actuators],
+            [_override(c, self.bus.states, "states") for c in info.states],
+        )
 
     @property
     def plant_info(self) -> mjcf.PlantInfo:
@@ -267,6 +302,16 @@ class Scenario(Strict):
     @property
     def actuators(self) -> tuple[str, ...]:
         return tuple(a.name for a in self.plant_info.actuators)
+
+
+def _override(channel: mjcf.Channel, overrides: dict[str, ChannelOverride], table: str) -> mjcf.Channel:
+    spec = overrides.get(channel.name)
+    if spec is None:
+        return channel
+    try:
+        return replace(channel, **{k: v for k, v in spec.model_dump().items() if v is not None})
+    except ValueError as error:
+        raise ScenarioError(f"bus.{table}.{channel.name}: {error.args[0].split(': ', 1)[-1]}") from None
 
 
 # -- loading ----------------------------------------------------------------------------------
@@ -332,6 +377,8 @@ def _path(loc: tuple[Any, ...], data: Any) -> str:
     parts: list[str] = []
     node, tag_pending = data, True
     for item in loc:
+        if not isinstance(node, (dict, list)) and parts:
+            break  # a number standing for a table (a constant waveform): the number is the culprit
         if isinstance(item, int):
             parts.append(f"[{item}]")
             node = node[item] if isinstance(node, list) and item < len(node) else None
@@ -380,6 +427,10 @@ def check(s: Scenario) -> list[str]:
 
     if s.sample_time > s.duration:
         problems.append(f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s")
+    elif abs(s.duration / s.sample_time - round(s.duration / s.sample_time)) > 1e-9 * s.duration / s.sample_time:
+        n = s.duration / s.sample_time
+        below, above = math.floor(n) * s.sample_time, math.ceil(n) * s.sample_time
+        problems.append(f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or {above:g}")
     if s.plant.sensors is not None:
         unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
         if len(set(s.plant.sensors)) != len(s.plant.sensors):
@@ -406,9 +457,10 @@ def check(s: Scenario) -> list[str]:
                 for key in ("std", "bound", "magnitude"):
                     if any(v < 0 for v in getattr(spec, key, None) or []):
                         problems.append(f"{field}.{key}: must be non-negative")
-    names = [spec.name for spec in s.faults if spec.name]
-    if len(set(names)) != len(names):
-        problems.append("faults: two faults have the same name")
+    noise_labels, fault_labels = s.fault_labels()
+    labels = noise_labels + fault_labels
+    for label in sorted({label for label in labels if labels.count(label) > 1}):
+        problems.append(f"faults: two noise models or faults are labelled {label!r}; give them distinct names")
     for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"), ("states", state_names, "state")):
         overrides = getattr(s.bus, table)
         unknown(f"bus.{table}", list(overrides), known, what)
@@ -418,9 +470,26 @@ def check(s: Scenario) -> list[str]:
             close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             problems.append(f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}")
+        else:
+            try:
+                ESTIMATORS[spec.kind].check_params(spec.params)
+            except ParameterError as error:
+                problems.append(f"estimators[{i}].params.{error}")
         if estimator_names.count(spec.name) > 1:
             problems.append(f"estimators[{i}].name: {spec.name!r} is used by two estimators")
+    if not problems:
+        problems += _check_bus(s)
     return problems
+
+
+def _check_bus(s: Scenario) -> list[str]:
+    """The bus signals with their overrides must make a valid CAN database."""
+    try:
+        sensors, actuators, states = s.channels()
+        Codec(sensors, actuators, {e.name: states for e in s.estimators}, fd=s.bus.fd)
+    except (ScenarioError, CodecError) as error:
+        return [str(error)]
+    return []
 
 
 def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tuple[str, ...]) -> None:

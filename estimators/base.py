@@ -6,6 +6,9 @@ from a LinearModel and parameters, and fed one tick at a time.
 
 from __future__ import annotations
 
+import math
+import types
+import typing
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
@@ -50,17 +53,21 @@ class Estimator(ABC):
         self.params = params
 
     @classmethod
-    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None) -> Estimator:
-        """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
+    def check_params(cls, params: dict[str, Any] | None = None) -> Any:
+        """The ``Params`` dataclass built from plain values (e.g. parsed TOML), each converted to its
+        declared type; a ParameterError names the first unknown or ill-typed parameter."""
         params = dict(params or {})
-        known = {f.name for f in fields(cls.Params)}
+        hints = typing.get_type_hints(cls.Params)
+        known = [f.name for f in fields(cls.Params)]
         for name in params:
             if name not in known:
                 raise ParameterError(name, f"unknown parameter of {cls.kind} (known: {', '.join(sorted(known))})")
-        try:
-            return cls(model, cls.Params(**params))
-        except TypeError as error:  # a required parameter is missing
-            raise ParameterError("params", str(error)) from None
+        return cls.Params(**{name: coerce(value, hints[name], name) for name, value in params.items()})
+
+    @classmethod
+    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None) -> Estimator:
+        """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
+        return cls(model, cls.check_params(params))
 
     def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         y = np.asarray(y, dtype=float)
@@ -83,3 +90,40 @@ def initial_state(model: LinearModel, x0: tuple[float, ...] | None) -> np.ndarra
     if x0.shape != (model.n,):
         raise ParameterError("x0", f"expected {model.n} values ({', '.join(model.states)}), got {x0.size}")
     return x0 - model.x_op
+
+
+def coerce(value: Any, hint: Any, name: str) -> Any:
+    """Convert a plain value to a parameter type: float, int, bool, str, tuple[float, ...], and
+    unions of these with each other or None. Numbers must be finite."""
+    options = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    if value is None and type(None) in options:
+        return None
+    sequence = isinstance(value, (list, tuple))
+    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    for option in options:
+        if option is float and numeric:
+            return _number(value, name)
+        if option is int and numeric and isinstance(value, int):
+            return value
+        if option is bool and isinstance(value, bool):
+            return value
+        if option is str and isinstance(value, str):
+            return value
+        if typing.get_origin(option) is tuple and sequence:
+            return tuple(_number(item, f"{name}[{i}]") for i, item in enumerate(value))
+    expected = " or ".join(_describe(option) for option in options if option is not type(None))
+    raise ParameterError(name, f"expected {expected}, got {value!r}")
+
+
+def _number(value: Any, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(name, f"expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ParameterError(name, f"expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _describe(option: Any) -> str:
+    if typing.get_origin(option) is tuple:
+        return "a list of numbers"
+    return {float: "a number", int: "an integer", bool: "true or false", str: "a string"}.get(option, str(option))

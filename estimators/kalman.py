@@ -35,8 +35,8 @@ def _diagonal(values: float | tuple[float, ...], size: int, name: str, labels: t
         array = np.full(size, float(array))
     if array.shape != (size,):
         raise ParameterError(name, f"expected one value or {size} ({', '.join(labels)}), got {array.size}")
-    if np.any(array < 0):
-        raise ParameterError(name, "standard deviations must be non-negative")
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ParameterError(name, "standard deviations must be finite and non-negative")
     return np.diag(array**2)
 
 

@@ -6,7 +6,9 @@ The observer (13)–(14) of Cristofaro & Zaccarian, IEEE TAC 2024, with the sele
 
 where C = Y H (eq. (2), Example 1) and L places the spectrum of A − L H. With the uniform weights
 s = 𝟙/√p it is the paper's baseline "observer based on a constant pseudoinverse with uniform
-weights" (Sec. VII-A), which carries a steady error Π(s)φ under a constant bias φ (eq. (19)).
+weights" (Sec. VII-A). Under a constant bias φ its error obeys e⁺ = (A − L H) e − L Π(s) φ
+(eq. (19)–(20), with the sign corrected: see docs/errata.md) and settles at
+e = −(I − A + L H)⁻¹ L Π(s) φ, which is not zero unless Π(s) φ = 0.
 
 Missing readings (frames not received) get weight 0 for that tick, provided the remaining weights
 keep R(s) invertible; otherwise the tick is an open-loop prediction.
@@ -53,6 +55,8 @@ class PseudoinverseObserver(Estimator):
         self.weights = weights / np.linalg.norm(weights)
         if abs(np.linalg.det(self.Y.T @ (self.weights[:, None] * self.Y))) < params.min_det:
             raise ParameterError("weights", "R(s) = Yᵀ diag(s) Y is singular for these weights (eq. (14))")
+        if np.any(np.abs(np.asarray(params.poles)) >= 1.0):
+            raise ParameterError("poles", f"{list(params.poles)}: every pole must lie inside the unit circle, so that A − L H is Schur")
         try:
             self.L = observer_gain(model.A, self.H, params.poles)
         except ValueError as error:

@@ -6,6 +6,7 @@ effectiveness on the actuators, all seeded from the scenario's seed.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ from faults.models import (
 )
 from faults.waveforms import Constant, Exponential, Ramp, Sine, Square, Sum, Waveform
 
-# Random streams are keyed by (group, index) so that each fault draws from its own generator.
+# Random streams are keyed by (group, label) so that each model draws from its own generator.
 _NOISE, _FAULT, _ACTUATOR = 0, 1, 2
 
 
@@ -34,12 +35,13 @@ _NOISE, _FAULT, _ACTUATOR = 0, 1, 2
 class SensorOutcome:
     """What the fault layer did to one tick's sensor readings.
 
-    ``measured`` is what goes on the bus (NaN: frame not sent); ``noise`` is the part added by
-    measurement noise and ``fault`` the deviation the faults added on top of it
-    (measured = true + noise + fault wherever a frame is sent). ``active`` names the faults active.
+    ``measured`` is what the sensors read and ``sent`` which of their frames go on the bus;
+    ``noise`` is the part added by measurement noise and ``fault`` the deviation the faults added
+    on top of it (measured = true + noise + fault). ``active`` names the faults active.
     """
 
     measured: np.ndarray
+    sent: np.ndarray
     noise: np.ndarray
     fault: np.ndarray
     active: tuple[str, ...]
@@ -64,7 +66,13 @@ class FaultInjector:
         self.actuator_faults = list(actuator_faults)
         for group, models in ((_NOISE, self.noise), (_FAULT, self.sensor_faults), (_ACTUATOR, self.actuator_faults)):
             for index, model in enumerate(models):
-                model.reset(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(group, index))))
+                model.label = model.label or f"{model.kind}{index}"
+            labels = [model.label for model in models]
+            if len(set(labels)) != len(labels):
+                raise ValueError(f"fault labels must be unique, got {labels}")
+            for model in models:
+                key = (group, zlib.crc32(model.label.encode()))
+                model.reset(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key)))
 
     @property
     def faults(self) -> list[Fault]:
@@ -80,10 +88,12 @@ class FaultInjector:
         for model in self.noise:
             noisy = model.apply(noisy, t)
         measured = noisy
+        sent = np.ones(len(y_true), dtype=bool)
         for model in self.sensor_faults:
             measured = model.apply(measured, t)
+            sent[model.drops(t)] = False
         active = tuple(f.label for f in self.faults if f.active(t))
-        return SensorOutcome(measured, noisy - y_true, measured - noisy, active)
+        return SensorOutcome(measured, sent, noisy - y_true, measured - noisy, active)
 
     def actuators(self, u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The effective inputs δ ∘ u and the effectiveness factors δ."""

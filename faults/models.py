@@ -1,10 +1,11 @@
 """Fault models applied between the plant's true signals and the bus.
 
 Sensor faults act on a vector of readings y (one entry per transmitted sensor) and return the
-faulty readings; a NaN reading means the sensor's frame is not sent. Actuator faults scale the
-commanded inputs. Every model is active on the window start <= t < end, acts on a subset of
-channels (indices into y or u), and draws its randomness from its own generator, so that adding
-or removing one fault never changes the random sequence of another.
+faulty readings; a fault may also stop some sensors' frames from being sent (``drops``).
+Actuator faults scale the commanded inputs. Every model is active on the window
+start <= t < end, acts on a subset of channels (indices into y or u), and draws its randomness
+from its own generator, keyed by the model's label, so that adding, removing or reordering other
+faults never changes its random sequence.
 
 Sources: additive bias φ (TAC 2024, eq. (1)); bias of constant direction and time-varying
 amplitude φ_k = g_k φ̄ (TAC 2024, eq. (35)); sensor loss of effectiveness y_i ← γ_i y_i (IJC 2018,
@@ -57,6 +58,10 @@ class SensorFault(Fault):
     @abstractmethod
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         """The faulty values of this fault's channels, ``elapsed`` seconds after onset."""
+
+    def drops(self, t: float) -> list[int]:
+        """Channels whose frame is not sent at time t (called once per tick, after ``apply``)."""
+        return []
 
 
 def _vector(values: float | tuple[float, ...], channels: tuple[int, ...], what: str) -> np.ndarray:
@@ -171,8 +176,13 @@ class Dropout(SensorFault):
             raise ValueError("dropout probability must be in [0, 1]")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y
+
+    def drops(self, t: float) -> list[int]:
+        if not self.active(t):
+            return []
         lost = self._rng.random(len(self.channels)) < self.probability
-        return np.where(lost, np.nan, y)
+        return [channel for channel, gone in zip(self.channels, lost) if gone]
 
 
 @dataclass

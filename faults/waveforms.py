@@ -77,7 +77,11 @@ class Exponential(Waveform):
     final: float = 0.0
 
     def __call__(self, t: float) -> float:
-        return self.final + (self.initial - self.final) * math.exp(-self.rate * t)
+        try:
+            decay = math.exp(-self.rate * t)
+        except OverflowError:  # a growing exponential left the floats: the caller rejects non-finite values
+            decay = math.inf
+        return self.final + (self.initial - self.final) * decay
 
 
 @dataclass(frozen=True)

@@ -62,3 +62,12 @@ def test_inspect_of_a_log_written_by_another_program(tmp_path):
     report = json.loads(out.getvalue())
     assert report["channels"] == {"/pose": 5} and report["scenario"] is None and report["estimators"] == {}
     assert any("no cosim.run metadata" in w for w in report["warnings"])
+
+
+def test_bad_output_paths_and_seeds_are_one_line_errors(tmp_path):
+    result = run_cli("run", "--seed", "-1")
+    assert result.returncode == 2 and "--seed: -1 is negative; seeds are >= 0" in result.stderr
+    for args in (("run", "-q", "--out", str(tmp_path)), ("dbc", "--out", str(tmp_path / "no" / "x.dbc")), ("inspect", str(tmp_path))):
+        result = run_cli(*args)
+        assert result.returncode == 1 and "Traceback" not in result.stderr, args
+        assert result.stderr.strip().splitlines()[-1].startswith("error: "), args

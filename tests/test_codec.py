@@ -76,7 +76,7 @@ def test_fd_layout_is_one_float64_frame_per_estimator():
 
 def test_a_signal_too_wide_for_classic_can_is_refused_with_the_fix():
     fine = Channel("x", "m", "", -1e3, 1e3, 1e-12)
-    with pytest.raises(CodecError, match="coarsen its resolution or narrow its range, or use CAN FD"):
+    with pytest.raises(CodecError, match=r"needs 51 bits.*set a coarser resolution or a narrower range with \[bus\.sensors\.x\], or use CAN FD"):
         Codec([fine], [], {})
     Codec([fine], [], {}, fd=True)  # float64 in FD has no such limit
 
@@ -116,3 +116,17 @@ def test_unknown_and_malformed_frames():
     assert c.decode(can.Message(arbitration_id=0x100, data=b"\x00" * 5, is_extended_id=True)) is None
     with pytest.raises(CodecError, match=r"frame 0x100 \(SENSOR_x1\) cannot be decoded"):
         c.decode(can.Message(arbitration_id=0x100, data=b"\x00", is_extended_id=False))
+
+
+def test_id_blocks_and_sync_counts_are_bounded():
+    with pytest.raises(CodecError, match=r"too many estimators for the bus: at most 40 fit ids 0x200-0x6FF"):
+        Codec(SENSORS, INFO.actuators, {f"e{i}": INFO.states for i in range(41)})
+    with pytest.raises(CodecError, match=r"too many sensors for the bus: at most 128"):
+        Codec([Channel(f"s{i}", "m", "", -1, 1, 1e-3) for i in range(129)], [], {})
+    with pytest.raises(CodecError, match="a SYNC can announce at most 255"):
+        codec(False).sync(0, 256)
+
+
+def test_fd_data_bitrate_is_in_the_dbc():
+    c = Codec(SENSORS, INFO.actuators, {}, fd=True, data_bitrate=5_000_000)
+    assert load_dbc(c.dbc).dbc.attributes["BaudrateCANFD"].value == 5_000_000

@@ -104,7 +104,9 @@ def test_stuck_at_holds_the_onset_reading_or_a_given_value():
 
 def test_dropout_drops_frames_at_the_given_rate():
     inj = injector(fm.Dropout(channels=(0, 1), probability=0.2), seed=3)
-    dropped = np.array([np.isnan(inj.sensors(Y, 0.0).measured) for _ in range(20000)])
+    outcomes = [inj.sensors(Y, 0.0) for _ in range(20000)]
+    dropped = np.array([~o.sent for o in outcomes])
+    assert all(np.array_equal(o.measured, Y) for o in outcomes)  # the readings themselves are untouched
     assert dropped[:, 2].sum() == 0
     # binomial: standard error sqrt(0.2*0.8/20000) = 0.0028
     np.testing.assert_allclose(dropped[:, :2].mean(axis=0), 0.2, atol=0.012)
@@ -140,3 +142,20 @@ def test_measured_is_true_plus_noise_plus_fault():
 def test_vector_length_is_checked():
     with pytest.raises(ValueError, match="expected 2 values"):
         fm.Bias(channels=(0, 1), value=(1.0, 2.0, 3.0))
+
+
+def test_random_streams_are_keyed_by_label_not_position():
+    """Removing or reordering other faults does not change a fault's random sequence."""
+    def draws(faults):
+        inj = injector(*faults, seed=9)
+        return np.array([inj.sensors(np.zeros(2), k * 0.01).fault for k in range(50)])
+
+    outliers = lambda: fm.Outliers(channels=(1,), probability=0.5, magnitude=(1.0,), label="spikes")  # noqa: E731
+    alone = draws([outliers()])
+    behind_another = draws([fm.Outliers(channels=(0,), probability=0.5, magnitude=(1.0,), label="other"), outliers()])
+    np.testing.assert_array_equal(alone[:, 1], behind_another[:, 1])
+
+
+def test_duplicate_labels_are_refused():
+    with pytest.raises(ValueError, match="fault labels must be unique"):
+        injector(fm.Bias(channels=(0,), value=(1.0,), label="a"), fm.Drift(channels=(0,), rate=(1.0,), label="a"))

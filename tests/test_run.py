@@ -257,3 +257,52 @@ def test_fault_tour_on_can_fd(tmp_path):
     assert inputs[1399]["effective"] == inputs[1399]["commanded"]
     report = inspect_json(tmp_path / "tour.mcap")
     assert report["fault_onset"] == 2.0 and report["frames"]["lost"] == 0
+
+
+def test_a_cut_log_gives_a_partial_result_with_a_warning(default_run, tmp_path):
+    data = default_run.path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    report = inspect_json(cut)
+    assert report["status"] == "incomplete" and 1000 < report["ticks"] < 2000
+    assert any("no summary section" in w for w in report["warnings"])
+    assert any("damaged or cut after t =" in w for w in report["warnings"])
+    assert report["estimators"]["uniform"]["rms_post_fault"] > 0.5  # computed from what was readable
+
+
+def test_a_corrupted_chunk_is_skipped_with_a_warning(default_run, tmp_path):
+    data = bytearray(default_run.path.read_bytes())
+    middle = len(data) // 3
+    data[middle : middle + 32] = bytes(b ^ 0xFF for b in data[middle : middle + 32])
+    flipped = tmp_path / "flipped.mcap"
+    flipped.write_bytes(bytes(data))
+    report = inspect_json(flipped)
+    (warning,) = report["warnings"]
+    assert warning.startswith("a damaged chunk was skipped: bytes ") and "crc validation failed" in warning
+    assert report["estimators"]["uniform"]["final_error"] == pytest.approx(inspect_json(default_run.path)["estimators"]["uniform"]["final_error"])
+
+
+def test_sigterm_exits_with_143(tmp_path):
+    out = tmp_path / "term143.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 100_000):
+        time.sleep(0.05)
+    proc.terminate()
+    proc.communicate(timeout=60)
+    assert proc.returncode == 143
+
+
+def test_a_non_finite_effective_input_stops_the_run_with_a_clear_error(tmp_path, default_loaded):
+    text = short_scenario(default_loaded.text, 2.0) + (
+        '\n[[faults]]\nname = "blowup"\nkind = "actuator_effectiveness"\nstart = 1.0\n'
+        'effectiveness = { kind = "exponential", rate = -1e6 }\n'
+    )
+    path = tmp_path / "blowup.toml"
+    path.write_text(text)
+    from cosim.errors import CosimError
+
+    with pytest.raises(CosimError, match=r"actuator force: the effective input at tick 101 is not finite"):
+        run(scenario.load(path), tmp_path / "blowup.mcap")
+    assert inspect_json(tmp_path / "blowup.mcap")["status"] == "error"

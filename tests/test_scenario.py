@@ -124,6 +124,60 @@ def test_sample_time_that_is_not_a_multiple_of_the_timestep(tmp_path):
     from cosim.runner import Run
 
     bad = tmp_path / "bad.toml"
-    bad.write_text(BASE.replace("sample_time = 0.01", "sample_time = 0.0105"))
+    bad.write_text(BASE.replace("sample_time = 0.01", "sample_time = 0.0105").replace("duration = 1.0", "duration = 1.05"))
     with pytest.raises(ScenarioError, match=r"sample_time = 0\.0105 s is not a whole multiple of the timestep 0\.001 s"):
         Run(scenario.load(bad), tmp_path / "x.mcap")
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ('[[faults]]\nkind = "bias"\nvalue = nan\n', r"faults\[0\]\.value: Input should be a finite number"),
+        ('[[faults]]\nkind = "gain"\ngain = inf\n', r"faults\[0\]\.gain: Input should be a finite number"),
+        ('[[faults]]\nkind = "bias"\nvalue = 1\nend = nan\n', r"faults\[0\]: end \(nan\) must be after start"),
+        ('[[faults]]\nkind = "bias"\nvalue = 1\n[[faults]]\nkind = "drift"\nrate = 1\nname = "bias0"\n', r"two noise models or faults are labelled 'bias0'"),
+        ('[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { weights = "abc" }\n', r"estimators\[0\]\.params\.weights: expected a list of numbers, got 'abc'"),
+        ('[[estimators]]\nname = "k"\nkind = "kalman"\nparams = { measurement_std = "a" }\n', r"params\.measurement_std: expected a number or a list of numbers"),
+        ('[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { poles = ["a", 1, 2, 3] }\n', r"params\.poles\[0\]: expected a number, got 'a'"),
+        ('[bus.sensors.x1]\nminimum = 3\nmaximum = 2\n', r"bus\.sensors\.x1: minimum must be below maximum"),
+        ('[bus.states.v1]\nresolution = 1e-15\n', r"needs \d+ bits .* \[bus\.states\.v1\], or use CAN FD"),
+    ],
+)
+def test_non_finite_values_labels_params_and_bus_are_checked_on_load(extra, message):
+    with pytest.raises(ScenarioError, match=message):
+        scenario.parse(BASE + extra + ('[[estimators]]\nname = "e"\nkind = "kalman"\n' if "states" in extra else ""), "bad.toml")
+
+
+def test_an_open_ended_fault_may_say_end_inf():
+    s = scenario.parse(BASE + '[[faults]]\nkind = "bias"\nvalue = 1\nend = inf\n')
+    assert s.faults[0].end == float("inf")
+
+
+def test_duration_must_be_a_whole_number_of_ticks_and_infinity_is_refused():
+    with pytest.raises(ScenarioError, match=r"duration: 0\.015 s is not a whole number of sample times \(0\.01 s\); use 0\.01 or 0\.02"):
+        scenario.parse(BASE.replace("duration = 1.0", "duration = 0.015"))
+    with pytest.raises(ScenarioError, match=r"duration: Input should be a finite number"):
+        scenario.parse(BASE.replace("duration = 1.0", "duration = inf"))
+
+
+def test_scenario_names_are_safe_in_file_names():
+    with pytest.raises(ScenarioError, match=r"name: String should match pattern"):
+        scenario.parse(BASE.replace('name = "t"', 'name = "../x"'))
+
+
+def test_a_negative_seed_override_is_refused():
+    with pytest.raises(ScenarioError, match=r"seed: -1 is negative"):
+        scenario.parse(BASE).with_seed(-1)
+    assert scenario.parse(BASE).with_seed(7).seed == 7
+
+
+def test_fault_onset_is_the_first_tick_at_or_after_start_even_when_kτ_rounds_below():
+    """0.33 / 0.03 = 10.999… in floating point: the fault must still start at tick 11 (t = 0.33 s)."""
+    from cosim.runner import build_faults, first_tick_at
+
+    s = scenario.parse(BASE.replace("sample_time = 0.01", "sample_time = 0.03").replace("duration = 1.0", "duration = 0.6")
+                       + '[[faults]]\nkind = "bias"\nvalue = 1\nstart = 0.33\n')
+    assert 11 * 0.03 < 0.33  # the trap
+    assert first_tick_at(s, 0.33) == 11
+    injector = build_faults(s)
+    assert not injector.sensor_faults[0].active(s.time(10)) and injector.sensor_faults[0].active(s.time(11))
