@@ -23,6 +23,7 @@ examples:
   cosim scenarios                    list the built-in scenarios
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
+  cosim monitor                      watch the running co-simulation's signals live
 """
 
 
@@ -35,20 +36,28 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cosim.runner import Run
 
     loaded = scenario.load(args.scenario)
-    s = loaded.scenario
-    seed = s.seed if args.seed is None else args.seed
-    out = Path(args.out) if args.out else Path("runs") / f"{s.name}-seed{seed}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
-    run = Run(loaded, out, args.seed)
+    seed = loaded.scenario.seed if args.seed is None else args.seed
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out) if args.out else Path("runs") / f"{loaded.scenario.name}-seed{seed}-{stamp}.mcap"
+    run = Run(loaded, out, args.seed, interface=args.interface, channel=args.channel, port=args.port,
+              mode=args.mode, speed=args.speed)
+    s = run.scenario
     console = _console(stderr=True)
+    timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
     console.print(
-        f"[bold]{s.name}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {seed}, "
-        f"estimators: {', '.join(run.estimators) or 'none'}; bus: {s.bus.interface} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
+        f"[bold]{escape(s.name)}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {s.seed}, {timing}; "
+        f"estimators: {', '.join(run.estimators) or 'none'} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
     )
+
+    def started(run) -> None:
+        console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
+        waiting = [c.name for c in s.clients]
+        if waiting:
+            console.print(f"waiting for client{'s' if len(waiting) > 1 else ''} {', '.join(waiting)} to join "
+                          f"(up to {s.timing.join_timeout:g} s)")
+
     try:
-        if args.quiet:
-            result = run.execute()
-        else:
-            result = _with_progress(run, console)
+        result = run.execute(on_start=started) if args.quiet else _with_progress(run, console, started)
     except KeyboardInterrupt as interrupt:
         r = getattr(run, "result", None)
         done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
@@ -57,15 +66,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     except CosimError as error:
         console.print(f"[red]error:[/red] {escape(str(error))}\nthe log up to that point is in {escape(str(out))}")
         return 1
+    misses = f", {result.deadline_misses} deadline misses" if s.timing.mode == "realtime" else ""
     console.print(
-        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s "
+        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in {result.wall_time:.2f} s "
         f"(real-time factor {result.realtime_factor:.1f})"
     )
     print(out)
     return 0
 
 
-def _with_progress(run, console: Console):
+def _with_progress(run, console: Console, started):
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     columns = (
@@ -82,7 +92,33 @@ def _with_progress(run, console: Console):
         def update(p) -> None:
             progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)
 
-        return run.execute(update)
+        return run.execute(update, on_start=started)
+
+
+def cmd_node(args: argparse.Namespace) -> int:
+    from cosim.node import load_spec, serve
+
+    if args.spec:
+        spec = load_spec(args.spec)
+        if spec.name != args.estimator:
+            raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
+    else:
+        from cosim import registry, scenario
+        from cosim.bus import BusConfig
+        from cosim.runner import Run
+
+        info = registry.find(args.run)
+        run = Run(scenario.load(info["source"]), "/dev/null", info["seed"])
+        if args.estimator not in run.estimators:
+            raise CosimError(f"the running scenario has no estimator {args.estimator!r} (it has: {', '.join(run.estimators)})")
+        spec = run.node_spec(args.estimator, BusConfig.from_dict(info["bus"]))
+    return serve(spec)
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from cosim.monitor import monitor
+
+    return monitor(args.run, _console())
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:
@@ -178,8 +214,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or path to a TOML file (default: masses-bias)")
     p.add_argument("--out", "-o", metavar="FILE.mcap", help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap)")
     p.add_argument("--seed", type=_seed, metavar="N", help="random seed for noise and faults, >= 0 (default: the scenario's)")
+    p.add_argument("--interface", choices=("udp_multicast", "socketcan", "virtual"),
+                   help="bus transport (default: the scenario's, udp_multicast unless it says otherwise)")
+    p.add_argument("--channel", help="bus channel: multicast group, CAN interface or virtual channel (default: a fresh one)")
+    p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
+    p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("node", help="run one estimator as a CAN node", description="Run one estimator as a node on a "
+                       "co-simulation's bus. 'cosim run' starts its estimators this way (with --spec); by hand, the node "
+                       "joins the running co-simulation (which must declare it) and rebuilds its model from the scenario.")
+    p.add_argument("estimator", metavar="ESTIMATOR", help="the estimator's name in the scenario")
+    p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
+    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
+    p.set_defaults(func=cmd_node)
+
+    p = sub.add_parser("monitor", help="show a running co-simulation's signals live", description="Attach to a running "
+                       "co-simulation and show its decoded signals live, message by message.")
+    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
+    p.set_defaults(func=cmd_monitor)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios", description="List the built-in scenarios.")
     p.set_defaults(func=cmd_scenarios)

@@ -1,28 +1,41 @@
 """The run's CAN database (DBC), generated with cantools, and the encoding of values into frames.
 
-Frame layout
-------------
-- ``SYNC`` (id 0x080, CANopen's default SYNC COB-ID, sent by ``runner``): ``tick`` (uint32), the
+Frame layout (CANopen-flavoured; ids in hex)
+---------------------------------------------
+- ``NMT`` (0x000, sent by ``runner``): network management, ``command`` (1 start, 2 stop) and
+  ``node`` (0: all nodes). The runner sends "stop all" when a run ends.
+- ``SYNC`` (0x080, CANopen's default SYNC COB-ID, sent by ``runner``): ``tick`` (uint32), the
   tick counter k, and ``frames`` (uint8), how many data frames the runner sends for tick k right
   after it (sensor and command frames). A receiver knows it has all of tick k's inputs when it has
   that many; a frame not sent by an injected dropout is simply not counted.
 - ``SENSOR_<name>`` (0x100 + i, sent by ``plant``): one frame per sensor, like a smart sensor on
   its own node: ``tick`` and the reading.
 - ``COMMAND_<name>`` (0x180 + i, sent by ``controller``): the commanded input of each actuator.
-- ``EST_<estimator>_<n>`` (0x200 + 0x20·e + n, sent by the estimator): its estimate x̂_k
+- ``EST_<estimator>[_n]`` (0x200 + 0x20·e + n, sent by the estimator): its estimate x̂_k
   (``xhat_<state>``), packed into as few frames as fit.
+- ``CLIENT_<client>[_n]`` (0x600 + 0x10·c + n, sent by a client declared in the scenario): the
+  client's own signals.
+- ``HEARTBEAT_<node>`` (0x700 + node id, sent by each estimator or client node): ``state``
+  (CANopen NMT state: 0 boot-up, 4 stopped, 5 operational), ``tick``, ``frames`` (data frames the
+  node sent for that tick) and ``lost`` (frames the node found missing so far). A node sends its
+  boot-up heartbeat when it joins and one operational heartbeat after its frames of every tick:
+  that is what the runner waits for in lockstep, and what per-sender loss counting rests on.
 
 Every data frame carries ``tick``: k mod 2¹⁶ in classic CAN (16 bits), k in CAN FD (32 bits).
 Classic CAN signals are scaled signed integers whose resolution and range come from the plant
-module (or the scenario's overrides); CAN FD signals are float64. A value outside its declared
-range, or not finite, is a CodecError naming the signal: never silently wrapped or clipped.
+module (or the scenario's overrides); CAN FD signals are float64. NMT, SYNC and heartbeats are
+classic frames on either bus. A value outside its declared range, or not finite, is a CodecError
+naming the signal: never silently wrapped or clipped.
+
+The DBC text is complete: ``Codec.from_dbc`` rebuilds the same codec from it, which is how node
+processes and clients get theirs.
 """
 
 from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import can
@@ -36,23 +49,39 @@ from cantools.database.conversion import BaseConversion
 from cosim.errors import CodecError
 from mjcf import Channel
 
+NMT_ID = 0x000
 SYNC_ID = 0x080
 SENSOR_BASE = 0x100
 COMMAND_BASE = 0x180
 ESTIMATE_BASE = 0x200
 ESTIMATE_STRIDE = 0x20
+CLIENT_BASE = 0x600
+CLIENT_STRIDE = 0x10
+HEARTBEAT_BASE = 0x700
+MAX_NODE_ID = 0x7F
 
 CLASSIC_TICK_BITS = 16
 FD_TICK_BITS = 32
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
-SYNC, SENSOR, COMMAND, ESTIMATE = "sync", "sensor", "command", "estimate"
+NMT, SYNC, HEARTBEAT = "nmt", "sync", "heartbeat"
+SENSOR, COMMAND, ESTIMATE, CLIENT = "sensor", "command", "estimate", "client"
 RUNNER, PLANT, CONTROLLER = "runner", "plant", "controller"
 
+NMT_START, NMT_STOP = 0x01, 0x02  # CANopen NMT command specifiers
+BOOTUP, STOPPED, OPERATIONAL = 0x00, 0x04, 0x05  # CANopen NMT states, as heartbeats carry them
+
 #: The scenario table that overrides a channel's range, per message role.
-OVERRIDE_TABLE = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "states"}
-#: Identifier blocks: [first, end) per role. Estimators get ESTIMATE_STRIDE ids each.
-ID_BLOCKS = {SENSOR: (SENSOR_BASE, COMMAND_BASE), COMMAND: (COMMAND_BASE, ESTIMATE_BASE), ESTIMATE: (ESTIMATE_BASE, 0x700)}
+OVERRIDE_TABLE = {SENSOR: "bus.sensors", COMMAND: "bus.actuators", ESTIMATE: "bus.states", CLIENT: "clients"}
+#: Identifier blocks: [first, end) per role.
+ID_BLOCKS = {
+    SENSOR: (SENSOR_BASE, COMMAND_BASE),
+    COMMAND: (COMMAND_BASE, ESTIMATE_BASE),
+    ESTIMATE: (ESTIMATE_BASE, CLIENT_BASE),
+    CLIENT: (CLIENT_BASE, HEARTBEAT_BASE),
+}
+#: Signal prefix per role (estimates are named after the state they estimate).
+SIGNAL_PREFIX = {ESTIMATE: "xhat_"}
 
 
 @dataclass(frozen=True)
@@ -89,12 +118,11 @@ def _fd_length(nbytes: int) -> int:
     raise CodecError(f"{nbytes} bytes do not fit a CAN FD frame (at most 64)")
 
 
-def pack_channels(
-    prefix: str, base_id: int, sender: str, role: str, channels: Sequence[Channel], signal_prefix: str, fd: bool
-) -> list[MessageSpec]:
+def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: Sequence[Channel], fd: bool) -> list[MessageSpec]:
     """Lay channels out in as few frames as fit, in order: 8-byte classic frames of scaled integers
     after a 16-bit tick, or 64-byte FD frames of float64 after a 32-bit tick."""
     capacity = 64 * 8 - FD_TICK_BITS if fd else 64 - CLASSIC_TICK_BITS
+    signal_prefix = SIGNAL_PREFIX.get(role, "")
     groups: list[list[Channel]] = [[]]
     used = 0
     for channel in channels:
@@ -103,7 +131,7 @@ def pack_channels(
             raise CodecError(
                 f"signal {signal_prefix}{channel.name} needs {bits} bits at resolution {channel.resolution:g} "
                 f"{channel.unit} over [{channel.minimum:g}, {channel.maximum:g}], and at most {capacity} fit a classic "
-                f"frame: set a coarser resolution or a narrower range with [bus.{OVERRIDE_TABLE[role]}.{channel.name}], "
+                f"frame: set a coarser resolution or a narrower range with [{OVERRIDE_TABLE[role]}.{channel.name}], "
                 f"or use CAN FD (bus.fd = true)"
             )
         if used + bits > capacity:
@@ -111,112 +139,97 @@ def pack_channels(
             used = 0
         groups[-1].append(channel)
         used += bits
-    specs = []
-    for n, group in enumerate(groups):
-        name = prefix if len(groups) == 1 else f"{prefix}_{n}"
-        specs.append(
-            MessageSpec(name, base_id + n, sender, role, tuple(group), tuple(signal_prefix + c.name for c in group))
+    return [
+        MessageSpec(
+            prefix if len(groups) == 1 else f"{prefix}_{n}", base_id + n, sender, role, tuple(group),
+            tuple(signal_prefix + c.name for c in group),
         )
-    return specs
+        for n, group in enumerate(groups)
+    ]
 
 
 class Codec:
     """The CAN database of one run, and fast, range-checked encoding and decoding of its frames.
 
-    Built from the transmitted sensors, the actuators and each estimator's output channels.
-    ``fd`` selects CAN FD (float64 signals) or classic CAN (scaled integers).
+    Built from the transmitted sensors, the actuators, each estimator's output channels and each
+    declared client's signals; ``fd`` selects CAN FD (float64 signals) or classic CAN (scaled
+    integers). Estimators get node ids 1, 2, … in order, then the clients.
     """
 
     def __init__(
         self,
         sensors: Sequence[Channel],
         actuators: Sequence[Channel],
-        estimators: dict[str, Sequence[Channel]],
+        estimators: Mapping[str, Sequence[Channel]],
         *,
+        clients: Mapping[str, Sequence[Channel]] | None = None,
         fd: bool = False,
         bitrate: int = 500_000,
         data_bitrate: int = 2_000_000,
         cycle_time: float | None = None,
     ) -> None:
-        self.fd = fd
-        self.bitrate = bitrate
-        self.data_bitrate = data_bitrate
-        for role, count in ((SENSOR, len(sensors)), (COMMAND, len(actuators)), (ESTIMATE, len(estimators) * ESTIMATE_STRIDE)):
+        clients = dict(clients or {})
+        counts = {SENSOR: len(sensors), COMMAND: len(actuators), ESTIMATE: len(estimators) * ESTIMATE_STRIDE,
+                  CLIENT: len(clients) * CLIENT_STRIDE}
+        for role, count in counts.items():
             first, end = ID_BLOCKS[role]
             if count > end - first:
-                what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators"}[role]
-                limit = (end - first) // (ESTIMATE_STRIDE if role == ESTIMATE else 1)
-                raise CodecError(f"too many {what} for the bus: at most {limit} fit ids 0x{first:03X}-0x{end - 1:03X}")
-        specs = [MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames"))]
+                stride = {ESTIMATE: ESTIMATE_STRIDE, CLIENT: CLIENT_STRIDE}.get(role, 1)
+                what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators", CLIENT: "clients"}[role]
+                raise CodecError(f"too many {what} for the bus: at most {(end - first) // stride} fit ids 0x{first:03X}-0x{end - 1:03X}")
+        nodes = [*estimators, *clients]
+        if len(set(nodes)) != len(nodes):
+            raise CodecError(f"estimator and client names must differ: {', '.join(nodes)}")
+        specs = [
+            MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), ("command", "node")),
+            MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames")),
+        ]
         for i, channel in enumerate(sensors):
-            specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], "", fd)
+            specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
         for i, channel in enumerate(actuators):
-            specs += pack_channels(f"COMMAND_{channel.name}", COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], "", fd)
-        for e, (name, channels) in enumerate(estimators.items()):
-            base = ESTIMATE_BASE + ESTIMATE_STRIDE * e
-            packed = pack_channels(f"EST_{name}", base, name, ESTIMATE, channels, "xhat_", fd)
-            if len(packed) > ESTIMATE_STRIDE:
-                raise CodecError(f"estimator {name} needs {len(packed)} frames per tick; at most {ESTIMATE_STRIDE} fit its id block")
-            specs += packed
+            specs += pack_channels(f"COMMAND_{channel.name}", COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
+        for group, base, stride, role, prefix in (
+            (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, "EST"),
+            (clients, CLIENT_BASE, CLIENT_STRIDE, CLIENT, "CLIENT"),
+        ):
+            for e, (name, channels) in enumerate(group.items()):
+                packed = pack_channels(f"{prefix}_{name}", base + stride * e, name, role, channels, fd)
+                if len(packed) > stride:
+                    raise CodecError(f"{name} needs {len(packed)} frames per tick; at most {stride} fit its id block")
+                specs += packed
+        for node_id, name in enumerate(nodes, start=1):
+            specs.append(MessageSpec(f"HEARTBEAT_{name}", HEARTBEAT_BASE + node_id, name, HEARTBEAT, (), ("state", "tick", "frames", "lost")))
+        cycle_ms = None if cycle_time is None or cycle_time < 1e-3 else int(round(cycle_time * 1000))
+        self._setup(_database(specs, fd, bitrate, data_bitrate, cycle_ms), specs, fd)
+
+    @classmethod
+    def from_dbc(cls, text: str) -> Codec:
+        """The codec described by a DBC written by ``Codec.dbc`` (or ``cosim dbc``)."""
+        try:
+            database = load_dbc(text)
+        except Exception as error:  # cantools raises several parse error types
+            raise CodecError(f"the DBC cannot be parsed: {error}") from None
+        fd = any(m.is_fd for m in database.messages) or _bus_type(database) == "CAN FD"
+        specs = [_spec_from_message(m) for m in database.messages]
+        codec = cls.__new__(cls)
+        codec._setup(database, specs, fd)
+        return codec
+
+    def _setup(self, database: Database, specs: list[MessageSpec], fd: bool) -> None:
+        self.fd = fd
+        self.database = database
+        bus = database.buses[0] if database.buses else None
+        self.bitrate = bus.baudrate if bus and bus.baudrate else 500_000
+        self.data_bitrate = bus.fd_baudrate if bus and bus.fd_baudrate else 2_000_000
         self.specs: dict[str, MessageSpec] = {spec.name: spec for spec in specs}
         self._by_id: dict[int, MessageSpec] = {spec.frame_id: spec for spec in specs}
-        cycle_ms = None if cycle_time is None or cycle_time < 1e-3 else int(round(cycle_time * 1000))
-        self.database = self._database(specs, cycle_ms)
-        self._messages: dict[str, Message] = {m.name: m for m in self.database.messages}
+        self._messages: dict[str, Message] = {m.name: m for m in database.messages}
         self.tick_modulus = 2**FD_TICK_BITS if fd else 2**CLASSIC_TICK_BITS
+        self.node_ids: dict[str, int] = {
+            spec.sender: spec.frame_id - HEARTBEAT_BASE for spec in specs if spec.role == HEARTBEAT
+        }
 
     # -- database -------------------------------------------------------------------------------
-
-    def _database(self, specs: list[MessageSpec], cycle_ms: int | None) -> Database:
-        messages = []
-        for spec in specs:
-            if spec.role == SYNC:
-                signals = [
-                    Signal("tick", 0, 32, comment="tick counter k"),
-                    Signal("frames", 32, 8, comment="data frames the runner sends for tick k after this SYNC"),
-                ]
-                messages.append(
-                    Message(SYNC_ID, "SYNC", 5, signals, senders=[RUNNER], cycle_time=cycle_ms, comment="start of tick k")
-                )
-                continue
-            tick_bits = FD_TICK_BITS if self.fd else CLASSIC_TICK_BITS
-            tick_comment = "tick counter k" if self.fd else "tick counter k mod 65536"
-            signals = [Signal("tick", 0, tick_bits, comment=tick_comment)]
-            start = tick_bits
-            for channel, signal_name in zip(spec.channels, spec.signals):
-                if self.fd:
-                    length, conversion = 64, BaseConversion.factory(1.0, 0.0, is_float=True)
-                    signed = False
-                else:
-                    length, conversion = signal_bits(channel), BaseConversion.factory(channel.resolution, 0.0)
-                    signed = True
-                signals.append(
-                    Signal(
-                        signal_name, start, length, is_signed=signed, conversion=conversion,
-                        minimum=channel.minimum, maximum=channel.maximum, unit=channel.unit,
-                        comment=channel.description,
-                    )
-                )
-                start += length
-            nbytes = (start + 7) // 8
-            length = _fd_length(nbytes) if self.fd else nbytes
-            messages.append(
-                Message(
-                    spec.frame_id, spec.name, length, signals, senders=[spec.sender], is_fd=self.fd,
-                    cycle_time=cycle_ms,
-                )
-            )
-        nodes = sorted({spec.sender for spec in specs})
-        bus_type = DbcAttributeDefinition("BusType", default_value="CAN", type_name="STRING")
-        attributes = OrderedDict(BusType=DbcAttribute("CAN FD" if self.fd else "CAN", bus_type))
-        definitions = OrderedDict(BusType=bus_type)
-        if self.fd:  # Vector's attribute for the data-phase bit rate
-            fd_rate = DbcAttributeDefinition("BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000)
-            attributes["BaudrateCANFD"] = DbcAttribute(self.data_bitrate, fd_rate)
-            definitions["BaudrateCANFD"] = fd_rate
-        dbc = DbcSpecifics(attributes=attributes, attribute_definitions=definitions)
-        bus = Bus("cosim", baudrate=self.bitrate, fd_baudrate=self.data_bitrate if self.fd else None)
-        return Database(messages, [Node(n) for n in nodes], buses=[bus], version="cosim", dbc_specifics=dbc)
 
     @property
     def dbc(self) -> str:
@@ -230,13 +243,29 @@ class Codec:
             key=lambda s: s.frame_id,
         )
 
+    def data_messages(self, sender: str) -> list[MessageSpec]:
+        """The messages a node sends every tick (its heartbeat excluded)."""
+        return [s for s in self.messages(sender=sender) if s.role != HEARTBEAT]
+
     # -- frames ---------------------------------------------------------------------------------
+
+    def _classic(self, name: str, values: dict[str, int]) -> can.Message:
+        spec = self.specs[name]
+        data = self._messages[name].encode(values, strict=False)
+        return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False)
 
     def sync(self, tick: int, frames: int) -> can.Message:
         if not 0 <= frames <= 255:
             raise CodecError(f"tick {tick} has {frames} data frames; a SYNC can announce at most 255")
-        data = self._messages["SYNC"].encode({"tick": tick % 2**32, "frames": frames}, strict=False)
-        return can.Message(arbitration_id=SYNC_ID, data=data, is_extended_id=False)
+        return self._classic("SYNC", {"tick": tick % 2**32, "frames": frames})
+
+    def nmt(self, command: int, node: int = 0) -> can.Message:
+        return self._classic("NMT", {"command": command, "node": node})
+
+    def heartbeat(self, node: str, state: int, tick: int = 0, frames: int = 0, lost: int = 0) -> can.Message:
+        return self._classic(
+            f"HEARTBEAT_{node}", {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)}
+        )
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
         """The frame of message ``name`` for tick k carrying ``values`` (one per signal, in order)."""
@@ -264,7 +293,7 @@ class Codec:
             values = message.decode(bytes(frame.data), decode_choices=False)
         except Exception as error:  # cantools raises several types for short or malformed data
             raise CodecError(f"frame 0x{frame.arbitration_id:03X} ({spec.name}) cannot be decoded: {error}") from None
-        tick = int(values.pop("tick"))
+        tick = int(values.pop("tick", 0))
         return Decoded(spec, tick, values)
 
 
@@ -275,9 +304,113 @@ def _range_message(spec: MessageSpec, signal: str, channel: Channel, value: floa
     return (
         f"{where} = {value:g} {channel.unit} is outside its declared range "
         f"[{channel.minimum:g}, {channel.maximum:g}] {channel.unit}: widen it in the scenario with "
-        f"[bus.{OVERRIDE_TABLE[spec.role]}.{channel.name}] minimum = ... / maximum = ..., "
+        f"[{OVERRIDE_TABLE[spec.role]}.{channel.name}] minimum = ... / maximum = ..., "
         f"or find out why the value left it"
     )
+
+
+# -- the DBC ------------------------------------------------------------------------------------
+
+
+#: The integer signals of the control messages: (name, start bit, length, comment).
+_CONTROL_LAYOUT = {
+    NMT: [("command", 0, 8, "NMT command: 1 start, 2 stop"), ("node", 8, 8, "addressed node id, 0 for all")],
+    SYNC: [("tick", 0, 32, "tick counter k"), ("frames", 32, 8, "data frames the runner sends for tick k after this SYNC")],
+    HEARTBEAT: [
+        ("state", 0, 8, "NMT state: 0 boot-up, 4 stopped, 5 operational"),
+        ("tick", 8, 32, "the tick this heartbeat closes"),
+        ("frames", 40, 8, "data frames the node sent for that tick"),
+        ("lost", 48, 16, "frames the node found missing so far"),
+    ],
+}
+_CONTROL_COMMENTS = {NMT: "network management (CANopen NMT)", SYNC: "start of tick k", HEARTBEAT: "node heartbeat"}
+
+
+def _database(specs: list[MessageSpec], fd: bool, bitrate: int, data_bitrate: int, cycle_ms: int | None) -> Database:
+    messages = []
+    for spec in specs:
+        if spec.role in _CONTROL_LAYOUT:
+            signals = [Signal(name, start, length, comment=comment) for name, start, length, comment in _CONTROL_LAYOUT[spec.role]]
+            length = (max(s.start + s.length for s in signals) + 7) // 8
+            messages.append(
+                Message(spec.frame_id, spec.name, length, signals, senders=[spec.sender],
+                        cycle_time=None if spec.role == NMT else cycle_ms, comment=_CONTROL_COMMENTS[spec.role])
+            )
+            continue
+        tick_bits = FD_TICK_BITS if fd else CLASSIC_TICK_BITS
+        signals = [Signal("tick", 0, tick_bits, comment="tick counter k" if fd else "tick counter k mod 65536")]
+        start = tick_bits
+        for channel, signal_name in zip(spec.channels, spec.signals):
+            if fd:
+                length, conversion, signed = 64, BaseConversion.factory(1.0, 0.0, is_float=True), False
+            else:
+                length, conversion, signed = signal_bits(channel), BaseConversion.factory(channel.resolution, 0.0), True
+            signals.append(
+                Signal(
+                    signal_name, start, length, is_signed=signed, conversion=conversion, minimum=channel.minimum,
+                    maximum=channel.maximum, unit=channel.unit, comment=channel.description or None,
+                )
+            )
+            start += length
+        nbytes = (start + 7) // 8
+        messages.append(
+            Message(spec.frame_id, spec.name, _fd_length(nbytes) if fd else nbytes, signals, senders=[spec.sender],
+                    is_fd=fd, cycle_time=cycle_ms)
+        )
+    nodes = sorted({spec.sender for spec in specs})
+    bus_type = DbcAttributeDefinition("BusType", default_value="CAN", type_name="STRING")
+    attributes = OrderedDict(BusType=DbcAttribute("CAN FD" if fd else "CAN", bus_type))
+    definitions = OrderedDict(BusType=bus_type)
+    if fd:  # Vector's attribute for the data-phase bit rate
+        fd_rate = DbcAttributeDefinition("BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000)
+        attributes["BaudrateCANFD"] = DbcAttribute(data_bitrate, fd_rate)
+        definitions["BaudrateCANFD"] = fd_rate
+    bus = Bus("cosim", baudrate=bitrate, fd_baudrate=data_bitrate if fd else None)
+    return Database(messages, [Node(n) for n in nodes], buses=[bus], version="cosim",
+                    dbc_specifics=DbcSpecifics(attributes=attributes, attribute_definitions=definitions))
+
+
+def _bus_type(database: Database) -> str:
+    attribute = database.dbc.attributes.get("BusType") if database.dbc else None
+    return attribute.value if attribute is not None else "CAN"
+
+
+def _role(message: Message) -> str:
+    sender = message.senders[0] if message.senders else ""
+    if message.name == "NMT":
+        return NMT
+    if message.name == "SYNC":
+        return SYNC
+    if message.name.startswith("HEARTBEAT_"):
+        return HEARTBEAT
+    if sender == PLANT:
+        return SENSOR
+    if sender == CONTROLLER:
+        return COMMAND
+    if message.name.startswith("EST_"):
+        return ESTIMATE
+    return CLIENT
+
+
+def _spec_from_message(message: Message) -> MessageSpec:
+    role = _role(message)
+    sender = message.senders[0] if message.senders else "unknown"
+    if role in _CONTROL_LAYOUT:
+        return MessageSpec(message.name, message.frame_id, sender, role, (), tuple(name for name, *_ in _CONTROL_LAYOUT[role]))
+    prefix = SIGNAL_PREFIX.get(role, "")
+    channels, names = [], []
+    for signal in sorted(message.signals, key=lambda s: s.start):
+        if signal.name == "tick":
+            continue
+        comment = signal.comment if isinstance(signal.comment, str) else ""
+        resolution = signal.scale if not signal.is_float else 2.0**-52
+        channels.append(Channel(
+            signal.name.removeprefix(prefix), signal.unit or "", comment,
+            signal.minimum if signal.minimum is not None else -math.inf,
+            signal.maximum if signal.maximum is not None else math.inf, resolution,
+        ))
+        names.append(signal.name)
+    return MessageSpec(message.name, message.frame_id, sender, role, tuple(channels), tuple(names))
 
 
 def load_dbc(text: str) -> cantools.database.can.Database:

@@ -1,135 +1,140 @@
-"""Bus nodes: they see only CAN frames, decode them with the run's DBC, and answer per tick.
+"""Estimator nodes: an estimator on the bus, seeing only CAN frames.
 
-A node gathers the frames of tick k (``TickAssembler``), calls its algorithm and sends its own
-frames tagged with k. ``EstimatorNode`` wraps an estimator: sensor readings and commanded inputs
-of tick k in, its estimate x̂_k out. ``NodeDriver`` binds a node to a python-can bus; it runs the
-same in the runner's process (virtual bus) and in a node process of its own.
+A node is a ``Client`` whose answer to tick k is its estimator's estimate x̂_k: it decodes the
+sensor readings and commanded inputs of tick k, calls ``estimator.step`` and publishes the
+``EST_<name>`` frames, then the heartbeat that closes the tick. ``cosim node`` runs one in a
+process of its own (``serve``); with the ``virtual`` interface the runner drives nodes in its own
+process through the same class.
+
+Everything a node needs comes in a ``NodeSpec``: the estimator's kind and parameters, the linear
+model it is designed on (from the runner's linearization of the plant), the run's DBC and bus.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
 
-from cosim.codec import COMMAND, SENSOR, SYNC, Codec
-from estimators import Estimator
+import estimators
+from cosim.bus import BusConfig, open_bus
+from cosim.client import Client, TickFrames
+from cosim.codec import Codec
+from cosim.errors import CosimError
+from estimators import Estimator, LinearModel, ParameterError
 
 
-@dataclass
-class TickFrames:
-    """The decoded inputs of one tick: sensor readings and commands that arrived, by channel name.
+@dataclass(frozen=True)
+class NodeSpec:
+    """What an estimator node needs, as one JSON document."""
 
-    ``expected`` is the number of data frames SYNC announced and ``received`` how many arrived.
-    """
+    name: str
+    kind: str
+    params: dict[str, Any]
+    model: LinearModel
+    dbc: str
+    bus: BusConfig
+    sample_time: float
 
-    tick: int
-    expected: int
-    sensors: dict[str, float] = field(default_factory=dict)
-    commands: dict[str, float] = field(default_factory=dict)
-    received: int = 0
+    def to_json(self) -> str:
+        m = self.model
+        model = {
+            "A": m.A.tolist(), "B": m.B.tolist(), "C": m.C.tolist(), "D": m.D.tolist(), "dt": m.dt,
+            "states": list(m.states), "inputs": list(m.inputs), "outputs": list(m.outputs),
+            "x_op": m.x_op.tolist(), "u_op": m.u_op.tolist(), "y_op": m.y_op.tolist(),
+        }
+        return json.dumps({
+            "name": self.name, "kind": self.kind, "params": self.params, "model": model, "dbc": self.dbc,
+            "bus": self.bus.to_dict(), "sample_time": self.sample_time,
+        })
 
-    @property
-    def complete(self) -> bool:
-        return self.received >= self.expected
-
-
-class TickAssembler:
-    """Groups incoming frames by tick: SYNC(k) opens tick k and announces its data frames.
-
-    ``push`` returns the tick once all its announced frames arrived. If SYNC(k+1) arrives while
-    tick k is still incomplete, tick k is returned incomplete and the missing frames are counted
-    in ``lost`` (in lockstep this cannot happen without frame loss on the transport).
-    """
-
-    def __init__(self, codec: Codec) -> None:
-        self.codec = codec
-        self.pending: TickFrames | None = None
-        self.lost = 0
-
-    def push(self, frame: can.Message) -> list[TickFrames]:
-        decoded = self.codec.decode(frame)
-        if decoded is None:
-            return []
-        done: list[TickFrames] = []
-        role = decoded.spec.role
-        if role == SYNC:
-            if self.pending is not None:
-                self.lost += self.pending.expected - self.pending.received
-                done.append(self.pending)
-            self.pending = TickFrames(decoded.tick, int(decoded.values["frames"]))
-            if self.pending.complete:
-                done.append(self.pending)
-                self.pending = None
-            return done
-        pending = self.pending
-        if role not in (SENSOR, COMMAND) or pending is None:
-            return done
-        if decoded.tick != pending.tick % self.codec.tick_modulus:
-            self.lost += 1  # a late frame of an earlier tick
-            return done
-        target = pending.sensors if role == SENSOR else pending.commands
-        for channel, signal in zip(decoded.spec.channels, decoded.spec.signals):
-            target[channel.name] = decoded.values[signal]
-        pending.received += 1
-        if pending.complete:
-            done.append(pending)
-            self.pending = None
-        return done
+    @classmethod
+    def from_json(cls, text: str) -> NodeSpec:
+        data = json.loads(text)
+        m = data["model"]
+        model = LinearModel(
+            np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
+            tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
+        )
+        return cls(data["name"], data["kind"], data["params"], model, data["dbc"], BusConfig.from_dict(data["bus"]),
+                   data["sample_time"])
 
 
 class EstimatorNode:
-    """An estimator on the bus: y_k and u_k from tick k's frames in, frames of x̂_k out.
+    """An estimator answering each tick on a bus: y_k and u_k in, x̂_k out.
 
     Missing sensor readings reach the estimator as NaN. A command that did not arrive is held at
     its last value (zero before the first).
     """
 
-    def __init__(
-        self, name: str, estimator: Estimator, codec: Codec, sensors: tuple[str, ...], actuators: tuple[str, ...]
-    ) -> None:
-        self.name = name
+    def __init__(self, spec: NodeSpec, bus: can.BusABC, estimator: Estimator | None = None) -> None:
+        self.spec = spec
+        self.codec = Codec.from_dbc(spec.dbc)
+        if estimator is None:
+            try:
+                estimator = estimators.create(spec.kind, spec.model, spec.params)
+            except ParameterError as error:
+                raise CosimError(f"estimator {spec.name}: params.{error}") from None
         self.estimator = estimator
-        self.codec = codec
-        self.sensors = sensors
-        self.actuators = actuators
-        self.messages = codec.messages(sender=name)
-        states = estimator.model.states
-        self._state_index = [[states.index(c.name) for c in spec.channels] for spec in self.messages]
-        self._u = np.zeros(len(actuators))
+        self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time)
+        model = estimator.model
+        self._outputs = [
+            (signal, model.states.index(channel.name))
+            for message in self.client.messages for channel, signal in zip(message.channels, message.signals)
+        ]
+        self._u = np.zeros(model.m)
+        self.ticks = 0
 
-    def on_tick(self, tick: TickFrames) -> list[can.Message]:
-        y = np.array([tick.sensors.get(name, np.nan) for name in self.sensors])
-        for i, name in enumerate(self.actuators):
+    def answer(self, tick: TickFrames) -> None:
+        model = self.estimator.model
+        y = np.array([tick.sensors.get(name, np.nan) for name in model.outputs])
+        for i, name in enumerate(model.inputs):
             if name in tick.commands:
                 self._u[i] = tick.commands[name]
         estimate = self.estimator.step(y, self._u.copy())
-        return [
-            self.codec.encode(spec.name, tick.tick, estimate.x[index])
-            for spec, index in zip(self.messages, self._state_index)
-        ]
-
-
-class NodeDriver:
-    """Connects a node to a bus: feeds received frames to the assembler and sends the answers."""
-
-    def __init__(self, node: EstimatorNode, bus: can.BusABC) -> None:
-        self.node = node
-        self.bus = bus
-        self.assembler = TickAssembler(node.codec)
-        self.ticks = 0
+        self.client.publish(tick, {signal: float(estimate.x[index]) for signal, index in self._outputs})
+        self.client.done(tick)
+        self.ticks += 1
 
     def service(self, timeout: float = 0.0) -> int:
         """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first);
         returns the number of ticks answered."""
         answered = 0
-        frame = self.bus.recv(timeout)
+        frame = self.client.bus.recv(timeout)
         while frame is not None:
-            for tick in self.assembler.push(frame):
-                for reply in self.node.on_tick(tick):
-                    self.bus.send(reply)
+            for tick in self.client.feed(frame):
+                self.answer(tick)
                 answered += 1
-            frame = self.bus.recv(0.0)
-        self.ticks += answered
+            frame = self.client.bus.recv(0.0)
         return answered
+
+
+def serve(spec: NodeSpec) -> int:
+    """Run a node process until the runner stops it (NMT stop) or goes away; returns the exit status."""
+    parent = os.getppid()
+    bus = open_bus(spec.bus)
+    node = EstimatorNode(spec, bus)
+    try:
+        node.client.join()
+        while not node.client.stopped:
+            node.service(timeout=0.5)
+            if os.getppid() != parent:  # the runner died without stopping us
+                return 3
+        return 0
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        node.client.close()
+        bus.shutdown()
+
+
+def load_spec(path: str | Path) -> NodeSpec:
+    try:
+        return NodeSpec.from_json(Path(path).read_text())
+    except (OSError, ValueError, KeyError) as error:
+        raise CosimError(f"{path}: not a readable node spec ({error})") from None

@@ -6,7 +6,8 @@ Topics (``log_time`` is simulated time in ns; every message also carries ``tick`
   ``extended``, ``fd``, ``brs``, ``dlc`` (the data length code), ``length`` (payload bytes),
   ``data`` (hex), ``sender`` (the DBC
   node that transmits this id, ``unknown`` for ids outside the DBC), ``message`` (DBC name).
-- ``/can/<MessageName>``: the decoded physical signals of each DBC message, named as in the DBC.
+- ``/can/<MessageName>``: the decoded physical signals of each DBC message, named as in the DBC
+  (the integer fields of NMT, SYNC and heartbeats).
 - ``/truth/state``: the simulator's state, one field per state component.
 - ``/truth/sensors``: the true (fault-free, noise-free) sensor readings.
 - ``/truth/inputs``: ``commanded`` and ``effective`` (after actuator faults) inputs per actuator.
@@ -14,7 +15,8 @@ Topics (``log_time`` is simulated time in ns; every message also carries ``tick`
   sensor), ``measured`` (what went on the bus; null where the frame was not sent), ``dropped``
   (sensors whose frame was not sent), ``effectiveness`` (δ per actuator) and ``active`` (labels
   of the active faults).
-- ``/cosim/events``: runner events (start, stop, frame loss, errors).
+- ``/cosim/events``: runner events (start, stop, warnings, errors).
+- ``/cosim/deadline_misses``: in realtime mode, each tick a node did not answer by its deadline.
 
 Metadata records: ``cosim.run`` (scenario name, seed, timing, plant, names, estimators and their
 messages, fault onset, bus), ``cosim.scenario`` (the TOML as given and the validated scenario
@@ -35,7 +37,7 @@ from cosim.log import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
-EVENTS = "/cosim/events"
+EVENTS, DEADLINE_MISSES = "/cosim/events", "/cosim/deadline_misses"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
 _TIME = number("simulated time t_k = k τ", "s")
@@ -81,11 +83,12 @@ class RunRecorder:
         }, "A frame on the run's CAN bus"))
         self._decoded: dict[str, int] = {}
         for spec in codec.specs.values():
-            properties = {"tick": {"type": "integer", "description": "tick counter signal as carried by the frame"}}
-            for channel, signal in zip(spec.channels, spec.signals):
-                properties[signal] = number(channel.description, channel.unit)
-            if spec.role == "sync":
-                properties["frames"] = {"type": "integer", "description": "data frames announced for this tick"}
+            if spec.channels or spec.role in ("estimate", "client", "sensor", "command"):
+                properties = {"tick": {"type": "integer", "description": "tick counter signal as carried by the frame"}}
+                for channel, signal in zip(spec.channels, spec.signals):
+                    properties[signal] = number(channel.description, channel.unit)
+            else:  # NMT, SYNC and heartbeats: integer fields
+                properties = {name: {"type": "integer"} for name in spec.signals}
             self._decoded[spec.name] = log.channel(
                 message_topic(spec.name), object_schema(f"cosim.{spec.name}", properties, f"Decoded signals of {spec.name}")
             )
@@ -109,6 +112,11 @@ class RunRecorder:
             "effectiveness": _named(actuators, {}, "actuator effectiveness factor δ"),
             "active": {"type": "array", "items": {"type": "string"}, "description": "labels of the active faults"},
         }, "Faults and noise applied by the fault layer"))
+        self._misses = log.channel(DEADLINE_MISSES, object_schema("cosim.DeadlineMiss", {
+            "tick": _TICK, "t": _TIME,
+            "node": {"type": "string", "description": "the node whose heartbeat for this tick was not in by its deadline"},
+            "count": {"type": "integer", "description": "deadline misses so far in the run"},
+        }, "Realtime mode: ticks a node did not answer in time"))
         self._events = log.channel(EVENTS, object_schema("cosim.Event", {
             "tick": _TICK, "t": _TIME,
             "level": {"type": "string", "enum": ["info", "warning", "error"]},
@@ -127,7 +135,8 @@ class RunRecorder:
         })
         self.frames += 1
         if decoded is not None:
-            self.log.write(self._decoded[spec.name], t_ns, {"tick": decoded.tick, **decoded.values})
+            payload = decoded.values if spec.role == "nmt" else {"tick": decoded.tick, **decoded.values}
+            self.log.write(self._decoded[spec.name], t_ns, payload)
 
     def truth(
         self, tick: int, t: float, t_ns: int, *, x: np.ndarray, y_true: np.ndarray, noise: np.ndarray,
@@ -148,6 +157,9 @@ class RunRecorder:
             "dropped": [name for name, value in zip(self.sensors, measured) if value != value],
             "effectiveness": dict(zip(self.actuators, delta.tolist())), "active": list(active),
         })
+
+    def deadline_miss(self, tick: int, t: float, t_ns: int, node: str, count: int) -> None:
+        self.log.write(self._misses, t_ns, {"tick": tick, "t": t, "node": node, "count": count})
 
     def event(self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info", count: int = 0) -> None:
         self.log.write(self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail, "count": count})

@@ -1,16 +1,24 @@
 """The co-simulation runner: owns simulated time and drives one run tick by tick.
 
-Tick k at t_k = k τ:
-  1. read the plant's true state x_k and sensors y_k (MuJoCo, after the previous mj_step);
-  2. evaluate the commanded inputs u_k and apply the fault layer: measured readings and
-     effective inputs;
-  3. send SYNC(k) and the sensor and command frames of tick k on the bus;
-  4. let every estimator node answer with its frames for tick k, and collect them;
-  5. log every frame and the ground truth of tick k;
-  6. hold the effective inputs for τ and advance the physics (mj_step).
+The plant runs here; every estimator runs as a node in a process of its own and talks to the
+runner only through CAN frames on the run's bus (``cosim/bus.py``). Tick k at t_k = k τ:
 
-Estimator nodes run in this process on a python-can ``virtual`` bus and see only frames.
-Whatever ends the run, the MCAP log is finished and records how the run ended.
+  1. read the plant's true state x_k and sensors y_k (MuJoCo, after the previous mj_step);
+  2. apply the fault layer to the readings; evaluate the commanded inputs;
+  3. send SYNC(k), then the sensor and command frames of tick k;
+  4. collect what the nodes send back: in ``lockstep`` until every node's heartbeat closing tick
+     k has arrived (a node that dies or hangs ends the run with its name, exit status and last
+     output); in ``realtime`` until tick k's wall-clock deadline, counting missing heartbeats as
+     deadline misses;
+  5. log every frame and the ground truth of tick k;
+  6. apply the commands as their frames carry them, through the actuator faults, hold them for τ
+     and advance the physics (mj_step).
+
+Frames of one tick are logged in a canonical order: the runner's own frames as sent, then the
+frames received during the tick by arbitration id (lowest first, as a CAN bus arbitrates frames
+pending together); the wall-clock arrival order of UDP datagrams from several processes is not
+deterministic, this order is. Whatever ends the run, the nodes are stopped (NMT stop) and the MCAP
+log is finished with how the run ended.
 """
 
 from __future__ import annotations
@@ -19,9 +27,11 @@ import importlib.metadata
 import json
 import math
 import platform
+import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from uuid import uuid4
 
@@ -31,16 +41,28 @@ import numpy as np
 import estimators
 import faults as fm
 from cosim import __version__
-from cosim.codec import Codec
-from cosim.errors import CosimError, ModelError, ScenarioError
+from cosim.bus import BusConfig, allocate, open_bus
+from cosim.codec import (
+    BOOTUP, CLIENT, COMMAND, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED,
+    Codec, Decoded,
+)
+from cosim.errors import CodecError, CosimError, ModelError, ScenarioError
 from cosim.interrupts import DeferredInterrupts
+from cosim.launcher import ExternalClient, LocalNode, Participant, ProcessNode
 from cosim.log import McapLog
-from cosim.node import EstimatorNode, NodeDriver
+from cosim.node import NodeSpec
 from cosim.plant import Plant
 from cosim.recorder import RunRecorder
+from cosim.registry import Registration
 from cosim.scenario import ActuatorEffectivenessSpec, LoadedScenario, Scenario, build_waveform
 from estimators import Estimator, LinearModel, ParameterError
-from mjcf import Channel
+
+OWN_SENDERS = (RUNNER, PLANT, CONTROLLER)
+_POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
+
+
+class NodeFailure(CosimError):
+    """A node or client died, hung or left during the run."""
 
 
 @dataclass(frozen=True)
@@ -50,6 +72,7 @@ class Progress:
     sim_time: float
     wall_time: float
     frames: int
+    deadline_misses: int = 0
 
     @property
     def realtime_factor(self) -> float:
@@ -66,6 +89,8 @@ class RunResult:
     wall_time: float
     sim_time: float
     error: str = ""
+    deadline_misses: int = 0
+    senders: dict = field(default_factory=dict)
 
     @property
     def realtime_factor(self) -> float:
@@ -146,16 +171,82 @@ def versions() -> dict[str, str]:
     return found
 
 
-class Run:
-    """One co-simulation run of a loaded scenario into an MCAP file."""
+class Traffic:
+    """What the runner hears during a run, with the bookkeeping behind loss and lateness.
 
-    def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None) -> None:
-        scenario = loaded.scenario.with_seed(seed)
+    Frames of a node for tick j are counted; its heartbeat closing tick j says how many it sent,
+    and the difference is frames lost on the way to the runner. Nodes report in their heartbeats
+    how many of the runner's frames they found missing. The runner's own frames come back on
+    udp_multicast (loopback) and are counted, not logged again.
+    """
+
+    def __init__(self, codec: Codec, recorder: RunRecorder) -> None:
+        self.codec = codec
+        self.recorder = recorder
+        self.pending: list[tuple[can.Message, Decoded | None]] = []
+        self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
+        self.joined: set[str] = set()
+        self.left: set[str] = set()
+        self.lost: Counter[str] = Counter()  # node -> frames of it the runner did not get
+        self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
+        self.received: Counter[str] = Counter()
+        self.echoes = 0
+        self._counts: Counter[tuple[str, int]] = Counter()
+
+    def take(self, frame: can.Message) -> None:
+        try:
+            decoded = self.codec.decode(frame)
+        except CodecError:
+            decoded = None  # logged raw, as an unknown frame
+        if decoded is not None and decoded.spec.sender in OWN_SENDERS:
+            self.echoes += 1
+            return
+        self.pending.append((frame, decoded))
+        if decoded is None:
+            return
+        sender, role = decoded.spec.sender, decoded.spec.role
+        self.received[sender] += 1
+        if role in (ESTIMATE, CLIENT):
+            self._counts[(sender, decoded.tick)] += 1
+        elif role == HEARTBEAT:
+            state = decoded.values["state"]
+            if state == BOOTUP:
+                self.joined.add(sender)
+            elif state == STOPPED:
+                self.left.add(sender)
+            elif state == OPERATIONAL:
+                counter = decoded.tick % self.codec.tick_modulus
+                self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
+                self.missed_by[sender] = int(decoded.values["lost"])
+                self.closed[sender] = decoded.tick
+
+    def flush(self, tick: int, t: float, t_ns: int) -> None:
+        """Log the frames received during tick k, by arbitration id."""
+        for frame, decoded in sorted(self.pending, key=lambda item: item[0].arbitration_id):
+            self.recorder.frame(tick, t, t_ns, frame, decoded)
+        self.pending.clear()
+
+    @property
+    def frames_lost(self) -> int:
+        return sum(self.lost.values()) + sum(self.missed_by.values())
+
+
+class Run:
+    """One co-simulation run of a loaded scenario into an MCAP file.
+
+    ``overrides`` (``seed``, ``interface``, ``channel``, ``port``, ``mode``, ``speed``) replace the
+    scenario's values, validated like the file's.
+    """
+
+    def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None, **overrides) -> None:
+        try:
+            scenario = loaded.scenario.with_overrides(seed=seed, **overrides)
+        except ScenarioError as error:
+            raise ScenarioError(f"{loaded.source}: {error}") from None
         self.loaded, self.scenario, self.out = loaded, scenario, Path(out)
         s = scenario
-        info = s.plant_info
         try:
-            self.plant = Plant(info, s.sample_time, s.sensors)
+            self.plant = Plant(s.plant_info, s.sample_time, s.sensors)
         except ModelError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         # Estimators are designed on the linearization at the plant's keyframe (its operating point).
@@ -171,19 +262,26 @@ class Run:
         ]
         sensors, actuators, states = s.channels()
         self.codec = Codec(
-            sensors, actuators, {name: states for name in self.estimators}, fd=s.bus.fd, bitrate=s.bus.bitrate,
-            data_bitrate=s.bus.data_bitrate, cycle_time=s.sample_time,
+            sensors, actuators, {name: states for name in self.estimators}, clients=s.client_channels(),
+            fd=s.bus.fd, bitrate=s.bus.bitrate, data_bitrate=s.bus.data_bitrate, cycle_time=s.sample_time,
         )
         self.units = {
             "states": {c.name: c.unit for c in states},
             "sensors": {c.name: c.unit for c in sensors},
             "actuators": {c.name: c.unit for c in actuators},
         }
+        self.run_id = uuid4().hex[:12]
+        self.bus: BusConfig | None = None
+        self.participants: list[Participant] = []
+
+    def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
+        spec = next(e for e in self.scenario.estimators if e.name == name)
+        return NodeSpec(name, spec.kind, spec.params, self.model, self.codec.dbc, bus, self.scenario.sample_time)
 
     def _metadata(self, log: McapLog) -> None:
         s = self.scenario
         est = {
-            name: {"kind": e.kind, "messages": [m.name for m in self.codec.messages(sender=name)], "states": list(self.model.states)}
+            name: {"kind": e.kind, "messages": [m.name for m in self.codec.data_messages(name)], "states": list(self.model.states)}
             for name, e in self.estimators.items()
         }
         log.metadata("cosim.run", {
@@ -191,42 +289,109 @@ class Run:
             "duration": repr(s.duration), "ticks": str(s.ticks), "plant": s.plant.model,
             "states": json.dumps(list(self.plant.state_names)), "sensors": json.dumps(list(s.sensors)),
             "actuators": json.dumps(list(s.actuators)), "estimators": json.dumps(est),
+            "clients": json.dumps({c.name: {"lockstep": c.lockstep, "messages": [m.name for m in self.codec.data_messages(c.name)]} for c in s.clients}),
             "fault_onset": json.dumps(self.faults.first_onset),
             "fault_onset_tick": json.dumps(self.onset_tick),
             "faults": json.dumps([{"label": f.label, "kind": f.kind, "start": f.start, "end": f.end if np.isfinite(f.end) else None} for f in self.faults.faults]),
             "bus": json.dumps({"interface": s.bus.interface, "fd": s.bus.fd, "bitrate": s.bus.bitrate, "data_bitrate": s.bus.data_bitrate}),
+            "timing": json.dumps(s.timing.model_dump()),
         })
         log.metadata("cosim.scenario", {"source": self.loaded.source, "toml": self.loaded.text, "resolved": s.model_dump_json()})
         log.metadata("cosim.versions", versions())
         log.attach(self.plant.info.model_file, "application/xml", self.plant.info.model_path.read_bytes())
         log.attach("cosim.dbc", "text/plain", self.codec.dbc.encode())
 
-    def execute(self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2) -> RunResult:
+    # -- participants -------------------------------------------------------------------------
+
+    def _start(self, bus: BusConfig, workdir: Path) -> None:
+        for name, estimator in self.estimators.items():
+            spec = self.node_spec(name, bus)
+            node = LocalNode(spec, estimator) if bus.interface == "virtual" else ProcessNode(spec, workdir)
+            self.participants.append(node)
+        self.participants += [ExternalClient(c.name, c.lockstep) for c in self.scenario.clients]
+
+    def _wait(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts, done: Callable[[], bool],
+              deadline: float, on_timeout: Callable[[], None]) -> None:
+        """Receive into ``traffic`` until ``done()`` or the wall-clock ``deadline``."""
+        last_check = time.perf_counter()
+        while not done():
+            interrupts.check()
+            for participant in self.participants:
+                participant.service()
+            now = time.perf_counter()
+            if now >= deadline:
+                on_timeout()
+                return
+            frame = bus.recv(min(_POLL, deadline - now))
+            while frame is not None:
+                traffic.take(frame)
+                frame = bus.recv(0.0)
+            if time.perf_counter() - last_check > 0.25:
+                last_check = time.perf_counter()
+                for participant in self.participants:
+                    if (reason := participant.failure()) is not None:
+                        raise NodeFailure(reason)
+        frame = bus.recv(0.0)
+        while frame is not None:  # what else has arrived (a monitor's frames, late echoes)
+            traffic.take(frame)
+            frame = bus.recv(0.0)
+
+    def _join(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts) -> None:
+        expected = {p.name for p in self.participants}
+        timeout = self.scenario.timing.join_timeout
+
+        def late() -> None:
+            for participant in self.participants:
+                if (reason := participant.failure()) is not None:
+                    raise NodeFailure(reason)
+            missing = ", ".join(sorted(expected - traffic.joined))
+            raise NodeFailure(f"{missing} did not join the bus {self.bus.describe()} within {timeout:g} s "
+                              f"(raise [timing] join_timeout if it starts slowly)")
+
+        self._wait(bus, traffic, interrupts, lambda: expected <= traffic.joined, time.perf_counter() + timeout, late)
+
+    # -- the run ------------------------------------------------------------------------------
+
+    def execute(
+        self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
+        on_start: Callable[[Run], None] | None = None,
+    ) -> RunResult:
         """Run every tick; the log is complete and valid whatever ends the run."""
         s, plant, codec = self.scenario, self.plant, self.codec
         sensor_specs = [codec.specs[f"SENSOR_{n}"] for n in s.sensors]
         command_specs = [codec.specs[f"COMMAND_{n}"] for n in s.actuators]
-        expected = {name: len(codec.messages(sender=name)) for name in self.estimators}
-        dt_ns = round(s.sample_time * 1e9)
-        channel = f"cosim-{uuid4().hex[:12]}"
-        status, error, k, frames_lost = "completed", "", 0, 0
+        dt_ns = s.dt_ns
+        realtime = s.timing.mode == "realtime"
+        period = s.sample_time / s.timing.speed
+        status, error, k, misses = "completed", "", 0, 0
+        warnings: list[str] = []
         start = time.perf_counter()
         last_report = start
-        with DeferredInterrupts() as interrupts, McapLog(self.out) as log, can.Bus(interface="virtual", channel=channel) as bus:
-            recorder = RunRecorder(
-                log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units
-            )
+        self.bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
+        registration = Registration(self.run_id, {
+            "scenario": s.name, "source": self.loaded.source, "seed": s.seed, "sample_time": s.sample_time,
+            "bus": self.bus.to_dict(), "dbc": codec.dbc, "log": str(self.out.resolve()),
+        })
+        with (DeferredInterrupts() as interrupts, McapLog(self.out) as log, open_bus(self.bus) as bus,
+              tempfile.TemporaryDirectory(prefix="cosim-nodes-") as workdir, registration):
+            recorder = RunRecorder(log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units)
+            traffic = Traffic(codec, recorder)
             self._metadata(log)
-            buses = [can.Bus(interface="virtual", channel=channel) for _ in self.estimators]
-            drivers = [
-                NodeDriver(EstimatorNode(name, est, codec, s.sensors, s.actuators), node_bus)
-                for (name, est), node_bus in zip(self.estimators.items(), buses)
-            ]
-            recorder.event(0, 0.0, 0, "start", f"{s.name} seed={s.seed} ticks={s.ticks}")
+            log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
+            recorder.event(0, 0.0, 0, "start", f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}")
             try:
+                self._start(self.bus, Path(workdir))
+                if on_start is not None:
+                    on_start(self)
+                self._join(bus, traffic, interrupts)
+                traffic.flush(0, 0.0, 0)  # the boot-up heartbeats
+                lockstep = [p.name for p in self.participants if p.lockstep]
+                tick_start = time.perf_counter()
                 for k in range(s.ticks):
                     interrupts.check()
                     t, t_ns = s.time(k), k * dt_ns
+                    if realtime:
+                        self._wait(bus, traffic, interrupts, lambda: False, tick_start + k * period, lambda: None)
                     x, y_true = plant.state(), plant.sensors()
                     outcome = self.faults.sensors(y_true, t)
                     frames = [
@@ -234,40 +399,42 @@ class Run:
                         for spec, value, sent in zip(sensor_specs, outcome.measured, outcome.sent) if sent
                     ]
                     commands = [codec.encode(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
-                    # The actuators receive what the command frames carry (quantized in classic CAN).
-                    u_cmd = np.array([codec.decode(frame).values[spec.signals[0]] for frame, spec in zip(commands, command_specs)])
-                    u_eff, delta = self.faults.actuators(u_cmd, t)
-                    if not np.all(np.isfinite(u_eff)):
-                        bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
-                        raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
                     frames += commands
                     frames.insert(0, codec.sync(k, len(frames)))
                     for frame in frames:
                         bus.send(frame)
                         recorder.frame(k, t, t_ns, frame, codec.decode(frame))
-                    for driver in drivers:
-                        driver.service()
-                    received = dict.fromkeys(expected, 0)
-                    reply = bus.recv(0.0)
-                    while reply is not None:
-                        decoded = codec.decode(reply)
-                        recorder.frame(k, t, t_ns, reply, decoded)
-                        if decoded is not None and decoded.spec.sender in received and decoded.tick == k % codec.tick_modulus:
-                            received[decoded.spec.sender] += 1
-                        reply = bus.recv(0.0)
-                    for name, count in received.items():
-                        if count < expected[name]:
-                            frames_lost += expected[name] - count
-                            recorder.event(k, t, t_ns, "frames_lost", f"{name}: {expected[name] - count} of {expected[name]}", "warning", expected[name] - count)
+                    answered = lambda: all(traffic.closed.get(name, -1) >= k for name in lockstep)  # noqa: E731
+                    if realtime:
+                        self._wait(bus, traffic, interrupts, lambda: False, tick_start + (k + 1) * period, lambda: None)
+                        for name in lockstep:
+                            if traffic.closed.get(name, -1) < k:
+                                misses += 1
+                                recorder.deadline_miss(k, t, t_ns, name, misses)
+                    else:
+                        def hung() -> None:
+                            waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < k]
+                            raise NodeFailure(waiting[0].hung(k, s.timing.node_timeout))
+                        self._wait(bus, traffic, interrupts, answered, time.perf_counter() + s.timing.node_timeout, hung)
+                    left = traffic.left & set(lockstep)
+                    if left:
+                        raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
+                    traffic.flush(k, t, t_ns)
+                    # The actuators receive what the command frames carry (quantized in classic CAN).
+                    u_cmd = np.array([codec.decode(f).values[spec.signals[0]] for f, spec in zip(commands, command_specs)])
+                    u_eff, delta = self.faults.actuators(u_cmd, t)
                     recorder.truth(
                         k, t, t_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
                         measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=u_cmd,
                         u_eff=u_eff, delta=delta,
                     )
+                    if not np.all(np.isfinite(u_eff)):
+                        bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
+                        raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
                     plant.step(u_eff)
                     if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
                         last_report = now
-                        on_progress(Progress(k + 1, s.ticks, s.time(k + 1), now - start, recorder.frames))
+                        on_progress(Progress(k + 1, s.ticks, s.time(k + 1), now - start, recorder.frames, misses))
                 k = s.ticks
             except KeyboardInterrupt:
                 status = "interrupted"
@@ -279,22 +446,43 @@ class Run:
                 status, error = "error", f"{type(exc).__name__}: {exc}"
                 raise
             finally:
-                t_end_ns = k * dt_ns
-                recorder.event(k, s.time(k), t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
+                t_end, t_end_ns = s.time(k), k * dt_ns
+                stop = codec.nmt(NMT_STOP)
+                try:
+                    bus.send(stop)
+                except can.CanError:
+                    pass
+                recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
+                for participant in self.participants:
+                    if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
+                        warnings.append(warning)
+                frame = bus.recv(0.1)
+                while frame is not None:
+                    traffic.take(frame)
+                    frame = bus.recv(0.02)
+                traffic.flush(k, t_end, t_end_ns)
+                for warning in warnings:
+                    recorder.event(k, t_end, t_end_ns, "warning", warning, "warning")
+                senders = {
+                    name: {"frames": traffic.received[name], "lost": traffic.lost[name], "runner_frames_missed": traffic.missed_by.get(name, 0)}
+                    for name in [*self.estimators, *(c.name for c in s.clients)]
+                }
+                recorder.event(k, t_end, t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
                 log.metadata("cosim.result", {
                     "status": status, "ticks": str(k), "frames_total": str(recorder.frames),
-                    "frames_lost": str(frames_lost), "error": error,
+                    "frames_lost": str(traffic.frames_lost), "deadline_misses": str(misses), "error": error,
+                    "senders": json.dumps(senders),
                 })
-                for node_bus in buses:
-                    node_bus.shutdown()
                 self.result = RunResult(
-                    self.out, status, k, recorder.frames, frames_lost, time.perf_counter() - start, s.time(k), error
+                    self.out, status, k, recorder.frames, traffic.frames_lost, time.perf_counter() - start, s.time(k),
+                    error, misses, senders,
                 )
         if on_progress is not None:
-            on_progress(Progress(k, s.ticks, s.time(k), time.perf_counter() - start, self.result.frames))
+            on_progress(Progress(k, s.ticks, s.time(k), time.perf_counter() - start, self.result.frames, misses))
         return self.result
 
 
-def run(loaded: LoadedScenario, out: str | Path, seed: int | None = None, on_progress: Callable[[Progress], None] | None = None) -> RunResult:
+def run(loaded: LoadedScenario, out: str | Path, seed: int | None = None, on_progress: Callable[[Progress], None] | None = None,
+        **overrides) -> RunResult:
     """Run a loaded scenario and write its log to ``out``."""
-    return Run(loaded, out, seed).execute(on_progress)
+    return Run(loaded, out, seed, **overrides).execute(on_progress)

@@ -224,13 +224,52 @@ class ChannelOverride(Strict):
 
 
 class BusSpec(Strict):
-    interface: Literal["virtual"] = "virtual"
+    interface: Literal["udp_multicast", "socketcan", "virtual"] = "udp_multicast"
+    channel: str = ""
+    """udp_multicast: the multicast group (default: a fresh host-only group per run); socketcan: the
+    interface (default vcan0); virtual: the channel name (default: a fresh one)."""
+    port: Annotated[int, Field(ge=0, le=65535)] = 0
+    """udp_multicast: the UDP port (default 0: a free port per run)."""
     fd: bool = False
     bitrate: Annotated[int, Field(gt=0)] = 500_000
     data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
     sensors: dict[str, ChannelOverride] = {}
     actuators: dict[str, ChannelOverride] = {}
     states: dict[str, ChannelOverride] = {}
+
+
+class TimingSpec(Strict):
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    """lockstep: each tick waits for every node's answer (deterministic); realtime: ticks follow
+    the wall clock and late answers are counted as deadline misses."""
+    speed: Positive = 1.0
+    """realtime: simulated seconds per wall-clock second."""
+    node_timeout: Positive = 10.0
+    """lockstep: a node that does not answer a tick within this many seconds is reported as hung."""
+    join_timeout: Positive = 30.0
+    """How long to wait for nodes and declared clients to join before tick 0."""
+
+
+class SignalSpec(Strict):
+    name: Identifier
+    unit: str = ""
+    description: str = ""
+    minimum: float
+    maximum: float
+    resolution: Positive
+
+    def channel(self) -> mjcf.Channel:
+        return mjcf.Channel(self.name, self.unit, self.description, self.minimum, self.maximum, self.resolution)
+
+
+class ClientSpec(Strict):
+    """A program that joins the run's bus on its own (written with ``cosim.client``)."""
+
+    name: Identifier
+    lockstep: bool = True
+    """The runner waits for it to join before tick 0 and for its heartbeat every tick."""
+    signals: list[SignalSpec] = []
+    """The signals it publishes, packed into CLIENT_<name> messages of the DBC."""
 
 
 class EstimatorSpec(Strict):
@@ -250,7 +289,9 @@ class Scenario(Strict):
     noise: list[NoiseSpec] = []
     faults: list[FaultSpec] = []
     bus: BusSpec = BusSpec()
+    timing: TimingSpec = TimingSpec()
     estimators: list[EstimatorSpec] = []
+    clients: list[ClientSpec] = []
 
     @property
     def ticks(self) -> int:
@@ -269,17 +310,34 @@ class Scenario(Strict):
 
     def with_seed(self, seed: int | None) -> Scenario:
         """The same scenario with another seed (None keeps it)."""
-        if seed is None:
-            return self
-        if seed < 0:
-            raise ScenarioError(f"seed: {seed} is negative; use a seed >= 0")
-        return self.model_copy(update={"seed": seed})
+        return self.with_overrides(seed=seed)
+
+    def with_overrides(self, **changes: Any) -> Scenario:
+        """The scenario with command-line overrides, validated like the file: ``seed``, and
+        ``interface``, ``channel``, ``port`` of [bus] and ``mode``, ``speed`` of [timing]
+        (None keeps a value)."""
+        data = self.model_dump()
+        tables = {"interface": "bus", "channel": "bus", "port": "bus", "mode": "timing", "speed": "timing"}
+        for key, value in changes.items():
+            if value is None:
+                continue
+            if key in tables:
+                data[tables[key]][key] = value
+            else:
+                data[key] = value
+        try:
+            return Scenario.model_validate(data)
+        except ValidationError as error:
+            raise ScenarioError("; ".join(f"{_path(e['loc'], data)}: {_message(e)}" for e in error.errors())) from None
 
     def fault_labels(self) -> tuple[list[str], list[str]]:
         """Labels of the noise models and of the faults: their name, or kind and position."""
         noise = [spec.name or f"noise{i}" for i, spec in enumerate(self.noise)]
         faults = [spec.name or f"{spec.kind}{i}" for i, spec in enumerate(self.faults)]
         return noise, faults
+
+    def client_channels(self) -> dict[str, list[mjcf.Channel]]:
+        return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
 
     def channels(self) -> tuple[list[mjcf.Channel], list[mjcf.Channel], list[mjcf.Channel]]:
         """The transmitted sensors, the actuators and the states as bus signals, with the [bus]
@@ -464,7 +522,13 @@ def check(s: Scenario) -> list[str]:
     for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"), ("states", state_names, "state")):
         overrides = getattr(s.bus, table)
         unknown(f"bus.{table}", list(overrides), known, what)
-    estimator_names = [e.name for e in s.estimators]
+    estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]
+    for i, spec in enumerate(s.clients):
+        if estimator_names.count(spec.name) > 1:
+            problems.append(f"clients[{i}].name: {spec.name!r} is also the name of an estimator or another client")
+        for j, signal in enumerate(spec.signals):
+            if not signal.minimum < signal.maximum:
+                problems.append(f"clients[{i}].signals[{j}]: minimum must be below maximum")
     for i, spec in enumerate(s.estimators):
         if spec.kind not in ESTIMATORS:
             close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
@@ -486,7 +550,7 @@ def _check_bus(s: Scenario) -> list[str]:
     """The bus signals with their overrides must make a valid CAN database."""
     try:
         sensors, actuators, states = s.channels()
-        Codec(sensors, actuators, {e.name: states for e in s.estimators}, fd=s.bus.fd)
+        Codec(sensors, actuators, {e.name: states for e in s.estimators}, clients=s.client_channels(), fd=s.bus.fd)
     except (ScenarioError, CodecError) as error:
         return [str(error)]
     return []

@@ -29,8 +29,8 @@ def test_round_trip(fd):
     c = codec(fd)
     rng = np.random.default_rng(1)
     for spec in c.messages():
-        if spec.role == "sync":
-            continue
+        if not spec.channels:
+            continue  # NMT, SYNC and heartbeats have their own constructors
         values = [rng.uniform(ch.minimum, ch.maximum) for ch in spec.channels]
         frame = c.encode(spec.name, 123456, values)
         decoded = c.decode(frame)
@@ -51,17 +51,19 @@ def test_range_limits_are_inclusive_and_errors_name_the_signal(fd):
     with pytest.raises(CodecError, match=r"SENSOR_x1\.x1 at tick 7 = 8\.5 m is outside its declared range \[-8, 8\] m.*\[bus\.sensors\.x1\]"):
         c.encode("SENSOR_x1", 7, [8.5])
     with pytest.raises(CodecError, match=r"EST_kalman.*xhat_v2 at tick 0 = -9 m/s.*\[bus\.states\.v2\]"):
-        c.encode(c.messages(sender="kalman")[-1].name, 0, [0.0] * (len(c.messages(sender="kalman")[-1].channels) - 1) + [-9.0])
+        last = c.data_messages("kalman")[-1]
+        c.encode(last.name, 0, [0.0] * (len(last.channels) - 1) + [-9.0])
     with pytest.raises(CodecError, match=r"COMMAND_force\.force at tick 0 is not a number"):
         c.encode("COMMAND_force", 0, [float("nan")])
 
 
 def test_classic_layout_packs_estimates_into_8_byte_frames():
     c = codec(False)
-    est = c.messages(sender="uniform")
+    est = c.data_messages("uniform")
     assert [s.signals for s in est] == [("xhat_x1", "xhat_x2"), ("xhat_v1", "xhat_v2")]
     assert [s.frame_id for s in est] == [0x200, 0x201]
-    assert [s.frame_id for s in c.messages(sender="kalman")] == [0x220, 0x221]
+    assert [s.frame_id for s in c.data_messages("kalman")] == [0x220, 0x221]
+    assert [s.frame_id for s in c.messages(role="heartbeat")] == [0x701, 0x702]
     for message in c.database.messages:
         assert message.length <= 8 and not message.is_fd
     assert c.messages(role="sensor")[0].frame_id == 0x100 and c.messages(role="command")[0].frame_id == 0x180
@@ -69,7 +71,7 @@ def test_classic_layout_packs_estimates_into_8_byte_frames():
 
 def test_fd_layout_is_one_float64_frame_per_estimator():
     c = codec(True)
-    (est,) = c.messages(sender="uniform")
+    (est,) = c.data_messages("uniform")
     assert est.signals == ("xhat_x1", "xhat_x2", "xhat_v1", "xhat_v2")
     assert c.database.get_message_by_name(est.name).length == 48  # 4 + 32 bytes, next FD length
 
@@ -97,12 +99,14 @@ def test_the_dbc_text_decodes_frames_like_the_codec(fd):
     assert {m.name for m in db.messages} == set(c.specs)
     for spec in c.messages():
         message = db.get_message_by_frame_id(spec.frame_id)
-        assert message.is_fd == (fd and spec.role != "sync")
+        assert message.is_fd == (fd and bool(spec.channels))
         assert message.senders == [spec.sender]
-        frame = c.sync(9, 3) if spec.role == "sync" else c.encode(spec.name, 9, [0.125] * len(spec.channels))
+        frame = {
+            "sync": lambda: c.sync(9, 3), "nmt": lambda: c.nmt(2), "heartbeat": lambda: c.heartbeat(spec.sender, 5, 9, 2, 1),
+        }.get(spec.role, lambda: c.encode(spec.name, 9, [0.125] * len(spec.channels)))()
         external = db.decode_message(frame.arbitration_id, bytes(frame.data))
         ours = c.decode(frame)
-        assert external.pop("tick") == ours.tick
+        assert external.pop("tick", 0) == ours.tick
         assert external == pytest.approx(ours.values)
     if fd:
         assert 'BA_ "BusType" "CAN FD";' in c.dbc
@@ -119,8 +123,8 @@ def test_unknown_and_malformed_frames():
 
 
 def test_id_blocks_and_sync_counts_are_bounded():
-    with pytest.raises(CodecError, match=r"too many estimators for the bus: at most 40 fit ids 0x200-0x6FF"):
-        Codec(SENSORS, INFO.actuators, {f"e{i}": INFO.states for i in range(41)})
+    with pytest.raises(CodecError, match=r"too many estimators for the bus: at most 32 fit ids 0x200-0x5FF"):
+        Codec(SENSORS, INFO.actuators, {f"e{i}": INFO.states for i in range(33)})
     with pytest.raises(CodecError, match=r"too many sensors for the bus: at most 128"):
         Codec([Channel(f"s{i}", "m", "", -1, 1, 1e-3) for i in range(129)], [], {})
     with pytest.raises(CodecError, match="a SYNC can announce at most 255"):
@@ -130,3 +134,23 @@ def test_id_blocks_and_sync_counts_are_bounded():
 def test_fd_data_bitrate_is_in_the_dbc():
     c = Codec(SENSORS, INFO.actuators, {}, fd=True, data_bitrate=5_000_000)
     assert load_dbc(c.dbc).dbc.attributes["BaudrateCANFD"].value == 5_000_000
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_the_codec_rebuilds_exactly_from_its_dbc(fd):
+    """Nodes and clients get their codec from the DBC text: same messages, same bytes."""
+    c = Codec(SENSORS, INFO.actuators, {"uniform": INFO.states, "kalman": INFO.states},
+              clients={"avg": [Channel("z", "m", "average", -8, 8, 1e-6)]}, fd=fd, cycle_time=0.01)
+    d = Codec.from_dbc(c.dbc)
+    assert d.fd == fd and d.node_ids == c.node_ids == {"uniform": 1, "kalman": 2, "avg": 3}
+    assert set(d.specs) == set(c.specs)
+    for name, spec in c.specs.items():
+        other = d.specs[name]
+        assert (other.frame_id, other.sender, other.role, other.signals) == (spec.frame_id, spec.sender, spec.role, spec.signals)
+        assert [(x.name, x.unit, x.minimum, x.maximum) for x in other.channels] == [(x.name, x.unit, x.minimum, x.maximum) for x in spec.channels]
+        if spec.channels:
+            values = [0.5] * len(spec.channels)
+            assert bytes(d.encode(name, 77, values).data) == bytes(c.encode(name, 77, values).data)
+    assert bytes(d.heartbeat("avg", 5, 3, 1, 0).data) == bytes(c.heartbeat("avg", 5, 3, 1, 0).data)
+    with pytest.raises(CodecError, match="the DBC cannot be parsed"):
+        Codec.from_dbc("BO_ nonsense")

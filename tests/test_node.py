@@ -1,4 +1,4 @@
-"""Nodes see only frames: tick assembly from SYNC, and an estimator node's answers."""
+"""Nodes and clients see only frames: tick assembly, heartbeats, node specs, the client library."""
 
 from __future__ import annotations
 
@@ -7,14 +7,21 @@ import numpy as np
 import pytest
 
 import mjcf
-from cosim.codec import Codec
-from cosim.node import EstimatorNode, NodeDriver, TickAssembler
+from cosim.bus import BusConfig
+from cosim.client import Client, TickAssembler
+from cosim.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
+from cosim.errors import CosimError
+from cosim.node import EstimatorNode, NodeSpec
+from cosim.plant import Plant
+from mjcf import Channel
 
 INFO = mjcf.get("masses")
+SENSORS = ("x1", "x2", "x1_minus_x2")
 
 
 def codec(fd=False) -> Codec:
-    return Codec(INFO.sensors[:3], INFO.actuators, {"est": INFO.states}, fd=fd)
+    return Codec(INFO.sensors[:3], INFO.actuators, {"est": INFO.states},
+                 clients={"avg": [Channel("z", "m", "", -8, 8, 1e-6)]}, fd=fd)
 
 
 def tick_frames(c: Codec, k: int, readings: dict[str, float], force: float) -> list[can.Message]:
@@ -23,14 +30,15 @@ def tick_frames(c: Codec, k: int, readings: dict[str, float], force: float) -> l
     return [c.sync(k, len(frames)), *frames]
 
 
+def push_all(assembler: TickAssembler, frames):
+    return [t for f in frames for t in assembler.push(assembler.codec.decode(f))]
+
+
 def test_a_tick_completes_when_its_announced_frames_arrived():
     c = codec()
-    assembler = TickAssembler(c)
-    frames = tick_frames(c, 3, {"x1": 0.1, "x2": 0.2, "x1_minus_x2": -0.1}, 1.5)
-    done = [t for f in frames for t in assembler.push(f)]
-    assert len(done) == 1
-    (tick,) = done
-    assert tick.tick == 3 and tick.complete and tick.commands == {"force": 1.5}
+    assembler = TickAssembler(c, sample_time=0.01)
+    (tick,) = push_all(assembler, tick_frames(c, 3, {"x1": 0.1, "x2": 0.2, "x1_minus_x2": -0.1}, 1.5))
+    assert tick.tick == 3 and tick.complete and tick.commands == {"force": 1.5} and tick.t == pytest.approx(0.03)
     assert tick.sensors == pytest.approx({"x1": 0.1, "x2": 0.2, "x1_minus_x2": -0.1}, abs=1e-12)
     assert assembler.lost == 0
 
@@ -38,8 +46,7 @@ def test_a_tick_completes_when_its_announced_frames_arrived():
 def test_a_dropped_sensor_frame_is_not_awaited():
     c = codec()
     assembler = TickAssembler(c)
-    frames = tick_frames(c, 0, {"x1": 0.1, "x2": 0.2}, 0.0)  # the range sensor's frame was not sent
-    (tick,) = [t for f in frames for t in assembler.push(f)]
+    (tick,) = push_all(assembler, tick_frames(c, 0, {"x1": 0.1, "x2": 0.2}, 0.0))  # the range sensor's frame was not sent
     assert "x1_minus_x2" not in tick.sensors and assembler.lost == 0
 
 
@@ -47,43 +54,97 @@ def test_frames_lost_in_transport_are_counted_at_the_next_sync():
     c = codec()
     assembler = TickAssembler(c)
     frames = tick_frames(c, 0, {"x1": 0.1, "x2": 0.2, "x1_minus_x2": -0.1}, 0.0)
-    assert [t for f in frames[:-2] for t in assembler.push(f)] == []  # two frames never arrive
-    incomplete, = assembler.push(c.sync(1, 0))[:1]
+    assert push_all(assembler, frames[:-2]) == []  # two frames never arrive
+    incomplete = push_all(assembler, [c.sync(1, 0)])[0]
     assert not incomplete.complete and assembler.lost == 2
 
 
 def test_a_late_frame_of_an_earlier_tick_is_counted_not_used():
     c = codec()
     assembler = TickAssembler(c)
-    assembler.push(c.sync(5, 1))
-    assert assembler.push(c.encode("SENSOR_x1", 4, [0.3])) == []
+    push_all(assembler, [c.sync(5, 1)])
+    assert push_all(assembler, [c.encode("SENSOR_x1", 4, [0.3])]) == []
     assert assembler.lost == 1
+
+
+def node_spec(fd: bool, channel: str) -> NodeSpec:
+    model = Plant(INFO, 0.01, SENSORS).linearize()
+    return NodeSpec("est", "pseudoinverse", {"x0": [0.1, 0.0, 0.0, 0.0]}, model, codec(fd).dbc,
+                    BusConfig("virtual", channel, fd=fd), 0.01)
+
+
+def test_node_spec_round_trips_through_json_exactly():
+    spec = node_spec(False, "x")
+    again = NodeSpec.from_json(spec.to_json())
+    assert again.name == spec.name and again.params == spec.params and again.bus == spec.bus and again.dbc == spec.dbc
+    for key in ("A", "B", "C", "D", "x_op", "u_op", "y_op"):
+        assert np.array_equal(getattr(again.model, key), getattr(spec.model, key))
+    assert again.model.states == spec.model.states and again.model.dt == spec.model.dt
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
+    spec = node_spec(fd, f"node-test-{fd}")
+    c = Codec.from_dbc(spec.dbc)
+    with can.Bus(interface="virtual", channel=spec.bus.channel) as runner, can.Bus(interface="virtual", channel=spec.bus.channel) as bus:
+        node = EstimatorNode(spec, bus)
+        node.client.join()
+        boot = c.decode(runner.recv(0.0))
+        assert boot.spec.name == "HEARTBEAT_est" and boot.values["state"] == BOOTUP
+        for frame in tick_frames(c, 0, {"x1": 0.1, "x2": 0.0, "x1_minus_x2": 0.1}, 0.0):
+            runner.send(frame)
+        assert node.service() == 1
+        replies = []
+        while (reply := runner.recv(0.0)) is not None:
+            replies.append(c.decode(reply))
+        runner.send(c.nmt(NMT_STOP))
+        node.service()
+        assert node.client.stopped
+    *estimates, heartbeat = replies
+    assert [r.spec.name for r in estimates] == [m.name for m in c.data_messages("est")]
+    assert heartbeat.spec.name == "HEARTBEAT_est" and heartbeat.tick == 0
+    assert heartbeat.values == {"state": OPERATIONAL, "frames": len(estimates), "lost": 0}
+    values = {k: v for r in estimates for k, v in r.values.items()}
+    np.testing.assert_allclose([values[f"xhat_{s}"] for s in spec.model.states], [0.1, 0.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_a_client_publishes_its_declared_messages_and_heartbeats():
+    c = codec()
+    with can.Bus(interface="virtual", channel="client-test") as runner, can.Bus(interface="virtual", channel="client-test") as bus:
+        client = Client("avg", c, bus)
+        assert client.declared and client.lockstep
+        client.join()
+        for frame in tick_frames(c, 7, {"x1": 0.3, "x2": 0.1, "x1_minus_x2": 0.2}, 0.0):
+            runner.send(frame)
+        ticks = []
+        while (frame := bus.recv(0.0)) is not None:
+            ticks += client.feed(frame)
+        (tick,) = ticks
+        client.publish(tick, {"z": (tick.sensors["x1"] + tick.sensors["x2"] + tick.sensors["x1_minus_x2"]) / 3})
+        client.done(tick)
+        with pytest.raises(CosimError, match="publish: no value for z"):
+            client.publish(tick, {"y": 1.0})
+        client.close()
+        received = [c.decode(f) for f in iter(lambda: runner.recv(0.0), None)]
+    assert [(d.spec.name, d.values.get("state")) for d in received] == [
+        ("HEARTBEAT_avg", BOOTUP), ("CLIENT_avg", None), ("HEARTBEAT_avg", OPERATIONAL), ("HEARTBEAT_avg", STOPPED)]
+    assert received[1].tick == 7 and received[1].values["z"] == pytest.approx(0.2, abs=1e-6)
+    assert received[2].tick == 7 and received[2].values["frames"] == 1
+
+
+def test_an_undeclared_client_only_listens():
+    c = codec()
+    with can.Bus(interface="virtual", channel="passive") as bus:
+        client = Client("watcher", c, bus)
+        assert not client.declared and not client.lockstep
+        client.join()  # no heartbeat: the runner does not wait for it
+        with pytest.raises(CosimError, match="has no messages in this run's DBC"):
+            client.publish(0, {})
 
 
 def test_frames_outside_the_database_are_ignored():
     c = codec()
-    assembler = TickAssembler(c)
-    assert assembler.push(can.Message(arbitration_id=0x7E0, data=b"\x01", is_extended_id=False)) == []
-
-
-def test_estimator_node_answers_each_tick_over_a_bus():
-    from estimators import create
-    from cosim.plant import Plant
-
-    for fd in (False, True):
-        c = codec(fd)
-        model = Plant(INFO, 0.01, ["x1", "x2", "x1_minus_x2"]).linearize()
-        node = EstimatorNode("est", create("pseudoinverse", model, {"x0": (0.1, 0.0, 0.0, 0.0)}), c,
-                             ("x1", "x2", "x1_minus_x2"), ("force",))
-        channel = f"node-test-{fd}"
-        with can.Bus(interface="virtual", channel=channel) as runner, can.Bus(interface="virtual", channel=channel) as bus:
-            driver = NodeDriver(node, bus)
-            for frame in tick_frames(c, 0, {"x1": 0.1, "x2": 0.0, "x1_minus_x2": 0.1}, 0.0):
-                runner.send(frame)
-            assert driver.service() == 1
-            replies = []
-            while (reply := runner.recv(0.0)) is not None:
-                replies.append(c.decode(reply))
-        assert [r.spec.sender for r in replies] == ["est"] * len(c.messages(sender="est"))
-        values = {k: v for r in replies for k, v in r.values.items()}
-        np.testing.assert_allclose([values[f"xhat_{s}"] for s in model.states], [0.1, 0.0, 0.0, 0.0], atol=1e-6)
+    with can.Bus(interface="virtual", channel="foreign") as bus:
+        client = Client(None, c, bus)
+        assert client.feed(can.Message(arbitration_id=0x7E0, data=b"\x01", is_extended_id=False)) == []
+        assert client.feed(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False)) == []  # too short

@@ -1,0 +1,155 @@
+"""The run's CAN bus: which python-can interface, on which channel, and how to open it.
+
+``udp_multicast`` (the default) connects processes on one host with no kernel module and no
+server. Each run gets its own multicast group and a free UDP port, so concurrent runs never hear
+each other (sockets bound to one port see the datagrams of every group joined on the host: the
+port is what separates runs). Traffic never leaves the host: the group is an IPv6
+interface-local one (ff11::/16, which Linux loops back and never transmits) with hop limit 1;
+where IPv6 is unavailable, an IPv4 group (239.255.0.0/16) with TTL 0, which Linux also keeps on
+the host. (A TTL of 1 alone is not enough: such packets still reach the local network.)
+
+Known behaviour of the transport, handled by the nodes and the runner: a sender receives its own
+frames back (multicast loopback; they are recognized by their sender in the DBC), receive
+timestamps replace the sender's (the log uses simulated time, never frame timestamps), and a
+receiver whose socket buffer overflows during a burst loses frames (buffers are enlarged here,
+lockstep keeps bursts to one tick, and losses are counted per sender).
+
+``socketcan`` uses a (virtual) kernel CAN interface such as ``vcan0``; ``virtual`` is python-can's
+in-process bus, for unit tests.
+"""
+
+from __future__ import annotations
+
+import errno
+import random
+import socket
+import struct
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+
+from cosim.errors import CosimError
+
+INTERFACES = ("udp_multicast", "socketcan", "virtual")
+RECEIVE_BUFFER = 8 * 1024 * 1024
+_PORTS = (20000, 60000)
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """Where a run's bus is: enough for any python-can program to join it."""
+
+    interface: str
+    channel: str
+    port: int | None = None
+    hop_limit: int | None = None
+    fd: bool = False
+
+    def kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``can.Bus`` for this bus."""
+        kwargs: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
+        if self.interface == "udp_multicast":
+            kwargs |= {"port": self.port, "hop_limit": self.hop_limit, "fd": True}
+        elif self.interface == "socketcan":
+            kwargs["fd"] = self.fd
+        return kwargs
+
+    def describe(self) -> str:
+        where = f"{self.interface} channel {self.channel}"
+        return f"{where} port {self.port}" if self.port is not None else where
+
+    def python_can(self) -> str:
+        """The python-can call that joins this bus."""
+        args = ", ".join(f"{key}={value!r}" for key, value in self.kwargs().items())
+        return f"can.Bus({args})"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> BusConfig:
+        return cls(**data)
+
+
+def allocate(interface: str, channel: str = "", port: int = 0, fd: bool = False) -> BusConfig:
+    """A bus for one run; empty ``channel`` and zero ``port`` pick fresh ones."""
+    if interface == "udp_multicast":
+        return _allocate_multicast(channel, port, fd)
+    if interface == "socketcan":
+        channel = channel or "vcan0"
+        if not Path("/sys/class/net", channel).exists():
+            raise CosimError(
+                f"bus: there is no CAN interface {channel!r} on this machine; create a virtual one with "
+                f"'sudo modprobe vcan && sudo ip link add dev {channel} type vcan && sudo ip link set up {channel}', "
+                f"or use interface = \"udp_multicast\""
+            )
+        return BusConfig("socketcan", channel, fd=fd)
+    if interface == "virtual":
+        return BusConfig("virtual", channel or f"cosim-{random.SystemRandom().getrandbits(48):012x}", fd=fd)
+    raise CosimError(f"bus: unknown interface {interface!r}; use one of {', '.join(INTERFACES)}")
+
+
+def _allocate_multicast(channel: str, port: int, fd: bool) -> BusConfig:
+    rng = random.SystemRandom()
+    port = port or _free_port(rng)
+    if channel:
+        ipv6 = ":" in channel
+        return BusConfig("udp_multicast", channel, port, 1 if ipv6 else 0, fd)
+    if _ipv6_multicast_works():
+        return BusConfig("udp_multicast", f"ff11::c05:{rng.getrandbits(16):x}:{rng.getrandbits(16):x}", port, 1, fd)
+    return BusConfig("udp_multicast", f"239.255.{rng.randrange(256)}.{rng.randrange(1, 255)}", port, 0, fd)
+
+
+def _free_port(rng: random.Random) -> int:
+    """A UDP port no socket on this host is bound to (a probe without SO_REUSEADDR would fail)."""
+    for _ in range(200):
+        port = rng.randrange(*_PORTS)
+        for family, address in ((socket.AF_INET6, "::"), (socket.AF_INET, "")):
+            try:
+                with socket.socket(family, socket.SOCK_DGRAM) as probe:
+                    probe.bind((address, port))
+            except OSError as error:
+                if error.errno == errno.EADDRINUSE:
+                    break
+                # the family is unavailable: the other one decides
+        else:
+            return port
+    raise CosimError("bus: found no free UDP port for the run's multicast bus")
+
+
+def _ipv6_multicast_works() -> bool:
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as probe:
+            group = socket.inet_pton(socket.AF_INET6, "ff11::c05:0:1")
+            probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, group + struct.pack("@I", 0))
+        return True
+    except OSError:
+        return False
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    """Open the bus, with a clear error naming the bus if that fails."""
+    try:
+        bus = can.Bus(**config.kwargs())
+    except (can.CanError, OSError, ValueError) as error:
+        raise CosimError(f"cannot open the bus {config.describe()}: {error}") from None
+    if config.interface == "udp_multicast":
+        _enlarge_receive_buffer(bus)
+    return bus
+
+
+def _enlarge_receive_buffer(bus: can.BusABC) -> None:
+    """Room for bursts: the default (~200 kB) holds only a few hundred datagrams."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is None:
+        return
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER)
+            return
+        except OSError:
+            continue

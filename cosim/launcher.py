@@ -1,0 +1,128 @@
+"""The participants a runner waits for: estimator processes, in-process nodes, external clients.
+
+Each knows how to tell the runner what went wrong with it (a process that exited, with its exit
+status and last output; one that hangs; a client that went away) and how to stop.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import can
+
+from cosim.node import EstimatorNode, NodeSpec
+from estimators import Estimator
+
+
+class Participant:
+    """A node the runner expects heartbeats from."""
+
+    name: str
+    lockstep: bool = True
+    kind = "participant"
+
+    def service(self) -> None:
+        """Let an in-process participant handle what is waiting for it (others run on their own)."""
+
+    def failure(self) -> str | None:
+        """Why the participant can no longer answer, if it is known to have failed."""
+        return None
+
+    def hung(self, tick: int, waited: float) -> str:
+        """The report for a participant that has not answered tick ``tick`` in ``waited`` seconds."""
+        return f"{self.kind} {self.name} did not answer tick {tick} within {waited:g} s"
+
+    def stop(self, timeout: float) -> str | None:
+        """Stop (after the runner's NMT stop); returns a warning if that did not go cleanly."""
+        return None
+
+
+class ProcessNode(Participant):
+    """An estimator node in a process of its own (``cosim node NAME --spec FILE``)."""
+
+    kind = "node"
+
+    def __init__(self, spec: NodeSpec, workdir: Path) -> None:
+        self.name = spec.name
+        spec_path = workdir / f"{spec.name}.json"
+        spec_path.write_text(spec.to_json())
+        self.output = workdir / f"{spec.name}.log"
+        with open(self.output, "wb") as output:
+            # A session of its own: Ctrl-C in the terminal reaches the runner only, which stops the
+            # nodes itself after finishing the log.
+            self.process = subprocess.Popen(
+                [sys.executable, "-m", "cosim.cli", "node", spec.name, "--spec", str(spec_path)],
+                stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, start_new_session=True,
+            )
+
+    def last_output(self, lines: int = 12) -> str:
+        try:
+            text = self.output.read_text(errors="replace").rstrip()
+        except OSError:
+            return "(no output)"
+        tail = text.splitlines()[-lines:]
+        return "\n".join("    " + line for line in tail) if tail else "    (no output)"
+
+    def failure(self) -> str | None:
+        code = self.process.poll()
+        if code is None:
+            return None
+        return f"node {self.name} exited with status {code}; its last output:\n{self.last_output()}"
+
+    def hung(self, tick: int, waited: float) -> str:
+        self.process.kill()
+        self.process.wait()
+        return (
+            f"node {self.name} did not answer tick {tick} within {waited:g} s and was killed (it hung; raise "
+            f"[timing] node_timeout if it is only slow); its last output:\n{self.last_output()}"
+        )
+
+    def stop(self, timeout: float) -> str | None:
+        try:
+            code = self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.process.terminate()
+            try:
+                self.process.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+            return f"node {self.name} did not exit after the stop command and was terminated"
+        if code != 0:
+            return f"node {self.name} exited with status {code}; its last output:\n{self.last_output()}"
+        return None
+
+
+class LocalNode(Participant):
+    """An estimator node driven by the runner in its own process (the ``virtual`` interface)."""
+
+    kind = "node"
+
+    def __init__(self, spec: NodeSpec, estimator: Estimator) -> None:
+        self.name = spec.name
+        self.bus = can.Bus(interface="virtual", channel=spec.bus.channel)
+        self.node = EstimatorNode(spec, self.bus, estimator)
+        self.node.client.join()
+
+    def service(self) -> None:
+        self.node.service()
+
+    def stop(self, timeout: float) -> str | None:
+        self.node.service()  # take the stop command
+        self.bus.shutdown()
+        return None
+
+
+class ExternalClient(Participant):
+    """A client declared in the scenario, started by the user."""
+
+    kind = "client"
+
+    def __init__(self, name: str, lockstep: bool) -> None:
+        self.name = name
+        self.lockstep = lockstep
+
+    def hung(self, tick: int, waited: float) -> str:
+        return f"client {self.name} did not answer tick {tick} within {waited:g} s: has it stopped?"
