@@ -103,15 +103,16 @@ def cmd_node(args: argparse.Namespace) -> int:
         if spec.name != args.estimator:
             raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
     else:
-        from cosim import registry, scenario
-        from cosim.bus import BusConfig
-        from cosim.runner import Run
+        from cosim import registry
+        from cosim.node import NodeSpec
 
         info = registry.find(args.run)
-        run = Run(scenario.load(info["source"]), "/dev/null", info["seed"])
-        if args.estimator not in run.estimators:
-            raise CosimError(f"the running scenario has no estimator {args.estimator!r} (it has: {', '.join(run.estimators)})")
-        spec = run.node_spec(args.estimator, BusConfig.from_dict(info["bus"]))
+        if args.estimator not in info.get("nodes", {}):
+            raise CosimError(
+                f"the running co-simulation ({info['scenario']}) expects no external node {args.estimator!r}; "
+                f"mark it 'external = true' in the scenario's [[estimators]] to start it by hand"
+            )
+        spec = NodeSpec.from_json(info["nodes"][args.estimator])
     return serve(spec)
 
 
@@ -224,8 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("node", help="run one estimator as a CAN node", description="Run one estimator as a node on a "
-                       "co-simulation's bus. 'cosim run' starts its estimators this way (with --spec); by hand, the node "
-                       "joins the running co-simulation (which must declare it) and rebuilds its model from the scenario.")
+                       "co-simulation's bus. 'cosim run' starts its estimators this way (with --spec). Without --spec the "
+                       "node joins the running co-simulation, whose scenario marks it 'external = true' (to run it by "
+                       "hand, e.g. in a debugger).")
     p.add_argument("estimator", metavar="ESTIMATOR", help="the estimator's name in the scenario")
     p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")

@@ -118,6 +118,9 @@ class Client:
         self._owns_bus = owns_bus
         self._published = 0
         self._joined = False
+        # Only these frames concern a participant; telling them by id spares decoding the rest
+        # (other nodes' frames, and our own frames that come back on udp_multicast).
+        self._wanted = {s.frame_id for s in codec.specs.values() if s.role in (SYNC, NMT, SENSOR, COMMAND)}
 
     # -- life cycle -----------------------------------------------------------------------------
 
@@ -156,6 +159,8 @@ class Client:
 
     def feed(self, frame: can.Message) -> list[TickFrames]:
         """Take one frame from the bus; returns the ticks it completes."""
+        if frame.is_extended_id or frame.arbitration_id not in self._wanted:
+            return []
         try:
             decoded = self.codec.decode(frame)
         except CodecError:
@@ -194,7 +199,7 @@ class Client:
                     return
                 continue
             last = time.monotonic()
-            self.feed(frame)
+            self.feed(frame)  # notices the stop command
             try:
                 decoded = self.codec.decode(frame)
             except CodecError:

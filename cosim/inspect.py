@@ -19,6 +19,10 @@ from cosim.log import LogReader
 from cosim.recorder import EVENTS, FRAMES, STATE, message_topic
 
 
+#: Ticks kept while waiting for the other half (truth or estimate) of a tick.
+_WINDOW = 1000
+
+
 def summarize(path: str | Path) -> dict[str, Any]:
     """The summary of a log as a JSON-ready dict (keys documented in the README)."""
     warnings: list[str] = []
@@ -79,31 +83,39 @@ def _estimation(reader: LogReader, run: dict[str, str], scanned: dict[str, int],
     dt_ns = round(float(run["sample_time"]) * 1e9)
     topic_owner = {message_topic(m): name for name, e in ests.items() for m in e["messages"]}
     wanted = None if need_counts else [STATE, EVENTS, *topic_owner]
+    # Truth and estimates of a tick may come in either order; a tick is scored once both are in.
+    truth: dict[int, dict[str, float]] = {}
     partial: dict[int, dict[str, dict[str, float]]] = defaultdict(lambda: defaultdict(dict))
-    sums = {name: {"pre": [0.0, 0], "post": [0.0, 0], "final": None} for name in ests}
+    sums = {name: {"pre": [0.0, 0], "post": [0.0, 0], "final": (-1, None)} for name in ests}
     ticks = lost = 0
+
+    def score(k: int, name: str) -> None:
+        x, x_hat = truth.get(k), partial[k].get(name, {})
+        if x is None or any(x_hat.get(s) is None for s in states):
+            return
+        error = math.sqrt(math.fsum((x[s] - x_hat[s]) ** 2 for s in states))
+        window = "post" if onset_tick is not None and k >= onset_tick else "pre"
+        sums[name][window][0] += error * error
+        sums[name][window][1] += 1
+        if k > sums[name]["final"][0]:
+            sums[name]["final"] = (k, error)
+        del partial[k][name]
+
     for topic, log_time, msg in reader.messages(wanted):
         scanned[topic] += 1
         if topic in topic_owner:
-            name = topic_owner[topic]
-            partial[log_time // dt_ns][name].update(
-                {key.removeprefix("xhat_"): value for key, value in msg.items() if key.startswith("xhat_")}
-            )
+            k, name = log_time // dt_ns, topic_owner[topic]
+            partial[k][name].update({key.removeprefix("xhat_"): value for key, value in msg.items() if key.startswith("xhat_")})
+            score(k, name)
         elif topic == STATE:
             k = msg["tick"]
             ticks = max(ticks, k + 1)
-            estimates = partial.pop(k, {})
-            for old in [t for t in partial if t < k]:
-                del partial[old]
-            window = "post" if onset_tick is not None and k >= onset_tick else "pre"
+            truth[k] = msg
             for name in ests:
-                x_hat = estimates.get(name, {})
-                if any(x_hat.get(s) is None for s in states):
-                    continue
-                error = math.sqrt(math.fsum((msg[s] - x_hat[s]) ** 2 for s in states))
-                sums[name][window][0] += error * error
-                sums[name][window][1] += 1
-                sums[name]["final"] = error
+                score(k, name)
+            for old in [t for t in truth if t < k - _WINDOW]:  # bounded memory
+                del truth[old]
+                partial.pop(old, None)
         elif topic == EVENTS and msg.get("event") == "frames_lost":
             lost += msg.get("count", 1)
 
@@ -115,7 +127,7 @@ def _estimation(reader: LogReader, run: dict[str, str], scanned: dict[str, int],
             "kind": ests[name]["kind"],
             "rms_pre_fault": rms(sums[name]["pre"]),
             "rms_post_fault": rms(sums[name]["post"]),
-            "final_error": sums[name]["final"],
+            "final_error": sums[name]["final"][1],
         }
         for name in ests
     }

@@ -116,13 +116,12 @@ class LocalNode(Participant):
 
 
 class ExternalClient(Participant):
-    """A client declared in the scenario, started by the user."""
+    """A client declared in the scenario, or an estimator node marked external: started by the user."""
 
-    kind = "client"
-
-    def __init__(self, name: str, lockstep: bool) -> None:
+    def __init__(self, name: str, lockstep: bool, kind: str = "client") -> None:
         self.name = name
         self.lockstep = lockstep
+        self.kind = kind
 
     def hung(self, tick: int, waited: float) -> str:
-        return f"client {self.name} did not answer tick {tick} within {waited:g} s: has it stopped?"
+        return f"{self.kind} {self.name} did not answer tick {tick} within {waited:g} s: has it stopped?"

@@ -174,16 +174,18 @@ def versions() -> dict[str, str]:
 class Traffic:
     """What the runner hears during a run, with the bookkeeping behind loss and lateness.
 
-    Frames of a node for tick j are counted; its heartbeat closing tick j says how many it sent,
-    and the difference is frames lost on the way to the runner. Nodes report in their heartbeats
-    how many of the runner's frames they found missing. The runner's own frames come back on
-    udp_multicast (loopback) and are counted, not logged again.
+    Frames are taken as they arrive and logged tick by tick (``flush``). Heartbeats are decoded on
+    arrival, since the runner waits for them; everything else is decoded when logged. The runner's
+    own frames come back on udp_multicast (loopback): they are recognized by id, counted, and not
+    logged twice. A node's heartbeat closing tick j says how many frames it sent for j; frames of
+    it missing at that point are counted as lost, and the nodes report in their heartbeats how many
+    of the runner's frames they found missing.
     """
 
     def __init__(self, codec: Codec, recorder: RunRecorder) -> None:
         self.codec = codec
         self.recorder = recorder
-        self.pending: list[tuple[can.Message, Decoded | None]] = []
+        self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
         self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
         self.joined: set[str] = set()
         self.left: set[str] = set()
@@ -192,39 +194,53 @@ class Traffic:
         self.received: Counter[str] = Counter()
         self.echoes = 0
         self._counts: Counter[tuple[str, int]] = Counter()
+        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in OWN_SENDERS}
+        self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
 
     def take(self, frame: can.Message) -> None:
-        try:
-            decoded = self.codec.decode(frame)
-        except CodecError:
-            decoded = None  # logged raw, as an unknown frame
-        if decoded is not None and decoded.spec.sender in OWN_SENDERS:
+        identifier = None if frame.is_extended_id else frame.arbitration_id
+        if identifier in self._own:
             self.echoes += 1
             return
+        decoded = None
+        if identifier in self._heartbeats:
+            decoded = self._decode(frame)
+            if decoded is not None:
+                sender, state = decoded.spec.sender, decoded.values["state"]
+                if state == BOOTUP:
+                    self.joined.add(sender)
+                elif state == STOPPED:
+                    self.left.add(sender)
+                elif state == OPERATIONAL:
+                    self.closed[sender] = decoded.tick
         self.pending.append((frame, decoded))
-        if decoded is None:
-            return
-        sender, role = decoded.spec.sender, decoded.spec.role
-        self.received[sender] += 1
-        if role in (ESTIMATE, CLIENT):
-            self._counts[(sender, decoded.tick)] += 1
-        elif role == HEARTBEAT:
-            state = decoded.values["state"]
-            if state == BOOTUP:
-                self.joined.add(sender)
-            elif state == STOPPED:
-                self.left.add(sender)
-            elif state == OPERATIONAL:
+
+    def _decode(self, frame: can.Message) -> Decoded | None:
+        try:
+            return self.codec.decode(frame)
+        except CodecError:
+            return None  # logged raw, as an unknown frame
+
+    def flush(self, tick: int, t: float, t_ns: int) -> None:
+        """Account for the frames received during tick k, then log them by arbitration id."""
+        taken = []
+        for frame, decoded in self.pending:
+            if decoded is None:
+                decoded = self._decode(frame)
+            taken.append((frame, decoded))
+            if decoded is None:
+                continue
+            sender, role = decoded.spec.sender, decoded.spec.role
+            self.received[sender] += 1
+            if role in (ESTIMATE, CLIENT):
+                self._counts[(sender, decoded.tick)] += 1
+            elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
                 counter = decoded.tick % self.codec.tick_modulus
                 self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
                 self.missed_by[sender] = int(decoded.values["lost"])
-                self.closed[sender] = decoded.tick
-
-    def flush(self, tick: int, t: float, t_ns: int) -> None:
-        """Log the frames received during tick k, by arbitration id."""
-        for frame, decoded in sorted(self.pending, key=lambda item: item[0].arbitration_id):
-            self.recorder.frame(tick, t, t_ns, frame, decoded)
         self.pending.clear()
+        for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
+            self.recorder.frame(tick, t, t_ns, frame, decoded)
 
     @property
     def frames_lost(self) -> int:
@@ -304,9 +320,15 @@ class Run:
     # -- participants -------------------------------------------------------------------------
 
     def _start(self, bus: BusConfig, workdir: Path) -> None:
+        external = {e.name for e in self.scenario.estimators if e.external}
         for name, estimator in self.estimators.items():
             spec = self.node_spec(name, bus)
-            node = LocalNode(spec, estimator) if bus.interface == "virtual" else ProcessNode(spec, workdir)
+            if name in external:
+                node = ExternalClient(name, True, kind="node")
+            elif bus.interface == "virtual":
+                node = LocalNode(spec, estimator)
+            else:
+                node = ProcessNode(spec, workdir)
             self.participants.append(node)
         self.participants += [ExternalClient(c.name, c.lockstep) for c in self.scenario.clients]
 
@@ -344,7 +366,7 @@ class Run:
             for participant in self.participants:
                 if (reason := participant.failure()) is not None:
                     raise NodeFailure(reason)
-            missing = ", ".join(sorted(expected - traffic.joined))
+            missing = ", ".join(f"{p.kind} {p.name}" for p in self.participants if p.name not in traffic.joined)
             raise NodeFailure(f"{missing} did not join the bus {self.bus.describe()} within {timeout:g} s "
                               f"(raise [timing] join_timeout if it starts slowly)")
 
@@ -364,6 +386,7 @@ class Run:
         realtime = s.timing.mode == "realtime"
         period = s.sample_time / s.timing.speed
         status, error, k, misses = "completed", "", 0, 0
+        marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
         warnings: list[str] = []
         start = time.perf_counter()
         last_report = start
@@ -371,6 +394,7 @@ class Run:
         registration = Registration(self.run_id, {
             "scenario": s.name, "source": self.loaded.source, "seed": s.seed, "sample_time": s.sample_time,
             "bus": self.bus.to_dict(), "dbc": codec.dbc, "log": str(self.out.resolve()),
+            "nodes": {e.name: self.node_spec(e.name, self.bus).to_json() for e in s.estimators if e.external},
         })
         with (DeferredInterrupts() as interrupts, McapLog(self.out) as log, open_bus(self.bus) as bus,
               tempfile.TemporaryDirectory(prefix="cosim-nodes-") as workdir, registration):
@@ -384,7 +408,7 @@ class Run:
                 if on_start is not None:
                     on_start(self)
                 self._join(bus, traffic, interrupts)
-                traffic.flush(0, 0.0, 0)  # the boot-up heartbeats
+                traffic.flush(*marker)  # the boot-up heartbeats
                 lockstep = [p.name for p in self.participants if p.lockstep]
                 tick_start = time.perf_counter()
                 for k in range(s.ticks):
@@ -403,23 +427,12 @@ class Run:
                     frames.insert(0, codec.sync(k, len(frames)))
                     for frame in frames:
                         bus.send(frame)
+                    # While the nodes work on tick k: log what the previous tick brought, this
+                    # tick's own frames and truth, and advance the physics.
+                    traffic.flush(*marker)
+                    marker = (k, t, t_ns)
+                    for frame in frames:
                         recorder.frame(k, t, t_ns, frame, codec.decode(frame))
-                    answered = lambda: all(traffic.closed.get(name, -1) >= k for name in lockstep)  # noqa: E731
-                    if realtime:
-                        self._wait(bus, traffic, interrupts, lambda: False, tick_start + (k + 1) * period, lambda: None)
-                        for name in lockstep:
-                            if traffic.closed.get(name, -1) < k:
-                                misses += 1
-                                recorder.deadline_miss(k, t, t_ns, name, misses)
-                    else:
-                        def hung() -> None:
-                            waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < k]
-                            raise NodeFailure(waiting[0].hung(k, s.timing.node_timeout))
-                        self._wait(bus, traffic, interrupts, answered, time.perf_counter() + s.timing.node_timeout, hung)
-                    left = traffic.left & set(lockstep)
-                    if left:
-                        raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
-                    traffic.flush(k, t, t_ns)
                     # The actuators receive what the command frames carry (quantized in classic CAN).
                     u_cmd = np.array([codec.decode(f).values[spec.signals[0]] for f, spec in zip(commands, command_specs)])
                     u_eff, delta = self.faults.actuators(u_cmd, t)
@@ -432,6 +445,21 @@ class Run:
                         bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
                         raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
                     plant.step(u_eff)
+                    if realtime:
+                        self._wait(bus, traffic, interrupts, lambda: False, tick_start + (k + 1) * period, lambda: None)
+                        for name in lockstep:
+                            if traffic.closed.get(name, -1) < k:
+                                misses += 1
+                                recorder.deadline_miss(k, t, t_ns, name, misses)
+                    else:
+                        def hung() -> None:
+                            waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < k]
+                            raise NodeFailure(waiting[0].hung(k, s.timing.node_timeout))
+                        answered = lambda: all(traffic.closed.get(name, -1) >= k for name in lockstep)  # noqa: E731
+                        self._wait(bus, traffic, interrupts, answered, time.perf_counter() + s.timing.node_timeout, hung)
+                    left = traffic.left & set(lockstep)
+                    if left:
+                        raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
                     if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
                         last_report = now
                         on_progress(Progress(k + 1, s.ticks, s.time(k + 1), now - start, recorder.frames, misses))
@@ -446,6 +474,7 @@ class Run:
                 status, error = "error", f"{type(exc).__name__}: {exc}"
                 raise
             finally:
+                traffic.flush(*marker)
                 t_end, t_end_ns = s.time(k), k * dt_ns
                 stop = codec.nmt(NMT_STOP)
                 try:

@@ -276,6 +276,8 @@ class EstimatorSpec(Strict):
     name: Identifier
     kind: str
     params: dict[str, Any] = {}
+    external: bool = False
+    """Do not start this node: it is started by hand with 'cosim node NAME' (e.g. in a debugger)."""
 
 
 class Scenario(Strict):

@@ -1,0 +1,128 @@
+"""Throughput of the co-simulation against the ceiling of its CAN transport, measured in one run.
+
+- raw: frames/s between two processes on the chosen python-can interface (send → receive): one
+  process sends classic 8-byte frames in windows of ``--window`` frames, the other receives them
+  and acknowledges each window (flow control, so that no frame is lost to a full socket buffer);
+  the figure is frames received per second. This is the ceiling of the transport for Python.
+- pipeline: a full lockstep co-simulation of the default scenario (plant, faults, two estimator
+  processes, MCAP logging) on the same interface: frames on the bus per second of wall time, ticks
+  per second, real-time factor, frames lost.
+- ratio: pipeline frames/s over raw frames/s.
+
+Usage: python bench/cosim_throughput.py [--json] [--interface udp_multicast] [--frames N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import can  # noqa: E402
+
+from cosim import scenario  # noqa: E402
+from cosim.bus import BusConfig, allocate, open_bus  # noqa: E402
+from cosim.runner import Run  # noqa: E402
+
+ACK_ID = 0x7FF
+
+
+def _receiver(config: dict, frames: int, window: int, ready, result) -> None:
+    bus = open_bus(BusConfig.from_dict(config))
+    ready.set()
+    received, start = 0, None
+    while received < frames:
+        frame = bus.recv(5.0)
+        if frame is None:
+            break
+        if frame.arbitration_id == ACK_ID:
+            continue  # our own acknowledgement, looped back
+        if start is None:
+            start = time.perf_counter()
+        received += 1
+        if received % window == 0 or received == frames:
+            bus.send(can.Message(arbitration_id=ACK_ID, data=received.to_bytes(4, "little"), is_extended_id=False))
+    elapsed = time.perf_counter() - start if start else float("nan")
+    result.put((received, elapsed))
+    bus.shutdown()
+
+
+def raw_rate(config: BusConfig, frames: int, window: int) -> dict[str, float]:
+    context = multiprocessing.get_context("spawn")
+    ready, result = context.Event(), context.Queue()
+    receiver = context.Process(target=_receiver, args=(config.to_dict(), frames, window, ready, result))
+    receiver.start()
+    ready.wait(30)
+    bus = open_bus(config)
+    time.sleep(0.2)
+    message = can.Message(arbitration_id=0x100, data=bytes(range(8)), is_extended_id=False)
+    sent = 0
+    while sent < frames:
+        for _ in range(min(window, frames - sent)):
+            bus.send(message)
+            sent += 1
+        acknowledged = 0
+        while acknowledged < sent:
+            frame = bus.recv(5.0)
+            if frame is None:
+                raise RuntimeError(f"no acknowledgement after {sent} frames: frames were lost")
+            if frame.arbitration_id == ACK_ID:
+                acknowledged = int.from_bytes(frame.data, "little")
+    received, elapsed = result.get(timeout=30)
+    receiver.join(10)
+    bus.shutdown()
+    return {"raw_frames": received, "raw_lost_frames": frames - received, "raw_frames_per_s": received / elapsed}
+
+
+def pipeline(interface: str, repeat: int) -> dict[str, float]:
+    loaded = scenario.load()
+    best = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeat):
+            result = Run(loaded, Path(tmp) / "bench.mcap", interface=interface).execute()
+            if best is None or result.wall_time < best.wall_time:
+                best = result
+    return {
+        "pipeline_frames": best.frames, "pipeline_wall_s": best.wall_time, "pipeline_frames_per_s": best.frames / best.wall_time,
+        "pipeline_ticks_per_s": best.ticks / best.wall_time, "realtime_factor": best.realtime_factor,
+        "lost_frames": best.frames_lost,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--interface", default="udp_multicast", choices=("udp_multicast", "socketcan"))
+    parser.add_argument("--channel", default="", help="socketcan interface (default vcan0)")
+    parser.add_argument("--frames", type=int, default=50_000, help="frames for the raw measurement")
+    parser.add_argument("--window", type=int, default=128, help="frames per acknowledged window (raw)")
+    parser.add_argument("--repeat", type=int, default=2, help="pipeline runs; the fastest is kept")
+    args = parser.parse_args()
+    config = allocate(args.interface, args.channel)
+    figures = {"interface": args.interface} | raw_rate(config, args.frames, args.window) | pipeline(args.interface, args.repeat)
+    figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
+    if args.json:
+        print(json.dumps(figures))
+        return
+    rows = [
+        (f"raw {args.interface}, two processes, send -> receive", f"{figures['raw_frames_per_s']:,.0f} frames/s"),
+        ("  frames lost", f"{figures['raw_lost_frames']}"),
+        ("pipeline: lockstep co-simulation, 2 estimator processes, logging", f"{figures['pipeline_frames_per_s']:,.0f} frames/s"),
+        ("  ticks per second", f"{figures['pipeline_ticks_per_s']:,.0f} ticks/s"),
+        ("  real-time factor", f"{figures['realtime_factor']:.1f} x"),
+        ("  frames lost", f"{figures['lost_frames']}"),
+        ("ratio pipeline / raw (target >= 0.5)", f"{figures['ratio']:.2f}"),
+    ]
+    width = max(len(label) for label, _ in rows)
+    for label, value in rows:
+        print(f"{label:<{width}}  {value:>18}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,301 @@
+"""The co-simulation as separate processes over udp_multicast: determinism, isolation, failures,
+realtime accounting, external tools and user-written clients."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from cosim import registry, scenario
+from cosim.bus import allocate
+from cosim.codec import load_dbc
+from cosim.errors import CosimError
+from cosim.log import LogReader
+from cosim.runner import Run, run
+from tests.conftest import ROOT, short_scenario
+
+
+@pytest.fixture(autouse=True)
+def private_registry(tmp_path, monkeypatch):
+    """Each test's runs register in a directory of their own (inherited by subprocesses)."""
+    monkeypatch.setenv("COSIM_RUNTIME_DIR", str(tmp_path / "registry"))
+
+
+def messages(path, exclude=("/cosim/events",)) -> list:
+    with LogReader(path) as reader:
+        return [(topic, t, msg) for topic, t, msg in reader.messages() if topic not in exclude]
+
+
+def short(tmp_path, duration=3.0, extra="", name="short.toml", base=None):
+    text = base if base is not None else scenario.load().text
+    path = tmp_path / name
+    path.write_text(short_scenario(text, duration) + extra)
+    return scenario.load(path)
+
+
+def cli(*args, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "cosim.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, **kwargs)
+
+
+def wait_for(condition, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.05)
+    raise AssertionError("timed out waiting")
+
+
+def test_the_default_run_is_separate_processes_over_a_host_only_multicast_bus(default_run):
+    with LogReader(default_run.path) as reader:
+        bus = reader.metadata()["cosim.bus"]
+        result = reader.metadata()["cosim.result"]
+    assert bus["interface"] == "udp_multicast"
+    assert bus["channel"].startswith("ff11:") and bus["hop_limit"] == "1" or bus["channel"].startswith("239.255.") and bus["hop_limit"] == "0"
+    assert json.loads(result["senders"]) == {
+        "uniform": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
+        "kalman": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
+    }
+    assert registry.active() == []  # the run's registry entry is gone
+
+
+def test_the_log_matches_the_in_process_bus_frame_for_frame(default_run, default_loaded, tmp_path):
+    virtual = run(default_loaded, tmp_path / "virtual.mcap", interface="virtual")
+    assert messages(default_run.path) == messages(virtual.path)
+
+
+def test_lockstep_is_deterministic_whatever_the_machine_load(tmp_path):
+    loaded = short(tmp_path, 5.0)
+    quiet = run(loaded, tmp_path / "quiet.mcap")
+    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(3)]
+    try:
+        loaded_run = run(loaded, tmp_path / "loaded.mcap")
+    finally:
+        for burner in burners:
+            burner.kill()
+    assert quiet.frames_lost == loaded_run.frames_lost == 0
+    assert messages(quiet.path) == messages(loaded_run.path)
+
+
+def test_concurrent_runs_never_hear_each_other(tmp_path):
+    loaded = short(tmp_path, 4.0)
+    procs = [cli("run", "-q", str(loaded.source), "--seed", str(seed), "--out", str(tmp_path / f"together{seed}.mcap"))
+             for seed in (1, 2)]
+    for proc in procs:
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+    for seed in (1, 2):
+        alone = run(loaded, tmp_path / f"alone{seed}.mcap", seed=seed)
+        assert messages(tmp_path / f"together{seed}.mcap") == messages(alone.path)
+
+
+def _tx_packets() -> dict[str, int]:
+    counts = {}
+    for device in Path("/sys/class/net").iterdir():
+        if device.name != "lo" and (device / "statistics/tx_packets").exists():
+            counts[device.name] = int((device / "statistics/tx_packets").read_text())
+    return counts
+
+
+@pytest.mark.skipif(not _tx_packets(), reason="no network interface besides loopback to watch")
+def test_bus_traffic_never_leaves_the_host(tmp_path):
+    before = _tx_packets()
+    result = run(short(tmp_path, 3.0), tmp_path / "host.mcap")
+    after = _tx_packets()
+    assert result.frames > 3000
+    for device, count in after.items():  # thousands of frames went over the bus; background is a few packets
+        assert count - before.get(device, 0) < 100, device
+
+
+def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
+    bus = allocate("udp_multicast")
+    capture = tmp_path / "capture.log"
+    logger = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "udp_multicast", "-c", bus.channel,
+                               "--bus-kwargs", f"port={bus.port}", "-f", str(capture)],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    time.sleep(2.0)  # the logger joins the group
+    try:
+        proc = cli("run", "-q", str(short(tmp_path, 2.0).source), "--channel", bus.channel, "--port", str(bus.port),
+                   "--out", str(tmp_path / "logged.mcap"))
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+        assert f"bus: udp_multicast channel {bus.channel} port {bus.port}" in err
+        time.sleep(0.5)
+    finally:
+        logger.send_signal(signal.SIGINT)
+        logger.communicate(timeout=30)
+    captured = list(can.LogReader(str(capture)))
+    dbc = subprocess.run([sys.executable, "-m", "cosim.cli", "dbc", str(tmp_path / "short.toml")], capture_output=True,
+                         text=True, check=True).stdout
+    db = load_dbc(dbc)
+    with LogReader(tmp_path / "logged.mcap") as reader:
+        logged = [msg for _, _, msg in reader.messages(["/can/frames"])]
+    assert Counter((f.arbitration_id, bytes(f.data).hex()) for f in captured) == Counter((f["id"], f["data"]) for f in logged)
+    for frame in captured:
+        message = db.get_message_by_frame_id(frame.arbitration_id)
+        decoded = db.decode_message(frame.arbitration_id, bytes(frame.data))
+        assert set(decoded) == {s.name for s in message.signals}
+
+
+def _kill_at(tick: int, action):
+    done = []
+
+    def on_progress(progress):
+        if progress.tick >= tick and not done:
+            done.append(True)
+            action()
+    return on_progress
+
+
+def test_a_killed_estimator_is_reported_by_name_with_its_status_and_output(tmp_path):
+    r = Run(short(tmp_path, 10.0), tmp_path / "killed.mcap")
+    node = lambda: next(p for p in r.participants if p.name == "kalman")  # noqa: E731
+    with pytest.raises(CosimError) as info:
+        r.execute(_kill_at(300, lambda: node().process.kill()), progress_every=0.0)
+    message = str(info.value)
+    assert message.startswith("node kalman exited with status -9; its last output:")
+    with LogReader(tmp_path / "killed.mcap") as reader:
+        result = reader.metadata()["cosim.result"]
+    assert result["status"] == "error" and "node kalman exited" in result["error"]
+    assert 300 <= int(result["ticks"]) < 1000
+    assert all(p.process.poll() is not None for p in r.participants)  # the other node was stopped too
+
+
+def test_a_hung_estimator_is_reported_and_killed(tmp_path):
+    loaded = short(tmp_path, 10.0, "\n[timing]\nnode_timeout = 1.0\n")
+    r = Run(loaded, tmp_path / "hung.mcap")
+    node = lambda: next(p for p in r.participants if p.name == "uniform")  # noqa: E731
+    started = time.perf_counter()
+    with pytest.raises(CosimError, match=r"node uniform did not answer tick \d+ within 1 s and was killed \(it hung"):
+        r.execute(_kill_at(200, lambda: os.kill(node().process.pid, signal.SIGSTOP)), progress_every=0.0)
+    assert time.perf_counter() - started < 30
+    assert node().process.poll() is not None
+    with LogReader(tmp_path / "hung.mcap") as reader:
+        assert reader.metadata()["cosim.result"]["status"] == "error"
+
+
+def test_ctrl_c_stops_every_process_and_leaves_a_valid_log(tmp_path):
+    out = tmp_path / "ctrlc.mcap"
+    proc = cli("run", "--out", str(out))
+    wait_for(lambda: out.exists() and out.stat().st_size > 150_000)
+    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert len(children) == 2  # the two estimator nodes
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "interrupted after" in err and "Traceback" not in err
+    for pid in children:
+        with pytest.raises(ProcessLookupError):
+            os.kill(int(pid), 0)
+    with LogReader(out) as reader:
+        meta = reader.metadata()
+        frames = [msg for _, _, msg in reader.messages(["/can/frames"])]
+    assert meta["cosim.result"]["status"] == "interrupted" and frames[-1]["message"] == "NMT"
+
+
+def test_realtime_mode_paces_ticks_and_counts_deadline_misses(tmp_path):
+    loaded = short(tmp_path, 3.0, '\n[timing]\nmode = "realtime"\nspeed = 1.0\n')
+    r = Run(loaded, tmp_path / "realtime.mcap")
+    node = lambda: next(p for p in r.participants if p.name == "kalman")  # noqa: E731
+    actions = {100: signal.SIGSTOP, 150: signal.SIGCONT}
+
+    def on_progress(progress):
+        if progress.tick in actions:
+            os.kill(node().process.pid, actions.pop(progress.tick))
+
+    result = r.execute(on_progress, progress_every=0.0)
+    assert result.status == "completed" and result.frames_lost == 0
+    assert 2.9 < result.wall_time < 5.0  # paced to the wall clock
+    with LogReader(result.path) as reader:
+        misses = [msg for _, _, msg in reader.messages(["/cosim/deadline_misses"])]
+        meta = reader.metadata()["cosim.result"]
+    by_node = Counter(m["node"] for m in misses)
+    assert 40 <= by_node["kalman"] <= 70  # stopped for 50 ticks of 10 ms (plus its catching up)
+    assert by_node["uniform"] <= 5
+    assert int(meta["deadline_misses"]) == len(misses) == result.deadline_misses == misses[-1]["count"]
+    assert all(100 <= m["tick"] <= 200 for m in misses if m["node"] == "kalman")
+
+
+def test_a_user_written_client_joins_in_lockstep(tmp_path):
+    base = (ROOT / "examples" / "least-squares-client.toml").read_text()
+    loaded = short(tmp_path, 3.0, base=base, name="client.toml")
+    out = tmp_path / "client.mcap"
+    runner = cli("run", "-q", str(loaded.source), "--out", str(out))
+    wait_for(lambda: registry.active())
+    client = subprocess.run([sys.executable, str(ROOT / "examples" / "least_squares_client.py")], capture_output=True,
+                            text=True, timeout=120)
+    _, err = runner.communicate(timeout=120)
+    assert client.returncode == 0, client.stderr
+    assert runner.returncode == 0, err
+    sensors, fixes, heartbeats = {}, {}, Counter()
+    with LogReader(out) as reader:
+        for topic, _, msg in reader.messages():
+            if topic.startswith("/can/SENSOR_"):
+                sensors.setdefault(msg["tick"], {})[topic.removeprefix("/can/SENSOR_")] = next(
+                    v for key, v in msg.items() if key != "tick")
+            elif topic == "/can/CLIENT_lsq":
+                fixes[msg["tick"]] = msg
+            elif topic == "/can/HEARTBEAT_lsq":
+                heartbeats[msg["state"]] += 1
+        result = reader.metadata()["cosim.result"]
+    assert sorted(fixes) == list(range(300)) and heartbeats == {0: 1, 5: 300}
+    assert result["frames_lost"] == "0"
+    for k, y in sensors.items():
+        assert fixes[k]["x1"] == pytest.approx((2 * y["x1"] + y["x2"] + y["x1_minus_x2"]) / 3, abs=1e-6)
+        assert fixes[k]["x2"] == pytest.approx((y["x1"] + 2 * y["x2"] - y["x1_minus_x2"]) / 3, abs=1e-6)
+
+
+def test_a_declared_client_that_never_joins_is_reported(tmp_path):
+    base = (ROOT / "examples" / "least-squares-client.toml").read_text().replace("join_timeout = 120.0", "join_timeout = 1.0")
+    with pytest.raises(CosimError, match=r"client lsq(, node uniform)? did not join the bus udp_multicast channel \S+ port \d+ within 1 s"):
+        run(short(tmp_path, 1.0, base=base, name="nojoin.toml"), tmp_path / "nojoin.mcap")
+
+
+def test_an_external_estimator_started_by_hand(tmp_path, default_loaded):
+    text = default_loaded.text.replace('name = "kalman"\nkind = "kalman"', 'name = "kalman"\nkind = "kalman"\nexternal = true')
+    loaded = short(tmp_path, 3.0, "\n[timing]\njoin_timeout = 60.0\n", base=text, name="external.toml")
+    out = tmp_path / "external.mcap"
+    runner = cli("run", "-q", str(loaded.source), "--out", str(out))
+    wait_for(lambda: registry.active())
+    node = cli("node", "kalman")
+    _, err = runner.communicate(timeout=120)
+    node.communicate(timeout=30)
+    assert runner.returncode == 0 and node.returncode == 0, err
+    reference = run(short(tmp_path, 3.0), tmp_path / "reference.mcap", interface="virtual")
+    kalman = lambda path: [m for m in messages(path) if m[0].startswith(("/can/EST_kalman", "/can/HEARTBEAT_kalman"))]  # noqa: E731
+    assert kalman(out) == kalman(reference.path)
+
+
+def test_monitor_shows_the_live_signals_until_the_run_stops(tmp_path):
+    loaded = short(tmp_path, 3.0, '\n[timing]\nmode = "realtime"\n')
+    runner = cli("run", "-q", str(loaded.source), "--out", str(tmp_path / "monitored.mcap"))
+    wait_for(lambda: registry.active())
+    monitor = cli("monitor", env={**os.environ, "COLUMNS": "200"})
+    out, err = monitor.communicate(timeout=60)
+    runner.communicate(timeout=60)
+    assert monitor.returncode == 0, err
+    for text in ("SENSOR_x1", "EST_uniform_0", "xhat_x1=", "HEARTBEAT_kalman", "the run has stopped"):
+        assert text in out
+
+
+def test_no_running_cosimulation_is_a_clear_error():
+    result = subprocess.run([sys.executable, "-m", "cosim.cli", "monitor"], capture_output=True, text=True)
+    assert result.returncode == 1 and result.stderr.startswith("error: no co-simulation is running on this machine")
+
+
+@pytest.mark.skipif(not Path("/sys/class/net/vcan0").exists(), reason="no vcan0 interface (needs the vcan kernel module)")
+def test_socketcan_on_vcan(tmp_path, default_loaded):
+    result = run(short(tmp_path, 2.0), tmp_path / "vcan.mcap", interface="socketcan", channel="vcan0")
+    virtual = run(short(tmp_path, 2.0), tmp_path / "v.mcap", interface="virtual")
+    assert result.frames_lost == 0 and messages(result.path) == messages(virtual.path)
+    assert np.isfinite(result.wall_time)
