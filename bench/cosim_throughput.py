@@ -5,8 +5,11 @@
   and acknowledges each window (flow control, so that no frame is lost to a full socket buffer);
   the figure is frames received per second. This is the ceiling of the transport for Python.
 - pipeline: a full lockstep co-simulation of the default scenario (plant, faults, two estimator
-  processes, MCAP logging) on the same interface: frames on the bus per second of wall time, ticks
-  per second, real-time factor, frames lost.
+  processes, MCAP logging) on the same interface: frames on the bus per second of its tick loop
+  (the nodes' start-up, about a second, is reported apart), ticks per second, real-time factor,
+  frames lost.
+
+Both are repeated and the best kept: the machine's other load only ever slows a measurement down.
 - ratio: pipeline frames/s over raw frames/s.
 
 Usage: python bench/cosim_throughput.py [--json] [--interface udp_multicast] [--frames N]
@@ -86,12 +89,12 @@ def pipeline(interface: str, repeat: int) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeat):
             result = Run(loaded, Path(tmp) / "bench.mcap", interface=interface).execute()
-            if best is None or result.wall_time < best.wall_time:
+            if best is None or result.loop_time < best.loop_time:
                 best = result
     return {
-        "pipeline_frames": best.frames, "pipeline_wall_s": best.wall_time, "pipeline_frames_per_s": best.frames / best.wall_time,
-        "pipeline_ticks_per_s": best.ticks / best.wall_time, "realtime_factor": best.realtime_factor,
-        "lost_frames": best.frames_lost,
+        "pipeline_frames": best.frames, "pipeline_loop_s": best.loop_time, "pipeline_startup_s": best.startup_time,
+        "pipeline_frames_per_s": best.frames / best.loop_time, "pipeline_ticks_per_s": best.ticks / best.loop_time,
+        "realtime_factor": best.sim_time / best.loop_time, "lost_frames": best.frames_lost,
     }
 
 
@@ -102,10 +105,11 @@ def main() -> None:
     parser.add_argument("--channel", default="", help="socketcan interface (default vcan0)")
     parser.add_argument("--frames", type=int, default=50_000, help="frames for the raw measurement")
     parser.add_argument("--window", type=int, default=128, help="frames per acknowledged window (raw)")
-    parser.add_argument("--repeat", type=int, default=2, help="pipeline runs; the fastest is kept")
+    parser.add_argument("--repeat", type=int, default=3, help="repetitions of each measurement; the fastest is kept")
     args = parser.parse_args()
     config = allocate(args.interface, args.channel)
-    figures = {"interface": args.interface} | raw_rate(config, args.frames, args.window) | pipeline(args.interface, args.repeat)
+    raw = max((raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"])
+    figures = {"interface": args.interface} | raw | pipeline(args.interface, args.repeat)
     figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
     if args.json:
         print(json.dumps(figures))
@@ -115,6 +119,7 @@ def main() -> None:
         ("  frames lost", f"{figures['raw_lost_frames']}"),
         ("pipeline: lockstep co-simulation, 2 estimator processes, logging", f"{figures['pipeline_frames_per_s']:,.0f} frames/s"),
         ("  ticks per second", f"{figures['pipeline_ticks_per_s']:,.0f} ticks/s"),
+        ("  start-up of the nodes (not in the rates)", f"{figures['pipeline_startup_s']:.2f} s"),
         ("  real-time factor", f"{figures['realtime_factor']:.1f} x"),
         ("  frames lost", f"{figures['lost_frames']}"),
         ("ratio pipeline / raw (target >= 0.5)", f"{figures['ratio']:.2f}"),

@@ -224,6 +224,11 @@ class Codec:
         self.specs: dict[str, MessageSpec] = {spec.name: spec for spec in specs}
         self._by_id: dict[int, MessageSpec] = {spec.frame_id: spec for spec in specs}
         self._messages: dict[str, Message] = {m.name: m for m in database.messages}
+        # cantools' own scaled <-> raw conversions, to know a value as a frame carries it
+        self._conversions = {
+            spec.name: [(signal, self._messages[spec.name].get_signal_by_name(signal).conversion) for signal in spec.signals]
+            for spec in specs if spec.channels
+        }
         self.tick_modulus = 2**FD_TICK_BITS if fd else 2**CLASSIC_TICK_BITS
         self.node_ids: dict[str, int] = {
             spec.sender: spec.frame_id - HEARTBEAT_BASE for spec in specs if spec.role == HEARTBEAT
@@ -269,16 +274,28 @@ class Codec:
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
         """The frame of message ``name`` for tick k carrying ``values`` (one per signal, in order)."""
+        return self.encode_decoded(name, tick, values)[0]
+
+    def encode_decoded(self, name: str, tick: int, values: Sequence[float]) -> tuple[can.Message, Decoded]:
+        """The frame, and what a receiver decodes from it (the values as the frame carries them,
+        quantized in classic CAN), without decoding it again."""
         spec = self.specs[name]
-        payload: dict[str, float] = {"tick": tick % self.tick_modulus}
+        counter = tick % self.tick_modulus
+        payload: dict[str, float] = {"tick": counter}
         for channel, signal_name, value in zip(spec.channels, spec.signals, values, strict=True):
             if not (channel.minimum <= value <= channel.maximum):  # also rejects NaN
                 raise CodecError(_range_message(spec, signal_name, channel, value, tick))
             payload[signal_name] = float(value)
-        data = self._messages[name].encode(payload, strict=False)
-        return can.Message(
+        message = self._messages[name]
+        data = message.encode(payload, strict=False)
+        frame = can.Message(
             arbitration_id=spec.frame_id, data=data, is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd
         )
+        carried = {
+            signal: conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(payload[signal]), False)
+            for signal, conversion in self._conversions[name]
+        }
+        return frame, Decoded(spec, counter, carried)
 
     def spec_of(self, frame: can.Message) -> MessageSpec | None:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)

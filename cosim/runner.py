@@ -91,6 +91,10 @@ class RunResult:
     error: str = ""
     deadline_misses: int = 0
     senders: dict = field(default_factory=dict)
+    startup_time: float = 0.0
+    """Wall time from the start until every node had joined."""
+    loop_time: float = 0.0
+    """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
 
     @property
     def realtime_factor(self) -> float:
@@ -387,6 +391,7 @@ class Run:
         period = s.sample_time / s.timing.speed
         status, error, k, misses = "completed", "", 0, 0
         marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
+        startup, tick_start = 0.0, None
         warnings: list[str] = []
         start = time.perf_counter()
         last_report = start
@@ -411,6 +416,7 @@ class Run:
                 traffic.flush(*marker)  # the boot-up heartbeats
                 lockstep = [p.name for p in self.participants if p.lockstep]
                 tick_start = time.perf_counter()
+                startup = tick_start - start
                 for k in range(s.ticks):
                     interrupts.check()
                     t, t_ns = s.time(k), k * dt_ns
@@ -418,23 +424,23 @@ class Run:
                         self._wait(bus, traffic, interrupts, lambda: False, tick_start + k * period, lambda: None)
                     x, y_true = plant.state(), plant.sensors()
                     outcome = self.faults.sensors(y_true, t)
-                    frames = [
-                        codec.encode(spec.name, k, (value,))
-                        for spec, value, sent in zip(sensor_specs, outcome.measured, outcome.sent) if sent
+                    sent = [
+                        codec.encode_decoded(spec.name, k, (value,))
+                        for spec, value, on in zip(sensor_specs, outcome.measured, outcome.sent) if on
                     ]
-                    commands = [codec.encode(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
-                    frames += commands
-                    frames.insert(0, codec.sync(k, len(frames)))
-                    for frame in frames:
+                    commands = [codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
+                    sync = codec.sync(k, len(sent) + len(commands))
+                    sent = [(sync, codec.decode(sync)), *sent, *commands]
+                    for frame, _ in sent:
                         bus.send(frame)
                     # While the nodes work on tick k: log what the previous tick brought, this
                     # tick's own frames and truth, and advance the physics.
                     traffic.flush(*marker)
                     marker = (k, t, t_ns)
-                    for frame in frames:
-                        recorder.frame(k, t, t_ns, frame, codec.decode(frame))
+                    for frame, decoded in sent:
+                        recorder.frame(k, t, t_ns, frame, decoded)
                     # The actuators receive what the command frames carry (quantized in classic CAN).
-                    u_cmd = np.array([codec.decode(f).values[spec.signals[0]] for f, spec in zip(commands, command_specs)])
+                    u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(commands, command_specs)])
                     u_eff, delta = self.faults.actuators(u_cmd, t)
                     recorder.truth(
                         k, t, t_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
@@ -474,6 +480,7 @@ class Run:
                 status, error = "error", f"{type(exc).__name__}: {exc}"
                 raise
             finally:
+                loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
                 traffic.flush(*marker)
                 t_end, t_end_ns = s.time(k), k * dt_ns
                 stop = codec.nmt(NMT_STOP)
@@ -504,7 +511,7 @@ class Run:
                 })
                 self.result = RunResult(
                     self.out, status, k, recorder.frames, traffic.frames_lost, time.perf_counter() - start, s.time(k),
-                    error, misses, senders,
+                    error, misses, senders, startup, loop,
                 )
         if on_progress is not None:
             on_progress(Progress(k, s.ticks, s.time(k), time.perf_counter() - start, self.result.frames, misses))
