@@ -481,6 +481,10 @@ class Run:
                 raise
             finally:
                 loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
+                frame = bus.recv(0.0)
+                while frame is not None:  # what is already here came before the stop command
+                    traffic.take(frame)
+                    frame = bus.recv(0.0)
                 traffic.flush(*marker)
                 t_end, t_end_ns = s.time(k), k * dt_ns
                 stop = codec.nmt(NMT_STOP)

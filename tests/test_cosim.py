@@ -219,11 +219,11 @@ def test_realtime_mode_paces_ticks_and_counts_deadline_misses(tmp_path):
     with LogReader(result.path) as reader:
         misses = [msg for _, _, msg in reader.messages(["/cosim/deadline_misses"])]
         meta = reader.metadata()["cosim.result"]
-    by_node = Counter(m["node"] for m in misses)
-    assert 40 <= by_node["kalman"] <= 70  # stopped for 50 ticks of 10 ms (plus its catching up)
-    assert by_node["uniform"] <= 5
+    stopped = [m for m in misses if m["node"] == "kalman" and 100 <= m["tick"] <= 200]
+    sporadic = [m for m in misses if m not in stopped]  # a loaded machine may miss the odd tick
+    assert 40 <= len(stopped) <= 70, misses  # stopped for 50 ticks of 10 ms, plus its catching up
+    assert len(sporadic) <= 6, sporadic
     assert int(meta["deadline_misses"]) == len(misses) == result.deadline_misses == misses[-1]["count"]
-    assert all(100 <= m["tick"] <= 200 for m in misses if m["node"] == "kalman")
 
 
 def test_a_user_written_client_joins_in_lockstep(tmp_path):
