@@ -164,20 +164,19 @@ class LogReader:
         return self._summary
 
     def metadata(self) -> dict[str, dict[str, str]]:
-        if self._summary is not None:
-            try:
-                return {record.name: dict(record.metadata) for record in self._reader.iter_metadata()}
-            except READ_ERRORS:
-                pass
-        return {r.name: dict(r.metadata) for r in self._records(quiet=True) if isinstance(r, records.Metadata)}
+        return {r.name: dict(r.metadata) for r in self._indexed_or_scanned(records.Metadata, self._reader.iter_metadata)}
 
     def attachments(self) -> dict[str, bytes]:
+        return {r.name: bytes(r.data) for r in self._indexed_or_scanned(records.Attachment, self._reader.iter_attachments)}
+
+    def _indexed_or_scanned(self, kind: type, indexed) -> list[Any]:
+        """Records of one kind: from the summary's index if it can be read, else by a scan."""
         if self._summary is not None:
             try:
-                return {record.name: bytes(record.data) for record in self._reader.iter_attachments()}
+                return list(indexed())
             except READ_ERRORS:
                 pass
-        return {r.name: bytes(r.data) for r in self._records(quiet=True) if isinstance(r, records.Attachment)}
+        return [record for record in self._records(quiet=True) if isinstance(record, kind)]
 
     def messages(self, topics: list[str] | None = None) -> Iterator[tuple[str, int, dict[str, Any]]]:
         """(topic, log_time_ns, decoded JSON) in file order, optionally only some topics. Stops,

@@ -43,8 +43,7 @@ import faults as fm
 from cosim import __version__
 from cosim.bus import BusConfig, allocate, open_bus
 from cosim.codec import (
-    BOOTUP, CLIENT, COMMAND, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED,
-    Codec, Decoded,
+    BOOTUP, CLIENT, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED, Codec, Decoded,
 )
 from cosim.errors import CodecError, CosimError, ModelError, ScenarioError
 from cosim.interrupts import DeferredInterrupts
@@ -362,6 +361,10 @@ class Run:
             traffic.take(frame)
             frame = bus.recv(0.0)
 
+    def _hung(self, traffic: Traffic, tick: int) -> None:
+        waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < tick]
+        raise NodeFailure(waiting[0].hung(tick, self.scenario.timing.node_timeout))
+
     def _join(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts) -> None:
         expected = {p.name for p in self.participants}
         timeout = self.scenario.timing.join_timeout
@@ -458,11 +461,8 @@ class Run:
                                 misses += 1
                                 recorder.deadline_miss(k, t, t_ns, name, misses)
                     else:
-                        def hung() -> None:
-                            waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < k]
-                            raise NodeFailure(waiting[0].hung(k, s.timing.node_timeout))
-                        answered = lambda: all(traffic.closed.get(name, -1) >= k for name in lockstep)  # noqa: E731
-                        self._wait(bus, traffic, interrupts, answered, time.perf_counter() + s.timing.node_timeout, hung)
+                        self._wait(bus, traffic, interrupts, lambda k=k: all(traffic.closed.get(n, -1) >= k for n in lockstep),
+                                   time.perf_counter() + s.timing.node_timeout, lambda k=k: self._hung(traffic, k))
                     left = traffic.left & set(lockstep)
                     if left:
                         raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
