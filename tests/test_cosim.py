@@ -302,3 +302,22 @@ def test_socketcan_on_vcan(tmp_path, default_loaded):
     virtual = run(short(tmp_path, 2.0), tmp_path / "v.mcap", interface="virtual")
     assert result.frames_lost == 0 and messages(result.path) == messages(virtual.path)
     assert np.isfinite(result.wall_time)
+
+
+def test_frames_from_a_program_that_joined_on_its_own_are_logged(tmp_path):
+    """Any python-can program on the bus is heard: its frames reach the log, at the tick they came."""
+    r = Run(short(tmp_path, 2.0), tmp_path / "foreign.mcap")
+    sent = []
+
+    def on_progress(progress):
+        if progress.tick >= 50 and not sent:
+            with can.Bus(**r.bus.kwargs()) as stranger:
+                stranger.send(can.Message(arbitration_id=0x7E0, data=b"\x01\x02\x03", is_extended_id=False))
+            sent.append(progress.tick)
+
+    result = r.execute(on_progress, progress_every=0.0)
+    with LogReader(result.path) as reader:
+        foreign = [msg for _, _, msg in reader.messages(["/can/frames"]) if msg["id"] == 0x7E0]
+    (frame,) = foreign
+    assert frame["sender"] == "unknown" and frame["message"] is None and frame["data"] == "010203"
+    assert sent[0] <= frame["tick"] <= sent[0] + 2 and result.frames_lost == 0
