@@ -177,10 +177,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
-    from cosim.runner import Run
 
-    loaded = scenario.load(args.scenario)
-    text = Run(loaded, Path("/dev/null")).codec.dbc
+    text = scenario.load(args.scenario).scenario.codec().dbc
     if args.out:
         Path(args.out).write_text(text)
         _console(stderr=True).print(f"wrote {args.out}")

@@ -4,10 +4,13 @@ A few lines are enough::
 
     from cosim.client import Client
 
-    with Client.attach("average") as client:       # a client declared in the run's scenario
+    with Client.attach("lsq") as client:           # a client declared in the run's scenario
         for tick in client.ticks():                # tick k's sensor readings and commands
             y = tick.sensors
-            client.publish({"x1": (y["x1"] + y["x2"] + y["x1_minus_x2"]) / 2})
+            client.publish(tick, {"x1": (2 * y["x1"] + y["x2"] + y["x1_minus_x2"]) / 3,
+                                  "x2": (y["x1"] + 2 * y["x2"] - y["x1_minus_x2"]) / 3})
+
+(``examples/least_squares_client.py`` is this client, complete.)
 
 ``attach`` finds the running co-simulation (``cosim run`` registers it), opens its bus and builds
 the codec from its DBC. A client declared in the scenario's ``[[clients]]`` has its own messages

@@ -280,10 +280,7 @@ class Run:
             for name in s.actuators
         ]
         sensors, actuators, states = s.channels()
-        self.codec = Codec(
-            sensors, actuators, {name: states for name in self.estimators}, clients=s.client_channels(),
-            fd=s.bus.fd, bitrate=s.bus.bitrate, data_bitrate=s.bus.data_bitrate, cycle_time=s.sample_time,
-        )
+        self.codec = s.codec()
         self.units = {
             "states": {c.name: c.unit for c in states},
             "sensors": {c.name: c.unit for c in sensors},

@@ -338,6 +338,14 @@ class Scenario(Strict):
         faults = [spec.name or f"{spec.kind}{i}" for i, spec in enumerate(self.faults)]
         return noise, faults
 
+    def codec(self) -> Codec:
+        """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
+        sensors, actuators, states = self.channels()
+        return Codec(
+            sensors, actuators, {e.name: states for e in self.estimators}, clients=self.client_channels(), fd=self.bus.fd,
+            bitrate=self.bus.bitrate, data_bitrate=self.bus.data_bitrate, cycle_time=self.sample_time,
+        )
+
     def client_channels(self) -> dict[str, list[mjcf.Channel]]:
         return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
 
@@ -551,8 +559,7 @@ def check(s: Scenario) -> list[str]:
 def _check_bus(s: Scenario) -> list[str]:
     """The bus signals with their overrides must make a valid CAN database."""
     try:
-        sensors, actuators, states = s.channels()
-        Codec(sensors, actuators, {e.name: states for e in s.estimators}, clients=s.client_channels(), fd=s.bus.fd)
+        s.codec()
     except (ScenarioError, CodecError) as error:
         return [str(error)]
     return []
