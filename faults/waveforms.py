@@ -10,14 +10,16 @@ Cristofaro & Johansen Sec. 4.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 
-class Waveform:
+class Waveform(ABC):
     """Base class of scalar time profiles."""
 
-    def __call__(self, t: float) -> float:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def __call__(self, t: float) -> float:
+        """The profile's value at time t [s]."""
 
 
 @dataclass(frozen=True)
