@@ -46,7 +46,7 @@ def best_of(repeat: int, fn) -> float:
 
 def workload(run: Run, n: int):
     """n (message name, tick, values) triples cycling over the run's sensor, command and estimate messages."""
-    specs = [s for s in run.codec.messages() if s.role != "sync"]
+    specs = [s for s in run.codec.messages() if s.channels]
     rng = np.random.default_rng(0)
     return [(s.name, i, [float(rng.uniform(c.minimum, c.maximum) * 0.5) for c in s.channels])
             for i, s in zip(range(n), specs * (n // len(specs) + 1))]
@@ -62,7 +62,7 @@ def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
     # The same classic-CAN layout by hand: 16-bit tick, then two's complement integers.
     layouts = {
         spec.name: [(c.resolution, signal_bits(c)) for c in spec.channels]
-        for spec in codec.messages() if spec.role != "sync"
+        for spec in codec.messages() if spec.channels
     }
 
     def by_hand() -> None:

@@ -1,0 +1,31 @@
+"""The benchmark scripts keep working (tiny workloads; the figures themselves are in the README)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from tests.conftest import ROOT
+
+
+def bench(script: str, *args: str) -> dict:
+    result = subprocess.run([sys.executable, str(ROOT / "bench" / script), "--json", *args], capture_output=True,
+                            text=True, timeout=300, cwd=ROOT)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_codec_log_benchmark_reports_ratios_against_its_baselines():
+    figures = bench("codec_log.py", "--frames", "500", "--repeat", "1")
+    for key in ("codec_frames_per_s", "codec_baseline_frames_per_s", "codec_ratio", "logger_frames_per_s",
+                "logger_baseline_frames_per_s", "logger_ratio", "run_wall_s", "run_realtime_factor"):
+        assert figures[key] > 0, key
+
+
+def test_cosim_throughput_benchmark_reports_its_figures():
+    figures = bench("cosim_throughput.py", "--frames", "3000", "--repeat", "1")
+    assert figures["raw_lost_frames"] == 0 and figures["lost_frames"] == 0
+    for key in ("raw_frames_per_s", "pipeline_frames_per_s", "ratio", "realtime_factor"):
+        assert figures[key] > 0, key
+    assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
