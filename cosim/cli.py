@@ -71,6 +71,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in {result.wall_time:.2f} s "
         f"(real-time factor {result.realtime_factor:.1f})"
     )
+    for name, counts in result.senders.items():
+        if counts["lost"] or counts["runner_frames_missed"]:
+            console.print(f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
+                          f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]")
     print(out)
     return 0
 

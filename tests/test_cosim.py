@@ -321,3 +321,24 @@ def test_frames_from_a_program_that_joined_on_its_own_are_logged(tmp_path):
     (frame,) = foreign
     assert frame["sender"] == "unknown" and frame["message"] is None and frame["data"] == "010203"
     assert sent[0] <= frame["tick"] <= sent[0] + 2 and result.frames_lost == 0
+
+
+def test_nodes_exit_when_the_runner_is_killed_outright(tmp_path):
+    """SIGKILL leaves the runner no chance to stop its nodes: they notice and exit by themselves."""
+    out = tmp_path / "killed-runner.mcap"
+    proc = cli("run", "-q", "--out", str(out))
+    wait_for(lambda: out.exists() and out.stat().st_size > 100_000)
+    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert len(children) == 2
+    proc.kill()
+    proc.communicate(timeout=30)
+
+    def gone(pid: str) -> bool:
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            return True
+        state = Path(f"/proc/{pid}/stat").read_text().split()[2] if Path(f"/proc/{pid}/stat").exists() else "X"
+        return state == "Z"  # exited, waiting to be reaped by init
+
+    wait_for(lambda: all(gone(pid) for pid in children), timeout=10)
