@@ -202,13 +202,15 @@ class Client:
                     return
                 continue
             last = time.monotonic()
-            self.feed(frame)  # notices the stop command
             try:
                 decoded = self.codec.decode(frame)
             except CodecError:
                 continue
-            if decoded is not None:
-                yield decoded
+            if decoded is None:
+                continue
+            if decoded.spec.role == NMT and decoded.values["command"] == NMT_STOP and decoded.values["node"] == 0:
+                self.stopped = True
+            yield decoded
 
     # -- sending --------------------------------------------------------------------------------
 
