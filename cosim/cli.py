@@ -49,6 +49,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"estimators: {', '.join(run.estimators) or 'none'} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
     )
 
+    for warning in run.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+
     def started(run) -> None:
         console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
         waiting = [c.name for c in s.clients]

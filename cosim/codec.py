@@ -12,7 +12,8 @@ Frame layout (CANopen-flavoured; ids in hex)
   its own node: ``tick`` and the reading.
 - ``COMMAND_<name>`` (0x180 + i, sent by ``controller``): the commanded input of each actuator.
 - ``EST_<estimator>[_n]`` (0x200 + 0x20·e + n, sent by the estimator): its estimate x̂_k
-  (``xhat_<state>``), packed into as few frames as fit.
+  (``xhat_<state>``) and its diagnostics (named as the estimator declares them, e.g. ``s_x1``,
+  ``phihat_x2``, ``h``), packed into as few frames as fit.
 - ``CLIENT_<client>[_n]`` (0x600 + 0x10·c + n, sent by a client declared in the scenario): the
   client's own signals.
 - ``HEARTBEAT_<node>`` (0x700 + node id, sent by each estimator or client node): ``state``
@@ -118,18 +119,21 @@ def _fd_length(nbytes: int) -> int:
     raise CodecError(f"{nbytes} bytes do not fit a CAN FD frame (at most 64)")
 
 
-def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: Sequence[Channel], fd: bool) -> list[MessageSpec]:
+def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: Sequence[Channel], fd: bool,
+                  signals: Sequence[str] | None = None) -> list[MessageSpec]:
     """Lay channels out in as few frames as fit, in order: 8-byte classic frames of scaled integers
-    after a 16-bit tick, or 64-byte FD frames of float64 after a 32-bit tick."""
+    after a 16-bit tick, or 64-byte FD frames of float64 after a 32-bit tick. Signals are named
+    after their channels (with the role's prefix) unless ``signals`` names them."""
     capacity = 64 * 8 - FD_TICK_BITS if fd else 64 - CLASSIC_TICK_BITS
-    signal_prefix = SIGNAL_PREFIX.get(role, "")
-    groups: list[list[Channel]] = [[]]
+    if signals is None:
+        signals = [SIGNAL_PREFIX.get(role, "") + c.name for c in channels]
+    groups: list[list[tuple[Channel, str]]] = [[]]
     used = 0
-    for channel in channels:
+    for channel, signal in zip(channels, signals):
         bits = 64 if fd else signal_bits(channel)
         if bits > capacity:
             raise CodecError(
-                f"signal {signal_prefix}{channel.name} needs {bits} bits at resolution {channel.resolution:g} "
+                f"signal {signal} needs {bits} bits at resolution {channel.resolution:g} "
                 f"{channel.unit} over [{channel.minimum:g}, {channel.maximum:g}], and at most {capacity} fit a classic "
                 f"frame: set a coarser resolution or a narrower range with [{OVERRIDE_TABLE[role]}.{channel.name}], "
                 f"or use CAN FD (bus.fd = true)"
@@ -137,12 +141,12 @@ def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: S
         if used + bits > capacity:
             groups.append([])
             used = 0
-        groups[-1].append(channel)
+        groups[-1].append((channel, signal))
         used += bits
     return [
         MessageSpec(
-            prefix if len(groups) == 1 else f"{prefix}_{n}", base_id + n, sender, role, tuple(group),
-            tuple(signal_prefix + c.name for c in group),
+            prefix if len(groups) == 1 else f"{prefix}_{n}", base_id + n, sender, role,
+            tuple(c for c, _ in group), tuple(name for _, name in group),
         )
         for n, group in enumerate(groups)
     ]
@@ -162,6 +166,7 @@ class Codec:
         actuators: Sequence[Channel],
         estimators: Mapping[str, Sequence[Channel]],
         *,
+        diagnostics: Mapping[str, Sequence[Channel]] | None = None,
         clients: Mapping[str, Sequence[Channel]] | None = None,
         fd: bool = False,
         bitrate: int = 500_000,
@@ -188,12 +193,15 @@ class Codec:
             specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
         for i, channel in enumerate(actuators):
             specs += pack_channels(f"COMMAND_{channel.name}", COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
+        diagnostics = dict(diagnostics or {})
         for group, base, stride, role, prefix in (
             (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, "EST"),
             (clients, CLIENT_BASE, CLIENT_STRIDE, CLIENT, "CLIENT"),
         ):
             for e, (name, channels) in enumerate(group.items()):
-                packed = pack_channels(f"{prefix}_{name}", base + stride * e, name, role, channels, fd)
+                extra = list(diagnostics.get(name, ())) if role == ESTIMATE else []
+                signals = [SIGNAL_PREFIX.get(role, "") + c.name for c in channels] + [c.name for c in extra]
+                packed = pack_channels(f"{prefix}_{name}", base + stride * e, name, role, [*channels, *extra], fd, signals)
                 if len(packed) > stride:
                     raise CodecError(f"{name} needs {len(packed)} frames per tick; at most {stride} fit its id block")
                 specs += packed

@@ -42,31 +42,37 @@ class NodeSpec:
     sample_time: float
 
     def to_json(self) -> str:
-        m = self.model
-        model = {
-            "A": m.A.tolist(), "B": m.B.tolist(), "C": m.C.tolist(), "D": m.D.tolist(), "dt": m.dt,
-            "states": list(m.states), "inputs": list(m.inputs), "outputs": list(m.outputs),
-            "x_op": m.x_op.tolist(), "u_op": m.u_op.tolist(), "y_op": m.y_op.tolist(),
-        }
         return json.dumps({
-            "name": self.name, "kind": self.kind, "params": self.params, "model": model, "dbc": self.dbc,
+            "name": self.name, "kind": self.kind, "params": self.params, "model": model_to_dict(self.model), "dbc": self.dbc,
             "bus": self.bus.to_dict(), "sample_time": self.sample_time,
         })
 
     @classmethod
     def from_json(cls, text: str) -> NodeSpec:
         data = json.loads(text)
-        m = data["model"]
-        model = LinearModel(
-            np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
-            tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
-        )
+        model = model_from_dict(data["model"])
         return cls(data["name"], data["kind"], data["params"], model, data["dbc"], BusConfig.from_dict(data["bus"]),
                    data["sample_time"])
 
 
+def model_to_dict(m: LinearModel) -> dict[str, Any]:
+    """A LinearModel as plain JSON-able values (for node specs and log metadata)."""
+    return {
+        "A": m.A.tolist(), "B": m.B.tolist(), "C": m.C.tolist(), "D": m.D.tolist(), "dt": m.dt,
+        "states": list(m.states), "inputs": list(m.inputs), "outputs": list(m.outputs),
+        "x_op": m.x_op.tolist(), "u_op": m.u_op.tolist(), "y_op": m.y_op.tolist(),
+    }
+
+
+def model_from_dict(m: dict[str, Any]) -> LinearModel:
+    return LinearModel(
+        np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
+        tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
+    )
+
+
 class EstimatorNode:
-    """An estimator answering each tick on a bus: y_k and u_k in, x̂_k out.
+    """An estimator answering each tick on a bus: y_k and u_k in, x̂_k and its diagnostics out.
 
     Missing sensor readings reach the estimator as NaN. A command that did not arrive is held at
     its last value (zero before the first).
@@ -77,16 +83,15 @@ class EstimatorNode:
         self.codec = Codec.from_dbc(spec.dbc)
         if estimator is None:
             try:
-                estimator = estimators.create(spec.kind, spec.model, spec.params)
+                estimator = estimators.create(spec.kind, spec.model, spec.params, spec.sample_time)
             except ParameterError as error:
                 raise CosimError(f"estimator {spec.name}: params.{error}") from None
         self.estimator = estimator
         self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time)
         model = estimator.model
-        self._outputs = [
-            (signal, model.states.index(channel.name))
-            for message in self.client.messages for channel, signal in zip(message.channels, message.signals)
-        ]
+        signals = [signal for message in self.client.messages for signal in message.signals]
+        self._states = [(signal, model.states.index(signal.removeprefix("xhat_"))) for signal in signals if signal.startswith("xhat_")]
+        self._diagnostics = [signal for signal in signals if not signal.startswith("xhat_")]
         self._u = np.zeros(model.m)
         self.ticks = 0
 
@@ -97,7 +102,9 @@ class EstimatorNode:
             if name in tick.commands:
                 self._u[i] = tick.commands[name]
         estimate = self.estimator.step(y, self._u.copy())
-        self.client.publish(tick, {signal: float(estimate.x[index]) for signal, index in self._outputs})
+        values = {signal: float(estimate.x[index]) for signal, index in self._states}
+        values |= {signal: estimate.diagnostics[signal] for signal in self._diagnostics}
+        self.client.publish(tick, values)
         self.client.done(tick)
         self.ticks += 1
 

@@ -49,12 +49,14 @@ from cosim.errors import CodecError, CosimError, ModelError, ScenarioError
 from cosim.interrupts import DeferredInterrupts
 from cosim.launcher import ExternalClient, LocalNode, Participant, ProcessNode
 from cosim.log import McapLog
-from cosim.node import NodeSpec
+from cosim.node import NodeSpec, model_to_dict
 from cosim.plant import Plant
 from cosim.recorder import RunRecorder
 from cosim.registry import Registration
+from cosim.statespace import StateSpacePlant
 from cosim.scenario import ActuatorEffectivenessSpec, LoadedScenario, Scenario, build_waveform
 from estimators import Estimator, LinearModel, ParameterError
+from estimators.design import fault_rejectable
 
 OWN_SENDERS = (RUNNER, PLANT, CONTROLLER)
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
@@ -146,14 +148,43 @@ def build_faults(s: Scenario) -> fm.FaultInjector:
     return fm.FaultInjector(noise, sensor_faults, actuator_faults, s.seed)
 
 
-def build_estimators(s: Scenario, model: LinearModel, source: str) -> dict[str, Estimator]:
+def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> dict[str, Estimator]:
+    """Each estimator of the scenario, designed on ``model`` (discrete time), or on ``continuous``
+    (the continuous-time linearization) for the kinds that integrate their own ODE."""
     built = {}
     for i, spec in enumerate(s.estimators):
         try:
-            built[spec.name] = estimators.create(spec.kind, model, spec.params)
+            chosen = continuous if estimators.ESTIMATORS[spec.kind].continuous else model
+            if chosen is None:
+                raise ParameterError("model", f"{spec.kind} needs the continuous-time model")
+            built[spec.name] = estimators.create(spec.kind, chosen, spec.params, s.sample_time)
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
     return built
+
+
+def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
+    """Warnings about scenario faults that an estimator cannot reject by design: a constant bias
+    whose direction lies in Im(Y) (TAC 2024 Remark 4, CDC 2016 Remark 2)."""
+    found = []
+    for spec in s.faults:
+        if spec.kind != "bias":
+            continue
+        sensors = spec.sensors if spec.sensors is not None else list(s.sensors)
+        values = np.broadcast_to(np.asarray(spec.value, dtype=float), (len(sensors),))
+        for name, estimator in built.items():
+            Y = getattr(estimator, "Y", None)
+            if Y is None or getattr(estimator, "kind", "") == "kalman":
+                continue
+            phi = np.zeros(estimator.model.p)
+            for sensor, value in zip(sensors, values):
+                if sensor in estimator.model.outputs:
+                    phi[estimator.model.outputs.index(sensor)] = value
+            sigma = getattr(estimator, "Sigma", np.eye(len(phi)))
+            if not fault_rejectable(Y, sigma @ phi):
+                found.append(f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so no "
+                             "choice of pseudoinverse weights can reject it (TAC 2024 Remark 4)")
+    return found
 
 
 def first_tick_at(s: Scenario, start: float) -> int:
@@ -265,13 +296,19 @@ class Run:
         self.loaded, self.scenario, self.out = loaded, scenario, Path(out)
         s = scenario
         try:
-            self.plant = Plant(s.plant_info, s.sample_time, s.sensors)
+            if s.plant.state_space is not None:
+                self.plant = StateSpacePlant(s.plant.state_space, s.plant_info, s.sample_time, s.sensors)
+            else:
+                self.plant = Plant(s.plant_info, s.sample_time, s.sensors)
         except ModelError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         # Estimators are designed on the linearization at the plant's keyframe (its operating point).
         self.model = self.plant.linearize()
+        needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators)
+        self.continuous_model = self.plant.linearize(continuous=True) if needs_continuous else None
         self.plant.reset(s.plant.initial_state)
-        self.estimators = build_estimators(s, self.model, loaded.source)
+        self.estimators = build_estimators(s, self.model, loaded.source, self.continuous_model)
+        self.warnings = design_warnings(s, self.estimators)
         self.faults = build_faults(s)
         onset = self.faults.first_onset
         self.onset_tick = None if onset is None else first_tick_at(s, onset)
@@ -292,12 +329,13 @@ class Run:
 
     def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
         spec = next(e for e in self.scenario.estimators if e.name == name)
-        return NodeSpec(name, spec.kind, spec.params, self.model, self.codec.dbc, bus, self.scenario.sample_time)
+        return NodeSpec(name, spec.kind, spec.params, self.estimators[name].model, self.codec.dbc, bus, self.scenario.sample_time)
 
     def _metadata(self, log: McapLog) -> None:
         s = self.scenario
         est = {
-            name: {"kind": e.kind, "messages": [m.name for m in self.codec.data_messages(name)], "states": list(self.model.states)}
+            name: {"kind": e.kind, "messages": [m.name for m in self.codec.data_messages(name)], "states": list(self.model.states),
+                   "params": next(spec.params for spec in s.estimators if spec.name == name), "model": model_to_dict(e.model)}
             for name, e in self.estimators.items()
         }
         log.metadata("cosim.run", {
@@ -314,7 +352,8 @@ class Run:
         })
         log.metadata("cosim.scenario", {"source": self.loaded.source, "toml": self.loaded.text, "resolved": s.model_dump_json()})
         log.metadata("cosim.versions", versions())
-        log.attach(self.plant.info.model_file, "application/xml", self.plant.info.model_path.read_bytes())
+        if self.plant.info.model_file:
+            log.attach(self.plant.info.model_file, "application/xml", self.plant.info.model_path.read_bytes())
         log.attach("cosim.dbc", "text/plain", self.codec.dbc.encode())
 
     # -- participants -------------------------------------------------------------------------
@@ -408,6 +447,8 @@ class Run:
             self._metadata(log)
             log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
             recorder.event(0, 0.0, 0, "start", f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}")
+            for warning in self.warnings:
+                recorder.event(0, 0.0, 0, "warning", warning, "warning")
             try:
                 self._start(self.bus, Path(workdir))
                 if on_start is not None:

@@ -21,6 +21,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Fiel
 
 import faults as fm
 import mjcf
+from cosim import statespace
 from cosim.codec import Codec
 from cosim.errors import CodecError, ScenarioError
 from estimators import ESTIMATORS, ParameterError
@@ -204,8 +205,65 @@ FaultSpec = Annotated[
 # -- the rest ---------------------------------------------------------------------------------
 
 
+class StateSpaceSpec(Strict):
+    """A plant given by its matrices (``plant.model = "state-space"``): ẋ = A x + B u (or
+    x⁺ = A x + B u with ``time = "discrete"``, one step per sample), y = C x + D u."""
+
+    time: Literal["continuous", "discrete"] = "continuous"
+    A: list[list[float]]
+    B: list[list[float]]
+    C: list[list[float]]
+    D: list[list[float]] | None = None
+    states: list[str] | None = None
+    """State names; default x1, x2, …"""
+    inputs: list[str] | None = None
+    """Input (actuator) names; default u1, u2, …"""
+    outputs: list[str] | None = None
+    """Output (sensor) names; default y1, y2, …"""
+    unit: str = ""
+    bound: float = Field(1e3, gt=0)
+    """Bus range ±bound of every signal (classic CAN)."""
+    resolution: float = Field(1e-6, gt=0)
+    """Bus resolution of every signal (classic CAN)."""
+
+    @model_validator(mode="after")
+    def _shapes(self) -> StateSpaceSpec:
+        n = len(self.A)
+        problems = []
+        if n == 0 or any(len(row) != n for row in self.A):
+            problems.append("A must be square (a list of n rows of n numbers)")
+        m = len(self.B[0]) if self.B else 0
+        if len(self.B) != n or m == 0 or any(len(row) != m for row in self.B):
+            problems.append(f"B must have {n} rows of equally many numbers (one column per input)")
+        p = len(self.C)
+        if p == 0 or any(len(row) != n for row in self.C):
+            problems.append(f"C must have rows of {n} numbers (one row per output)")
+        if self.D is not None and (len(self.D) != p or any(len(row) != m for row in self.D)):
+            problems.append(f"D must have {p} rows of {m} numbers")
+        for field_name, names, size in (("states", self.states, n), ("inputs", self.inputs, m), ("outputs", self.outputs, p)):
+            if names is not None and (len(names) != size or len(set(names)) != size):
+                problems.append(f"{field_name} must name {size} distinct signals")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+    @property
+    def state_names(self) -> list[str]:
+        return self.states or [f"x{i + 1}" for i in range(len(self.A))]
+
+    @property
+    def input_names(self) -> list[str]:
+        return self.inputs or [f"u{i + 1}" for i in range(len(self.B[0]))]
+
+    @property
+    def output_names(self) -> list[str]:
+        return self.outputs or [f"y{i + 1}" for i in range(len(self.C))]
+
+
 class PlantSpec(Strict):
     model: str
+    """A registered MJCF plant (``cosim scenarios`` lists them), or "state-space" with [plant.state_space]."""
+    state_space: StateSpaceSpec | None = None
     sensors: list[str] | None = None
     """Transmitted sensors, in order; default: all the plant declares."""
     initial_state: dict[str, float] = {}
@@ -342,9 +400,21 @@ class Scenario(Strict):
         """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
         sensors, actuators, states = self.channels()
         return Codec(
-            sensors, actuators, {e.name: states for e in self.estimators}, clients=self.client_channels(), fd=self.bus.fd,
+            sensors, actuators, {e.name: states for e in self.estimators}, diagnostics=self.diagnostic_channels(),
+            clients=self.client_channels(), fd=self.bus.fd,
             bitrate=self.bus.bitrate, data_bitrate=self.bus.data_bitrate, cycle_time=self.sample_time,
         )
+
+    def diagnostic_channels(self) -> dict[str, list[mjcf.Channel]]:
+        """Each estimator's diagnostics as bus signals ([bus.states] overrides apply to them too)."""
+        states = tuple(c.name for c in self.plant_info.states)
+        return {
+            e.name: [
+                _override(mjcf.Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+                for d in ESTIMATORS[e.kind].diagnostic_channels(states, self.sensors)
+            ]
+            for e in self.estimators
+        }
 
     def client_channels(self) -> dict[str, list[mjcf.Channel]]:
         return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
@@ -361,6 +431,10 @@ class Scenario(Strict):
 
     @property
     def plant_info(self) -> mjcf.PlantInfo:
+        if self.plant.model == statespace.NAME:
+            if self.plant.state_space is None:
+                raise KeyError('plant.model "state-space" needs a [plant.state_space] table with A, B and C')
+            return statespace.plant_info(self.plant.state_space)
         return mjcf.get(self.plant.model)
 
     @property
@@ -478,10 +552,12 @@ def _message(error: dict[str, Any]) -> str:
 def check(s: Scenario) -> list[str]:
     """The problems that need the plant's names and the scenario as a whole."""
     problems: list[str] = []
+    if s.plant.state_space is not None and s.plant.model != statespace.NAME:
+        return [f'plant.state_space: only used with plant.model = "{statespace.NAME}" (got {s.plant.model!r})']
     try:
         info = s.plant_info
     except KeyError as error:
-        return [f"plant.model: {error.args[0]}"]
+        return [f"plant.model: {error.args[0]}{'' if s.plant.model == statespace.NAME else f', or {statespace.NAME!r} with a [plant.state_space] table'}"]
     sensor_names = [c.name for c in info.sensors]
     actuator_names = [c.name for c in info.actuators]
     state_names = [c.name for c in info.states]
@@ -529,7 +605,12 @@ def check(s: Scenario) -> list[str]:
     labels = noise_labels + fault_labels
     for label in sorted({label for label in labels if labels.count(label) > 1}):
         problems.append(f"faults: two noise models or faults are labelled {label!r}; give them distinct names")
-    for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"), ("states", state_names, "state")):
+    diagnostic_names = sorted({
+        d.name for e in s.estimators if e.kind in ESTIMATORS
+        for d in ESTIMATORS[e.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
+    })
+    for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"),
+                               ("states", state_names + diagnostic_names, "state or estimator diagnostic")):
         overrides = getattr(s.bus, table)
         unknown(f"bus.{table}", list(overrides), known, what)
     estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]

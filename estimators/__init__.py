@@ -7,20 +7,22 @@ from __future__ import annotations
 
 from typing import Any
 
-from estimators.base import Estimate, Estimator, ParameterError
+from estimators.adaptive import AdaptivePseudoinverseObserver, InjectionObserver
+from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.continuous import ContinuousAdaptiveObserver
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
 from estimators.pseudoinverse import PseudoinverseObserver
 
-ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (PseudoinverseObserver, KalmanFilter)}
+ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter)}
 
 
-def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None) -> Estimator:
-    """The estimator of the given kind for ``model``; unknown kinds and bad parameters raise
-    ParameterError naming the culprit."""
+def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:
+    """The estimator of the given kind for ``model`` (continuous-time kinds also need the sample
+    time); unknown kinds and bad parameters raise ParameterError naming the culprit."""
     if kind not in ESTIMATORS:
         raise ParameterError("kind", f"unknown estimator {kind!r} (known: {', '.join(sorted(ESTIMATORS))})")
-    return ESTIMATORS[kind].from_params(model, params)
+    return ESTIMATORS[kind].from_params(model, params, sample_time)
 
 
-__all__ = ["ESTIMATORS", "Estimate", "Estimator", "LinearModel", "ParameterError", "create"]
+__all__ = ["ESTIMATORS", "Diagnostic", "Estimate", "Estimator", "LinearModel", "ParameterError", "create"]

@@ -20,10 +20,26 @@ from estimators.model import LinearModel
 
 @dataclass(frozen=True)
 class Estimate:
-    """The estimate x̂_k of the plant state at the tick just received, with named diagnostics."""
+    """The estimate x̂_k of the plant state at the tick just received, with named scalar
+    diagnostics (named as the estimator's ``diagnostic_channels`` declare)."""
 
     x: np.ndarray
-    diagnostics: dict[str, np.ndarray] = field(default_factory=dict)
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """A scalar an estimator publishes beside x̂ each tick (for example a pseudoinverse weight).
+
+    ``bound`` and ``resolution`` size its classic-CAN signal: values in [−bound, bound] in steps
+    of ``resolution`` (CAN FD carries float64).
+    """
+
+    name: str
+    unit: str
+    description: str
+    bound: float
+    resolution: float
 
 
 class ParameterError(ValueError):
@@ -45,12 +61,26 @@ class Estimator(ABC):
 
     kind: ClassVar[str]
     Params: ClassVar[type]
+    continuous: ClassVar[bool] = False
+    """True for estimators designed on the continuous-time model (dt None) that integrate their own
+    ODE between samples; they are given the sample time separately."""
 
-    def __init__(self, model: LinearModel, params: Any) -> None:
-        if model.dt is None:
+    def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
+        if self.continuous:
+            if model.dt is not None:
+                raise ParameterError("model", f"{self.kind} needs a continuous-time model (got a discrete one, dt = {model.dt})")
+            if sample_time is None or not sample_time > 0:
+                raise ParameterError("sample_time", f"{self.kind} integrates between samples and needs the sample time")
+        elif model.dt is None:
             raise ParameterError("model", f"{self.kind} needs a discrete-time model (got a continuous one)")
         self.model = model
         self.params = params
+        self.sample_time = float(sample_time) if sample_time is not None else model.dt
+
+    @classmethod
+    def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        """The diagnostics ``step`` returns each tick, for a model with these states and outputs."""
+        return []
 
     @classmethod
     def check_params(cls, params: dict[str, Any] | None = None) -> Any:
@@ -65,9 +95,9 @@ class Estimator(ABC):
         return cls.Params(**{name: coerce(value, hints[name], name) for name, value in params.items()})
 
     @classmethod
-    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None) -> Estimator:
+    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:
         """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
-        return cls(model, cls.check_params(params))
+        return cls(model, cls.check_params(params), sample_time)
 
     def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         y = np.asarray(y, dtype=float)
@@ -76,6 +106,11 @@ class Estimator(ABC):
             raise ValueError(f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}")
         estimate = self._step(y - self.model.y_op, u - self.model.u_op)
         return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
+
+    def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray | None:
+        """What an output bias φ leaves in the observer's injection at a tick with these diagnostics
+        (h_Γ = Z_Γ φ in CDC 2016, R(s)⁻¹Γ(φ)s in TAC 2024); None where the notion does not apply."""
+        return None
 
     @abstractmethod
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
@@ -105,6 +140,10 @@ def coerce(value: Any, hint: Any, name: str) -> Any:
             return _number(value, name)
         if option is int and numeric and isinstance(value, int):
             return value
+        if typing.get_origin(option) is tuple and sequence and value and all(isinstance(row, (list, tuple)) for row in value):
+            inner = typing.get_args(option)[0]
+            if typing.get_origin(inner) is tuple:  # a matrix: tuple[tuple[float, ...], ...]
+                return tuple(tuple(_number(item, f"{name}[{i}][{j}]") for j, item in enumerate(row)) for i, row in enumerate(value))
         if option is bool and isinstance(value, bool):
             return value
         if option is str and isinstance(value, str):
@@ -125,5 +164,6 @@ def _number(value: Any, name: str) -> float:
 
 def _describe(option: Any) -> str:
     if typing.get_origin(option) is tuple:
-        return "a list of numbers"
+        inner = typing.get_args(option)[0]
+        return "a matrix (a list of rows of numbers)" if typing.get_origin(inner) is tuple else "a list of numbers"
     return {float: "a number", int: "an integer", bool: "true or false", str: "a string"}.get(option, str(option))

@@ -44,8 +44,8 @@ class KalmanFilter(Estimator):
     kind = "kalman"
     Params = KalmanParams
 
-    def __init__(self, model: LinearModel, params: KalmanParams) -> None:
-        super().__init__(model, params)
+    def __init__(self, model: LinearModel, params: KalmanParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
         self.Q = _diagonal(params.process_std, model.n, "process_std", model.states)
         self.R = _diagonal(params.measurement_std, model.p, "measurement_std", model.outputs)
         if np.any(np.diag(self.R) == 0):

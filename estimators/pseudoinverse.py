@@ -43,8 +43,8 @@ class PseudoinverseObserver(Estimator):
     kind = "pseudoinverse"
     Params = PseudoinverseParams
 
-    def __init__(self, model: LinearModel, params: PseudoinverseParams) -> None:
-        super().__init__(model, params)
+    def __init__(self, model: LinearModel, params: PseudoinverseParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
         self.Y, self.H = output_factorization(model.C)
         q, p = self.H.shape[0], model.p
         if q >= p:
@@ -84,3 +84,7 @@ class PseudoinverseObserver(Estimator):
             correction = self.L @ (Pi @ innovation)
         self.x_hat = A @ x_k + B @ du + correction  # eq. (13)
         return Estimate(x_k.copy())
+
+    def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
+        """Π(s) φ: the constant offset the bias adds to the injection (eq. (19))."""
+        return self.Pi @ phi

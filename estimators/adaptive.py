@@ -1,0 +1,379 @@
+"""Adaptive pseudoinverse observers for output-redundant discrete-time plants, and their baselines.
+
+Cristofaro & Zaccarian, "Adaptive Pseudoinverse Observers for Output Redundant Discrete-Time
+Linear Systems", IEEE TAC 2024. The plant is x⁺ = A x + B u, y = C x + φ with a redundant output
+(rk C = q < p) and an unknown bias φ. The scheme (Fig. 1) is a cascade:
+
+1. the asymptotic bias estimator (7a)–(7c), ``BiasEstimator``, whose φ̂ → φ exponentially
+   (Proposition 1);
+2. the optimizer z⁺ ∈ G_z(z, φ̂), a line search over the coordinate directions that decreases
+   |Γ(φ̂) z| (36)–(37e), ``optimizer_step``;
+3. the selector (17), or its logic-enhanced form (52), ``select``: s takes z unless R(z) is
+   too close to singular (|det R(z)| ≤ ε), in which case s is held and h = 1;
+4. the observer (13) with the weighted pseudoinverse Π(s) = R(s)⁻¹ Γ(s) (14), or with residual
+   injection (53): x̂⁺ = A x̂ + B u + L Π(s)(y − C x̂ − h φ̂).
+
+Algorithm 1 (scaling and low-pass filtering of φ̂ before the optimizer) handles a bias of
+constant direction and varying magnitude, φ_k = g_k φ̄ (35). The baseline (56) injects φ̂ instead:
+x̂⁺ = A x̂ + B u + L (Y†(y − φ̂) − H x̂), optionally with φ̂ low-pass filtered.
+
+All estimators here work on the outputs recombined by the orthogonal Σ of the construction
+after Assumption 2 (Σ = I when the plant's (Y, H) already satisfy it, as in the paper's case study).
+Ticks with a missing reading are open-loop predictions: no correction, optimizer and selector held.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.base import Diagnostic, Estimate, Estimator, ParameterError, initial_state
+from estimators.design import (
+    AssumptionError,
+    assumption2_factorization,
+    check_assumption1,
+    observer_gain,
+    output_factorization,
+    weighted_pseudoinverse,
+)
+from estimators.model import LinearModel
+
+# -- the bias estimator (Section III) ----------------------------------------------------------
+
+
+class BiasEstimator:
+    """The asymptotic bias estimator of eq. (7a)–(7c), for y = Y H x + φ.
+
+        ξ⁺ = A ξ + B u + M ℙ_Y (y − C ξ)                              (7a)
+        η  = ℙ_Y y − H ξ                                              (7b)
+        φ̂  = Y (I + H (I − A)⁻¹ M) η + (I − Y ℙ_Y) y,  ℙ_Y = (YᵀY)⁻¹Yᵀ   (7c)
+
+    With A − M H Schur and A − I nonsingular, φ̂ − φ → 0 exponentially (Proposition 1).
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray, Y: np.ndarray, H: np.ndarray, M: np.ndarray,
+                 xi0: np.ndarray | None = None) -> None:
+        n, p = A.shape[0], Y.shape[0]
+        self.A, self.B, self.H, self.M = A, B, H, M
+        self.C = Y @ H
+        self.P_Y = np.linalg.solve(Y.T @ Y, Y.T)
+        self.output_gain = Y @ (np.eye(H.shape[0]) + H @ np.linalg.solve(np.eye(n) - A, M))  # (7c)
+        self.complement = np.eye(p) - Y @ self.P_Y
+        self.xi = np.zeros(n) if xi0 is None else np.array(xi0, dtype=float)
+
+    def estimate(self, y: np.ndarray) -> np.ndarray:
+        """φ̂_k from y_k and the current ξ_k, eq. (7b)–(7c)."""
+        eta = self.P_Y @ y - self.H @ self.xi
+        return self.output_gain @ eta + self.complement @ y
+
+    def update(self, y: np.ndarray, u: np.ndarray) -> None:
+        """ξ_{k+1}, eq. (7a)."""
+        self.xi = self.A @ self.xi + self.B @ u + self.M @ (self.P_Y @ (y - self.C @ self.xi))
+
+    def predict(self, u: np.ndarray) -> None:
+        """ξ_{k+1} without a measurement (a tick with a missing reading)."""
+        self.xi = self.A @ self.xi + self.B @ u
+
+
+# -- the optimizer G_z (Section V) -------------------------------------------------------------
+
+
+def cost_matrix(Y: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """S(φ) = Γ(φ)ᵀ Γ(φ) with Γ(φ) = Yᵀ diag(φ) (eq. (14), (36a)); shape (p, p)."""
+    gamma = Y.T * phi
+    return gamma.T @ gamma
+
+
+def line_search_coefficients(z: np.ndarray, S: np.ndarray, i: int) -> tuple[float, float, float]:
+    """β₀, β₁, β₂ of eq. (37a)–(37c) for the search direction eᵢ (S symmetric).
+
+    β₀ = eᵢᵀ(I − z zᵀ) S z,  β₁ = eᵢᵀ S eᵢ − zᵀ S z,  β₂ = zᵀ(eᵢ eᵢᵀ − I) S eᵢ,
+    so that f′(ζ) ∝ β₂ ζ² + 2 β₁ ζ + β₀ (39) for f(ζ) = 𝔷ᵀ S 𝔷, 𝔷 = (z + ζ eᵢ)/|z + ζ eᵢ|.
+    """
+    Sz = S @ z
+    zSz = z @ Sz
+    return Sz[i] - z[i] * zSz, S[i, i] - zSz, z[i] * S[i, i] - Sz[i]
+
+
+def line_search_step(beta0: float, beta1: float, beta2: float) -> float:
+    """The minimizing step ζ of (36) along eᵢ, eq. (37d) and (40)–(41); ±inf for the candidate ±eᵢ.
+
+    ζ₊ = (√γ − β₁)/β₂ with γ = β₁² − β₂β₀ ≥ 0 (Lemma 2). For β₁ > 0 it is evaluated as the
+    equal −β₀/(√γ + β₁), which has no cancellation and tends, as β₂ → 0, to the middle case
+    ζ = −β₀/(2β₁) of (37d) (see the errata); β₂ = 0 and β₁ ≤ 0 give the third case, ±eᵢ.
+    """
+    root = np.sqrt(max(beta1 * beta1 - beta2 * beta0, 0.0))  # γ ≥ 0 by Lemma 2; clip rounding
+    if beta1 > 0:
+        return -beta0 / (root + beta1)
+    if beta2 != 0:
+        return (root - beta1) / beta2
+    return np.inf
+
+
+def line_search(z: np.ndarray, S: np.ndarray, i: int) -> np.ndarray:
+    """A minimizer of (36) along eᵢ: one element of G*ᵢ(z, φ) of eq. (37d) (for ±eᵢ, the one on z's side)."""
+    zeta = line_search_step(*line_search_coefficients(z, S, i))
+    if np.isinf(zeta):
+        return np.where(np.arange(z.size) == i, 1.0 if z[i] >= 0 else -1.0, 0.0)
+    candidate = z.copy()
+    candidate[i] += zeta
+    return candidate / np.linalg.norm(candidate)
+
+
+def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """z⁺ ∈ G_z(z, φ) of eq. (37e): the best of the p line-search minimizers G*ᵢ(z, φ).
+
+    O(p) once S z is known (Remark 2): the cost of each candidate follows from (36b) in closed form,
+    f(ζ) = (zᵀSz + 2ζ (Sz)ᵢ + ζ² Sᵢᵢ) / (1 + 2ζ zᵢ + ζ²). Ties go to the lowest i. When the cost is
+    already zero (z ∈ 𝒵*, for instance φ = 0) z is kept: 𝒵* is forward invariant (Proposition 2).
+    """
+    S = cost_matrix(Y, phi)
+    Sz = S @ z
+    zSz = z @ Sz
+    if zSz <= 1e-28 * max(np.trace(S), np.finfo(float).tiny):
+        return z
+    best_i, best_cost, best_zeta = -1, np.inf, 0.0
+    for i in range(z.size):
+        beta0, beta1, beta2 = Sz[i] - z[i] * zSz, S[i, i] - zSz, z[i] * S[i, i] - Sz[i]
+        zeta = line_search_step(beta0, beta1, beta2)
+        if np.isinf(zeta):
+            cost = S[i, i]
+        else:
+            cost = (zSz + 2 * zeta * Sz[i] + zeta * zeta * S[i, i]) / (1 + 2 * zeta * z[i] + zeta * zeta)
+        if cost < best_cost:
+            best_i, best_cost, best_zeta = i, cost, zeta
+    if np.isinf(best_zeta):
+        return np.where(np.arange(z.size) == best_i, 1.0 if z[best_i] >= 0 else -1.0, 0.0)
+    candidate = z.copy()
+    candidate[best_i] += best_zeta
+    return candidate / np.linalg.norm(candidate)
+
+
+# -- the selector (17), (52) --------------------------------------------------------------------
+
+
+def select(s: np.ndarray, z: np.ndarray, Y: np.ndarray, epsilon: float) -> tuple[np.ndarray, int]:
+    """(s⁺, h⁺) of the logic-enhanced selector (52); s⁺ alone is the selector (17).
+
+    s takes z when z is in the interior of 𝒮_ε = {|det R(z)| ≥ ε} (15), with h = 0; otherwise s is
+    held and h = 1. On the boundary |det R(z)| = ε, where (52) allows both, s is held.
+    """
+    if abs(np.linalg.det((Y.T * z) @ Y)) > epsilon:
+        return z, 0
+    return s, 1
+
+
+def scale_and_filter(phi_hat: np.ndarray, filtered: np.ndarray, tau: float, eps_phi: float) -> np.ndarray:
+    """One step of Algorithm 1: φ̂* = φ̂ / max(|φ̂|, ε_φ) (i), φ̂** ← (1 − τ) φ̂** + τ φ̂* (ii)."""
+    scaled = phi_hat / max(np.linalg.norm(phi_hat), eps_phi)
+    return (1.0 - tau) * filtered + tau * scaled
+
+
+# -- estimators ---------------------------------------------------------------------------------
+
+
+def _vector_diagnostics(prefix: str, names: tuple[str, ...], what: str, unit: str, bound: float, resolution: float) -> list[Diagnostic]:
+    return [Diagnostic(f"{prefix}_{name}", unit, f"{what} ({name})", bound, resolution) for name in names]
+
+
+def _phihat(outputs: tuple[str, ...]) -> list[Diagnostic]:
+    return _vector_diagnostics("phihat", outputs, "estimated bias φ̂, eq. (7c)", "", 1e6, 1e-6)
+
+
+def _injection(states: tuple[str, ...]) -> list[Diagnostic]:
+    return _vector_diagnostics("inj", states, "output injection added to x̂⁺", "", 1e6, 1e-6)
+
+
+def _gain(model: LinearModel, H: np.ndarray, poles: tuple[float, ...], name: str) -> np.ndarray:
+    if np.any(np.abs(np.asarray(poles)) >= 1.0):
+        raise ParameterError(name, f"{list(poles)}: every pole must lie inside the unit circle (A − L H Schur)")
+    try:
+        return observer_gain(model.A, H, poles)
+    except ValueError as error:
+        raise ParameterError(name, str(error)) from None
+
+
+def _check_model(model: LinearModel) -> None:
+    try:
+        check_assumption1(model.A, model.C, discrete=True)
+    except AssumptionError as error:
+        raise ParameterError("model", f"{error} (TAC 2024)") from None
+
+
+def _unit(values: tuple[float, ...] | None, p: int, name: str) -> np.ndarray:
+    if values is None:
+        return np.full(p, 1.0 / np.sqrt(p))
+    v = np.asarray(values, dtype=float)
+    if v.shape != (p,) or not np.linalg.norm(v) > 0:
+        raise ParameterError(name, f"expected {p} weights, not all zero")
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True)
+class AdaptiveParams:
+    poles: tuple[float, ...] = (0.75, 0.8, 0.85, 0.9)
+    """Spectrum of A − L H, the observer (13) (Sec. VII: {0.75, 0.8, 0.85, 0.9})."""
+    bias_poles: tuple[float, ...] = (0.0, 0.0, 0.01, 0.01)
+    """Spectrum of A − M H, the bias estimator (7) (Sec. VII: {0, 0, 0.01, 0.01}); repeated poles allowed."""
+    epsilon: float = 0.01
+    """Selector threshold ε of 𝒮_ε (15): z is taken only where |det R(z)| > ε."""
+    injection: bool = False
+    """Residual injection (52)–(53): inject h φ̂ while the selector refuses z."""
+    filter: float | None = None
+    """τ of Algorithm 1 (scaling and low-pass filtering of φ̂ before the optimizer); None: off."""
+    eps_phi: float = 1e-3
+    """Regularization ε_φ of Algorithm 1 (i), in output units."""
+    z0: tuple[float, ...] | None = None
+    """Initial optimizer and selector states z₀ = s₀; None: the uniform weights 𝟙/√p."""
+    x0: tuple[float, ...] | None = None
+    """Initial estimate x̂₀ (absolute), also ξ₀; None: the operating point."""
+
+
+class AdaptivePseudoinverseObserver(Estimator):
+    """The adaptive pseudoinverse observer (7), (13), (16), (17), (37) of TAC 2024, optionally with
+    residual injection (52)–(53) and Algorithm 1.
+
+    Diagnostics each tick k: φ̂_k (in the sensors' coordinates), z_k, s_k, h_k and the injected
+    term L Π(s_k)(y_k − C x̂_k − h_k φ̂_k).
+    """
+
+    kind = "adaptive"
+    Params = AdaptiveParams
+
+    def __init__(self, model: LinearModel, params: AdaptiveParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        _check_model(model)
+        try:
+            self.Y, self.H, self.Sigma = assumption2_factorization(model.C)
+        except AssumptionError as error:
+            raise ParameterError("model", str(error)) from None
+        p = model.p
+        if not 0 < params.epsilon:
+            raise ParameterError("epsilon", f"{params.epsilon}: the selector threshold must be positive")
+        if params.filter is not None and not 0 < params.filter < 1:
+            raise ParameterError("filter", f"{params.filter}: Algorithm 1 needs τ in (0, 1)")
+        if not params.eps_phi > 0:
+            raise ParameterError("eps_phi", "must be positive")
+        self.C = self.Sigma @ model.C
+        self.L = _gain(model, self.H, params.poles, "poles")
+        self.M = _gain(model, self.H, params.bias_poles, "bias_poles")
+        self.x_hat = initial_state(model, params.x0)
+        self.bias = BiasEstimator(model.A, model.B, self.Y, self.H, self.M, self.x_hat)
+        self.z = _unit(params.z0, p, "z0")
+        if abs(np.linalg.det((self.Y.T * self.z) @ self.Y)) <= params.epsilon:
+            raise ParameterError("z0", f"|det R(z0)| is not above epsilon = {params.epsilon}: the selector would never start")
+        self.s = self.z.copy()
+        self.h = 0
+        self.phi_filtered = np.zeros(p)
+        self.phi_hat = np.zeros(p)
+
+    @classmethod
+    def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        return [
+            *_phihat(outputs),
+            *_vector_diagnostics("z", outputs, "optimizer state z, eq. (16)", "", 1.0, 1e-6),
+            *_vector_diagnostics("s", outputs, "selector state s, eq. (17)", "", 1.0, 1e-6),
+            Diagnostic("h", "", "selector logic h: 1 while z is refused, eq. (52)", 1.0, 1.0),
+            *_injection(states),
+        ]
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
+        A, B = self.model.A, self.model.B
+        x_k = self.x_hat
+        injected = np.zeros(self.model.n)
+        z, s, h = self.z, self.s, self.h
+        if np.isnan(dy).any():
+            self.x_hat = A @ x_k + B @ du
+            self.bias.predict(du)
+        else:
+            y = self.Sigma @ dy
+            phi_hat = self.bias.estimate(y)
+            self.phi_hat = phi_hat
+            innovation = y - self.C @ x_k - (h * phi_hat if self.params.injection else 0.0)
+            injected = self.L @ (weighted_pseudoinverse(self.Y, s) @ innovation)
+            self.x_hat = A @ x_k + B @ du + injected                      # (13) / (53)
+            if self.params.filter is not None:                            # Algorithm 1
+                self.phi_filtered = scale_and_filter(phi_hat, self.phi_filtered, self.params.filter, self.params.eps_phi)
+                self.z = optimizer_step(z, self.phi_filtered, self.Y)
+            else:
+                self.z = optimizer_step(z, phi_hat, self.Y)              # (16), (37e)
+            self.s, self.h = select(s, z, self.Y, self.params.epsilon)    # (17) / (52)
+            self.bias.update(y, du)                                       # (7a)
+        diagnostics = self._named("phihat", self.Sigma.T @ self.phi_hat)
+        diagnostics |= self._named("z", z) | self._named("s", s) | {"h": float(h)}
+        diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
+        return Estimate(x_k.copy(), diagnostics)
+
+    def _named(self, prefix: str, values: np.ndarray) -> dict[str, float]:
+        return {f"{prefix}_{name}": float(v) for name, v in zip(self.model.outputs, values)}
+
+    def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
+        """The bias's effect on the injection, Π(s)(Σφ − h Σφ̂) (R(s)⁻¹Γ(φ)s of eq. (19)–(20), (54))."""
+        s = np.array([diagnostics[f"s_{o}"] for o in self.model.outputs])
+        residual = self.Sigma @ phi
+        if self.params.injection and diagnostics.get("h"):
+            residual = residual - self.Sigma @ np.array([diagnostics[f"phihat_{o}"] for o in self.model.outputs])
+        return weighted_pseudoinverse(self.Y, s) @ residual
+
+
+@dataclass(frozen=True)
+class InjectionParams:
+    poles: tuple[float, ...] = (0.75, 0.8, 0.85, 0.9)
+    """Spectrum of A − L H."""
+    bias_poles: tuple[float, ...] = (0.0, 0.0, 0.01, 0.01)
+    """Spectrum of A − M H of the bias estimator (7)."""
+    filter: float | None = None
+    """τ of a first-order low-pass φ̂_f ← (1 − τ) φ̂_f + τ φ̂ on the injected estimate; None: unfiltered."""
+    x0: tuple[float, ...] | None = None
+    """Initial estimate x̂₀ (absolute), also ξ₀; None: the operating point."""
+
+
+class InjectionObserver(Estimator):
+    """The baseline observer (56) of TAC 2024 Sec. VII-A: x̂⁺ = A x̂ + B u + L (Y†(y − φ̂) − H x̂), with
+    φ̂ from the bias estimator (7), optionally low-pass filtered ("injection of the filtered estimation").
+
+    Diagnostics: the injected φ̂ and the injected term.
+    """
+
+    kind = "injection"
+    Params = InjectionParams
+
+    def __init__(self, model: LinearModel, params: InjectionParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        _check_model(model)
+        if params.filter is not None and not 0 < params.filter <= 1:
+            raise ParameterError("filter", f"{params.filter}: the low-pass needs τ in (0, 1]")
+        self.Y, self.H = output_factorization(model.C)
+        self.L = _gain(model, self.H, params.poles, "poles")
+        M = _gain(model, self.H, params.bias_poles, "bias_poles")
+        self.x_hat = initial_state(model, params.x0)
+        self.bias = BiasEstimator(model.A, model.B, self.Y, self.H, M, self.x_hat)
+        self.phi_used = np.zeros(model.p)
+
+    @classmethod
+    def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        return [*_phihat(outputs), *_injection(states)]
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
+        A, B = self.model.A, self.model.B
+        x_k = self.x_hat
+        injected = np.zeros(self.model.n)
+        if np.isnan(dy).any():
+            self.x_hat = A @ x_k + B @ du
+            self.bias.predict(du)
+        else:
+            phi_hat = self.bias.estimate(dy)
+            tau = self.params.filter
+            self.phi_used = phi_hat if tau is None else (1.0 - tau) * self.phi_used + tau * phi_hat
+            injected = self.L @ (self.bias.P_Y @ (dy - self.phi_used) - self.H @ x_k)
+            self.x_hat = A @ x_k + B @ du + injected                      # (56)
+            self.bias.update(dy, du)
+        diagnostics = {f"phihat_{o}": float(v) for o, v in zip(self.model.outputs, self.phi_used)}
+        diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
+        return Estimate(x_k.copy(), diagnostics)
+
+    def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
+        """Y†(φ − φ̂): what the bias leaves in the injection of (56)."""
+        phi_hat = np.array([diagnostics[f"phihat_{o}"] for o in self.model.outputs])
+        return self.bias.P_Y @ (phi - phi_hat)
