@@ -88,8 +88,10 @@ def cost_matrix(Y: np.ndarray, phi: np.ndarray) -> np.ndarray:
 def line_search_coefficients(z: np.ndarray, S: np.ndarray, i: int) -> tuple[float, float, float]:
     """β₀, β₁, β₂ of eq. (37a)–(37c) for the search direction eᵢ (S symmetric).
 
-    β₀ = eᵢᵀ(I − z zᵀ) S z,  β₁ = eᵢᵀ S eᵢ − zᵀ S z,  β₂ = zᵀ(eᵢ eᵢᵀ − I) S eᵢ,
-    so that f′(ζ) ∝ β₂ ζ² + 2 β₁ ζ + β₀ (39) for f(ζ) = 𝔷ᵀ S 𝔷, 𝔷 = (z + ζ eᵢ)/|z + ζ eᵢ|.
+    β₀ = eᵢᵀ(I − z zᵀ) S z,  β₁ = eᵢᵀ S eᵢ − zᵀ S z,  β₂ = zᵀ(eᵢ eᵢᵀ − I) S eᵢ.
+    For f(ζ) = 𝔷ᵀ S 𝔷 with 𝔷 = (z + ζ eᵢ)/|z + ζ eᵢ|, differentiating gives
+    f′(ζ) = 2 (β₂ ζ² + β₁ ζ + β₀) / |z + ζ eᵢ|⁴, not (β₂ζ² + 2β₁ζ + β₀)/|·|⁴ as eq. (39) prints
+    (erratum, docs/errata.md): (39)–(41) and (37d) hold with β₁ replaced by β₁/2.
     """
     Sz = S @ z
     zSz = z @ Sz
@@ -97,17 +99,20 @@ def line_search_coefficients(z: np.ndarray, S: np.ndarray, i: int) -> tuple[floa
 
 
 def line_search_step(beta0: float, beta1: float, beta2: float) -> float:
-    """The minimizing step ζ of (36) along eᵢ, eq. (37d) and (40)–(41); ±inf for the candidate ±eᵢ.
+    """The minimizing step ζ of (36) along eᵢ: eq. (37d), (40)–(41) with β₁/2 for β₁ (see above);
+    ±inf stands for the candidate ±eᵢ.
 
-    ζ₊ = (√γ − β₁)/β₂ with γ = β₁² − β₂β₀ ≥ 0 (Lemma 2). For β₁ > 0 it is evaluated as the
-    equal −β₀/(√γ + β₁), which has no cancellation and tends, as β₂ → 0, to the middle case
-    ζ = −β₀/(2β₁) of (37d) (see the errata); β₂ = 0 and β₁ ≤ 0 give the third case, ±eᵢ.
+    With b = β₁/2 and γ = b² − β₂β₀ ≥ 0, the minimizer is ζ₊ = (√γ − b)/β₂ (the right root of
+    f′ for β₂ > 0, the left one for β₂ < 0). For b > 0 it is evaluated as the equal −β₀/(√γ + b),
+    which has no cancellation and tends, as β₂ → 0, to the middle case ζ = −β₀/(2b) = −β₀/β₁ of
+    (37d); β₂ = 0 and b ≤ 0 give the third case, ±eᵢ.
     """
-    root = np.sqrt(max(beta1 * beta1 - beta2 * beta0, 0.0))  # γ ≥ 0 by Lemma 2; clip rounding
-    if beta1 > 0:
-        return -beta0 / (root + beta1)
+    b = 0.5 * beta1
+    root = np.sqrt(max(b * b - beta2 * beta0, 0.0))  # γ ≥ 0: f′ always changes sign; clip rounding
+    if b > 0:
+        return -beta0 / (root + b)
     if beta2 != 0:
-        return (root - beta1) / beta2
+        return (root - b) / beta2
     return np.inf
 
 
@@ -128,19 +133,21 @@ def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
     f(ζ) = (zᵀSz + 2ζ (Sz)ᵢ + ζ² Sᵢᵢ) / (1 + 2ζ zᵢ + ζ²). Ties go to the lowest i. When the cost is
     already zero (z ∈ 𝒵*, for instance φ = 0) z is kept: 𝒵* is forward invariant (Proposition 2).
     """
-    S = cost_matrix(Y, phi)
-    Sz = S @ z
-    zSz = z @ Sz
-    if zSz <= 1e-28 * max(np.trace(S), np.finfo(float).tiny):
+    gamma = Y.T * phi  # Γ(φ); S = ΓᵀΓ is never formed, which keeps |Γ z|² accurate near zero
+    gz = gamma @ z
+    Sz = gamma.T @ gz
+    zSz = gz @ gz
+    S_diag = np.einsum("ij,ij->j", gamma, gamma)
+    if zSz <= 1e-28 * max(S_diag.sum(), np.finfo(float).tiny):
         return z
     best_i, best_cost, best_zeta = -1, np.inf, 0.0
     for i in range(z.size):
-        beta0, beta1, beta2 = Sz[i] - z[i] * zSz, S[i, i] - zSz, z[i] * S[i, i] - Sz[i]
+        beta0, beta1, beta2 = Sz[i] - z[i] * zSz, S_diag[i] - zSz, z[i] * S_diag[i] - Sz[i]
         zeta = line_search_step(beta0, beta1, beta2)
         if np.isinf(zeta):
-            cost = S[i, i]
+            cost = S_diag[i]
         else:
-            cost = (zSz + 2 * zeta * Sz[i] + zeta * zeta * S[i, i]) / (1 + 2 * zeta * z[i] + zeta * zeta)
+            cost = (zSz + 2 * zeta * Sz[i] + zeta * zeta * S_diag[i]) / (1 + 2 * zeta * z[i] + zeta * zeta)
         if cost < best_cost:
             best_i, best_cost, best_zeta = i, cost, zeta
     if np.isinf(best_zeta):

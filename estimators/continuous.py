@@ -8,7 +8,9 @@ For ẋ = A x + B u, y = C x + φ with C = Y H, rk C = q < p:
     ∇_Γ|Z_Γ y − ẑ|²ᵀ = 2 diag(y − Y Z_Γ y) Y (Yᵀ G_Γ Y)⁻¹ (Z_Γ y − ẑ)           (8)
 
 The estimator sees y only at the sample instants; it holds y (and u) between ticks and integrates
-(6)–(7) with classical Runge–Kutta, ``substeps`` steps per sample. The paper gives Y and H
+(6)–(7) with an L-stable Rosenbrock 2(3) pair under error control (``rtol``, ``atol``): once a
+fault is present the adaptation (7) is stiff (its rate grows with κ and with the fault), which
+would hold an explicit method to steps far below the sample time. The paper gives Y and H
 explicitly (not orthonormal); they are parameters here, since the weights Γ it converges to depend
 on that choice.
 """
@@ -66,8 +68,10 @@ class ContinuousAdaptiveParams:
     """Rate κ_Γ of the norm-keeping term of eq. (7); None: equal to ``kappa`` (the paper's choice)."""
     gamma0: tuple[float, ...] | None = None
     """Initial weights Γ(0); None: 𝟙/√p (Sec. V)."""
-    substeps: int = 5
-    """Runge–Kutta steps per sample period (tests check 5 per 0.02 s against an adaptive solver)."""
+    rtol: float = 1e-4
+    """Relative error tolerance of the integration between samples."""
+    atol: float = 1e-6
+    """Absolute error tolerance of the integration between samples."""
     min_det: float = 1e-12
     """|det(Yᵀ G_Γ Y)| below which Z_Γ is deemed undefined: Γ is then held (Remark 1)."""
     x0: tuple[float, ...] | None = None
@@ -120,8 +124,8 @@ class ContinuousAdaptiveObserver(Estimator):
             raise ParameterError("gain", "A − L H is not Hurwitz (Assumption 1)")
         if params.kappa < 0 or (params.kappa_gamma is not None and params.kappa_gamma < 0):
             raise ParameterError("kappa", "learning rates must be non-negative")
-        if params.substeps < 1:
-            raise ParameterError("substeps", "at least one Runge-Kutta step per sample")
+        if not (params.rtol > 0 and params.atol > 0):
+            raise ParameterError("rtol", "the integration tolerances must be positive")
         self.kappa_phi = params.kappa
         self.kappa_gamma = params.kappa if params.kappa_gamma is None else params.kappa_gamma
         self.gamma = np.full(p, 1.0 / np.sqrt(p)) if params.gamma0 is None else np.array(params.gamma0, dtype=float)
@@ -129,7 +133,7 @@ class ContinuousAdaptiveObserver(Estimator):
             raise ParameterError("gamma0", f"expected {p} weights")
         self._check_det(self.gamma, "gamma0")
         self.x_hat = initial_state(model, params.x0)
-        self.h = self.sample_time / params.substeps
+        self.h = self.sample_time  # the step size carries over from sample to sample
 
     def _check_det(self, gamma: np.ndarray, where: str) -> None:
         if abs(np.linalg.det((self.Y.T * gamma) @ self.Y)) < self.params.min_det:
@@ -158,29 +162,67 @@ class ContinuousAdaptiveObserver(Estimator):
         return Estimate(x_k, diagnostics)
 
     def _integrate(self, y: np.ndarray, u: np.ndarray, adapt: bool) -> None:
-        A, B, H, Y = self.model.A, self.model.B, self.H, self.Y
+        A, H, Y, n = self.model.A, self.H, self.Y, self.model.n
         L = self.L if adapt else np.zeros_like(self.L)
         kp, kg = (self.kappa_phi, self.kappa_gamma) if adapt else (0.0, 0.0)
-        h = self.h
-        x, g = self.x_hat, self.gamma
+        Bu = self.model.B @ u
 
-        Bu = B @ u
+        def f(w: np.ndarray) -> np.ndarray:
+            return np.concatenate(vector_field(w[:n], w[n:], y, Bu, A, H, L, Y, kp, kg))
 
-        def f(x, g):
-            return vector_field(x, g, y, Bu, A, H, L, Y, kp, kg)
-
-        for _ in range(self.params.substeps):
-            k1x, k1g = f(x, g)
-            k2x, k2g = f(x + 0.5 * h * k1x, g + 0.5 * h * k1g)
-            k3x, k3g = f(x + 0.5 * h * k2x, g + 0.5 * h * k2g)
-            k4x, k4g = f(x + h * k3x, g + h * k3g)
-            x = x + h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
-            g = g + h / 6.0 * (k1g + 2 * k2g + 2 * k3g + k4g)
-        self.x_hat = x
-        if abs(np.linalg.det((Y.T * g) @ Y)) >= self.params.min_det:
-            self.gamma = g  # else hold Γ: Z_Γ would be undefined (the reset of Remark 1 is not attempted)
+        w = integrate(f, np.concatenate([self.x_hat, self.gamma]), self.sample_time, self, self.params.rtol, self.params.atol)
+        self.x_hat = w[:n]
+        if abs(np.linalg.det((Y.T * w[n:]) @ Y)) >= self.params.min_det:
+            self.gamma = w[n:]  # else hold Γ: Z_Γ would be undefined (the reset of Remark 1 is not attempted)
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """h_Γ = Z_Γ φ (Sec. IV), the part of the injection due to the fault."""
         gamma = np.array([diagnostics[f"gamma_{o}"] for o in self.model.outputs])
         return pseudoinverse(self.Y, gamma) @ phi
+
+
+
+_D = 1.0 / (2.0 + np.sqrt(2.0))
+_E32 = 6.0 + np.sqrt(2.0)
+
+
+def integrate(f, w: np.ndarray, span: float, stepper, rtol: float, atol: float) -> np.ndarray:
+    """w(t + span) for the autonomous dw/dt = f(w) by the L-stable Rosenbrock 2(3) pair of
+    Shampine & Reichelt (MATLAB's ode23s), with step-size control.
+
+    W = I − h d J with d = 1/(2 + √2) and J = ∂f/∂w (forward differences, once per call);
+    k₁ = W⁻¹ f(w), k₂ = W⁻¹(f(w + h k₁/2) − k₁) + k₁, w⁺ = w + h k₂,
+    k₃ = W⁻¹(f(w⁺) − e₃₂(k₂ − f(w + h k₁/2)) − 2(k₁ − f(w))), error h (k₁ − 2k₂ + k₃)/6.
+    A step is kept when max |error_i| / (atol + rtol max(|w_i|, |w⁺_i|)) ≤ 1. ``stepper.h`` is the
+    first step tried and keeps the last good one, so a smooth stretch costs one step per sample.
+    """
+    n = w.size
+    f0 = f(w)
+    J = np.empty((n, n))
+    for j in range(n):
+        delta = 1.5e-8 * max(1.0, abs(w[j]))
+        shifted = w.copy()
+        shifted[j] += delta
+        J[:, j] = (f(shifted) - f0) / delta
+    t, h = 0.0, min(stepper.h, span)
+    identity = np.eye(n)
+    while True:
+        h = min(h, span - t)
+        W_inv = np.linalg.inv(identity - h * _D * J)
+        k1 = W_inv @ f0
+        f1 = f(w + 0.5 * h * k1)
+        k2 = W_inv @ (f1 - k1) + k1
+        w_new = w + h * k2
+        f2 = f(w_new)
+        k3 = W_inv @ (f2 - _E32 * (k2 - f1) - 2.0 * (k1 - f0))
+        error = h / 6.0 * (k1 - 2.0 * k2 + k3)
+        ratio = np.max(np.abs(error) / (atol + rtol * np.maximum(np.abs(w), np.abs(w_new))))
+        if ratio <= 1.0:
+            t, w, f0 = t + h, w_new, f2
+            if t >= span * (1 - 1e-12):
+                stepper.h = max(h, stepper.h if h >= span - t + h - 1e-15 else h)
+                return w
+            stepper.h = h
+        h *= min(5.0, max(0.2, 0.8 * ratio ** (-1.0 / 3.0))) if ratio > 0 else 5.0
+        if h < 1e-12 * span:
+            raise FloatingPointError("the observer's ODE cannot be integrated to the requested tolerance")
