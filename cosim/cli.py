@@ -182,6 +182,16 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from cosim.plot import plot
+
+    log = Path(args.log)
+    out = Path(args.out) if args.out else log.with_name(log.stem + "-plots")
+    for path in plot(log, out):
+        print(path)
+    return 0
+
+
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
@@ -251,6 +261,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--json", action="store_true", help="print one JSON object (stable keys, for other tools)")
     p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("plot", help="draw a log's figures as PNG files", description="Draw the paper-style figures of "
+                       "a run log: estimation-error norms per estimator, pseudoinverse weights (s, z or Γ), the fault's "
+                       "effect |h_Γ| on each observer's injection, |Γ|, and the bias estimates against the true fault.")
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--out", "-o", metavar="DIR", help="output directory (default: FILE-plots next to the log)")
+    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("dbc", help="write the CAN database of a scenario", description="Write the DBC database of a "
                        "scenario's bus, so that external tools can decode its frames.")

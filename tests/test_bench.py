@@ -29,3 +29,9 @@ def test_cosim_throughput_benchmark_reports_its_figures():
     for key in ("raw_frames_per_s", "pipeline_frames_per_s", "ratio", "realtime_factor"):
         assert figures[key] > 0, key
     assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
+
+
+def test_estimator_step_benchmark_times_every_kind_against_kalman():
+    figures = bench("estimator_step.py", "--steps", "300", "--repeat", "1")
+    assert {"kalman", "pseudoinverse", "injection", "adaptive", "adaptive-ct"} <= set(figures)
+    assert all(v > 0 for v in figures.values())

@@ -1,0 +1,109 @@
+"""Cost of one estimator step (µs), every estimator kind, against a plain Kalman filter step
+measured in the same run on the same data (the baseline).
+
+Workload: the coupled masses of TAC 2024 (Table I, τ = 0.01 s) with the sensors x1, x2, x1 − x2
+(p = 3; ``--p4`` adds x2 − x1) and the constant bias [1, −1.5, 0.5], after the adaptation has
+settled; the continuous-time observer of CDC 2016 runs on its own 3-state example with the fault
+of Example 1 and output noise, at its scenarios' sample time 0.02 s. Each figure is the best of
+``--repeat`` timings of ``--steps`` consecutive steps.
+
+Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import estimators  # noqa: E402
+from estimators import LinearModel  # noqa: E402
+from estimators.design import zoh_discretize  # noqa: E402
+from mjcf import masses  # noqa: E402
+
+SENSORS = ("x1", "x2", "x1_minus_x2")
+
+
+def masses_model(sensors) -> LinearModel:
+    A, B = zoh_discretize(*masses.continuous_model(), 0.01)
+    return LinearModel(A, B, masses.output_matrix(sensors), np.zeros((len(sensors), 1)), 0.01,
+                       ("x1", "x2", "v1", "v2"), ("force",), tuple(sensors))
+
+
+def cdc_model() -> LinearModel:
+    A = np.array([[-1.0, 3, 0], [0.1, -5, 0.4], [0, 0, -5]])
+    C = np.array([[1.0, 1], [1, 0], [2, 1]]) @ np.array([[1.0, 0, 0], [0, 1, 0]])
+    return LinearModel(A, np.array([[1.0], [0], [-1]]), C, np.zeros((3, 1)), None, ("x1", "x2", "x3"), ("u",), ("y1", "y2", "y3"))
+
+
+def workload(model: LinearModel, phi: np.ndarray, steps: int, noise: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Measurements and inputs of ``steps`` ticks of the plant (1) with the bias φ."""
+    rng = np.random.default_rng(seed)
+    Ad, Bd = (model.A, model.B) if model.dt is not None else zoh_discretize(model.A, model.B, 0.02)
+    x = np.array([0.2, -0.1, 0.0, 0.0][: model.n])
+    ys, us = np.empty((steps, model.p)), np.empty((steps, model.m))
+    for k in range(steps):
+        u = np.array([np.sin(0.0314 * k)])
+        ys[k] = model.C @ x + phi + noise * rng.uniform(-1, 1, model.p)
+        us[k] = u
+        x = Ad @ x + Bd @ u
+    return ys, us
+
+
+def time_steps(make, ys: np.ndarray, us: np.ndarray, warmup: int, repeat: int) -> float:
+    best = np.inf
+    for _ in range(repeat):
+        e = make()
+        for k in range(warmup):
+            e.step(ys[k], us[k])
+        start = time.perf_counter()
+        for k in range(warmup, len(ys)):
+            e.step(ys[k], us[k])
+        best = min(best, (time.perf_counter() - start) / (len(ys) - warmup))
+    return best * 1e6
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object: estimator name -> µs per step")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+
+    m3 = masses_model(SENSORS)
+    m4 = masses_model(SENSORS + ("x2_minus_x1",))
+    ys3, us3 = workload(m3, np.array([1.0, -1.5, 0.5]), args.steps, 1e-4)
+    ys4, us4 = workload(m4, np.array([1.0, -1.5, 0.5, 0.15]), args.steps, 1e-4)
+    cdc = cdc_model()
+    ysc, usc = workload(cdc, np.array([3.0, 0.5, -1.0]), args.steps, 0.01)
+    gain = [[6.0, 2.7], [-0.2, -1.0], [-0.2, -5.1]]
+    Y = [[1.0, 1.0], [1.0, 0.0], [2.0, 1.0]]
+    cases = {
+        "kalman": (lambda: estimators.create("kalman", m3), ys3, us3),
+        "pseudoinverse": (lambda: estimators.create("pseudoinverse", m3), ys3, us3),
+        "injection": (lambda: estimators.create("injection", m3), ys3, us3),
+        "adaptive": (lambda: estimators.create("adaptive", m3), ys3, us3),
+        "adaptive_filtered": (lambda: estimators.create("adaptive", m3, {"filter": 1e-4, "eps_phi": 1e4}), ys3, us3),
+        "adaptive_injection_p4": (lambda: estimators.create("adaptive", m4, {"injection": True}), ys4, us4),
+        "adaptive-ct": (lambda: estimators.create("adaptive-ct", cdc, {"gain": gain, "Y": Y, "kappa": 1.0}, 0.02), ysc, usc),
+    }
+    warmup = args.steps // 3
+    figures = {name: time_steps(make, ys, us, warmup, args.repeat) for name, (make, ys, us) in cases.items()}
+    if args.json:
+        print(json.dumps({name: round(v, 2) for name, v in figures.items()}))
+        return 0
+    base = figures["kalman"]
+    print(f"{'estimator':<24}{'µs/step':>10}{'× kalman':>10}")
+    for name, us in figures.items():
+        print(f"{name:<24}{us:>10.1f}{us / base:>10.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

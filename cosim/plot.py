@@ -1,0 +1,212 @@
+"""Paper-style figures of a run log: estimation-error norms, pseudoinverse weights, |h_Γ|, |Γ|, φ̂.
+
+``cosim plot FILE.mcap [--out DIR]`` writes PNG files (matplotlib, no display needed):
+
+- ``error.png``: |x − x̂| of every estimator against time (linear and logarithmic), the top panels
+  of TAC 2024 Figs. 3–5 and CDC 2016 Figs. 1, 6;
+- ``weights.png``: the selector state s and optimizer state z (TAC 2024), or the weights Γ
+  (CDC 2016), per estimator that has them (Figs. 3–5 bottom; CDC Figs. 3, 8);
+- ``bias_effect.png``: |h_Γ|, the part of each observer's output injection due to the true fault
+  (h_Γ = Z_Γ φ in CDC 2016 Figs. 4, 9; R(s)⁻¹Γ(φ)s of TAC 2024 eq. (20)), from the logged
+  weights and the logged fault;
+- ``gamma_norm.png``: |Γ| (CDC 2016 Figs. 5, 10), when a run has continuous-time observers;
+- ``bias_estimate.png``: φ̂ against the true fault, for estimators that estimate it (TAC eq. (7)).
+
+Estimators are rebuilt from the log's metadata (kind, parameters, design model) to evaluate h_Γ.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import estimators
+from cosim.errors import LogError
+from cosim.log import LogReader
+from cosim.node import model_from_dict
+from cosim.recorder import FAULTS, STATE, message_topic
+
+
+@dataclass
+class EstimatorSeries:
+    kind: str
+    params: dict
+    model: dict | None
+    values: dict[int, dict[str, float]] = field(default_factory=lambda: defaultdict(dict))
+
+
+@dataclass
+class RunSeries:
+    """Everything the figures need from one log, per tick."""
+
+    scenario: str
+    description: str
+    sample_time: float
+    states: list[str]
+    sensors: list[str]
+    truth: dict[int, np.ndarray]
+    fault: dict[int, np.ndarray]
+    estimators: dict[str, EstimatorSeries]
+
+    def ticks(self, name: str) -> np.ndarray:
+        have = self.estimators[name].values
+        return np.array(sorted(k for k in have if k in self.truth and all(f"xhat_{s}" in have[k] for s in self.states)), dtype=int)
+
+    def error(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        ks = self.ticks(name)
+        values = self.estimators[name].values
+        x_hat = np.array([[values[k][f"xhat_{s}"] for s in self.states] for k in ks]).reshape(len(ks), len(self.states))
+        x = np.array([self.truth[k] for k in ks]).reshape(len(ks), len(self.states))
+        return ks * self.sample_time, np.linalg.norm(x - x_hat, axis=1)
+
+    def diagnostic(self, name: str, prefix: str) -> tuple[np.ndarray, np.ndarray] | None:
+        values = self.estimators[name].values
+        keys = [f"{prefix}_{o}" for o in self.sensors]
+        ks = np.array(sorted(k for k in values if all(key in values[k] for key in keys)), dtype=int)
+        if ks.size == 0:
+            return None
+        return ks * self.sample_time, np.array([[values[k][key] for key in keys] for k in ks])
+
+
+def load(path: str | Path) -> RunSeries:
+    """Read a run log into per-tick series (truth, faults, each estimator's decoded frames)."""
+    with LogReader(path) as reader:
+        meta = reader.metadata()
+        if "cosim.run" not in meta:
+            raise LogError(f"{path}: no cosim.run metadata; cosim plot needs a log written by cosim run")
+        run = meta["cosim.run"]
+        states, sensors = json.loads(run["states"]), json.loads(run["sensors"])
+        description = ""
+        if "cosim.scenario" in meta:
+            description = json.loads(meta["cosim.scenario"].get("resolved", "{}")).get("description", "")
+        ests = {
+            name: EstimatorSeries(e["kind"], e.get("params", {}), e.get("model"))
+            for name, e in json.loads(run["estimators"]).items()
+        }
+        owner = {message_topic(m): name for name, e in json.loads(run["estimators"]).items() for m in e["messages"]}
+        dt_ns = round(float(run["sample_time"]) * 1e9)
+        truth: dict[int, np.ndarray] = {}
+        fault: dict[int, np.ndarray] = {}
+        for topic, log_time, msg in reader.messages([STATE, FAULTS, *owner]):
+            if topic == STATE:
+                truth[msg["tick"]] = np.array([msg[s] for s in states])
+            elif topic == FAULTS:
+                fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
+            else:
+                ests[owner[topic]].values[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
+    return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests)
+
+
+def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """|h_Γ| over time for one estimator, or None if the notion does not apply to it."""
+    e = series.estimators[name]
+    if e.model is None:
+        return None
+    estimator = estimators.create(e.kind, model_from_dict(e.model), e.params, series.sample_time)
+    ks = [k for k in sorted(e.values) if k in series.fault]
+    out = []
+    for k in ks:
+        effect = estimator.bias_effect(e.values[k], series.fault[k])
+        if effect is None:
+            return None
+        out.append(np.linalg.norm(effect))
+    return np.array(ks) * series.sample_time, np.array(out)
+
+
+def plot(path: str | Path, out: str | Path) -> list[Path]:
+    """Write the figures of one log into ``out``; returns the files written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = load(path)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    title = series.scenario
+
+    def save(fig, name: str) -> None:
+        fig.tight_layout()
+        target = out / name
+        fig.savefig(target, dpi=110)
+        plt.close(fig)
+        written.append(target)
+
+    fig, (linear, log) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
+    for name in series.estimators:
+        t, err = series.error(name)
+        if t.size:
+            linear.plot(t, err, label=name, lw=1)
+            log.semilogy(t, np.maximum(err, 1e-16), label=name, lw=1)
+    linear.set_ylabel("|x − x̂|")
+    log.set_ylabel("|x − x̂| (log)")
+    log.set_xlabel("time [s]")
+    linear.set_title(f"{title}: estimation error")
+    linear.legend(fontsize=8)
+    for ax in (linear, log):
+        ax.grid(alpha=0.3)
+    save(fig, "error.png")
+
+    weighted = [(name, prefix) for name in series.estimators for prefix in ("s", "z", "gamma")
+                if series.diagnostic(name, prefix) is not None]
+    if weighted:
+        fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
+        labels = {"s": "selector s", "z": "optimizer z", "gamma": "weights Γ"}
+        for ax, (name, prefix) in zip(axes[:, 0], weighted):
+            t, w = series.diagnostic(name, prefix)
+            for i, sensor in enumerate(series.sensors):
+                ax.plot(t, w[:, i], label=sensor, lw=1)
+            ax.set_ylabel(f"{name}\n{labels[prefix]}", fontsize=8)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="right")
+        axes[0, 0].set_title(f"{title}: pseudoinverse weights")
+        axes[-1, 0].set_xlabel("time [s]")
+        save(fig, "weights.png")
+
+    effects = {name: bias_effect(series, name) for name in series.estimators}
+    effects = {name: e for name, e in effects.items() if e is not None}
+    if effects:
+        fig, ax = plt.subplots(figsize=(9, 3.5))
+        for name, (t, h) in effects.items():
+            ax.semilogy(t, np.maximum(h, 1e-16), label=name, lw=1)
+        ax.set_ylabel("|h_Γ|")
+        ax.set_xlabel("time [s]")
+        ax.set_title(f"{title}: fault effect on the output injection")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        save(fig, "bias_effect.png")
+
+    norms = {name: series.diagnostic(name, "gamma") for name in series.estimators}
+    norms = {name: v for name, v in norms.items() if v is not None}
+    if norms:
+        fig, ax = plt.subplots(figsize=(9, 3))
+        for name, (t, w) in norms.items():
+            ax.plot(t, np.linalg.norm(w, axis=1), label=name, lw=1)
+        ax.set_ylabel("|Γ|")
+        ax.set_xlabel("time [s]")
+        ax.set_title(f"{title}: norm of the weights")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        save(fig, "gamma_norm.png")
+
+    bias = {name: series.diagnostic(name, "phihat") for name in series.estimators}
+    bias = {name: v for name, v in bias.items() if v is not None}
+    if bias:
+        fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False)
+        ks = np.array(sorted(series.fault))
+        for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
+            for name, (t, v) in bias.items():
+                ax.plot(t, v[:, i], label=f"{name} φ̂", lw=1)
+            ax.plot(ks * series.sample_time, [series.fault[k][i] for k in ks], "k--", lw=1, label="true fault")
+            ax.set_ylabel(sensor, fontsize=8)
+            ax.grid(alpha=0.3)
+        axes[0, 0].legend(fontsize=7)
+        axes[0, 0].set_title(f"{title}: bias estimate φ̂ against the true fault")
+        axes[-1, 0].set_xlabel("time [s]")
+        save(fig, "bias_estimate.png")
+    return written

@@ -1,0 +1,22 @@
+"""cosim plot draws the paper-style figures of a log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cosim.cli import main
+from cosim.runner import Run
+from cosim.scenario import load
+
+
+def test_plot_writes_the_figures_of_an_adaptive_run(tmp_path: Path, capsys):
+    log = tmp_path / "run.mcap"
+    scenario = load("tac2024-s2-p4").scenario.model_copy(update={"duration": 1.0})
+    from cosim.scenario import LoadedScenario
+
+    Run(LoadedScenario(scenario, "tac2024-s2-p4 (1 s)", ""), log, interface="virtual").execute()
+    assert main(["plot", str(log), "--out", str(tmp_path / "figs")]) == 0
+    written = {Path(line).name for line in capsys.readouterr().out.split()}
+    assert {"error.png", "weights.png", "bias_effect.png", "bias_estimate.png"} <= written
+    for name in written:
+        assert (tmp_path / "figs" / name).stat().st_size > 10_000
