@@ -168,31 +168,26 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "weights.png")
 
+    def curves(named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool) -> None:
+        """One panel of one curve per estimator against time."""
+        fig, ax = plt.subplots(figsize=(9, 3.3))
+        for label, (t, v) in named.items():
+            (ax.semilogy if log else ax.plot)(t, np.maximum(v, 1e-16) if log else v, label=label, lw=1)
+        ax.set_ylabel(ylabel)
+        ax.set_xlabel("time [s]")
+        ax.set_title(f"{title}: {what}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        save(fig, name)
+
     effects = {name: bias_effect(series, name) for name in series.estimators}
     effects = {name: e for name, e in effects.items() if e is not None}
     if effects:
-        fig, ax = plt.subplots(figsize=(9, 3.5))
-        for name, (t, h) in effects.items():
-            ax.semilogy(t, np.maximum(h, 1e-16), label=name, lw=1)
-        ax.set_ylabel("|h_Γ|")
-        ax.set_xlabel("time [s]")
-        ax.set_title(f"{title}: fault effect on the output injection")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        save(fig, "bias_effect.png")
-
+        curves(effects, "|h_Γ|", "fault effect on the output injection", "bias_effect.png", log=True)
     norms = {name: series.diagnostic(name, "gamma") for name in series.estimators}
-    norms = {name: v for name, v in norms.items() if v is not None}
+    norms = {name: (t, np.linalg.norm(w, axis=1)) for name, v in norms.items() if v is not None for t, w in [v]}
     if norms:
-        fig, ax = plt.subplots(figsize=(9, 3))
-        for name, (t, w) in norms.items():
-            ax.plot(t, np.linalg.norm(w, axis=1), label=name, lw=1)
-        ax.set_ylabel("|Γ|")
-        ax.set_xlabel("time [s]")
-        ax.set_title(f"{title}: norm of the weights")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        save(fig, "gamma_norm.png")
+        curves(norms, "|Γ|", "norm of the weights", "gamma_norm.png", log=False)
 
     bias = {name: series.diagnostic(name, "phihat") for name in series.estimators}
     bias = {name: v for name, v in bias.items() if v is not None}

@@ -149,11 +149,9 @@ class ContinuousAdaptiveObserver(Estimator):
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         x_k, gamma_k = self.x_hat.copy(), self.gamma.copy()
         if np.isnan(dy).any():
-            held = ~np.isnan(dy)
             # a missing reading: integrate the observer open loop, weights frozen
-            dy = np.where(held, dy, 0.0)
             injected = np.zeros(self.model.n)
-            self._integrate(dy, du, adapt=False)
+            self._integrate(np.nan_to_num(dy), du, adapt=False)
         else:
             injected = self.L @ (pseudoinverse(self.Y, gamma_k) @ dy - self.H @ x_k)
             self._integrate(dy, du, adapt=True)
