@@ -61,6 +61,7 @@ def model_to_dict(m: LinearModel) -> dict[str, Any]:
         "A": m.A.tolist(), "B": m.B.tolist(), "C": m.C.tolist(), "D": m.D.tolist(), "dt": m.dt,
         "states": list(m.states), "inputs": list(m.inputs), "outputs": list(m.outputs),
         "x_op": m.x_op.tolist(), "u_op": m.u_op.tolist(), "y_op": m.y_op.tolist(),
+        "E": m.E.tolist(), "disturbances": list(m.disturbances),
     }
 
 
@@ -68,6 +69,7 @@ def model_from_dict(m: dict[str, Any]) -> LinearModel:
     return LinearModel(
         np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
         tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
+        np.array(m["E"]).reshape(len(m["states"]), len(m.get("disturbances", ()))) if "E" in m else None, tuple(m.get("disturbances", ())),
     )
 
 

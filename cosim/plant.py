@@ -36,6 +36,9 @@ class Plant:
         self.sensor_names = tuple(sensors) if sensors is not None else tuple(s.name for s in info.sensors)
         self.sensor_index = np.array([sensor_address(self.model, info, name) for name in self.sensor_names], dtype=int)
         self.actuator_names = tuple(a.name for a in info.actuators)
+        self.disturbance_names = tuple(d.name for d in info.disturbances)
+        self._known = actuator_ids(self.model, self.actuator_names)
+        self._unknown = actuator_ids(self.model, self.disturbance_names)
         self.state_names = tuple(s.name for s in info.states)
         self.reset()
 
@@ -75,9 +78,11 @@ class Plant:
         """The selected sensors' true readings at the current state, a copy."""
         return self.data.sensordata[self.sensor_index]
 
-    def step(self, ctrl: np.ndarray) -> None:
-        """Hold ``ctrl`` for one sample time (zero-order hold) and advance the physics."""
-        self.data.ctrl[:] = ctrl
+    def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
+        """Hold the known inputs ``ctrl`` and the unknown inputs ``disturbance`` (default 0) for
+        one sample time (zero-order hold) and advance the physics."""
+        self.data.ctrl[self._known] = ctrl
+        self.data.ctrl[self._unknown] = 0.0 if disturbance is None else disturbance
         mujoco.mj_step(self.model, self.data, nstep=self.substeps)
         # mj_step leaves sensordata at the state before its last integration; refresh it.
         mujoco.mj_forward(self.model, self.data)
@@ -102,14 +107,20 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
             f"{info.model_file}: plant module names {len(info.states)} states but the model has "
             f"nq + nv + na = {nstate}; list one name per component of [qpos, qvel, act]"
         )
-    for actuator in info.actuators:
+    for actuator in (*info.actuators, *info.disturbances):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator.name) < 0:
             raise ModelError(f"{info.model_file}: no actuator named {actuator.name!r} (declared by the plant module)")
-    if len(info.actuators) != model.nu:
-        raise ModelError(f"{info.model_file}: the model has {model.nu} actuators, the plant module names {len(info.actuators)}")
+    declared = len(info.actuators) + len(info.disturbances)
+    if declared != model.nu:
+        raise ModelError(f"{info.model_file}: the model has {model.nu} actuators, the plant module names {declared} (inputs and disturbances)")
     for sensor in info.sensors:
         sensor_address(model, info, sensor.name)
     return model
+
+
+def actuator_ids(model: mujoco.MjModel, names: Sequence[str]) -> np.ndarray:
+    """Indices in ``ctrl`` of the named actuators."""
+    return np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name) for name in names], dtype=int)
 
 
 def sensor_address(model: mujoco.MjModel, info: PlantInfo, name: str) -> int:
@@ -140,7 +151,7 @@ def linearize(
     """Linearize a MuJoCo plant at the operating point (x, u), from MuJoCo itself.
 
     The continuous-time Jacobians ∂ẋ/∂x, ∂ẋ/∂u (with ẋ = [qvel, qacc, act_dot] from
-    ``mj_forward``) and the sensor Jacobians C = ∂y/∂x, D = ∂y/∂u are central finite differences in
+    ``mj_forward``; disturbance actuators give the columns of E) and the sensor Jacobians C = ∂y/∂x, D = ∂y/∂u are central finite differences in
     MuJoCo's tangent space (positions perturbed with ``mj_integratePos``, so ball and free joints
     are handled). Then, with ``dt`` given:
 
@@ -194,17 +205,18 @@ def linearize(
     f = stepped if method == "step" and dt is not None else continuous
     jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
-    A, B = jac_x[:ndx], jac_u[:ndx]
-    C, D = jac_x[ndx:], jac_u[ndx:]
+    A, BE = jac_x[:ndx], jac_u[:ndx]
+    C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
     if f is continuous and dt is not None:
-        A, B = zoh_discretize(A, B, dt)
+        A, BE = zoh_discretize(A, BE, dt)
+    B, E = BE[:, plant._known], BE[:, plant._unknown]
     set_point(np.zeros(ndx), np.zeros(nu))
     mujoco.mj_forward(m, d)
     state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
     return LinearModel(
         A, B, C, D, dt, state_names, plant.actuator_names, plant.sensor_names,
         x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
-        u_op=ctrl0, y_op=d.sensordata[sensors].copy(),
+        u_op=ctrl0[plant._known], y_op=d.sensordata[sensors].copy(), E=E, disturbances=plant.disturbance_names,
     )
 
 

@@ -63,10 +63,12 @@ class RunRecorder:
         sensors: tuple[str, ...],
         actuators: tuple[str, ...],
         units: dict[str, dict[str, str]],
+        disturbances: tuple[str, ...] = (),
     ) -> None:
         self.log = log
         self.codec = codec
         self.states, self.sensors, self.actuators = states, sensors, actuators
+        self.disturbances = disturbances
         self.frames = 0
         self._frames = log.channel(FRAMES, object_schema("cosim.CanFrame", {
             "tick": _TICK, "t": _TIME,
@@ -102,7 +104,8 @@ class RunRecorder:
             "tick": _TICK, "t": _TIME,
             "commanded": _named(actuators, units["actuators"], "commanded input per actuator"),
             "effective": _named(actuators, units["actuators"], "input acting on the plant after actuator faults"),
-        }, "Actuator inputs"))
+            "disturbance": _named(disturbances, units.get("disturbances", {}), "unknown input acting on the plant (not on the bus)"),
+        }, "Actuator inputs and unknown inputs"))
         self._faults = log.channel(FAULTS, object_schema("cosim.TruthFaults", {
             "tick": _TICK, "t": _TIME,
             "noise": _named(sensors, units["sensors"], "measurement noise added per sensor"),
@@ -141,7 +144,7 @@ class RunRecorder:
     def truth(
         self, tick: int, t: float, t_ns: int, *, x: np.ndarray, y_true: np.ndarray, noise: np.ndarray,
         fault: np.ndarray, measured: np.ndarray, active: tuple[str, ...], u_cmd: np.ndarray, u_eff: np.ndarray,
-        delta: np.ndarray,
+        delta: np.ndarray, disturbance: np.ndarray | None = None,
     ) -> None:
         log = self.log
         log.write(self._state, t_ns, {"tick": tick, "t": t, **dict(zip(self.states, x.tolist()))})
@@ -149,6 +152,7 @@ class RunRecorder:
         log.write(self._inputs, t_ns, {
             "tick": tick, "t": t,
             "commanded": dict(zip(self.actuators, u_cmd.tolist())), "effective": dict(zip(self.actuators, u_eff.tolist())),
+            "disturbance": dict(zip(self.disturbances, [] if disturbance is None else disturbance.tolist())),
         })
         log.write(self._faults, t_ns, {
             "tick": tick, "t": t,

@@ -316,12 +316,17 @@ class Run:
             next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
             for name in s.actuators
         ]
+        self.disturbances = [
+            next((build_waveform(d.signal) for d in s.disturbances if d.input == name), fm.Constant(0.0))
+            for name in s.disturbance_inputs
+        ]
         sensors, actuators, states = s.channels()
         self.codec = s.codec()
         self.units = {
             "states": {c.name: c.unit for c in states},
             "sensors": {c.name: c.unit for c in sensors},
             "actuators": {c.name: c.unit for c in actuators},
+            "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
         }
         self.run_id = uuid4().hex[:12]
         self.bus: BusConfig | None = None
@@ -342,7 +347,8 @@ class Run:
             "scenario": s.name, "source": self.loaded.source, "seed": str(s.seed), "sample_time": repr(s.sample_time),
             "duration": repr(s.duration), "ticks": str(s.ticks), "plant": s.plant.model,
             "states": json.dumps(list(self.plant.state_names)), "sensors": json.dumps(list(s.sensors)),
-            "actuators": json.dumps(list(s.actuators)), "estimators": json.dumps(est),
+            "actuators": json.dumps(list(s.actuators)), "disturbances": json.dumps(list(s.disturbance_inputs)),
+            "estimators": json.dumps(est),
             "clients": json.dumps({c.name: {"lockstep": c.lockstep, "messages": [m.name for m in self.codec.data_messages(c.name)]} for c in s.clients}),
             "fault_onset": json.dumps(self.faults.first_onset),
             "fault_onset_tick": json.dumps(self.onset_tick),
@@ -442,7 +448,8 @@ class Run:
         })
         with (DeferredInterrupts() as interrupts, McapLog(self.out) as log, open_bus(self.bus) as bus,
               tempfile.TemporaryDirectory(prefix="cosim-nodes-") as workdir, registration):
-            recorder = RunRecorder(log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units)
+            recorder = RunRecorder(log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units,
+                                   disturbances=s.disturbance_inputs)
             traffic = Traffic(codec, recorder)
             self._metadata(log)
             log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
@@ -483,15 +490,16 @@ class Run:
                     # The actuators receive what the command frames carry (quantized in classic CAN).
                     u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(commands, command_specs)])
                     u_eff, delta = self.faults.actuators(u_cmd, t)
+                    d = np.array([w(t) for w in self.disturbances])
                     recorder.truth(
                         k, t, t_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
                         measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=u_cmd,
-                        u_eff=u_eff, delta=delta,
+                        u_eff=u_eff, delta=delta, disturbance=d,
                     )
                     if not np.all(np.isfinite(u_eff)):
                         bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
                         raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
-                    plant.step(u_eff)
+                    plant.step(u_eff, d)
                     if realtime:
                         self._wait(bus, traffic, interrupts, lambda: False, tick_start + (k + 1) * period, lambda: None)
                         for name in lockstep:

@@ -206,20 +206,25 @@ FaultSpec = Annotated[
 
 
 class StateSpaceSpec(Strict):
-    """A plant given by its matrices (``plant.model = "state-space"``): ẋ = A x + B u (or
-    x⁺ = A x + B u with ``time = "discrete"``, one step per sample), y = C x + D u."""
+    """A plant given by its matrices (``plant.model = "state-space"``): ẋ = A x + B u + E d (or
+    x⁺ = A x + B u + E d with ``time = "discrete"``, one step per sample), y = C x + D u, with
+    known inputs u and unknown inputs (disturbances) d."""
 
     time: Literal["continuous", "discrete"] = "continuous"
     A: list[list[float]]
     B: list[list[float]]
     C: list[list[float]]
     D: list[list[float]] | None = None
+    E: list[list[float]] | None = None
+    """Unknown-input matrix, one column per disturbance; driven by [[disturbances]]."""
     states: list[str] | None = None
     """State names; default x1, x2, …"""
     inputs: list[str] | None = None
     """Input (actuator) names; default u1, u2, …"""
     outputs: list[str] | None = None
     """Output (sensor) names; default y1, y2, …"""
+    disturbances: list[str] | None = None
+    """Unknown input names; default d1, d2, …"""
     unit: str = ""
     bound: float = Field(1e3, gt=0)
     """Bus range ±bound of every signal (classic CAN)."""
@@ -240,7 +245,11 @@ class StateSpaceSpec(Strict):
             problems.append(f"C must have rows of {n} numbers (one row per output)")
         if self.D is not None and (len(self.D) != p or any(len(row) != m for row in self.D)):
             problems.append(f"D must have {p} rows of {m} numbers")
-        for field_name, names, size in (("states", self.states, n), ("inputs", self.inputs, m), ("outputs", self.outputs, p)):
+        nd = len(self.E[0]) if self.E else 0
+        if self.E is not None and (len(self.E) != n or nd == 0 or any(len(row) != nd for row in self.E)):
+            problems.append(f"E must have {n} rows of equally many numbers (one column per disturbance)")
+        for field_name, names, size in (("states", self.states, n), ("inputs", self.inputs, m), ("outputs", self.outputs, p),
+                                        ("disturbances", self.disturbances, nd)):
             if names is not None and (len(names) != size or len(set(names)) != size):
                 problems.append(f"{field_name} must name {size} distinct signals")
         if problems:
@@ -259,6 +268,10 @@ class StateSpaceSpec(Strict):
     def output_names(self) -> list[str]:
         return self.outputs or [f"y{i + 1}" for i in range(len(self.C))]
 
+    @property
+    def disturbance_names(self) -> list[str]:
+        return self.disturbances or [f"d{i + 1}" for i in range(len(self.E[0]) if self.E else 0)]
+
 
 class PlantSpec(Strict):
     model: str
@@ -272,6 +285,14 @@ class PlantSpec(Strict):
 
 class InputSpec(Strict):
     actuator: str
+    signal: WaveformSpec
+
+
+class DisturbanceSpec(Strict):
+    """An unknown input of the plant (``plant.disturbances`` of its module, or the columns of E of
+    a state-space plant) and its signal; logged as truth, never sent on the bus."""
+
+    input: str
     signal: WaveformSpec
 
 
@@ -346,6 +367,7 @@ class Scenario(Strict):
     sample_time: Positive
     plant: PlantSpec
     inputs: list[InputSpec] = []
+    disturbances: list[DisturbanceSpec] = []
     noise: list[NoiseSpec] = []
     faults: list[FaultSpec] = []
     bus: BusSpec = BusSpec()
@@ -444,6 +466,10 @@ class Scenario(Strict):
     @property
     def actuators(self) -> tuple[str, ...]:
         return tuple(a.name for a in self.plant_info.actuators)
+
+    @property
+    def disturbance_inputs(self) -> tuple[str, ...]:
+        return tuple(d.name for d in self.plant_info.disturbances)
 
 
 def _override(channel: mjcf.Channel, overrides: dict[str, ChannelOverride], table: str) -> mjcf.Channel:
@@ -587,6 +613,13 @@ def check(s: Scenario) -> list[str]:
         if spec.actuator in seen_inputs:
             problems.append(f"inputs[{i}].actuator: {spec.actuator!r} already has an input signal")
         seen_inputs.add(spec.actuator)
+    disturbance_names = [c.name for c in info.disturbances]
+    seen_inputs.clear()
+    for i, spec in enumerate(s.disturbances):
+        unknown(f"disturbances[{i}].input", [spec.input], disturbance_names, "disturbance input")
+        if spec.input in seen_inputs:
+            problems.append(f"disturbances[{i}].input: {spec.input!r} already has a signal")
+        seen_inputs.add(spec.input)
     for group, specs in (("noise", s.noise), ("faults", s.faults)):
         for i, spec in enumerate(specs):
             field = f"{group}[{i}]"

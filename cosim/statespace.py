@@ -29,8 +29,9 @@ def plant_info(spec) -> PlantInfo:
         return tuple(Channel(n, spec.unit, f"{what} {n} of the state-space plant", -spec.bound, spec.bound, spec.resolution) for n in names)
 
     return PlantInfo(
-        NAME, f"{spec.time}-time state-space plant with {len(spec.states)} states", "",
+        NAME, f"{spec.time}-time state-space plant with {len(spec.state_names)} states", "",
         channels(spec.state_names, "state"), channels(spec.output_names, "output"), channels(spec.input_names, "input"),
+        disturbances=channels(spec.disturbance_names, "unknown input"),
     )
 
 
@@ -43,12 +44,16 @@ class StateSpacePlant:
         self.A, self.B = np.array(spec.A, dtype=float), np.array(spec.B, dtype=float)
         self.C = np.array(spec.C, dtype=float)
         self.D = np.zeros((self.C.shape[0], self.B.shape[1])) if spec.D is None else np.array(spec.D, dtype=float)
+        self.E = np.zeros((self.A.shape[0], 0)) if spec.E is None else np.array(spec.E, dtype=float)
+        m = self.B.shape[1]
         if spec.time == "continuous":
-            self.Ad, self.Bd = zoh_discretize(self.A, self.B, self.sample_time)
+            self.Ad, BEd = zoh_discretize(self.A, np.hstack([self.B, self.E]), self.sample_time)
+            self.Bd, self.Ed = BEd[:, :m], BEd[:, m:]
         else:
-            self.Ad, self.Bd = self.A, self.B
+            self.Ad, self.Bd, self.Ed = self.A, self.B, self.E
         self.state_names = tuple(spec.state_names)
         self.actuator_names = tuple(spec.input_names)
+        self.disturbance_names = tuple(spec.disturbance_names)
         outputs = tuple(spec.output_names)
         self.sensor_names = tuple(sensors) if sensors is not None else outputs
         self._rows = [outputs.index(n) for n in self.sensor_names]
@@ -78,9 +83,11 @@ class StateSpacePlant:
     def sensors(self) -> np.ndarray:
         return (self.C @ self.x + self.D @ self.u)[self._rows]
 
-    def step(self, ctrl: np.ndarray) -> None:
+    def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
         self.u = np.array(ctrl, dtype=float)
         self.x = self.Ad @ self.x + self.Bd @ self.u
+        if disturbance is not None and self.Ed.shape[1]:
+            self.x = self.x + self.Ed @ np.asarray(disturbance, dtype=float)
         self._k += 1
 
     def linearize(self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False,
@@ -88,7 +95,7 @@ class StateSpacePlant:
         """The model itself (it is linear): sampled at the sample time, or in continuous time."""
         if continuous and self.spec.time != "continuous":
             raise ModelError("a continuous-time estimator needs a continuous-time plant: set plant.state_space.time = \"continuous\"")
-        A, B = (self.A, self.B) if continuous else (self.Ad, self.Bd)
+        A, B, E = (self.A, self.B, self.E) if continuous else (self.Ad, self.Bd, self.Ed)
         rows = self._rows
         return LinearModel(A, B, self.C[rows], self.D[rows], None if continuous else self.sample_time,
-                           self.state_names, self.actuator_names, self.sensor_names)
+                           self.state_names, self.actuator_names, self.sensor_names, E=E, disturbances=self.disturbance_names)

@@ -9,12 +9,14 @@ import numpy as np
 
 @dataclass(frozen=True)
 class LinearModel:
-    """x⁺ = A x + B u, y = C x + D u about an operating point (discrete time, ``dt`` seconds),
-    or ẋ = A x + B u, y = C x + D u when ``dt`` is None (continuous time).
+    """x⁺ = A x + B u + E d, y = C x + D u about an operating point (discrete time, ``dt``
+    seconds), or ẋ = A x + B u + E d, y = C x + D u when ``dt`` is None (continuous time).
 
-    The matrices act on deviations from the operating point (x_op, u_op, y_op): the plant's
-    x ≈ x_op + δx, u = u_op + δu, y ≈ y_op + C δx + D δu. Shapes: A (n, n), B (n, m),
-    C (p, n), D (p, m).
+    u are the known (commanded) inputs; d the unknown inputs (disturbances) that act on the
+    plant but that no estimator measures: only their direction E is known, which unknown input
+    observers decouple. The matrices act on deviations from the operating point
+    (x_op, u_op, y_op): the plant's x ≈ x_op + δx, u = u_op + δu, y ≈ y_op + C δx + D δu.
+    Shapes: A (n, n), B (n, m), C (p, n), D (p, m), E (n, len(disturbances)).
     """
 
     A: np.ndarray
@@ -28,10 +30,15 @@ class LinearModel:
     x_op: np.ndarray = field(default=None)  # type: ignore[assignment]
     u_op: np.ndarray = field(default=None)  # type: ignore[assignment]
     y_op: np.ndarray = field(default=None)  # type: ignore[assignment]
+    E: np.ndarray = field(default=None)  # type: ignore[assignment]
+    disturbances: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n, m, p = len(self.states), len(self.inputs), len(self.outputs)
-        for name, shape in (("A", (n, n)), ("B", (n, m)), ("C", (p, n)), ("D", (p, m))):
+        object.__setattr__(self, "disturbances", tuple(self.disturbances))
+        if self.E is None:
+            object.__setattr__(self, "E", np.zeros((n, len(self.disturbances))))
+        for name, shape in (("A", (n, n)), ("B", (n, m)), ("C", (p, n)), ("D", (p, m)), ("E", (n, len(self.disturbances)))):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != shape:
                 raise ValueError(f"LinearModel.{name} has shape {value.shape}, expected {shape}")
@@ -58,5 +65,5 @@ class LinearModel:
         rows = [self.outputs.index(name) for name in names]
         return LinearModel(
             self.A, self.B, self.C[rows], self.D[rows], self.dt, self.states, self.inputs, tuple(names),
-            self.x_op, self.u_op, self.y_op[rows],
+            self.x_op, self.u_op, self.y_op[rows], self.E, self.disturbances,
         )

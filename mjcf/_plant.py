@@ -50,6 +50,8 @@ class PlantInfo:
 
     ``states`` name the components of the MuJoCo state [qpos, qvel, act] in that order.
     ``sensors`` and ``actuators`` name MuJoCo sensors and actuators of the model (same names).
+    ``disturbances`` name the MuJoCo actuators that model unknown inputs (a leak, a current): the
+    scenario drives them, but they travel on no bus and no estimator knows their value.
     """
 
     name: str
@@ -60,6 +62,7 @@ class PlantInfo:
     actuators: tuple[Channel, ...]
     parameters: dict[str, Parameter] = field(default_factory=dict)
     keyframe: str = "rest"
+    disturbances: tuple[Channel, ...] = ()
 
     @property
     def model_path(self) -> Path:
@@ -73,6 +76,9 @@ class PlantInfo:
 
     def state(self, name: str) -> Channel:
         return _lookup(self.states, name, "state", self.name)
+
+    def disturbance(self, name: str) -> Channel:
+        return _lookup(self.disturbances, name, "disturbance input", self.name)
 
 
 def _lookup(channels: tuple[Channel, ...], name: str, kind: str, plant: str) -> Channel:
