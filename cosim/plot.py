@@ -11,6 +11,9 @@
   weights and the logged fault;
 - ``gamma_norm.png``: |Γ| (CDC 2016 Figs. 5, 10), when a run has continuous-time observers;
 - ``bias_estimate.png``: φ̂ against the true fault, for estimators that estimate it (TAC eq. (7)).
+- ``residual.png``: the residual r = y − C x̂ per output (linear) and |r| (logarithmic), for
+  estimators that publish ``r_<sensor>`` diagnostics (the unknown input observer, course notes
+  eq. (10)), with every fault's window shaded and its onset marked.
 
 Estimators are rebuilt from the log's metadata (kind, parameters, design model) to evaluate h_Γ.
 """
@@ -51,6 +54,8 @@ class RunSeries:
     truth: dict[int, np.ndarray]
     fault: dict[int, np.ndarray]
     estimators: dict[str, EstimatorSeries]
+    faults: list[dict] = field(default_factory=list)
+    """Each fault's ``label``, ``kind``, ``start`` and ``end`` (s; None: until the end of the run)."""
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
@@ -98,7 +103,8 @@ def load(path: str | Path) -> RunSeries:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
                 ests[owner[topic]].values[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
-    return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests)
+    return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests,
+                     json.loads(run.get("faults", "[]")))
 
 
 def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -204,4 +210,27 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[0, 0].set_title(f"{title}: bias estimate φ̂ against the true fault")
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "bias_estimate.png")
+
+    residuals = {name: series.diagnostic(name, "r") for name in series.estimators}
+    residuals = {name: v for name, v in residuals.items() if v is not None}
+    if residuals:
+        fig, axes = plt.subplots(2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False)
+        end = max(t[-1] for t, _ in residuals.values())
+        for i, (name, (t, r)) in enumerate(residuals.items()):
+            linear, log = axes[2 * i, 0], axes[2 * i + 1, 0]
+            for j, sensor in enumerate(series.sensors):
+                linear.plot(t, r[:, j], label=f"r_{sensor}", lw=1)
+            log.semilogy(t, np.maximum(np.linalg.norm(r, axis=1), 1e-16), "k", lw=1, label="|r|")
+            linear.set_ylabel(f"{name}\nr = y − C x̂", fontsize=8)
+            log.set_ylabel(f"{name}\n|r| (log)", fontsize=8)
+            for ax in (linear, log):
+                for number, f in enumerate(series.faults):
+                    color = f"C{(number + len(series.sensors)) % 10}"
+                    ax.axvspan(f["start"], end if f.get("end") is None else f["end"], color=color, alpha=0.08, lw=0)
+                    ax.axvline(f["start"], color=color, ls="--", lw=1, label=f"{f['label']} ({f['kind']}) onset")
+                ax.grid(alpha=0.3)
+                ax.legend(fontsize=7, loc="best")
+        axes[0, 0].set_title(f"{title}: residual r = y − C x̂ (faults shaded from onset)")
+        axes[-1, 0].set_xlabel("time [s]")
+        save(fig, "residual.png")
     return written

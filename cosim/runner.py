@@ -54,7 +54,7 @@ from cosim.plant import Plant
 from cosim.recorder import RunRecorder
 from cosim.registry import Registration
 from cosim.statespace import StateSpacePlant
-from cosim.scenario import ActuatorEffectivenessSpec, LoadedScenario, Scenario, build_waveform
+from cosim.scenario import ActuatorEffectivenessSpec, ActuatorOffsetSpec, LoadedScenario, Scenario, build_waveform
 from estimators import Estimator, LinearModel, ParameterError
 from estimators.design import fault_rejectable
 
@@ -142,6 +142,13 @@ def build_faults(s: Scenario) -> fm.FaultInjector:
             actuator_faults.append(fm.ActuatorEffectiveness(
                 channels=tuple(actuators.index(n) for n in names), start=spec.start, end=spec.end, label=label,
                 effectiveness=profiles,
+            ))
+        elif isinstance(spec, ActuatorOffsetSpec):
+            names = spec.actuators if spec.actuators is not None else actuators
+            values = tuple(spec.value) * len(names) if len(spec.value) == 1 else tuple(spec.value)
+            actuator_faults.append(fm.ActuatorOffset(
+                channels=tuple(actuators.index(n) for n in names), start=spec.start, end=spec.end, label=label,
+                value=values, amplitude=build_waveform(spec.amplitude),
             ))
         else:
             sensor_faults.append(sensor_model(spec, label))

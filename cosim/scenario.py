@@ -193,11 +193,20 @@ class ActuatorEffectivenessSpec(Windowed):
     effectiveness: Annotated[list[WaveformSpec], BeforeValidator(_as_list)]
 
 
+class ActuatorOffsetSpec(Windowed):
+    """Additive actuator fault u ← u + g(t − start)·value (the f_a of the course notes' eq. (11))."""
+
+    kind: Literal["actuator_offset"]
+    actuators: list[str] | None = None
+    value: Vector
+    amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
+
+
 NoiseSpec = Annotated[Union[GaussianNoiseSpec, UniformNoiseSpec], Discriminator("kind")]
 FaultSpec = Annotated[
     Union[
         BiasSpec, DriftSpec, GainSpec, GaussianNoiseSpec, UniformNoiseSpec, StuckSpec, DropoutSpec, OutliersSpec,
-        ActuatorEffectivenessSpec,
+        ActuatorEffectivenessSpec, ActuatorOffsetSpec,
     ],
     Discriminator("kind"),
 ]
@@ -623,10 +632,10 @@ def check(s: Scenario) -> list[str]:
     for group, specs in (("noise", s.noise), ("faults", s.faults)):
         for i, spec in enumerate(specs):
             field = f"{group}[{i}]"
-            if isinstance(spec, ActuatorEffectivenessSpec):
+            if isinstance(spec, (ActuatorEffectivenessSpec, ActuatorOffsetSpec)):
                 channels = spec.actuators if spec.actuators is not None else actuator_names
                 unknown(f"{field}.actuators", channels, actuator_names, "actuator")
-                _lengths(problems, field, spec, len(channels), ("effectiveness",))
+                _lengths(problems, field, spec, len(channels), ("effectiveness", "value"))
             else:
                 channels = spec.sensors if spec.sensors is not None else transmitted
                 unknown(f"{field}.sensors", channels, transmitted, "transmitted sensor")

@@ -13,8 +13,9 @@ from estimators.continuous import ContinuousAdaptiveObserver
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
 from estimators.pseudoinverse import PseudoinverseObserver
+from estimators.uio import UnknownInputObserver
 
-ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter)}
+ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter, UnknownInputObserver)}
 
 
 def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:

@@ -1,7 +1,7 @@
 """Fault models and their injection between the plant and the bus.
 
 ``FaultInjector`` composes measurement noise and faults on the sensor readings, and loss of
-effectiveness on the actuators, all seeded from the scenario's seed.
+effectiveness and additive offsets on the actuators, all seeded from the scenario's seed.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ import numpy as np
 from faults.models import (
     SENSOR_FAULTS,
     ActuatorEffectiveness,
+    ActuatorFault,
+    ActuatorOffset,
     Bias,
     Drift,
     Dropout,
@@ -58,7 +60,7 @@ class FaultInjector:
         self,
         noise: list[SensorFault],
         sensor_faults: list[SensorFault],
-        actuator_faults: list[ActuatorEffectiveness],
+        actuator_faults: list[ActuatorFault],
         seed: int,
     ) -> None:
         self.noise = list(noise)
@@ -96,16 +98,20 @@ class FaultInjector:
         return SensorOutcome(measured, sent, noisy - y_true, measured - noisy, active)
 
     def actuators(self, u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """The effective inputs δ ∘ u and the effectiveness factors δ."""
-        delta = np.ones(len(u))
+        """The effective inputs δ ∘ u + f_a and the effectiveness factors δ (δ the product of every
+        actuator fault's factors, f_a the sum of their offsets: the order of the faults does not matter)."""
+        delta, offset = np.ones(len(u)), np.zeros(len(u))
         for model in self.actuator_faults:
             delta = delta * model.factors(t, len(u))
-        return delta * u, delta
+            offset = offset + model.offsets(t, len(u))
+        return delta * u + offset, delta
 
 
 __all__ = [
     "SENSOR_FAULTS",
     "ActuatorEffectiveness",
+    "ActuatorFault",
+    "ActuatorOffset",
     "Bias",
     "Constant",
     "Drift",

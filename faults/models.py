@@ -9,7 +9,8 @@ faults never changes its random sequence.
 
 Sources: additive bias φ (TAC 2024, eq. (1)); bias of constant direction and time-varying
 amplitude φ_k = g_k φ̄ (TAC 2024, eq. (35)); sensor loss of effectiveness y_i ← γ_i y_i (IJC 2018,
-eq. (2)–(4)); actuator loss of effectiveness u_eff = Δ u (Cristofaro & Johansen, eq. (1)).
+eq. (2)–(4)); actuator loss of effectiveness u_eff = Δ u (Cristofaro & Johansen, eq. (1)); additive
+actuator fault u_eff = u + f_a (course notes on the UIO, eq. (11)).
 """
 
 from __future__ import annotations
@@ -204,8 +205,21 @@ class Outliers(SensorFault):
         return y + hit * sign * self._magnitude
 
 
+class ActuatorFault(Fault):
+    """A fault on the inputs: u_eff = δ(t) ∘ u + f_a(t), composed over all actuator faults as the
+    product of their factors δ and the sum of their offsets f_a."""
+
+    def factors(self, t: float, n: int) -> np.ndarray:
+        """The multiplicative factor on each of the n inputs at time t (1 where unaffected)."""
+        return np.ones(n)
+
+    def offsets(self, t: float, n: int) -> np.ndarray:
+        """The additive offset on each of the n inputs at time t (0 where unaffected)."""
+        return np.zeros(n)
+
+
 @dataclass
-class ActuatorEffectiveness(Fault):
+class ActuatorEffectiveness(ActuatorFault):
     """Actuator loss of effectiveness u_eff,i = δ_i(t − start) · u_i (Cristofaro & Johansen, eq. (1))."""
 
     effectiveness: tuple[Waveform, ...] = ()
@@ -218,11 +232,30 @@ class ActuatorEffectiveness(Fault):
             )
 
     def factors(self, t: float, n: int) -> np.ndarray:
-        """The multiplicative factor on each of the n inputs at time t (1 where unaffected)."""
         delta = np.ones(n)
         if self.active(t):
             delta[list(self.channels)] = [d(t - self.start) for d in self.effectiveness]
         return delta
+
+
+@dataclass
+class ActuatorOffset(ActuatorFault):
+    """Additive actuator fault u_eff,i = u_i + g(t − start) · value_i: the f_a of ẋ = A x + B u + B f_a
+    (course notes on the UIO, eq. (11)); constant (g ≡ 1) or of constant direction and varying
+    amplitude, like ``Bias`` on the sensors."""
+
+    value: tuple[float, ...] = ()
+    amplitude: Waveform = field(default_factory=lambda: Constant(1.0))
+    kind = "actuator_offset"
+
+    def __post_init__(self) -> None:
+        self._value = _vector(self.value, self.channels, "actuator offset value")
+
+    def offsets(self, t: float, n: int) -> np.ndarray:
+        offset = np.zeros(n)
+        if self.active(t):
+            offset[list(self.channels)] = self.amplitude(t - self.start) * self._value
+        return offset
 
 
 SENSOR_FAULTS: dict[str, type[SensorFault]] = {

@@ -159,3 +159,72 @@ def test_random_streams_are_keyed_by_label_not_position():
 def test_duplicate_labels_are_refused():
     with pytest.raises(ValueError, match="fault labels must be unique"):
         injector(fm.Bias(channels=(0,), value=(1.0,), label="a"), fm.Drift(channels=(0,), rate=(1.0,), label="a"))
+
+
+def test_actuator_offset_is_additive_inside_its_window():
+    """u_eff = u + g(t − start) · value (the f_a of the course notes' eq. (11)), on the chosen inputs only."""
+    inj = injector(actuator=[fm.ActuatorOffset(channels=(1,), start=2.0, end=5.0, value=(0.5,), amplitude=fm.Ramp(1.0, offset=1.0))])
+    u = np.array([1.0, -2.0])
+    u_eff, delta = inj.actuators(u, 3.0)
+    np.testing.assert_allclose(u_eff, [1.0, -2.0 + 0.5 * 2.0])
+    np.testing.assert_array_equal(delta, [1.0, 1.0])
+    np.testing.assert_array_equal(inj.actuators(u, 1.99)[0], u)
+    np.testing.assert_array_equal(inj.actuators(u, 5.0)[0], u)
+    assert inj.first_onset == 2.0 and [f.label for f in inj.faults] == ["actuator_offset0"]
+
+
+def test_actuator_offset_composes_with_loss_of_effectiveness():
+    """u_eff = (∏ δ) ∘ u + Σ f_a, whatever the order of the faults."""
+    loss = lambda: fm.ActuatorEffectiveness(channels=(0, 1), label="loss", effectiveness=(fm.Constant(0.5), fm.Constant(0.25)))
+    offset = lambda: fm.ActuatorOffset(channels=(0,), label="offset", value=(2.0,))
+    more = lambda: fm.ActuatorOffset(channels=(0, 1), label="more", value=(1.0, -1.0))
+    u = np.array([4.0, 8.0])
+    for order in ((loss(), offset(), more()), (more(), offset(), loss())):
+        u_eff, delta = injector(actuator=list(order)).actuators(u, 1.0)
+        np.testing.assert_allclose(u_eff, [0.5 * 4.0 + 2.0 + 1.0, 0.25 * 8.0 - 1.0])
+        np.testing.assert_allclose(delta, [0.5, 0.25])
+    with pytest.raises(ValueError, match="actuator offset value: expected 2 values"):
+        fm.ActuatorOffset(channels=(0, 1), value=(1.0, 2.0, 3.0))
+
+
+SCENARIO = """
+name = "offset"
+duration = 1.0
+sample_time = 0.1
+
+[plant]
+model = "state-space"
+
+[plant.state_space]
+A = [[-1.0, 0.0], [0.0, -2.0]]
+B = [[1.0, 0.0], [0.0, 1.0]]
+C = [[1.0, 0.0]]
+inputs = ["ua", "ub"]
+"""
+
+
+def test_actuator_offset_in_a_scenario():
+    from cosim.runner import build_faults
+    from cosim.scenario import parse
+
+    s = parse(SCENARIO + '[[faults]]\nname = "stuck_on"\nkind = "actuator_offset"\nactuators = ["ub"]\nvalue = 0.3\nstart = 0.5\n'
+                         'amplitude = { kind = "constant", value = 2.0 }\n')
+    inj = build_faults(s)
+    assert [(f.label, f.kind, f.channels) for f in inj.faults] == [("stuck_on", "actuator_offset", (1,))]
+    np.testing.assert_allclose(inj.actuators(np.array([1.0, 1.0]), 0.5)[0], [1.0, 1.6])
+    every = build_faults(parse(SCENARIO + '[[faults]]\nkind = "actuator_offset"\nvalue = [0.1, 0.2]\n'))
+    np.testing.assert_allclose(every.actuators(np.zeros(2), 0.0)[0], [0.1, 0.2])
+
+
+@pytest.mark.parametrize(("extra", "message"), [
+    ('actuators = ["uc"]\nvalue = 1.0\n', r"faults\[0\]\.actuators: state-space has no actuator 'uc'; it has: ua, ub"),
+    ('value = [1.0, 2.0, 3.0]\n', r"faults\[0\]\.value: has 3 values for 2 channels"),
+    ('actuators = ["ua"]\n', r"faults\[0\]\.value: required but missing"),
+    ('value = 1.0\nsensors = ["y1"]\n', r"faults\[0\]: unknown key 'sensors'"),
+])
+def test_actuator_offset_errors_name_the_field(extra, message):
+    from cosim.errors import ScenarioError
+    from cosim.scenario import parse
+
+    with pytest.raises(ScenarioError, match=message):
+        parse(SCENARIO + '[[faults]]\nkind = "actuator_offset"\n' + extra)

@@ -20,3 +20,17 @@ def test_plot_writes_the_figures_of_an_adaptive_run(tmp_path: Path, capsys):
     assert {"error.png", "weights.png", "bias_effect.png", "bias_estimate.png"} <= written
     for name in written:
         assert (tmp_path / "figs" / name).stat().st_size > 10_000
+
+
+def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
+    from cosim.plot import load as load_series
+    from cosim.plot import plot
+    from cosim.scenario import LoadedScenario
+
+    log = tmp_path / "uio.mcap"
+    scenario = load("uio-fault-detection").scenario.model_copy(update={"duration": 10.5})
+    Run(LoadedScenario(scenario, "uio-fault-detection (10.5 s)", ""), log, interface="virtual").execute()
+    series = load_series(log)
+    assert [(f["label"], f["start"], f["end"]) for f in series.faults] == [("sensor_y2", 10.0, 20.0), ("actuator_u1", 30.0, None)]
+    written = {path.name: path for path in plot(log, tmp_path / "figs")}
+    assert "residual.png" in written and written["residual.png"].stat().st_size > 10_000
