@@ -341,13 +341,16 @@ class Run:
 
     def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
         spec = next(e for e in self.scenario.estimators if e.name == name)
-        return NodeSpec(name, spec.kind, spec.params, self.estimators[name].model, self.codec.dbc, bus, self.scenario.sample_time)
+        estimator = self.estimators[name]
+        return NodeSpec(name, spec.kind, {**spec.params, **estimator.design_params()}, estimator.model, self.codec.dbc, bus,
+                        self.scenario.sample_time)
 
     def _metadata(self, log: McapLog) -> None:
         s = self.scenario
         est = {
             name: {"kind": e.kind, "messages": [m.name for m in self.codec.data_messages(name)], "states": list(self.model.states),
-                   "params": next(spec.params for spec in s.estimators if spec.name == name), "model": model_to_dict(e.model)}
+                   "params": {**next(spec.params for spec in s.estimators if spec.name == name), **e.design_params()},
+                   "model": model_to_dict(e.model)}
             for name, e in self.estimators.items()
         }
         log.metadata("cosim.run", {

@@ -13,9 +13,17 @@ from estimators.continuous import ContinuousAdaptiveObserver
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
 from estimators.pseudoinverse import PseudoinverseObserver
+from estimators.reconciliation import (
+    LftUioReconciliator,
+    LpvUioReconciliator,
+    NoReconciliation,
+)
 from estimators.uio import UnknownInputObserver
 
-ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter, UnknownInputObserver)}
+ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (
+    PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter,
+    UnknownInputObserver, LpvUioReconciliator, LftUioReconciliator, NoReconciliation,
+)}
 
 
 def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:

@@ -107,6 +107,11 @@ class Estimator(ABC):
         estimate = self._step(y - self.model.y_op, u - self.model.u_op)
         return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
 
+    def design_params(self) -> dict[str, Any]:
+        """Parameters that, added to the given ones, rebuild this estimator without redoing its
+        design (e.g. an LMI solution): the runner designs once and ships them to the node process."""
+        return {}
+
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray | None:
         """What an output bias φ leaves in the observer's injection at a tick with these diagnostics
         (h_Γ = Z_Γ φ in CDC 2016, R(s)⁻¹Γ(φ)s in TAC 2024); None where the notion does not apply."""

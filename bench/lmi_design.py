@@ -1,0 +1,96 @@
+"""Time of the LMI designs of IJC 2018 (Behzad et al.) on the paper's three-tank model (59), and
+the H∞ bound σ each achieves.
+
+- LTI (baseline, measured in the same run): the UIO's H∞ gain for the healthy sensors only, i.e.
+  Theorem 1 on the single vertex γ = 1: the "standard linear time-invariant case" that Sec. 1
+  says the LFT design is comparable to;
+- LFT: Theorem 2, LMI (42), one constant gain for all γ̂ in Γ (scalar multiplier, as printed, and
+  the diagonal multipliers);
+- LPV: Theorem 1, LMIs (19)–(20) on the 2^4 = 16 vertices of Γ (256 + 1920 LMIs).
+
+Γ = [γ̲, 1]^4 with γ̲ = ``--gamma-min`` (default 0.5: both designs are infeasible on the paper's
+[0.01, 1]^4, see docs/three-tank.md). The paper reports ≈ 9 h (LPV) and ≈ 6 min (LFT) with
+YALMIP/SeDuMi; the targets here are 60 s and 2 s. Each figure is one design (cvxpy compilation
+plus the Clarabel solve), after a warm-up design that loads the solver.
+
+Usage: python bench/lmi_design.py [--json] [--gamma-min G] [--skip-lpv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from estimators.lmi import (
+    SensorFaultModel,
+    lft_uio_design,
+    lpv_uio_design,
+    max_spectral_radius,
+)
+
+# IJC 2018, eq. (59)
+A = np.array([[0.9916, 0, 0.008393], [0, 0.9807, 0.008249], [0.008393, 0.008249, 0.9833]])
+B = np.array([[0.006473, 7.649e-8], [7.649e-8, 0.006437], [2.739e-5, 2.697e-5]])
+C = np.array([[10.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1]])
+PAPER_SECONDS = {"lpv": 9 * 3600.0, "lft": 6 * 60.0}
+TARGET_SECONDS = {"lpv": 60.0, "lft": 2.0}
+
+
+def timed(design):
+    start = time.perf_counter()
+    result = design()
+    return result, time.perf_counter() - start
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
+    parser.add_argument("--gamma-min", type=float, default=0.5, help="lower corner of Γ (default 0.5)")
+    parser.add_argument("--skip-lpv", action="store_true", help="leave out the (slow) LPV design")
+    args = parser.parse_args(argv)
+    model = SensorFaultModel(A, B, np.ones((3, 1)), C, np.ones((4, 1)))
+    low, high = np.full(4, args.gamma_min), np.ones(4)
+    lft_uio_design(model, low, high)  # warm-up: imports and solver start-up
+    lti, lti_s = timed(lambda: lpv_uio_design(model, high, high, vertices=high[None, :]))
+    lft, lft_s = timed(lambda: lft_uio_design(model, low, high))
+    lft_diag, lft_diag_s = timed(lambda: lft_uio_design(model, low, high, multiplier="diagonal"))
+    figures = {
+        "gamma_min": args.gamma_min,
+        "lti_design_s": lti_s, "lti_sigma": lti.sigma,
+        "lft_design_s": lft_s, "lft_sigma": lft.sigma,
+        "lft_rho": max_spectral_radius(model, lambda g: lft.L, low, high, form="lft"),
+        "lft_diagonal_design_s": lft_diag_s, "lft_diagonal_sigma": lft_diag.sigma,
+        "lft_ratio": lft_s / lti_s,
+        "lft_speedup_vs_paper": PAPER_SECONDS["lft"] / lft_s,
+    }
+    if not args.skip_lpv:
+        lpv, lpv_s = timed(lambda: lpv_uio_design(model, low, high))
+        figures |= {
+            "lpv_design_s": lpv_s, "lpv_sigma": lpv.sigma, "lpv_rho": max_spectral_radius(model, lpv.gain, low, high),
+            "lpv_ratio": lpv_s / lti_s, "lpv_speedup_vs_paper": PAPER_SECONDS["lpv"] / lpv_s,
+        }
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    print(f"LMI designs on the three-tank model (59), Γ = [{args.gamma_min:g}, 1]^4\n")
+    print(f"{'design':<28}{'time (s)':>10}{'× LTI':>9}{'σ':>10}{'target (s)':>12}{'paper (s)':>11}")
+    rows = [("LTI (γ = 1, baseline)", lti_s, lti.sigma, None, None),
+            ("LFT, Theorem 2", lft_s, lft.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+            ("LFT, diagonal multipliers", lft_diag_s, lft_diag.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"])]
+    if not args.skip_lpv:
+        rows.append(("LPV, Theorem 1", figures["lpv_design_s"], figures["lpv_sigma"], TARGET_SECONDS["lpv"], PAPER_SECONDS["lpv"]))
+    for name, seconds, sigma, target, paper in rows:
+        print(f"{name:<28}{seconds:>10.2f}{seconds / lti_s:>9.1f}{sigma:>10.3f}"
+              f"{'' if target is None else f'{target:>12g}'}{'' if paper is None else f'{paper:>11g}'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,301 @@
+"""Fault-tolerant sensor reconciliation with unknown input observers (IJC 2018, Behzad et al.).
+
+The virtual sensor of Fig. 2: a UIO estimates the plant state and the sensor bias, x = [x_p; b]
+(eq. (7)–(8)), with gains designed by LMIs (``estimators.lmi``); a windowed constrained
+least-squares estimator (50)–(53) estimates the sensor gains γ; the reconciliator returns the
+virtual output ẑ = H_z C_y x̂_p (eq. (6)), free of the faults that corrupt y = Δ(γ) C_y x_p + F b.
+
+- ``lpv-uio-sr``: Algorithm 1, the gain scheduled on ρ̂(γ̂) over the vertices of Γ (Theorem 1);
+- ``lft-uio-sr``: Algorithm 2, one constant gain (Theorem 2);
+- ``no-reconciliation``: the baseline ẑ = H_z y (and x̂ = C_y⁺ y), what Figure 9 calls falsified.
+
+Coordinates. Gain faults scale what a sensor reads, so these estimators work in absolute values:
+y = Δ(γ) C_y x_p + F b holds for the plant's absolute state when its sensors are linear in it
+(y_op = C x_op, checked), and the linearization about (x_op, u_op) becomes the affine model
+x⁺ = A x + B u + c with c = x_op − A x_op − B u_op, a known input.
+
+Algorithm 1 step 5 and Algorithm 2 step 4 print Q_γ̂(t) next to T_γ̂(t−1); γ̂(t) is computed only
+later (step 6), and T Ē = 0 needs T and Q at the same γ̂, so both use γ̂(t−1), as in eq. (10).
+Step 8 returns H_z ŷ with ŷ = C̄_γ̂ x̂, which contains the estimated faults; the reconciled
+virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and that is what is returned
+(``zhat``). See docs/errata.md.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.lmi import (
+    DesignError,
+    LftDesign,
+    LpvDesign,
+    SensorFaultModel,
+    lft_uio_design,
+    lpv_uio_design,
+    uio_matrices,
+)
+from estimators.model import LinearModel
+
+Matrix = tuple[tuple[float, ...], ...]
+
+
+@dataclass(frozen=True)
+class ReconciliationParams:
+    Hz: tuple[float, ...] | None = None
+    """The virtual output z = H_z C_y x_p, one weight per sensor (Sec. 4: [1/3, 1/3, 0, 1/3])."""
+    F: tuple[float, ...] | None = None
+    """Bias direction, one entry per sensor (eq. (2)); default all ones (eq. (59)-(60))."""
+    gamma_min: float = 0.01
+    """Lower corner γ̲ of the box Γ (Sec. 4: 0.01)."""
+    gamma_max: float = 1.0
+    """Upper corner γ̄ of Γ (Sec. 4: 1)."""
+    design_gamma_min: float | None = None
+    """γ̲ of the box the LMI design covers, if narrower than Γ (the LFT design of Theorem 2 is
+    infeasible on the paper's full box: docs/three-tank.md); γ̂ is clipped to it."""
+    window: int = 50
+    """Horizon N of the parameter estimator (Sec. 4: 50)."""
+    solver: str = "CLARABEL"
+    """The SDP solver cvxpy uses for the LMIs."""
+    x0: tuple[float, ...] | None = None
+    """Initial plant-state estimate (absolute); None starts at the operating point."""
+    pe_tol: float = 1e-6
+    """Smallest σ_min/σ_max of the window of estimated states for condition (55) to count as met."""
+    L: Matrix | None = None
+    """lft-uio-sr: a precomputed gain (skips Theorem 2); the runner passes it to its nodes."""
+    G: Matrix | None = None
+    """lpv-uio-sr: precomputed G_i of Theorem 1, stacked by rows (l·(n+q) × (n+q))."""
+    Y: Matrix | None = None
+    """lpv-uio-sr: precomputed Y_i of Theorem 1, stacked by rows (l·(n+q) × m)."""
+    multiplier: str = "scalar"
+    """lft-uio-sr: the S-procedure multiplier of Theorem 2, "scalar" (eq. (42)) or "diagonal"."""
+
+
+def _vector(value: tuple[float, ...] | None, size: int, name: str, default: float | None = None) -> np.ndarray:
+    if value is None:
+        if default is None:
+            raise ParameterError(name, f"required: give {size} values, one per sensor")
+        return np.full(size, default)
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,):
+        raise ParameterError(name, f"expected {size} values (one per sensor), got {array.size}")
+    return array
+
+
+class _Reconciliator(Estimator):
+    """What the three reconciliators share: H_z, F, the affine model in absolute coordinates."""
+
+    Params = ReconciliationParams
+
+    def __init__(self, model: LinearModel, params: ReconciliationParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        p = model.p
+        self.Hz = _vector(params.Hz, p, "Hz")
+        self.F = _vector(params.F, p, "F", 1.0)[:, None]
+        offset = model.y_op - model.C @ model.x_op
+        if np.max(np.abs(offset)) > 1e-6 * (1.0 + np.max(np.abs(model.y_op))) or np.any(model.D):
+            raise ParameterError("model", "sensor reconciliation needs sensors linear in the state (y = C x, no offset, D = 0)")
+        self.c = model.x_op - model.A @ model.x_op - model.B @ model.u_op  # x⁺ = A x + B u + c
+
+    @classmethod
+    def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        return [Diagnostic("zhat", "", "virtual output estimate ẑ (eq. (6))", 1e4, 1e-4)]
+
+    def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
+        y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
+        if y.shape != (self.model.p,) or u.shape != (self.model.m,):
+            raise ValueError(f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}")
+        return self._absolute_step(y, u)
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:  # pragma: no cover - step is overridden
+        raise NotImplementedError
+
+    def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
+        raise NotImplementedError
+
+
+class NoReconciliation(_Reconciliator):
+    """The uncorrected virtual output ẑ = H_z y, and x̂ = C_y⁺ y (least squares on the raw readings)."""
+
+    kind = "no-reconciliation"
+
+    def __init__(self, model: LinearModel, params: ReconciliationParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        self.C_pinv = np.linalg.pinv(model.C)
+
+    def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
+        available = ~np.isnan(y)
+        y0 = np.where(available, y, 0.0)
+        x = np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] if available.any() else self.model.x_op
+        return Estimate(x, {"zhat": float(self.Hz @ y0)})
+
+
+class UioReconciliator(_Reconciliator):
+    """UIO (10)–(14) + parameter estimator (50)–(53) + reconciliator (6): Algorithms 1 and 2."""
+
+    form = "pinv"
+
+    def __init__(self, model: LinearModel, params: ReconciliationParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        n, p = model.n, model.p
+        if model.E.shape[1] == 0:
+            raise ParameterError("model", "the plant declares no unknown input: a UIO needs E (plant disturbances or [plant.state_space] E)")
+        if not 0.0 < params.gamma_min < params.gamma_max <= 1.0:
+            raise ParameterError("gamma_min", f"Γ = [{params.gamma_min}, {params.gamma_max}]^m needs 0 < γ̲ < γ̄ ≤ 1 (eq. (5))")
+        design_min = params.gamma_min if params.design_gamma_min is None else params.design_gamma_min
+        if not params.gamma_min <= design_min < params.gamma_max:
+            raise ParameterError("design_gamma_min", f"must lie in [gamma_min, gamma_max) = [{params.gamma_min}, {params.gamma_max})")
+        if params.window < 2:
+            raise ParameterError("window", "the parameter estimator needs N ≥ 2 samples")
+        self.aug = SensorFaultModel(model.A, np.hstack([model.B, self.c[:, None]]), model.E, model.C, self.F)
+        self.lower, self.upper = np.full(p, design_min), np.full(p, params.gamma_max)
+        self.Abar, self.Bbar = self.aug.Abar, self.aug.Bbar
+        self._design()
+        x0 = model.x_op if params.x0 is None else np.asarray(params.x0, dtype=float)
+        if x0.shape != (n,):
+            raise ParameterError("x0", f"expected {n} values ({', '.join(model.states)}), got {x0.size}")
+        self.x_bar0 = np.concatenate([x0, np.zeros(self.aug.q)])
+        self.reset()
+
+    def reset(self) -> None:
+        self.gamma = np.ones(self.model.p)  # Algorithm 1/2, initialization step 3: Δ(γ̂) = I
+        self.x_hat: np.ndarray | None = None
+        self.previous: tuple[np.ndarray, np.ndarray] | None = None  # (y, u) of the previous tick
+        self.history: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=self.params.window)
+        self.pe = 0.0
+
+    # -- design (overridden) ------------------------------------------------------------------
+
+    def _design(self) -> None:
+        raise NotImplementedError
+
+    def gain(self, gamma: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _solve(self, design, **kwargs):
+        try:
+            return design(self.aug, self.lower, self.upper, solver=self.params.solver, **kwargs)
+        except DesignError as error:
+            raise ParameterError("model", f"{error} (the box the design covers is set by design_gamma_min)") from None
+
+    # -- the on-line phase --------------------------------------------------------------------
+
+    def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
+        gamma = self.gamma  # γ̂(t−1)
+        Q, T = uio_matrices(self.aug, gamma, form=self.form)
+        Cbar = self.aug.Cbar(gamma)
+        u_bar = np.append(u, 1.0)
+        if self.x_hat is None:  # t = 0: the UIO's own reconstruction from y(0) about x̂₀
+            prior = self.x_bar0
+            x_next = T @ prior
+        else:
+            y_prev, u_prev = self.previous
+            prior = self.Abar @ self.x_hat + self.Bbar @ u_prev
+            x_next = T @ prior + self.gain(gamma) @ (y_prev - Cbar @ self.x_hat)  # eq. (10)
+        # A reading that did not arrive is replaced by its prediction, C̄ times the a-priori state.
+        y = np.where(np.isnan(y), Cbar @ prior, y)
+        self.x_hat = x_next + Q @ y
+        self.previous = (y, u_bar)
+        n = self.model.n
+        x_p, b = self.x_hat[:n], self.x_hat[n:]
+        self.history.append((y, x_p.copy(), b.copy()))
+        if len(self.history) == self.params.window:
+            self.gamma = self._estimate_gamma()
+        z = float(self.Hz @ (self.model.C @ x_p))  # eq. (6)
+        diagnostics = {f"gamma_{name}": float(g) for name, g in zip(self.model.outputs, self.gamma)}
+        diagnostics |= {name: float(v) for name, v in zip(self._bias_names(self.aug.q), b)}
+        diagnostics |= {"zhat": z, "pe": self.pe}
+        return Estimate(x_p.copy(), diagnostics)
+
+    def _estimate_gamma(self) -> np.ndarray:
+        """The QP (53) over the window (51)–(52).
+
+        φ(t) stacks X(t−i) = diag(C_y⁽ʲ⁾ x̂_p(t−i)), so φᵀφ is diagonal and (53) separates into one
+        scalar problem per sensor, min Σ_i (r_ij − γ_j s_ij)² over γ̲ ≤ γ_j ≤ γ̄, with
+        s_ij = C_y⁽ʲ⁾ x̂_p(t−i) and r_ij = y_j(t−i) − F⁽ʲ⁾ b̂(t−i); each is solved exactly by
+        clipping its unconstrained minimizer. A sensor whose regressor column is zero (rank φ < m,
+        condition (54)) keeps its previous estimate.
+        """
+        ys, xs, bs = (np.array(column) for column in zip(*self.history))
+        s = xs @ self.model.C.T  # (N, m)
+        r = ys - bs @ self.F.T
+        energy = np.sum(s * s, axis=0)
+        gamma = self.gamma.copy()
+        identified = energy > 0.0
+        gamma[identified] = np.sum(r * s, axis=0)[identified] / energy[identified]
+        # Condition (55): rank X̂_p = n, as the ratio of extreme singular values.
+        sv = np.linalg.svd(xs, compute_uv=False)
+        self.pe = float(sv[-1] / sv[0]) if sv[0] > 0 and len(sv) == self.model.n else 0.0
+        return np.clip(gamma, self.lower, self.upper)
+
+    @staticmethod
+    def _bias_names(q: int) -> list[str]:
+        return ["bhat"] if q == 1 else [f"bhat{i + 1}" for i in range(q)]
+
+    @classmethod
+    def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        return [
+            *[Diagnostic(f"gamma_{name}", "", f"estimated effectiveness γ̂ of sensor {name} (eq. (53))", 2.0, 1e-6) for name in outputs],
+            Diagnostic("bhat", "", "estimated sensor bias b̂ (augmented state, eq. (7))", 1e4, 1e-4),
+            *super().diagnostic_channels(states, outputs),
+            Diagnostic("pe", "", "persistence of excitation σ_min/σ_max of the window of x̂_p (condition (55); 0: not met)", 2.0, 1e-9),
+        ]
+
+
+class LpvUioReconciliator(UioReconciliator):
+    """Algorithm 1 (LPV-UIO-SR): L(ρ̂) = G(ρ̂)⁻¹ Y(ρ̂) from Theorem 1, T and Q from eq. (14)."""
+
+    kind = "lpv-uio-sr"
+    form = "pinv"
+
+    def _design(self) -> None:
+        p = self.params
+        if p.G is not None and p.Y is not None:
+            nx, l = self.aug.n + self.aug.q, 2 ** self.model.p
+            G, Y = np.asarray(p.G, dtype=float), np.asarray(p.Y, dtype=float)
+            if G.shape != (l * nx, nx) or Y.shape != (l * nx, self.model.p):
+                raise ParameterError("G", f"precomputed G and Y must be {l * nx}×{nx} and {l * nx}×{self.model.p}")
+            self.G, self.Y, self.design = G.reshape(l, nx, nx), Y.reshape(l, nx, self.model.p), None
+        else:
+            self.design: LpvDesign | None = self._solve(lpv_uio_design)
+            self.G, self.Y = self.design.G, self.design.Y
+        from estimators.lmi import box_coordinates
+
+        self._coordinates = box_coordinates
+
+    def gain(self, gamma: np.ndarray) -> np.ndarray:
+        rho = self._coordinates(gamma, self.lower, self.upper)
+        return np.linalg.solve(np.tensordot(rho, self.G, axes=1), np.tensordot(rho, self.Y, axes=1))
+
+    def design_params(self) -> dict[str, Any]:
+        l, nx = self.G.shape[0], self.G.shape[1]
+        return {"G": self.G.reshape(l * nx, nx).tolist(), "Y": self.Y.reshape(l * nx, -1).tolist()}
+
+
+class LftUioReconciliator(UioReconciliator):
+    """Algorithm 2 (LFT-UIO-SR): the constant gain L of Theorem 2, Q = Ē G⁺ Δ⁻¹(γ̂) of eq. (60)."""
+
+    kind = "lft-uio-sr"
+    form = "lft"
+
+    def _design(self) -> None:
+        if self.params.L is not None:
+            self.L, self.design = np.asarray(self.params.L, dtype=float), None
+            nx = self.aug.n + self.aug.q
+            if self.L.shape != (nx, self.model.p):
+                raise ParameterError("L", f"expected a {nx}×{self.model.p} gain, got {self.L.shape}")
+        else:
+            if self.params.multiplier not in ("scalar", "diagonal"):
+                raise ParameterError("multiplier", f"{self.params.multiplier!r}: use \"scalar\" (eq. (42)) or \"diagonal\"")
+            self.design: LftDesign | None = self._solve(lft_uio_design, multiplier=self.params.multiplier)
+            self.L = self.design.L
+
+    def gain(self, gamma: np.ndarray) -> np.ndarray:
+        return self.L
+
+    def design_params(self) -> dict[str, Any]:
+        return {"L": self.L.tolist()}
