@@ -35,6 +35,7 @@ from estimators.lmi import (
     LftDesign,
     LpvDesign,
     SensorFaultModel,
+    box_coordinates,
     lft_uio_design,
     lpv_uio_design,
     uio_matrices,
@@ -263,12 +264,9 @@ class LpvUioReconciliator(UioReconciliator):
         else:
             self.design: LpvDesign | None = self._solve(lpv_uio_design)
             self.G, self.Y = self.design.G, self.design.Y
-        from estimators.lmi import box_coordinates
-
-        self._coordinates = box_coordinates
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
-        rho = self._coordinates(gamma, self.lower, self.upper)
+        rho = box_coordinates(gamma, self.lower, self.upper)
         return np.linalg.solve(np.tensordot(rho, self.G, axes=1), np.tensordot(rho, self.Y, axes=1))
 
     def design_params(self) -> dict[str, Any]:
