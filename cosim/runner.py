@@ -40,7 +40,7 @@ import numpy as np
 
 import estimators
 import faults as fm
-from cosim import __version__
+from cosim import __version__, design_cache
 from cosim.bus import BusConfig, allocate, open_bus
 from cosim.codec import (
     BOOTUP, CLIENT, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED, Codec, Decoded,
@@ -53,8 +53,8 @@ from cosim.node import NodeSpec, model_to_dict
 from cosim.plant import Plant
 from cosim.recorder import RunRecorder
 from cosim.registry import Registration
-from cosim.statespace import StateSpacePlant
 from cosim.scenario import ActuatorEffectivenessSpec, ActuatorOffsetSpec, LoadedScenario, Scenario, build_waveform
+from cosim.statespace import StateSpacePlant
 from estimators import Estimator, LinearModel, ParameterError
 from estimators.design import fault_rejectable
 
@@ -164,7 +164,10 @@ def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: L
             chosen = continuous if estimators.ESTIMATORS[spec.kind].continuous else model
             if chosen is None:
                 raise ParameterError("model", f"{spec.kind} needs the continuous-time model")
-            built[spec.name] = estimators.create(spec.kind, chosen, spec.params, s.sample_time)
+            cached = design_cache.load(spec.kind, spec.params, chosen)
+            built[spec.name] = estimators.create(spec.kind, chosen, {**spec.params, **(cached or {})}, s.sample_time)
+            if cached is None:
+                design_cache.store(spec.kind, spec.params, chosen, built[spec.name].design_params())
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
     return built

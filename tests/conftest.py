@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,19 @@ from cosim import scenario
 from cosim.runner import run
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session", autouse=True)
+def design_cache_dir(tmp_path_factory):
+    """A fresh design cache per test session: no test depends on an earlier run's designs."""
+    folder = tmp_path_factory.mktemp("designs")
+    previous = os.environ.get("COSIM_CACHE_DIR")
+    os.environ["COSIM_CACHE_DIR"] = str(folder)
+    yield folder
+    if previous is None:
+        os.environ.pop("COSIM_CACHE_DIR", None)
+    else:
+        os.environ["COSIM_CACHE_DIR"] = previous
 
 
 @pytest.fixture(scope="session")

@@ -255,3 +255,20 @@ def test_a_plant_without_unknown_input_is_refused():
     model = LinearModel(A, B, C, np.zeros((4, 2)), 1.0, ("h1", "h2", "h3"), ("Q1", "Q2"), ("y1", "y2", "y3", "y4"))
     with pytest.raises(ParameterError, match="needs E"):
         estimators.create("lft-uio-sr", model, {"Hz": HZ})
+
+
+def test_the_runner_caches_designs(tmp_path, monkeypatch):
+    """A design is solved once: the second build reads the stored gain, identical to the first."""
+    from cosim import design_cache
+
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path))
+    params = {"Hz": HZ, "design_gamma_min": 0.5}
+    assert design_cache.load("lft-uio-sr", params, paper_model()) is None
+    first = estimators.create("lft-uio-sr", paper_model(), params)
+    design_cache.store("lft-uio-sr", params, paper_model(), first.design_params())
+    cached = design_cache.load("lft-uio-sr", params, paper_model())
+    assert cached == first.design_params()
+    second = estimators.create("lft-uio-sr", paper_model(), {**params, **cached})
+    assert second.design is None and np.array_equal(second.L, first.L)
+    monkeypatch.setenv("COSIM_CACHE_DIR", "off")
+    assert design_cache.load("lft-uio-sr", params, paper_model()) is None
