@@ -1,7 +1,8 @@
 """A MuJoCo plant sampled at the scenario's tick, and its linearization from MuJoCo itself.
 
-The dynamics come from ``mj_step`` only. The state is MuJoCo's [qpos, qvel, act]; the plant
-module (``mjcf/<plant>.py``) names its components, the sensors and the actuators.
+The dynamics come from ``mj_step`` only. The state is MuJoCo's [qpos, qvel, act], or, for a plant
+that declares ``state_tendons`` (the three-tank system: levels), the lengths of those fixed tendons;
+the plant module (``mjcf/<plant>.py``) names its components, the sensors and the actuators.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from mjcf import PlantInfo
 #: Finite-difference step for linearization: a power of two, so that perturbing a coordinate that
 #: is 0 (or any value whose last bits are clear) and differencing are exact in floating point.
 FD_STEP = 2.0**-20
+#: Relative size of the length steps in the linearization of a tendon-state plant (× FD_STEP).
+H_STEP = 2.0**10
 
 
 class Plant:
@@ -40,10 +43,15 @@ class Plant:
         self._known = actuator_ids(self.model, self.actuator_names)
         self._unknown = actuator_ids(self.model, self.disturbance_names)
         self.state_names = tuple(s.name for s in info.states)
+        # State tendons: lengths = T @ qpos (fixed tendons); T⁺ places qpos for requested lengths.
+        self._tendons = state_tendon_matrix(self.model, info)
+        self._tendons_pinv = None if self._tendons is None else np.linalg.pinv(self._tendons)
         self.reset()
 
     @property
     def nx(self) -> int:
+        if self._tendons is not None:
+            return self._tendons.shape[0]
         return self.model.nq + self.model.nv + self.model.na
 
     @property
@@ -56,19 +64,29 @@ class Plant:
         if key < 0:
             raise ModelError(f"{self.info.model_file}: no keyframe named {self.info.keyframe!r}; add <key name=\"{self.info.keyframe}\"/>")
         mujoco.mj_resetDataKeyframe(self.model, self.data, key)
-        if initial:
+        if initial or self._tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
             x = self.state()
-            for name, value in initial.items():
+            for name, value in (initial or {}).items():
                 x[self.state_names.index(name)] = value
             self.set_state(x)
         mujoco.mj_forward(self.model, self.data)
 
     def state(self) -> np.ndarray:
-        """[qpos, qvel, act], a copy."""
+        """[qpos, qvel, act], or the state tendons' lengths; a copy."""
+        if self._tendons is not None:
+            return self._tendons @ self.data.qpos
         return np.concatenate([self.data.qpos, self.data.qvel, self.data.act])
 
     def set_state(self, x: np.ndarray) -> None:
+        """Set [qpos, qvel, act]; or, with state tendons, give them the lengths ``x`` by the
+        least-norm change of qpos (T⁺ (x − T qpos)) and put the velocities at their quasi-steady
+        values for the current ctrl (``quasi_static_velocities``)."""
         m = self.model
+        if self._tendons is not None:
+            self.data.qpos[:] += self._tendons_pinv @ (np.asarray(x, dtype=float) - self._tendons @ self.data.qpos)
+            self.data.qvel[:] = quasi_static_velocities(m, self.data)
+            mujoco.mj_forward(m, self.data)
+            return
         self.data.qpos[:] = x[: m.nq]
         self.data.qvel[:] = x[m.nq : m.nq + m.nv]
         self.data.act[:] = x[m.nq + m.nv :]
@@ -101,12 +119,7 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
         model = mujoco.MjModel.from_xml_path(str(info.model_path))
     except ValueError as error:
         raise ModelError(f"{info.model_path}: MuJoCo could not compile the model: {error}") from None
-    nstate = model.nq + model.nv + model.na
-    if len(info.states) != nstate:
-        raise ModelError(
-            f"{info.model_file}: plant module names {len(info.states)} states but the model has "
-            f"nq + nv + na = {nstate}; list one name per component of [qpos, qvel, act]"
-        )
+    _check_states(model, info)
     for actuator in (*info.actuators, *info.disturbances):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator.name) < 0:
             raise ModelError(f"{info.model_file}: no actuator named {actuator.name!r} (declared by the plant module)")
@@ -116,6 +129,77 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
     for sensor in info.sensors:
         sensor_address(model, info, sensor.name)
     return model
+
+
+def _check_states(model: mujoco.MjModel, info: PlantInfo) -> None:
+    if info.state_tendons:
+        if len(info.states) != len(info.state_tendons):
+            raise ModelError(f"{info.model_file}: plant module names {len(info.states)} states but {len(info.state_tendons)} state tendons")
+        return
+    nstate = model.nq + model.nv + model.na
+    if len(info.states) != nstate:
+        raise ModelError(
+            f"{info.model_file}: plant module names {len(info.states)} states but the model has "
+            f"nq + nv + na = {nstate}; list one name per component of [qpos, qvel, act]"
+        )
+
+
+def state_tendon_matrix(model: mujoco.MjModel, info: PlantInfo) -> np.ndarray | None:
+    """T with the state tendons' lengths = T @ qpos (None if the plant declares none).
+
+    The state tendons must be fixed tendons (constant coefficients over joints), independent, in a
+    model of scalar joints (hinge and slide, so qpos and qvel have the same coordinates) with no
+    actuator activations.
+    """
+    if not info.state_tendons:
+        return None
+    where = info.model_file
+    if model.nq != model.nv or model.na:
+        raise ModelError(f"{where}: state tendons need a model of hinge and slide joints without actuator activations")
+    T = np.zeros((len(info.state_tendons), model.nv))
+    for row, name in enumerate(info.state_tendons):
+        tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TENDON, name)
+        if tid < 0:
+            raise ModelError(f"{where}: no tendon named {name!r} (a state tendon of the plant module)")
+        for w in range(model.tendon_adr[tid], model.tendon_adr[tid] + model.tendon_num[tid]):
+            if model.wrap_type[w] != mujoco.mjtWrap.mjWRAP_JOINT:
+                raise ModelError(f"{where}: state tendon {name!r} is not a fixed tendon")
+            T[row, model.jnt_dofadr[model.wrap_objid[w]]] += model.wrap_prm[w]
+    if np.linalg.matrix_rank(T) < len(info.state_tendons):
+        raise ModelError(f"{where}: the state tendons {', '.join(info.state_tendons)} are not independent")
+    return T
+
+
+def quasi_static_velocities(model: mujoco.MjModel, data: mujoco.MjData, max_iter: int = 200) -> np.ndarray:
+    """The joint velocities at which the smooth forces balance (``qfrc_smooth`` = 0, so the
+    unconstrained acceleration is 0) at data's positions, ctrl and act: the flows' quasi-steady
+    values (Torricelli). Newton's method from ``data.qvel`` with central-difference Jacobians;
+    ``data`` is not changed. Constraint forces (e.g. level limits) play no part.
+    """
+    d = mujoco.MjData(model)
+    d.qpos[:], d.act[:], d.ctrl[:] = data.qpos, data.act, data.ctrl
+
+    def force(v: np.ndarray) -> np.ndarray:
+        d.qvel[:] = v
+        mujoco.mj_forward(model, d)
+        return d.qfrc_smooth.copy()
+
+    v = data.qvel.copy()
+    for _ in range(max_iter):
+        f = force(v)
+        scale = max(np.max(np.abs(v)), FD_STEP)
+        # Relative steps keep an odd-quadratic loss q|q| differenced exactly (no sign change).
+        steps = FD_STEP * np.maximum(np.abs(v), 1e-3 * scale)
+        J = np.array([(force(v + s * e) - force(v - s * e)) / (2.0 * s) for s, e in zip(steps, np.eye(len(v)))]).T
+        try:
+            dv = np.linalg.solve(J, -f)
+        except np.linalg.LinAlgError:
+            raise ModelError("no quasi-steady velocities: every joint of a tendon-state plant needs a velocity-dependent "
+                             "force (damping, a velocity servo)") from None
+        v = v + dv
+        if np.max(np.abs(dv), initial=0.0) <= 1e-13 * scale:
+            return v
+    raise ModelError(f"no quasi-steady velocities: Newton's method did not converge in {max_iter} iterations")
 
 
 def actuator_ids(model: mujoco.MjModel, names: Sequence[str]) -> np.ndarray:
@@ -163,7 +247,14 @@ def linearize(
     ``mjd_transitionFD`` is not used: it refuses RK4 and is first order with Euler. For a linear
     plant both methods agree with the exact discretization to ~1e-10 (FD rounding), and C is exact.
     With ``dt=None`` the continuous-time model is returned.
+
+    A plant with state tendons (``PlantInfo.state_tendons``) is linearized in those lengths, x = h:
+    see ``_linearize_tendon_state``.
     """
+    if method not in ("zoh", "step"):
+        raise ValueError(f"unknown linearization method {method!r}; use 'zoh' or 'step'")
+    if plant._tendons is not None:
+        return _linearize_tendon_state(plant, x, u, dt=dt, method=method)
     m = plant.model
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = plant.data.qpos, plant.data.qvel, plant.data.act, plant.data.ctrl
@@ -200,8 +291,6 @@ def linearize(
         mujoco.mj_differentiatePos(m, dq, 1.0, qpos0, d.qpos)
         return np.concatenate([dq, d.qvel - qvel0, d.act - act0, y])
 
-    if method not in ("zoh", "step"):
-        raise ValueError(f"unknown linearization method {method!r}; use 'zoh' or 'step'")
     f = stepped if method == "step" and dt is not None else continuous
     jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
@@ -217,6 +306,101 @@ def linearize(
         A, B, C, D, dt, state_names, plant.actuator_names, plant.sensor_names,
         x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
         u_op=ctrl0[plant._known], y_op=d.sensordata[sensors].copy(), E=E, disturbances=plant.disturbance_names,
+    )
+
+
+def _linearize_tendon_state(
+    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
+) -> LinearModel:
+    """Linearization in the state tendons' lengths h = T qpos, the other coordinates eliminated.
+
+    The joint velocities v are fast: they settle (within ~1 ms for the three-tank flows) to the
+    values v*(h, u) where the smooth forces balance, f(h, v*, u) = 0 (``quasi_static_velocities``),
+    and ḣ = T v. This is the singular-perturbation (quasi-static) limit of MuJoCo's dynamics, the
+    limit of a vanishing inertance, which is exactly the paper's model (57):
+
+        A_c = T ∂v*/∂h = −T f_v⁻¹ f_h,   [B_c E_c] = −T f_v⁻¹ f_u,
+        C = y_h + y_v ∂v*/∂h,   D = y_u + y_v ∂v*/∂u,
+
+    with f = ``qfrc_smooth`` (integrator-independent, unlike qacc under the ``discrete``
+    integrator) and central differences: positions moved along T⁺ (changing h only), velocities by
+    relative steps (exact for the quadratic orifice loss). The slow invariant subspace of the full
+    linearization [qpos, qvel] would instead keep the inertance's O(τ_fast/τ_slow) corrections
+    (its slow eigenvalues differ by < 1e-5 relative for the three-tank system,
+    tests/test_three_tank.py); that is a numerical device's footprint, not the paper's model, so it
+    is left out. f_v must be invertible: a flow at zero head (where Torricelli's law has an infinite
+    slope) cannot be linearized.
+
+    ``method="zoh"`` discretizes (A_c, B_c, E_c) exactly; ``method="step"`` differentiates the
+    simulation itself over dt (levels perturbed, velocities quasi-steady, ``mj_step``).
+    Control clamping is off while differencing (a pump linearized at zero flow).
+    """
+    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    d = mujoco.MjData(m)
+    d.qpos[:], d.ctrl[:], d.qvel[:] = plant.data.qpos, plant.data.ctrl, plant.data.qvel
+    if u is not None:
+        d.ctrl[:] = u
+    if x is not None:
+        d.qpos[:] += T_pinv @ (np.asarray(x, dtype=float) - T @ d.qpos)
+    flags = m.opt.disableflags
+    m.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL
+    try:
+        d.qvel[:] = quasi_static_velocities(m, d)
+        qpos0, qvel0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.ctrl.copy()
+        sensors, ns, nv, nu = plant.sensor_index, T.shape[0], m.nv, m.nu
+
+        def forces(dh: np.ndarray, dv: np.ndarray, du: np.ndarray) -> np.ndarray:
+            d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + T_pinv @ dh, qvel0 + dv, ctrl0 + du
+            mujoco.mj_forward(m, d)
+            return np.concatenate([d.qfrc_smooth, d.sensordata[sensors]])
+
+        vscale = np.maximum(np.abs(qvel0), 1e-3 * max(np.max(np.abs(qvel0)), FD_STEP))  # relative steps
+        zs, zv, zu = np.zeros(ns), np.zeros(nv), np.zeros(nu)
+        # Lengths are sums of large coordinates: a step of 2⁻¹⁰ length units keeps qpos rounding out
+        # of the differences (tendon springs and gauges are linear in the lengths).
+        jac_h = _central_difference(lambda dh: forces(dh * H_STEP, zv, zu), ns) / H_STEP
+        jac_v = _central_difference(lambda dv: forces(zs, dv * vscale, zu), nv) / vscale
+        jac_u = _central_difference(lambda du: forces(zs, zv, du), nu)
+        # Positions off the state tendons (null space of T) must not matter, or h is not a state.
+        null = np.linalg.svd(T)[2][ns:].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
+        if null.size:
+            def moved(dq: np.ndarray) -> np.ndarray:
+                d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + null @ dq, qvel0, ctrl0
+                mujoco.mj_forward(m, d)
+                return d.qfrc_smooth.copy()
+
+            if np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(jac_h[:nv]).max():  # > FD rounding
+                raise ModelError(f"{plant.info.model_file}: forces depend on coordinates other than the state tendons")
+        f_v = jac_v[:nv]
+        if np.linalg.cond(f_v) > 1e12:
+            raise ModelError(f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)")
+        dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
+        dv_du = -np.linalg.solve(f_v, jac_u[:nv])
+        A, BE = T @ dv_dh, T @ dv_du
+        C = jac_h[nv:] + jac_v[nv:] @ dv_dh
+        D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
+        h0 = T @ qpos0
+        if dt is not None and method == "step":
+            nstep = substeps(dt, m.opt.timestep, plant.info.model_file)
+
+            def stepped(dh: np.ndarray, du: np.ndarray) -> np.ndarray:
+                d.qpos[:], d.ctrl[:], d.qvel[:], d.time = qpos0 + T_pinv @ dh, ctrl0 + du, qvel0, 0.0
+                d.qvel[:] = quasi_static_velocities(m, d)
+                mujoco.mj_step(m, d, nstep=nstep)
+                return T @ d.qpos
+
+            A = _central_difference(lambda dh: stepped(dh * H_STEP, zu), ns) / H_STEP
+            BE = _central_difference(lambda du: stepped(zs, du), nu)
+        elif dt is not None:
+            A, BE = zoh_discretize(A, BE, dt)
+        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0, qvel0, ctrl0
+        mujoco.mj_forward(m, d)
+        y0 = d.sensordata[sensors].copy()
+    finally:
+        m.opt.disableflags = flags
+    return LinearModel(
+        A, BE[:, plant._known], C, D, dt, plant.state_names, plant.actuator_names, plant.sensor_names,
+        x_op=h0, u_op=ctrl0[plant._known], y_op=y0, E=BE[:, plant._unknown], disturbances=plant.disturbance_names,
     )
 
 

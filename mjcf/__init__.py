@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from mjcf import masses
+from mjcf import masses, three_tank
 from mjcf._plant import Channel, Parameter, PlantInfo
 
-PLANTS: dict[str, PlantInfo] = {info.name: info for info in (masses.INFO,)}
+PLANTS: dict[str, PlantInfo] = {info.name: info for info in (masses.INFO, three_tank.INFO)}
 
 
 def get(name: str) -> PlantInfo:
@@ -16,4 +16,4 @@ def get(name: str) -> PlantInfo:
         raise KeyError(f"unknown plant {name!r}; known plants: {', '.join(sorted(PLANTS))}") from None
 
 
-__all__ = ["Channel", "Parameter", "PlantInfo", "PLANTS", "get"]
+__all__ = ["PLANTS", "Channel", "Parameter", "PlantInfo", "get"]

@@ -48,10 +48,15 @@ class Parameter:
 class PlantInfo:
     """Everything the testbed needs to know about a plant besides its physics.
 
-    ``states`` name the components of the MuJoCo state [qpos, qvel, act] in that order.
+    ``states`` name the components of the MuJoCo state [qpos, qvel, act] in that order, or, with
+    ``state_tendons``, the lengths of those tendons.
     ``sensors`` and ``actuators`` name MuJoCo sensors and actuators of the model (same names).
     ``disturbances`` name the MuJoCo actuators that model unknown inputs (a leak, a current): the
     scenario drives them, but they travel on no bus and no estimator knows their value.
+    ``state_tendons``, when given, name fixed tendons whose lengths are the plant's state (truth,
+    initial state, linear model): the other MuJoCo coordinates are fast internal dynamics (flows
+    that settle within a timestep, cumulative volumes that nothing depends on), eliminated in
+    linearization by their quasi-static limit (see ``cosim.plant``).
     """
 
     name: str
@@ -63,6 +68,7 @@ class PlantInfo:
     parameters: dict[str, Parameter] = field(default_factory=dict)
     keyframe: str = "rest"
     disturbances: tuple[Channel, ...] = ()
+    state_tendons: tuple[str, ...] = ()
 
     @property
     def model_path(self) -> Path:
