@@ -38,6 +38,7 @@ class Plant:
         self.substeps = substeps(self.sample_time, self.model.opt.timestep, info.model_file)
         self.sensor_names = tuple(sensors) if sensors is not None else tuple(s.name for s in info.sensors)
         self.sensor_index = np.array([sensor_address(self.model, info, name) for name in self.sensor_names], dtype=int)
+        self.sensor_zero = np.array([info.sensor(name).zero for name in self.sensor_names])
         self.actuator_names = tuple(a.name for a in info.actuators)
         self.disturbance_names = tuple(d.name for d in info.disturbances)
         self._known = actuator_ids(self.model, self.actuator_names)
@@ -94,7 +95,7 @@ class Plant:
 
     def sensors(self) -> np.ndarray:
         """The selected sensors' true readings at the current state, a copy."""
-        return self.data.sensordata[self.sensor_index]
+        return self.data.sensordata[self.sensor_index] - self.sensor_zero
 
     def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
         """Hold the known inputs ``ctrl`` and the unknown inputs ``disturbance`` (default 0) for
@@ -209,7 +210,7 @@ def actuator_ids(model: mujoco.MjModel, names: Sequence[str]) -> np.ndarray:
 
 def sensor_address(model: mujoco.MjModel, info: PlantInfo, name: str) -> int:
     """Index of a scalar sensor in ``sensordata``."""
-    info.sensor(name)  # declared by the plant module (KeyError lists the known ones)
+    name = info.sensor(name).source or name  # declared by the plant module (KeyError lists the known ones)
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
     if sid < 0:
         raise ModelError(f"{info.model_file}: no sensor named {name!r} (declared by the plant module)")
@@ -305,7 +306,7 @@ def linearize(
     return LinearModel(
         A, B, C, D, dt, state_names, plant.actuator_names, plant.sensor_names,
         x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
-        u_op=ctrl0[plant._known], y_op=d.sensordata[sensors].copy(), E=E, disturbances=plant.disturbance_names,
+        u_op=ctrl0[plant._known], y_op=d.sensordata[sensors] - plant.sensor_zero, E=E, disturbances=plant.disturbance_names,
     )
 
 
@@ -400,7 +401,7 @@ def _linearize_tendon_state(
         m.opt.disableflags = flags
     return LinearModel(
         A, BE[:, plant._known], C, D, dt, plant.state_names, plant.actuator_names, plant.sensor_names,
-        x_op=h0, u_op=ctrl0[plant._known], y_op=y0, E=BE[:, plant._unknown], disturbances=plant.disturbance_names,
+        x_op=h0, u_op=ctrl0[plant._known], y_op=y0 - plant.sensor_zero, E=BE[:, plant._unknown], disturbances=plant.disturbance_names,
     )
 
 

@@ -9,10 +9,12 @@ virtual output ẑ = H_z C_y x̂_p (eq. (6)), free of the faults that corrupt y 
 - ``lft-uio-sr``: Algorithm 2, one constant gain (Theorem 2);
 - ``no-reconciliation``: the baseline ẑ = H_z y (and x̂ = C_y⁺ y), what Figure 9 calls falsified.
 
-Coordinates. Gain faults scale what a sensor reads, so these estimators work in absolute values:
-y = Δ(γ) C_y x_p + F b holds for the plant's absolute state when its sensors are linear in it
-(y_op = C x_op, checked), and the linearization about (x_op, u_op) becomes the affine model
-x⁺ = A x + B u + c with c = x_op − A x_op − B u_op, a known input.
+Coordinates. Gain faults scale what a sensor transmits, so the model (2), y = Δ(γ) C_y x_p + F b,
+holds in the coordinates where the healthy readings are linear in the state without offset:
+x_p = x − x_s with C x_s = −(y_op − C x_op) (x_s = 0 for sensors that read absolute values; the
+operating point for transmitters zeroed there, like the three-tank's y1…y4, which makes x_p the
+paper's deviation state). The linearization about (x_op, u_op) is then the affine model
+x_p⁺ = A x_p + B u + c, c = (I − A)(x_op − x_s) − B u_op, a known input; x̂ = x̂_p + x_s is published.
 
 Algorithm 1 step 5 and Algorithm 2 step 4 print Q_γ̂(t) next to T_γ̂(t−1); γ̂(t) is computed only
 later (step 6), and T Ē = 0 needs T and Q at the same γ̂, so both use γ̂(t−1), as in eq. (10).
@@ -98,9 +100,11 @@ class _Reconciliator(Estimator):
         self.Hz = _vector(params.Hz, p, "Hz")
         self.F = _vector(params.F, p, "F", 1.0)[:, None]
         offset = model.y_op - model.C @ model.x_op
-        if np.max(np.abs(offset)) > 1e-6 * (1.0 + np.max(np.abs(model.y_op))) or np.any(model.D):
-            raise ParameterError("model", "sensor reconciliation needs sensors linear in the state (y = C x, no offset, D = 0)")
-        self.c = model.x_op - model.A @ model.x_op - model.B @ model.u_op  # x⁺ = A x + B u + c
+        self.x_s = -np.linalg.lstsq(model.C, offset, rcond=None)[0]
+        if np.max(np.abs(model.C @ self.x_s + offset)) > 1e-6 * (1.0 + np.max(np.abs(offset))) or np.any(model.D):
+            raise ParameterError("model", "sensor reconciliation needs sensors affine in the state with an offset in Im(C), and D = 0")
+        shifted = model.x_op - self.x_s
+        self.c = shifted - model.A @ shifted - model.B @ model.u_op  # x_p⁺ = A x_p + B u + c
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
@@ -131,7 +135,7 @@ class NoReconciliation(_Reconciliator):
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         available = ~np.isnan(y)
         y0 = np.where(available, y, 0.0)
-        x = np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] if available.any() else self.model.x_op
+        x = np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] + self.x_s if available.any() else self.model.x_op
         return Estimate(x, {"zhat": float(self.Hz @ y0)})
 
 
@@ -159,7 +163,7 @@ class UioReconciliator(_Reconciliator):
         x0 = model.x_op if params.x0 is None else np.asarray(params.x0, dtype=float)
         if x0.shape != (n,):
             raise ParameterError("x0", f"expected {n} values ({', '.join(model.states)}), got {x0.size}")
-        self.x_bar0 = np.concatenate([x0, np.zeros(self.aug.q)])
+        self.x_bar0 = np.concatenate([x0 - self.x_s, np.zeros(self.aug.q)])
         self.reset()
 
     def reset(self) -> None:
@@ -210,7 +214,7 @@ class UioReconciliator(_Reconciliator):
         diagnostics = {f"gamma_{name}": float(g) for name, g in zip(self.model.outputs, self.gamma)}
         diagnostics |= {name: float(v) for name, v in zip(self._bias_names(self.aug.q), b)}
         diagnostics |= {"zhat": z, "pe": self.pe}
-        return Estimate(x_p.copy(), diagnostics)
+        return Estimate(x_p + self.x_s, diagnostics)
 
     def _estimate_gamma(self) -> np.ndarray:
         """The QP (53) over the window (51)–(52).

@@ -19,6 +19,8 @@ class Channel:
 
     ``minimum``/``maximum`` bound the values the signal may take on the bus and ``resolution`` is
     its quantum in a classic-CAN frame (scaled integer); CAN FD frames carry it as float64.
+    A sensor channel may read another MuJoCo sensor (``source``) minus a ``zero``: a transmitter
+    calibrated to read the deviation from an operating point, as the papers' linearized outputs do.
     """
 
     name: str
@@ -27,6 +29,8 @@ class Channel:
     minimum: float
     maximum: float
     resolution: float
+    source: str = ""
+    zero: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.minimum < self.maximum:

@@ -29,6 +29,8 @@ a1 = 0.45736, a3 = 0.45198, a2 = 0.59726 (s0 = S). Only a·sqrt(g) matters: anot
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mjcf._plant import Channel, Parameter, PlantInfo
@@ -100,6 +102,14 @@ INFO = PlantInfo(
         _level("h2", "level of tank 2"),
         _level("h_sum", "h1 + h2 + h3, the last row of C in eq. (59)", 3.0),
         _level("h3", "level of tank 3 (not among the paper's outputs)"),
+        # The outputs y of eq. (58)-(59): transmitters zeroed at the operating point, reading the
+        # deviation of the same quantities from it. A loss of effectiveness scales what they
+        # transmit, y = Δ(γ) C (h - h_op) + F b, which is the paper's model (2) exactly.
+        *(
+            replace(_level(f"y{i + 1}", f"{name} - its value at the operating point (eq. (58)-(59), output {i + 1})", scale),
+                    minimum=-scale * 100.0, source=name, zero=float(np.dot(SENSOR_ROWS[name], OPERATING_LEVELS)))
+            for i, (name, scale) in enumerate((("h1_x10", 10.0), ("h1", 1.0), ("h2", 1.0), ("h_sum", 3.0)))
+        ),
     ),
     actuators=(
         Channel("Q1", "cm^3/s", "pump flow into tank 1", 0.0, Q_MAX, 1e-4),
