@@ -264,18 +264,18 @@ class LpvUioReconciliator(UioReconciliator):
             G, Y = np.asarray(p.G, dtype=float), np.asarray(p.Y, dtype=float)
             if G.shape != (l * nx, nx) or Y.shape != (l * nx, self.model.p):
                 raise ParameterError("G", f"precomputed G and Y must be {l * nx}×{nx} and {l * nx}×{self.model.p}")
-            self.G, self.Y, self.design = G.reshape(l, nx, nx), Y.reshape(l, nx, self.model.p), None
+            self.G_vertices, self.Y_vertices, self.design = G.reshape(l, nx, nx), Y.reshape(l, nx, self.model.p), None
         else:
             self.design: LpvDesign | None = self._solve(lpv_uio_design)
-            self.G, self.Y = self.design.G, self.design.Y
+            self.G_vertices, self.Y_vertices = self.design.G, self.design.Y
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         rho = box_coordinates(gamma, self.lower, self.upper)
-        return np.linalg.solve(np.tensordot(rho, self.G, axes=1), np.tensordot(rho, self.Y, axes=1))
+        return np.linalg.solve(np.tensordot(rho, self.G_vertices, axes=1), np.tensordot(rho, self.Y_vertices, axes=1))
 
     def design_params(self) -> dict[str, Any]:
-        l, nx = self.G.shape[0], self.G.shape[1]
-        return {"G": self.G.reshape(l * nx, nx).tolist(), "Y": self.Y.reshape(l * nx, -1).tolist()}
+        l, nx = self.G_vertices.shape[:2]
+        return {"G": self.G_vertices.reshape(l * nx, nx).tolist(), "Y": self.Y_vertices.reshape(l * nx, -1).tolist()}
 
 
 class LftUioReconciliator(UioReconciliator):
