@@ -34,11 +34,8 @@ from estimators.lmi import (
     lpv_uio_design,
     max_spectral_radius,
 )
+from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
-# IJC 2018, eq. (59)
-A = np.array([[0.9916, 0, 0.008393], [0, 0.9807, 0.008249], [0.008393, 0.008249, 0.9833]])
-B = np.array([[0.006473, 7.649e-8], [7.649e-8, 0.006437], [2.739e-5, 2.697e-5]])
-C = np.array([[10.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1]])
 PAPER_SECONDS = {"lpv": 9 * 3600.0, "lft": 6 * 60.0}
 TARGET_SECONDS = {"lpv": 60.0, "lft": 2.0}
 
@@ -55,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gamma-min", type=float, default=0.5, help="lower corner of Γ (default 0.5)")
     parser.add_argument("--skip-lpv", action="store_true", help="leave out the (slow) LPV design")
     args = parser.parse_args(argv)
-    model = SensorFaultModel(A, B, np.ones((3, 1)), C, np.ones((4, 1)))
+    model = SensorFaultModel(PAPER_A, PAPER_B, PAPER_E, PAPER_C, np.ones((4, 1)))
     low, high = np.full(4, args.gamma_min), np.ones(4)
     lft_uio_design(model, low, high)  # warm-up: imports and solver start-up
     lti, lti_s = timed(lambda: lpv_uio_design(model, high, high, vertices=high[None, :]))

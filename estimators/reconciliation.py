@@ -25,6 +25,7 @@ virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and tha
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -110,17 +111,15 @@ class _Reconciliator(Estimator):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [Diagnostic("zhat", "", "virtual output estimate ẑ (eq. (6))", 1e4, 1e-4)]
 
-    def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
-        y, u = np.asarray(y, dtype=float), np.asarray(u, dtype=float)
-        if y.shape != (self.model.p,) or u.shape != (self.model.m,):
-            raise ValueError(f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}")
-        return self._absolute_step(y, u)
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
+        # Gain faults act on the readings as transmitted: work on y and u themselves.
+        m = self.model
+        estimate = self._absolute_step(dy + m.y_op, du + m.u_op)
+        return Estimate(estimate.x - m.x_op, estimate.diagnostics)
 
-    def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:  # pragma: no cover - step is overridden
-        raise NotImplementedError
-
+    @abstractmethod
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
-        raise NotImplementedError
+        """One tick on the transmitted readings y and inputs u; returns the absolute estimate."""
 
 
 class NoReconciliation(_Reconciliator):
@@ -173,13 +172,15 @@ class UioReconciliator(_Reconciliator):
         self.history: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=self.params.window)
         self.pe = 0.0
 
-    # -- design (overridden) ------------------------------------------------------------------
+    # -- design ---------------------------------------------------------------------------------
 
+    @abstractmethod
     def _design(self) -> None:
-        raise NotImplementedError
+        """Solve (or take from the parameters) the LMI design of the observer gain."""
 
+    @abstractmethod
     def gain(self, gamma: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """The observer gain L at γ̂, shape (n + q, m)."""
 
     def _solve(self, design, **kwargs):
         try:

@@ -35,3 +35,9 @@ def test_estimator_step_benchmark_times_every_kind_against_kalman():
     figures = bench("estimator_step.py", "--steps", "300", "--repeat", "1")
     assert {"kalman", "pseudoinverse", "injection", "adaptive", "adaptive-ct"} <= set(figures)
     assert all(v > 0 for v in figures.values())
+
+
+def test_lmi_design_benchmark_reports_its_figures():
+    figures = bench("lmi_design.py", "--skip-lpv")
+    assert figures["lft_design_s"] > 0 and figures["lti_design_s"] > 0
+    assert figures["lft_diagonal_sigma"] <= figures["lft_sigma"] * (1 + 1e-6) and figures["lft_rho"] < 1

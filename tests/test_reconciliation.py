@@ -22,12 +22,10 @@ from estimators.lmi import (
     uio_matrices,
 )
 from estimators.model import LinearModel
+from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
-# IJC 2018, eq. (59)
-A = np.array([[0.9916, 0, 0.008393], [0, 0.9807, 0.008249], [0.008393, 0.008249, 0.9833]])
-B = np.array([[0.006473, 7.649e-8], [7.649e-8, 0.006437], [2.739e-5, 2.697e-5]])
-C = np.array([[10.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1]])
-E = np.ones((3, 1))
+# IJC 2018, eq. (59), as printed
+A, B, C, E = PAPER_A, PAPER_B, PAPER_C, PAPER_E
 F = np.ones((4, 1))
 HZ = [1 / 3, 1 / 3, 0.0, 1 / 3]
 PAPER = SensorFaultModel(A, B, E, C, F)
