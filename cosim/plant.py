@@ -209,14 +209,20 @@ def actuator_ids(model: mujoco.MjModel, names: Sequence[str]) -> np.ndarray:
 
 
 def sensor_address(model: mujoco.MjModel, info: PlantInfo, name: str) -> int:
-    """Index of a scalar sensor in ``sensordata``."""
-    name = info.sensor(name).source or name  # declared by the plant module (KeyError lists the known ones)
+    """Index in ``sensordata`` of a scalar sensor, or of the channel's component of a vector sensor."""
+    channel = info.sensor(name)  # declared by the plant module (KeyError lists the known ones)
+    name = channel.source or name
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, name)
     if sid < 0:
         raise ModelError(f"{info.model_file}: no sensor named {name!r} (declared by the plant module)")
-    if model.sensor_dim[sid] != 1:
-        raise ModelError(f"{info.model_file}: sensor {name!r} has {model.sensor_dim[sid]} components; use scalar sensors")
-    return int(model.sensor_adr[sid])
+    dim = int(model.sensor_dim[sid])
+    if channel.component is None:
+        if dim != 1:
+            raise ModelError(f"{info.model_file}: sensor {name!r} has {dim} components; use scalar sensors or give channel {channel.name!r} a component")
+        return int(model.sensor_adr[sid])
+    if not 0 <= channel.component < dim:
+        raise ModelError(f"{info.model_file}: channel {channel.name!r} reads component {channel.component} of sensor {name!r}, which has components 0 to {dim - 1}")
+    return int(model.sensor_adr[sid]) + channel.component
 
 
 def substeps(sample_time: float, timestep: float, where: str) -> int:

@@ -21,6 +21,7 @@ class Channel:
     its quantum in a classic-CAN frame (scaled integer); CAN FD frames carry it as float64.
     A sensor channel may read another MuJoCo sensor (``source``) minus a ``zero``: a transmitter
     calibrated to read the deviation from an operating point, as the papers' linearized outputs do.
+    ``component`` picks one component of a vector sensor (a velocimeter's surge velocity is 0).
     """
 
     name: str
@@ -31,6 +32,7 @@ class Channel:
     resolution: float
     source: str = ""
     zero: float = 0.0
+    component: int | None = None
 
     def __post_init__(self) -> None:
         if not self.minimum < self.maximum:
