@@ -31,7 +31,7 @@ import can
 
 from cosim import registry
 from cosim.bus import BusConfig, open_bus
-from cosim.codec import BOOTUP, COMMAND, NMT, NMT_STOP, OPERATIONAL, SENSOR, STOPPED, SYNC, Codec, Decoded
+from cosim.codec import BOOTUP, COMMAND, HEARTBEAT, NMT, NMT_STOP, OPERATIONAL, SENSOR, STOPPED, SYNC, Codec, Decoded
 from cosim.errors import CodecError, CosimError
 
 
@@ -40,7 +40,8 @@ class TickFrames:
     """The decoded inputs of one tick: sensor readings and commands that arrived, by channel name.
 
     ``expected`` is the number of data frames SYNC announced and ``received`` how many arrived;
-    ``t`` is the simulated time t_k = k τ when the sample time is known.
+    ``t`` is the simulated time t_k = k τ when the sample time is known. ``upstream`` holds what
+    the nodes this one listens to published (by node, then signal), for the tick each is read at.
     """
 
     tick: int
@@ -49,6 +50,7 @@ class TickFrames:
     commands: dict[str, float] = field(default_factory=dict)
     received: int = 0
     t: float | None = None
+    upstream: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def complete(self) -> bool:
@@ -61,41 +63,90 @@ class TickAssembler:
     ``push`` returns the tick once all its announced frames arrived. If SYNC(k+1) arrives while
     tick k is still incomplete, tick k is returned incomplete and the missing frames are counted
     in ``lost`` (in lockstep this cannot happen without frame loss on the transport).
+
+    ``upstream`` maps nodes whose frames this participant needs to a lag L: tick k is complete only
+    once the node's frames of tick k − L are in, which its heartbeat closing that tick announces.
+    With L = 0 the node answers the same tick first (estimators read the ``controller`` node's
+    commands of tick k); with L = 1 its previous answer is used (the controller reads a diagnosis
+    node's report of tick k − 1). Commands go to ``commands``, every other upstream signal to
+    ``upstream[node]`` by signal name.
     """
 
-    def __init__(self, codec: Codec, sample_time: float | None = None) -> None:
+    def __init__(self, codec: Codec, sample_time: float | None = None, upstream: dict[str, int] | None = None) -> None:
         self.codec = codec
         self.sample_time = sample_time
         self.pending: TickFrames | None = None
         self.lost = 0
+        self.upstream = dict(upstream or {})
+        self._heard: dict[str, dict[int, _Heard]] = {node: {} for node in self.upstream}
 
     def push(self, decoded: Decoded) -> list[TickFrames]:
         done: list[TickFrames] = []
-        role = decoded.spec.role
-        if role == SYNC:
+        role, sender = decoded.spec.role, decoded.spec.sender
+        if sender in self.upstream:
+            self._hear(decoded)
+        elif role == SYNC:
             if self.pending is not None:
                 self.lost += self.pending.expected - self.pending.received
-                done.append(self.pending)
+                done.append(self._close(self.pending))
             t = None if self.sample_time is None else decoded.tick * self.sample_time
             self.pending = TickFrames(decoded.tick, int(decoded.values["frames"]), t=t)
-            if self.pending.complete:
-                done.append(self.pending)
-                self.pending = None
-            return done
-        pending = self.pending
-        if role not in (SENSOR, COMMAND) or pending is None:
-            return done
-        if decoded.tick != pending.tick % self.codec.tick_modulus:
-            self.lost += 1  # a late frame of an earlier tick
-            return done
-        target = pending.sensors if role == SENSOR else pending.commands
-        for channel, signal in zip(decoded.spec.channels, decoded.spec.signals):
-            target[channel.name] = decoded.values[signal]
-        pending.received += 1
-        if pending.complete:
-            done.append(pending)
+        elif role in (SENSOR, COMMAND) and self.pending is not None:
+            pending = self.pending
+            if decoded.tick != pending.tick % self.codec.tick_modulus:
+                self.lost += 1  # a late frame of an earlier tick
+                return done
+            target = pending.sensors if role == SENSOR else pending.commands
+            for channel, signal in zip(decoded.spec.channels, decoded.spec.signals):
+                target[channel.name] = decoded.values[signal]
+            pending.received += 1
+        if self.pending is not None and self.pending.complete and self._upstream_ready(self.pending.tick):
+            done.append(self._close(self.pending))
             self.pending = None
         return done
+
+    def _hear(self, decoded: Decoded) -> None:
+        heard = self._heard[decoded.spec.sender].setdefault(decoded.tick % self.codec.tick_modulus, _Heard())
+        if decoded.spec.role == HEARTBEAT:
+            if decoded.values["state"] == OPERATIONAL:
+                heard.announced = int(decoded.values["frames"])
+            return
+        if decoded.spec.role == COMMAND:
+            heard.commands.update({c.name: decoded.values[s] for c, s in zip(decoded.spec.channels, decoded.spec.signals)})
+        else:
+            heard.values.update({s: decoded.values[s] for s in decoded.spec.signals})
+        heard.frames += 1
+
+    def _upstream_ready(self, tick: int) -> bool:
+        for node, lag in self.upstream.items():
+            if tick - lag < 0:
+                continue
+            heard = self._heard[node].get((tick - lag) % self.codec.tick_modulus)
+            if heard is None or heard.announced is None or heard.frames < heard.announced:
+                return False
+        return True
+
+    def _close(self, tick: TickFrames) -> TickFrames:
+        modulus = self.codec.tick_modulus
+        for node, lag in self.upstream.items():
+            by_tick = self._heard[node]
+            heard = by_tick.get((tick.tick - lag) % modulus, _Heard())
+            tick.commands.update(heard.commands)
+            tick.upstream[node] = dict(heard.values)
+            for counter in [c for c in by_tick if (tick.tick - lag - c) % modulus < modulus // 2]:
+                del by_tick[counter]  # this tick's and older ones are never needed again
+        return tick
+
+
+@dataclass
+class _Heard:
+    """What an upstream node sent for one tick: its signal values, commands (from the controller
+    node), data frames so far, and the data frames its heartbeat announced (None before it)."""
+
+    values: dict[str, float] = field(default_factory=dict)
+    commands: dict[str, float] = field(default_factory=dict)
+    frames: int = 0
+    announced: int | None = None
 
 
 class Client:
@@ -108,7 +159,7 @@ class Client:
 
     def __init__(
         self, name: str | None, codec: Codec, bus: can.BusABC, *, lockstep: bool = True,
-        sample_time: float | None = None, owns_bus: bool = False,
+        sample_time: float | None = None, owns_bus: bool = False, upstream: dict[str, int] | None = None,
     ) -> None:
         self.name = name
         self.codec = codec
@@ -116,14 +167,16 @@ class Client:
         self.declared = name is not None and name in codec.node_ids
         self.lockstep = lockstep and self.declared
         self.messages = codec.data_messages(name) if self.declared else []
-        self.assembler = TickAssembler(codec, sample_time)
+        self.assembler = TickAssembler(codec, sample_time, upstream)
         self.stopped = False
         self._owns_bus = owns_bus
         self._published = 0
         self._joined = False
         # Only these frames concern a participant; telling them by id spares decoding the rest
         # (other nodes' frames, and our own frames that come back on udp_multicast).
-        self._wanted = {s.frame_id for s in codec.specs.values() if s.role in (SYNC, NMT, SENSOR, COMMAND)}
+        self._wanted = {
+            s.frame_id for s in codec.specs.values() if s.role in (SYNC, NMT, SENSOR, COMMAND) or s.sender in self.assembler.upstream
+        }
 
     # -- life cycle -----------------------------------------------------------------------------
 

@@ -10,7 +10,9 @@ Frame layout (CANopen-flavoured; ids in hex)
   that many; a frame not sent by an injected dropout is simply not counted.
 - ``SENSOR_<name>`` (0x100 + i, sent by ``plant``): one frame per sensor, like a smart sensor on
   its own node: ``tick`` and the reading.
-- ``COMMAND_<name>`` (0x180 + i, sent by ``controller``): the commanded input of each actuator.
+- ``COMMAND_<name>`` (0x180 + i, sent by ``controller``): the commanded input of each actuator:
+  the runner's open-loop input signals, or, in a closed-loop run, the ``controller`` node's.
+- ``CONTROL_STATUS[_n]`` (0x1C0 + n, sent by a ``controller`` node): its diagnostics.
 - ``EST_<estimator>[_n]`` (0x200 + 0x20·e + n, sent by the estimator): its estimate x̂_k
   (``xhat_<state>``) and its diagnostics (named as the estimator declares them, e.g. ``s_x1``,
   ``phihat_x2``, ``h``), packed into as few frames as fit.
@@ -54,6 +56,7 @@ NMT_ID = 0x000
 SYNC_ID = 0x080
 SENSOR_BASE = 0x100
 COMMAND_BASE = 0x180
+CONTROL_BASE = 0x1C0
 ESTIMATE_BASE = 0x200
 ESTIMATE_STRIDE = 0x20
 CLIENT_BASE = 0x600
@@ -66,14 +69,14 @@ FD_TICK_BITS = 32
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 NMT, SYNC, HEARTBEAT = "nmt", "sync", "heartbeat"
-SENSOR, COMMAND, ESTIMATE, CLIENT = "sensor", "command", "estimate", "client"
+SENSOR, COMMAND, CONTROL, ESTIMATE, CLIENT = "sensor", "command", "control", "estimate", "client"
 RUNNER, PLANT, CONTROLLER = "runner", "plant", "controller"
 
 NMT_START, NMT_STOP = 0x01, 0x02  # CANopen NMT command specifiers
 BOOTUP, STOPPED, OPERATIONAL = 0x00, 0x04, 0x05  # CANopen NMT states, as heartbeats carry them
 
 #: The scenario table that overrides a channel's range, per message role.
-OVERRIDE_TABLE = {SENSOR: "bus.sensors", COMMAND: "bus.actuators", ESTIMATE: "bus.states", CLIENT: "clients"}
+OVERRIDE_TABLE = {SENSOR: "bus.sensors", COMMAND: "bus.actuators", CONTROL: "bus.states", ESTIMATE: "bus.states", CLIENT: "clients"}
 #: Identifier blocks: [first, end) per role.
 ID_BLOCKS = {
     SENSOR: (SENSOR_BASE, COMMAND_BASE),
@@ -157,7 +160,9 @@ class Codec:
 
     Built from the transmitted sensors, the actuators, each estimator's output channels and each
     declared client's signals; ``fd`` selects CAN FD (float64 signals) or classic CAN (scaled
-    integers). Estimators get node ids 1, 2, … in order, then the clients.
+    integers). Estimators get node ids 1, 2, … in order, then the clients, then the controller:
+    with ``controller`` (its diagnostic channels, possibly none) the commands come from a
+    ``controller`` node, which has a heartbeat and a CONTROL_STATUS message.
     """
 
     def __init__(
@@ -168,6 +173,7 @@ class Codec:
         *,
         diagnostics: Mapping[str, Sequence[Channel]] | None = None,
         clients: Mapping[str, Sequence[Channel]] | None = None,
+        controller: Sequence[Channel] | None = None,
         fd: bool = False,
         bitrate: int = 500_000,
         data_bitrate: int = 2_000_000,
@@ -182,9 +188,11 @@ class Codec:
                 stride = {ESTIMATE: ESTIMATE_STRIDE, CLIENT: CLIENT_STRIDE}.get(role, 1)
                 what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators", CLIENT: "clients"}[role]
                 raise CodecError(f"too many {what} for the bus: at most {(end - first) // stride} fit ids 0x{first:03X}-0x{end - 1:03X}")
-        nodes = [*estimators, *clients]
+        nodes = [*estimators, *clients, *([CONTROLLER] if controller is not None else [])]
         if len(set(nodes)) != len(nodes):
-            raise CodecError(f"estimator and client names must differ: {', '.join(nodes)}")
+            raise CodecError(f"estimator, client and controller names must differ: {', '.join(nodes)}")
+        if controller is not None and len(actuators) > CONTROL_BASE - COMMAND_BASE:
+            raise CodecError(f"too many actuators for a controller node: at most {CONTROL_BASE - COMMAND_BASE} fit ids 0x{COMMAND_BASE:03X}-0x{CONTROL_BASE - 1:03X}")
         specs = [
             MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), ("command", "node")),
             MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames")),
@@ -193,6 +201,9 @@ class Codec:
             specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
         for i, channel in enumerate(actuators):
             specs += pack_channels(f"COMMAND_{channel.name}", COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
+        if controller:
+            specs += pack_channels("CONTROL_STATUS", CONTROL_BASE, CONTROLLER, CONTROL, list(controller), fd,
+                                   [c.name for c in controller])
         diagnostics = dict(diagnostics or {})
         for group, base, stride, role, prefix in (
             (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, "EST"),
@@ -411,7 +422,7 @@ def _role(message: Message) -> str:
     if sender == PLANT:
         return SENSOR
     if sender == CONTROLLER:
-        return COMMAND
+        return COMMAND if message.name.startswith("COMMAND_") else CONTROL
     if message.name.startswith("EST_"):
         return ESTIMATE
     return CLIENT

@@ -1,4 +1,5 @@
-"""The participants a runner waits for: estimator processes, in-process nodes, external clients.
+"""The participants a runner waits for: estimator and controller processes, in-process nodes,
+external clients.
 
 Each knows how to tell the runner what went wrong with it (a process that exited, with its exit
 status and last output; one that hangs; a client that went away) and how to stop.
@@ -12,8 +13,9 @@ from pathlib import Path
 
 import can
 
-from cosim.node import EstimatorNode, NodeSpec
+from cosim.node import ControllerNode, EstimatorNode, NodeSpec
 from estimators import Estimator
+from estimators.controller import Controller
 
 
 class Participant:
@@ -40,12 +42,11 @@ class Participant:
 
 
 class ProcessNode(Participant):
-    """An estimator node in a process of its own (``cosim node NAME --spec FILE``)."""
+    """An estimator or controller node in a process of its own (``cosim node NAME --spec FILE``)."""
 
-    kind = "node"
-
-    def __init__(self, spec: NodeSpec, workdir: Path) -> None:
+    def __init__(self, spec: NodeSpec, workdir: Path, kind: str = "node") -> None:
         self.name = spec.name
+        self.kind = kind
         spec_path = workdir / f"{spec.name}.json"
         spec_path.write_text(spec.to_json())
         self.output = workdir / f"{spec.name}.log"
@@ -113,6 +114,18 @@ class LocalNode(Participant):
         self.node.service()  # take the stop command
         self.bus.shutdown()
         return None
+
+
+class LocalController(LocalNode):
+    """The controller node driven by the runner in its own process (the ``virtual`` interface)."""
+
+    kind = "controller"
+
+    def __init__(self, spec: NodeSpec, controller: Controller) -> None:
+        self.name = spec.name
+        self.bus = can.Bus(interface="virtual", channel=spec.bus.channel)
+        self.node = ControllerNode(spec, self.bus, controller)
+        self.node.client.join()
 
 
 class ExternalClient(Participant):

@@ -1,20 +1,22 @@
-"""Estimator nodes: an estimator on the bus, seeing only CAN frames.
+"""Nodes: an estimator or the controller on the bus, seeing only CAN frames.
 
-A node is a ``Client`` whose answer to tick k is its estimator's estimate x̂_k: it decodes the
-sensor readings and commanded inputs of tick k, calls ``estimator.step`` and publishes the
-``EST_<name>`` frames, then the heartbeat that closes the tick. ``cosim node`` runs one in a
-process of its own (``serve``); with the ``virtual`` interface the runner drives nodes in its own
-process through the same class.
+An estimator node is a ``Client`` whose answer to tick k is its estimator's estimate x̂_k: it
+decodes the sensor readings and commanded inputs of tick k, calls ``estimator.step`` and publishes
+the ``EST_<name>`` frames, then the heartbeat that closes the tick. The controller node answers
+tick k with the commands u_k (``COMMAND_<actuator>`` frames, which the runner applies to the plant)
+and its ``CONTROL_STATUS``. ``cosim node`` runs one in a process of its own (``serve``); with the
+``virtual`` interface the runner drives nodes in its own process through the same classes.
 
-Everything a node needs comes in a ``NodeSpec``: the estimator's kind and parameters, the linear
-model it is designed on (from the runner's linearization of the plant), the run's DBC and bus.
+Everything a node needs comes in a ``NodeSpec``: its kind and parameters, the linear model it is
+designed on (from the runner's linearization of the plant), the run's DBC and bus, and the nodes
+it listens to (``upstream``, see ``cosim.client.TickAssembler``).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,14 +26,15 @@ import numpy as np
 import estimators
 from cosim.bus import BusConfig, open_bus
 from cosim.client import Client, TickFrames
-from cosim.codec import Codec
+from cosim.codec import CONTROLLER, Codec
 from cosim.errors import CosimError
 from estimators import Estimator, LinearModel, ParameterError
+from estimators import controller as controllers
 
 
 @dataclass(frozen=True)
 class NodeSpec:
-    """What an estimator node needs, as one JSON document."""
+    """What a node needs, as one JSON document. The node named ``controller`` is the controller."""
 
     name: str
     kind: str
@@ -40,11 +43,15 @@ class NodeSpec:
     dbc: str
     bus: BusConfig
     sample_time: float
+    upstream: dict[str, int] = field(default_factory=dict)
+    """Nodes whose frames this one needs, with the lag in ticks (``cosim.client.TickAssembler``)."""
+    diagnosis: str = ""
+    """The controller's diagnosis node (upstream with lag 1), whose report it reads."""
 
     def to_json(self) -> str:
         return json.dumps({
             "name": self.name, "kind": self.kind, "params": self.params, "model": model_to_dict(self.model), "dbc": self.dbc,
-            "bus": self.bus.to_dict(), "sample_time": self.sample_time,
+            "bus": self.bus.to_dict(), "sample_time": self.sample_time, "upstream": self.upstream, "diagnosis": self.diagnosis,
         })
 
     @classmethod
@@ -52,7 +59,7 @@ class NodeSpec:
         data = json.loads(text)
         model = model_from_dict(data["model"])
         return cls(data["name"], data["kind"], data["params"], model, data["dbc"], BusConfig.from_dict(data["bus"]),
-                   data["sample_time"])
+                   data["sample_time"], data.get("upstream", {}), data.get("diagnosis", ""))
 
 
 def model_to_dict(m: LinearModel) -> dict[str, Any]:
@@ -89,7 +96,7 @@ class EstimatorNode:
             except ParameterError as error:
                 raise CosimError(f"estimator {spec.name}: params.{error}") from None
         self.estimator = estimator
-        self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time)
+        self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
         model = estimator.model
         signals = [signal for message in self.client.messages for signal in message.signals]
         self._states = [(signal, model.states.index(signal.removeprefix("xhat_"))) for signal in signals if signal.startswith("xhat_")]
@@ -113,21 +120,64 @@ class EstimatorNode:
     def service(self, timeout: float = 0.0) -> int:
         """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first);
         returns the number of ticks answered."""
-        answered = 0
-        frame = self.client.bus.recv(timeout)
-        while frame is not None:
-            for tick in self.client.feed(frame):
-                self.answer(tick)
-                answered += 1
-            frame = self.client.bus.recv(0.0)
-        return answered
+        return _service(self, timeout)
+
+
+class ControllerNode:
+    """The controller on the bus: y_k and the diagnosis node's report in, u_k out.
+
+    Missing sensor readings reach the controller as NaN. Commands go out in the ``COMMAND_``
+    frames, diagnostics in ``CONTROL_STATUS``; a command outside its actuator's declared range is
+    an error naming the signal (the controller must saturate what it asks for).
+    """
+
+    def __init__(self, spec: NodeSpec, bus: can.BusABC, controller: controllers.Controller | None = None) -> None:
+        self.spec = spec
+        self.codec = Codec.from_dbc(spec.dbc)
+        if controller is None:
+            try:
+                controller = controllers.create(spec.kind, spec.model, spec.params, spec.sample_time)
+            except ParameterError as error:
+                raise CosimError(f"controller: params.{error}") from None
+        self.controller = controller
+        self.client = Client(CONTROLLER, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
+        self._inputs = {channel.name: signal for message in self.client.messages for channel, signal in zip(message.channels, message.signals)
+                        if message.name.startswith("COMMAND_")}
+        self._diagnostics = [signal for message in self.client.messages if not message.name.startswith("COMMAND_") for signal in message.signals]
+        self.ticks = 0
+
+    def answer(self, tick: TickFrames) -> None:
+        model = self.controller.model
+        y = np.array([tick.sensors.get(name, np.nan) for name in model.outputs])
+        report = tick.upstream.get(self.spec.diagnosis, {}) if self.spec.diagnosis else {}
+        t = tick.t if tick.t is not None else tick.tick * self.spec.sample_time
+        command = self.controller.step(y, t, report)
+        values = {self._inputs[name]: float(u) for name, u in zip(model.inputs, command.u)}
+        values |= {signal: command.diagnostics[signal] for signal in self._diagnostics}
+        self.client.publish(tick, values)
+        self.client.done(tick)
+        self.ticks += 1
+
+    def service(self, timeout: float = 0.0) -> int:
+        return _service(self, timeout)
+
+
+def _service(node: EstimatorNode | ControllerNode, timeout: float) -> int:
+    answered = 0
+    frame = node.client.bus.recv(timeout)
+    while frame is not None:
+        for tick in node.client.feed(frame):
+            node.answer(tick)
+            answered += 1
+        frame = node.client.bus.recv(0.0)
+    return answered
 
 
 def serve(spec: NodeSpec) -> int:
     """Run a node process until the runner stops it (NMT stop) or goes away; returns the exit status."""
     parent = os.getppid()
     bus = open_bus(spec.bus)
-    node = EstimatorNode(spec, bus)
+    node = ControllerNode(spec, bus) if spec.name == CONTROLLER else EstimatorNode(spec, bus)
     try:
         node.client.join()
         while not node.client.stopped:

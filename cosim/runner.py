@@ -4,8 +4,10 @@ The plant runs here; every estimator runs as a node in a process of its own and 
 runner only through CAN frames on the run's bus (``cosim/bus.py``). Tick k at t_k = k τ:
 
   1. read the plant's true state x_k and sensors y_k (MuJoCo, after the previous mj_step);
-  2. apply the fault layer to the readings; evaluate the commanded inputs;
-  3. send SYNC(k), then the sensor and command frames of tick k;
+  2. apply the fault layer to the readings; evaluate the commanded inputs (open loop);
+  3. send SYNC(k), then the sensor and command frames of tick k; in a closed-loop run the
+     ``controller`` node answers the sensor frames with the command frames of tick k, which the
+     runner waits for (until tick k's deadline in ``realtime``, holding the last commands if late);
   4. collect what the nodes send back: in ``lockstep`` until every node's heartbeat closing tick
      k has arrived (a node that dies or hangs ends the run with its name, exit status and last
      output); in ``realtime`` until tick k's wall-clock deadline, counting missing heartbeats as
@@ -43,11 +45,12 @@ import faults as fm
 from cosim import __version__, design_cache
 from cosim.bus import BusConfig, allocate, open_bus
 from cosim.codec import (
-    BOOTUP, CLIENT, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED, Codec, Decoded,
+    BOOTUP, CLIENT, COMMAND, CONTROL, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED, Codec,
+    Decoded,
 )
 from cosim.errors import CodecError, CosimError, ModelError, ScenarioError
 from cosim.interrupts import DeferredInterrupts
-from cosim.launcher import ExternalClient, LocalNode, Participant, ProcessNode
+from cosim.launcher import ExternalClient, LocalController, LocalNode, Participant, ProcessNode
 from cosim.log import McapLog
 from cosim.node import NodeSpec, model_to_dict
 from cosim.plant import Plant
@@ -56,6 +59,7 @@ from cosim.registry import Registration
 from cosim.scenario import ActuatorEffectivenessSpec, ActuatorOffsetSpec, LoadedScenario, Scenario, build_waveform
 from cosim.statespace import StateSpacePlant
 from estimators import Estimator, LinearModel, ParameterError
+from estimators import controller as controllers
 from estimators.design import fault_rejectable
 
 OWN_SENDERS = (RUNNER, PLANT, CONTROLLER)
@@ -173,6 +177,17 @@ def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: L
     return built
 
 
+def build_controller(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> controllers.Controller | None:
+    """The scenario's controller on the plant's linear model, with its parameters checked."""
+    if s.controller is None:
+        return None
+    kind = controllers.CONTROLLERS[s.controller.kind]
+    try:
+        return kind.from_params(continuous if kind.continuous else model, s.controller.params, s.sample_time)
+    except ParameterError as error:
+        raise ScenarioError(f"{source}: controller.params.{error}") from None
+
+
 def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
     """Warnings about scenario faults that an estimator cannot reject by design: a constant bias
     whose direction lies in Im(Y) (TAC 2024 Remark 4, CDC 2016 Remark 2)."""
@@ -226,7 +241,7 @@ class Traffic:
     of the runner's frames they found missing.
     """
 
-    def __init__(self, codec: Codec, recorder: RunRecorder) -> None:
+    def __init__(self, codec: Codec, recorder: RunRecorder, controller_node: bool = False) -> None:
         self.codec = codec
         self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
@@ -238,8 +253,11 @@ class Traffic:
         self.received: Counter[str] = Counter()
         self.echoes = 0
         self._counts: Counter[tuple[str, int]] = Counter()
-        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in OWN_SENDERS}
+        own = (RUNNER, PLANT) if controller_node else OWN_SENDERS
+        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own}
         self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
+        self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if controller_node else set()
+        self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
 
     def take(self, frame: can.Message) -> None:
         identifier = None if frame.is_extended_id else frame.arbitration_id
@@ -257,6 +275,11 @@ class Traffic:
                     self.left.add(sender)
                 elif state == OPERATIONAL:
                     self.closed[sender] = decoded.tick
+        elif identifier in self._commands:
+            decoded = self._decode(frame)
+            if decoded is not None:
+                channel = decoded.spec.channels[0]
+                self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
         self.pending.append((frame, decoded))
 
     def _decode(self, frame: can.Message) -> Decoded | None:
@@ -276,7 +299,7 @@ class Traffic:
                 continue
             sender, role = decoded.spec.sender, decoded.spec.role
             self.received[sender] += 1
-            if role in (ESTIMATE, CLIENT):
+            if role in (ESTIMATE, CLIENT, COMMAND, CONTROL):
                 self._counts[(sender, decoded.tick)] += 1
             elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
                 counter = decoded.tick % self.codec.tick_modulus
@@ -314,10 +337,12 @@ class Run:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         # Estimators are designed on the linearization at the plant's keyframe (its operating point).
         self.model = self.plant.linearize()
-        needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators)
+        needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
+            s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous)
         self.continuous_model = self.plant.linearize(continuous=True) if needs_continuous else None
         self.plant.reset(s.plant.initial_state)
         self.estimators = build_estimators(s, self.model, loaded.source, self.continuous_model)
+        self.controller = build_controller(s, self.model, loaded.source, self.continuous_model)
         self.warnings = design_warnings(s, self.estimators)
         self.faults = build_faults(s)
         onset = self.faults.first_onset
@@ -343,10 +368,15 @@ class Run:
         self.participants: list[Participant] = []
 
     def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
-        spec = next(e for e in self.scenario.estimators if e.name == name)
+        s = self.scenario
+        if name == CONTROLLER and s.controller is not None:
+            diagnosis = s.controller.diagnosis
+            return NodeSpec(CONTROLLER, s.controller.kind, s.controller.params, self.controller.model, self.codec.dbc, bus,
+                            s.sample_time, {diagnosis: 1} if diagnosis else {}, diagnosis)
+        spec = next(e for e in s.estimators if e.name == name)
         estimator = self.estimators[name]
         return NodeSpec(name, spec.kind, {**spec.params, **estimator.design_params()}, estimator.model, self.codec.dbc, bus,
-                        self.scenario.sample_time)
+                        s.sample_time, {CONTROLLER: 0} if s.controller is not None else {})
 
     def _metadata(self, log: McapLog) -> None:
         s = self.scenario
@@ -363,6 +393,9 @@ class Run:
             "actuators": json.dumps(list(s.actuators)), "disturbances": json.dumps(list(s.disturbance_inputs)),
             "estimators": json.dumps(est),
             "clients": json.dumps({c.name: {"lockstep": c.lockstep, "messages": [m.name for m in self.codec.data_messages(c.name)]} for c in s.clients}),
+            "controller": json.dumps(None if s.controller is None else {
+                "kind": s.controller.kind, "params": s.controller.params, "diagnosis": s.controller.diagnosis,
+                "messages": [m.name for m in self.codec.data_messages(CONTROLLER)], "model": model_to_dict(self.controller.model)}),
             "fault_onset": json.dumps(self.faults.first_onset),
             "fault_onset_tick": json.dumps(self.onset_tick),
             "faults": json.dumps([{"label": f.label, "kind": f.kind, "start": f.start, "end": f.end if np.isfinite(f.end) else None} for f in self.faults.faults]),
@@ -377,6 +410,11 @@ class Run:
 
     # -- participants -------------------------------------------------------------------------
 
+    def _external(self) -> list[str]:
+        """The nodes started by hand ('cosim node NAME --run ID')."""
+        names = [e.name for e in self.scenario.estimators if e.external]
+        return names + [CONTROLLER] if self.scenario.controller is not None and self.scenario.controller.external else names
+
     def _start(self, bus: BusConfig, workdir: Path) -> None:
         external = {e.name for e in self.scenario.estimators if e.external}
         for name, estimator in self.estimators.items():
@@ -388,6 +426,14 @@ class Run:
             else:
                 node = ProcessNode(spec, workdir)
             self.participants.append(node)
+        if (c := self.scenario.controller) is not None:
+            spec = self.node_spec(CONTROLLER, bus)
+            if c.external:
+                self.participants.append(ExternalClient(CONTROLLER, True, kind="controller"))
+            elif bus.interface == "virtual":
+                self.participants.append(LocalController(spec, self.controller))
+            else:
+                self.participants.append(ProcessNode(spec, workdir, kind="controller"))
         self.participants += [ExternalClient(c.name, c.lockstep) for c in self.scenario.clients]
 
     def _wait(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts, done: Callable[[], bool],
@@ -416,8 +462,24 @@ class Run:
             traffic.take(frame)
             frame = bus.recv(0.0)
 
-    def _hung(self, traffic: Traffic, tick: int) -> None:
-        waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < tick]
+    def _commands(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts, k: int, deadline: float | None,
+                  held: np.ndarray) -> np.ndarray:
+        """The controller node's commands of tick k: waited for (lockstep), or until the tick's
+        deadline (realtime), where a late or missing command holds the actuator's last one."""
+        if deadline is None:
+            self._wait(bus, traffic, interrupts, lambda: traffic.closed.get(CONTROLLER, -1) >= k,
+                       time.perf_counter() + self.scenario.timing.node_timeout, lambda: self._hung(traffic, k, CONTROLLER))
+        else:
+            self._wait(bus, traffic, interrupts, lambda: traffic.closed.get(CONTROLLER, -1) >= k, deadline, lambda: None)
+        got = traffic.commands.pop(k % self.codec.tick_modulus, {})
+        for old in [tick for tick in traffic.commands if (k - tick) % self.codec.tick_modulus < self.codec.tick_modulus // 2]:
+            del traffic.commands[old]
+        return np.array([got.get(name, u) for name, u in zip(self.scenario.actuators, held)])
+
+    def _hung(self, traffic: Traffic, tick: int, name: str | None = None) -> None:
+        waiting = [p for p in self.participants if p.lockstep and traffic.closed.get(p.name, -1) < tick and name in (None, p.name)]
+        if self.scenario.controller is not None and any(p.name == CONTROLLER for p in waiting):
+            waiting = [p for p in waiting if p.name == CONTROLLER]  # the others wait for its commands
         raise NodeFailure(waiting[0].hung(tick, self.scenario.timing.node_timeout))
 
     def _join(self, bus: can.BusABC, traffic: Traffic, interrupts: DeferredInterrupts) -> None:
@@ -448,6 +510,7 @@ class Run:
         realtime = s.timing.mode == "realtime"
         period = s.sample_time / s.timing.speed
         status, error, k, misses = "completed", "", 0, 0
+        u_cmd = self.model.u_op.copy()  # what the actuators hold before a controller's first command
         marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
         startup, tick_start = 0.0, None
         warnings: list[str] = []
@@ -457,13 +520,14 @@ class Run:
         registration = Registration(self.run_id, {
             "scenario": s.name, "source": self.loaded.source, "seed": s.seed, "sample_time": s.sample_time,
             "bus": self.bus.to_dict(), "dbc": codec.dbc, "log": str(self.out.resolve()),
-            "nodes": {e.name: self.node_spec(e.name, self.bus).to_json() for e in s.estimators if e.external},
+            "nodes": {name: self.node_spec(name, self.bus).to_json() for name in self._external()},
         })
         with (DeferredInterrupts() as interrupts, McapLog(self.out) as log, open_bus(self.bus) as bus,
               tempfile.TemporaryDirectory(prefix="cosim-nodes-") as workdir, registration):
             recorder = RunRecorder(log, codec, states=plant.state_names, sensors=s.sensors, actuators=s.actuators, units=self.units,
                                    disturbances=s.disturbance_inputs)
-            traffic = Traffic(codec, recorder)
+            closed_loop = s.controller is not None
+            traffic = Traffic(codec, recorder, controller_node=closed_loop)
             self._metadata(log)
             log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
             recorder.event(0, 0.0, 0, "start", f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}")
@@ -489,7 +553,8 @@ class Run:
                         codec.encode_decoded(spec.name, k, (value,))
                         for spec, value, on in zip(sensor_specs, outcome.measured, outcome.sent) if on
                     ]
-                    commands = [codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
+                    commands = [] if closed_loop else [
+                        codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(command_specs, self.inputs)]
                     sync = codec.sync(k, len(sent) + len(commands))
                     sent = [(sync, codec.decode(sync)), *sent, *commands]
                     for frame, _ in sent:
@@ -501,7 +566,13 @@ class Run:
                     for frame, decoded in sent:
                         recorder.frame(k, t, t_ns, frame, decoded)
                     # The actuators receive what the command frames carry (quantized in classic CAN).
-                    u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(commands, command_specs)])
+                    if closed_loop:
+                        u_cmd = self._commands(bus, traffic, interrupts, k, tick_start + (k + 1) * period if realtime else None, u_cmd)
+                        if realtime and traffic.closed.get(CONTROLLER, -1) < k:
+                            misses += 1
+                            recorder.deadline_miss(k, t, t_ns, CONTROLLER, misses)
+                    else:
+                        u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(commands, command_specs)])
                     u_eff, delta = self.faults.actuators(u_cmd, t)
                     d = np.array([w(t) for w in self.disturbances])
                     recorder.truth(
@@ -516,7 +587,7 @@ class Run:
                     if realtime:
                         self._wait(bus, traffic, interrupts, lambda: False, tick_start + (k + 1) * period, lambda: None)
                         for name in lockstep:
-                            if traffic.closed.get(name, -1) < k:
+                            if traffic.closed.get(name, -1) < k and name != CONTROLLER:
                                 misses += 1
                                 recorder.deadline_miss(k, t, t_ns, name, misses)
                     else:
@@ -564,7 +635,7 @@ class Run:
                     recorder.event(k, t_end, t_end_ns, "warning", warning, "warning")
                 senders = {
                     name: {"frames": traffic.received[name], "lost": traffic.lost[name], "runner_frames_missed": traffic.missed_by.get(name, 0)}
-                    for name in [*self.estimators, *(c.name for c in s.clients)]
+                    for name in [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if s.controller else [])]
                 }
                 recorder.event(k, t_end, t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
                 log.metadata("cosim.result", {

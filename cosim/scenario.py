@@ -25,6 +25,7 @@ from cosim import statespace
 from cosim.codec import Codec
 from cosim.errors import CodecError, ScenarioError
 from estimators import ESTIMATORS, ParameterError
+from estimators.controller import CONTROLLERS
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 DEFAULT_SCENARIO = "masses-bias"
@@ -368,6 +369,19 @@ class EstimatorSpec(Strict):
     """Do not start this node: it is started by hand with 'cosim node NAME' (e.g. in a debugger)."""
 
 
+class ControllerSpec(Strict):
+    """A feedback controller closing the loop over the bus (the ``controller`` node): it commands
+    every actuator from the sensor readings, in place of open-loop [[inputs]]."""
+
+    kind: str
+    params: dict[str, Any] = {}
+    diagnosis: str = ""
+    """An estimator whose diagnostics (the controller kind's reports, e.g. a fault mask) the
+    controller reads, one tick late."""
+    external: bool = False
+    """Do not start the node: it is started by hand with 'cosim node controller'."""
+
+
 class Scenario(Strict):
     name: Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
     description: str = ""
@@ -383,6 +397,7 @@ class Scenario(Strict):
     timing: TimingSpec = TimingSpec()
     estimators: list[EstimatorSpec] = []
     clients: list[ClientSpec] = []
+    controller: ControllerSpec | None = None
 
     @property
     def ticks(self) -> int:
@@ -432,7 +447,7 @@ class Scenario(Strict):
         sensors, actuators, states = self.channels()
         return Codec(
             sensors, actuators, {e.name: states for e in self.estimators}, diagnostics=self.diagnostic_channels(),
-            clients=self.client_channels(), fd=self.bus.fd,
+            clients=self.client_channels(), controller=self.controller_channels(), fd=self.bus.fd,
             bitrate=self.bus.bitrate, data_bitrate=self.bus.data_bitrate, cycle_time=self.sample_time,
         )
 
@@ -446,6 +461,15 @@ class Scenario(Strict):
             ]
             for e in self.estimators
         }
+
+    def controller_channels(self) -> list[mjcf.Channel] | None:
+        """The controller node's diagnostics as bus signals, or None for open-loop inputs."""
+        if self.controller is None:
+            return None
+        return [
+            _override(mjcf.Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+            for d in CONTROLLERS[self.controller.kind].diagnostic_channels(self.actuators, self.sensors)
+        ]
 
     def client_channels(self) -> dict[str, list[mjcf.Channel]]:
         return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
@@ -674,6 +698,23 @@ def check(s: Scenario) -> list[str]:
                 problems.append(f"estimators[{i}].params.{error}")
         if estimator_names.count(spec.name) > 1:
             problems.append(f"estimators[{i}].name: {spec.name!r} is used by two estimators")
+    for name in estimator_names:
+        if name == "controller":
+            problems.append("estimators: the name 'controller' is the controller node's; choose another name")
+    if (c := s.controller) is not None:
+        if c.kind not in CONTROLLERS:
+            close = difflib.get_close_matches(c.kind, list(CONTROLLERS), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.append(f"controller.kind: unknown controller {c.kind!r}{hint}; known: {', '.join(sorted(CONTROLLERS))}")
+        else:
+            try:
+                CONTROLLERS[c.kind].check_params(c.params)
+            except ParameterError as error:
+                problems.append(f"controller.params.{error}")
+        if c.diagnosis and c.diagnosis not in [e.name for e in s.estimators]:
+            problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
+        if s.inputs:
+            problems.append("inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)")
     if not problems:
         problems += _check_bus(s)
     return problems

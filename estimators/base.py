@@ -50,7 +50,32 @@ class ParameterError(ValueError):
         self.parameter = parameter
 
 
-class Estimator(ABC):
+class Configurable:
+    """Something built from a plain parameter dict (parsed TOML): a ``kind`` and a ``Params``
+    dataclass whose fields are the parameters, each converted to its declared type."""
+
+    kind: ClassVar[str]
+    Params: ClassVar[type]
+
+    @classmethod
+    def check_params(cls, params: dict[str, Any] | None = None) -> Any:
+        """The ``Params`` dataclass built from plain values (e.g. parsed TOML), each converted to its
+        declared type; a ParameterError names the first unknown or ill-typed parameter."""
+        params = dict(params or {})
+        hints = typing.get_type_hints(cls.Params)
+        known = [f.name for f in fields(cls.Params)]
+        for name in params:
+            if name not in known:
+                raise ParameterError(name, f"unknown parameter of {cls.kind} (known: {', '.join(sorted(known))})")
+        return cls.Params(**{name: coerce(value, hints[name], name) for name, value in params.items()})
+
+    @classmethod
+    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Any:
+        """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
+        return cls(model, cls.check_params(params), sample_time)
+
+
+class Estimator(Configurable, ABC):
     """Base class of state estimators for a LinearModel in discrete time.
 
     ``step(y, u)`` receives the measurements y_k (shape (p,), NaN where a sensor's frame did not
@@ -59,8 +84,6 @@ class Estimator(ABC):
     Each subclass declares its parameters as a dataclass ``Params``.
     """
 
-    kind: ClassVar[str]
-    Params: ClassVar[type]
     continuous: ClassVar[bool] = False
     """True for estimators designed on the continuous-time model (dt None) that integrate their own
     ODE between samples; they are given the sample time separately."""
@@ -81,23 +104,6 @@ class Estimator(ABC):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         """The diagnostics ``step`` returns each tick, for a model with these states and outputs."""
         return []
-
-    @classmethod
-    def check_params(cls, params: dict[str, Any] | None = None) -> Any:
-        """The ``Params`` dataclass built from plain values (e.g. parsed TOML), each converted to its
-        declared type; a ParameterError names the first unknown or ill-typed parameter."""
-        params = dict(params or {})
-        hints = typing.get_type_hints(cls.Params)
-        known = [f.name for f in fields(cls.Params)]
-        for name in params:
-            if name not in known:
-                raise ParameterError(name, f"unknown parameter of {cls.kind} (known: {', '.join(sorted(known))})")
-        return cls.Params(**{name: coerce(value, hints[name], name) for name, value in params.items()})
-
-    @classmethod
-    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:
-        """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
-        return cls(model, cls.check_params(params), sample_time)
 
     def step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         y = np.asarray(y, dtype=float)
@@ -153,6 +159,10 @@ def coerce(value: Any, hint: Any, name: str) -> Any:
             return value
         if option is str and isinstance(value, str):
             return value
+        if typing.get_origin(option) is tuple and sequence and typing.get_args(option)[0] is str:
+            if all(isinstance(item, str) for item in value):
+                return tuple(value)
+            continue
         if typing.get_origin(option) is tuple and sequence:
             return tuple(_number(item, f"{name}[{i}]") for i, item in enumerate(value))
     expected = " or ".join(_describe(option) for option in options if option is not type(None))
@@ -170,5 +180,7 @@ def _number(value: Any, name: str) -> float:
 def _describe(option: Any) -> str:
     if typing.get_origin(option) is tuple:
         inner = typing.get_args(option)[0]
+        if inner is str:
+            return "a list of names"
         return "a matrix (a list of rows of numbers)" if typing.get_origin(inner) is tuple else "a list of numbers"
     return {float: "a number", int: "an integer", bool: "true or false", str: "a string"}.get(option, str(option))

@@ -1,0 +1,153 @@
+"""The controller interface: a feedback law that closes the loop over the bus, no I/O.
+
+A controller runs as the run's ``controller`` node: each tick it receives the sensor readings y_k
+and, if it listens to a diagnosis node, that node's latest report (its diagnostics of tick k − 1:
+a fault cannot be reported before the commands it is diagnosed from went out), and returns the
+commanded inputs u_k, which the plant holds for one sample time. Like estimators, controllers are
+built from the plant's linear model and a ``Params`` dataclass, and run the same in a node process,
+in tests and in replay.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from estimators.base import Configurable, Diagnostic, ParameterError
+from estimators.model import LinearModel
+
+
+@dataclass(frozen=True)
+class Command:
+    """The commanded inputs u_k (absolute, shape (m,)) with named scalar diagnostics."""
+
+    u: np.ndarray
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+
+class Controller(Configurable, ABC):
+    """Base class of controllers for a plant with a LinearModel.
+
+    ``reports`` names the diagnostics of the diagnosis node that ``step`` reads (for example a
+    fault mask); the runner delivers them from the node named in the scenario's
+    ``controller.diagnosis``. ``continuous`` kinds are given the continuous-time model.
+    """
+
+    continuous: ClassVar[bool] = False
+    reports: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
+        if sample_time is None or not sample_time > 0:
+            raise ParameterError("sample_time", f"{self.kind} needs the sample time")
+        if self.continuous != (model.dt is None):
+            wanted = "continuous-time" if self.continuous else "discrete-time"
+            raise ParameterError("model", f"{self.kind} needs the plant's {wanted} model")
+        self.model = model
+        self.params = params
+        self.sample_time = float(sample_time)
+
+    @classmethod
+    def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        """The diagnostics ``step`` returns each tick, for a plant with these inputs and outputs."""
+        return []
+
+    @abstractmethod
+    def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
+        """u_k from y_k (shape (p,), absolute, NaN where a reading did not arrive), t_k and the
+        diagnosis node's latest report (empty before its first one)."""
+
+
+def _indices(names: tuple[str, ...], known: tuple[str, ...], parameter: str, what: str) -> list[int]:
+    missing = [name for name in names if name not in known]
+    if missing:
+        raise ParameterError(parameter, f"{', '.join(missing)} is not a {what} of the plant (it has: {', '.join(known)})")
+    return [known.index(name) for name in names]
+
+
+def _per_loop(value: tuple[float, ...], loops: int, parameter: str) -> np.ndarray:
+    if len(value) not in (1, loops):
+        raise ParameterError(parameter, f"give one value per loop ({loops}) or one for all, got {len(value)}")
+    return np.broadcast_to(np.asarray(value, dtype=float), (loops,)).copy()
+
+
+class PidController(Controller):
+    """Decentralized discrete PID loops, loop i driving input ``inputs[i]`` from output ``outputs[i]``:
+
+        e_k = r − y_k,   I_k = I_{k−1} + τ e_k,
+        u_k = u_op + k_p e_k + k_i I_k − k_d (y_k − y_{k−1}) / τ,
+
+    derivative on the measurement (no kick when the set point r steps), saturation to
+    [``lower``, ``upper``] with conditional integration as anti-windup (the integral is not
+    advanced while the loop is saturated in the direction the error pushes). A missing reading
+    holds the loop's last command. The inputs of the plant with no loop stay at u_op.
+    """
+
+    kind = "pid"
+
+    @dataclass(frozen=True)
+    class Params:
+        outputs: tuple[str, ...] = ()
+        inputs: tuple[str, ...] = ()
+        setpoint: tuple[float, ...] = (0.0,)
+        kp: tuple[float, ...] = (0.0,)
+        ki: tuple[float, ...] = (0.0,)
+        kd: tuple[float, ...] = (0.0,)
+        lower: tuple[float, ...] = (-np.inf,)
+        upper: tuple[float, ...] = (np.inf,)
+
+    def __init__(self, model: LinearModel, params: Params, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        if not params.outputs or len(params.outputs) != len(params.inputs):
+            raise ParameterError("outputs", "give the same number (at least one) of outputs and inputs: loop i drives inputs[i] from outputs[i]")
+        loops = len(params.outputs)
+        self._y = _indices(params.outputs, model.outputs, "outputs", "sensor")
+        self._u = _indices(params.inputs, model.inputs, "inputs", "input")
+        self.setpoint, self.kp, self.ki, self.kd, self.lower, self.upper = (
+            _per_loop(getattr(params, name), loops, name) for name in ("setpoint", "kp", "ki", "kd", "lower", "upper")
+        )
+        if np.any(self.lower >= self.upper):
+            raise ParameterError("lower", "every lower limit must be below its upper limit")
+        self.integral = np.zeros(loops)
+        self.previous: np.ndarray | None = None
+        self.u = model.u_op.copy()
+
+    @classmethod
+    def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        return [Diagnostic(f"e_{name}", "", f"control error r - y of the loop on {name}", 1e6, 1e-6) for name in outputs]
+
+    def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
+        y = np.asarray(y, dtype=float)[self._y]
+        error = self.setpoint - y
+        ok = np.isfinite(y)
+        previous = y if self.previous is None else np.where(np.isfinite(self.previous), self.previous, y)
+        derivative = np.where(ok, (y - previous) / self.sample_time, 0.0)
+        u_op = self.model.u_op[self._u]
+        integral = self.integral + np.where(ok, self.sample_time * error, 0.0)
+        unclipped = u_op + self.kp * error + self.ki * integral - self.kd * derivative
+        winding_up = ((unclipped > self.upper) & (error > 0)) | ((unclipped < self.lower) & (error < 0))
+        self.integral = np.where(ok & ~winding_up, integral, self.integral)
+        command = np.clip(u_op + self.kp * error + self.ki * self.integral - self.kd * derivative, self.lower, self.upper)
+        self.u[self._u] = np.where(ok, command, self.u[self._u])
+        self.previous = np.where(ok, y, previous)
+        diagnostics = {f"e_{name}": float(e) if np.isfinite(e) else 0.0 for name, e in zip(self.params.outputs, error)}
+        return Command(self.u.copy(), {d.name: diagnostics.get(d.name, 0.0) for d in self.diagnostic_channels(self.model.inputs, self.model.outputs)})
+
+
+CONTROLLERS: dict[str, type[Controller]] = {cls.kind: cls for cls in (PidController,)}
+
+
+def register(cls: type[Controller]) -> type[Controller]:
+    """Add a controller kind to the registry (a class decorator)."""
+    CONTROLLERS[cls.kind] = cls
+    return cls
+
+
+def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Controller:
+    """The controller of the given kind; unknown kinds and bad parameters raise ParameterError."""
+    if kind not in CONTROLLERS:
+        raise ParameterError("kind", f"unknown controller {kind!r} (known: {', '.join(sorted(CONTROLLERS))})")
+    return CONTROLLERS[kind].from_params(model, params, sample_time)
