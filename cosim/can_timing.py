@@ -1,0 +1,158 @@
+"""Lengths in bits of classic CAN and CAN FD data frames, with exact or worst-case bit stuffing.
+
+A data frame's bits, in transmission order (ISO 11898-1:2015; docs/metrics.md has the tables):
+
+- classic CAN, 11-bit id: SOF, ID(11), RTR, IDE, r0, DLC(4), data(8n), CRC(15); 29-bit id: SOF,
+  ID-A(11), SRR, IDE, ID-B(18), RTR, r1, r0, DLC(4), data(8n), CRC(15). Stuffing covers SOF to the
+  end of the CRC sequence: after five equal bits the transmitter inserts one of the opposite value,
+  which itself counts as the first bit of the next run.
+- CAN FD (ISO), 11-bit id: SOF, ID(11), RRS, IDE, FDF, res, BRS, ESI, DLC(4), data(8n); 29-bit id:
+  SOF, ID-A(11), SRR, IDE, ID-B(18), RRS, FDF, res, BRS, ESI, DLC(4), data(8n). Dynamic stuffing
+  covers SOF to the end of the data field; then the CRC field: stuff count (4 bits) and CRC (17 bits
+  for n <= 16, 21 above) with a fixed stuff bit before the stuff count and after every 4 bits, 6
+  or 7 fixed stuff bits, whatever the values.
+- then, in both: CRC delimiter, ACK slot, ACK delimiter, EOF(7), and the 3-bit intermission (IFS)
+  that must pass before the next frame: 13 bits, never stuffed.
+
+With BRS set, the bits from ESI to the end of the CRC field go at the data bit rate (the switch
+happens at the sample points of BRS and of the CRC delimiter; whole bits are counted on each side,
+and a stuff bit in the phase of the bit it follows). Everything else goes at the nominal bit rate.
+
+Exact stuffing needs the bits themselves, CRC included for classic CAN (its CRC sequence is
+stuffed; the CAN FD CRC field is not dynamically stuffed, so its length does not depend on the
+CRC's value). Stuff bits are counted by a finite automaton over bytes (state: the last bit and the
+length of its run), so a frame costs a few table look-ups per byte.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+#: Bits after the CRC field: CRC delimiter, ACK slot, ACK delimiter, EOF (7), intermission (3).
+TAIL_BITS = 13
+_CRC15_POLY = 0x4599  # x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1
+
+# Stuffing automaton: state 0 before SOF, else 1 + 5 b + (r - 1) after a run of r bits equal to b.
+
+
+def _bit_step(state: int, bit: int) -> tuple[int, int]:
+    """(stuff bits inserted, next state) after transmitting ``bit``."""
+    if state == 0:
+        return 0, 1 + 5 * bit
+    last, run = divmod(state - 1, 5)
+    run = run + 2 if bit == last else 1
+    if run == 5:  # the stuff bit (1 - bit) starts a new run of one
+        return 1, 1 + 5 * (1 - bit)
+    return 0, 1 + 5 * bit + run - 1
+
+
+def _chunk_table(width: int) -> list[list[tuple[int, int]]]:
+    """table[state][chunk] = (stuff bits, next state) for every ``width``-bit chunk."""
+    table = []
+    for state in range(11):
+        row = []
+        for chunk in range(1 << width):
+            stuffed, s = 0, state
+            for i in range(width - 1, -1, -1):
+                n, s = _bit_step(s, (chunk >> i) & 1)
+                stuffed += n
+            row.append((stuffed, s))
+        table.append(row)
+    return table
+
+
+_CHUNKS = [_chunk_table(width) for width in range(9)]  # by width; 8: whole bytes
+
+
+def stuff_bits(bits: int, length: int, state: int = 0) -> tuple[int, int]:
+    """(stuff bits inserted, final state) when the ``length`` bits of ``bits`` (most significant
+    first) are transmitted from automaton ``state`` (0: the first bit is SOF)."""
+    head = length % 8
+    stuffed, state = _CHUNKS[head][state][(bits >> (length - head)) & ((1 << head) - 1)]
+    table = _CHUNKS[8]
+    for shift in range(length - head - 8, -1, -8):
+        n, state = table[state][(bits >> shift) & 0xFF]
+        stuffed += n
+    return stuffed, state
+
+
+def _crc15_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 7
+        for _ in range(8):
+            crc = (crc << 1) ^ _CRC15_POLY if crc & 0x4000 else crc << 1
+        table.append(crc & 0x7FFF)
+    return table
+
+
+_CRC15 = _crc15_table()
+
+
+def crc15(bits: int, length: int) -> int:
+    """The classic-CAN CRC sequence of ``length`` bits (SOF to the end of the data field): the
+    remainder of their division by x^15 + x^14 + x^10 + x^8 + x^7 + x^4 + x^3 + 1, register
+    starting at 0."""
+    crc = 0
+    head = length % 8
+    for i in range(length - 1, length - 1 - head, -1):
+        feedback = ((bits >> i) & 1) ^ (crc >> 14)
+        crc = ((crc << 1) & 0x7FFF) ^ (_CRC15_POLY if feedback else 0)
+    for shift in range(length - head - 8, -1, -8):
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC15[((crc >> 7) ^ (bits >> shift)) & 0xFF]
+    return crc
+
+
+def _arbitration(can_id: int, extended: bool, fd: bool) -> tuple[int, int]:
+    """(bits, length) from SOF to the bit before the control field's r0/FDF (SOF = 0)."""
+    if extended:  # SOF, ID-A, SRR = 1, IDE = 1, ID-B, then RTR (classic) or RRS (FD) = 0
+        bits = (((can_id >> 18) & 0x7FF) << 2 | 0b11) << 18 | (can_id & 0x3FFFF)
+        return bits << 1, 1 + 11 + 2 + 18 + 1
+    return (can_id & 0x7FF) << 2, 1 + 11 + 2  # SOF, ID, RTR/RRS = 0, IDE = 0
+
+
+def _fd_crc_field(length: int) -> int:
+    """Bits of the ISO CAN FD CRC field: stuff count (4), CRC (17 or 21), fixed stuff bits."""
+    crc = 17 if length <= 16 else 21
+    return 4 + crc + (4 + crc + 3) // 4
+
+
+def frame_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data: bytes) -> tuple[int, int]:
+    """(bits at the nominal bit rate, bits at the data bit rate) of one data frame, stuff bits
+    counted exactly, intermission included. ``dlc`` is the data length code, ``data`` the payload
+    (as many bytes as the DLC codes)."""
+    n = len(data)
+    payload = int.from_bytes(data, "big")
+    head, head_len = _arbitration(can_id, extended, fd)
+    if not fd:  # ... then r0 (and r1 for 29-bit ids) = 0, DLC, data, CRC
+        control_len = 5 + (1 if extended else 0)
+        bits = ((head << control_len | dlc) << 8 * n) | payload
+        length = head_len + control_len + 8 * n
+        bits, length = bits << 15 | crc15(bits, length), length + 15
+        stuffed, _ = stuff_bits(bits, length)
+        return length + stuffed + TAIL_BITS, 0
+    # FD: ... FDF = 1, res = 0, BRS | ESI = 0, DLC, data
+    arbitration, arbitration_len = (head << 3) | (0b10 << 1) | int(brs), head_len + 3
+    stuffed_a, state = stuff_bits(arbitration, arbitration_len)
+    data_phase, data_len = (dlc << 8 * n) | payload, 1 + 4 + 8 * n  # ESI = 0 leads
+    stuffed_d, _ = stuff_bits(data_phase, data_len, state)
+    nominal = arbitration_len + stuffed_a + TAIL_BITS
+    fast = data_len + stuffed_d + _fd_crc_field(n)
+    return (nominal, fast) if brs else (nominal + fast, 0)
+
+
+@lru_cache(maxsize=None)
+def frame_bits_worst_case(extended: bool, fd: bool, brs: bool, length: int) -> tuple[int, int]:
+    """(nominal, data-rate) bits of a frame of ``length`` payload bytes with the most stuff bits
+    any payload and id can need: one per 4 bits after the first 5 of the stuffed region,
+    floor((L − 1)/4) for a region of L bits (Tindell, Burns & Wellings 1995, for classic CAN)."""
+    if not fd:
+        region = (54 if extended else 34) + 8 * length
+        return region + (region - 1) // 4 + TAIL_BITS, 0
+    arbitration = (36 if extended else 17)
+    region = arbitration + 5 + 8 * length
+    stuffed = (region - 1) // 4
+    stuffed_a = (arbitration - 1) // 4
+    nominal = arbitration + stuffed_a + TAIL_BITS
+    fast = 5 + 8 * length + stuffed - stuffed_a + _fd_crc_field(length)
+    return (nominal, fast) if brs else (nominal + fast, 0)

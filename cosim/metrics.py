@@ -1,0 +1,574 @@
+"""Metrics of a run log against its ground truth: estimation, detection and isolation, the bus.
+
+``compute_metrics(path)`` reads the log once, in file order, and returns one JSON-ready dict
+(``cosim inspect --json`` prints it). Every metric is defined in docs/metrics.md; in short, with
+e_k = |x_k − x̂_k| (Euclidean norm over the whole state) and τ the sample time:
+
+- estimation, per estimator: RMS of e_k before and from the first fault onset; the pre-fault band
+  b = 2 max e_k over the second half of the ticks before the first onset; per fault, over its
+  segment (from its onset to the next onset of any fault, or the end of the log), the peak of e_k
+  and the recovery time (from the onset to the tick after the last one with e_k > b; null if e_k is
+  still out of the band at the segment's end); the bias rejection ratio (post-fault RMS over that
+  of the uniform-weight baseline: a ``pseudoinverse`` estimator without ``weights``).
+- diagnosis, per estimator that publishes ``alarm`` (and optionally ``isolated_<name>`` flags):
+  per fault, detection delay (first alarm tick in its segment), isolation delay and decision;
+  false alarms (alarm episodes starting with no fault active), their rate per fault-free hour, and
+  missed detections.
+- bus: frames and bits per id, load against the configured bit rates (exact bit stuffing,
+  ``cosim.can_timing``), lost frames and deadline misses.
+
+Memory is bounded whatever the log's length: the truth and estimate messages of a tick are held
+only until the tick is complete (or ``WINDOW`` ticks old), then scored and dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cosim.can_timing import frame_bits, frame_bits_worst_case
+from cosim.log import LogReader
+from cosim.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE, message_topic
+
+#: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
+WINDOW = 1000
+#: The pre-fault band is this many times the largest settled pre-fault error.
+BAND_FACTOR = 2.0
+#: Decoded tick counters wrap at 2^16 on classic CAN.
+_TICK_MODULUS = 1 << 16
+_ALARM, _ISOLATED = "alarm", "isolated_"
+_ACTUATOR_KINDS = ("actuator_effectiveness", "actuator_offset")
+
+
+def compute_metrics(path: str | Path) -> dict[str, Any]:
+    """The metrics of one log as a JSON-ready dict (shape in docs/metrics.md). Raises LogError only
+    for a file that is not MCAP at all; damage and missing data become ``warnings`` and ``missing``."""
+    with LogReader(path) as reader:
+        meta = reader.metadata()
+        run = _Run(meta)
+        summary = reader.summary()
+        counts: dict[str, int] = {}
+        if summary is not None and summary.statistics is not None:
+            counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()
+                      if cid in summary.channels}
+            for channel in summary.channels.values():
+                counts.setdefault(channel.topic, 0)
+        scorer = _Scorer(run)
+        scanned: dict[str, int] = defaultdict(int)
+        for topic, log_time, msg in reader.messages():
+            scanned[topic] += 1
+            scorer.feed(topic, log_time, msg)
+        scorer.finish()
+        warnings = reader.warnings + run.warnings + scorer.warnings
+    return _report(path, run, scorer, counts or dict(scanned), warnings)
+
+
+# -- what the metadata says ---------------------------------------------------------------------
+
+
+class _Run:
+    """The run's description from its metadata (``cosim.run``, ``cosim.result``), read defensively."""
+
+    def __init__(self, meta: dict[str, dict[str, str]]) -> None:
+        self.warnings: list[str] = []
+        self.missing: list[str] = []
+        self.raw = run = meta.get("cosim.run")
+        self.result = meta.get("cosim.result", {})
+        if run is None:
+            self.warnings.append("no cosim.run metadata: not a cosim log, or written by another program; "
+                                 "estimator errors, fault and diagnosis metrics and the bus load are unavailable")
+            self.missing.append("cosim.run metadata (sample time, states, estimators, faults, bus): without it only "
+                                "channels, message counts and the time span are reported")
+            run = {}
+        if "cosim.result" not in meta:
+            self.missing.append("cosim.result metadata (status, frame counts): the run did not finish writing its log")
+        self.sample_time = self._number(run, "sample_time")
+        self.dt_ns = round(self.sample_time * 1e9) if self.sample_time else None
+        self.states: list[str] = self._json(run, "states", [])
+        self.sensors: list[str] = self._json(run, "sensors", [])
+        self.actuators: list[str] = self._json(run, "actuators", [])
+        self.estimators: dict[str, dict] = self._json(run, "estimators", {})
+        self.onset = self._json(run, "fault_onset", None)
+        self.onset_tick = self._json(run, "fault_onset_tick", None)
+        self.bus: dict[str, Any] = self._json(run, "bus", {})
+        targets = self._targets(meta.get("cosim.scenario", {}))
+        self.faults: dict[str, dict[str, Any]] = {
+            f["label"]: {"kind": f.get("kind"), "targets": targets.get(f["label"], []), "start": f.get("start"), "end": f.get("end")}
+            for f in self._json(run, "faults", [])
+        }
+        if self.faults and not targets:
+            self.missing.append("the resolved scenario (cosim.scenario metadata): fault targets unknown, isolation is not scored")
+        self.baseline = next((name for name, e in self.estimators.items()
+                              if e.get("kind") == "pseudoinverse" and e.get("params", {}).get("weights") is None), None)
+
+    def _targets(self, scenario: dict[str, str]) -> dict[str, list[str]]:
+        """Fault label → the sensors or actuators it acts on, from the resolved scenario; labels as
+        ``Scenario.fault_labels`` gives them (the name, or kind and position), no names: all of them."""
+        resolved = self._json(scenario, "resolved", {}, "cosim.scenario")
+        targets = {}
+        for i, spec in enumerate(resolved.get("faults", []) if isinstance(resolved, dict) else []):
+            actuator = spec.get("kind") in _ACTUATOR_KINDS
+            names = spec.get("actuators" if actuator else "sensors")
+            targets[spec.get("name") or f"{spec.get('kind')}{i}"] = list(names) if names is not None else (self.actuators if actuator else self.sensors)
+        return targets
+
+    def _json(self, run: dict[str, str], key: str, default: Any, record: str = "cosim.run") -> Any:
+        if key not in run:
+            return default
+        try:
+            return json.loads(run[key])
+        except ValueError:
+            self.warnings.append(f"{record} metadata field {key!r} is not valid JSON; ignored")
+            return default
+
+    def _number(self, run: dict[str, str], key: str) -> float | None:
+        try:
+            value = float(run[key]) if key in run else None
+        except ValueError:
+            self.warnings.append(f"cosim.run metadata field {key!r} is not a number; ignored")
+            return None
+        return value if value and math.isfinite(value) and value > 0 else None
+
+    def topic_owner(self) -> dict[str, str]:
+        return {message_topic(m): name for name, e in self.estimators.items() for m in e.get("messages", [])}
+
+
+# -- ticks assembled from their parts -----------------------------------------------------------
+
+
+@dataclass
+class _Tick:
+    x: dict[str, Any] | None = None
+    active: list[str] | None = None
+    estimates: dict[str, dict[str, Any]] = field(default_factory=lambda: defaultdict(dict))
+    parts: int = 0
+
+
+@dataclass
+class _Segment:
+    """From one fault onset (one or more faults starting at tick ``start``) to the next."""
+
+    start: int
+    labels: list[str]
+
+
+class _Scorer:
+    def __init__(self, run: _Run) -> None:
+        self.run = run
+        self.warnings: list[str] = []
+        self.owner = run.topic_owner()
+        self.expected_parts = (2 + len(self.owner)) if run.states else 0
+        self.pending: dict[int, _Tick] = {}
+        self.next_tick = 0
+        self.newest = -1
+        self.ticks = 0
+        self.late = 0
+        self.active: set[str] = set()
+        self.onsets: dict[str, int] = {}
+        self.ends: dict[str, int] = {}
+        self.segment: _Segment | None = None
+        self.estimators = {name: _EstimationScore(run) for name in run.estimators}
+        self.diagnosis: dict[str, _DiagnosisScore] = {}
+        self.bus = _BusScore(run)
+        self.lost_events = 0
+        self.misses: dict[str, int] = defaultdict(int)
+        self.broken: set[str] = set()
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
+
+    # feeding, in file order
+
+    def feed(self, topic: str, log_time: int, msg: Any) -> None:
+        self.first_ns = log_time if self.first_ns is None else min(self.first_ns, log_time)
+        self.last_ns = log_time if self.last_ns is None else max(self.last_ns, log_time)
+        if topic in self.broken or not isinstance(msg, dict):
+            return
+        try:
+            if topic == FRAMES:
+                self.bus.frame(msg)
+            elif topic == EVENTS:
+                if msg.get("event") == "frames_lost":
+                    self.lost_events += int(msg.get("count", 1))
+            elif topic == DEADLINE_MISSES:
+                self.misses[str(msg["node"])] += 1
+            elif self.expected_parts and self.run.dt_ns:
+                self._part(topic, log_time, msg)
+        except (KeyError, TypeError, ValueError) as error:
+            self.broken.add(topic)
+            self.warnings.append(f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
+                                 f"({type(error).__name__}: {error}); the topic is ignored from there on")
+
+    def _part(self, topic: str, log_time: int, msg: dict[str, Any]) -> None:
+        if topic == STATE:
+            k = int(msg["tick"])
+            self._tick(k).x = msg
+        elif topic == FAULTS:
+            k = int(msg["tick"])
+            self._tick(k).active = list(msg["active"])
+        elif topic in self.owner:
+            k_log = log_time // self.run.dt_ns
+            k = k_log - ((k_log - int(msg["tick"])) % _TICK_MODULUS)
+            if k < self.next_tick:
+                self.late += 1
+                return
+            self._tick(k).estimates[self.owner[topic]].update(msg)
+        else:
+            return
+        tick = self.pending[k]
+        tick.parts += 1
+        self.newest = max(self.newest, k)
+        self._drain(self.newest - WINDOW)
+
+    def _tick(self, k: int) -> _Tick:
+        if k not in self.pending:
+            self.pending[k] = _Tick()
+        return self.pending[k]
+
+    def _drain(self, force_below: int) -> None:
+        """Score ticks in order: each once complete, or incomplete once older than ``force_below``."""
+        while self.pending:
+            tick = self.pending.get(self.next_tick)
+            if tick is not None and (tick.parts >= self.expected_parts or self.next_tick < force_below):
+                self._score(self.next_tick, self.pending.pop(self.next_tick))
+            elif tick is None and self.next_tick < force_below:
+                pass  # never logged (a skipped chunk): nothing to score
+            else:
+                return
+            self.next_tick += 1
+
+    def finish(self) -> None:
+        for k in sorted(self.pending):
+            self.next_tick = k
+            self._score(k, self.pending.pop(k))
+        self._close_segment()
+        self.bus.finish()
+        if self.late:
+            self.warnings.append(f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored")
+
+    # scoring, tick by tick in order
+
+    def _score(self, k: int, tick: _Tick) -> None:
+        if tick.x is not None:
+            self.ticks = max(self.ticks, k + 1)
+        active = self.active if tick.active is None else set(tick.active)
+        for label in self.active - active:
+            self.ends.setdefault(label, k)
+        started = [label for label in self.run.faults if label in active and label not in self.active]
+        started += sorted(label for label in active - self.active if label not in self.run.faults)
+        if started:
+            self._close_segment()
+            self.segment = _Segment(k, started)
+            for label in started:
+                self.onsets.setdefault(label, k)
+        self.active = active
+        for name, estimate in tick.estimates.items():
+            if tick.x is not None and all(isinstance(estimate.get(f"xhat_{s}"), (int, float)) for s in self.run.states):
+                error = math.sqrt(math.fsum((tick.x[s] - estimate[f"xhat_{s}"]) ** 2 for s in self.run.states))
+                self.estimators[name].add(k, error, self.segment)
+            alarm = estimate.get(_ALARM)
+            if isinstance(alarm, (int, float)):
+                if name not in self.diagnosis:
+                    self.diagnosis[name] = _DiagnosisScore(self.run, name, estimate)
+                self.diagnosis[name].add(k, estimate, active, self.segment)
+
+    def _close_segment(self) -> None:
+        if self.segment is None:
+            return
+        for score in (*self.estimators.values(), *self.diagnosis.values()):
+            score.close(self.segment)
+        self.segment = None
+
+
+# -- estimation ---------------------------------------------------------------------------------
+
+
+class _EstimationScore:
+    def __init__(self, run: _Run) -> None:
+        self.run = run
+        self.sums = {"pre": [0.0, 0], "post": [0.0, 0]}
+        self.final: tuple[int, float | None] = (-1, None)
+        self.settled_max: float | None = None
+        self.scored = 0
+        self.seg_peak: tuple[float, int] | None = None
+        self.seg_last_out: int | None = None
+        self.seg_last: tuple[int, float] | None = None
+        self.faults: dict[str, dict[str, Any]] = {}
+
+    @property
+    def band(self) -> float | None:
+        return None if self.settled_max is None else BAND_FACTOR * self.settled_max
+
+    def add(self, k: int, error: float, segment: _Segment | None) -> None:
+        onset = self.run.onset_tick
+        window = "post" if onset is not None and k >= onset else "pre"
+        self.sums[window][0] += error * error
+        self.sums[window][1] += 1
+        self.scored += 1
+        if k > self.final[0]:
+            self.final = (k, error)
+        if onset is not None and onset // 2 <= k < onset:
+            self.settled_max = error if self.settled_max is None else max(self.settled_max, error)
+        if segment is not None:
+            if self.seg_peak is None or error > self.seg_peak[0]:
+                self.seg_peak = (error, k)
+            band = self.band
+            if band is not None and error > band:
+                self.seg_last_out = k
+            self.seg_last = (k, error)
+
+    def close(self, segment: _Segment) -> None:
+        dt, band = self.run.sample_time, self.band
+        recovery = None
+        if band is not None and self.seg_last is not None and self.seg_last[1] <= band:
+            recovery = 0.0 if self.seg_last_out is None else round((self.seg_last_out + 1 - segment.start) * dt, 9)
+        for label in segment.labels:
+            self.faults[label] = {
+                "peak_error": None if self.seg_peak is None else self.seg_peak[0],
+                "peak_at": None if self.seg_peak is None else round((self.seg_peak[1] - segment.start) * dt, 9),
+                "recovery_time": recovery,
+                "recovered": recovery is not None,
+            }
+        self.seg_peak = self.seg_last_out = self.seg_last = None
+
+    def rms(self, window: str) -> float | None:
+        total, n = self.sums[window]
+        return math.sqrt(total / n) if n else None
+
+
+# -- detection and isolation --------------------------------------------------------------------
+
+
+def isolation_targets(flags: list[str], params: dict[str, Any], sensors: list[str], actuators: list[str]) -> dict[str, list[str]]:
+    """What each isolation flag ``isolated_<name>`` names, as truth fault targets (sensor and
+    actuator names), in this order of precedence:
+
+    1. ``params["isolation_targets"]``: a table flag name → list of sensor/actuator names;
+    2. any other parameter that is a table mapping every flag name to a list of sensor/actuator
+       names (for example a ``cofd`` diagnosis process's thruster → actuators table);
+    3. the flag's name itself, if it is a sensor or an actuator.
+
+    A flag none of these resolves maps to no target (it can only be a wrong isolation)."""
+    known = set(sensors) | set(actuators)
+
+    def table(value: Any) -> dict[str, list[str]] | None:
+        if not isinstance(value, dict) or not value:
+            return None
+        if not all(isinstance(v, list) and all(isinstance(t, str) and t in known for t in v) for v in value.values()):
+            return None
+        return {str(k): list(v) for k, v in value.items()}
+
+    explicit = table(params.get("isolation_targets"))
+    if explicit is None:
+        explicit = next((t for key, value in params.items() if key != "isolation_targets"
+                         and (t := table(value)) is not None and set(flags) <= set(t)), None)
+    explicit = explicit or {}
+    return {flag: explicit.get(flag, [flag] if flag in known else []) for flag in flags}
+
+
+class _DiagnosisScore:
+    def __init__(self, run: _Run, name: str, first: dict[str, Any]) -> None:
+        self.run = run
+        self.flags = sorted(key.removeprefix(_ISOLATED) for key in first if key.startswith(_ISOLATED))
+        params = run.estimators.get(name, {}).get("params", {})
+        self.targets = isolation_targets(self.flags, params if isinstance(params, dict) else {}, run.sensors, run.actuators)
+        self.alarm_prev = False
+        self.scored = 0
+        self.fault_free_ticks = 0
+        self.false_alarms = 0
+        self.alarm_ticks = 0
+        self.open: dict[str, dict[str, Any]] = {}
+        self.faults: dict[str, dict[str, Any]] = {}
+
+    def expected(self, label: str) -> set[str]:
+        """The flags whose targets meet the targets of fault ``label``."""
+        targets = set(self.run.faults.get(label, {}).get("targets", []))
+        return {flag for flag, names in self.targets.items() if targets & set(names)}
+
+    def add(self, k: int, estimate: dict[str, Any], active: set[str], segment: _Segment | None) -> None:
+        alarm = estimate[_ALARM] > 0.5
+        raised = {flag for flag in self.flags if isinstance(v := estimate.get(_ISOLATED + flag), (int, float)) and v > 0.5}
+        self.scored += 1
+        self.alarm_ticks += alarm
+        if not active:
+            self.fault_free_ticks += 1
+            self.false_alarms += alarm and not self.alarm_prev
+        if segment is not None:
+            for label in segment.labels:
+                state = self.open.setdefault(label, {"start": segment.start, "alarm_before_onset": self.alarm_prev,
+                                                     "detected": None, "isolated": None, "decision": None, "correct": None})
+                if state["detected"] is None and alarm:
+                    state["detected"] = k
+                if state["isolated"] is None and raised:
+                    allowed = set().union(*(self.expected(g) for g in active))
+                    state["isolated"], state["decision"] = k, sorted(raised)
+                    state["correct"] = self.expected(label) <= raised <= allowed
+        self.alarm_prev = alarm
+
+    def close(self, segment: _Segment) -> None:
+        dt = self.run.sample_time
+        since = lambda k: None if k is None else round((k - segment.start) * dt, 9)  # noqa: E731
+        for label in segment.labels:
+            state = self.open.pop(label, None)
+            if state is None:  # no alarm value in the whole segment
+                continue
+            isolable = bool(self.expected(label))
+            correct = state["correct"]
+            if correct is None and isolable:
+                correct = False  # never isolated
+            self.faults[label] = {
+                "detected": state["detected"] is not None,
+                "detection_delay": since(state["detected"]),
+                "alarm_before_onset": state["alarm_before_onset"],
+                "isolable": isolable if self.flags else None,
+                "expected": sorted(self.expected(label)) if self.flags else None,
+                "isolation_delay": since(state["isolated"]),
+                "isolated": state["decision"],
+                "isolation_correct": correct if self.flags else None,
+            }
+
+
+# -- the bus ------------------------------------------------------------------------------------
+
+
+class _BusScore:
+    def __init__(self, run: _Run) -> None:
+        bus = run.bus
+        self.bitrate = bus.get("bitrate")
+        self.data_bitrate = bus.get("data_bitrate") or self.bitrate
+        self.fd = bus.get("fd")
+        self.sample_time = run.sample_time
+        self.by_id: dict[int, dict[str, Any]] = {}
+        self.busy = self.busy_worst = 0.0
+        self.frames = 0
+        self.tick, self.tick_busy, self.peak = None, 0.0, 0.0
+
+    def _time(self, bits: tuple[int, int]) -> float:
+        return bits[0] / self.bitrate + bits[1] / self.data_bitrate if self.bitrate else 0.0
+
+    def frame(self, msg: dict[str, Any]) -> None:
+        data = bytes.fromhex(msg["data"])
+        fd, brs, extended = bool(msg["fd"]), bool(msg["brs"]), bool(msg["extended"])
+        bits = frame_bits(int(msg["id"]), extended, fd, brs, int(msg["dlc"]), data)
+        worst = frame_bits_worst_case(extended, fd, brs, len(data))
+        entry = self.by_id.setdefault(int(msg["id"]), {"message": msg.get("message"), "frames": 0, "bits": 0})
+        entry["frames"] += 1
+        entry["bits"] += bits[0] + bits[1]
+        self.frames += 1
+        busy = self._time(bits)
+        self.busy += busy
+        self.busy_worst += self._time(worst)
+        if msg.get("tick") != self.tick:
+            self.finish()
+            self.tick, self.tick_busy = msg.get("tick"), 0.0
+        self.tick_busy += busy
+
+    def finish(self) -> None:
+        if self.sample_time:
+            self.peak = max(self.peak, self.tick_busy / self.sample_time)
+
+    def report(self, ticks: int, lost: int, misses: dict[str, int], result: dict[str, str]) -> dict[str, Any]:
+        span = ticks * self.sample_time if self.sample_time else 0.0
+        known = bool(self.bitrate) and span > 0
+        deadline = int(result["deadline_misses"]) if "deadline_misses" in result else sum(misses.values())
+        return {
+            "fd": self.fd,
+            "bitrate": self.bitrate,
+            "data_bitrate": self.data_bitrate if self.fd else None,
+            "frames": self.frames,
+            "by_id": {f"0x{i:03X}": e for i, e in sorted(self.by_id.items())},
+            "load": self.busy / span if known else None,
+            "load_worst_case": self.busy_worst / span if known else None,
+            "peak_tick_load": self.peak if known else None,
+            "lost": lost,
+            "lost_by_sender": {name: s.get("lost", 0) + s.get("runner_frames_missed", 0)
+                               for name, s in _loads(result.get("senders"), {}).items()},
+            "deadline_misses": deadline,
+            "deadline_misses_by_node": dict(sorted(misses.items())),
+        }
+
+
+def _loads(text: str | None, default: Any) -> Any:
+    try:
+        return json.loads(text) if text else default
+    except ValueError:
+        return default
+
+
+# -- the report ---------------------------------------------------------------------------------
+
+
+def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]) -> dict[str, Any]:
+    raw, result, dt = run.raw or {}, run.result, run.sample_time
+    ticks = scorer.ticks if run.raw is not None else channels.get(STATE, 0)
+    seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)  # noqa: E731
+    lost = int(result["frames_lost"]) if "frames_lost" in result else scorer.lost_events
+    estimators = {}
+    baseline = scorer.estimators.get(run.baseline) if run.baseline else None
+    for name, score in scorer.estimators.items():
+        post, base = score.rms("post"), baseline.rms("post") if baseline else None
+        estimators[name] = {
+            "kind": run.estimators[name].get("kind"),
+            "rms_pre_fault": score.rms("pre"),
+            "rms_post_fault": post,
+            "final_error": score.final[1],
+            "ticks_scored": score.scored,
+            "band": score.band,
+            "bias_rejection_ratio": post / base if post is not None and base else None,
+            "faults": score.faults,
+        }
+    diagnosis = {}
+    for name, score in scorer.diagnosis.items():
+        hours = score.fault_free_ticks * dt / 3600 if dt else 0.0
+        occurred = [label for label in score.faults]
+        diagnosis[name] = {
+            "kind": run.estimators.get(name, {}).get("kind"),
+            "isolation_flags": score.targets,
+            "ticks_scored": score.scored,
+            "alarm_time_s": round(score.alarm_ticks * dt, 9),
+            "fault_free_time_s": round(score.fault_free_ticks * dt, 9),
+            "false_alarms": score.false_alarms,
+            "false_alarm_rate_per_hour": score.false_alarms / hours if hours else None,
+            "missed_detections": sum(not score.faults[label]["detected"] for label in occurred),
+            "faults": score.faults,
+        }
+    faults = {
+        label: {**info, "onset": seconds(scorer.onsets.get(label)), "cleared": seconds(scorer.ends.get(label))}
+        for label, info in run.faults.items()
+    }
+    for label in scorer.onsets.keys() - faults.keys():  # active in the truth but absent from the metadata
+        faults[label] = {"kind": None, "targets": [], "start": None, "end": None,
+                         "onset": seconds(scorer.onsets[label]), "cleared": seconds(scorer.ends.get(label))}
+    missing = list(run.missing)
+    if run.raw is not None:
+        for topic, what in ((STATE, "estimation errors"), (FAULTS, "per-fault onsets, detection and isolation"),
+                            (FRAMES, "frames per id and bus load")):
+            if not channels.get(topic):
+                missing.append(f"{topic} messages: no {what}")
+        if scorer.bus.frames and not scorer.bus.bitrate:
+            missing.append("the bus bit rate (cosim.run.bus): no bus load")
+    span = None if scorer.first_ns is None else round((scorer.last_ns - scorer.first_ns) / 1e9, 9)
+    return {
+        "file": str(path),
+        "scenario": raw.get("scenario"),
+        "source": raw.get("source"),
+        "seed": int(raw["seed"]) if "seed" in raw and raw["seed"].isdigit() else None,
+        "status": result.get("status", "incomplete"),
+        "sample_time": dt,
+        "ticks": ticks,
+        "duration_s": round(ticks * dt, 9) if dt else None,
+        "time_span_s": span,
+        "channels": dict(sorted(channels.items())),
+        "frames": {"total": int(result["frames_total"]) if "frames_total" in result else channels.get(FRAMES, 0), "lost": lost},
+        "fault_onset": run.onset,
+        "faults": faults,
+        "estimators": estimators,
+        "baseline": run.baseline,
+        "diagnosis": diagnosis,
+        "bus": scorer.bus.report(ticks, lost, scorer.misses, result) if raw else None,
+        "missing": missing,
+        "warnings": warnings,
+    }
