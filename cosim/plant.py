@@ -116,10 +116,16 @@ class Plant:
 
 def load_model(info: PlantInfo) -> mujoco.MjModel:
     """Compile the plant's MJCF, checking that it has what the plant module declares."""
+    # The compiler runs mj_passive before the model has a Python object, and a Python mjcb_passive
+    # (a plant module's extra passive forces, e.g. mjcf/_body_damping.py) cannot be called there.
+    passive = mujoco.get_mjcb_passive()
+    mujoco.set_mjcb_passive(None)
     try:
         model = mujoco.MjModel.from_xml_path(str(info.model_path))
     except ValueError as error:
         raise ModelError(f"{info.model_path}: MuJoCo could not compile the model: {error}") from None
+    finally:
+        mujoco.set_mjcb_passive(passive)
     _check_states(model, info)
     for actuator in (*info.actuators, *info.disturbances):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator.name) < 0:
