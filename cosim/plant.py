@@ -126,6 +126,10 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
         raise ModelError(f"{info.model_path}: MuJoCo could not compile the model: {error}") from None
     finally:
         mujoco.set_mjcb_passive(passive)
+    if info.passive is not None:
+        if passive is not None and passive is not info.passive:
+            raise ModelError(f"{info.model_file}: needs its passive-force callback, but another one is installed (mjcb_passive)")
+        mujoco.set_mjcb_passive(info.passive)
     _check_states(model, info)
     for actuator in (*info.actuators, *info.disturbances):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator.name) < 0:

@@ -7,8 +7,10 @@ physical parameters with their sources. Physics lives in the XML; nothing here i
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 MODEL_DIR = Path(__file__).resolve().parent
 
@@ -63,6 +65,9 @@ class PlantInfo:
     initial state, linear model): the other MuJoCo coordinates are fast internal dynamics (flows
     that settle within a timestep, cumulative volumes that nothing depends on), eliminated in
     linearization by their quasi-static limit (see ``cosim.plant``).
+    ``passive``, when given, is a MuJoCo passive-force callback (``mjcb_passive``) for forces the
+    MJCF cannot express (the vessel's body-frame damping); ``cosim.plant`` installs it when it loads
+    the model, and it must leave models that are not its own alone.
     """
 
     name: str
@@ -75,6 +80,7 @@ class PlantInfo:
     keyframe: str = "rest"
     disturbances: tuple[Channel, ...] = ()
     state_tendons: tuple[str, ...] = ()
+    passive: Callable[[Any, Any], None] | None = None
 
     @property
     def model_path(self) -> Path:
