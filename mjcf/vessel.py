@@ -10,15 +10,26 @@ disturbance with |b(t)| ≤ ε = 5e6. Linearized at a heading ψ̄ (eq. (23)):
 
     Ẋ = A X + B τ + E(t),   A = [[0, P(ψ̄)], [0, −M⁻¹D]],   B = [[0], [M⁻¹]],   C = I₆.
 
-This module gives the paper's constants (``PAPER_M``, ``PAPER_D``, ``THRUSTERS``,
-``thruster_matrix``, ``paper_model``, ``DISTURBANCE_BOUND``).
+The MJCF model ``vessel.xml`` holds the physics; its header explains how M, D and G are expressed
+and what the world-frame added mass costs away from heading 0. This module gives the paper's
+constants (``PAPER_M``, ``PAPER_D``, ``THRUSTERS``, ``thruster_matrix``, ``paper_model``,
+``DISTURBANCE_BOUND``), names the plant's signals (``INFO``, with the body-frame damping callback the model relies on,
+``mjcf._body_damping``), and generates the environmental disturbance
+b(t) (``EnvironmentDisturbance``, ``environment_disturbance``).
+
+The plant's state is MuJoCo's [qpos, qvel] = [x, y, ψ, ẋ, ẏ, r]: earth-frame velocities, which
+equal ν = [u, v, r] at ψ = 0 only (ẋ, ẏ = P(ψ) [u, v]). The sensors u, v are body-frame.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+
+from mjcf import _body_damping
+from mjcf._plant import Channel, Parameter, PlantInfo
 
 _PAPER = "Cristofaro & Johansen, Sec. 4"
 
@@ -110,3 +121,190 @@ def paper_model(
 def disturbance_matrix(psi_bar: float = 0.0, M: np.ndarray = PAPER_M) -> np.ndarray:
     """The direction of b in eq. (23): E(t) = [[0], [M⁻¹ Pᵀ(ψ̄)]] b(t), shape (6, 3)."""
     return np.vstack([np.zeros((3, 3)), np.linalg.inv(M) @ rotation(psi_bar).T])
+
+
+# The plant ------------------------------------------------------------------------------------
+
+X_G = PAPER_M[1, 2] / MASS  # m: centre-of-mass offset that carries the sway-yaw coupling M23
+HULL_YAW_INERTIA = MASS * (LENGTH**2 + WIDTH**2) / 12.0  # kg m^2, a 76 m x 16 m box about its centre
+
+PARAMETERS = {
+    "mass": Parameter(MASS, "kg", f"{_PAPER} (μ)"),
+    "length": Parameter(LENGTH, "m", _PAPER),
+    "width": Parameter(WIDTH, "m", _PAPER),
+    "x_g": Parameter(X_G, "m", "M23 / mass: the rigid offset that gives M's sway-yaw coupling (vessel.xml, INERTIA)"),
+    "hull_yaw_inertia": Parameter(HULL_YAW_INERTIA, "kg m^2", "mass (length^2 + width^2) / 12, a box about the centre of mass"),
+    "added_mass_x": Parameter(PAPER_M[0, 0] - MASS, "kg", "M11 - mass, armature of the x slide (world axis)"),
+    "added_mass_y": Parameter(PAPER_M[1, 1] - MASS, "kg", "M22 - mass, armature of the y slide (world axis)"),
+    "added_yaw_inertia": Parameter(PAPER_M[2, 2] - HULL_YAW_INERTIA - MASS * X_G**2, "kg m^2",
+                                   "M33 - hull_yaw_inertia - mass x_g^2, armature of the heading hinge"),
+    **{f"M{i + 1}{j + 1}": Parameter(float(PAPER_M[i, j]), "SI", _PAPER) for i in range(3) for j in range(3)},
+    **{f"D{i + 1}{j + 1}": Parameter(float(PAPER_D[i, j]), "SI", _PAPER) for i in range(3) for j in range(3)},
+    **{f"d{k + 1}": Parameter(t.distance, "m", t.source) for k, t in enumerate(THRUSTERS)},
+    **{f"phi{k + 1}": Parameter(t.angle, "rad", t.source) for k, t in enumerate(THRUSTERS)},
+    "epsilon": Parameter(DISTURBANCE_BOUND, "N", f"{_PAPER}: bound on |b(t)|"),
+}
+
+
+def _position(name: str, description: str) -> Channel:
+    # 1 mm over ±20 km: 26-bit signed integers.
+    return Channel(name, "m", description, -2e4, 2e4, 1e-3)
+
+
+def _heading(name: str, description: str) -> Channel:
+    # 1 µrad over ±100 rad (about 16 turns; the hinge angle is not wrapped): 28 bits.
+    return Channel(name, "rad", description, -100.0, 100.0, 1e-6)
+
+
+def _speed(name: str, description: str, **kwargs) -> Channel:
+    # 10 µm/s over ±20 m/s (39 knots): 23 bits.
+    return Channel(name, "m/s", description, -20.0, 20.0, 1e-5, **kwargs)
+
+
+def _yaw_rate(name: str, description: str) -> Channel:
+    # 0.1 µrad/s over ±1 rad/s: 24 bits.
+    return Channel(name, "rad/s", description, -1.0, 1.0, 1e-7)
+
+
+def _thrust(name: str, description: str) -> Channel:
+    # 1 N over ±5 MN (the cruise thrust D ν0 allocates about 2e5 N per component): 24 bits.
+    return Channel(name, "N", description, -5e6, 5e6, 1.0)
+
+
+INFO = PlantInfo(
+    name="vessel",
+    description="Over-actuated surface vessel, 3 azimuth + 2 tunnel thrusters (Cristofaro & Johansen, Sec. 4)",
+    model_file="vessel.xml",
+    states=(
+        _position("x", "earth-frame position of the body origin, x_G"),
+        _position("y", "earth-frame position of the body origin, y_G"),
+        _heading("psi", "heading ψ"),
+        _speed("x_dot", "earth-frame velocity dx/dt (= surge u at ψ = 0)"),
+        _speed("y_dot", "earth-frame velocity dy/dt (= sway v at ψ = 0)"),
+        _yaw_rate("r", "yaw rate r = dψ/dt"),
+    ),
+    sensors=(
+        _position("x", "earth-frame position x_G"),
+        _position("y", "earth-frame position y_G"),
+        _heading("psi", "heading ψ"),
+        _speed("u", "surge velocity (body frame)", source="velocity", component=0),
+        _speed("v", "sway velocity (body frame)", source="velocity", component=1),
+        _yaw_rate("r", "yaw rate"),
+    ),
+    actuators=tuple(
+        _thrust(name, f"{name[:2]} {'x (surge)' if name.endswith('x') else 'y (sway)'} thrust, body frame"
+                if len(name) == 3 else f"{name} tunnel thrust, y (sway), body frame")
+        for name in INPUTS
+    ),
+    parameters=PARAMETERS,
+    disturbances=(
+        Channel("b_x", "N", "environmental force b_x, earth frame", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
+        Channel("b_y", "N", "environmental force b_y, earth frame", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
+        Channel("b_n", "N m", "environmental yaw moment b_n", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
+    ),
+    passive=_body_damping.passive,  # the part of D that MJCF cannot express (vessel.xml, DAMPING)
+)
+
+#: The paper's initial state (Sec. 4), also the model's keyframe: η0 = (1, 1, 0), ν0 = (2.2, 1.9, 0).
+INITIAL_ETA = (1.0, 1.0, 0.0)
+INITIAL_NU = (2.2, 1.9, 0.0)
+
+
+# The environmental disturbance b(t) -------------------------------------------------------------
+
+@dataclass(frozen=True)
+class EnvironmentDisturbance:
+    """b(t) = b_c + Σ_i sin(ω_i t + ϕ_i) a_i [cos β_i(t), sin β_i(t), 0] + Σ_i n_i sin(ω_i t + θ_i) e_3.
+
+    The earth-frame disturbance of Sec. 4: a constant current force ``current`` (N, along a fixed
+    direction) plus wave components i of frequency ω_i (rad/s), force amplitude a_i (N) along a
+    direction β_i(t) = β̄ + Δβ sin(Ω t + χ_i) that swings about the mean wave direction β̄, and yaw
+    moment amplitude n_i (N m). Every component is bounded, so
+    |b(t)| ≤ |b_c| + Σ_i hypot(a_i, n_i) = ``bound``, checked against ε = 5e6 on construction.
+    """
+
+    current: tuple[float, float, float]
+    frequencies: tuple[float, ...]
+    force_amplitudes: tuple[float, ...]
+    force_phases: tuple[float, ...]
+    moment_amplitudes: tuple[float, ...]
+    moment_phases: tuple[float, ...]
+    mean_direction: float
+    swing: float
+    swing_frequency: float
+    swing_phases: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if self.bound > DISTURBANCE_BOUND:
+            raise ValueError(f"environment disturbance: |b| may reach {self.bound:.4g} > ε = {DISTURBANCE_BOUND:g}; "
+                             f"lower current, wave_force or wave_moment")
+
+    @property
+    def bound(self) -> float:
+        """The guaranteed bound on |b(t)| (triangle inequality over the components)."""
+        return float(np.linalg.norm(self.current) + np.sum(np.hypot(self.force_amplitudes, self.moment_amplitudes)))
+
+    @classmethod
+    def random(
+        cls,
+        rng_or_seed: int | np.random.SeedSequence | np.random.Generator,
+        *,
+        current: float = 2e4,
+        wave_force: float = 1e5,
+        wave_moment: float = 1e6,
+        wave_periods: tuple[float, float] = (6.0, 10.0),
+        components: int = 3,
+        swing: float = np.pi / 6,
+        swing_period: float = 200.0,
+    ) -> EnvironmentDisturbance:
+        """A realization: current direction, mean wave direction, wave periods (uniform in
+        ``wave_periods``, s) and phases drawn from the seed; ``wave_force`` (N) and ``wave_moment``
+        (N m) are the sums of the components' amplitudes, split equally; the wave direction swings
+        by ±``swing`` (rad) with period ``swing_period`` (s). A Generator is read, not advanced.
+        """
+        checks = {"current": current, "wave_force": wave_force, "wave_moment": wave_moment, "swing": swing}
+        for name, value in checks.items():
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"environment disturbance: {name} = {value!r}; give a finite value >= 0")
+        low, high = wave_periods
+        if not 0 < low <= high or not swing_period > 0 or components < 1:
+            raise ValueError("environment disturbance: wave_periods must be 0 < low <= high, swing_period > 0, components >= 1")
+        if isinstance(rng_or_seed, np.random.Generator):
+            rng = np.random.Generator(type(rng_or_seed.bit_generator)())
+            rng.bit_generator.state = rng_or_seed.bit_generator.state
+        else:
+            rng = np.random.default_rng(rng_or_seed)
+        heading = rng.uniform(-np.pi, np.pi)
+        periods = rng.uniform(low, high, components)
+        phases = rng.uniform(-np.pi, np.pi, (3, components))
+        return cls(
+            current=(current * np.cos(heading), current * np.sin(heading), 0.0),
+            frequencies=tuple(2.0 * np.pi / periods),
+            force_amplitudes=(wave_force / components,) * components,
+            force_phases=tuple(phases[0]),
+            moment_amplitudes=(wave_moment / components,) * components,
+            moment_phases=tuple(phases[1]),
+            mean_direction=float(rng.uniform(-np.pi, np.pi)),
+            swing=float(swing),
+            swing_frequency=2.0 * np.pi / swing_period,
+            swing_phases=tuple(phases[2]),
+        )
+
+    def __call__(self, t: float | np.ndarray) -> np.ndarray:
+        """b(t) = [b_x, b_y, b_n] at time(s) ``t`` (s): shape (3,) for a scalar t, else (len(t), 3)."""
+        t = np.asarray(t, dtype=float)
+        tt = t[..., None]  # components along the last axis
+        w = np.asarray(self.frequencies)
+        beta = self.mean_direction + self.swing * np.sin(self.swing_frequency * tt + np.asarray(self.swing_phases))
+        force = np.asarray(self.force_amplitudes) * np.sin(w * tt + np.asarray(self.force_phases))
+        moment = np.asarray(self.moment_amplitudes) * np.sin(w * tt + np.asarray(self.moment_phases))
+        b = np.stack([np.sum(force * np.cos(beta), -1), np.sum(force * np.sin(beta), -1), np.sum(moment, -1)], -1)
+        return b + np.asarray(self.current)
+
+
+def environment_disturbance(
+    t: float | np.ndarray, rng_or_seed: int | np.random.SeedSequence | np.random.Generator, **magnitudes
+) -> np.ndarray:
+    """b(t) of the realization ``EnvironmentDisturbance.random(rng_or_seed, **magnitudes)``; pure:
+    the same seed (or Generator state) gives the same b at every t. Shape (3,) or (len(t), 3)."""
+    return EnvironmentDisturbance.random(rng_or_seed, **magnitudes)(t)
