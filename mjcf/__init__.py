@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from mjcf import masses, three_tank
+from mjcf import masses, three_tank, vessel
 from mjcf._plant import Channel, Parameter, PlantInfo
 
-PLANTS: dict[str, PlantInfo] = {info.name: info for info in (masses.INFO, three_tank.INFO)}
+PLANTS: dict[str, PlantInfo] = {info.name: info for info in (masses.INFO, three_tank.INFO, vessel.INFO)}
 
 
 def get(name: str) -> PlantInfo:
