@@ -9,6 +9,7 @@ from typing import Any
 
 from estimators.adaptive import AdaptivePseudoinverseObserver, InjectionObserver
 from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.cofd import COFDDiagnosis
 from estimators.continuous import ContinuousAdaptiveObserver
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
@@ -22,7 +23,7 @@ from estimators.uio import UnknownInputObserver
 
 ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (
     PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter,
-    UnknownInputObserver, LpvUioReconciliator, LftUioReconciliator, NoReconciliation,
+    UnknownInputObserver, LpvUioReconciliator, LftUioReconciliator, NoReconciliation, COFDDiagnosis,
 )}
 
 
