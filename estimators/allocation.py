@@ -176,13 +176,11 @@ def bounded_allocation(G: np.ndarray, tau: np.ndarray, lower, upper, N: np.ndarr
     target = np.concatenate([weight * tau, np.zeros(N.shape[1])])
     bounded = np.isfinite(lo) | np.isfinite(hi)
     v = scipy.optimize.lsq_linear(stacked, target, bounds=(lo, hi), method="bvls" if bounded.any() else "trf").x
-    at_limit = np.isclose(v, lo, rtol=1e-9, atol=1e-9 * np.abs(lo[np.isfinite(lo)]).max(initial=1.0)) | \
-        np.isclose(v, hi, rtol=1e-9, atol=1e-9 * np.abs(hi[np.isfinite(hi)]).max(initial=1.0))
-    free = ~at_limit
+    slack = 1e-9 * max(1.0, float(np.abs(v).max()))
+    free = (v > lo + slack) & (v < hi - slack)
     if free.any() and _rank(GN[:, free]) == G.shape[0]:
         polished = v.copy()
         polished[free] = np.linalg.pinv(GN[:, free]) @ (tau - GN[:, ~free] @ v[~free])
-        slack = 1e-9 * max(1.0, float(np.abs(polished).max()))
         if np.all(polished >= lo - slack) and np.all(polished <= hi + slack):
             v = np.clip(polished, lo, hi)
     return N @ v
@@ -240,7 +238,8 @@ class VesselController:
         τ_c += M [a_u, a_v, 0]ᵀ,  a = 2ω_v (ν_ref − ν)_{u,v} + ω_v² ∫(ν_ref − ν)_{u,v}
 
     which makes ν̇_{u,v} = a + … : two poles at −ω_v, no steady error under a constant current.
-    Reports only add thrusters (a reconfigured thruster is never taken back).
+    Reports only add thrusters (a reconfigured thruster is never taken back). The integrals stop
+    while the allocation cannot meet τ_c (thrust limits, or too few thrusters left): anti-windup.
     """
 
     def __init__(self, M: np.ndarray, D: np.ndarray, G: np.ndarray, sample_time: float,
@@ -309,14 +308,15 @@ class VesselController:
             self.active_mask |= self.reported
 
         error = _wrap(psi - self.heading_ref)
-        self.heading_integral += self.sample_time * error
-        a_psi = -(self.kp * error + self.ki * self.heading_integral + self.kd * nu[2])
+        heading_integral = self.heading_integral + self.sample_time * error
+        a_psi = -(self.kp * error + self.ki * heading_integral + self.kd * nu[2])
         tau = self.D @ nu + np.array([0.0, 0.0, a_psi])
+        speed_integral = self.speed_integral
         if self.active_mask:
             speed_error = self.speed_ref - nu[:2]
-            self.speed_integral += self.sample_time * speed_error
+            speed_integral = self.speed_integral + self.sample_time * speed_error
             w = self.params.speed_bandwidth
-            tau += self.M[:, :2] @ (2 * w * speed_error + w**2 * self.speed_integral)
+            tau += self.M[:, :2] @ (2 * w * speed_error + w**2 * speed_integral)
 
         faulty = [i for j, g in enumerate(self.groups) if self.active_mask >> j & 1 for i in g]
         clustered = self.cluster_basis is not None and not self.active_mask
@@ -325,9 +325,12 @@ class VesselController:
             u = allocate(self.G, tau, N)
         else:
             u = bounded_allocation(self.G, tau, -self.limits, self.limits, N)
+        tau_error = float(np.linalg.norm(self.G @ u - tau))
+        if tau_error <= 1e-6 * np.linalg.norm(tau):  # anti-windup: integrate only while τ_c is met
+            self.heading_integral, self.speed_integral = heading_integral, speed_integral
         diagnostics = {
             "tau_x": tau[0], "tau_y": tau[1], "tau_n": tau[2], "a_psi": a_psi, "heading_error": error,
-            "tau_error": float(np.linalg.norm(self.G @ u - tau)), "cluster": float(clustered),
+            "tau_error": tau_error, "cluster": float(clustered),
             "reconfigured": float(self.active_mask != 0), "active_mask": float(self.active_mask),
         }
         return u, {name: float(value) for name, value in diagnostics.items()}
