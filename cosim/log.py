@@ -32,8 +32,9 @@ from cosim.errors import LogError
 _JSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
 
 
-#: What the mcap reader raises on truncated or corrupted input.
-READ_ERRORS = (McapError, ValueError, EOFError, struct.error, zstandard.ZstdError)
+#: What the mcap reader raises on truncated or corrupted input (OSError and OverflowError: a
+#: damaged summary or footer gives offsets outside the file, which ``seek`` refuses).
+READ_ERRORS = (McapError, ValueError, EOFError, struct.error, zstandard.ZstdError, OSError, OverflowError)
 
 
 def dumps(payload: Any) -> bytes:
