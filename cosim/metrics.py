@@ -49,7 +49,11 @@ def compute_metrics(path: str | Path) -> dict[str, Any]:
     for a file that is not MCAP at all; damage and missing data become ``warnings`` and ``missing``."""
     with LogReader(path) as reader:
         meta = reader.metadata()
-        run = _Run(meta)
+        try:
+            run = _Run(meta)
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as error:  # valid JSON, damaged content
+            run = _Run({})
+            run.warnings.insert(0, f"the cosim metadata is damaged ({type(error).__name__}: {error}); the log is read as a foreign one")
         summary = reader.summary()
         counts: dict[str, int] = {}
         if summary is not None and summary.statistics is not None:
@@ -59,9 +63,14 @@ def compute_metrics(path: str | Path) -> dict[str, Any]:
                 counts.setdefault(channel.topic, 0)
         scorer = _Scorer(run)
         scanned: dict[str, int] = defaultdict(int)
-        for topic, log_time, msg in reader.messages():
-            scanned[topic] += 1
-            scorer.feed(topic, log_time, msg)
+        try:
+            for topic, log_time, msg in reader.messages():
+                scanned[topic] += 1
+                scorer.feed(topic, log_time, msg)
+        except (OSError, OverflowError, MemoryError) as error:  # a damaged index points outside the file
+            where = "at its start" if scorer.last_ns is None else f"after t = {scorer.last_ns / 1e9:g} s"
+            scorer.warnings.append(f"reading stopped {where}: the file's summary is damaged ({type(error).__name__}: {error}); "
+                                   f"the {sum(scanned.values())} messages before were read")
         scorer.finish()
         warnings = reader.warnings + run.warnings + scorer.warnings
     return _report(path, run, scorer, counts or dict(scanned), warnings)
@@ -77,7 +86,14 @@ class _Run:
         self.warnings: list[str] = []
         self.missing: list[str] = []
         self.raw = run = meta.get("cosim.run")
-        self.result = meta.get("cosim.result", {})
+        result = meta.get("cosim.result", {})
+        self.status = result.get("status", "incomplete")
+        self.frames_total = self._integer(result, "frames_total", "cosim.result")
+        self.frames_lost = self._integer(result, "frames_lost", "cosim.result")
+        self.deadline_misses = self._integer(result, "deadline_misses", "cosim.result")
+        senders = self._json(result, "senders", {}, "cosim.result")
+        self.lost_by_sender = {str(name): int(s.get("lost", 0)) + int(s.get("runner_frames_missed", 0))
+                               for name, s in senders.items() if isinstance(s, dict)} if isinstance(senders, dict) else {}
         if run is None:
             self.warnings.append("no cosim.run metadata: not a cosim log, or written by another program; "
                                  "estimator errors, fault and diagnosis metrics and the bus load are unavailable")
@@ -94,7 +110,9 @@ class _Run:
         self.estimators: dict[str, dict] = self._json(run, "estimators", {})
         self.onset = self._json(run, "fault_onset", None)
         self.onset_tick = self._json(run, "fault_onset_tick", None)
-        self.bus: dict[str, Any] = self._json(run, "bus", {})
+        bus = self._json(run, "bus", {})
+        self.bus: dict[str, Any] = bus if isinstance(bus, dict) else {}
+        self.seed = self._integer(run, "seed")
         targets = self._targets(meta.get("cosim.scenario", {}))
         self.faults: dict[str, dict[str, Any]] = {
             f["label"]: {"kind": f.get("kind"), "targets": targets.get(f["label"], []), "start": f.get("start"), "end": f.get("end")}
@@ -117,13 +135,25 @@ class _Run:
         return targets
 
     def _json(self, run: dict[str, str], key: str, default: Any, record: str = "cosim.run") -> Any:
+        """The JSON value of a metadata field; ``default`` (with a warning) if it does not parse or,
+        for a list or dict default, is not of that type."""
         if key not in run:
             return default
         try:
-            return json.loads(run[key])
+            value = json.loads(run[key])
         except ValueError:
-            self.warnings.append(f"{record} metadata field {key!r} is not valid JSON; ignored")
+            value = ValueError
+        if value is ValueError or (isinstance(default, (list, dict)) and not isinstance(value, type(default))):
+            self.warnings.append(f"{record} metadata field {key!r} is not valid JSON of the expected shape; ignored")
             return default
+        return value
+
+    def _integer(self, record: dict[str, str], key: str, name: str = "cosim.run") -> int | None:
+        try:
+            return int(record[key]) if key in record else None
+        except ValueError:
+            self.warnings.append(f"{name} metadata field {key!r} is not an integer; ignored")
+            return None
 
     def _number(self, run: dict[str, str], key: str) -> float | None:
         try:
@@ -344,29 +374,40 @@ class _EstimationScore:
 
 def isolation_targets(flags: list[str], params: dict[str, Any], sensors: list[str], actuators: list[str]) -> dict[str, list[str]]:
     """What each isolation flag ``isolated_<name>`` names, as truth fault targets (sensor and
-    actuator names), in this order of precedence:
+    actuator names). A flag's targets are, in this order of precedence:
 
-    1. ``params["isolation_targets"]``: a table flag name → list of sensor/actuator names;
-    2. any other parameter that is a table mapping every flag name to a list of sensor/actuator
-       names (for example a ``cofd`` diagnosis process's thruster → actuators table);
-    3. the flag's name itself, if it is a sensor or an actuator.
-
-    A flag none of these resolves maps to no target (it can only be a wrong isolation)."""
+    1. its entry in ``params["isolation_targets"]``, a table flag name → list of sensor/actuator names;
+    2. for a flag ``T<j>`` (thruster j), the actuators numbered (from 1, in the plant's actuator
+       order, the columns of B) in ``params["groups"][j − 1]``: the ``cofd`` kind's thrusters;
+    3. the flag's name itself, if it is a sensor or an actuator;
+    4. else nothing: raising that flag can only be a wrong isolation.
+    """
+    explicit = params.get("isolation_targets")
+    explicit = explicit if isinstance(explicit, dict) else {}
+    groups = params.get("groups")
+    groups = groups if isinstance(groups, (list, tuple)) else []
     known = set(sensors) | set(actuators)
 
-    def table(value: Any) -> dict[str, list[str]] | None:
-        if not isinstance(value, dict) or not value:
-            return None
-        if not all(isinstance(v, list) and all(isinstance(t, str) and t in known for t in v) for v in value.values()):
-            return None
-        return {str(k): list(v) for k, v in value.items()}
+    def targets(flag: str) -> list[str]:
+        if isinstance(explicit.get(flag), list):
+            return [str(t) for t in explicit[flag]]
+        j = int(flag[1:]) if flag[:1] == "T" and flag[1:].isdigit() else 0
+        if 1 <= j <= len(groups) and isinstance(groups[j - 1], (list, tuple)):
+            return [actuators[int(c) - 1] for c in groups[j - 1] if isinstance(c, (int, float)) and 1 <= c <= len(actuators)]
+        return [flag] if flag in known else []
 
-    explicit = table(params.get("isolation_targets"))
-    if explicit is None:
-        explicit = next((t for key, value in params.items() if key != "isolation_targets"
-                         and (t := table(value)) is not None and set(flags) <= set(t)), None)
-    explicit = explicit or {}
-    return {flag: explicit.get(flag, [flag] if flag in known else []) for flag in flags}
+    return {flag: targets(flag) for flag in flags}
+
+
+def _with_defaults(kind: str | None, params: dict[str, Any]) -> dict[str, Any]:
+    """The logged parameters completed with the kind's defaults (the log holds only those given)."""
+    from dataclasses import MISSING, fields
+
+    from estimators import ESTIMATORS  # slow to import: only for processes with isolation flags
+
+    cls = ESTIMATORS.get(kind) if kind else None
+    defaults = {f.name: f.default for f in fields(cls.Params) if f.default is not MISSING} if cls else {}
+    return {**defaults, **params}
 
 
 class _DiagnosisScore:
@@ -374,7 +415,10 @@ class _DiagnosisScore:
         self.run = run
         self.flags = sorted(key.removeprefix(_ISOLATED) for key in first if key.startswith(_ISOLATED))
         params = run.estimators.get(name, {}).get("params", {})
-        self.targets = isolation_targets(self.flags, params if isinstance(params, dict) else {}, run.sensors, run.actuators)
+        params = params if isinstance(params, dict) else {}
+        if self.flags:
+            params = _with_defaults(run.estimators.get(name, {}).get("kind"), params)
+        self.targets = isolation_targets(self.flags, params, run.sensors, run.actuators)
         self.alarm_prev = False
         self.scored = 0
         self.fault_free_ticks = 0
@@ -437,8 +481,9 @@ class _DiagnosisScore:
 class _BusScore:
     def __init__(self, run: _Run) -> None:
         bus = run.bus
-        self.bitrate = bus.get("bitrate")
-        self.data_bitrate = bus.get("data_bitrate") or self.bitrate
+        rate = lambda value: value if isinstance(value, (int, float)) and value > 0 else None  # noqa: E731
+        self.bitrate = rate(bus.get("bitrate"))
+        self.data_bitrate = rate(bus.get("data_bitrate")) or self.bitrate
         self.fd = bus.get("fd")
         self.sample_time = run.sample_time
         self.by_id: dict[int, dict[str, Any]] = {}
@@ -470,10 +515,10 @@ class _BusScore:
         if self.sample_time:
             self.peak = max(self.peak, self.tick_busy / self.sample_time)
 
-    def report(self, ticks: int, lost: int, misses: dict[str, int], result: dict[str, str]) -> dict[str, Any]:
+    def report(self, run: _Run, ticks: int, lost: int, misses: dict[str, int]) -> dict[str, Any]:
         span = ticks * self.sample_time if self.sample_time else 0.0
         known = bool(self.bitrate) and span > 0
-        deadline = int(result["deadline_misses"]) if "deadline_misses" in result else sum(misses.values())
+        deadline = run.deadline_misses if run.deadline_misses is not None else sum(misses.values())
         return {
             "fd": self.fd,
             "bitrate": self.bitrate,
@@ -484,28 +529,20 @@ class _BusScore:
             "load_worst_case": self.busy_worst / span if known else None,
             "peak_tick_load": self.peak if known else None,
             "lost": lost,
-            "lost_by_sender": {name: s.get("lost", 0) + s.get("runner_frames_missed", 0)
-                               for name, s in _loads(result.get("senders"), {}).items()},
+            "lost_by_sender": run.lost_by_sender,
             "deadline_misses": deadline,
             "deadline_misses_by_node": dict(sorted(misses.items())),
         }
-
-
-def _loads(text: str | None, default: Any) -> Any:
-    try:
-        return json.loads(text) if text else default
-    except ValueError:
-        return default
 
 
 # -- the report ---------------------------------------------------------------------------------
 
 
 def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]) -> dict[str, Any]:
-    raw, result, dt = run.raw or {}, run.result, run.sample_time
+    raw, dt = run.raw or {}, run.sample_time
     ticks = scorer.ticks if run.raw is not None else channels.get(STATE, 0)
     seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)  # noqa: E731
-    lost = int(result["frames_lost"]) if "frames_lost" in result else scorer.lost_events
+    lost = run.frames_lost if run.frames_lost is not None else scorer.lost_events
     estimators = {}
     baseline = scorer.estimators.get(run.baseline) if run.baseline else None
     for name, score in scorer.estimators.items():
@@ -555,20 +592,20 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         "file": str(path),
         "scenario": raw.get("scenario"),
         "source": raw.get("source"),
-        "seed": int(raw["seed"]) if "seed" in raw and raw["seed"].isdigit() else None,
-        "status": result.get("status", "incomplete"),
+        "seed": run.seed,
+        "status": run.status,
         "sample_time": dt,
         "ticks": ticks,
         "duration_s": round(ticks * dt, 9) if dt else None,
         "time_span_s": span,
         "channels": dict(sorted(channels.items())),
-        "frames": {"total": int(result["frames_total"]) if "frames_total" in result else channels.get(FRAMES, 0), "lost": lost},
+        "frames": {"total": run.frames_total if run.frames_total is not None else channels.get(FRAMES, 0), "lost": lost},
         "fault_onset": run.onset,
         "faults": faults,
         "estimators": estimators,
         "baseline": run.baseline,
         "diagnosis": diagnosis,
-        "bus": scorer.bus.report(ticks, lost, scorer.misses, result) if raw else None,
+        "bus": scorer.bus.report(run, ticks, lost, scorer.misses) if raw else None,
         "missing": missing,
         "warnings": warnings,
     }

@@ -19,7 +19,15 @@ docs/uio.md), so that H C E = E and T E = 0. Existence: rank(CE) = rank(E) (H ex
 
 Fault detection uses the residual r = y − C x̂ (10): a sensor fault y = C x + f_s gives
 r = C e + f_s, an actuator fault ẋ = … + B f_a gives ė = F e + T B f_a (12), so r ≠ 0 in both
-cases, while the unknown input d leaves r → 0.
+cases, while the unknown input d leaves r → 0. The published ``alarm`` is 1 when |r| > ``threshold``
+at a sample from ``arm_time`` on, else 0 (the notes give no decision rule; this is the plain
+threshold test on |r|). Before ``arm_time`` the residual still carries the initial error
+e(t) = e^{Ft} e(0), which no threshold can tell from a fault; the default arm_time = 5/|Re λ|
+of F's slowest eigenvalue λ lets e^{Ft} decay to e^{-5} < 1 % of e(0) (for a diagonalizable F).
+The default threshold 0.05 (in the outputs' units) comes from the worked example (13) with the
+design σ(F) = {−1, −2, −3} (docs/uio.md): 100 times the healthy residual at 8–10 s and a tenth of
+the first-sample response (I − C H) f_s to the sensor fault f_s = 0.5; set it for another plant
+from its noise level and the smallest fault to detect.
 
 A plant output y = C x + D u is handled by feeding y − D u to the observer.
 
@@ -42,6 +50,7 @@ Missing readings (NaN) are replaced by the last reading received on that output.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -222,6 +231,10 @@ class UIOParams:
     y_hold: str = "linear"
     """How y is taken between samples when integrating (2): "linear" (interpolated between y_{k−1}
     and y_k, O(τ²) error) or "zero-order" (held at y_{k−1}, O(τ) error)."""
+    threshold: float = 0.05
+    """The alarm is raised when |r| exceeds it (outputs' units)."""
+    arm_time: float | None = None
+    """Time [s] from which the alarm may be raised; None: 5/|Re λ| for F's slowest eigenvalue λ."""
 
 
 class UnknownInputObserver(Estimator):
@@ -252,6 +265,13 @@ class UnknownInputObserver(Estimator):
             raise ParameterError("K1" if params.K1 is not None else "poles", str(error)) from None
         if params.y_hold not in ("linear", "zero-order"):
             raise ParameterError("y_hold", f"expected \"linear\" or \"zero-order\", got {params.y_hold!r}")
+        if not (math.isfinite(params.threshold) and params.threshold > 0):
+            raise ParameterError("threshold", f"expected a positive number (the alarm limit on |r|), got {params.threshold}")
+        if params.arm_time is not None and not (math.isfinite(params.arm_time) and params.arm_time >= 0):
+            raise ParameterError("arm_time", f"expected a time >= 0 in seconds, got {params.arm_time}")
+        slowest = float(np.max(np.linalg.eigvals(self.design.F).real))
+        self.arm_time = 5.0 / -slowest if params.arm_time is None else params.arm_time
+        self.ticks = 0
         self.E = E
         self.Phi, self.Gu, self.Gy0, self.Gy1 = discretize(self.design, model.B, self.sample_time, params.y_hold == "linear")
         self.x_init = initial_state(model, params.x0)
@@ -264,6 +284,7 @@ class UnknownInputObserver(Estimator):
         return [
             *(Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6) for o in outputs),
             Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6),
+            Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0),
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
@@ -278,7 +299,10 @@ class UnknownInputObserver(Estimator):
         r = y - model.C @ x_hat  # eq. (10)
         self.z, self.y_prev, self.u_prev = z, y, du
         diagnostics = {f"r_{o}": float(v) for o, v in zip(model.outputs, r)}
-        diagnostics["residual_norm"] = float(np.linalg.norm(r))
+        diagnostics["residual_norm"] = norm = float(np.linalg.norm(r))
+        armed = self.ticks * self.sample_time >= self.arm_time - 1e-9 * self.sample_time
+        diagnostics["alarm"] = float(armed and norm > self.params.threshold)
+        self.ticks += 1
         return Estimate(x_hat, diagnostics)
 
 

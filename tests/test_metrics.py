@@ -1,0 +1,501 @@
+"""Metrics of run logs (cosim.metrics, cosim.can_timing): hand-made logs with known answers, a real
+scenario's log checked against a direct computation, and damaged or foreign files."""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from cosim import scenario
+from cosim.can_timing import TAIL_BITS, crc15, frame_bits, frame_bits_worst_case, stuff_bits
+from cosim.errors import LogError
+from cosim.log import LogReader, McapLog, object_schema
+from cosim.metrics import BAND_FACTOR, compute_metrics, isolation_targets
+from cosim.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE
+from cosim.runner import run
+from estimators import ParameterError, create
+from estimators.model import LinearModel
+
+# -- CAN frame lengths --------------------------------------------------------------------------
+
+
+def naive_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data: bytes) -> tuple[int, int]:
+    """The same frame lengths from explicit bit lists, a bit-serial CRC and a literal stuffing walk."""
+    def field(value, width):
+        return [(value >> i) & 1 for i in range(width - 1, -1, -1)]
+
+    # SOF, then the id: ID-A, SRR = 1, IDE = 1, ID-B (29 bits) or ID (11 bits)
+    head = [0] + (field(can_id >> 18, 11) + [1, 1] + field(can_id & 0x3FFFF, 18) if extended else field(can_id, 11))
+    payload = [bit for byte in data for bit in field(byte, 8)]
+    if not fd:  # RTR, IDE (11-bit) or r1 (29-bit), r0, DLC, data, CRC
+        region = head + [0, 0, 0] + field(dlc, 4) + payload
+        crc = 0
+        for bit in region:
+            feedback = bit ^ (crc >> 14)
+            crc = ((crc << 1) & 0x7FFF) ^ (0x4599 if feedback else 0)
+        region += field(crc, 15)
+        return len(region) + walk(region)[0] + 13, 0
+    arbitration = head + ([0] if extended else [0, 0]) + [1, 0, int(brs)]  # RRS, (IDE), FDF, res, BRS
+    data_phase = [0] + field(dlc, 4) + payload  # ESI, DLC, data
+    stuffed_a, run_ = walk(arbitration)
+    stuffed_d, _ = walk(data_phase, run_)
+    crc_field = 4 + (17 if len(data) <= 16 else 21)
+    crc_field += math.ceil(crc_field / 4)
+    nominal, fast = len(arbitration) + stuffed_a + 13, len(data_phase) + stuffed_d + crc_field
+    return (nominal, fast) if brs else (nominal + fast, 0)
+
+
+def walk(bits: list[int], run_: tuple[int, int] = (-1, 0)) -> tuple[int, tuple[int, int]]:
+    last, length = run_
+    stuffed = 0
+    for bit in bits:
+        length = length + 1 if bit == last else 1
+        last = bit
+        if length == 5:
+            stuffed += 1
+            last, length = 1 - bit, 1
+    return stuffed, (last, length)
+
+
+def test_frame_lengths_worked_by_hand():
+    # Classic, id 0, no data: 19 zero bits and CRC 0: 34 zeros, a stuff bit after every 5: 6.
+    assert crc15(0, 19) == 0
+    assert frame_bits(0x000, False, False, False, 0, b"") == (34 + 6 + TAIL_BITS, 0)
+    assert frame_bits_worst_case(False, False, False, 0) == (34 + 8 + 13, 0)
+    assert frame_bits_worst_case(False, False, False, 8) == (135, 0)  # the textbook 8-byte frame: 111 + 24
+    # CAN FD, id 0x100, BRS, 8 zero bytes. Arbitration 0 00100000000 0 0 1 0 1: ten zeros after the
+    # id's one: 2 stuff bits; 17 + 2 + 13 = 32 nominal bits. Data phase: ESI 0, DLC 1000 and 64 zeros:
+    # 67 zeros after the one, 13 stuff bits; 5 + 64 + 13 + CRC field (4 + 17 + 6 fixed stuff bits) = 109.
+    assert frame_bits(0x100, False, True, True, 8, bytes(8)) == (32, 109)
+    assert frame_bits(0x100, False, True, False, 8, bytes(8)) == (141, 0)
+
+
+def test_crc15_table_matches_the_bit_serial_definition():
+    rng = random.Random(1)
+    for _ in range(200):
+        length = rng.randrange(1, 100)
+        bits = rng.getrandbits(length)
+        crc = 0
+        for i in range(length - 1, -1, -1):
+            feedback = ((bits >> i) & 1) ^ (crc >> 14)
+            crc = ((crc << 1) & 0x7FFF) ^ (0x4599 if feedback else 0)
+        assert crc15(bits, length) == crc
+
+
+def test_exact_lengths_match_a_literal_walk_and_never_exceed_the_worst_case():
+    rng = random.Random(2)
+    sizes = {0: 0, 1: 1, 8: 8, 9: 12, 13: 32, 15: 64}
+    for _ in range(600):
+        extended, fd = rng.random() < 0.3, rng.random() < 0.5
+        brs = fd and rng.random() < 0.7
+        dlc = rng.choice(list(sizes)) if fd else rng.randrange(9)
+        n = sizes.get(dlc, dlc)
+        pattern = rng.choice([lambda: rng.randrange(256), lambda: rng.choice([0, 255]), lambda: rng.choice([0x0F, 0xF0, 0x55])])
+        data = bytes(pattern() for _ in range(n))
+        can_id = rng.getrandbits(29 if extended else 11)
+        exact = frame_bits(can_id, extended, fd, brs, dlc, data)
+        assert exact == naive_bits(can_id, extended, fd, brs, dlc, data), (can_id, extended, fd, brs, dlc, data.hex())
+        worst = frame_bits_worst_case(extended, fd, brs, n)
+        assert sum(exact) <= sum(worst)
+    assert stuff_bits(0b11111, 5) == (1, 1 + 0)  # a run of five ones: one stuff bit (a zero starts the next run)
+
+
+# -- hand-made logs -----------------------------------------------------------------------------
+
+DT = 0.1
+N = 100
+SENSORS, ACTUATORS = ["y1", "y2"], ["T1x", "T1y", "T2x"]
+
+
+def uniform_error(k):
+    if k < 40:
+        return 0.1
+    if k < 70:
+        return 3.0 if k == 45 else 1.0
+    return 2.0
+
+
+def good_error(k):
+    if k < 20:
+        return 0.1
+    if k < 40:
+        return 0.05
+    if k < 50:
+        return 0.5
+    if k < 70:
+        return 0.08
+    return 0.09
+
+
+def fdi_outputs(k):
+    """alarm and isolation flags of the hand-made diagnosis process at tick k."""
+    alarm = k in (10, 11, 12, 30, 67) or 43 <= k <= 65 or k >= 72
+    flags = {"T1": k >= 80, "T2": k >= 75, "y1": 45 <= k <= 60}
+    return alarm, flags
+
+
+def active(k):
+    return (["f1"] if 40 <= k < 60 else []) + (["f2"] if k >= 70 else [])
+
+
+CLASSIC_ZERO = (53, 0)      # frame_bits(0x000, classic, no data)
+FD_ZERO = (32, 109)         # frame_bits(0x100, FD + BRS, 8 zero bytes)
+
+
+def write_hand_log(path, *, order_estimates_first: bool = True) -> None:
+    estimators = {
+        "uniform": {"kind": "pseudoinverse", "messages": ["EST_uniform"], "params": {"poles": [0.5, 0.6]}},
+        "good": {"kind": "adaptive", "messages": ["EST_good"], "params": {}},
+        "fdi": {"kind": "cofd", "messages": ["EST_fdi", "EST_fdi_1"],
+                "params": {"groups": [[1, 2], [3]], "isolation_targets": {"y1": ["y1"]}}},
+        "silent": {"kind": "uio", "messages": ["EST_silent"], "params": {}},
+    }
+    with McapLog(path) as log:
+        log.metadata("cosim.run", {
+            "scenario": "hand", "source": "test", "seed": "7", "sample_time": repr(DT), "ticks": str(N),
+            "states": json.dumps(["x1", "x2"]), "sensors": json.dumps(SENSORS), "actuators": json.dumps(ACTUATORS),
+            "estimators": json.dumps(estimators), "fault_onset": json.dumps(4.0), "fault_onset_tick": json.dumps(40),
+            "faults": json.dumps([{"label": "f1", "kind": "bias", "start": 4.0, "end": 6.0},
+                                  {"label": "f2", "kind": "actuator_effectiveness", "start": 7.0, "end": None}]),
+            "bus": json.dumps({"interface": "virtual", "fd": True, "bitrate": 500000, "data_bitrate": 2000000}),
+        })
+        log.metadata("cosim.scenario", {"source": "test", "toml": "", "resolved": json.dumps({"faults": [
+            {"name": "f1", "kind": "bias", "sensors": ["y1"]},
+            {"name": "f2", "kind": "actuator_effectiveness", "actuators": ["T1x"]},
+        ]})})
+        any_schema = object_schema("any", {})
+        ch = {topic: log.channel(topic, any_schema) for topic in
+              (STATE, FAULTS, FRAMES, EVENTS, DEADLINE_MISSES, "/can/EST_uniform", "/can/EST_good", "/can/EST_fdi",
+               "/can/EST_fdi_1", "/can/EST_silent")}
+        seq = 0
+        for k in range(N):
+            t_ns = round(k * DT * 1e9)
+            estimates = [
+                ("/can/EST_uniform", {"tick": k, "xhat_x1": 1.0 + uniform_error(k), "xhat_x2": -2.0}),
+                ("/can/EST_fdi", {"tick": k, "xhat_x1": 1.0, "xhat_x2": -2.0}),
+                ("/can/EST_silent", {"tick": k, "xhat_x1": 1.0, "xhat_x2": -2.0, "alarm": 0.0}),
+            ]
+            if k != 5:  # the good estimator's frame of tick 5 never came
+                estimates.append(("/can/EST_good", {"tick": k, "xhat_x1": 1.0, "xhat_x2": -2.0 - good_error(k)}))
+            alarm, flags = fdi_outputs(k)
+            estimates.append(("/can/EST_fdi_1", {"tick": k, "alarm": float(alarm),
+                                                 **{f"isolated_{f}": float(v) for f, v in flags.items()}}))
+            truth = [(STATE, {"tick": k, "t": k * DT, "x1": 1.0, "x2": -2.0}),
+                     (FAULTS, {"tick": k, "t": k * DT, "active": active(k), "dropped": []})]
+            frames = [(FRAMES, {"tick": k, "t": k * DT, "seq": seq, "id": 0x000, "extended": False, "fd": False, "brs": False,
+                                "dlc": 0, "length": 0, "data": "", "sender": "runner", "message": "NMT"}),
+                      (FRAMES, {"tick": k, "t": k * DT, "seq": seq + 1, "id": 0x100, "extended": False, "fd": True, "brs": True,
+                                "dlc": 8, "length": 8, "data": "00" * 8, "sender": "plant", "message": "SENSOR_y1"})]
+            if k == 50:
+                frames.append((FRAMES, {**frames[0][1], "seq": seq + 2}))
+            seq += len(frames)
+            for topic, msg in frames + (estimates + truth if order_estimates_first or k % 2 else truth + estimates):
+                log.write(ch[topic], t_ns, msg)
+            if k in (3, 4):
+                log.write(ch[DEADLINE_MISSES], t_ns, {"tick": k, "t": k * DT, "node": "fdi", "count": k - 2})
+        log.metadata("cosim.result", {"status": "completed", "ticks": str(N), "frames_total": str(seq), "frames_lost": "5",
+                                      "deadline_misses": "2", "error": "",
+                                      "senders": json.dumps({"fdi": {"frames": 1, "lost": 3, "runner_frames_missed": 2}})})
+
+
+@pytest.fixture(scope="module")
+def hand_log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("hand") / "hand.mcap"
+    write_hand_log(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def hand(hand_log):
+    return compute_metrics(hand_log)
+
+
+def test_hand_log_run_and_faults(hand):
+    assert (hand["scenario"], hand["seed"], hand["status"], hand["ticks"], hand["duration_s"]) == ("hand", 7, "completed", N, 10.0)
+    assert hand["warnings"] == [] and hand["missing"] == []
+    assert hand["faults"] == {
+        "f1": {"kind": "bias", "targets": ["y1"], "start": 4.0, "end": 6.0, "onset": 4.0, "cleared": 6.0},
+        "f2": {"kind": "actuator_effectiveness", "targets": ["T1x"], "start": 7.0, "end": None, "onset": 7.0, "cleared": None},
+    }
+    assert json.loads(json.dumps(hand)) == hand  # JSON-able as is
+
+
+def test_hand_log_estimation(hand):
+    uniform, good = hand["estimators"]["uniform"], hand["estimators"]["good"]
+    assert hand["baseline"] == "uniform"
+    assert uniform["rms_pre_fault"] == pytest.approx(0.1, rel=1e-12)
+    post = math.sqrt((29 * 1.0 + 9.0 + 30 * 4.0) / 60)
+    assert uniform["rms_post_fault"] == pytest.approx(post, rel=1e-12)
+    assert uniform["final_error"] == pytest.approx(2.0) and uniform["ticks_scored"] == N
+    assert uniform["band"] == pytest.approx(BAND_FACTOR * 0.1)
+    assert uniform["faults"]["f1"] == {"peak_error": pytest.approx(3.0), "peak_at": 0.5, "recovery_time": None, "recovered": False}
+    assert uniform["faults"]["f2"]["peak_error"] == pytest.approx(2.0) and uniform["faults"]["f2"]["recovered"] is False
+    assert uniform["bias_rejection_ratio"] == 1.0
+    # good: band 2 x 0.05; out of it until tick 49, so back at tick 50, 1.0 s after the onset at 40
+    assert good["ticks_scored"] == N - 1 and good["band"] == pytest.approx(0.1)
+    assert good["faults"]["f1"] == {"peak_error": pytest.approx(0.5), "peak_at": 0.0, "recovery_time": 1.0, "recovered": True}
+    assert good["faults"]["f2"] == {"peak_error": pytest.approx(0.09), "peak_at": 0.0, "recovery_time": 0.0, "recovered": True}
+    good_post = math.sqrt((10 * 0.25 + 20 * 0.0064 + 30 * 0.0081) / 60)
+    assert good["rms_post_fault"] == pytest.approx(good_post, rel=1e-12)
+    assert good["bias_rejection_ratio"] == pytest.approx(good_post / post, rel=1e-12)
+
+
+def test_hand_log_detection_and_isolation(hand):
+    fdi = hand["diagnosis"]["fdi"]
+    assert fdi["kind"] == "cofd"
+    assert fdi["isolation_flags"] == {"T1": ["T1x", "T1y"], "T2": ["T2x"], "y1": ["y1"]}
+    # fault-free: ticks 0-39 and 60-69; alarm episodes starting there: at 10, 30 and 67 (60-65
+    # continues the episode that began during f1)
+    assert fdi["fault_free_time_s"] == 5.0 and fdi["false_alarms"] == 3
+    assert fdi["false_alarm_rate_per_hour"] == pytest.approx(3 / (5.0 / 3600))
+    assert fdi["missed_detections"] == 0
+    assert fdi["faults"]["f1"] == {"detected": True, "detection_delay": 0.3, "alarm_before_onset": False, "isolable": True,
+                                   "expected": ["y1"], "isolation_delay": 0.5, "isolated": ["y1"], "isolation_correct": True}
+    # f2 acts on T1x: T2 is raised first (at 75), T1 only at 80: the isolation is wrong
+    assert fdi["faults"]["f2"] == {"detected": True, "detection_delay": 0.2, "alarm_before_onset": False, "isolable": True,
+                                   "expected": ["T1"], "isolation_delay": 0.5, "isolated": ["T2"], "isolation_correct": False}
+    silent = hand["diagnosis"]["silent"]
+    assert silent["missed_detections"] == 2 and silent["false_alarms"] == 0 and silent["false_alarm_rate_per_hour"] == 0.0
+    assert silent["faults"]["f1"]["detection_delay"] is None and silent["faults"]["f1"]["isolation_correct"] is None
+    assert set(hand["diagnosis"]) == {"fdi", "silent"}  # estimators without alarm are no diagnosis process
+
+
+def test_hand_log_bus(hand):
+    bus = hand["bus"]
+    assert bus["by_id"] == {"0x000": {"message": "NMT", "frames": 101, "bits": 101 * 53},
+                            "0x100": {"message": "SENSOR_y1", "frames": 100, "bits": 100 * 141}}
+    per_tick = (CLASSIC_ZERO[0] + FD_ZERO[0]) / 500000 + FD_ZERO[1] / 2000000
+    assert bus["load"] == pytest.approx((100 * per_tick + 53 / 500000) / 10.0, rel=1e-12)
+    assert bus["peak_tick_load"] == pytest.approx((per_tick + 53 / 500000) / DT, rel=1e-12)
+    worst = (55 + 34) / 500000 + 113 / 2000000
+    assert bus["load_worst_case"] == pytest.approx((100 * worst + 55 / 500000) / 10.0, rel=1e-12)
+    assert (bus["lost"], bus["lost_by_sender"], bus["deadline_misses"], bus["deadline_misses_by_node"]) == (5, {"fdi": 5}, 2, {"fdi": 2})
+    assert hand["frames"] == {"total": 201, "lost": 5}
+
+
+def test_the_order_of_messages_within_a_tick_does_not_matter(tmp_path, hand):
+    write_hand_log(tmp_path / "shuffled.mcap", order_estimates_first=False)
+    shuffled = compute_metrics(tmp_path / "shuffled.mcap")
+    assert {k: v for k, v in shuffled.items() if k != "file"} == {k: v for k, v in hand.items() if k != "file"}
+
+
+def test_isolation_targets_precedence():
+    flags = ["T1", "T2", "T3", "y1", "pump"]
+    mapping = isolation_targets(flags, {"groups": [[1, 2], [3]], "isolation_targets": {"T2": ["T1y"]}}, SENSORS, ACTUATORS)
+    assert mapping == {"T1": ["T1x", "T1y"], "T2": ["T1y"], "T3": [], "y1": ["y1"], "pump": []}
+    assert isolation_targets(["T1x"], {}, SENSORS, ACTUATORS) == {"T1x": ["T1x"]}
+
+
+# -- the UIO's alarm ----------------------------------------------------------------------------
+
+
+def uio_model():
+    A = np.array([[0.0, 1.0, 0.0], [-2.0, -3.0, 0.0], [0.0, 0.0, -2.0]])
+    B = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 1.0]])
+    C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return LinearModel(A, B, C, np.zeros((2, 2)), None, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"),
+                       E=np.array([[2.0], [0.0], [0.5]]), disturbances=("d",))
+
+
+def test_uio_alarm_parameters():
+    model = uio_model()
+    uio = create("uio", model, {"poles": [-1.0, -2.0, -3.0]}, 0.01)
+    assert uio.arm_time == pytest.approx(5.0) and uio.params.threshold == 0.05
+    with pytest.raises(ParameterError, match=r"^threshold: expected a positive number"):
+        create("uio", model, {"poles": [-1.0, -2.0, -3.0], "threshold": 0.0}, 0.01)
+    with pytest.raises(ParameterError, match=r"^arm_time: expected a time >= 0"):
+        create("uio", model, {"poles": [-1.0, -2.0, -3.0], "arm_time": -1.0}, 0.01)
+    # a wrong initial estimate: |r| is large at first, but the alarm waits for arm_time
+    uio = create("uio", model, {"poles": [-1.0, -2.0, -3.0], "arm_time": 0.05, "threshold": 0.5}, 0.01)
+    alarms = [uio.step(np.array([1.0, 1.0]), np.zeros(2)).diagnostics["alarm"] for _ in range(8)]
+    assert alarms[:5] == [0.0] * 5 and alarms[5:] == [1.0] * 3
+
+
+# -- a real scenario ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def uio_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("uio") / "uio.mcap"
+    result = run(scenario.load("uio-fault-detection"), path, interface="virtual")
+    assert result.status == "completed"
+    return path
+
+
+def direct_errors(path):
+    """(ticks, errors per estimator, active faults per tick, uio alarm per tick) read whole."""
+    x, est, act, alarm = {}, {"uio": {}, "kalman": {}}, {}, {}
+    with LogReader(path) as reader:
+        for topic, _, msg in reader.messages(["/truth/state", "/truth/faults", "/can/EST_uio", "/can/EST_kalman"]):
+            if topic == "/truth/state":
+                x[msg["tick"]] = np.array([msg[s] for s in ("x1", "x2", "x3")])
+            elif topic == "/truth/faults":
+                act[msg["tick"]] = msg["active"]
+            else:
+                name = topic.removeprefix("/can/EST_")
+                est[name][msg["tick"]] = np.array([msg[f"xhat_{s}"] for s in ("x1", "x2", "x3")])
+                if name == "uio":
+                    alarm[msg["tick"]] = msg["alarm"]
+    ticks = sorted(x)
+    errors = {name: np.array([np.linalg.norm(x[k] - e[k]) for k in ticks]) for name, e in est.items()}
+    return np.array(ticks), errors, act, alarm
+
+
+def test_real_scenario_metrics_agree_with_a_direct_computation(uio_run):
+    report = compute_metrics(uio_run)
+    assert report["warnings"] == [] and report["missing"] == []
+    ticks, errors, act, alarm = direct_errors(uio_run)
+    assert report["ticks"] == len(ticks) == 4000
+    for name, e in errors.items():
+        m = report["estimators"][name]
+        assert m["rms_pre_fault"] == pytest.approx(np.sqrt(np.mean(e[:1000] ** 2)), rel=1e-12)
+        assert m["rms_post_fault"] == pytest.approx(np.sqrt(np.mean(e[1000:] ** 2)), rel=1e-12)
+        band = BAND_FACTOR * e[500:1000].max()
+        assert m["band"] == pytest.approx(band, rel=1e-12)
+        for label, (start, stop) in {"sensor_y2": (1000, 3000), "actuator_u1": (3000, 4000)}.items():
+            segment = e[start:stop]
+            assert m["faults"][label]["peak_error"] == pytest.approx(segment.max(), rel=1e-12)
+            out = np.flatnonzero(segment > band)
+            recovered = segment[-1] <= band
+            assert m["faults"][label]["recovered"] == recovered
+            if recovered:
+                assert m["faults"][label]["recovery_time"] == pytest.approx(0.01 * (out[-1] + 1 if out.size else 0))
+    # the UIO flags the sensor fault at its first sample and the actuator fault 0.27 s after onset
+    # (docs/uio.md), and, armed after 5 s, raises no alarm without a fault
+    uio = report["diagnosis"]["uio"]
+    assert uio["faults"]["sensor_y2"]["detection_delay"] == 0.0
+    assert uio["faults"]["actuator_u1"]["detection_delay"] == pytest.approx(0.27)
+    assert uio["false_alarms"] == 0 and uio["missed_detections"] == 0 and uio["fault_free_time_s"] == 20.0
+    assert uio["isolation_flags"] == {} and uio["faults"]["sensor_y2"]["isolation_correct"] is None
+    assert all(alarm[k] == 0.0 for k in range(4000) if not act[k] and k < 2000)
+    bus = report["bus"]
+    assert sum(e["frames"] for e in bus["by_id"].values()) == report["frames"]["total"] == report["channels"]["/can/frames"]
+    assert 0 < bus["load"] <= bus["load_worst_case"] < 1 and bus["load"] <= bus["peak_tick_load"]
+    assert bus["lost"] == 0 and bus["deadline_misses"] == 0
+
+
+# -- damaged and foreign files ------------------------------------------------------------------
+
+
+def chunk_spans(path):
+    with open(path, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    return [(c.chunk_start_offset, c.chunk_length) for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)]
+
+
+@pytest.fixture(scope="module")
+def long_hand_log(tmp_path_factory):
+    """The hand-made log with small chunks, so that damage hits one of many."""
+    path = tmp_path_factory.mktemp("long") / "hand.mcap"
+    original = McapLog.__init__
+
+    def small_chunks(self, p, *, chunk_size=4096):
+        original(self, p, chunk_size=chunk_size)
+
+    McapLog.__init__ = small_chunks
+    try:
+        write_hand_log(path)
+    finally:
+        McapLog.__init__ = original
+    assert len(chunk_spans(path)) > 10
+    return path
+
+
+def test_a_log_cut_in_the_middle_of_a_chunk_gives_a_partial_result(long_hand_log, tmp_path):
+    data = long_hand_log.read_bytes()
+    start, length = chunk_spans(long_hand_log)[len(chunk_spans(long_hand_log)) // 2]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: start + length // 2])
+    report = compute_metrics(cut)
+    assert report["status"] == "incomplete" and 0 < report["ticks"] < N
+    assert any("no summary section" in w for w in report["warnings"])
+    assert any("damaged or cut after t =" in w for w in report["warnings"])
+    assert any("cosim.result" in m for m in report["missing"])
+    assert report["estimators"]["uniform"]["rms_pre_fault"] == pytest.approx(0.1)
+
+
+def test_flipped_bytes_in_a_chunk_skip_that_chunk(long_hand_log, tmp_path, hand):
+    data = bytearray(long_hand_log.read_bytes())
+    start, length = chunk_spans(long_hand_log)[3]
+    data[start + length // 2: start + length // 2 + 8] = bytes(b ^ 0xFF for b in data[start + length // 2: start + length // 2 + 8])
+    flipped = tmp_path / "flipped.mcap"
+    flipped.write_bytes(bytes(data))
+    report = compute_metrics(flipped)
+    (warning,) = report["warnings"]
+    assert warning.startswith("a damaged chunk was skipped")
+    assert report["ticks"] == N and report["estimators"]["uniform"]["final_error"] == hand["estimators"]["uniform"]["final_error"]
+
+
+def test_random_damage_never_raises_anything_but_a_log_error(long_hand_log, tmp_path):
+    data = long_hand_log.read_bytes()
+    rng = random.Random(3)
+    damaged = tmp_path / "damaged.mcap"
+    for trial in range(120):
+        corrupt = bytearray(data)
+        if trial % 4 == 0:
+            corrupt = corrupt[: rng.randrange(len(corrupt))]
+        else:
+            for _ in range(rng.randrange(1, 20)):
+                corrupt[rng.randrange(len(corrupt))] ^= 1 << rng.randrange(8)
+        damaged.write_bytes(bytes(corrupt))
+        try:
+            report = compute_metrics(damaged)
+        except LogError:
+            continue
+        json.dumps(report)
+        assert isinstance(report["warnings"], list)
+
+
+def test_the_cli_on_a_cut_log_prints_a_partial_report_without_traceback(long_hand_log, tmp_path):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(long_hand_log.read_bytes()[: len(long_hand_log.read_bytes()) // 3])
+    result = subprocess.run([sys.executable, "-m", "cosim.cli", "inspect", str(cut)], capture_output=True, text=True)
+    assert result.returncode == 0 and "Traceback" not in result.stderr
+    assert "warning:" in result.stdout and "estimation error" in result.stdout and "bus" in result.stdout
+
+
+def test_a_log_written_by_another_program_says_what_is_missing(tmp_path):
+    path = tmp_path / "other.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start()
+        schema = writer.register_schema("x", "jsonschema", b'{"type":"object"}')
+        pose = writer.register_channel("/pose", "json", schema)
+        state = writer.register_channel("/truth/state", "json", schema)
+        for i in range(5):
+            writer.add_message(pose, i * 1_000_000_000, b'{"x": 1}', i)
+            writer.add_message(state, i * 1_000_000_000, b'[1, 2]', i)  # not a cosim truth message
+        writer.finish()
+    report = compute_metrics(path)
+    assert report["channels"] == {"/pose": 5, "/truth/state": 5} and report["time_span_s"] == 4.0
+    assert report["scenario"] is None and report["estimators"] == {} and report["diagnosis"] == {} and report["bus"] is None
+    assert any("cosim.run metadata" in m for m in report["missing"])
+    assert any("no cosim.run metadata" in w for w in report["warnings"])
+
+
+def test_a_cosim_log_with_foreign_messages_on_its_topics_warns_and_goes_on(tmp_path):
+    path = tmp_path / "odd.mcap"
+    write_hand_log(path)
+    with McapLog(tmp_path / "odd2.mcap") as log:
+        with LogReader(path) as reader:
+            for name, values in reader.metadata().items():
+                log.metadata(name, values)
+            channels = {}
+            for topic, t, msg in reader.messages():
+                if topic not in channels:
+                    channels[topic] = log.channel(topic, object_schema("any", {}))
+                if topic == STATE and t >= 5_000_000_000:
+                    msg = {"tock": 1}
+                log.write(channels[topic], t, msg)
+    report = compute_metrics(tmp_path / "odd2.mcap")
+    (warning,) = report["warnings"]
+    assert warning.startswith("/truth/state: a message at t = 5 s does not have the fields cosim writes")
+    assert report["estimators"]["uniform"]["rms_pre_fault"] == pytest.approx(0.1)
