@@ -149,36 +149,13 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 def cmd_inspect(args: argparse.Namespace) -> int:
     import orjson
 
-    from cosim.inspect import summarize
+    from cosim.inspect import render, summarize
 
     report = summarize(args.log)
     if args.json:
         sys.stdout.write(orjson.dumps(report, option=orjson.OPT_INDENT_2).decode() + "\n")
         return 0
-    console = _console()
-    console.print(f"[bold]{report['file']}[/bold]")
-    for warning in report["warnings"]:
-        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
-    onset = report["fault_onset"]
-    console.print(
-        f"scenario {report['scenario']} ({report['source']}), seed {report['seed']}, status {report['status']}\n"
-        f"{report['ticks']} ticks, {report['duration_s']} s simulated; frames {report['frames']['total']} "
-        f"({report['frames']['lost']} lost); first fault at {'-' if onset is None else f'{onset:g} s'}"
-    )
-    channels = Table(title="channels", box=None, header_style="bold", title_justify="left")
-    channels.add_column("topic")
-    channels.add_column("messages", justify="right")
-    for topic, count in report["channels"].items():
-        channels.add_row(topic, str(count))
-    console.print(channels)
-    if report["estimators"]:
-        table = Table(title="estimation error |x - x̂|", box=None, header_style="bold", title_justify="left")
-        for column in ("estimator", "kind", "RMS before fault", "RMS after fault", "final"):
-            table.add_column(column, justify="left" if column in ("estimator", "kind") else "right")
-        fmt = lambda v: "-" if v is None else f"{v:.3e}"  # noqa: E731
-        for name, e in report["estimators"].items():
-            table.add_row(name, e["kind"], fmt(e["rms_pre_fault"]), fmt(e["rms_post_fault"]), fmt(e["final_error"]))
-        console.print(table)
+    render(report, _console())
     return 0
 
 
