@@ -257,8 +257,8 @@ def test_T2_T5_common_mode_fault_is_isolated_by_cluster_residuals():
     assert ratio[3, 1].max() < 1
     assert ratio[3, 0].max() > 10 and ratio[3, 2].max() > 10
     assert all(ratio[h, i].max() > 1 for h in (0, 1, 2) for i in range(3))
-    assert set(trajectory.series("fault_mask")) <= {0.0, 2.0 + 16.0}
-    assert trajectory.series("fault_mask")[-1] == 2 + 16
+    mask = trajectory.series("fault_mask").astype(int)
+    assert np.bitwise_or.reduce(mask) == mask[-1] == 2 + 16  # T2 may come first (δ5 decays slower), never another
     assert trajectory.series("constraints_met").min() == 1
 
 
