@@ -14,6 +14,10 @@
 - ``residual.png``: the residual r = y − C x̂ per output (linear) and |r| (logarithmic), for
   estimators that publish ``r_<sensor>`` diagnostics (the unknown input observer, course notes
   eq. (10)), with every fault's window shaded and its onset marked.
+- ``gain_estimate.png``: the estimated sensor effectiveness γ̂ of the reconciliation schemes
+  (IJC 2018 eq. (53), Figs. 6–7) against the true gain of the scenario's gain faults;
+- ``virtual_output.png``: the reconciled virtual output ẑ = H_z ŷ of every scheme against the
+  true z = H_z y (IJC 2018 eq. (6), Fig. 9), and |ẑ − z|.
 
 Estimators are rebuilt from the log's metadata (kind, parameters, design model) to evaluate h_Γ.
 """
@@ -28,10 +32,10 @@ from pathlib import Path
 import numpy as np
 
 import estimators
-from cosim.errors import LogError
+from cosim.errors import LogError, ScenarioError
 from cosim.log import LogReader
 from cosim.node import model_from_dict
-from cosim.recorder import FAULTS, STATE, message_topic
+from cosim.recorder import FAULTS, SENSORS, STATE, message_topic
 
 
 @dataclass
@@ -56,6 +60,10 @@ class RunSeries:
     estimators: dict[str, EstimatorSeries]
     faults: list[dict] = field(default_factory=list)
     """Each fault's ``label``, ``kind``, ``start`` and ``end`` (s; None: until the end of the run)."""
+    sensor_truth: dict[int, np.ndarray] = field(default_factory=dict)
+    """The fault-free readings of the transmitted sensors, per tick."""
+    toml: str = ""
+    """The scenario file as given (empty for logs without it)."""
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
@@ -85,9 +93,8 @@ def load(path: str | Path) -> RunSeries:
             raise LogError(f"{path}: no cosim.run metadata; cosim plot needs a log written by cosim run")
         run = meta["cosim.run"]
         states, sensors = json.loads(run["states"]), json.loads(run["sensors"])
-        description = ""
-        if "cosim.scenario" in meta:
-            description = json.loads(meta["cosim.scenario"].get("resolved", "{}")).get("description", "")
+        given = meta.get("cosim.scenario", {})
+        description = json.loads(given.get("resolved", "{}")).get("description", "")
         ests = {
             name: EstimatorSeries(e["kind"], e.get("params", {}), e.get("model"))
             for name, e in json.loads(run["estimators"]).items()
@@ -96,15 +103,51 @@ def load(path: str | Path) -> RunSeries:
         dt_ns = round(float(run["sample_time"]) * 1e9)
         truth: dict[int, np.ndarray] = {}
         fault: dict[int, np.ndarray] = {}
-        for topic, log_time, msg in reader.messages([STATE, FAULTS, *owner]):
+        sensor_truth: dict[int, np.ndarray] = {}
+        for topic, log_time, msg in reader.messages([STATE, FAULTS, SENSORS, *owner]):
             if topic == STATE:
                 truth[msg["tick"]] = np.array([msg[s] for s in states])
+            elif topic == SENSORS:
+                sensor_truth[msg["tick"]] = np.array([msg[s] for s in sensors])
             elif topic == FAULTS:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
                 ests[owner[topic]].values[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
     return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests,
-                     json.loads(run.get("faults", "[]")))
+                     json.loads(run.get("faults", "[]")), sensor_truth, given.get("toml", ""))
+
+
+def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
+    """The effectiveness γ_i(t) of each transmitted sensor (shape (len(t), p)): the product of the
+    scenario's active gain faults on it, 1 where none is."""
+    gains = np.ones((len(t), len(series.sensors)))
+    from cosim.scenario import GainSpec, build_waveform, parse
+
+    try:
+        faults = parse(series.toml).faults if series.toml else []
+    except ScenarioError:
+        return gains  # a scenario this version cannot read: no known gain faults
+    for spec in faults:
+        if not isinstance(spec, GainSpec):
+            continue
+        names = spec.sensors if spec.sensors is not None else series.sensors
+        active = (t >= spec.start) & (t < spec.end)
+        for j, name in enumerate(names):
+            waveform = build_waveform(spec.gain[j if len(spec.gain) > 1 else 0])
+            column = series.sensors.index(name)
+            gains[active, column] *= [waveform(tk - spec.start) for tk in t[active]]
+    return gains
+
+
+def virtual_output(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(t, ẑ, z): a reconciliation scheme's virtual output and the true z = H_z y, or None."""
+    e = series.estimators[name]
+    ks = np.array(sorted(k for k, v in e.values.items() if "zhat" in v and k in series.sensor_truth), dtype=int)
+    if ks.size == 0:
+        return None
+    hz = np.asarray(estimators.ESTIMATORS[e.kind].check_params(e.params).Hz, dtype=float)
+    z = np.array([hz @ series.sensor_truth[k] for k in ks])
+    return ks * series.sample_time, np.array([e.values[k]["zhat"] for k in ks]), z
 
 
 def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -158,8 +201,9 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         ax.grid(alpha=0.3)
     save(fig, "error.png")
 
+    reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
     weighted = [(name, prefix) for name in series.estimators for prefix in ("s", "z", "gamma")
-                if series.diagnostic(name, prefix) is not None]
+                if series.diagnostic(name, prefix) is not None and name not in reconciliators]
     if weighted:
         fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
         labels = {"s": "selector s", "z": "optimizer z", "gamma": "weights Γ"}
@@ -190,7 +234,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     effects = {name: e for name, e in effects.items() if e is not None}
     if effects:
         curves(effects, "|h_Γ|", "fault effect on the output injection", "bias_effect.png", log=True)
-    norms = {name: series.diagnostic(name, "gamma") for name in series.estimators}
+    norms = {name: series.diagnostic(name, "gamma") for name in series.estimators if name not in reconciliators}
     norms = {name: (t, np.linalg.norm(w, axis=1)) for name, v in norms.items() if v is not None for t, w in [v]}
     if norms:
         curves(norms, "|Γ|", "norm of the weights", "gamma_norm.png", log=False)
@@ -233,4 +277,39 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[0, 0].set_title(f"{title}: residual r = y − C x̂ (faults shaded from onset)")
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "residual.png")
+
+    gains = {name: v for name in reconciliators if (v := series.diagnostic(name, "gamma")) is not None}
+    if gains:
+        fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.1 * len(series.sensors)), sharex=True, squeeze=False)
+        t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
+        truth = true_gains(series, t_all)
+        for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
+            for name, (t, g) in gains.items():
+                ax.plot(t, g[:, i], label=f"{name} γ̂", lw=1)
+            ax.plot(t_all, truth[:, i], "k--", lw=1, label="true γ")
+            ax.set_ylabel(sensor, fontsize=8)
+            ax.grid(alpha=0.3)
+        axes[0, 0].legend(fontsize=7, ncol=3)
+        axes[0, 0].set_title(f"{title}: sensor effectiveness γ̂ against the true gain")
+        axes[-1, 0].set_xlabel("time [s]")
+        save(fig, "gain_estimate.png")
+
+    outputs = {name: v for name in sorted(reconciliators) if (v := virtual_output(series, name)) is not None}
+    if outputs:
+        fig, (values, errors) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+        t, _, z = next(iter(outputs.values()))
+        values.plot(t, z, "k", lw=1.6, label="true z = H_z y")
+        for name, (t, zhat, z) in outputs.items():
+            values.plot(t, zhat, lw=1, label=f"{name} ẑ")
+            errors.semilogy(t, np.maximum(np.abs(zhat - z), 1e-12), lw=1, label=name)
+        values.set_ylabel("virtual output")
+        errors.set_ylabel("|ẑ − z| (log)")
+        errors.set_xlabel("time [s]")
+        values.set_title(f"{title}: reconciled virtual output")
+        for ax in (values, errors):
+            for f in series.faults:
+                ax.axvline(f["start"], color="0.5", ls=":", lw=1)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, ncol=2)
+        save(fig, "virtual_output.png")
     return written
