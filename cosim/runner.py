@@ -64,6 +64,7 @@ from estimators.design import fault_rejectable
 
 OWN_SENDERS = (RUNNER, PLANT, CONTROLLER)
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
+_ENVIRONMENT = 0xE1  # spawn key of the disturbance models' random streams (the faults use others)
 
 
 class NodeFailure(CosimError):
@@ -339,7 +340,12 @@ class Run:
         self.model = self.plant.linearize()
         needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
             s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous)
-        self.continuous_model = self.plant.linearize(continuous=True) if needs_continuous else None
+        try:  # computed even when no estimator needs it: the log records it, for replay to design new ones on
+            self.continuous_model = self.plant.linearize(continuous=True)
+        except ModelError:  # a discrete-time state-space plant has none
+            if needs_continuous:
+                raise
+            self.continuous_model = None
         self.plant.reset(s.plant.initial_state)
         self.estimators = build_estimators(s, self.model, loaded.source, self.continuous_model)
         self.controller = build_controller(s, self.model, loaded.source, self.continuous_model)
@@ -354,6 +360,11 @@ class Run:
         self.disturbances = [
             next((build_waveform(d.signal) for d in s.disturbances if d.input == name), fm.Constant(0.0))
             for name in s.disturbance_inputs
+        ]
+        self.environments = [
+            s.plant_info.disturbance_models[d.model](
+                np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_ENVIRONMENT, i))), **d.params)
+            for i, d in enumerate(s.disturbances) if d.model
         ]
         sensors, actuators, states = s.channels()
         self.codec = s.codec()
@@ -392,6 +403,8 @@ class Run:
             "states": json.dumps(list(self.plant.state_names)), "sensors": json.dumps(list(s.sensors)),
             "actuators": json.dumps(list(s.actuators)), "disturbances": json.dumps(list(s.disturbance_inputs)),
             "estimators": json.dumps(est),
+            "model": json.dumps(model_to_dict(self.model)),
+            "continuous_model": json.dumps(None if self.continuous_model is None else model_to_dict(self.continuous_model)),
             "clients": json.dumps({c.name: {"lockstep": c.lockstep, "messages": [m.name for m in self.codec.data_messages(c.name)]} for c in s.clients}),
             "controller": json.dumps(None if s.controller is None else {
                 "kind": s.controller.kind, "params": s.controller.params, "diagnosis": s.controller.diagnosis,
@@ -498,6 +511,47 @@ class Run:
 
     # -- the run ------------------------------------------------------------------------------
 
+    def _finish(self, bus: can.BusABC, traffic: Traffic, recorder: RunRecorder, log: McapLog, marker: tuple[int, float, int],
+                k: int, status: str, error: str, misses: int, warnings: list[str], start: float, startup: float,
+                loop: float) -> RunResult:
+        """End a run at tick k, however it ends: log what has arrived, stop the nodes (NMT stop), log
+        what they sent until then and how the run ended."""
+        s, codec = self.scenario, self.codec
+        frame = bus.recv(0.0)
+        while frame is not None:  # what is already here came before the stop command
+            traffic.take(frame)
+            frame = bus.recv(0.0)
+        traffic.flush(*marker)
+        t_end, t_end_ns = s.time(k), k * s.dt_ns
+        stop = codec.nmt(NMT_STOP)
+        try:
+            bus.send(stop)
+        except can.CanError:
+            pass
+        recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
+        for participant in self.participants:
+            if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
+                warnings.append(warning)
+        frame = bus.recv(0.1)
+        while frame is not None:
+            traffic.take(frame)
+            frame = bus.recv(0.02)
+        traffic.flush(k, t_end, t_end_ns)
+        for warning in warnings:
+            recorder.event(k, t_end, t_end_ns, "warning", warning, "warning")
+        senders = {
+            name: {"frames": traffic.received[name], "lost": traffic.lost[name], "runner_frames_missed": traffic.missed_by.get(name, 0)}
+            for name in [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if s.controller else [])]
+        }
+        recorder.event(k, t_end, t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
+        log.metadata("cosim.result", {
+            "status": status, "ticks": str(k), "frames_total": str(recorder.frames),
+            "frames_lost": str(traffic.frames_lost), "deadline_misses": str(misses), "error": error,
+            "senders": json.dumps(senders),
+        })
+        return RunResult(self.out, status, k, recorder.frames, traffic.frames_lost, time.perf_counter() - start, s.time(k), error,
+                         misses, senders, startup, loop)
+
     def execute(
         self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
         on_start: Callable[[Run], None] | None = None,
@@ -574,7 +628,7 @@ class Run:
                     else:
                         u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(commands, command_specs)])
                     u_eff, delta = self.faults.actuators(u_cmd, t)
-                    d = np.array([w(t) for w in self.disturbances])
+                    d = np.array([w(t) for w in self.disturbances]) + sum((b(t) for b in self.environments), np.zeros(len(self.disturbances)))
                     recorder.truth(
                         k, t, t_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
                         measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=u_cmd,
@@ -611,42 +665,8 @@ class Run:
                 raise
             finally:
                 loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
-                frame = bus.recv(0.0)
-                while frame is not None:  # what is already here came before the stop command
-                    traffic.take(frame)
-                    frame = bus.recv(0.0)
-                traffic.flush(*marker)
-                t_end, t_end_ns = s.time(k), k * dt_ns
-                stop = codec.nmt(NMT_STOP)
-                try:
-                    bus.send(stop)
-                except can.CanError:
-                    pass
-                recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
-                for participant in self.participants:
-                    if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
-                        warnings.append(warning)
-                frame = bus.recv(0.1)
-                while frame is not None:
-                    traffic.take(frame)
-                    frame = bus.recv(0.02)
-                traffic.flush(k, t_end, t_end_ns)
-                for warning in warnings:
-                    recorder.event(k, t_end, t_end_ns, "warning", warning, "warning")
-                senders = {
-                    name: {"frames": traffic.received[name], "lost": traffic.lost[name], "runner_frames_missed": traffic.missed_by.get(name, 0)}
-                    for name in [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if s.controller else [])]
-                }
-                recorder.event(k, t_end, t_end_ns, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
-                log.metadata("cosim.result", {
-                    "status": status, "ticks": str(k), "frames_total": str(recorder.frames),
-                    "frames_lost": str(traffic.frames_lost), "deadline_misses": str(misses), "error": error,
-                    "senders": json.dumps(senders),
-                })
-                self.result = RunResult(
-                    self.out, status, k, recorder.frames, traffic.frames_lost, time.perf_counter() - start, s.time(k),
-                    error, misses, senders, startup, loop,
-                )
+                self.result = self._finish(bus, traffic, recorder, log, marker, k, status, error, misses, warnings, start,
+                                           startup, loop)
         if on_progress is not None:
             on_progress(Progress(k, s.ticks, s.time(k), time.perf_counter() - start, self.result.frames, misses))
         return self.result
