@@ -26,7 +26,7 @@ length of its run), so a frame costs a few table look-ups per byte.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 #: Bits after the CRC field: CRC delimiter, ACK slot, ACK delimiter, EOF (7), intermission (3).
 TAIL_BITS = 13
@@ -141,7 +141,7 @@ def frame_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data:
     return (nominal, fast) if brs else (nominal + fast, 0)
 
 
-@lru_cache(maxsize=None)
+@cache
 def frame_bits_worst_case(extended: bool, fd: bool, brs: bool, length: int) -> tuple[int, int]:
     """(nominal, data-rate) bits of a frame of ``length`` payload bytes with the most stuff bits
     any payload and id can need: one per 4 bits after the first 5 of the stuffed region,

@@ -403,7 +403,8 @@ def _with_defaults(kind: str | None, params: dict[str, Any]) -> dict[str, Any]:
     """The logged parameters completed with the kind's defaults (the log holds only those given)."""
     from dataclasses import MISSING, fields
 
-    from estimators import ESTIMATORS  # slow to import: only for processes with isolation flags
+    # imported here: slow to import, and needed only for processes with isolation flags
+    from estimators import ESTIMATORS
 
     cls = ESTIMATORS.get(kind) if kind else None
     defaults = {f.name: f.default for f in fields(cls.Params) if f.default is not MISSING} if cls else {}
@@ -454,7 +455,7 @@ class _DiagnosisScore:
 
     def close(self, segment: _Segment) -> None:
         dt = self.run.sample_time
-        since = lambda k: None if k is None else round((k - segment.start) * dt, 9)  # noqa: E731
+        since = lambda k: None if k is None else round((k - segment.start) * dt, 9)
         for label in segment.labels:
             state = self.open.pop(label, None)
             if state is None:  # no alarm value in the whole segment
@@ -481,7 +482,7 @@ class _DiagnosisScore:
 class _BusScore:
     def __init__(self, run: _Run) -> None:
         bus = run.bus
-        rate = lambda value: value if isinstance(value, (int, float)) and value > 0 else None  # noqa: E731
+        rate = lambda value: value if isinstance(value, (int, float)) and value > 0 else None
         self.bitrate = rate(bus.get("bitrate"))
         self.data_bitrate = rate(bus.get("data_bitrate")) or self.bitrate
         self.fd = bus.get("fd")
@@ -541,7 +542,7 @@ class _BusScore:
 def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]) -> dict[str, Any]:
     raw, dt = run.raw or {}, run.sample_time
     ticks = scorer.ticks if run.raw is not None else channels.get(STATE, 0)
-    seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)  # noqa: E731
+    seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)
     lost = run.frames_lost if run.frames_lost is not None else scorer.lost_events
     estimators = {}
     baseline = scorer.estimators.get(run.baseline) if run.baseline else None
