@@ -23,6 +23,7 @@ examples:
   cosim scenarios                    list the built-in scenarios
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
+  cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, candump)
   cosim monitor                      watch the running co-simulation's signals live
 """
 
@@ -169,6 +170,19 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from cosim.export import export
+
+    result = export(args.log, args.to, args.out, dbc=args.dbc)
+    console = _console(stderr=True)
+    for warning in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    what = "rows (ticks)" if args.to in ("csv", "parquet") else "frames"
+    console.print(f"wrote {result.count} {what} as {args.to}")
+    print(result.path)
+    return 0
+
+
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
@@ -245,6 +259,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="DIR", help="output directory (default: FILE-plots next to the log)")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser(
+        "export", help="export a log for other tools (CSV, Parquet, BLF, MF4, candump)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Export a run log for the tools engineers already use. The log is streamed: any length fits in "
+        "memory.\n\n"
+        "tables, one row per tick, columns tick, 't [s]' (simulated time), then '<topic>.<field> [unit]' for the\n"
+        "truth and the decoded bus signals (state.x1 [m], faults.measured.x2 [m], EST_kalman.xhat_v1 [m/s], ...):\n"
+        "  csv       text; floats as the shortest decimal that reads back exactly\n"
+        "  parquet   columnar, units and source topic in each field's metadata\n"
+        "raw CAN frames, every frame on the bus, timestamped with simulated time:\n"
+        "  blf       Vector binary log (CANalyzer, CANoe, python-can)\n"
+        "  mf4       ASAM MDF4 bus log, CAN_DataFrame layout, the DBC attached (asammdf, CANalyzer)\n"
+        "  candump   text log of 'candump -L': (t) can0 ID#DATA, ID##<flags>DATA for CAN FD (can-utils,\n"
+        "            SavvyCAN, cantools, python-can)\n\n"
+        "Decode frames with the DBC from 'cosim dbc SCENARIO' (the MF4 file carries it).",
+        epilog="examples:\n  cosim export runs/my.mcap --to csv\n  cosim export runs/my.mcap --to mf4 --out bus.mf4",
+    )
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--to", required=True, choices=("csv", "parquet", "blf", "mf4", "candump"), help="output format")
+    p.add_argument("--out", "-o", metavar="PATH", help="output file (default: FILE.csv, .parquet, .blf, .mf4 or .log next to the log)")
+    p.add_argument("--dbc", metavar="FILE.dbc", help="mf4 only: the DBC to attach, for a log that has none (default: the log's)")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("dbc", help="write the CAN database of a scenario", description="Write the DBC database of a "
                        "scenario's bus, so that external tools can decode its frames.")
