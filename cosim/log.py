@@ -170,6 +170,30 @@ class LogReader:
     def attachments(self) -> dict[str, bytes]:
         return {r.name: bytes(r.data) for r in self._indexed_or_scanned(records.Attachment, self._reader.iter_attachments)}
 
+    def schemas(self) -> dict[str, dict[str, Any]]:
+        """Topic → its JSON Schema (parsed), in channel order: from the summary, else by a scan.
+        Topics without a JSON Schema map to {}."""
+        if self._summary is not None:
+            channels, schemas = self._summary.channels, self._summary.schemas
+        else:
+            channels, schemas = {}, {}
+            for record in self._records(quiet=True):
+                if isinstance(record, records.Channel):
+                    channels[record.id] = record
+                elif isinstance(record, records.Schema):
+                    schemas[record.id] = record
+
+        def parsed(schema_id: int) -> dict[str, Any]:
+            schema = schemas.get(schema_id)
+            if schema is None or schema.encoding != "jsonschema":
+                return {}
+            try:
+                return json.loads(schema.data)
+            except ValueError:
+                return {}
+
+        return {channels[cid].topic: parsed(channels[cid].schema_id) for cid in sorted(channels)}
+
     def _indexed_or_scanned(self, kind: type, indexed) -> list[Any]:
         """Records of one kind: from the summary's index if it can be read, else by a scan."""
         if self._summary is not None:
