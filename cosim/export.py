@@ -1,0 +1,396 @@
+"""Exports of run logs for the tools engineers already use.
+
+Two kinds of output, both streamed through the log in bounded memory (a one-hour run is never
+loaded whole):
+
+- **Tidy tables** (``csv``, ``parquet``): one row per tick k, columns ``tick``, ``t [s]``
+  (simulated time t_k), then the truth topics and the decoded data messages of the bus, one column
+  per field, named ``<topic>.<field> [unit]`` after the topic's last path component, e.g.
+  ``state.x1 [m]`` (``/truth/state``), ``inputs.effective.force [N]``, ``faults.measured.x2 [m]``,
+  ``SENSOR_x1.x1 [m]``, ``EST_kalman.xhat_v1 [m/s]``. Units come from the log's JSON Schemas.
+  A cell is empty (null) when the tick has no such value: a frame not sent (dropout), a reading
+  not measured. Lists (the active faults, the dropped sensors) are comma-joined text. Decoded
+  frames go to the row of the tick they carry (their ``tick`` signal), which is the tick they were
+  logged at in lockstep; control messages (NMT, SYNC, heartbeats) are in the frame exports only.
+- **Frame logs** (``blf``, ``mf4``, ``candump``): every frame of ``/can/frames`` in bus order,
+  timestamped with simulated time (the frames of one tick share t_k). BLF is written with
+  python-can's ``BLFWriter`` (channel 1); MF4 is an ASAM MDF 4.10 bus log written in bulk with
+  asammdf: one ``CAN_DataFrame`` channel group in the standard bus-logging layout (``ID``,
+  ``IDE``, ``DLC``, ``DataLength``, ``DataBytes``, ``EDL``, ``BRS``, ...) with a CAN bus
+  acquisition source and the DBC attached, so asammdf's ``extract_bus_logging`` and CANalyzer
+  decode it; its start time is the Unix epoch, since the log has no wall-clock time. ``candump``
+  is the text format of ``candump -L`` (``(t) can0 1A0#0011``, ``##<flags>`` for CAN FD), which
+  ``can.LogReader``, cantools and SavvyCAN read.
+
+Output goes to a ``.part`` file renamed into place at the end, so a failed export leaves no
+half-written file under the final name.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from hashlib import md5
+from pathlib import Path
+from typing import Any
+
+from cosim import __version__
+from cosim.errors import CosimError, LogError
+from cosim.log import LogReader
+from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE
+
+#: Format → file suffix of its output.
+FORMATS = {"csv": ".csv", "parquet": ".parquet", "blf": ".blf", "mf4": ".mf4", "candump": ".log"}
+TABLE_FORMATS = ("csv", "parquet")
+TRUTH_TOPICS = (STATE, SENSORS, INPUTS, FAULTS)
+#: Decoded topics that are bus control, not signals.
+CONTROL_MESSAGES = re.compile(r"^/can/(NMT|SYNC|HEARTBEAT_.*)$")
+DBC_ATTACHMENT = "cosim.dbc"
+CANDUMP_INTERFACE = "can0"
+#: Rows kept open for frames that arrive after their tick (realtime mode); later ones are left out.
+ROW_WINDOW = 256
+PARQUET_BATCH_ROWS = 8192
+MF4_BATCH_FRAMES = 16384
+MF4_FRAGMENT_BYTES = 1 << 20  # asammdf's data blocks: what it holds in memory while saving
+
+_UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.number writes "<description> [<unit>]"
+
+
+@dataclass
+class ExportResult:
+    """What an export wrote: the file, its format, how many rows (tables) or frames, warnings."""
+
+    path: Path
+    format: str
+    count: int
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of the tidy table: the topic and field path it comes from, its type and unit."""
+
+    name: str
+    topic: str
+    path: tuple[str, ...]
+    kind: str  # "int", "float", "bool" or "text"
+    unit: str = ""
+    description: str = ""
+
+
+def default_output(log: str | Path, fmt: str) -> Path:
+    """FILE.mcap → FILE.<suffix of the format> next to it."""
+    return Path(log).with_suffix(FORMATS[fmt])
+
+
+def export(log: str | Path, fmt: str, out: str | Path | None = None, dbc: str | Path | None = None) -> ExportResult:
+    """Export the log ``log`` as ``fmt`` (one of FORMATS) to ``out`` (default: next to the log).
+
+    ``dbc`` (mf4 only) replaces the DBC attached to the log, for logs that lack one."""
+    if fmt not in FORMATS:
+        raise CosimError(f"unknown export format {fmt!r}: choose one of {', '.join(FORMATS)}")
+    if dbc is not None and fmt != "mf4":
+        raise CosimError(f"--dbc is used by the mf4 export only (it is attached to the file), not by {fmt}")
+    out = Path(out) if out is not None else default_output(log, fmt)
+    if out.resolve() == Path(log).resolve():
+        raise CosimError(f"{out}: the output would overwrite the log; choose another --out")
+    with LogReader(log) as reader:
+        part = out.with_name(f"{out.name}.part{FORMATS[fmt]}")  # asammdf insists on its suffix
+        try:
+            if fmt in TABLE_FORMATS:
+                count, warnings = _export_table(reader, fmt, part)
+            else:
+                count, warnings = _export_frames(reader, fmt, part, dbc)
+            part.replace(out)
+        finally:
+            part.unlink(missing_ok=True)
+        return ExportResult(out, fmt, count, reader.warnings + warnings)
+
+
+# -- tidy tables ----------------------------------------------------------------------------------
+
+
+def table_columns(schemas: dict[str, dict[str, Any]]) -> list[Column]:
+    """The tidy table's columns, from the JSON Schemas of the log's topics: ``tick``, ``t [s]``,
+    the truth topics, then the decoded data messages in channel order."""
+    columns = [Column("tick", "", (), "int", "", "tick counter k"), Column("t [s]", "", (), "float", "s", "simulated time t_k")]
+    decoded = [t for t in schemas if t.startswith("/can/") and t != FRAMES and not CONTROL_MESSAGES.match(t)]
+    for topic in [t for t in TRUTH_TOPICS if t in schemas] + decoded:
+        prefix = topic.rsplit("/", 1)[-1]
+        properties = {k: v for k, v in schemas[topic].get("properties", {}).items() if k not in ("tick", "t")}
+        columns += _flatten(topic, prefix, (), properties)
+    return columns
+
+
+def _flatten(topic: str, prefix: str, path: tuple[str, ...], properties: dict[str, Any]) -> list[Column]:
+    columns = []
+    for key, schema in properties.items():
+        here = (*path, key)
+        types = schema.get("type", "")
+        types = [types] if isinstance(types, str) else list(types)
+        if "object" in types:
+            columns += _flatten(topic, prefix, here, schema.get("properties", {}))
+            continue
+        kind = ("int" if "integer" in types else "float" if "number" in types else "bool" if "boolean" in types else "text")
+        description = schema.get("description", "")
+        match = _UNIT.search(description)
+        unit = match.group(1) if match else ""
+        name = ".".join((prefix, *here)) + (f" [{unit}]" if unit else "")
+        columns.append(Column(name, topic, here, kind, unit, description))
+    return columns
+
+
+def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) -> Iterator[list[Any]]:
+    """Rows of the tidy table in tick order, one per tick, each a list aligned with ``columns``.
+
+    Holds at most ROW_WINDOW open rows: memory does not grow with the length of the log."""
+    run = reader.metadata().get("cosim.run")
+    if run is None:
+        raise LogError(f"{reader.path}: no cosim.run metadata, so not a log of 'cosim run'; tidy tables need its ticks "
+                       f"and truth (export its frames with --to blf, mf4 or candump)")
+    dt_ns = round(float(run["sample_time"]) * 1e9)
+    modulus = _tick_modulus(json.loads(run.get("bus", "{}")).get("fd", False))
+    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
+    for i, column in enumerate(columns):
+        if column.topic:
+            fields.setdefault(column.topic, []).append((i, column.path, column.kind))
+    open_rows: dict[int, list[Any]] = {}
+    newest = -1
+    late = 0
+    for topic, log_time, message in reader.messages(list(fields)):
+        logged_tick = log_time // dt_ns
+        counter = message.get("tick")
+        if topic.startswith("/can/") and isinstance(counter, int):
+            k = logged_tick - (logged_tick - counter) % modulus  # the carried counter, unwrapped
+        else:
+            k = counter if isinstance(counter, int) else logged_tick
+        if k > newest:
+            newest = k
+            for old in sorted(t for t in open_rows if t <= newest - ROW_WINDOW):
+                yield open_rows.pop(old)
+        elif k <= newest - ROW_WINDOW:
+            late += 1
+            continue
+        row = open_rows.get(k)
+        if row is None:
+            row = open_rows[k] = [None] * len(columns)
+            row[0], row[1] = k, k * dt_ns / 1e9
+        for i, path, kind in fields[topic]:
+            row[i] = _cell(message, path, kind)
+    for k in sorted(open_rows):
+        yield open_rows[k]
+    if late:
+        warnings.append(f"{late} messages came more than {ROW_WINDOW} ticks after their tick and were left out of the table")
+
+
+def _tick_modulus(fd: bool) -> int:
+    from cosim.codec import CLASSIC_TICK_BITS, FD_TICK_BITS
+
+    return 2 ** (FD_TICK_BITS if fd else CLASSIC_TICK_BITS)
+
+
+def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:
+    value: Any = message
+    for key in path:
+        if not isinstance(value, dict):
+            return None
+        value = value.get(key)
+    if isinstance(value, list):
+        return ",".join(str(item) for item in value)
+    if kind == "float" and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def _export_table(reader: LogReader, fmt: str, path: Path) -> tuple[int, list[str]]:
+    columns = table_columns(reader.schemas())
+    warnings: list[str] = []
+    rows = table_rows(reader, columns, warnings)
+    count = _write_csv(path, columns, rows) if fmt == "csv" else _write_parquet(path, columns, rows, reader)
+    return count, warnings
+
+
+def _write_csv(path: Path, columns: list[Column], rows: Iterator[list[Any]]) -> int:
+    count = 0
+    with open(path, "w", newline="") as stream:
+        writer = csv.writer(stream)
+        writer.writerow([c.name for c in columns])
+        for row in rows:  # floats are written as repr(): the shortest text that reads back exactly
+            writer.writerow(row)
+            count += 1
+    return count
+
+
+def _write_parquet(path: Path, columns: list[Column], rows: Iterator[list[Any]], reader: LogReader) -> int:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    types = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "text": pa.string()}
+    schema = pa.schema(
+        [pa.field(c.name, types[c.kind], metadata={"unit": c.unit, "description": c.description, "source": _source(c)})
+         for c in columns],
+        metadata={"cosim.run": json.dumps(reader.metadata().get("cosim.run", {})), "cosim.source_log": reader.path.name},
+    )
+    count = 0
+    with pq.ParquetWriter(path, schema, compression="zstd") as writer:
+        batch: list[list[Any]] = []
+
+        def flush() -> None:
+            arrays = [pa.array([row[i] for row in batch], type=schema.field(i).type) for i in range(len(columns))]
+            writer.write_batch(pa.RecordBatch.from_arrays(arrays, schema=schema))
+            batch.clear()
+
+        for row in rows:
+            batch.append(row)
+            count += 1
+            if len(batch) == PARQUET_BATCH_ROWS:
+                flush()
+        if batch:
+            flush()
+    return count
+
+
+def _source(column: Column) -> str:
+    """Where a column comes from, as a message path (``/truth/state.x1``), as Foxglove writes it."""
+    return ".".join((column.topic, *column.path)) if column.topic else column.name
+
+
+# -- frame logs -----------------------------------------------------------------------------------
+
+
+def frames(reader: LogReader) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(log_time_ns, frame record) of every frame of ``/can/frames``, in bus order."""
+    for _, log_time, frame in reader.messages([FRAMES]):
+        yield log_time, frame
+
+
+def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None) -> tuple[int, list[str]]:
+    if FRAMES not in reader.schemas():
+        raise LogError(f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
+                       f"tables of its messages come with --to csv or parquet")
+    writers: dict[str, Callable[..., int]] = {"blf": _write_blf, "candump": _write_candump, "mf4": _write_mf4}
+    if fmt == "mf4":
+        return _write_mf4(path, frames(reader), _dbc_text(reader, dbc)), []
+    return writers[fmt](path, frames(reader)), []
+
+
+def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
+    if dbc is not None:
+        try:
+            return Path(dbc).read_bytes()
+        except OSError as error:
+            raise CosimError(f"--dbc {dbc}: cannot be read ({error.strerror}); write one with 'cosim dbc SCENARIO --out FILE.dbc'") from None
+    attached = reader.attachments().get(DBC_ATTACHMENT)
+    if attached is None:
+        raise LogError(f"{reader.path}: no DBC attached ({DBC_ATTACHMENT}), and the MF4 bus log carries one; pass "
+                       f"--dbc FILE.dbc (write it with 'cosim dbc SCENARIO --out FILE.dbc' for the run's scenario)")
+    return attached
+
+
+def _can_message(log_time: int, frame: dict[str, Any], timestamp: float | None = None):
+    import can
+
+    return can.Message(
+        timestamp=log_time / 1e9 if timestamp is None else timestamp, arbitration_id=frame["id"], is_extended_id=frame["extended"], is_fd=frame["fd"],
+        bitrate_switch=frame["brs"], data=bytes.fromhex(frame["data"]),
+    )
+
+
+def _write_blf(path: Path, source: Iterator[tuple[int, dict[str, Any]]]) -> int:
+    import can
+
+    count = 0
+    with can.BLFWriter(path, channel=1) as writer:
+        for log_time, frame in source:
+            # BLFWriter truncates (t - t0)·1e9 to whole nanoseconds: half a nanosecond more makes
+            # that the nearest nanosecond, i.e. the log's own log_time
+            writer.on_message_received(_can_message(log_time, frame, (log_time + 0.5) / 1e9))
+            count += 1
+    return count
+
+
+def candump_line(log_time: int, frame: dict[str, Any], interface: str = CANDUMP_INTERFACE) -> str:
+    """One line of ``candump -L``: ``(seconds.micros) iface ID#DATA``; CAN FD ``ID##<flags>DATA``
+    (flags: 1 bit rate switch). Ids are 3 hex digits, 8 for extended ones."""
+    seconds, nanos = divmod(log_time, 1_000_000_000)
+    can_id = f"{frame['id']:08X}" if frame["extended"] else f"{frame['id']:03X}"
+    separator = f"##{1 if frame['brs'] else 0:X}" if frame["fd"] else "#"
+    return f"({seconds}.{nanos // 1000:06d}) {interface} {can_id}{separator}{frame['data'].upper()}\n"
+
+
+def _write_candump(path: Path, source: Iterator[tuple[int, dict[str, Any]]]) -> int:
+    count = 0
+    with open(path, "w") as stream:
+        for log_time, frame in source:
+            stream.write(candump_line(log_time, frame))
+            count += 1
+    return count
+
+
+def mf4_frame_dtype():
+    """The record of ASAM MDF bus logging's CAN_DataFrame channel group, as asammdf reads it."""
+    import numpy as np
+
+    return np.dtype([
+        ("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"), ("CAN_DataFrame.IDE", "<u1"),
+        ("CAN_DataFrame.DLC", "<u1"), ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(64,)u1"),
+        ("CAN_DataFrame.Dir", "<u1"), ("CAN_DataFrame.EDL", "<u1"), ("CAN_DataFrame.BRS", "<u1"),
+        ("CAN_DataFrame.ESI", "<u1"),
+    ])
+
+
+def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: bytes) -> int:
+    import numpy as np
+    from asammdf import MDF, Signal
+    from asammdf.blocks.v4_blocks import FileHistory, SourceInformation
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, SOURCE_BUS
+
+    dtype = mf4_frame_dtype()
+    mdf = MDF(version="4.10")
+    mdf.configure(read_fragment_size=MF4_FRAGMENT_BYTES, write_fragment_size=MF4_FRAGMENT_BYTES)
+    try:
+        mdf.header.start_time = datetime(1970, 1, 1, tzinfo=timezone.utc)  # simulated time: no wall clock
+        mdf.append(Signal(
+            name="CAN_DataFrame", samples=np.zeros(0, dtype=dtype), timestamps=np.zeros(0, dtype="<f8"),
+            attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),
+            source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
+        ), comment="cosim run: every frame on the bus, simulated time")
+        batch: list[tuple] = []  # (t_ns, id, extended, dlc, length, data hex, fd, brs): small, unlike the dicts
+        count = 0
+
+        def flush() -> None:
+            t_ns, ids, extended, dlc, length, data, fd, brs = (np.array(column) for column in zip(*batch))
+            records = np.zeros(len(batch), dtype=dtype)
+            records["CAN_DataFrame.BusChannel"] = 1
+            records["CAN_DataFrame.ID"] = ids.astype("u4") | (extended.astype("u4") << 31)  # bit 31 flags an extended id
+            records["CAN_DataFrame.IDE"] = extended
+            records["CAN_DataFrame.DLC"] = dlc
+            records["CAN_DataFrame.DataLength"] = length
+            padded = b"".join(bytes.fromhex(text).ljust(64, b"\0") for text in data)
+            records["CAN_DataFrame.DataBytes"] = np.frombuffer(padded, dtype="u1").reshape(len(batch), 64)
+            records["CAN_DataFrame.EDL"] = fd
+            records["CAN_DataFrame.BRS"] = brs
+            mdf.extend(0, [(t_ns.astype("<i8") / 1e9, None), (records, None)])
+            batch.clear()
+
+        for log_time, f in source:
+            batch.append((log_time, f["id"], f["extended"], f["dlc"], f["length"], f["data"], f["fd"], f["brs"]))
+            count += 1
+            if len(batch) == MF4_BATCH_FRAMES:
+                flush()
+        if batch:
+            flush()
+        created = FileHistory()
+        created.comment = (f"<FHcomment><TX>created by cosim export (simulated time)</TX><tool_id>cosim</tool_id>"
+                           f"<tool_vendor>cosim</tool_vendor><tool_version>{__version__}</tool_version></FHcomment>")
+        mdf.file_history.append(created)
+        for entry in mdf.file_history:  # asammdf stamps history entries with the wall clock: not reproducible
+            entry.abs_time = 0
+        mdf.save(path, overwrite=True, compression=2, add_history_block=False)
+    finally:
+        mdf.close()
+    return count
