@@ -41,3 +41,12 @@ def test_lmi_design_benchmark_reports_its_figures():
     figures = bench("lmi_design.py", "--skip-lpv")
     assert figures["lft_design_s"] > 0 and figures["lti_design_s"] > 0
     assert figures["lft_diagonal_sigma"] <= figures["lft_sigma"] * (1 + 1e-6) and figures["lft_rho"] < 1
+
+
+def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
+    figures = bench("log_io.py", "--seconds", "0.5", "--repeat", "1")
+    for key in ("write_ratio", "inspect_ratio", "export_ratio", "write_frames_per_s", "bare_write_frames_per_s",
+                "inspect_frames_per_s", "bare_read_frames_per_s", "export_mf4_frames_per_s"):
+        assert figures[key] > 0, key
+    assert abs(figures["write_ratio"] - figures["write_frames_per_s"] / figures["bare_write_frames_per_s"]) < 1e-9
+    assert figures["export_ratio"] == min(figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump"))
