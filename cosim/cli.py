@@ -24,6 +24,8 @@ examples:
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
   cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, candump)
+  cosim replay runs/my.mcap -e kalman  feed the log's bus traffic to one of its estimators again
+  cosim report runs/my.mcap          one self-contained HTML page: scenario, metrics, figures
   cosim monitor                      watch the running co-simulation's signals live
 """
 
@@ -183,6 +185,72 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    console = _console(stderr=True)
+    if args.live:
+        return _play(args, console)
+    from cosim.replay import Replay, parse_params
+
+    misplaced = [flag for flag, given in (("--speed", args.speed is not None),) if given]
+    if misplaced:
+        raise CosimError(f"{misplaced[0]}: only with --live (an estimator replay runs in lockstep, as fast as the node answers)")
+    if not args.estimator:
+        raise CosimError("replay needs --estimator NAME (one of the run's, or a new one with --kind), or --live")
+    log = Path(args.log)
+    out = Path(args.out) if args.out else log.with_name(f"{log.stem}-replay-{args.estimator}.mcap")
+    replay = Replay(log, out, args.estimator, kind=args.kind, params=parse_params(args.param or []),
+                    interface=args.interface, channel=args.channel, port=args.port)
+    origin = "new, " if replay.new else ""
+    console.print(f"replaying {replay.ticks} ticks of {escape(str(log))} into {escape(replay.name)} ({origin}{replay.kind})")
+
+    def started(run) -> None:
+        console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
+
+    try:
+        result = replay.execute(on_start=started) if args.quiet else _with_progress(replay, console, started)
+    except KeyboardInterrupt as interrupt:
+        console.print(f"[yellow]interrupted[/yellow]; the replay up to that point is in {escape(str(out))}")
+        return 128 + getattr(interrupt, "signum", signal.SIGINT)
+    except CosimError as error:
+        console.print(f"[red]error:[/red] {escape(str(error))}\nthe replay up to that point is in {escape(str(out))}")
+        return 1
+    console.print(f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s")
+    print(out)
+    return 0
+
+
+def _play(args: argparse.Namespace, console: Console) -> int:
+    from cosim.replay import play
+
+    misplaced = [flag for flag, given in (("--estimator", args.estimator), ("--kind", args.kind), ("--param", args.param),
+                                          ("--out", args.out)) if given]
+    if misplaced:
+        raise CosimError(f"{misplaced[0]}: not with --live, which plays the log's frames onto a bus as they are")
+    speed = 1.0 if args.speed is None else args.speed
+
+    def started(bus) -> None:
+        console.print(f"playing {escape(args.log)} onto {bus.describe()} at {speed:g}x real time\n"
+                      f"join with: {escape(bus.python_can())}")
+
+    try:
+        result = play(args.log, args.interface or "udp_multicast", args.channel or "", args.port or 0, speed, started)
+    except KeyboardInterrupt as interrupt:
+        console.print("[yellow]interrupted[/yellow]")
+        return 128 + getattr(interrupt, "signum", signal.SIGINT)
+    for warning in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    console.print(f"sent {result.frames} frames ({result.sim_time:g} s of simulated time) in {result.wall_time:.2f} s")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from cosim.report import report
+
+    log = Path(args.log)
+    print(report(log, Path(args.out) if args.out else log.with_suffix(".html")))
+    return 0
+
+
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
@@ -282,6 +350,47 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", "-o", metavar="PATH", help="output file (default: FILE.csv, .parquet, .blf, .mf4 or .log next to the log)")
     p.add_argument("--dbc", metavar="FILE.dbc", help="mf4 only: the DBC to attach, for a log that has none (default: the log's)")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser(
+        "replay", help="feed a log's bus traffic to an estimator, or play it onto a live bus",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Replay a run log without simulating the plant again.\n\n"
+        "With --estimator: the frames the runner put on the bus (SYNC, sensor and command frames, tick by tick, as\n"
+        "the bus delivered them: frames a dropout kept off the bus stay off) go to one estimator, a 'cosim node'\n"
+        "process on a bus of its own, in lockstep. The new log holds the original truth, those frames, the\n"
+        "estimator's answers, and 'cosim.replay' metadata. An estimator of the run, unchanged, reproduces its\n"
+        "logged frames bit for bit (its design is taken from the log); --param changes its parameters (and\n"
+        "designs it again); --kind makes a new one, designed on the linear model the log records.\n\n"
+        "With --live: every frame of the log goes onto a bus at its simulated time over --speed, like canplayer,\n"
+        "for external tools and clients (decode with 'cosim dbc').",
+        epilog="examples:\n"
+        "  cosim replay runs/my.mcap --estimator kalman --out kalman-again.mcap\n"
+        "  cosim replay runs/my.mcap --estimator kalman --param measurement_std=0.01 --out kf-0.01.mcap\n"
+        "  cosim replay runs/my.mcap --estimator kf2 --kind kalman --param 'x0=[0, 0, 0, 0]'\n"
+        "  cosim replay runs/my.mcap --live --speed 0.5\n"
+        "  cosim replay runs/my.mcap --live --interface socketcan --channel vcan0",
+    )
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--estimator", "-e", metavar="NAME", help="the estimator to feed: one of the run's, or the name of a new one (with --kind)")
+    p.add_argument("--kind", metavar="KIND", help="a new estimator of this kind (pseudoinverse, kalman, adaptive, uio, ...)")
+    p.add_argument("--param", action="append", metavar="KEY=VALUE",
+                   help="an estimator parameter, VALUE in TOML syntax (0.5, [0.8, 0.9], \"text\"); repeat for several")
+    p.add_argument("--out", "-o", metavar="NEW.mcap", help="where to write the replay's log (default: FILE-replay-NAME.mcap)")
+    p.add_argument("--live", action="store_true", help="play every frame of the log onto a bus in real time instead")
+    p.add_argument("--speed", type=float, metavar="X", help="--live: simulated seconds per wall-clock second (default 1)")
+    p.add_argument("--interface", choices=("udp_multicast", "socketcan", "virtual"), help="bus transport (default: udp_multicast)")
+    p.add_argument("--channel", help="bus channel: multicast group or CAN interface (default: a fresh group)")
+    p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("report", help="write a self-contained HTML report of a log",
+                       description="Write one HTML page about a run log: the scenario and its settings, the metrics "
+                       "of 'cosim inspect' as tables, and the figures of 'cosim plot'. The page is self-contained "
+                       "(figures inlined, no network needed) and reads on a laptop and on a phone.")
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--out", "-o", metavar="REPORT.html", help="output file (default: FILE.html next to the log)")
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("dbc", help="write the CAN database of a scenario", description="Write the DBC database of a "
                        "scenario's bus, so that external tools can decode its frames.")

@@ -1,0 +1,374 @@
+"""Replay a run log: its bus traffic, tick by tick, into an estimator process, or onto a live bus.
+
+``Replay`` feeds the frames the runner put on the bus (SYNC(k), then the sensor and command frames
+of tick k, exactly as logged: a frame a dropout kept off the bus is not in the log and is not
+replayed) to one estimator node, a ``cosim node`` process on a bus of its own, with the runner's
+lockstep protocol: tick k+1 starts once the node's heartbeat has closed tick k. The plant is not
+simulated again: the new log holds the original truth (``/truth/*``, message for message), the
+replayed frames and what the estimator answered, and ``cosim.replay`` metadata naming the log and
+the estimator replayed. The replay is a ``Run`` whose plant is the log: participants, waiting,
+loss accounting and logging are the runner's own.
+
+The estimator is either one of the run's, rebuilt from what the log records about it (kind,
+parameters including its design, design model), which reproduces its logged frames bit for bit,
+or with some parameters changed (``params``), or a new one (``kind``) designed on the linear model
+the log records. Designs go through the design cache (``cosim.design_cache``).
+
+``play`` sends every frame of a log onto a live bus at the times the log gives them (simulated
+time over ``speed``), like ``canplayer``: for external tools and clients listening on that bus.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+import time
+import tomllib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import can
+
+import estimators
+from cosim.bus import BusConfig, allocate, open_bus
+from cosim.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec
+from cosim.errors import CosimError, LogError
+from cosim.interrupts import DeferredInterrupts
+from cosim.log import LogReader, McapLog
+from cosim.node import model_from_dict, model_to_dict
+from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, RunRecorder
+from cosim.runner import NodeFailure, Progress, Run, RunResult, Traffic, build_estimators, design_warnings, versions
+from cosim.scenario import Scenario
+from estimators import LinearModel, ParameterError
+
+#: The truth topics a replay copies from the original log.
+TRUTH = (STATE, SENSORS, INPUTS, FAULTS)
+#: The frames a replay sends again: the runner's, and in a closed loop the controller node's
+#: (commands, status and the heartbeat that closes its tick, which the estimators wait for).
+REPLAYED_ROLES = (SYNC, SENSOR, COMMAND, CONTROL)
+
+
+@dataclass
+class LoggedTick:
+    """What the original log holds of tick k: the runner's frames in bus order, and the truth."""
+
+    tick: int
+    frames: list[can.Message] = field(default_factory=list)
+    truth: list[tuple[str, int, dict[str, Any]]] = field(default_factory=list)
+
+
+def frame_of(record: dict[str, Any]) -> can.Message:
+    """The CAN frame a ``/can/frames`` record describes."""
+    return can.Message(
+        arbitration_id=record["id"], is_extended_id=record["extended"], is_fd=record["fd"], bitrate_switch=record["brs"],
+        data=bytes.fromhex(record["data"]),
+    )
+
+
+def logged_ticks(reader: LogReader, codec: Codec) -> Iterator[LoggedTick]:
+    """The ticks of a log in order, streamed: memory holds one tick whatever the log's length."""
+    current: LoggedTick | None = None
+    for topic, time_ns, message in reader.messages([FRAMES, *TRUTH]):
+        k = message["tick"]
+        if topic == FRAMES and not _replayed(frame_of(message), codec):
+            continue  # the estimators' answers, boot-up heartbeats, the final NMT stop, foreign frames
+        if current is None or k > current.tick:
+            if current is not None:
+                yield current
+            current = LoggedTick(k)
+        elif k < current.tick:
+            continue  # cannot happen in a log written by cosim run: a tick's own records are contiguous
+        if topic == FRAMES:
+            current.frames.append(frame_of(message))
+        else:
+            current.truth.append((topic, time_ns, message))
+    if current is not None:
+        yield current
+
+
+def _replayed(frame: can.Message, codec: Codec) -> bool:
+    spec = codec.spec_of(frame)
+    if spec is None:
+        return False
+    if spec.role == HEARTBEAT:
+        return spec.sender == CONTROLLER and codec.decode(frame).values["state"] == OPERATIONAL
+    return spec.role in REPLAYED_ROLES
+
+
+def parse_params(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs; VALUE is a TOML value (``0.5``, ``[0.8, 0.9]``, ``"text"``, ``true``), and
+    any other text stands for itself."""
+    params: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise CosimError(f"--param {item!r}: expected KEY=VALUE, e.g. --param measurement_std=0.002")
+        try:
+            params[key] = tomllib.loads(f"value = {text}")["value"]
+        except tomllib.TOMLDecodeError:
+            params[key] = text
+    return params
+
+
+class Replay(Run):
+    """One estimator fed with a log's bus traffic, into a new log.
+
+    ``estimator`` names one of the run's estimators, or with ``kind`` a new one; ``params`` change
+    (or, for a new one, give) its parameters. ``interface``, ``channel`` and ``port`` choose the
+    replay's bus (default: a fresh host-local ``udp_multicast`` bus). The methods that start the
+    node, wait for it and tell what went wrong with it are the runner's.
+    """
+
+    def __init__(self, log: str | Path, out: str | Path, estimator: str, *, kind: str | None = None,
+                 params: dict[str, Any] | None = None, interface: str | None = None, channel: str | None = None,
+                 port: int | None = None) -> None:
+        self.log, self.out = Path(log), Path(out)
+        if self.out.exists() and self.log.exists() and self.out.samefile(self.log):
+            raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
+        with LogReader(self.log) as reader:
+            self.meta, self.attachments = reader.metadata(), reader.attachments()
+            self.ticks = _sync_count(reader)
+        run, scenario_record = self.meta.get("cosim.run"), self.meta.get("cosim.scenario")
+        if run is None or scenario_record is None or "cosim.dbc" not in self.attachments:
+            raise LogError(f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run")
+        self.closed_loop = json.loads(run.get("controller", "null")) is not None
+        if self.ticks == 0:
+            raise LogError(f"{self.log}: the log has no tick (no SYNC frame): there is nothing to replay")
+        try:
+            original = Scenario.model_validate(_without_nulls(json.loads(scenario_record["resolved"])))
+        except ValueError as error:
+            raise LogError(f"{self.log}: its scenario cannot be read by this version of cosim ({error})") from None
+        self.source = str(self.log)
+        self.log_codec = Codec.from_dbc(self.attachments["cosim.dbc"].decode())
+        recorded = json.loads(run["estimators"])
+        overrides = dict(params or {})
+        self.name, self.new = estimator, kind is not None
+        if self.new:
+            if estimator in recorded:
+                raise CosimError(f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
+                                 f"replay it, or give the new one another name")
+            if self.closed_loop:
+                raise CosimError(f"--kind {kind}: a new estimator cannot join the replay of a closed-loop run (the "
+                                 f"controller node's ids would move); replay one of the run's estimators")
+            if kind not in estimators.ESTIMATORS:
+                raise CosimError(f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})")
+            model = _recorded_model(run, recorded, estimators.ESTIMATORS[kind].continuous, kind, self.log)
+            spec_params = overrides
+        else:
+            if estimator not in recorded:
+                raise CosimError(f"--estimator {estimator}: the run has no estimator of that name (it has: "
+                                 f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one")
+            kind = recorded[estimator]["kind"]
+            model = model_from_dict(recorded[estimator]["model"])
+            given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator]["params"])
+            # Changed parameters mean a new design; unchanged ones come with the run's design.
+            spec_params = {**given, **overrides} if overrides else recorded[estimator]["params"]
+        try:
+            estimators.ESTIMATORS[kind].check_params(spec_params)
+        except ParameterError as error:
+            raise CosimError(f"--param {error}") from None
+        self.kind, self.overrides = kind, overrides
+        self.scenario = original.with_overrides(
+            estimators=[{"name": estimator, "kind": kind, "params": spec_params}], clients=[], mode="lockstep",
+            interface=interface or "udp_multicast", channel=channel or "", port=port or 0,
+        ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
+        # The run's own DBC keeps a replayed estimator's ids, so that its frames can match bit for bit.
+        self.codec = self.scenario.codec() if self.new else self.log_codec
+        if self.new or overrides:
+            self.estimators = build_estimators(self.scenario, model, f"{self.log} (replay)", model)
+        else:
+            try:
+                self.estimators = {estimator: estimators.create(kind, model, spec_params, self.scenario.sample_time)}
+            except ParameterError as error:
+                raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
+        self.warnings = design_warnings(self.scenario, self.estimators)
+        self.bus: BusConfig | None = None
+        self.participants = []
+
+    def node_spec(self, name: str, bus: BusConfig):
+        """The runner's node spec; in a closed loop the node reads the replayed controller's commands."""
+        spec = super().node_spec(name, bus)
+        return replace(spec, upstream={CONTROLLER: 0}) if self.closed_loop else spec
+
+    def _metadata(self, log: McapLog) -> None:
+        """The original run's records, with this estimator as the run's only one, and ``cosim.replay``."""
+        run = dict(self.meta["cosim.run"])
+        spec = self.node_spec(self.name, self.bus)
+        run["estimators"] = json.dumps({self.name: {
+            "kind": self.kind, "messages": [m.name for m in self.codec.data_messages(self.name)],
+            "states": list(spec.model.states), "params": spec.params, "model": model_to_dict(spec.model),
+        }})
+        run["clients"] = json.dumps({})
+        log.metadata("cosim.run", run)
+        log.metadata("cosim.scenario", self.meta["cosim.scenario"])
+        log.metadata("cosim.versions", versions())
+        log.metadata("cosim.replay", {
+            "log": str(self.log), "estimator": self.name, "kind": self.kind, "new": json.dumps(self.new),
+            "params": json.dumps(self.overrides), "ticks": str(self.ticks),
+        })
+        for name, data in self.attachments.items():
+            if name != "cosim.dbc":
+                log.attach(name, "application/xml" if name.endswith(".xml") else "application/octet-stream", data)
+        log.attach("cosim.dbc", "text/plain", self.codec.dbc.encode())
+
+    def execute(self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
+                on_start: Callable[[Run], None] | None = None) -> RunResult:
+        """Replay every logged tick; the new log is complete and valid whatever ends the replay."""
+        s, codec, name = self.scenario, self.codec, self.name
+        status, error, k = "completed", "", 0
+        marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
+        startup, tick_start = 0.0, None
+        start = last_report = time.perf_counter()
+        self.bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
+        with (DeferredInterrupts() as interrupts, LogReader(self.log) as reader, McapLog(self.out) as log,
+              open_bus(self.bus) as bus, tempfile.TemporaryDirectory(prefix="cosim-replay-") as workdir):
+            run = self.meta["cosim.run"]
+            recorder = RunRecorder(log, codec, states=tuple(json.loads(run["states"])), sensors=s.sensors, actuators=s.actuators,
+                                   units=_units(s), disturbances=s.disturbance_inputs)
+            truth = {topic: log.channel(topic, {}) for topic in TRUTH}  # registered, with their schemas, by the recorder
+            traffic = Traffic(codec, recorder)
+            self._metadata(log)
+            log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
+            recorder.event(0, 0.0, 0, "start", f"replay of {self.log} into {name} ({self.kind}), ticks={self.ticks}")
+            for warning in self.warnings:
+                recorder.event(0, 0.0, 0, "warning", warning, "warning")
+            try:
+                self._start(self.bus, Path(workdir))
+                if on_start is not None:
+                    on_start(self)
+                self._join(bus, traffic, interrupts)
+                traffic.flush(*marker)  # the boot-up heartbeat
+                tick_start = time.perf_counter()
+                startup = tick_start - start
+                ticks = logged_ticks(reader, self.log_codec)
+                for k in range(self.ticks):
+                    interrupts.check()
+                    logged = next(ticks, None)
+                    if logged is None or logged.tick != k:
+                        damage = "; ".join(reader.warnings) or "the log is damaged"
+                        raise CosimError(f"{self.log}: tick {k} is missing from the log ({damage}); the replay stops there")
+                    t, t_ns = s.time(k), k * s.dt_ns
+                    sent = [(frame, codec.decode(frame)) for frame in logged.frames]
+                    for frame, _ in sent:
+                        bus.send(frame)
+                    # While the node works on tick k: log what tick k-1 brought, tick k's frames and its truth.
+                    traffic.flush(*marker)
+                    marker = (k, t, t_ns)
+                    for frame, decoded in sent:
+                        recorder.frame(k, t, t_ns, frame, decoded)
+                    for topic, time_ns, payload in logged.truth:
+                        log.write(truth[topic], time_ns, payload)
+                    self._wait(bus, traffic, interrupts, lambda k=k: traffic.closed.get(name, -1) >= k,
+                               time.perf_counter() + s.timing.node_timeout, lambda k=k: self._hung(traffic, k))
+                    if name in traffic.left:
+                        raise NodeFailure(f"{name} left the bus at tick {k} (stopped heartbeat)")
+                    if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
+                        last_report = now
+                        on_progress(Progress(k + 1, self.ticks, s.time(k + 1), now - start, recorder.frames))
+                k = self.ticks
+            except KeyboardInterrupt:
+                status = "interrupted"
+                raise
+            except CosimError as exc:
+                status, error = "error", str(exc)
+                raise
+            except BaseException as exc:
+                status, error = "error", f"{type(exc).__name__}: {exc}"
+                raise
+            finally:
+                loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
+                self.result = self._finish(bus, traffic, recorder, log, marker, k, status, error, 0, [], start, startup, loop)
+        if on_progress is not None:
+            on_progress(Progress(k, self.ticks, s.time(k), time.perf_counter() - start, self.result.frames))
+        return self.result
+
+
+def _sync_count(reader: LogReader) -> int:
+    """How many ticks the log has: its SYNC frames (from the summary's statistics when it has them)."""
+    topic = "/can/SYNC"
+    summary = reader.summary()
+    if summary is not None and summary.statistics is not None:
+        ids = [cid for cid, channel in summary.channels.items() if channel.topic == topic]
+        return sum(summary.statistics.channel_message_counts.get(cid, 0) for cid in ids)
+    return sum(1 for _ in reader.messages([topic]))
+
+
+def _recorded_model(run: dict[str, str], recorded: dict[str, Any], continuous: bool, kind: str, log: Path) -> LinearModel:
+    """The plant's linear model as the log records it, in continuous or discrete time."""
+    key = "continuous_model" if continuous else "model"
+    if run.get(key) not in (None, "null"):
+        return model_from_dict(json.loads(run[key]))
+    for entry in recorded.values():  # the model an estimator of the run was designed on
+        model = model_from_dict(entry["model"])
+        if (model.dt is None) == continuous:
+            return model
+    time_domain = "continuous" if continuous else "discrete"
+    raise CosimError(f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
+                     f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it")
+
+
+def _without_nulls(data: Any) -> Any:
+    """The logged scenario without its null fields, which then take their defaults: JSON has no
+    infinity, so a fault without an end (end = inf, the default) was written as null."""
+    if isinstance(data, dict):
+        return {key: _without_nulls(value) for key, value in data.items() if value is not None}
+    if isinstance(data, list):
+        return [_without_nulls(value) for value in data]
+    return data
+
+
+def _units(s: Scenario) -> dict[str, dict[str, str]]:
+    """The unit of every channel the recorder writes, by table."""
+    sensors, actuators, states = s.channels()
+    return {
+        "states": {c.name: c.unit for c in states},
+        "sensors": {c.name: c.unit for c in sensors},
+        "actuators": {c.name: c.unit for c in actuators},
+        "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
+    }
+
+
+@dataclass(frozen=True)
+class Playback:
+    """What ``play`` sent: frames, the simulated time they span, and the wall time it took."""
+
+    frames: int
+    sim_time: float
+    wall_time: float
+    warnings: list[str]
+
+
+def play(log: str | Path, interface: str = "udp_multicast", channel: str = "", port: int = 0, speed: float = 1.0,
+         on_start: Callable[[BusConfig], None] | None = None) -> Playback:
+    """Send every frame of ``log`` onto a bus (default: a fresh host-local ``udp_multicast`` one):
+    the frames of simulated time t at t / ``speed`` seconds of wall-clock time after the start, in
+    the log's order. ``on_start`` gets the bus before the first frame; Ctrl-C stops between frames."""
+    if not (speed > 0 and math.isfinite(speed)):
+        raise CosimError(f"--speed {speed:g}: must be a positive number of simulated seconds per wall-clock second")
+    sent, sim_time = 0, 0.0
+    with LogReader(log) as reader, DeferredInterrupts() as interrupts:
+        run = reader.metadata().get("cosim.run")
+        if run is None:
+            raise LogError(f"{log}: no cosim.run metadata; --live plays the /can/frames of a log written by cosim run")
+        bus = allocate(interface, channel, port, bool(json.loads(run.get("bus", "{}")).get("fd", False)))
+        with open_bus(bus) as live:
+            if on_start is not None:
+                on_start(bus)
+            start = None
+            for _, time_ns, record in reader.messages([FRAMES]):
+                sim_time = time_ns / 1e9
+                if start is None:  # the clock starts with the first frame, once the reader has it
+                    start = time.perf_counter() - sim_time / speed
+                due = start + sim_time / speed
+                while (wait := due - time.perf_counter()) > 0:
+                    interrupts.check()
+                    time.sleep(min(wait, 0.05))
+                interrupts.check()
+                live.send(frame_of(record))
+                sent += 1
+        warnings = list(reader.warnings)
+    return Playback(sent, sim_time, 0.0 if start is None else time.perf_counter() - start, warnings)
