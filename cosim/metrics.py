@@ -444,13 +444,18 @@ class _DiagnosisScore:
         if segment is not None:
             for label in segment.labels:
                 state = self.open.setdefault(label, {"start": segment.start, "alarm_before_onset": self.alarm_prev,
-                                                     "detected": None, "isolated": None, "decision": None, "correct": None})
+                                                     "detected": None, "isolated": None, "decision": None, "correct": None,
+                                                     "wrong": False})
                 if state["detected"] is None and alarm:
                     state["detected"] = k
                 if state["isolated"] is None and raised:
+                    # A fault is isolated once all its flags are up (a double fault's second thruster may
+                    # be named later than the first); a flag no active fault explains, up to then, is wrong.
                     allowed = set().union(*(self.expected(g) for g in active))
-                    state["isolated"], state["decision"] = k, sorted(raised)
-                    state["correct"] = self.expected(label) <= raised <= allowed
+                    state["wrong"] |= not raised <= allowed
+                    if self.expected(label) <= raised:
+                        state["isolated"], state["decision"] = k, sorted(raised)
+                        state["correct"] = not state["wrong"]
         self.alarm_prev = alarm
 
     def close(self, segment: _Segment) -> None:

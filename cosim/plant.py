@@ -59,11 +59,12 @@ class Plant:
     def time(self) -> float:
         return float(self.data.time)
 
-    def reset(self, initial: dict[str, float] | None = None) -> None:
-        """Back to the plant's keyframe, then override the named state components."""
-        key = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_KEY, self.info.keyframe)
+    def reset(self, initial: dict[str, float] | None = None, keyframe: str | None = None) -> None:
+        """Back to the plant's keyframe (or the one named), then override the named state components."""
+        keyframe = keyframe or self.info.keyframe
+        key = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
         if key < 0:
-            raise ModelError(f"{self.info.model_file}: no keyframe named {self.info.keyframe!r}; add <key name=\"{self.info.keyframe}\"/>")
+            raise ModelError(f"{self.info.model_file}: no keyframe named {keyframe!r}; add <key name=\"{keyframe}\"/>")
         mujoco.mj_resetDataKeyframe(self.model, self.data, key)
         if initial or self._tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
             x = self.state()

@@ -336,7 +336,10 @@ class Run:
                 self.plant = Plant(s.plant_info, s.sample_time, s.sensors)
         except ModelError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
-        # Estimators are designed on the linearization at the plant's keyframe (its operating point).
+        # Estimators are designed on the linearization at the plant's keyframe (its operating point),
+        # or at its design keyframe if it has one.
+        if s.plant_info.design_keyframe:
+            self.plant.reset(keyframe=s.plant_info.design_keyframe)
         self.model = self.plant.linearize()
         needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
             s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
+import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Field, ValidationError, model_validator
 
 import faults as fm
@@ -300,10 +301,26 @@ class InputSpec(Strict):
 
 class DisturbanceSpec(Strict):
     """An unknown input of the plant (``plant.disturbances`` of its module, or the columns of E of
-    a state-space plant) and its signal; logged as truth, never sent on the bus."""
+    a state-space plant) and its signal, or one of the plant's random environments (``model``, a
+    seeded generator of all its unknown inputs at once, e.g. a sea state) with its ``params``;
+    logged as truth, never sent on the bus. Several add up."""
 
-    input: str
-    signal: WaveformSpec
+    input: str = ""
+    signal: WaveformSpec | None = None
+    model: str = ""
+    params: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _one_form(self) -> DisturbanceSpec:
+        if bool(self.model) == bool(self.input or self.signal is not None):
+            raise ValueError("give either input and signal (one unknown input) or model (a random environment of the plant)")
+        if self.input and self.signal is None:
+            raise ValueError("input needs a signal")
+        if self.signal is not None and not self.input:
+            raise ValueError("signal needs an input")
+        if self.params and not self.model:
+            raise ValueError("params belong to a model")
+        return self
 
 
 class ChannelOverride(Strict):
@@ -649,6 +666,17 @@ def check(s: Scenario) -> list[str]:
     disturbance_names = [c.name for c in info.disturbances]
     seen_inputs.clear()
     for i, spec in enumerate(s.disturbances):
+        if spec.model:
+            models = sorted(info.disturbance_models)
+            if spec.model not in models:
+                problems.append(f"disturbances[{i}].model: {info.name} has no disturbance model {spec.model!r}"
+                                f"{'; it has: ' + ', '.join(models) if models else ''}")
+            else:
+                try:
+                    info.disturbance_models[spec.model](np.random.default_rng(0), **spec.params)
+                except (TypeError, ValueError) as error:
+                    problems.append(f"disturbances[{i}].params: {error}")
+            continue
         unknown(f"disturbances[{i}].input", [spec.input], disturbance_names, "disturbance input")
         if spec.input in seen_inputs:
             problems.append(f"disturbances[{i}].input: {spec.input!r} already has a signal")

@@ -1,6 +1,7 @@
-"""State estimators: pure algorithms on linear models (numpy/scipy only, no I/O).
+"""State estimators and controllers: pure algorithms on linear models (numpy/scipy only, no I/O).
 
-Registry keyed by kind: ``create(kind, model, params)`` builds one from a plain parameter dict.
+Registries keyed by kind: ``create(kind, model, params)`` builds an estimator from a plain
+parameter dict; ``CONTROLLERS`` (``estimators.controller``) holds the controller kinds.
 """
 
 from __future__ import annotations
@@ -8,9 +9,11 @@ from __future__ import annotations
 from typing import Any
 
 from estimators.adaptive import AdaptivePseudoinverseObserver, InjectionObserver
+from estimators.allocation import ThrustAllocationController
 from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
 from estimators.cofd import COFDDiagnosis
 from estimators.continuous import ContinuousAdaptiveObserver
+from estimators.controller import CONTROLLERS, PidController
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
 from estimators.pseudoinverse import PseudoinverseObserver
@@ -35,4 +38,5 @@ def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, 
     return ESTIMATORS[kind].from_params(model, params, sample_time)
 
 
-__all__ = ["ESTIMATORS", "Diagnostic", "Estimate", "Estimator", "LinearModel", "ParameterError", "create"]
+# Importing the controller kinds registers them in CONTROLLERS.
+__all__ = ["CONTROLLERS", "ESTIMATORS", "PidController", "ThrustAllocationController", "Diagnostic", "Estimate", "Estimator", "LinearModel", "ParameterError", "create"]

@@ -22,12 +22,15 @@ Minimizing |v| is minimizing |u| since NᵀN = I.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.optimize
 
-from estimators.base import ParameterError
+from estimators.base import Diagnostic, ParameterError
+from estimators.controller import Command, Controller, register
+from estimators.model import LinearModel
 
 
 class AllocationError(ValueError):
@@ -350,3 +353,48 @@ def whole(value: float, parameter: str) -> int:
     if float(value) != int(value):
         raise ParameterError(parameter, f"expected whole numbers, got {value}")
     return int(value)
+
+
+@register
+class ThrustAllocationController(Controller):
+    """``VesselController`` as the run's controller node (kind ``thrust-allocation``), designed on
+    the plant's continuous-time linearization about a heading ψ̄ = 0, eq. (23):
+
+        A = [0 I; 0 −M⁻¹D],  B = [0; M⁻¹G],  E = [0; M⁻¹]   (b in the earth frame, P(ψ̄) = I),
+
+    from which M = (E₂)⁻¹, D = −M A₂₂ and G = M B₂ (subscript 2: the velocity rows). It reads the
+    ``fault_mask`` of its diagnosis node (the ``cofd`` kind) one tick late, and commands u_k.
+    """
+
+    kind = "thrust-allocation"
+    continuous = True
+    reports = ("fault_mask",)
+    Params = VesselControllerParams
+    OUTPUTS = ("x", "y", "psi", "u", "v", "r")
+
+    def __init__(self, model: LinearModel, params: VesselControllerParams, sample_time: float | None = None) -> None:
+        super().__init__(model, params, sample_time)
+        missing = [name for name in self.OUTPUTS if name not in model.outputs]
+        if missing or model.n != 6 or model.E.shape != (6, 3):
+            raise ParameterError("model", f"{self.kind} needs a planar vessel: states [η, ν], sensors {', '.join(self.OUTPUTS)} "
+                                          f"and three earth-frame disturbance inputs (E = [0; M⁻¹]); "
+                                          f"got states {model.states}, sensors {model.outputs}, {model.E.shape[1]} disturbances")
+        self._rows = [model.outputs.index(name) for name in self.OUTPUTS]
+        M = np.linalg.inv(model.E[3:, :])
+        self.law = VesselController(M, -M @ model.A[3:, 3:], M @ model.B[3:, :], self.sample_time, params)
+
+    @classmethod
+    def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
+        force, moment = ("N", 1e8, 1.0), ("N m", 1e10, 1.0)
+        units = {"tau_x": force, "tau_y": force, "tau_n": moment, "a_psi": moment, "tau_error": force,
+                 "heading_error": ("rad", 4.0, 1e-6), "cluster": ("", 1.0, 1.0), "reconfigured": ("", 1.0, 1.0),
+                 "active_mask": ("", 255.0, 1.0)}
+        text = {"tau_x": "commanded surge force τ_c", "tau_y": "commanded sway force τ_c", "tau_n": "commanded yaw moment τ_c",
+                "a_psi": "heading PID output a_ψ", "heading_error": "ψ − ψ_ref", "tau_error": "|G u − τ_c| (unmet effect)",
+                "cluster": "1 while the cluster constraints (24) hold", "reconfigured": "1 once the allocation left thrusters out (5)",
+                "active_mask": "thrusters left out of the allocation (bit j: T(j+1))"}
+        return [Diagnostic(name, units[name][0], text[name], units[name][1], units[name][2]) for name in VesselController.diagnostic_names()]
+
+    def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
+        u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get("fault_mask", 0)))
+        return Command(u, diagnostics)

@@ -321,7 +321,7 @@ class COFDParams:
 
 class COFDDiagnosis(Estimator):
     """Fault detection and isolation with a family of COFD observers (Sec. 3–4), integrated exactly
-    between samples like ``uio`` (u held, y linear). Publishes x̂ = x̂^(1), the residual components
+    between samples like ``uio`` (u held, y linear). Publishes x̂ = C⁺y (the measured state), the residual components
     r<h>_<i> = e_iᵀ r^(h) and their thresholds thr<h>_<i>, ``alarm`` (some component above its
     threshold), ``isolated_T<j>`` and ``fault_mask`` (latched isolations) and, for the cluster
     family, ``constraints_met`` (the commands obey (24); isolation waits while they do not)."""
@@ -380,6 +380,7 @@ class COFDDiagnosis(Estimator):
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
         if self.x_init is not None and self.x_init.shape != (n,):
             raise ParameterError("x0", f"expected {n} values, got {self.x_init.size}")
+        self._measured = np.linalg.pinv(model.C)
         self.z: list[np.ndarray] | None = None
         self.y_prev = np.zeros(model.p)
         self.u_prev = np.zeros(m)
@@ -438,7 +439,10 @@ class COFDDiagnosis(Estimator):
             diagnostics[f"isolated_T{j + 1}"] = float(j < len(self.isolated) and self.isolated[j])
         diagnostics["fault_mask"] = float(sum(1 << j for j in np.flatnonzero(self.isolated)))
         diagnostics["constraints_met"] = float(constraints_met)
-        return Estimate(x_hats[0], diagnostics)
+        # The observers are residual generators: their states carry R-scaled fault and disturbance
+        # effects (tens of metres for a 100 N current), so the state this node publishes is the
+        # measured one, C⁺ y (C = I for the ship).
+        return Estimate(self._measured @ y, diagnostics)
 
 
 def _names(hypothesis) -> str:

@@ -68,6 +68,14 @@ class PlantInfo:
     ``passive``, when given, is a MuJoCo passive-force callback (``mjcb_passive``) for forces the
     MJCF cannot express (the vessel's body-frame damping); ``cosim.plant`` installs it when it loads
     the model, and it must leave models that are not its own alone.
+    ``design_keyframe``, when given, is the keyframe at which the estimators' and controllers' linear
+    model is taken (its state and ctrl are the operating point), where it differs from the initial
+    state ``keyframe``: the vessel cruises from its initial state but is designed on, as the paper
+    does, the linearization at rest (ν = 0, no Coriolis terms, body and earth frames aligned).
+    ``disturbance_models`` are the plant's random environments by name (a sea state): each is called
+    as ``model(rng, **params)`` with a seeded numpy Generator and returns b(t), a function of time
+    giving all the ``disturbances`` at once (shape (len(disturbances),)); it raises ValueError
+    naming a bad parameter.
     """
 
     name: str
@@ -81,6 +89,8 @@ class PlantInfo:
     disturbances: tuple[Channel, ...] = ()
     state_tendons: tuple[str, ...] = ()
     passive: Callable[[Any, Any], None] | None = None
+    disturbance_models: dict[str, Callable[..., Callable[[float], Any]]] = field(default_factory=dict)
+    design_keyframe: str = ""
 
     @property
     def model_path(self) -> Path:

@@ -203,6 +203,9 @@ INFO = PlantInfo(
         Channel("b_n", "N m", "environmental yaw moment b_n", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
     ),
     passive=_body_damping.passive,  # the part of D that MJCF cannot express (vessel.xml, DAMPING)
+    # [[disturbances]] model = "environment": current + waves, drawn from the scenario's seed.
+    disturbance_models={"environment": lambda rng, **magnitudes: EnvironmentDisturbance.random(rng, **magnitudes)},
+    design_keyframe="design",  # the paper's model (23): linearized at rest, heading 0 (vessel.xml)
 )
 
 #: The paper's initial state (Sec. 4), also the model's keyframe: η0 = (1, 1, 0), ν0 = (2.2, 1.9, 0).
