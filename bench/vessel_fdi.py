@@ -2,12 +2,18 @@
 still isolable (full loss, nominal allocation), the cluster ratios ζ of our allocation, and
 detection/isolation times on the linear model (23) in closed loop (tests/linear_vessel.py).
 
-    .venv/bin/python bench/vessel_fdi.py [--epsilon 100]
+    .venv/bin/python bench/vessel_fdi.py [--epsilon 100] [--json]
+
+Not a speed benchmark: the design figures the scenarios' choices rest on. ``--json`` prints them
+as one JSON object (``zeta``, ``largest_epsilon``, ``closed_loop``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+import json
 import sys
 from pathlib import Path
 
@@ -57,10 +63,21 @@ def largest_epsilon(estimator, u: np.ndarray, faulty: tuple[int, ...]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--epsilon", type=float, default=100.0, help="disturbance bound of the simulated runs (N)")
-    epsilon = parser.parse_args().epsilon
+    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures instead of the tables")
+    args = parser.parse_args()
+    figures: dict = {"epsilon": args.epsilon, "largest_epsilon": {}, "closed_loop": {}}
+    with contextlib.redirect_stdout(io.StringIO()) if args.json else contextlib.nullcontext():
+        report(args.epsilon, figures)
+    if args.json:
+        print(json.dumps(figures))
+
+
+def report(epsilon: float, figures: dict) -> None:
+    """Print the tables, and collect their figures."""
     tau = 0.1
     u0 = pseudo_inverse_allocation(G, D @ X0[3:])
     zeta = tuple(cluster_ratios(u0, GROUPS))
+    figures["zeta"] = [round(z, 4) for z in zeta]
     print("u(0) = G⁺ D ν0 =", np.round(u0, 1).tolist())
     print("ζ = u_2i(0)/u_2i−1(0) =", np.round(zeta, 3).tolist(), "(paper: 2.27, 3.41, 1.38)")
     single = create("cofd", model(), {"disturbance_bound": 1.0}, tau)
@@ -70,9 +87,11 @@ def main() -> None:
         print(np.round(estimator.thresholds, 3))
     print("\nlargest ε at which a full loss is isolated (nominal inputs):")
     for j in range(5):
+        figures["largest_epsilon"][f"T{j + 1}"] = largest_epsilon(single, u0, (j,))
         print(f"  T{j + 1}: single family {largest_epsilon(single, u0, (j,)):9.0f} N   cluster family {largest_epsilon(cluster, u0, (j,)):9.0f} N")
     for pair in SHIP_PAIRS:
         H = tuple(j - 1 for j in pair)
+        figures["largest_epsilon"][f"T{pair[0]}+T{pair[1]}"] = largest_epsilon(cluster, u0, H)
         print(f"  T{pair[0]}+T{pair[1]}: cluster family {largest_epsilon(cluster, u0, H):9.0f} N")
 
     print(f"\nclosed loop on (23), ε = {epsilon:g} N, τ = {tau} s, 120 s, δ = e^(−rate t) from t = 0")
@@ -92,6 +111,9 @@ def main() -> None:
         complete = trajectory.t[np.flatnonzero(mask == mask[-1])[0]] if mask.any() else None
         ever = int(np.bitwise_or.reduce(mask.astype(int)))
         correct = found == sorted(faults) and ever == int(mask[-1])  # never a healthy thruster, all faulty ones in the end
+        figures["closed_loop"][label] = {"detected_s": None if detected is None else float(detected),
+                                         "isolated_s": None if complete is None else float(complete),
+                                         "isolated": [f"T{j}" for j in found], "correct": bool(correct)}
         print(f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
               f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | {', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |")
 

@@ -18,6 +18,10 @@
   (IJC 2018 eq. (53), Figs. 6–7) against the true gain of the scenario's gain faults;
 - ``virtual_output.png``: the reconciled virtual output ẑ = H_z ŷ of every scheme against the
   true z = H_z y (IJC 2018 eq. (6), Fig. 9), and |ẑ − z|.
+- ``cofd_residuals.png``: each COFD observer's residual components |r^(h)_i| over their thresholds
+  (Cristofaro & Johansen, Figs. 2–4), with fault onsets and the diagnosis node's isolations;
+- ``trajectory.png``: in a closed-loop run, the true state against time (Figs. 5–6: x_G(t),
+  y_G(t)), with fault onsets and the controller's reconfiguration.
 
 Estimators are rebuilt from the log's metadata (kind, parameters, design model) to evaluate h_Γ.
 """
@@ -64,6 +68,8 @@ class RunSeries:
     """The fault-free readings of the transmitted sensors, per tick."""
     toml: str = ""
     """The scenario file as given (empty for logs without it)."""
+    control: dict[int, dict[str, float]] = field(default_factory=dict)
+    """The controller node's CONTROL_STATUS signals per tick (closed-loop runs)."""
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
@@ -100,21 +106,26 @@ def load(path: str | Path) -> RunSeries:
             for name, e in json.loads(run["estimators"]).items()
         }
         owner = {message_topic(m): name for name, e in json.loads(run["estimators"]).items() for m in e["messages"]}
+        controller = json.loads(run.get("controller", "null")) or {}
+        status = [message_topic(m) for m in controller.get("messages", []) if m.startswith("CONTROL_STATUS")]
+        control: dict[int, dict[str, float]] = defaultdict(dict)
         dt_ns = round(float(run["sample_time"]) * 1e9)
         truth: dict[int, np.ndarray] = {}
         fault: dict[int, np.ndarray] = {}
         sensor_truth: dict[int, np.ndarray] = {}
-        for topic, log_time, msg in reader.messages([STATE, FAULTS, SENSORS, *owner]):
+        for topic, log_time, msg in reader.messages([STATE, FAULTS, SENSORS, *owner, *status]):
             if topic == STATE:
                 truth[msg["tick"]] = np.array([msg[s] for s in states])
             elif topic == SENSORS:
                 sensor_truth[msg["tick"]] = np.array([msg[s] for s in sensors])
+            elif topic in status:
+                control[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
             elif topic == FAULTS:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
                 ests[owner[topic]].values[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
     return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests,
-                     json.loads(run.get("faults", "[]")), sensor_truth, given.get("toml", ""))
+                     json.loads(run.get("faults", "[]")), sensor_truth, given.get("toml", ""), dict(control))
 
 
 def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
@@ -312,4 +323,59 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, ncol=2)
         save(fig, "virtual_output.png")
+
+    def events(ax, isolations: list[tuple[float, str]] = ()) -> None:
+        """Fault onsets (dotted), isolations and the reconfiguration (dashed)."""
+        for f in series.faults:
+            ax.axvline(f["start"], color="0.4", ls=":", lw=1)
+        for t, label in isolations:
+            ax.axvline(t, color="C3", ls="--", lw=1)
+            ax.annotate(label, (t, 1), xycoords=("data", "axes fraction"), fontsize=7, color="C3", va="top", ha="left")
+        if (t := first_tick(series.control, "reconfigured")) is not None:
+            ax.axvline(t * series.sample_time, color="C2", ls="--", lw=1.2)
+
+    diagnosers = {name: e for name, e in series.estimators.items() if any("thr1_1" in v for v in e.values.values())}
+    for name, e in diagnosers.items():
+        ks = np.array(sorted(k for k, v in e.values.items() if "thr1_1" in v), dtype=int)
+        observers = [h for h in range(1, 5) if any(e.values[k].get(f"thr{h}_1", 0) > 0 for k in ks[:1])]
+        if not observers:
+            continue
+        t = ks * series.sample_time
+        masks = [int(e.values[k].get("fault_mask", 0)) for k in ks]
+        isolations = [(t[i], "+".join(f"T{j + 1}" for j in range(8) if m >> j & 1)) for i, m in enumerate(masks)
+                      if m and (i == 0 or m != masks[i - 1])]
+        fig, axes = plt.subplots(len(observers), 1, figsize=(9, 2.3 * len(observers)), sharex=True, squeeze=False)
+        for ax, h in zip(axes[:, 0], observers):
+            for i in (1, 2, 3):
+                ratio = np.array([abs(e.values[k][f"r{h}_{i}"]) / e.values[k][f"thr{h}_{i}"] for k in ks])
+                ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=f"e{i}")
+            ax.axhline(1.0, color="k", lw=0.8)
+            ax.set_ylabel(f"|r^({h})_i| / thr", fontsize=8)
+            events(ax, isolations)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7, loc="upper left", ncol=3)
+        axes[0, 0].set_title(f"{title}: {name}, COFD residual components over their thresholds (faults dotted, isolations red)")
+        axes[-1, 0].set_xlabel("time [s]")
+        save(fig, "cofd_residuals.png" if len(diagnosers) == 1 else f"cofd_residuals_{name}.png")
+
+    if series.control:
+        ks = np.array(sorted(series.truth), dtype=int)
+        x = np.array([series.truth[k] for k in ks])
+        columns = 2 if len(series.states) > 3 else 1
+        rows = -(-len(series.states) // columns)
+        fig, axes = plt.subplots(rows, columns, figsize=(9, 2.1 * rows), sharex=True, squeeze=False)
+        for i, (ax, state) in enumerate(zip(axes.T.ravel(), series.states)):
+            ax.plot(ks * series.sample_time, x[:, i], "k", lw=1)
+            ax.set_ylabel(state, fontsize=8)
+            events(ax)
+            ax.grid(alpha=0.3)
+        for ax in axes[-1]:
+            ax.set_xlabel("time [s]")
+        fig.suptitle(f"{title}: true state (faults dotted, reconfiguration green)", fontsize=10)
+        save(fig, "trajectory.png")
     return written
+
+
+def first_tick(values: dict[int, dict[str, float]], name: str) -> int | None:
+    """The first tick at which the signal ``name`` is set (> 0.5), or None."""
+    return next((k for k in sorted(values) if values[k].get(name, 0.0) > 0.5), None)

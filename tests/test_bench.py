@@ -6,6 +6,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import ROOT
 
 
@@ -50,3 +52,10 @@ def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
         assert figures[key] > 0, key
     assert abs(figures["write_ratio"] - figures["write_frames_per_s"] / figures["bare_write_frames_per_s"]) < 1e-9
     assert figures["export_ratio"] == min(figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump"))
+
+
+def test_vessel_fdi_figures_isolate_every_fault_on_the_linear_model():
+    figures = bench("vessel_fdi.py")
+    assert figures["zeta"] == pytest.approx([2.485, 5.524, 1.013], abs=1e-3)
+    assert all(run["correct"] for run in figures["closed_loop"].values()), figures["closed_loop"]
+    assert figures["largest_epsilon"]["T5"] < figures["largest_epsilon"]["T4"] < figures["largest_epsilon"]["T1"]

@@ -1,6 +1,6 @@
 """The built-in scenario three-tank-reconciliation through the co-simulation (MJCF plant → faults →
 CAN → three estimator processes → MCAP), asserted on its log. Designs included (the LPV design of
-Theorem 1 is about 100 s on a fresh cache), the run takes about 2 minutes."""
+Theorem 1 is about 10 s on a fresh cache), the run takes about 30 s."""
 
 from __future__ import annotations
 
