@@ -35,6 +35,7 @@ SHORT = {
     "cdc2016-ex2": (2.0, 85.0),  # the fault at 1 s, with noisy outputs
     "uio-fault-detection": (3.5, 10.0),  # sensor fault on y2 in [1, 2) s, actuator fault from 3 s
     "three-tank-reconciliation": (50.0, 10.0),  # bias from 20 s, gain faults from 40 s
+    "vessel-fault-T2-T5": (8.0, 10.0),  # closed loop, cluster family: T2 and T5 fade from 2 s
 }
 #: One estimator of every kind: (scenario, estimator name, kind).
 KINDS = [
@@ -47,6 +48,7 @@ KINDS = [
     ("three-tank-reconciliation", "lpv", "lpv-uio-sr"),
     ("three-tank-reconciliation", "lft", "lft-uio-sr"),
     ("three-tank-reconciliation", "raw", "no-reconciliation"),
+    ("vessel-fault-T2-T5", "fdi", "cofd"),
 ]
 
 
