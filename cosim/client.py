@@ -31,7 +31,19 @@ import can
 
 from cosim import registry
 from cosim.bus import BusConfig, open_bus
-from cosim.codec import BOOTUP, COMMAND, HEARTBEAT, NMT, NMT_STOP, OPERATIONAL, SENSOR, STOPPED, SYNC, Codec, Decoded
+from cosim.codec import (
+    BOOTUP,
+    COMMAND,
+    HEARTBEAT,
+    NMT,
+    NMT_STOP,
+    OPERATIONAL,
+    SENSOR,
+    STOPPED,
+    SYNC,
+    Codec,
+    Decoded,
+)
 from cosim.errors import CodecError, CosimError
 
 

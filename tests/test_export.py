@@ -19,6 +19,7 @@ from cosim.codec import Codec
 from cosim.errors import CosimError
 from cosim.export import export, table_columns
 from cosim.log import LogReader, McapLog
+from cosim.metrics import compute_metrics
 from cosim.recorder import FRAMES, RunRecorder
 from cosim.runner import Run
 from cosim.scenario import LoadedScenario, builtin_names, load
@@ -66,7 +67,7 @@ def logged_signals(log: Path) -> dict[str, list[tuple[int, dict]]]:
 
 def same(a, b) -> bool:
     """Equal, with NaN equal to NaN and to a missing (None) value."""
-    missing = lambda v: v is None or v == "" or (isinstance(v, float) and math.isnan(v))  # noqa: E731
+    missing = lambda v: v is None or v == "" or (isinstance(v, float) and math.isnan(v))
     return (missing(a) and missing(b)) or a == b
 
 
@@ -239,8 +240,11 @@ def test_exports_are_deterministic(classic_log, tmp_path):
 
 
 @pytest.mark.parametrize("name", builtin_names())
-def test_every_builtin_scenario_exports_to_every_format(name, tmp_path):
+def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, tmp_path):
     log = run_short(name, 0.5 if name != "three-tank-reconciliation" else 3.0, tmp_path / f"{name}.mcap")
+    metrics = compute_metrics(log)
+    assert metrics["status"] == "completed" and metrics["warnings"] == [] and metrics["missing"] == [], metrics["missing"]
+    assert set(metrics["estimators"]) == {e.name for e in load(name).scenario.estimators}
     with LogReader(log) as reader:
         frames = sum(1 for _ in reader.messages([FRAMES]))
         ticks = int(reader.metadata()["cosim.result"]["ticks"])

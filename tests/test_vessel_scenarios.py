@@ -81,7 +81,10 @@ def test_after_reconfiguration_the_commanded_velocities_are_tracked_again(logs):
         state = {m["tick"]: m for _, _, m in reader.messages(["/truth/state"])}
         commands = {m["tick"]: m for _, _, m in reader.messages(["/truth/inputs"])}
     status = load(path).control
-    velocity = lambda k: np.array([state[k]["x_dot"], state[k]["y_dot"]])  # noqa: E731 (ψ ≈ 0: earth = body)
+
+    def velocity(k: int) -> np.ndarray:  # earth frame; body frame too while ψ ≈ 0
+        return np.array([state[k]["x_dot"], state[k]["y_dot"]])
+
     assert np.all(velocity(1799) < [1.2, 0.6])  # T1 fading, allocation unaware: the ship slows down
     assert status[1799]["reconfigured"] == 0 and status[1800]["reconfigured"] == 1 and status[1800]["active_mask"] == 1
     for k in range(3000, 4000):
