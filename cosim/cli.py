@@ -120,7 +120,7 @@ def cmd_node(args: argparse.Namespace) -> int:
         if args.estimator not in info.get("nodes", {}):
             raise CosimError(
                 f"the running co-simulation ({info['scenario']}) expects no external node {args.estimator!r}; "
-                f"mark it 'external = true' in the scenario's [[estimators]] to start it by hand"
+                f"mark it 'external = true' in the scenario's [[estimators]] (or [controller]) to start it by hand"
             )
         spec = NodeSpec.from_json(info["nodes"][args.estimator])
     return serve(spec)
@@ -298,11 +298,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("node", help="run one estimator as a CAN node", description="Run one estimator as a node on a "
-                       "co-simulation's bus. 'cosim run' starts its estimators this way (with --spec). Without --spec the "
-                       "node joins the running co-simulation, whose scenario marks it 'external = true' (to run it by "
-                       "hand, e.g. in a debugger).")
-    p.add_argument("estimator", metavar="ESTIMATOR", help="the estimator's name in the scenario")
+    p = sub.add_parser("node", help="run one estimator (or the controller) as a CAN node", description="Run one estimator, "
+                       "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
+                       "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
+                       "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger).")
+    p.add_argument("estimator", metavar="NAME", help="the estimator's name in the scenario, or 'controller'")
     p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
     p.set_defaults(func=cmd_node)
