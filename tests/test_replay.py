@@ -101,7 +101,10 @@ def estimates(path, name: str) -> list[tuple]:
 
 
 def runner_frames(m) -> bool:
-    return m["sender"] in ("runner", "plant", "controller") and m["message"] != "NMT"
+    """What replay sends for the original run: the runner's and, closed loop, the controller's frames
+    of every tick (not the controller's boot-up and stopped heartbeats: replay has no such node)."""
+    lifecycle = m["message"] == "HEARTBEAT_controller" and not m["data"].startswith("05")
+    return m["sender"] in ("runner", "plant", "controller") and m["message"] != "NMT" and not lifecycle
 
 
 @pytest.mark.parametrize("name, estimator, kind", KINDS, ids=[k for _, _, k in KINDS])
