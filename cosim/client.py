@@ -34,6 +34,7 @@ from cosim.bus import BusConfig, open_bus
 from cosim.codec import (
     BOOTUP,
     COMMAND,
+    CONTROLLER,
     HEARTBEAT,
     NMT,
     NMT_STOP,
@@ -179,6 +180,8 @@ class Client:
         self.declared = name is not None and name in codec.node_ids
         self.lockstep = lockstep and self.declared
         self.messages = codec.data_messages(name) if self.declared else []
+        if upstream is None and CONTROLLER in codec.node_ids and name != CONTROLLER:
+            upstream = {CONTROLLER: 0}  # closed loop: the commands of tick k come from the controller node
         self.assembler = TickAssembler(codec, sample_time, upstream)
         self.stopped = False
         self._owns_bus = owns_bus

@@ -346,7 +346,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
                       if m and (i == 0 or m != masks[i - 1])]
         fig, axes = plt.subplots(len(observers), 1, figsize=(9, 2.3 * len(observers)), sharex=True, squeeze=False)
         for ax, h in zip(axes[:, 0], observers):
-            for i in (1, 2, 3):
+            for i in (i for i in (1, 2, 3) if e.values[ks[0]].get(f"thr{h}_{i}", 0.0) > 0):  # an observer's ℓ components
                 ratio = np.array([abs(e.values[k][f"r{h}_{i}"]) / e.values[k][f"thr{h}_{i}"] for k in ks])
                 ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=f"e{i}")
             ax.axhline(1.0, color="k", lw=0.8)

@@ -73,12 +73,9 @@ footer { color: var(--muted); font-size: .8rem; margin-top: 3rem; }
 
 
 def metrics(path: str | Path) -> dict[str, Any]:
-    """The log's metrics: ``cosim.metrics.compute_metrics``, or ``cosim.inspect.summarize`` where
-    the metrics module is not there."""
-    try:
-        from cosim.metrics import compute_metrics
-    except ImportError:
-        from cosim.inspect import summarize as compute_metrics
+    """The log's metrics (``cosim.metrics.compute_metrics``)."""
+    from cosim.metrics import compute_metrics
+
     return compute_metrics(path)
 
 
@@ -179,6 +176,8 @@ def _figures(path: Path) -> tuple[list[str], str]:
             written = plot(path, folder)
         except CosimError as error:
             return [], f"no figures: {error}"
+        except Exception as error:  # a figure that cannot be drawn must not cost the rest of the report
+            return [], f"no figures: {type(error).__name__}: {error}"
         figures = []
         for png in written:
             data = base64.b64encode(png.read_bytes()).decode("ascii")

@@ -739,8 +739,18 @@ def check(s: Scenario) -> list[str]:
                 CONTROLLERS[c.kind].check_params(c.params)
             except ParameterError as error:
                 problems.append(f"controller.params.{error}")
-        if c.diagnosis and c.diagnosis not in [e.name for e in s.estimators]:
+        diagnosis = next((e for e in s.estimators if e.name == c.diagnosis), None)
+        if c.diagnosis and diagnosis is None:
             problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
+        reports = CONTROLLERS[c.kind].reports if c.kind in CONTROLLERS else ()
+        if reports and not c.diagnosis:
+            problems.append(f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the estimators")
+        elif reports and diagnosis is not None and diagnosis.kind in ESTIMATORS:
+            published = {d.name for d in ESTIMATORS[diagnosis.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))}
+            missing = [name for name in reports if name not in published]
+            if missing:
+                problems.append(f"controller.diagnosis: {c.diagnosis!r} ({diagnosis.kind}) does not publish {', '.join(missing)}, "
+                                f"which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)")
         if s.inputs:
             problems.append("inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)")
     if not problems:

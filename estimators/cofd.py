@@ -421,7 +421,7 @@ class COFDDiagnosis(Estimator):
         x_hats = [z + o.H @ y for z, o in zip(self.z, self.observers)]
         residuals = np.array([(y - model.C @ x)[:self.ell] for x in x_hats])
         fired = np.abs(residuals) > self.thresholds
-        constraints_met = self._constraints_met(self.u_prev)
+        constraints_met = self._constraints_met(self.u_prev + model.u_op)  # (24) constrains the absolute inputs
         found = isolate(fired, self.signatures, self.hypotheses) if constraints_met else None
         if found != self.candidate:
             self.candidate, self.candidate_since = found, self.t

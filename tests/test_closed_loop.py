@@ -3,6 +3,7 @@ estimators read its commands, and it reads a diagnosis node's report one tick la
 
 from __future__ import annotations
 
+import can
 import numpy as np
 import pytest
 
@@ -187,3 +188,30 @@ def test_inputs_and_a_controller_exclude_each_other(tmp_path, extra, message):
 def test_bad_controller_tables_name_the_field(tmp_path, old, new, message):
     with pytest.raises(ScenarioError, match=message):
         load(tmp_path, PID_SCENARIO.replace(old, new))
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"diagnosis": '"kf"'}, r"'kf' \(kalman\) does not publish fault_mask, which thrust-allocation reads"),
+    ({"diagnosis": '""'}, "thrust-allocation reads fault_mask from a diagnosis node; name one of the estimators"),
+])
+def test_a_controller_must_listen_to_a_node_that_publishes_what_it_reads(tmp_path, change, message):
+    text = scenario.load("vessel-fault-T1").text.replace('diagnosis = "fdi"', f'diagnosis = {change["diagnosis"]}')
+    text = text.replace('name = "fdi"\nkind = "cofd"', 'name = "kf"\nkind = "kalman"') if change["diagnosis"] == '"kf"' else text
+    with pytest.raises(ScenarioError, match=message):
+        load(tmp_path, text, "vessel.toml")
+
+
+
+def test_clients_of_a_closed_loop_run_read_the_controllers_commands():
+    from cosim.client import Client
+
+    codec = small_codec()
+    bus = can.Bus(interface="virtual", channel="closed-loop-client")
+    try:
+        assert Client(None, codec, bus).assembler.upstream == {CONTROLLER: 0}  # a listener, e.g. cosim monitor
+        assert Client("diag", codec, bus).assembler.upstream == {CONTROLLER: 0}
+        assert Client(CONTROLLER, codec, bus, upstream={"diag": 1}).assembler.upstream == {"diag": 1}
+        open_loop = Codec([Channel("y", "m", "", -1, 1, 1e-3)], [Channel("u", "N", "", -1, 1, 1e-3)], {}, fd=True)
+        assert Client(None, open_loop, bus).assembler.upstream == {}
+    finally:
+        bus.shutdown()

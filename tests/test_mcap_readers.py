@@ -24,6 +24,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+import cosim
 from cosim.runner import Run
 from cosim.scenario import LoadedScenario, load
 from tests.conftest import ROOT
@@ -143,7 +144,7 @@ def test_the_typescript_reader_of_foxglove_reads_what_the_official_reader_reads(
     result = subprocess.run(["node", str(folder / "read_mcap.mjs"), str(log)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     seen = json.loads(result.stdout)
-    assert seen.pop("library") == "cosim/0.1.0" and seen.pop("compression") == ["zstd"] and seen.pop("chunks") > 1
+    assert seen.pop("library") == f"cosim/{cosim.__version__}" and seen.pop("compression") == ["zstd"] and seen.pop("chunks") > 1
     seen.pop("profile")
     assert seen == read_with_mcap(log)
 
