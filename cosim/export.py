@@ -41,7 +41,7 @@ from typing import Any
 from cosim import __version__
 from cosim.errors import CosimError, LogError
 from cosim.log import LogReader
-from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE
+from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
 
 #: Format → file suffix of its output.
 FORMATS = {"csv": ".csv", "parquet": ".parquet", "blf": ".blf", "mf4": ".mf4", "candump": ".log"}
@@ -153,7 +153,6 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
         raise LogError(f"{reader.path}: no cosim.run metadata, so not a log of 'cosim run'; tidy tables need its ticks "
                        f"and truth (export its frames with --to blf, mf4 or candump)")
     dt_ns = round(float(run["sample_time"]) * 1e9)
-    modulus = _tick_modulus(json.loads(run.get("bus", "{}")).get("fd", False))
     fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
     for i, column in enumerate(columns):
         if column.topic:
@@ -165,7 +164,7 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
         logged_tick = log_time // dt_ns
         counter = message.get("tick")
         if topic.startswith("/can/") and isinstance(counter, int):
-            k = logged_tick - (logged_tick - counter) % modulus  # the carried counter, unwrapped
+            k = carried_tick(logged_tick, counter)
         else:
             k = counter if isinstance(counter, int) else logged_tick
         if k > newest:
@@ -185,12 +184,6 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
         yield open_rows[k]
     if late:
         warnings.append(f"{late} messages came more than {ROW_WINDOW} ticks after their tick and were left out of the table")
-
-
-def _tick_modulus(fd: bool) -> int:
-    from cosim.codec import CLASSIC_TICK_BITS, FD_TICK_BITS
-
-    return 2 ** (FD_TICK_BITS if fd else CLASSIC_TICK_BITS)
 
 
 def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:

@@ -32,14 +32,20 @@ from typing import Any
 
 from cosim.can_timing import frame_bits, frame_bits_worst_case
 from cosim.log import LogReader
-from cosim.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE, message_topic
+from cosim.recorder import (
+    DEADLINE_MISSES,
+    EVENTS,
+    FAULTS,
+    FRAMES,
+    STATE,
+    carried_tick,
+    message_topic,
+)
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
 WINDOW = 1000
 #: The pre-fault band is this many times the largest settled pre-fault error.
 BAND_FACTOR = 2.0
-#: Decoded tick counters wrap at 2^16 on classic CAN.
-_TICK_MODULUS = 1 << 16
 _ALARM, _ISOLATED = "alarm", "isolated_"
 _ACTUATOR_KINDS = ("actuator_effectiveness", "actuator_offset")
 
@@ -240,8 +246,7 @@ class _Scorer:
             k = int(msg["tick"])
             self._tick(k).active = list(msg["active"])
         elif topic in self.owner:
-            k_log = log_time // self.run.dt_ns
-            k = k_log - ((k_log - int(msg["tick"])) % _TICK_MODULUS)
+            k = carried_tick(log_time // self.run.dt_ns, msg["tick"])
             if k < self.next_tick:
                 self.late += 1
                 return

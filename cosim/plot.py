@@ -39,7 +39,7 @@ import estimators
 from cosim.errors import LogError, ScenarioError
 from cosim.log import LogReader
 from cosim.node import model_from_dict
-from cosim.recorder import FAULTS, SENSORS, STATE, message_topic
+from cosim.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
 
 
 @dataclass
@@ -119,11 +119,11 @@ def load(path: str | Path) -> RunSeries:
             elif topic == SENSORS:
                 sensor_truth[msg["tick"]] = np.array([msg[s] for s in sensors])
             elif topic in status:
-                control[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
+                control[carried_tick(log_time // dt_ns, msg["tick"])].update({k: v for k, v in msg.items() if k != "tick"})
             elif topic == FAULTS:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
-                ests[owner[topic]].values[log_time // dt_ns].update({k: v for k, v in msg.items() if k != "tick"})
+                ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update({k: v for k, v in msg.items() if k != "tick"})
     return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests,
                      json.loads(run.get("faults", "[]")), sensor_truth, given.get("toml", ""), dict(control))
 

@@ -32,7 +32,7 @@ import can
 import numpy as np
 from can.util import len2dlc
 
-from cosim.codec import Codec, Decoded
+from cosim.codec import CLASSIC_TICK_BITS, Codec, Decoded
 from cosim.log import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
@@ -49,6 +49,13 @@ def _named(names: tuple[str, ...], units: dict[str, str], description: str, null
 
 def message_topic(name: str) -> str:
     return f"/can/{name}"
+
+
+def carried_tick(logged_tick: int, counter: int) -> int:
+    """The tick a decoded frame belongs to: its counter (k mod 2¹⁶ in classic CAN, k in CAN FD)
+    unwrapped against the tick at which it was logged, which is never earlier (a late frame, in
+    realtime mode, is logged at a later tick; fewer than 2¹⁶ ticks late is assumed)."""
+    return logged_tick - (logged_tick - int(counter)) % (1 << CLASSIC_TICK_BITS)
 
 
 class RunRecorder:

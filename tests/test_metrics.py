@@ -504,3 +504,13 @@ def test_a_cosim_log_with_foreign_messages_on_its_topics_warns_and_goes_on(tmp_p
     (warning,) = report["warnings"]
     assert warning.startswith("/truth/state: a message at t = 5 s does not have the fields cosim writes")
     assert report["estimators"]["uniform"]["rms_pre_fault"] == pytest.approx(0.1)
+
+
+def test_a_frames_tick_is_its_counter_unwrapped_against_the_tick_it_was_logged_at():
+    from cosim.recorder import carried_tick
+
+    assert carried_tick(10, 10) == 10  # on time
+    assert carried_tick(12, 10) == 10  # logged two ticks late (realtime)
+    assert carried_tick(70_000, 70_000 % 65_536) == 70_000  # classic CAN: k mod 2^16
+    assert carried_tick(70_003, 70_000 % 65_536) == 70_000
+    assert carried_tick(70_003, 70_000) == 70_000  # CAN FD: the full k
