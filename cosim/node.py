@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,7 +81,35 @@ def model_from_dict(m: dict[str, Any]) -> LinearModel:
     )
 
 
-class EstimatorNode:
+class _Node(ABC):
+    """A participant answering each tick on a bus through its ``client``: ``answer`` publishes its
+    frames for the tick and closes it with the heartbeat."""
+
+    client: Client
+
+    @abstractmethod
+    def answer(self, tick: TickFrames) -> None:
+        """Publish this node's frames for a complete tick, then close it."""
+
+    def _publish(self, tick: TickFrames, values: dict[str, float]) -> None:
+        self.client.publish(tick, values)
+        self.client.done(tick)
+        self.ticks += 1
+
+    def service(self, timeout: float = 0.0) -> int:
+        """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first);
+        returns the number of ticks answered."""
+        answered = 0
+        frame = self.client.bus.recv(timeout)
+        while frame is not None:
+            for tick in self.client.feed(frame):
+                self.answer(tick)
+                answered += 1
+            frame = self.client.bus.recv(0.0)
+        return answered
+
+
+class EstimatorNode(_Node):
     """An estimator answering each tick on a bus: y_k and u_k in, x̂_k and its diagnostics out.
 
     Missing sensor readings reach the estimator as NaN. A command that did not arrive is held at
@@ -113,17 +142,10 @@ class EstimatorNode:
         estimate = self.estimator.step(y, self._u.copy())
         values = {signal: float(estimate.x[index]) for signal, index in self._states}
         values |= {signal: estimate.diagnostics[signal] for signal in self._diagnostics}
-        self.client.publish(tick, values)
-        self.client.done(tick)
-        self.ticks += 1
-
-    def service(self, timeout: float = 0.0) -> int:
-        """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first);
-        returns the number of ticks answered."""
-        return _service(self, timeout)
+        self._publish(tick, values)
 
 
-class ControllerNode:
+class ControllerNode(_Node):
     """The controller on the bus: y_k and the diagnosis node's report in, u_k out.
 
     Missing sensor readings reach the controller as NaN. Commands go out in the ``COMMAND_``
@@ -154,23 +176,7 @@ class ControllerNode:
         command = self.controller.step(y, t, report)
         values = {self._inputs[name]: float(u) for name, u in zip(model.inputs, command.u)}
         values |= {signal: command.diagnostics[signal] for signal in self._diagnostics}
-        self.client.publish(tick, values)
-        self.client.done(tick)
-        self.ticks += 1
-
-    def service(self, timeout: float = 0.0) -> int:
-        return _service(self, timeout)
-
-
-def _service(node: EstimatorNode | ControllerNode, timeout: float) -> int:
-    answered = 0
-    frame = node.client.bus.recv(timeout)
-    while frame is not None:
-        for tick in node.client.feed(frame):
-            node.answer(tick)
-            answered += 1
-        frame = node.client.bus.recv(0.0)
-    return answered
+        self._publish(tick, values)
 
 
 def serve(spec: NodeSpec) -> int:

@@ -34,13 +34,32 @@ import can
 
 import estimators
 from cosim.bus import BusConfig, allocate, open_bus
-from cosim.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec
+from cosim.codec import (
+    COMMAND,
+    CONTROL,
+    CONTROLLER,
+    HEARTBEAT,
+    OPERATIONAL,
+    SENSOR,
+    SYNC,
+    Codec,
+)
 from cosim.errors import CosimError, LogError
 from cosim.interrupts import DeferredInterrupts
 from cosim.log import LogReader, McapLog
 from cosim.node import model_from_dict, model_to_dict
 from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, RunRecorder
-from cosim.runner import NodeFailure, Progress, Run, RunResult, Traffic, build_estimators, design_warnings, versions
+from cosim.runner import (
+    NodeFailure,
+    Progress,
+    Run,
+    RunResult,
+    Traffic,
+    build_estimators,
+    design_warnings,
+    ending,
+    versions,
+)
 from cosim.scenario import Scenario
 from estimators import LinearModel, ParameterError
 
@@ -270,14 +289,8 @@ class Replay(Run):
                         last_report = now
                         on_progress(Progress(k + 1, self.ticks, s.time(k + 1), now - start, recorder.frames))
                 k = self.ticks
-            except KeyboardInterrupt:
-                status = "interrupted"
-                raise
-            except CosimError as exc:
-                status, error = "error", str(exc)
-                raise
             except BaseException as exc:
-                status, error = "error", f"{type(exc).__name__}: {exc}"
+                status, error = ending(exc)
                 raise
             finally:
                 loop = time.perf_counter() - tick_start if tick_start is not None else 0.0

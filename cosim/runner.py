@@ -178,6 +178,16 @@ def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: L
     return built
 
 
+def ending(exc: BaseException) -> tuple[str, str]:
+    """The status and error a log records for what stopped a run: Ctrl-C or SIGTERM (interrupted),
+    a CosimError (its message) or anything else (its type and message)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", ""
+    if isinstance(exc, CosimError):
+        return "error", str(exc)
+    return "error", f"{type(exc).__name__}: {exc}"
+
+
 def build_controller(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> controllers.Controller | None:
     """The scenario's controller on the plant's linear model, with its parameters checked."""
     if s.controller is None:
@@ -657,14 +667,8 @@ class Run:
                         last_report = now
                         on_progress(Progress(k + 1, s.ticks, s.time(k + 1), now - start, recorder.frames, misses))
                 k = s.ticks
-            except KeyboardInterrupt:
-                status = "interrupted"
-                raise
-            except CosimError as exc:
-                status, error = "error", str(exc)
-                raise
             except BaseException as exc:
-                status, error = "error", f"{type(exc).__name__}: {exc}"
+                status, error = ending(exc)
                 raise
             finally:
                 loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
