@@ -111,6 +111,7 @@ class PidController(Controller):
         )
         if np.any(self.lower >= self.upper):
             raise ParameterError("lower", "every lower limit must be below its upper limit")
+        self._published = [d.name for d in self.diagnostic_channels(model.inputs, model.outputs)]
         self.integral = np.zeros(loops)
         self.previous: np.ndarray | None = None
         self.u = model.u_op.copy()
@@ -133,8 +134,9 @@ class PidController(Controller):
         command = np.clip(u_op + self.kp * error + self.ki * self.integral - self.kd * derivative, self.lower, self.upper)
         self.u[self._u] = np.where(ok, command, self.u[self._u])
         self.previous = np.where(ok, y, previous)
-        diagnostics = {f"e_{name}": float(e) if np.isfinite(e) else 0.0 for name, e in zip(self.params.outputs, error)}
-        return Command(self.u.copy(), {d.name: diagnostics.get(d.name, 0.0) for d in self.diagnostic_channels(self.model.inputs, self.model.outputs)})
+        diagnostics = dict.fromkeys(self._published, 0.0)  # outputs without a loop have no error
+        diagnostics |= {f"e_{name}": float(e) if np.isfinite(e) else 0.0 for name, e in zip(self.params.outputs, error)}
+        return Command(self.u.copy(), diagnostics)
 
 
 CONTROLLERS: dict[str, type[Controller]] = {cls.kind: cls for cls in (PidController,)}
