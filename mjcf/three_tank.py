@@ -63,7 +63,11 @@ PARAMETERS = {
 
 #: The paper's operating point (Sec. 4): levels in cm, pump flows in cm^3/s.
 OPERATING_LEVELS = (45.0, 15.0, 30.0)
-OPERATING_FLOWS = (35.0, 35.0)
+#: The inflows the paper prints for it, "Q1 = Q2 = 0,35·10⁻⁴ m³/s"; not an equilibrium there.
+PAPER_FLOWS = (35.0, 35.0)
+#: The inflows that hold tanks 1 and 2 at the operating levels, Q1 = q13 and Q2 = q20 − q32 of
+#: eq. (57); tank 3 has no pump and still rises 0.003 cm/s (docs/errata.md). The keyframe's ctrl.
+OPERATING_FLOWS = (39.23045223843336, 12.461518500086576)
 
 #: Eq. (59) as printed (levels in cm, flows in cm^3/s, T = 1 s).
 PAPER_A = np.array([[0.9916, 0.0, 0.008393], [0.0, 0.9807, 0.008249], [0.008393, 0.008249, 0.9833]])
