@@ -1,7 +1,8 @@
 """A cache of estimator designs that are slow to compute (the LMI solutions of IJC 2018).
 
 An estimator's ``design_params()`` rebuild it without redoing its design; the runner stores them
-here under a hash of the estimator kind, its parameters and its design model, so that the next
+here under a hash of the estimator kind, the parameters its design depends on (all but the
+kind's ``design_free`` ones) and its design model, so that the next
 run of the same scenario (or any scenario with the same design problem) skips the solve. The
 stored values are exactly what the nodes receive, so a cached run logs the same content as a
 fresh one. Location: $COSIM_CACHE_DIR, else $XDG_CACHE_HOME/cosim/designs, else
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.node import model_to_dict
+import estimators
 from estimators import LinearModel
 
 
@@ -33,6 +35,8 @@ def directory() -> Path | None:
 
 
 def key(kind: str, params: dict[str, Any], model: LinearModel) -> str:
+    free = estimators.ESTIMATORS[kind].design_free if kind in estimators.ESTIMATORS else frozenset()
+    params = {name: value for name, value in params.items() if name not in free}
     text = json.dumps({"kind": kind, "params": params, "model": model_to_dict(model)}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 

@@ -88,6 +88,10 @@ class Estimator(Configurable, ABC):
     """True for estimators designed on the continuous-time model (dt None) that integrate their own
     ODE between samples; they are given the sample time separately."""
 
+    design_free: ClassVar[frozenset[str]] = frozenset()
+    """Parameters that do not change what ``design_params()`` returns: estimators that differ only
+    in them share one cached design."""
+
     def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
         if self.continuous:
             if model.dt is not None:

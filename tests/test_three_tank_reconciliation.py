@@ -15,6 +15,10 @@ from cosim.runner import run
 HZ = np.array([1 / 3, 1 / 3, 0.0, 1 / 3])
 
 
+PAPER, OURS = ("lpv", "lft"), ("lpv_model", "lft_model")
+TRUE = {"bias only": (1.0, 1.0, 1.0, 1.0), "gamma1": (0.6, 1.0, 1.0, 1.0), "both": (0.6, 0.75, 1.0, 1.0)}
+
+
 @pytest.fixture(scope="module")
 def series(tmp_path_factory):
     result = run(scenario.load("three-tank-reconciliation"), tmp_path_factory.mktemp("tt") / "tt.mcap")
@@ -22,8 +26,9 @@ def series(tmp_path_factory):
     with LogReader(result.path) as reader:
         z_true = {msg["tick"]: float(HZ @ np.array([msg[f"y{i}"] for i in (1, 2, 3, 4)])) for _, _, msg in reader.messages(["/truth/sensors"])}
     estimates = load(result.path).estimators
-    z_hat = {name: {k: v["zhat"] for k, v in estimates[name].values.items()} for name in ("lpv", "lft", "raw")}
-    gamma = {name: {k: [v[f"gamma_y{i}"] for i in (1, 2, 3, 4)] for k, v in estimates[name].values.items()} for name in ("lpv", "lft")}
+    z_hat = {name: {k: v["zhat"] for k, v in estimates[name].values.items()} for name in (*PAPER, *OURS, "raw")}
+    gamma = {name: {k: np.array([v[f"gamma_y{i}"] for i in (1, 2, 3, 4)]) for k, v in estimates[name].values.items()}
+             for name in (*PAPER, *OURS)}
     return z_true, z_hat, gamma, result.path
 
 
@@ -31,36 +36,50 @@ def rms(z_true, z_hat, ticks):
     return float(np.sqrt(np.mean([(z_hat[k] - z_true[k]) ** 2 for k in ticks])))
 
 
-def test_the_bias_is_reduced_where_hz_y_is_falsified(series):
-    """Bias on, gains healthy (300-400 s). Measured on the MJCF plant: raw 2.00, LFT 0.06, LPV 0.50
-    (the nonlinear plant departs from the linear design model; on the linear model (58) both reach
-    0.09, tests/test_reconciliation.py)."""
+def test_the_bias_is_rejected_where_hz_y_is_falsified(series):
+    """Bias on, gains healthy (300-400 s). Measured: raw 2.00; LFT 0.014, LPV 0.032 (the paper's
+    schemes), 0.027 for both with the model-window gain estimator, whose γ̂ wanders by < 0.01 on
+    the nonlinear plant."""
     z_true, z_hat, _, _ = series
     window = range(300, 400)
     raw = rms(z_true, z_hat["raw"], window)
     assert raw == pytest.approx(2.0, rel=0.01)  # H_z F b = b
-    assert rms(z_true, z_hat["lft"], window) < 0.1 * raw
-    assert rms(z_true, z_hat["lpv"], window) < 0.5 * raw
+    for name in (*PAPER, *OURS):
+        assert rms(z_true, z_hat[name], window) < 0.025 * raw, name
 
 
-def test_after_the_gain_faults_the_reconciled_output_beats_the_uncorrected_one(series):
-    """Gains 0.6 and 0.75 on sensors 1 and 2 and the bias (750-1500 s). Measured: raw 1.95, LFT 1.08,
-    LPV 1.35: better than H_z y, but far from the paper's Figure 9 (ẑ on z)."""
-    z_true, z_hat, _, _ = series
-    window = range(750, 1500)
-    raw = rms(z_true, z_hat["raw"], window)
-    assert 1.8 < raw < 2.1
-    assert rms(z_true, z_hat["lft"], window) < 0.65 * raw
-    assert rms(z_true, z_hat["lpv"], window) < 0.8 * raw
-
-
-def test_gain_estimates_move_toward_the_faulty_gains(series):
-    """Measured, not the paper's claim: after 1500 s γ̂₁ is 0.85 (LPV) and 0.77 (LFT) against the true
-    0.6 (docs/three-tank.md: the UIO's decoupling term Q y absorbs most of a gain fault, so (53)
-    converges slowly)."""
+def test_with_the_model_window_the_gains_converge_after_the_window_fills(series):
+    """γ̂ once the N = 50 window holds only samples after a fault onset: γ1 = 0.6 from 400 s, then
+    γ2 = 0.75 from 700 s. Tolerance reached on the MJCF plant (model mismatch of the linearization;
+    exact on the linear model, tests/test_reconciliation.py): |γ̂ − γ| at most 0.030, RMS per
+    sensor at most 0.007. Windows across an onset do not fit (``fit`` > fit_tol) and keep γ̂."""
     _, _, gamma, _ = series
-    assert gamma["lft"][1499][0] < 0.8, gamma["lft"][1499]
-    assert gamma["lpv"][1499][0] < 0.9, gamma["lpv"][1499]
+    for name in OURS:
+        for ticks, true in ((range(450, 700), TRUE["gamma1"]), (range(750, 1500), TRUE["both"])):
+            error = np.array([gamma[name][k] - true for k in ticks])
+            assert np.abs(error).max() < 0.035, (name, ticks)
+            assert np.sqrt(np.mean(error**2, axis=0)).max() < 0.01, (name, ticks)
+
+
+def test_with_the_model_window_the_reconciled_output_tracks_z(series):
+    """After the gain faults (450-700 s, 750-1500 s) ẑ tracks z: RMS 0.030-0.049 against H_z y's
+    1.52 and 1.72 (at most 2.9 % of it), the paper's Figure 9."""
+    z_true, z_hat, _, _ = series
+    for ticks in (range(450, 700), range(750, 1500)):
+        raw = rms(z_true, z_hat["raw"], ticks)
+        assert 1.4 < raw < 1.9
+        for name in OURS:
+            assert rms(z_true, z_hat[name], ticks) < 0.05 * raw, name
+
+
+def test_the_papers_gain_estimator_does_not_converge(series):
+    """Finding, measured (docs/three-tank.md): with (53) regressing y on the UIO's own x̂, γ̂₁ is
+    still 0.85 (LFT) and 0.93 (LPV) at 1500 s for a true 0.6, and ẑ after the gain faults is no
+    better than H_z y (RMS 1.71 and 1.97 against 1.72)."""
+    z_true, z_hat, gamma, _ = series
+    for name in PAPER:
+        assert gamma[name][1499][0] > 0.8, gamma[name][1499]
+        assert rms(z_true, z_hat[name], range(750, 1500)) > 0.8 * rms(z_true, z_hat["raw"], range(750, 1500))
 
 
 def test_cosim_plot_draws_the_gain_estimates_against_the_true_gains_and_z_hat_against_z(series, tmp_path):
