@@ -4,8 +4,10 @@ measured in the same run on the same data (the baseline).
 Workload: the coupled masses of TAC 2024 (Table I, τ = 0.01 s) with the sensors x1, x2, x1 − x2
 (p = 3; ``--p4`` adds x2 − x1) and the constant bias [1, −1.5, 0.5], after the adaptation has
 settled; the continuous-time observer of CDC 2016 runs on its own 3-state example with the fault
-of Example 1 and output noise, at its scenarios' sample time 0.02 s. Each figure is the best of
-``--repeat`` timings of ``--steps`` consecutive steps.
+of Example 1 and output noise, at its scenarios' sample time 0.02 s; the IJC 2018 reconciliators run
+on the paper's three-tank model (58)-(59) (T = 1 s) with a bias and the gain faults of its scenario,
+LFT-UIO-SR with the paper's gain estimator (53) and with the model window (N = 50). Each figure is
+the best of ``--repeat`` timings of ``--steps`` consecutive steps.
 
 Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R]
 """
@@ -25,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import estimators  # noqa: E402
 from estimators import LinearModel  # noqa: E402
 from estimators.design import zoh_discretize  # noqa: E402
-from mjcf import masses  # noqa: E402
+from mjcf import masses, three_tank  # noqa: E402
 
 SENSORS = ("x1", "x2", "x1_minus_x2")
 
@@ -40,6 +42,24 @@ def cdc_model() -> LinearModel:
     A = np.array([[-1.0, 3, 0], [0.1, -5, 0.4], [0, 0, -5]])
     C = np.array([[1.0, 1], [1, 0], [2, 1]]) @ np.array([[1.0, 0, 0], [0, 1, 0]])
     return LinearModel(A, np.array([[1.0], [0], [-1]]), C, np.zeros((3, 1)), None, ("x1", "x2", "x3"), ("u",), ("y1", "y2", "y3"))
+
+
+def tank_model() -> LinearModel:
+    return LinearModel(three_tank.PAPER_A, three_tank.PAPER_B, three_tank.PAPER_C, np.zeros((4, 2)), 1.0, ("h1", "h2", "h3"),
+                       ("Q1", "Q2"), ("y1", "y2", "y3", "y4"), E=three_tank.PAPER_E, disturbances=("v",))
+
+
+def tank_workload(model: LinearModel, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Readings y = Δ(γ) C x + 2 of the linear three-tank plant under square-wave inflows, with
+    γ = (0.6, 0.75, 1, 1): the reconciliators' estimates of γ settle after the first window."""
+    x = np.zeros(3)
+    gamma = np.array([0.6, 0.75, 1.0, 1.0])
+    ys, us = np.empty((steps, 4)), np.empty((steps, 2))
+    for k in range(steps):
+        us[k] = 8.0 * np.sign(np.sin(2 * np.pi * np.array([k / 150, k / 97 + 0.16])))
+        ys[k] = gamma * (model.C @ x) + 2.0
+        x = model.A @ x + model.B @ us[k] + model.E[:, 0] * 0.02 * np.sin(2 * np.pi * k / 90)
+    return ys, us
 
 
 def workload(model: LinearModel, phi: np.ndarray, steps: int, noise: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -93,6 +113,13 @@ def main() -> int:
         "adaptive_injection_p4": (lambda: estimators.create("adaptive", m4, {"injection": True}), ys4, us4),
         "adaptive-ct": (lambda: estimators.create("adaptive-ct", cdc, {"gain": gain, "Y": Y, "kappa": 1.0}, 0.02), ysc, usc),
     }
+    tank = tank_model()
+    yst, ust = tank_workload(tank, args.steps)
+    hz = [1 / 3, 1 / 3, 0.0, 1 / 3]
+    L = estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5}).L.tolist()  # Theorem 2 once, 0.1 s
+    cases["lft-uio-sr_eq53"] = (lambda: estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L}), yst, ust)
+    cases["lft-uio-sr_model"] = (
+        lambda: estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L, "gain_estimator": "model"}), yst, ust)
     warmup = args.steps // 3
     figures = {name: time_steps(make, ys, us, warmup, args.repeat) for name, (make, ys, us) in cases.items()}
     if args.json:

@@ -35,7 +35,7 @@ def test_cosim_throughput_benchmark_reports_its_figures():
 
 def test_estimator_step_benchmark_times_every_kind_against_kalman():
     figures = bench("estimator_step.py", "--steps", "300", "--repeat", "1")
-    assert {"kalman", "pseudoinverse", "injection", "adaptive", "adaptive-ct"} <= set(figures)
+    assert {"kalman", "pseudoinverse", "injection", "adaptive", "adaptive-ct", "lft-uio-sr_eq53", "lft-uio-sr_model"} <= set(figures)
     assert all(v > 0 for v in figures.values())
 
 
