@@ -19,8 +19,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from cosim.node import model_to_dict
 import estimators
+from cosim.node import model_to_dict
 from estimators import LinearModel
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 from abc import abstractmethod
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.optimize
@@ -201,6 +201,19 @@ def window_gains(
     return 1.0 / beta, sv, residual
 
 
+class _Sample(NamedTuple):
+    """One tick in the parameter estimator's window."""
+
+    y: np.ndarray
+    """The readings the UIO used (a missing one replaced by its prediction)."""
+    x_p: np.ndarray
+    b: np.ndarray
+    measured: np.ndarray
+    """The readings as received (NaN where one did not arrive)."""
+    u: np.ndarray
+    """The known inputs and the affine term's 1, [u; 1], held from this tick to the next."""
+
+
 class _Reconciliator(Estimator):
     """What the three reconciliators share: H_z, F, the affine model in absolute coordinates."""
 
@@ -277,14 +290,14 @@ class UioReconciliator(_Reconciliator):
         if x0.shape != (n,):
             raise ParameterError("x0", f"expected {n} values ({', '.join(model.states)}), got {x0.size}")
         self.x_bar0 = np.concatenate([x0 - self.x_s, np.zeros(self.aug.q)])
-        self.window = None if params.gain_estimator == "paper" else model_window(model.A, self.aug.B, model.E, model.C, params.window)
+        self.model_window = None if params.gain_estimator == "paper" else model_window(model.A, self.aug.B, model.E, model.C, params.window)
         self.reset()
 
     def reset(self) -> None:
         self.gamma = np.ones(self.model.p)  # Algorithm 1/2, initialization step 3: Δ(γ̂) = I
         self.x_hat: np.ndarray | None = None
         self.previous: tuple[np.ndarray, np.ndarray] | None = None  # (y, u) of the previous tick
-        self.history: deque[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=self.params.window)
+        self.history: deque[_Sample] = deque(maxlen=self.params.window)
         self.pe = 0.0
         self.fit = 0.0
 
@@ -325,9 +338,9 @@ class UioReconciliator(_Reconciliator):
         self.previous = (y, u_bar)
         n = self.model.n
         x_p, b = self.x_hat[:n], self.x_hat[n:]
-        self.history.append((y, x_p.copy(), b.copy(), measured, u_bar))
+        self.history.append(_Sample(y, x_p.copy(), b.copy(), measured, u_bar))
         if len(self.history) == self.params.window:
-            self.gamma = self._estimate_gamma() if self.window is None else self._estimate_gamma_on_the_model()
+            self.gamma = self._estimate_gamma() if self.model_window is None else self._estimate_gamma_on_the_model()
         z = float(self.Hz @ (self.model.C @ x_p))  # eq. (6)
         diagnostics = {f"gamma_{name}": float(g) for name, g in zip(self.model.outputs, self.gamma)}
         diagnostics |= {name: float(v) for name, v in zip(self._bias_names(self.aug.q), b)}
@@ -343,7 +356,7 @@ class UioReconciliator(_Reconciliator):
         clipping its unconstrained minimizer. A sensor whose regressor column is zero (rank φ < m,
         condition (54)) keeps its previous estimate.
         """
-        ys, xs, bs = (np.array(column) for column in list(zip(*self.history))[:3])
+        ys, xs, bs = (np.array([getattr(sample, field) for sample in self.history]) for field in ("y", "x_p", "b"))
         s = xs @ self.model.C.T  # (N, m)
         r = ys - bs @ self.F.T
         energy = np.sum(s * s, axis=0)
@@ -362,9 +375,8 @@ class UioReconciliator(_Reconciliator):
         """γ̂ from the window through the model (``window_gains``), within Γ. A window that does not
         excite the gains (σ ratio below ``pe_tol``) or that no single γ explains (relative residual
         above ``fit_tol``) keeps the previous estimate."""
-        columns = list(zip(*self.history))
-        ys, us = np.array(columns[3]), np.array(columns[4])
-        gamma, sv, self.fit = window_gains(self.window, ys, us, self.lower, self.upper)
+        ys, us = (np.array([getattr(sample, field) for sample in self.history]) for field in ("measured", "u"))
+        gamma, sv, self.fit = window_gains(self.model_window, ys, us, self.lower, self.upper)
         self.pe = self._excitation(sv, self.model.p)
         return gamma if self.pe > 0.0 and self.fit <= self.params.fit_tol else self.gamma
 
