@@ -39,7 +39,10 @@ class LinearModel:
         if self.E is None:
             object.__setattr__(self, "E", np.zeros((n, len(self.disturbances))))
         for name, shape in (("A", (n, n)), ("B", (n, m)), ("C", (p, n)), ("D", (p, m)), ("E", (n, len(self.disturbances)))):
-            value = np.asarray(getattr(self, name), dtype=float)
+            # C order whatever the source: BLAS takes another path for a Fortran-ordered matrix and
+            # rounds differently, and a node or a replay that reads the model from JSON must compute
+            # bit for bit what the runner's in-memory model computes.
+            value = np.ascontiguousarray(getattr(self, name), dtype=float)
             if value.shape != shape:
                 raise ValueError(f"LinearModel.{name} has shape {value.shape}, expected {shape}")
             object.__setattr__(self, name, value)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import can
 import numpy as np
 import pytest
@@ -11,8 +13,9 @@ from cosim.bus import BusConfig
 from cosim.client import Client, TickAssembler
 from cosim.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
 from cosim.errors import CosimError
-from cosim.node import EstimatorNode, NodeSpec
+from cosim.node import EstimatorNode, NodeSpec, model_from_dict, model_to_dict
 from cosim.plant import Plant
+from estimators import LinearModel
 from mjcf import Channel
 
 INFO = mjcf.get("masses")
@@ -148,3 +151,17 @@ def test_frames_outside_the_database_are_ignored():
         client = Client(None, c, bus)
         assert client.feed(can.Message(arbitration_id=0x7E0, data=b"\x01", is_extended_id=False)) == []
         assert client.feed(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False)) == []  # too short
+
+
+def test_a_model_computes_the_same_bits_in_a_node_as_in_the_runner():
+    """A linearization may hand back Fortran-ordered matrices, which BLAS multiplies by another
+    path (rounding differently); the model a node reads from JSON is C-ordered. LinearModel stores
+    C order, so both compute bit for bit the same (replay relies on it)."""
+    rng = np.random.default_rng(0)
+    A, B = np.asfortranarray(rng.normal(size=(3, 3))), np.asfortranarray(rng.normal(size=(3, 2)))
+    model = LinearModel(A, B, np.eye(3), np.zeros((3, 2)), 1.0, ("a", "b", "c"), ("u", "v"), ("y1", "y2", "y3"))
+    assert model.A.flags["C_CONTIGUOUS"] and model.B.flags["C_CONTIGUOUS"]
+    shipped = model_from_dict(json.loads(json.dumps(model_to_dict(model))))
+    for _ in range(100):
+        u, x = rng.normal(size=2) * 40, rng.normal(size=3)
+        assert (model.B @ u).tolist() == (shipped.B @ u).tolist() and (model.A @ x).tolist() == (shipped.A @ x).tolist()
