@@ -28,10 +28,10 @@ from mcap.writer import CompressionType, IndexType, Writer
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from cosim import scenario  # noqa: E402
-from cosim.codec import signal_bits  # noqa: E402
-from cosim.log import McapLog, dumps  # noqa: E402
-from cosim.recorder import RunRecorder  # noqa: E402
-from cosim.runner import Run  # noqa: E402
+from cosim.bus.codec import signal_bits  # noqa: E402
+from cosim.log.mcapfile import McapLog, dumps  # noqa: E402
+from cosim.log.recorder import RunRecorder  # noqa: E402
+from cosim.run.runner import Run  # noqa: E402
 
 
 def best_of(repeat: int, fn) -> float:

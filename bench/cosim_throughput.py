@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can  # noqa: E402
 
 from cosim import scenario  # noqa: E402
-from cosim.bus import BusConfig, allocate, open_bus  # noqa: E402
-from cosim.runner import Run  # noqa: E402
+from cosim.bus.transport import BusConfig, allocate, open_bus  # noqa: E402
+from cosim.run.runner import Run  # noqa: E402
 
 ACK_ID = 0x7FF
 

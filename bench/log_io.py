@@ -5,10 +5,10 @@ in-process bus (every record of it: frames, decoded messages, truth, events, met
 attachments). Every rate is in frames of that log (``/can/frames`` records) per second of wall
 time, the best of ``--repeat`` timings, and each ratio is ours / bare, measured in the same run:
 
-- ``write_ratio``: ``cosim.log.McapLog`` writing every record of the log (JSON serialization
+- ``write_ratio``: ``cosim.log.mcapfile.McapLog`` writing every record of the log (JSON serialization
   included) / the bare ``mcap`` ``Writer`` with the same chunk size, zstd compression and indexes,
   serializing the same payloads with the same ``orjson`` call;
-- ``inspect_ratio``: ``cosim inspect`` (``cosim.inspect.summarize``) on the log / the bare ``mcap``
+- ``inspect_ratio``: ``cosim inspect`` (``cosim.analysis.summary.summarize``) on the log / the bare ``mcap``
   reader reading and JSON-decoding every message of it in file order (``iter_messages(log_time_order=False)``,
   its fastest mode);
 - ``export_<format>_ratio``: ``cosim export --to <format>`` / that same bare read, since an export
@@ -33,11 +33,11 @@ from mcap.writer import CompressionType, IndexType, Writer
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from cosim import __version__, scenario  # noqa: E402
-from cosim.export import FORMATS, export  # noqa: E402
-from cosim.inspect import summarize  # noqa: E402
-from cosim.log import LogReader, McapLog, dumps  # noqa: E402
-from cosim.recorder import FRAMES  # noqa: E402
-from cosim.runner import Run  # noqa: E402
+from cosim.analysis.export import FORMATS, export  # noqa: E402
+from cosim.analysis.summary import summarize  # noqa: E402
+from cosim.log.mcapfile import LogReader, McapLog, dumps  # noqa: E402
+from cosim.log.recorder import FRAMES  # noqa: E402
+from cosim.run.runner import Run  # noqa: E402
 
 CHUNK_SIZE = 512 * 1024  # McapLog's default
 

@@ -36,7 +36,7 @@ def _console(stderr: bool = False) -> Console:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from cosim import scenario
-    from cosim.runner import Run
+    from cosim.run.runner import Run
 
     loaded = scenario.load(args.scenario)
     seed = loaded.scenario.seed if args.seed is None else args.seed
@@ -106,15 +106,15 @@ def _with_progress(run, console: Console, started):
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    from cosim.node import load_spec, serve
+    from cosim.run.node import load_spec, serve
 
     if args.spec:
         spec = load_spec(args.spec)
         if spec.name != args.estimator:
             raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
     else:
-        from cosim import registry
-        from cosim.node import NodeSpec
+        from cosim.bus import registry
+        from cosim.run.node import NodeSpec
 
         info = registry.find(args.run)
         if args.estimator not in info.get("nodes", {}):
@@ -127,7 +127,7 @@ def cmd_node(args: argparse.Namespace) -> int:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from cosim.monitor import monitor
+    from cosim.bus.monitor import monitor
 
     return monitor(args.run, _console())
 
@@ -152,7 +152,7 @@ def cmd_scenarios(args: argparse.Namespace) -> int:
 def cmd_inspect(args: argparse.Namespace) -> int:
     import orjson
 
-    from cosim.inspect import render, summarize
+    from cosim.analysis.summary import render, summarize
 
     report = summarize(args.log)
     if args.json:
@@ -163,7 +163,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    from cosim.plot import plot
+    from cosim.analysis.plot import plot
 
     log = Path(args.log)
     out = Path(args.out) if args.out else log.with_name(log.stem + "-plots")
@@ -173,7 +173,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from cosim.export import export
+    from cosim.analysis.export import export
 
     result = export(args.log, args.to, args.out, dbc=args.dbc)
     console = _console(stderr=True)
@@ -189,7 +189,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     console = _console(stderr=True)
     if args.live:
         return _play(args, console)
-    from cosim.replay import Replay, parse_params
+    from cosim.run.replay import Replay, parse_params
 
     misplaced = [flag for flag, given in (("--speed", args.speed is not None),) if given]
     if misplaced:
@@ -220,7 +220,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace, console: Console) -> int:
-    from cosim.replay import play
+    from cosim.run.replay import play
 
     misplaced = [flag for flag, given in (("--estimator", args.estimator), ("--kind", args.kind), ("--param", args.param),
                                           ("--out", args.out)) if given]
@@ -244,7 +244,7 @@ def _play(args: argparse.Namespace, console: Console) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from cosim.report import report
+    from cosim.analysis.report import report
 
     log = Path(args.log)
     print(report(log, Path(args.out) if args.out else log.with_suffix(".html")))

@@ -1,4 +1,4 @@
-"""A user-written estimator joining a running co-simulation with ``cosim.client``.
+"""A user-written estimator joining a running co-simulation with ``cosim.bus.client``.
 
 It reads the three redundant position sensors of the coupled masses, y = C_p [x1, x2] + noise with
 C_p = [[1, 0], [0, 1], [1, -1]], and publishes the static least-squares fix
@@ -12,7 +12,7 @@ missing it uses the two that remain.
 
 import numpy as np
 
-from cosim.client import Client
+from cosim.bus.client import Client
 
 C_P = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, -1.0]])  # rows: x1, x2, x1 - x2
 SENSORS = ("x1", "x2", "x1_minus_x2")

@@ -15,7 +15,7 @@ callback then adds, in ``mj_passive`` (so in every ``mj_forward`` and ``mj_step`
     qfrc_passive += −[P(ψ) 0; 0 1] D ν,    ν = [P(ψ)ᵀ 0; 0 1] q̇ = [u, v, r],
 
 P(ψ) the planar rotation. Models without ``body_damping`` are left alone. A plant module names
-``passive`` as its ``PlantInfo.passive``; ``cosim.plant.load_model`` installs it (MuJoCo's callbacks
+``passive`` as its ``PlantInfo.passive``; ``cosim.plant.physics.load_model`` installs it (MuJoCo's callbacks
 are global: a Python one cannot run while a model compiles, so load_model compiles without it).
 """
 

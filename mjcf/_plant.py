@@ -64,9 +64,9 @@ class PlantInfo:
     ``state_tendons``, when given, name fixed tendons whose lengths are the plant's state (truth,
     initial state, linear model): the other MuJoCo coordinates are fast internal dynamics (flows
     that settle within a timestep, cumulative volumes that nothing depends on), eliminated in
-    linearization by their quasi-static limit (see ``cosim.plant``).
+    linearization by their quasi-static limit (see ``cosim.plant.physics``).
     ``passive``, when given, is a MuJoCo passive-force callback (``mjcb_passive``) for forces the
-    MJCF cannot express (the vessel's body-frame damping); ``cosim.plant`` installs it when it loads
+    MJCF cannot express (the vessel's body-frame damping); ``cosim.plant.physics`` installs it when it loads
     the model, and it must leave models that are not its own alone.
     ``design_keyframe``, when given, is the keyframe at which the estimators' and controllers' linear
     model is taken (its state and ctrl are the operating point), where it differs from the initial

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.client import TickAssembler
-from cosim.codec import CONTROLLER, OPERATIONAL, Codec
+from cosim.bus.client import TickAssembler
+from cosim.bus.codec import CONTROLLER, OPERATIONAL, Codec
 from cosim.errors import ScenarioError
-from cosim.log import LogReader
-from cosim.runner import run
+from cosim.log.mcapfile import LogReader
+from cosim.run.runner import run
 from estimators import LinearModel, ParameterError
 from estimators.controller import PidController, create
 from mjcf import Channel
@@ -203,7 +203,7 @@ def test_a_controller_must_listen_to_a_node_that_publishes_what_it_reads(tmp_pat
 
 
 def test_clients_of_a_closed_loop_run_read_the_controllers_commands():
-    from cosim.client import Client
+    from cosim.bus.client import Client
 
     codec = small_codec()
     bus = can.Bus(interface="virtual", channel="closed-loop-client")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import mjcf
-from cosim.codec import SYNC_ID, Codec, load_dbc, signal_bits
+from cosim.bus.codec import SYNC_ID, Codec, load_dbc, signal_bits
 from cosim.errors import CodecError
 from mjcf import Channel
 

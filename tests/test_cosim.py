@@ -16,12 +16,14 @@ import can
 import numpy as np
 import pytest
 
-from cosim import registry, scenario
-from cosim.bus import allocate
-from cosim.codec import load_dbc
+from cosim import scenario
+
+from cosim.bus import registry
+from cosim.bus.transport import allocate
+from cosim.bus.codec import load_dbc
 from cosim.errors import CosimError
-from cosim.log import LogReader
-from cosim.runner import Run, run
+from cosim.log.mcapfile import LogReader
+from cosim.run.runner import Run, run
 from tests.conftest import ROOT, short_scenario
 
 

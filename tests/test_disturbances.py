@@ -8,9 +8,9 @@ from scipy.linalg import expm
 
 from cosim import scenario
 from cosim.errors import ScenarioError
-from cosim.log import LogReader
-from cosim.runner import run
-from cosim.statespace import StateSpacePlant
+from cosim.log.mcapfile import LogReader
+from cosim.run.runner import run
+from cosim.plant.statespace import StateSpacePlant
 
 PLANT = """
 name = "dist"

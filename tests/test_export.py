@@ -13,15 +13,15 @@ import cantools
 import numpy as np
 import pytest
 
-from cosim import export as exporting
+from cosim.analysis import export as exporting
 from cosim.cli import main
-from cosim.codec import Codec
+from cosim.bus.codec import Codec
 from cosim.errors import CosimError
-from cosim.export import export, table_columns
-from cosim.log import LogReader, McapLog
-from cosim.metrics import compute_metrics
-from cosim.recorder import FRAMES, RunRecorder
-from cosim.runner import Run
+from cosim.analysis.export import export, table_columns
+from cosim.log.mcapfile import LogReader, McapLog
+from cosim.analysis.metrics import compute_metrics
+from cosim.log.recorder import FRAMES, RunRecorder
+from cosim.run.runner import Run
 from cosim.scenario import LoadedScenario, builtin_names, load
 
 FORMATS = ("csv", "parquet", "blf", "mf4", "candump")

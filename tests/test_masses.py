@@ -8,7 +8,7 @@ import pytest
 
 import mjcf
 from cosim.errors import ModelError
-from cosim.plant import Plant
+from cosim.plant.physics import Plant
 from estimators.design import zoh_discretize
 from mjcf import masses
 

@@ -1,4 +1,4 @@
-"""Metrics of run logs (cosim.metrics, cosim.can_timing): hand-made logs with known answers, a real
+"""Metrics of run logs (cosim.analysis.metrics, cosim.bus.timing): hand-made logs with known answers, a real
 scenario's log checked against a direct computation, and damaged or foreign files."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from cosim import scenario
-from cosim.can_timing import (
+from cosim.bus.timing import (
     TAIL_BITS,
     crc15,
     frame_bits,
@@ -23,10 +23,10 @@ from cosim.can_timing import (
     stuff_bits,
 )
 from cosim.errors import LogError
-from cosim.log import LogReader, McapLog, object_schema
-from cosim.metrics import BAND_FACTOR, compute_metrics, isolation_targets
-from cosim.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE
-from cosim.runner import run
+from cosim.log.mcapfile import LogReader, McapLog, object_schema
+from cosim.analysis.metrics import BAND_FACTOR, compute_metrics, isolation_targets
+from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE
+from cosim.run.runner import run
 from estimators import ParameterError, create
 from estimators.model import LinearModel
 
@@ -507,7 +507,7 @@ def test_a_cosim_log_with_foreign_messages_on_its_topics_warns_and_goes_on(tmp_p
 
 
 def test_a_frames_tick_is_its_counter_unwrapped_against_the_tick_it_was_logged_at():
-    from cosim.recorder import carried_tick
+    from cosim.log.recorder import carried_tick
 
     assert carried_tick(10, 10) == 10  # on time
     assert carried_tick(12, 10) == 10  # logged two ticks late (realtime)

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import mjcf
-from cosim.bus import BusConfig
-from cosim.client import Client, TickAssembler
-from cosim.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
+from cosim.bus.transport import BusConfig
+from cosim.bus.client import Client, TickAssembler
+from cosim.bus.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
 from cosim.errors import CosimError
-from cosim.node import EstimatorNode, NodeSpec, model_from_dict, model_to_dict
-from cosim.plant import Plant
+from cosim.run.node import EstimatorNode, NodeSpec, model_from_dict, model_to_dict
+from cosim.plant.physics import Plant
 from estimators import LinearModel
 from mjcf import Channel
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cosim.cli import main
-from cosim.runner import Run
+from cosim.run.runner import Run
 from cosim.scenario import load
 
 
@@ -23,8 +23,8 @@ def test_plot_writes_the_figures_of_an_adaptive_run(tmp_path: Path, capsys):
 
 
 def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
-    from cosim.plot import load as load_series
-    from cosim.plot import plot
+    from cosim.analysis.plot import load as load_series
+    from cosim.analysis.plot import plot
     from cosim.scenario import LoadedScenario
 
     log = tmp_path / "uio.mcap"

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cosim.plot import bias_effect, load
-from cosim.runner import Run
+from cosim.analysis.plot import bias_effect, load
+from cosim.run.runner import Run
 from cosim.scenario import load as load_scenario
 
 

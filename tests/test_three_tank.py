@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 
 import mjcf
 from cosim.errors import ModelError
-from cosim.plant import Plant
+from cosim.plant.physics import Plant
 from mjcf import three_tank as tt
 
 INFO = mjcf.get("three_tank")

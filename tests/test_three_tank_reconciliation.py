@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.log import LogReader
-from cosim.plot import load
-from cosim.runner import run
+from cosim.log.mcapfile import LogReader
+from cosim.analysis.plot import load
+from cosim.run.runner import run
 
 HZ = np.array([1 / 3, 1 / 3, 0.0, 1 / 3])
 
@@ -83,8 +83,8 @@ def test_the_papers_gain_estimator_does_not_converge(series):
 
 
 def test_cosim_plot_draws_the_gain_estimates_against_the_true_gains_and_z_hat_against_z(series, tmp_path):
-    from cosim.plot import load as load_series
-    from cosim.plot import plot, true_gains, virtual_output
+    from cosim.analysis.plot import load as load_series
+    from cosim.analysis.plot import plot, true_gains, virtual_output
 
     *_, path = series
     written = {p.name for p in plot(path, tmp_path)}

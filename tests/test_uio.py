@@ -9,9 +9,9 @@ import pytest
 
 import estimators
 from cosim import scenario
-from cosim.node import model_from_dict
-from cosim.plot import load as load_series
-from cosim.runner import run
+from cosim.run.node import model_from_dict
+from cosim.analysis.plot import load as load_series
+from cosim.run.runner import run
 from estimators import LinearModel, ParameterError
 from estimators.design import zoh_discretize
 from estimators.uio import UIOConditionError, uio_design, uio_gains

@@ -9,9 +9,9 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from cosim import registry
-from cosim.client import Client
-from cosim.codec import Decoded
+from cosim.bus import registry
+from cosim.bus.client import Client
+from cosim.bus.codec import Decoded
 
 
 def _table(latest: dict[str, Decoded], header: str) -> Group:

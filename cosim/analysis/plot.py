@@ -37,9 +37,9 @@ import numpy as np
 
 import estimators
 from cosim.errors import LogError, ScenarioError
-from cosim.log import LogReader
-from cosim.node import model_from_dict
-from cosim.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
+from cosim.log.mcapfile import LogReader
+from cosim.run.node import model_from_dict
+from cosim.log.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
 
 
 @dataclass

@@ -5,8 +5,8 @@ figures are inlined as base64 PNG, the style sheet is inline, and the page loads
 image from anywhere. It reads on a laptop and on a phone (viewport meta, tables that scroll
 sideways on their own, figures that shrink to the screen's width).
 
-The metrics table is built from ``cosim.metrics.compute_metrics`` (the summary of
-``cosim.inspect`` where that is missing) without knowing its keys: scalars become key-value rows,
+The metrics table is built from ``cosim.analysis.metrics.compute_metrics`` (the summary of
+``cosim.analysis.summary`` where that is missing) without knowing its keys: scalars become key-value rows,
 a dict of records (estimators, faults, frame ids) a table with one row per record, nested records
 a table of their own. A metric added there shows up here.
 """
@@ -23,7 +23,7 @@ from typing import Any
 
 from cosim import __version__
 from cosim.errors import CosimError
-from cosim.log import LogReader
+from cosim.log.mcapfile import LogReader
 
 #: What each figure of ``cosim plot`` shows (the file names are plot.py's).
 CAPTIONS = {
@@ -73,8 +73,8 @@ footer { color: var(--muted); font-size: .8rem; margin-top: 3rem; }
 
 
 def metrics(path: str | Path) -> dict[str, Any]:
-    """The log's metrics (``cosim.metrics.compute_metrics``)."""
-    from cosim.metrics import compute_metrics
+    """The log's metrics (``cosim.analysis.metrics.compute_metrics``)."""
+    from cosim.analysis.metrics import compute_metrics
 
     return compute_metrics(path)
 
@@ -169,7 +169,7 @@ def _metrics_html(values: dict[str, Any]) -> str:
 
 def _figures(path: Path) -> tuple[list[str], str]:
     """The figures of ``cosim plot``, inlined; or a note saying why there are none."""
-    from cosim.plot import plot
+    from cosim.analysis.plot import plot
 
     with tempfile.TemporaryDirectory(prefix="cosim-report-") as folder:
         try:

@@ -32,8 +32,8 @@ import can
 import numpy as np
 from can.util import len2dlc
 
-from cosim.codec import CLASSIC_TICK_BITS, Codec, Decoded
-from cosim.log import McapLog, number, object_schema
+from cosim.bus.codec import CLASSIC_TICK_BITS, Codec, Decoded
+from cosim.log.mcapfile import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"

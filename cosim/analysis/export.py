@@ -40,8 +40,8 @@ from typing import Any
 
 from cosim import __version__
 from cosim.errors import CosimError, LogError
-from cosim.log import LogReader
-from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
+from cosim.log.mcapfile import LogReader
+from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
 
 #: Format → file suffix of its output.
 FORMATS = {"csv": ".csv", "parquet": ".parquet", "blf": ".blf", "mf4": ".mf4", "candump": ".log"}
@@ -57,7 +57,7 @@ PARQUET_BATCH_ROWS = 8192
 MF4_BATCH_FRAMES = 16384
 MF4_FRAGMENT_BYTES = 1 << 20  # asammdf's data blocks: what it holds in memory while saving
 
-_UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.number writes "<description> [<unit>]"
+_UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.mcapfile.number writes "<description> [<unit>]"
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""``cosim inspect``: a log's summary and metrics (``cosim.metrics``), as JSON or as text tables."""
+"""``cosim inspect``: a log's summary and metrics (``cosim.analysis.metrics``), as JSON or as text tables."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from cosim.metrics import compute_metrics
+from cosim.analysis.metrics import compute_metrics
 
 
 def summarize(path: str | Path) -> dict[str, Any]:

@@ -12,7 +12,7 @@ loss accounting and logging are the runner's own.
 The estimator is either one of the run's, rebuilt from what the log records about it (kind,
 parameters including its design, design model), which reproduces its logged frames bit for bit,
 or with some parameters changed (``params``), or a new one (``kind``) designed on the linear model
-the log records. Designs go through the design cache (``cosim.design_cache``).
+the log records. Designs go through the design cache (``cosim.run.design_cache``).
 
 ``play`` sends every frame of a log onto a live bus at the times the log gives them (simulated
 time over ``speed``), like ``canplayer``: for external tools and clients listening on that bus.
@@ -33,8 +33,8 @@ from typing import Any
 import can
 
 import estimators
-from cosim.bus import BusConfig, allocate, open_bus
-from cosim.codec import (
+from cosim.bus.transport import BusConfig, allocate, open_bus
+from cosim.bus.codec import (
     COMMAND,
     CONTROL,
     CONTROLLER,
@@ -45,11 +45,11 @@ from cosim.codec import (
     Codec,
 )
 from cosim.errors import CosimError, LogError
-from cosim.interrupts import DeferredInterrupts
-from cosim.log import LogReader, McapLog
-from cosim.node import model_from_dict, model_to_dict
-from cosim.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, RunRecorder
-from cosim.runner import (
+from cosim.run.interrupts import DeferredInterrupts
+from cosim.log.mcapfile import LogReader, McapLog
+from cosim.run.node import model_from_dict, model_to_dict
+from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, RunRecorder
+from cosim.run.runner import (
     NodeFailure,
     Progress,
     Run,

@@ -9,7 +9,7 @@ and its ``CONTROL_STATUS``. ``cosim node`` runs one in a process of its own (``s
 
 Everything a node needs comes in a ``NodeSpec``: its kind and parameters, the linear model it is
 designed on (from the runner's linearization of the plant), the run's DBC and bus, and the nodes
-it listens to (``upstream``, see ``cosim.client.TickAssembler``).
+it listens to (``upstream``, see ``cosim.bus.client.TickAssembler``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ import can
 import numpy as np
 
 import estimators
-from cosim.bus import BusConfig, open_bus
-from cosim.client import Client, TickFrames
-from cosim.codec import CONTROLLER, Codec
+from cosim.bus.transport import BusConfig, open_bus
+from cosim.bus.client import Client, TickFrames
+from cosim.bus.codec import CONTROLLER, Codec
 from cosim.errors import CosimError
 from estimators import Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
@@ -45,7 +45,7 @@ class NodeSpec:
     bus: BusConfig
     sample_time: float
     upstream: dict[str, int] = field(default_factory=dict)
-    """Nodes whose frames this one needs, with the lag in ticks (``cosim.client.TickAssembler``)."""
+    """Nodes whose frames this one needs, with the lag in ticks (``cosim.bus.client.TickAssembler``)."""
     diagnosis: str = ""
     """The controller's diagnosis node (upstream with lag 1), whose report it reads."""
 

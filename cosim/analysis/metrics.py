@@ -15,7 +15,7 @@ e_k = |x_k − x̂_k| (Euclidean norm over the whole state) and τ the sample ti
   false alarms (alarm episodes starting with no fault active), their rate per fault-free hour, and
   missed detections.
 - bus: frames and bits per id, load against the configured bit rates (exact bit stuffing,
-  ``cosim.can_timing``), lost frames and deadline misses.
+  ``cosim.bus.timing``), lost frames and deadline misses.
 
 Memory is bounded whatever the log's length: the truth and estimate messages of a tick are held
 only until the tick is complete (or ``WINDOW`` ticks old), then scored and dropped.
@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cosim.can_timing import frame_bits, frame_bits_worst_case
-from cosim.log import LogReader
-from cosim.recorder import (
+from cosim.bus.timing import frame_bits, frame_bits_worst_case
+from cosim.log.mcapfile import LogReader
+from cosim.log.recorder import (
     DEADLINE_MISSES,
     EVENTS,
     FAULTS,

@@ -42,22 +42,23 @@ import numpy as np
 
 import estimators
 import faults as fm
-from cosim import __version__, design_cache
-from cosim.bus import BusConfig, allocate, open_bus
-from cosim.codec import (
+from cosim import __version__
+from cosim.run import design_cache
+from cosim.bus.transport import BusConfig, allocate, open_bus
+from cosim.bus.codec import (
     BOOTUP, CLIENT, COMMAND, CONTROL, CONTROLLER, ESTIMATE, HEARTBEAT, NMT_STOP, OPERATIONAL, PLANT, RUNNER, STOPPED, Codec,
     Decoded,
 )
 from cosim.errors import CodecError, CosimError, ModelError, ScenarioError
-from cosim.interrupts import DeferredInterrupts
-from cosim.launcher import ExternalClient, LocalController, LocalNode, Participant, ProcessNode
-from cosim.log import McapLog
-from cosim.node import NodeSpec, model_to_dict
-from cosim.plant import Plant
-from cosim.recorder import RunRecorder
-from cosim.registry import Registration
+from cosim.run.interrupts import DeferredInterrupts
+from cosim.run.launcher import ExternalClient, LocalController, LocalNode, Participant, ProcessNode
+from cosim.log.mcapfile import McapLog
+from cosim.run.node import NodeSpec, model_to_dict
+from cosim.plant.physics import Plant
+from cosim.log.recorder import RunRecorder
+from cosim.bus.registry import Registration
 from cosim.scenario import ActuatorEffectivenessSpec, ActuatorOffsetSpec, LoadedScenario, Scenario, build_waveform
-from cosim.statespace import StateSpacePlant
+from cosim.plant.statespace import StateSpacePlant
 from estimators import Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
 from estimators.design import fault_rejectable

@@ -5,7 +5,7 @@ x⁺ = A_d x + B_d u, y = C x + D u exactly: a continuous-time model (``time = "
 discretized at the sample time by the exact zero-order hold (one matrix exponential, Van Loan),
 so the sampled trajectory equals the ODE's solution under piecewise-constant inputs; a
 discrete-time model is taken as it is (its step is the sample time). The interface is the same as
-``cosim.plant.Plant``'s, so the runner and the estimators do not care which they get.
+``cosim.plant.physics.Plant``'s, so the runner and the estimators do not care which they get.
 """
 
 from __future__ import annotations

@@ -22,13 +22,14 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Discriminator, Fiel
 
 import faults as fm
 import mjcf
-from cosim import statespace
-from cosim.codec import Codec
+import scenarios
+from cosim.plant import statespace
+from cosim.bus.codec import Codec
 from cosim.errors import CodecError, ScenarioError
 from estimators import ESTIMATORS, ParameterError
 from estimators.controller import CONTROLLERS
 
-BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+BUILTIN_DIR = Path(scenarios.__file__).resolve().parent
 DEFAULT_SCENARIO = "masses-bias"
 
 Identifier = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,23}$")]
@@ -369,7 +370,7 @@ class SignalSpec(Strict):
 
 
 class ClientSpec(Strict):
-    """A program that joins the run's bus on its own (written with ``cosim.client``)."""
+    """A program that joins the run's bus on its own (written with ``cosim.bus.client``)."""
 
     name: Identifier
     lockstep: bool = True

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import estimators
-from cosim.node import model_to_dict
+from cosim.run.node import model_to_dict
 from estimators import LinearModel
 
 

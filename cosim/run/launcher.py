@@ -13,7 +13,7 @@ from pathlib import Path
 
 import can
 
-from cosim.node import ControllerNode, EstimatorNode, NodeSpec
+from cosim.run.node import ControllerNode, EstimatorNode, NodeSpec
 from estimators import Estimator
 from estimators.controller import Controller
 

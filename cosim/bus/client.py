@@ -1,0 +1,303 @@
+"""Join a running co-simulation from your own program: decoded signals in, your messages out.
+
+A few lines are enough::
+
+    from cosim.bus.client import Client
+
+    with Client.attach("lsq") as client:           # a client declared in the run's scenario
+        for tick in client.ticks():                # tick k's sensor readings and commands
+            y = tick.sensors
+            client.publish(tick, {"x1": (2 * y["x1"] + y["x2"] + y["x1_minus_x2"]) / 3,
+                                  "x2": (y["x1"] + 2 * y["x2"] - y["x1_minus_x2"]) / 3})
+
+(``examples/least_squares_client.py`` is this client, complete.)
+
+``attach`` finds the running co-simulation (``cosim run`` registers it), opens its bus and builds
+the codec from its DBC. A client declared in the scenario's ``[[clients]]`` has its own messages
+in the DBC and, with ``lockstep = true``, the runner waits for it: it must join before tick 0 and
+answer every tick (iterating ``ticks()`` does that: the heartbeat that closes tick k goes out when
+the loop body returns). Any other name joins as a passive listener, e.g. a monitor.
+
+The built-in estimator nodes are clients too (``cosim/node.py``): the protocol is the same.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+
+import can
+
+from cosim.bus import registry
+from cosim.bus.transport import BusConfig, open_bus
+from cosim.bus.codec import (
+    BOOTUP,
+    COMMAND,
+    CONTROLLER,
+    HEARTBEAT,
+    NMT,
+    NMT_STOP,
+    OPERATIONAL,
+    SENSOR,
+    STOPPED,
+    SYNC,
+    Codec,
+    Decoded,
+)
+from cosim.errors import CodecError, CosimError
+
+
+@dataclass
+class TickFrames:
+    """The decoded inputs of one tick: sensor readings and commands that arrived, by channel name.
+
+    ``expected`` is the number of data frames SYNC announced and ``received`` how many arrived;
+    ``t`` is the simulated time t_k = k τ when the sample time is known. ``upstream`` holds what
+    the nodes this one listens to published (by node, then signal), for the tick each is read at.
+    """
+
+    tick: int
+    expected: int
+    sensors: dict[str, float] = field(default_factory=dict)
+    commands: dict[str, float] = field(default_factory=dict)
+    received: int = 0
+    t: float | None = None
+    upstream: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return self.received >= self.expected
+
+
+class TickAssembler:
+    """Groups incoming frames by tick: SYNC(k) opens tick k and announces its data frames.
+
+    ``push`` returns the tick once all its announced frames arrived. If SYNC(k+1) arrives while
+    tick k is still incomplete, tick k is returned incomplete and the missing frames are counted
+    in ``lost`` (in lockstep this cannot happen without frame loss on the transport).
+
+    ``upstream`` maps nodes whose frames this participant needs to a lag L: tick k is complete only
+    once the node's frames of tick k − L are in, which its heartbeat closing that tick announces.
+    With L = 0 the node answers the same tick first (estimators read the ``controller`` node's
+    commands of tick k); with L = 1 its previous answer is used (the controller reads a diagnosis
+    node's report of tick k − 1). Commands go to ``commands``, every other upstream signal to
+    ``upstream[node]`` by signal name.
+    """
+
+    def __init__(self, codec: Codec, sample_time: float | None = None, upstream: dict[str, int] | None = None) -> None:
+        self.codec = codec
+        self.sample_time = sample_time
+        self.pending: TickFrames | None = None
+        self.lost = 0
+        self.upstream = dict(upstream or {})
+        self._heard: dict[str, dict[int, _Heard]] = {node: {} for node in self.upstream}
+
+    def push(self, decoded: Decoded) -> list[TickFrames]:
+        done: list[TickFrames] = []
+        role, sender = decoded.spec.role, decoded.spec.sender
+        if sender in self.upstream:
+            self._hear(decoded)
+        elif role == SYNC:
+            if self.pending is not None:
+                self.lost += self.pending.expected - self.pending.received
+                done.append(self._close(self.pending))
+            t = None if self.sample_time is None else decoded.tick * self.sample_time
+            self.pending = TickFrames(decoded.tick, int(decoded.values["frames"]), t=t)
+        elif role in (SENSOR, COMMAND) and self.pending is not None:
+            pending = self.pending
+            if decoded.tick != pending.tick % self.codec.tick_modulus:
+                self.lost += 1  # a late frame of an earlier tick
+                return done
+            target = pending.sensors if role == SENSOR else pending.commands
+            for channel, signal in zip(decoded.spec.channels, decoded.spec.signals):
+                target[channel.name] = decoded.values[signal]
+            pending.received += 1
+        if self.pending is not None and self.pending.complete and self._upstream_ready(self.pending.tick):
+            done.append(self._close(self.pending))
+            self.pending = None
+        return done
+
+    def _hear(self, decoded: Decoded) -> None:
+        heard = self._heard[decoded.spec.sender].setdefault(decoded.tick % self.codec.tick_modulus, _Heard())
+        if decoded.spec.role == HEARTBEAT:
+            if decoded.values["state"] == OPERATIONAL:
+                heard.announced = int(decoded.values["frames"])
+            return
+        if decoded.spec.role == COMMAND:
+            heard.commands.update({c.name: decoded.values[s] for c, s in zip(decoded.spec.channels, decoded.spec.signals)})
+        else:
+            heard.values.update({s: decoded.values[s] for s in decoded.spec.signals})
+        heard.frames += 1
+
+    def _upstream_ready(self, tick: int) -> bool:
+        for node, lag in self.upstream.items():
+            if tick - lag < 0:
+                continue
+            heard = self._heard[node].get((tick - lag) % self.codec.tick_modulus)
+            if heard is None or heard.announced is None or heard.frames < heard.announced:
+                return False
+        return True
+
+    def _close(self, tick: TickFrames) -> TickFrames:
+        modulus = self.codec.tick_modulus
+        for node, lag in self.upstream.items():
+            by_tick = self._heard[node]
+            heard = by_tick.get((tick.tick - lag) % modulus, _Heard())
+            tick.commands.update(heard.commands)
+            tick.upstream[node] = dict(heard.values)
+            for counter in [c for c in by_tick if (tick.tick - lag - c) % modulus < modulus // 2]:
+                del by_tick[counter]  # this tick's and older ones are never needed again
+        return tick
+
+
+@dataclass
+class _Heard:
+    """What an upstream node sent for one tick: its signal values, commands (from the controller
+    node), data frames so far, and the data frames its heartbeat announced (None before it)."""
+
+    values: dict[str, float] = field(default_factory=dict)
+    commands: dict[str, float] = field(default_factory=dict)
+    frames: int = 0
+    announced: int | None = None
+
+
+class Client:
+    """A participant on a co-simulation's bus.
+
+    ``name`` is the node's name in the DBC (an estimator or a declared client); a participant that
+    has messages there publishes them and, if ``lockstep``, closes every tick with a heartbeat.
+    ``bus`` is an open python-can bus; the client does not close it unless it opened it itself.
+    """
+
+    def __init__(
+        self, name: str | None, codec: Codec, bus: can.BusABC, *, lockstep: bool = True,
+        sample_time: float | None = None, owns_bus: bool = False, upstream: dict[str, int] | None = None,
+    ) -> None:
+        self.name = name
+        self.codec = codec
+        self.bus = bus
+        self.declared = name is not None and name in codec.node_ids
+        self.lockstep = lockstep and self.declared
+        self.messages = codec.data_messages(name) if self.declared else []
+        if upstream is None and CONTROLLER in codec.node_ids and name != CONTROLLER:
+            upstream = {CONTROLLER: 0}  # closed loop: the commands of tick k come from the controller node
+        self.assembler = TickAssembler(codec, sample_time, upstream)
+        self.stopped = False
+        self._owns_bus = owns_bus
+        self._published = 0
+        self._joined = False
+        # Only these frames concern a participant; telling them by id spares decoding the rest
+        # (other nodes' frames, and our own frames that come back on udp_multicast).
+        self._wanted = {
+            s.frame_id for s in codec.specs.values() if s.role in (SYNC, NMT, SENSOR, COMMAND) or s.sender in self.assembler.upstream
+        }
+
+    # -- life cycle -----------------------------------------------------------------------------
+
+    @classmethod
+    def attach(cls, name: str | None = None, run: str | None = None, *, lockstep: bool = True) -> Client:
+        """Join the running co-simulation (the only one, or the one whose id starts with ``run``)."""
+        info = registry.find(run)
+        codec = Codec.from_dbc(info["dbc"])
+        bus = open_bus(BusConfig.from_dict(info["bus"]))
+        client = cls(name, codec, bus, lockstep=lockstep, sample_time=info["sample_time"], owns_bus=True)
+        client.join()
+        return client
+
+    def join(self) -> None:
+        """Announce this node (its boot-up heartbeat); the runner waits for it before tick 0."""
+        if self.declared and not self._joined:
+            self.bus.send(self.codec.heartbeat(self.name, BOOTUP))
+            self._joined = True
+
+    def close(self) -> None:
+        """Leave the bus (a stopped heartbeat, then the bus is closed if the client opened it)."""
+        if self.declared and self._joined and not self.stopped:
+            self.bus.send(self.codec.heartbeat(self.name, STOPPED))
+        self.stopped = True
+        if self._owns_bus:
+            self.bus.shutdown()
+            self._owns_bus = False
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- receiving ------------------------------------------------------------------------------
+
+    def feed(self, frame: can.Message) -> list[TickFrames]:
+        """Take one frame from the bus; returns the ticks it completes."""
+        if frame.is_extended_id or frame.arbitration_id not in self._wanted:
+            return []
+        try:
+            decoded = self.codec.decode(frame)
+        except CodecError:
+            return []  # not decodable: someone else's frame with a clashing id
+        if decoded is None or decoded.spec.sender == self.name:  # unknown id, or our own frame back
+            return []
+        if decoded.spec.role == NMT:
+            node = int(decoded.values["node"])
+            if decoded.values["command"] == NMT_STOP and (node == 0 or node == self.codec.node_ids.get(self.name)):
+                self.stopped = True
+            return []
+        return self.assembler.push(decoded)
+
+    def ticks(self, timeout: float | None = None) -> Iterator[TickFrames]:
+        """Tick after tick until the run stops (NMT stop); each tick closes when the loop body
+        returns. ``timeout``: give up after that many seconds without a tick."""
+        last = time.monotonic()
+        while not self.stopped:
+            frame = self.bus.recv(0.2)
+            if frame is None:
+                if timeout is not None and time.monotonic() - last > timeout:
+                    raise CosimError(f"no tick for {timeout:g} s: is the co-simulation still running?")
+                continue
+            for tick in self.feed(frame):
+                last = time.monotonic()
+                yield tick
+                self.done(tick)
+
+    def frames(self, timeout: float | None = None) -> Iterator[Decoded]:
+        """Every decoded frame on the bus (for monitors), until the run stops."""
+        last = time.monotonic()
+        while not self.stopped:
+            frame = self.bus.recv(0.2)
+            if frame is None:
+                if timeout is not None and time.monotonic() - last > timeout:
+                    return
+                continue
+            last = time.monotonic()
+            try:
+                decoded = self.codec.decode(frame)
+            except CodecError:
+                continue
+            if decoded is None:
+                continue
+            if decoded.spec.role == NMT and decoded.values["command"] == NMT_STOP and decoded.values["node"] == 0:
+                self.stopped = True
+            yield decoded
+
+    # -- sending --------------------------------------------------------------------------------
+
+    def publish(self, tick: TickFrames | int, values: Mapping[str, float]) -> None:
+        """Send this node's messages for a tick, with ``values`` by signal name (all of them)."""
+        if not self.declared:
+            raise CosimError(f"{self.name!r} has no messages in this run's DBC; declare it in the scenario's [[clients]]")
+        k = tick.tick if isinstance(tick, TickFrames) else tick
+        for spec in self.messages:
+            missing = [s for s in spec.signals if s not in values]
+            if missing:
+                raise CosimError(f"publish: no value for {', '.join(missing)} (message {spec.name})")
+            self.bus.send(self.codec.encode(spec.name, k, [values[s] for s in spec.signals]))
+            self._published += 1
+
+    def done(self, tick: TickFrames | int) -> None:
+        """Close a tick: the heartbeat that tells the runner this node has answered it."""
+        if self.lockstep:
+            k = tick.tick if isinstance(tick, TickFrames) else tick
+            self.bus.send(self.codec.heartbeat(self.name, OPERATIONAL, k, self._published, self.assembler.lost))
+        self._published = 0
+
