@@ -29,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from cosim import scenario  # noqa: E402
 from cosim.bus.codec import signal_bits  # noqa: E402
-from cosim.log.mcapfile import McapLog, dumps  # noqa: E402
+from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
-from cosim.run.runner import Run  # noqa: E402
+from cosim.run import Run  # noqa: E402
 
 
 def best_of(repeat: int, fn) -> float:
@@ -93,8 +93,8 @@ def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
 
         def ours() -> None:
             with McapLog(path) as log:
-                recorder = RunRecorder(log, codec, states=run.plant.state_names, sensors=s.sensors,
-                                       actuators=s.actuators, units=run.units)
+                recorder = RunRecorder(log, codec, states=run.plan.state_names, sensors=s.sensors,
+                                       actuators=s.actuators, units=run.plan.units)
                 for i, (frame, d) in enumerate(zip(frames, decoded)):
                     recorder.frame(i, i * 0.01, i * 10_000_000, frame, d)
 

@@ -31,7 +31,7 @@ import can  # noqa: E402
 
 from cosim import scenario  # noqa: E402
 from cosim.bus.transport import BusConfig, allocate, open_bus  # noqa: E402
-from cosim.run.runner import Run  # noqa: E402
+from cosim.run import Run  # noqa: E402
 
 ACK_ID = 0x7FF
 

@@ -5,7 +5,7 @@ in-process bus (every record of it: frames, decoded messages, truth, events, met
 attachments). Every rate is in frames of that log (``/can/frames`` records) per second of wall
 time, the best of ``--repeat`` timings, and each ratio is ours / bare, measured in the same run:
 
-- ``write_ratio``: ``cosim.log.mcapfile.McapLog`` writing every record of the log (JSON serialization
+- ``write_ratio``: ``cosim.log.writer.McapLog`` writing every record of the log (JSON serialization
   included) / the bare ``mcap`` ``Writer`` with the same chunk size, zstd compression and indexes,
   serializing the same payloads with the same ``orjson`` call;
 - ``inspect_ratio``: ``cosim inspect`` (``cosim.analysis.summary.summarize``) on the log / the bare ``mcap``
@@ -35,9 +35,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from cosim import __version__, scenario  # noqa: E402
 from cosim.analysis.export import FORMATS, export  # noqa: E402
 from cosim.analysis.summary import summarize  # noqa: E402
-from cosim.log.mcapfile import LogReader, McapLog, dumps  # noqa: E402
+from cosim.log.reader import LogReader  # noqa: E402
+from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.log.recorder import FRAMES  # noqa: E402
-from cosim.run.runner import Run  # noqa: E402
+from cosim.run import Run  # noqa: E402
 
 CHUNK_SIZE = 512 * 1024  # McapLog's default
 

@@ -36,7 +36,7 @@ def _console(stderr: bool = False) -> Console:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from cosim import scenario
-    from cosim.run.runner import Run
+    from cosim.run import Run
 
     loaded = scenario.load(args.scenario)
     seed = loaded.scenario.seed if args.seed is None else args.seed

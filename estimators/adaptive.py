@@ -28,7 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError, initial_state
+from estimators.base import (
+    Diagnostic,
+    DiagnosticKind,
+    Estimate,
+    Estimator,
+    ParameterError,
+    initial_state,
+)
 from estimators.design import (
     AssumptionError,
     assumption2_factorization,
@@ -180,16 +187,17 @@ def scale_and_filter(phi_hat: np.ndarray, filtered: np.ndarray, tau: float, eps_
 # -- estimators ---------------------------------------------------------------------------------
 
 
-def _vector_diagnostics(prefix: str, names: tuple[str, ...], what: str, unit: str, bound: float, resolution: float) -> list[Diagnostic]:
-    return [Diagnostic(f"{prefix}_{name}", unit, f"{what} ({name})", bound, resolution) for name in names]
+def _vector_diagnostics(prefix: str, names: tuple[str, ...], what: str, kind: DiagnosticKind, bound: float,
+                        resolution: float) -> list[Diagnostic]:
+    return [Diagnostic(f"{prefix}_{name}", "", f"{what} ({name})", bound, resolution, kind, name) for name in names]
 
 
 def _phihat(outputs: tuple[str, ...]) -> list[Diagnostic]:
-    return _vector_diagnostics("phihat", outputs, "estimated bias φ̂, eq. (7c)", "", 1e6, 1e-6)
+    return _vector_diagnostics("phihat", outputs, "estimated bias φ̂, eq. (7c)", DiagnosticKind.BIAS_ESTIMATE, 1e6, 1e-6)
 
 
 def _injection(states: tuple[str, ...]) -> list[Diagnostic]:
-    return _vector_diagnostics("inj", states, "output injection added to x̂⁺", "", 1e6, 1e-6)
+    return _vector_diagnostics("inj", states, "output injection added to x̂⁺", DiagnosticKind.INJECTION, 1e6, 1e-6)
 
 
 def _gain(model: LinearModel, H: np.ndarray, poles: tuple[float, ...], name: str) -> np.ndarray:
@@ -279,9 +287,9 @@ class AdaptivePseudoinverseObserver(Estimator):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
             *_phihat(outputs),
-            *_vector_diagnostics("z", outputs, "optimizer state z, eq. (16)", "", 1.0, 1e-6),
-            *_vector_diagnostics("s", outputs, "selector state s, eq. (17)", "", 1.0, 1e-6),
-            Diagnostic("h", "", "selector logic h: 1 while z is refused, eq. (52)", 1.0, 1.0),
+            *_vector_diagnostics("z", outputs, "optimizer state z, eq. (16)", DiagnosticKind.OPTIMIZER, 1.0, 1e-6),
+            *_vector_diagnostics("s", outputs, "selector state s, eq. (17)", DiagnosticKind.SELECTOR, 1.0, 1e-6),
+            Diagnostic("h", "", "selector logic h: 1 while z is refused, eq. (52)", 1.0, 1.0, DiagnosticKind.LOGIC),
             *_injection(states),
         ]
 

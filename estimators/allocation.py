@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
-from estimators.base import Diagnostic, ParameterError
+from estimators.base import Diagnostic, DiagnosticKind, ParameterError
 from estimators.controller import Command, Controller, register
 from estimators.model import LinearModel
 
@@ -393,7 +393,11 @@ class ThrustAllocationController(Controller):
                 "a_psi": "heading PID output a_ψ", "heading_error": "ψ − ψ_ref", "tau_error": "|G u − τ_c| (unmet effect)",
                 "cluster": "1 while the cluster constraints (24) hold", "reconfigured": "1 once the allocation left thrusters out (5)",
                 "active_mask": "thrusters left out of the allocation (bit j: T(j+1))"}
-        return [Diagnostic(name, units[name][0], text[name], units[name][1], units[name][2]) for name in VesselController.diagnostic_names()]
+        kinds = {"heading_error": DiagnosticKind.CONTROL_ERROR, "tau_error": DiagnosticKind.CONTROL_ERROR,
+                 "cluster": DiagnosticKind.CONSTRAINT, "reconfigured": DiagnosticKind.RECONFIGURATION,
+                 "active_mask": DiagnosticKind.FAULT_MASK}
+        return [Diagnostic(name, units[name][0], text[name], units[name][1], units[name][2], kinds.get(name, DiagnosticKind.EFFORT))
+                for name in VesselController.diagnostic_names()]
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get("fault_mask", 0)))

@@ -37,7 +37,13 @@ import scipy.integrate
 import scipy.linalg
 
 from estimators.allocation import AllocationError, cluster_matrix, input_groups, whole
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.base import (
+    Diagnostic,
+    DiagnosticKind,
+    Estimate,
+    Estimator,
+    ParameterError,
+)
 from estimators.design import AssumptionError
 from estimators.model import LinearModel
 from estimators.uio import UIODesign, discretize
@@ -393,12 +399,12 @@ class COFDDiagnosis(Estimator):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         pairs = [(h, i) for h in range(1, MAX_OBSERVERS + 1) for i in range(1, MAX_COMPONENTS + 1)]
         return [
-            *(Diagnostic(f"r{h}_{i}", "", f"residual r^({h}) = C e^({h}) along e_{i} (Sec. 3.2)", 1e9, 1e-3) for h, i in pairs),
-            *(Diagnostic(f"thr{h}_{i}", "", f"threshold of r{h}_{i}: margin × its bound under |b| ≤ ε", 1e9, 1e-3) for h, i in pairs),
-            Diagnostic("alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0),
-            *(Diagnostic(f"isolated_T{j}", "", f"1 once thruster T{j} is isolated as faulty (latched)", 1.0, 1.0) for j in range(1, MAX_GROUPS + 1)),
-            Diagnostic("fault_mask", "", "isolated thrusters, bit j − 1 for Tj (latched)", 2.0**MAX_GROUPS, 1.0),
-            Diagnostic("constraints_met", "", "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)", 1.0, 1.0),
+            *(Diagnostic(f"r{h}_{i}", "", f"residual r^({h}) = C e^({h}) along e_{i} (Sec. 3.2)", 1e9, 1e-3, DiagnosticKind.RESIDUAL, f"observer {h}") for h, i in pairs),
+            *(Diagnostic(f"thr{h}_{i}", "", f"threshold of r{h}_{i}: margin × its bound under |b| ≤ ε", 1e9, 1e-3, DiagnosticKind.THRESHOLD, f"r{h}_{i}") for h, i in pairs),
+            Diagnostic("alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0, DiagnosticKind.ALARM),
+            *(Diagnostic(f"isolated_T{j}", "", f"1 once thruster T{j} is isolated as faulty (latched)", 1.0, 1.0, DiagnosticKind.ISOLATION, f"T{j}") for j in range(1, MAX_GROUPS + 1)),
+            Diagnostic("fault_mask", "", "isolated thrusters, bit j − 1 for Tj (latched)", 2.0**MAX_GROUPS, 1.0, DiagnosticKind.FAULT_MASK),
+            Diagnostic("constraints_met", "", "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)", 1.0, 1.0, DiagnosticKind.CONSTRAINT),
         ]
 
     def _constraints_met(self, u: np.ndarray) -> bool:
@@ -407,6 +413,10 @@ class COFDDiagnosis(Estimator):
             return True
         projection = self.N @ np.linalg.lstsq(self.N, u, rcond=None)[0]
         return bool(np.abs(u - projection).max() <= 1e-3 * max(np.abs(u).max(), 1e-9))
+
+    def isolation_targets(self) -> dict[str, list[str]]:
+        """isolated_T<j> names the inputs of thruster j (the columns of B in its group)."""
+        return {f"isolated_T{j + 1}": [self.model.inputs[c] for c in group] for j, group in enumerate(self.groups)}
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         model = self.model

@@ -21,7 +21,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError, initial_state
+from estimators.base import (
+    Diagnostic,
+    DiagnosticKind,
+    Estimate,
+    Estimator,
+    ParameterError,
+    initial_state,
+)
 from estimators.design import AssumptionError, check_assumption1, output_factorization
 from estimators.model import LinearModel
 
@@ -142,8 +149,8 @@ class ContinuousAdaptiveObserver(Estimator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *(Diagnostic(f"gamma_{o}", "", f"pseudo-inverse weight Γ ({o}), eq. (7)", 1e3, 1e-6) for o in outputs),
-            *(Diagnostic(f"inj_{s}", "", f"injected term L (Z_Γ y − H x̂) ({s}), eq. (6)", 1e6, 1e-6) for s in states),
+            *(Diagnostic(f"gamma_{o}", "", f"pseudo-inverse weight Γ ({o}), eq. (7)", 1e3, 1e-6, DiagnosticKind.WEIGHT, o) for o in outputs),
+            *(Diagnostic(f"inj_{s}", "", f"injected term L (Z_Γ y − H x̂) ({s}), eq. (6)", 1e6, 1e-6, DiagnosticKind.INJECTION, s) for s in states),
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import Configurable, Diagnostic, ParameterError
+from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError
 from estimators.model import LinearModel
 
 
@@ -118,7 +118,7 @@ class PidController(Controller):
 
     @classmethod
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [Diagnostic(f"e_{name}", "", f"control error r - y of the loop on {name}", 1e6, 1e-6) for name in outputs]
+        return [Diagnostic(f"e_{name}", "", f"control error r - y of the loop on {name}", 1e6, 1e-6, DiagnosticKind.CONTROL_ERROR, name) for name in outputs]
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         y = np.asarray(y, dtype=float)[self._y]

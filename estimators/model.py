@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -69,4 +70,24 @@ class LinearModel:
         return LinearModel(
             self.A, self.B, self.C[rows], self.D[rows], self.dt, self.states, self.inputs, tuple(names),
             self.x_op, self.u_op, self.y_op[rows], self.E, self.disturbances,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The model as plain JSON-able values (node specs, log metadata, the design cache)."""
+        return {
+            "A": self.A.tolist(), "B": self.B.tolist(), "C": self.C.tolist(), "D": self.D.tolist(), "dt": self.dt,
+            "states": list(self.states), "inputs": list(self.inputs), "outputs": list(self.outputs),
+            "x_op": self.x_op.tolist(), "u_op": self.u_op.tolist(), "y_op": self.y_op.tolist(),
+            "E": self.E.tolist(), "disturbances": list(self.disturbances),
+        }
+
+    @classmethod
+    def from_dict(cls, m: dict[str, Any]) -> LinearModel:
+        """The model ``to_dict`` wrote (E and the disturbances may be absent: none)."""
+        disturbances = tuple(m.get("disturbances", ()))
+        E = np.array(m["E"]).reshape(len(m["states"]), len(disturbances)) if "E" in m else None
+        return cls(
+            np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
+            tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
+            E, disturbances,
         )

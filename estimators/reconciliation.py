@@ -33,7 +33,13 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.optimize
 
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.base import (
+    Diagnostic,
+    DiagnosticKind,
+    Estimate,
+    Estimator,
+    ParameterError,
+)
 from estimators.lmi import (
     DesignError,
     LftDesign,
@@ -233,7 +239,7 @@ class _Reconciliator(Estimator):
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [Diagnostic("zhat", "", "virtual output estimate ẑ (eq. (6))", 1e4, 1e-4)]
+        return [Diagnostic("zhat", "", "virtual output estimate ẑ (eq. (6))", 1e4, 1e-4, DiagnosticKind.VIRTUAL_OUTPUT)]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         # Gain faults act on the readings as transmitted: work on y and u themselves.
@@ -393,11 +399,11 @@ class UioReconciliator(_Reconciliator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *[Diagnostic(f"gamma_{name}", "", f"estimated effectiveness γ̂ of sensor {name} (eq. (53))", 2.0, 1e-6) for name in outputs],
-            Diagnostic("bhat", "", "estimated sensor bias b̂ (augmented state, eq. (7))", 1e4, 1e-4),
+            *[Diagnostic(f"gamma_{name}", "", f"estimated effectiveness γ̂ of sensor {name} (eq. (53))", 2.0, 1e-6, DiagnosticKind.GAIN_ESTIMATE, name) for name in outputs],
+            Diagnostic("bhat", "", "estimated sensor bias b̂ (augmented state, eq. (7))", 1e4, 1e-4, DiagnosticKind.BIAS),
             *super().diagnostic_channels(states, outputs),
-            Diagnostic("pe", "", "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); 0: not met)", 2.0, 1e-9),
-            Diagnostic("fit", "", "relative residual of the window's equations for γ̂ ((53), or the model window)", 1e3, 1e-6),
+            Diagnostic("pe", "", "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); 0: not met)", 2.0, 1e-9, DiagnosticKind.EXCITATION),
+            Diagnostic("fit", "", "relative residual of the window's equations for γ̂ ((53), or the model window)", 1e3, 1e-6, DiagnosticKind.FIT),
         ]
 
 

@@ -58,6 +58,7 @@ import scipy.linalg
 
 from estimators.base import (
     Diagnostic,
+    DiagnosticKind,
     Estimate,
     Estimator,
     ParameterError,
@@ -282,9 +283,9 @@ class UnknownInputObserver(Estimator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *(Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6) for o in outputs),
-            Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6),
-            Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0),
+            *(Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL, o) for o in outputs),
+            Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL_NORM),
+            Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0, DiagnosticKind.ALARM),
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:

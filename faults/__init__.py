@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from faults.models import (
-    SENSOR_FAULTS,
+    FAULT_MODELS,
     ActuatorEffectiveness,
     ActuatorFault,
     ActuatorOffset,
@@ -108,7 +108,7 @@ class FaultInjector:
 
 
 __all__ = [
-    "SENSOR_FAULTS",
+    "FAULT_MODELS",
     "ActuatorEffectiveness",
     "ActuatorFault",
     "ActuatorOffset",

@@ -18,10 +18,15 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from faults.waveforms import Constant, Waveform
+
+
+#: Every fault model by kind: a model class registers itself when it is defined with a ``kind``.
+FAULT_MODELS: dict[str, type[Fault]] = {}
 
 
 @dataclass
@@ -35,6 +40,11 @@ class Fault(ABC):
     _rng: np.random.Generator = field(default=None, init=False, repr=False, compare=False)  # type: ignore[assignment]
 
     kind = "fault"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "kind" in cls.__dict__:  # a concrete model: registered under its kind
+            FAULT_MODELS[cls.kind] = cls
 
     def reset(self, rng: np.random.Generator) -> None:
         """Prepare for a new run with this fault's own random generator."""
@@ -256,8 +266,3 @@ class ActuatorOffset(ActuatorFault):
         if self.active(t):
             offset[list(self.channels)] = self.amplitude(t - self.start) * self._value
         return offset
-
-
-SENSOR_FAULTS: dict[str, type[SensorFault]] = {
-    cls.kind: cls for cls in (Bias, Drift, Gain, GaussianNoise, UniformNoise, StuckAt, Dropout, Outliers)
-}

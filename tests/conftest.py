@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from cosim import scenario
-from cosim.run.runner import run
+from cosim.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
 

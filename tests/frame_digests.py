@@ -22,7 +22,7 @@ ROLES = ("SENSOR_", "EST_", "COMMAND_")
 
 def log_digest(path: str | Path) -> tuple[str, int]:
     """The digest of a log's participant frames and how many there are."""
-    from cosim.log.mcapfile import LogReader
+    from cosim.log.reader import LogReader
 
     sha, count = hashlib.sha256(), 0
     with LogReader(path) as reader:
@@ -36,7 +36,7 @@ def log_digest(path: str | Path) -> tuple[str, int]:
 def run_digest(name: str, interface: str = "virtual") -> tuple[str, int]:
     """Run a built-in scenario at seed 0 and digest its log."""
     from cosim import scenario
-    from cosim.run.runner import run
+    from cosim.run import run
 
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / f"{name}.mcap"

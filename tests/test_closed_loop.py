@@ -10,12 +10,12 @@ import pytest
 from cosim import scenario
 from cosim.bus.client import TickAssembler
 from cosim.bus.codec import CONTROLLER, OPERATIONAL, Codec
+from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
-from cosim.log.mcapfile import LogReader
-from cosim.run.runner import run
+from cosim.log.reader import LogReader
+from cosim.run import run
 from estimators import LinearModel, ParameterError
 from estimators.controller import PidController, create
-from mjcf import Channel
 
 PID_SCENARIO = """
 name = "masses-pid"

@@ -7,8 +7,8 @@ import pytest
 
 import mjcf
 from cosim.bus.codec import SYNC_ID, Codec, load_dbc, signal_bits
+from cosim.bus.signals import Channel
 from cosim.errors import CodecError
-from mjcf import Channel
 
 INFO = mjcf.get("masses")
 SENSORS = INFO.sensors[:3]

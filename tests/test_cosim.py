@@ -17,13 +17,12 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-
 from cosim.bus import registry
-from cosim.bus.transport import allocate
 from cosim.bus.codec import load_dbc
+from cosim.bus.transport import allocate
 from cosim.errors import CosimError
-from cosim.log.mcapfile import LogReader
-from cosim.run.runner import Run, run
+from cosim.log.reader import LogReader
+from cosim.run import Run, run
 from tests.conftest import ROOT, short_scenario
 
 

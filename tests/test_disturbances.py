@@ -8,9 +8,9 @@ from scipy.linalg import expm
 
 from cosim import scenario
 from cosim.errors import ScenarioError
-from cosim.log.mcapfile import LogReader
-from cosim.run.runner import run
+from cosim.log.reader import LogReader
 from cosim.plant.statespace import StateSpacePlant
+from cosim.run import run
 
 PLANT = """
 name = "dist"

@@ -14,14 +14,15 @@ import numpy as np
 import pytest
 
 from cosim.analysis import export as exporting
-from cosim.cli import main
-from cosim.bus.codec import Codec
-from cosim.errors import CosimError
 from cosim.analysis.export import export, table_columns
-from cosim.log.mcapfile import LogReader, McapLog
 from cosim.analysis.metrics import compute_metrics
+from cosim.bus.codec import Codec
+from cosim.cli import main
+from cosim.errors import CosimError
+from cosim.log.reader import LogReader
 from cosim.log.recorder import FRAMES, RunRecorder
-from cosim.run.runner import Run
+from cosim.log.writer import McapLog
+from cosim.run import Run
 from cosim.scenario import LoadedScenario, builtin_names, load
 
 FORMATS = ("csv", "parquet", "blf", "mf4", "candump")

@@ -204,8 +204,7 @@ inputs = ["ua", "ub"]
 
 
 def test_actuator_offset_in_a_scenario():
-    from cosim.run.runner import build_faults
-    from cosim.scenario import parse
+    from cosim.scenario import build_faults, parse
 
     s = parse(SCENARIO + '[[faults]]\nname = "stuck_on"\nkind = "actuator_offset"\nactuators = ["ub"]\nvalue = 0.3\nstart = 0.5\n'
                          'amplitude = { kind = "constant", value = 2.0 }\n')

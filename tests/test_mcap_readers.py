@@ -25,7 +25,7 @@ import pytest
 from mcap.reader import make_reader
 
 import cosim
-from cosim.run.runner import Run
+from cosim.run import Run
 from cosim.scenario import LoadedScenario, load
 from tests.conftest import ROOT
 

@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from cosim import scenario
+from cosim.analysis.metrics import BAND_FACTOR, compute_metrics
 from cosim.bus.timing import (
     TAIL_BITS,
     crc15,
@@ -23,10 +24,10 @@ from cosim.bus.timing import (
     stuff_bits,
 )
 from cosim.errors import LogError
-from cosim.log.mcapfile import LogReader, McapLog, object_schema
-from cosim.analysis.metrics import BAND_FACTOR, compute_metrics, isolation_targets
+from cosim.log.reader import LogReader
 from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE
-from cosim.run.runner import run
+from cosim.log.writer import McapLog, object_schema
+from cosim.run import run
 from estimators import ParameterError, create
 from estimators.model import LinearModel
 
@@ -160,17 +161,18 @@ def write_hand_log(path, *, order_estimates_first: bool = True) -> None:
     estimators = {
         "uniform": {"kind": "pseudoinverse", "messages": ["EST_uniform"], "params": {"poles": [0.5, 0.6]}},
         "good": {"kind": "adaptive", "messages": ["EST_good"], "params": {}},
-        "fdi": {"kind": "cofd", "messages": ["EST_fdi", "EST_fdi_1"],
-                "params": {"groups": [[1, 2], [3]], "isolation_targets": {"y1": ["y1"]}}},
-        "silent": {"kind": "uio", "messages": ["EST_silent"], "params": {}},
+        "fdi": {"kind": "cofd", "messages": ["EST_fdi", "EST_fdi_1"], "params": {},
+                "diagnostics": {"alarm": {"kind": "alarm"}, **{f"isolated_{f}": {"kind": "isolation", "target": f} for f in ("T1", "T2", "y1")}},
+                "isolates": {"isolated_T1": ["T1x", "T1y"], "isolated_T2": ["T2x"], "isolated_y1": ["y1"]}},
+        "silent": {"kind": "uio", "messages": ["EST_silent"], "params": {}, "diagnostics": {"alarm": {"kind": "alarm"}}},
     }
     with McapLog(path) as log:
         log.metadata("cosim.run", {
             "scenario": "hand", "source": "test", "seed": "7", "sample_time": repr(DT), "ticks": str(N),
             "states": json.dumps(["x1", "x2"]), "sensors": json.dumps(SENSORS), "actuators": json.dumps(ACTUATORS),
             "estimators": json.dumps(estimators), "fault_onset": json.dumps(4.0), "fault_onset_tick": json.dumps(40),
-            "faults": json.dumps([{"label": "f1", "kind": "bias", "start": 4.0, "end": 6.0},
-                                  {"label": "f2", "kind": "actuator_effectiveness", "start": 7.0, "end": None}]),
+            "faults": json.dumps([{"label": "f1", "kind": "bias", "start": 4.0, "end": 6.0, "targets": ["y1"]},
+                                  {"label": "f2", "kind": "actuator_effectiveness", "start": 7.0, "end": None, "targets": ["T1x"]}]),
             "bus": json.dumps({"interface": "virtual", "fd": True, "bitrate": 500000, "data_bitrate": 2000000}),
         })
         log.metadata("cosim.scenario", {"source": "test", "toml": "", "resolved": json.dumps({"faults": [
@@ -293,11 +295,16 @@ def test_the_order_of_messages_within_a_tick_does_not_matter(tmp_path, hand):
     assert {k: v for k, v in shuffled.items() if k != "file"} == {k: v for k, v in hand.items() if k != "file"}
 
 
-def test_isolation_targets_precedence():
-    flags = ["T1", "T2", "T3", "y1", "pump"]
-    mapping = isolation_targets(flags, {"groups": [[1, 2], [3]], "isolation_targets": {"T2": ["T1y"]}}, SENSORS, ACTUATORS)
-    assert mapping == {"T1": ["T1x", "T1y"], "T2": ["T1y"], "T3": [], "y1": ["y1"], "pump": []}
-    assert isolation_targets(["T1x"], {}, SENSORS, ACTUATORS) == {"T1x": ["T1x"]}
+def test_isolation_flags_name_what_the_estimator_declares():
+    """The flags' targets come from the estimator (its diagnostics' kinds and isolation_targets), not
+    from their names: the cofd kind's isolated_T<j> names the inputs of thruster j."""
+    from tests.linear_vessel import model
+
+    cofd = create("cofd", model(), {}, 0.1)
+    targets = cofd.isolation_targets()
+    assert targets["isolated_T1"] == ["T1x", "T1y"] and targets["isolated_T4"] == ["T4"]
+    assert create("uio", LinearModel(-np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)), None, ("a", "b"), ("u", "v"),
+                                     ("y1", "y2")), {"poles": [-1.0, -2.0], "E": [[1.0], [0.0]]}, 0.1).isolation_targets() == {}
 
 
 # -- the UIO's alarm ----------------------------------------------------------------------------

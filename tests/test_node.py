@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 import mjcf
-from cosim.bus.transport import BusConfig
 from cosim.bus.client import Client, TickAssembler
 from cosim.bus.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
+from cosim.bus.signals import Channel
+from cosim.bus.transport import BusConfig
 from cosim.errors import CosimError
-from cosim.run.node import EstimatorNode, NodeSpec, model_from_dict, model_to_dict
 from cosim.plant.physics import Plant
+from cosim.run.node import EstimatorNode, NodeSpec
 from estimators import LinearModel
-from mjcf import Channel
 
 INFO = mjcf.get("masses")
 SENSORS = ("x1", "x2", "x1_minus_x2")
@@ -161,7 +161,7 @@ def test_a_model_computes_the_same_bits_in_a_node_as_in_the_runner():
     A, B = np.asfortranarray(rng.normal(size=(3, 3))), np.asfortranarray(rng.normal(size=(3, 2)))
     model = LinearModel(A, B, np.eye(3), np.zeros((3, 2)), 1.0, ("a", "b", "c"), ("u", "v"), ("y1", "y2", "y3"))
     assert model.A.flags["C_CONTIGUOUS"] and model.B.flags["C_CONTIGUOUS"]
-    shipped = model_from_dict(json.loads(json.dumps(model_to_dict(model))))
+    shipped = LinearModel.from_dict(json.loads(json.dumps(model.to_dict())))
     for _ in range(100):
         u, x = rng.normal(size=2) * 40, rng.normal(size=3)
         assert (model.B @ u).tolist() == (shipped.B @ u).tolist() and (model.A @ x).tolist() == (shipped.A @ x).tolist()

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cosim.cli import main
-from cosim.run.runner import Run
+from cosim.run import Run
 from cosim.scenario import load
 
 

@@ -18,14 +18,14 @@ import pytest
 
 import estimators.reconciliation
 from cosim import scenario
+from cosim.analysis.summary import summarize
 from cosim.bus.transport import allocate, open_bus
 from cosim.cli import main
 from cosim.errors import CosimError
-from cosim.analysis.summary import summarize
-from cosim.log.mcapfile import LogReader
+from cosim.log.reader import LogReader
 from cosim.log.recorder import FRAMES
+from cosim.run import run
 from cosim.run.replay import TRUTH, Replay, parse_params
-from cosim.run.runner import run
 from cosim.scenario import LoadedScenario, Scenario
 
 #: (built-in scenario, duration [s], factor dividing every fault's start and end)

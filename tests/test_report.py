@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from cosim.analysis import report as report_module
 from cosim import scenario
-from cosim.cli import main
+from cosim.analysis import report as report_module
 from cosim.analysis.plot import plot
 from cosim.analysis.report import report
-from cosim.run.runner import run
+from cosim.cli import main
+from cosim.run import run
 from cosim.scenario import LoadedScenario
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -20,11 +20,11 @@ import pytest
 from mcap.reader import make_reader
 
 from cosim import scenario
-from cosim.cli import main
 from cosim.bus.codec import load_dbc
+from cosim.cli import main
 from cosim.errors import CodecError
-from cosim.log.mcapfile import LogReader
-from cosim.run.runner import Run, run
+from cosim.log.reader import LogReader
+from cosim.run import Run, run
 from tests.conftest import short_scenario
 
 PER_TICK = {"SYNC": 1, "SENSOR_x1": 1, "SENSOR_x2": 1, "SENSOR_x1_minus_x2": 1, "COMMAND_force": 1,

@@ -112,7 +112,7 @@ def test_cli_reports_a_bad_scenario_in_one_message_without_traceback(tmp_path):
 
 
 def test_estimator_parameter_errors_name_the_estimator(tmp_path):
-    from cosim.run.runner import Run
+    from cosim.run import Run
 
     bad = tmp_path / "bad.toml"
     bad.write_text(BASE + '[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { poles = [0.5] }\n')
@@ -121,7 +121,7 @@ def test_estimator_parameter_errors_name_the_estimator(tmp_path):
 
 
 def test_sample_time_that_is_not_a_multiple_of_the_timestep(tmp_path):
-    from cosim.run.runner import Run
+    from cosim.run import Run
 
     bad = tmp_path / "bad.toml"
     bad.write_text(BASE.replace("sample_time = 0.01", "sample_time = 0.0105").replace("duration = 1.0", "duration = 1.05"))
@@ -173,7 +173,8 @@ def test_a_negative_seed_override_is_refused():
 
 def test_fault_onset_is_the_first_tick_at_or_after_start_even_when_kτ_rounds_below():
     """0.33 / 0.03 = 10.999… in floating point: the fault must still start at tick 11 (t = 0.33 s)."""
-    from cosim.run.runner import build_faults, first_tick_at
+    from cosim.run.plan import first_tick_at
+    from cosim.scenario import build_faults
 
     s = scenario.parse(BASE.replace("sample_time = 0.01", "sample_time = 0.03").replace("duration = 1.0", "duration = 0.6")
                        + '[[faults]]\nkind = "bias"\nvalue = 1\nstart = 0.33\n')

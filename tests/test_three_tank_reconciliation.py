@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.log.mcapfile import LogReader
 from cosim.analysis.plot import load
-from cosim.run.runner import run
+from cosim.log.reader import LogReader
+from cosim.run import run
 
 HZ = np.array([1 / 3, 1 / 3, 0.0, 1 / 3])
 

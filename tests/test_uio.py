@@ -9,10 +9,10 @@ import pytest
 
 import estimators
 from cosim import scenario
-from cosim.run.node import model_from_dict
 from cosim.analysis.plot import load as load_series
-from cosim.run.runner import run
+from cosim.run import run
 from estimators import LinearModel, ParameterError
+from estimators.base import DiagnosticKind
 from estimators.design import zoh_discretize
 from estimators.uio import UIOConditionError, uio_design, uio_gains
 
@@ -249,7 +249,7 @@ def log(tmp_path_factory):
 def test_uio_fault_detection_end_to_end(log):
     """The scenario's description: sensor fault +0.5 on y2 in [10, 20) s, actuator fault +2 on u1
     from 30 s, d = sine + square wave all along. Threshold on |r|: 0.05."""
-    _, r = log.diagnostic("uio", "r")
+    _, r = log.diagnostic("uio", DiagnosticKind.RESIDUAL)
     ks = np.array(sorted(k for k in log.estimators["uio"].values if "r_y1" in log.estimators["uio"].values[k]))
     t = ks * log.sample_time
     norm = np.linalg.norm(r, axis=1)
@@ -271,7 +271,7 @@ def test_uio_fault_detection_end_to_end(log):
     crossing = t[(t >= 30.0) & (norm > 0.05)][0] - 30.0
     assert 0.0 < crossing < 0.5
     e = log.estimators["uio"]
-    estimator = estimators.create(e.kind, model_from_dict(e.model), e.params, log.sample_time)
+    estimator = estimators.create(e.kind, LinearModel.from_dict(e.model), e.params, log.sample_time)
     d = estimator.design
     expected = -C @ np.linalg.solve(d.F, d.T @ B @ np.array([2.0, 0.0]))
     np.testing.assert_allclose(r[-1], expected, atol=1e-3)

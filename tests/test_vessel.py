@@ -11,7 +11,13 @@ from cosim.bus.codec import signal_bits
 from cosim.plant.physics import Plant
 from estimators.design import zoh_discretize
 from mjcf import _body_damping, vessel
-from mjcf.vessel import DISTURBANCE_BOUND, PAPER_D, PAPER_M, EnvironmentDisturbance, environment_disturbance
+from mjcf.vessel import (
+    DISTURBANCE_BOUND,
+    PAPER_D,
+    PAPER_M,
+    EnvironmentDisturbance,
+    environment_disturbance,
+)
 
 A_X, A_Y = PAPER_M[0, 0] - vessel.MASS, PAPER_M[1, 1] - vessel.MASS  # armature of the slides
 

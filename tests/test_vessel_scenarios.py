@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.log.mcapfile import LogReader
 from cosim.analysis.metrics import compute_metrics
 from cosim.analysis.plot import load, plot
-from cosim.run.runner import run
+from cosim.log.reader import LogReader
+from cosim.run import run
 from cosim.scenario import LoadedScenario
 
 SINGLE = [f"vessel-fault-T{j}" for j in range(1, 6)]

@@ -40,7 +40,8 @@ from typing import Any
 
 from cosim import __version__
 from cosim.errors import CosimError, LogError
-from cosim.log.mcapfile import LogReader
+from cosim.log.metadata import DBC_ATTACHMENT, RUN, LogMetadata
+from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
 
 #: Format → file suffix of its output.
@@ -49,7 +50,6 @@ TABLE_FORMATS = ("csv", "parquet")
 TRUTH_TOPICS = (STATE, SENSORS, INPUTS, FAULTS)
 #: Decoded topics that are bus control, not signals.
 CONTROL_MESSAGES = re.compile(r"^/can/(NMT|SYNC|HEARTBEAT_.*)$")
-DBC_ATTACHMENT = "cosim.dbc"
 CANDUMP_INTERFACE = "can0"
 #: Rows kept open for frames that arrive after their tick (realtime mode); later ones are left out.
 ROW_WINDOW = 256
@@ -57,7 +57,7 @@ PARQUET_BATCH_ROWS = 8192
 MF4_BATCH_FRAMES = 16384
 MF4_FRAGMENT_BYTES = 1 << 20  # asammdf's data blocks: what it holds in memory while saving
 
-_UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.mcapfile.number writes "<description> [<unit>]"
+_UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.writer.number writes "<description> [<unit>]"
 
 
 @dataclass
@@ -148,11 +148,11 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
     """Rows of the tidy table in tick order, one per tick, each a list aligned with ``columns``.
 
     Holds at most ROW_WINDOW open rows: memory does not grow with the length of the log."""
-    run = reader.metadata().get("cosim.run")
-    if run is None:
+    run = LogMetadata.read(reader.metadata()).run
+    if run is None or run.dt_ns is None:
         raise LogError(f"{reader.path}: no cosim.run metadata, so not a log of 'cosim run'; tidy tables need its ticks "
                        f"and truth (export its frames with --to blf, mf4 or candump)")
-    dt_ns = round(float(run["sample_time"]) * 1e9)
+    dt_ns = run.dt_ns
     fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
     for i, column in enumerate(columns):
         if column.topic:
@@ -226,7 +226,7 @@ def _write_parquet(path: Path, columns: list[Column], rows: Iterator[list[Any]],
     schema = pa.schema(
         [pa.field(c.name, types[c.kind], metadata={"unit": c.unit, "description": c.description, "source": _source(c)})
          for c in columns],
-        metadata={"cosim.run": json.dumps(reader.metadata().get("cosim.run", {})), "cosim.source_log": reader.path.name},
+        metadata={RUN: json.dumps(reader.metadata().get(RUN, {})), "cosim.source_log": reader.path.name},
     )
     count = 0
     with pq.ParquetWriter(path, schema, compression="zstd") as writer:

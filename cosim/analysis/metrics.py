@@ -23,15 +23,16 @@ only until the tick is complete (or ``WINDOW`` ticks old), then scored and dropp
 
 from __future__ import annotations
 
-import json
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
-from cosim.log.mcapfile import LogReader
+from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
+from cosim.log.reader import LogReader
 from cosim.log.recorder import (
     DEADLINE_MISSES,
     EVENTS,
@@ -39,15 +40,13 @@ from cosim.log.recorder import (
     FRAMES,
     STATE,
     carried_tick,
-    message_topic,
 )
+from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
 WINDOW = 1000
 #: The pre-fault band is this many times the largest settled pre-fault error.
 BAND_FACTOR = 2.0
-_ALARM, _ISOLATED = "alarm", "isolated_"
-_ACTUATOR_KINDS = ("actuator_effectiveness", "actuator_offset")
 
 
 def compute_metrics(path: str | Path) -> dict[str, Any]:
@@ -86,91 +85,40 @@ def compute_metrics(path: str | Path) -> dict[str, Any]:
 
 
 class _Run:
-    """The run's description from its metadata (``cosim.run``, ``cosim.result``), read defensively."""
+    """The run's description from its metadata records (``cosim.log.metadata``), read leniently."""
 
     def __init__(self, meta: dict[str, dict[str, str]]) -> None:
-        self.warnings: list[str] = []
+        records = LogMetadata.read(meta)
+        self.warnings: list[str] = list(records.warnings)
         self.missing: list[str] = []
-        self.raw = run = meta.get("cosim.run")
-        result = meta.get("cosim.result", {})
-        self.status = result.get("status", "incomplete")
-        self.frames_total = self._integer(result, "frames_total", "cosim.result")
-        self.frames_lost = self._integer(result, "frames_lost", "cosim.result")
-        self.deadline_misses = self._integer(result, "deadline_misses", "cosim.result")
-        senders = self._json(result, "senders", {}, "cosim.result")
-        self.lost_by_sender = {str(name): int(s.get("lost", 0)) + int(s.get("runner_frames_missed", 0))
-                               for name, s in senders.items() if isinstance(s, dict)} if isinstance(senders, dict) else {}
-        if run is None:
+        result = records.result
+        self.status = result.status if result else "incomplete"
+        self.frames_total = result.frames_total if result else None
+        self.frames_lost = result.frames_lost if result else None
+        self.deadline_misses = result.deadline_misses if result else None
+        self.lost_by_sender = {name: c.lost + c.runner_frames_missed for name, c in result.senders.items()} if result else {}
+        self.known = records.run is not None
+        if records.run is None:
             self.warnings.append("no cosim.run metadata: not a cosim log, or written by another program; "
                                  "estimator errors, fault and diagnosis metrics and the bus load are unavailable")
             self.missing.append("cosim.run metadata (sample time, states, estimators, faults, bus): without it only "
                                 "channels, message counts and the time span are reported")
-            run = {}
-        if "cosim.result" not in meta:
+        if result is None:
             self.missing.append("cosim.result metadata (status, frame counts): the run did not finish writing its log")
-        self.sample_time = self._number(run, "sample_time")
-        self.dt_ns = round(self.sample_time * 1e9) if self.sample_time else None
-        self.states: list[str] = self._json(run, "states", [])
-        self.sensors: list[str] = self._json(run, "sensors", [])
-        self.actuators: list[str] = self._json(run, "actuators", [])
-        self.estimators: dict[str, dict] = self._json(run, "estimators", {})
-        self.onset = self._json(run, "fault_onset", None)
-        self.onset_tick = self._json(run, "fault_onset_tick", None)
-        bus = self._json(run, "bus", {})
-        self.bus: dict[str, Any] = bus if isinstance(bus, dict) else {}
-        self.seed = self._integer(run, "seed")
-        targets = self._targets(meta.get("cosim.scenario", {}))
+        self.record = run = records.run or RunRecord()
+        self.sample_time, self.dt_ns = run.sample_time, run.dt_ns
+        self.states, self.sensors, self.actuators = run.states, run.sensors, run.actuators
+        self.estimators: dict[str, EstimatorRecord] = run.estimators
+        self.onset, self.onset_tick, self.bus, self.seed = run.fault_onset, run.fault_onset_tick, run.bus, run.seed
         self.faults: dict[str, dict[str, Any]] = {
-            f["label"]: {"kind": f.get("kind"), "targets": targets.get(f["label"], []), "start": f.get("start"), "end": f.get("end")}
-            for f in self._json(run, "faults", [])
-        }
-        if self.faults and not targets:
-            self.missing.append("the resolved scenario (cosim.scenario metadata): fault targets unknown, isolation is not scored")
+            f.label: {"kind": f.kind, "targets": list(f.targets or []), "start": f.start, "end": f.end} for f in run.faults}
+        if any(f.targets is None for f in run.faults):
+            self.missing.append("fault targets (cosim.run faults): isolation is not scored for the faults without them")
         self.baseline = next((name for name, e in self.estimators.items()
-                              if e.get("kind") == "pseudoinverse" and e.get("params", {}).get("weights") is None), None)
-
-    def _targets(self, scenario: dict[str, str]) -> dict[str, list[str]]:
-        """Fault label → the sensors or actuators it acts on, from the resolved scenario; labels as
-        ``Scenario.fault_labels`` gives them (the name, or kind and position), no names: all of them."""
-        resolved = self._json(scenario, "resolved", {}, "cosim.scenario")
-        targets = {}
-        for i, spec in enumerate(resolved.get("faults", []) if isinstance(resolved, dict) else []):
-            actuator = spec.get("kind") in _ACTUATOR_KINDS
-            names = spec.get("actuators" if actuator else "sensors")
-            targets[spec.get("name") or f"{spec.get('kind')}{i}"] = list(names) if names is not None else (self.actuators if actuator else self.sensors)
-        return targets
-
-    def _json(self, run: dict[str, str], key: str, default: Any, record: str = "cosim.run") -> Any:
-        """The JSON value of a metadata field; ``default`` (with a warning) if it does not parse or,
-        for a list or dict default, is not of that type."""
-        if key not in run:
-            return default
-        try:
-            value = json.loads(run[key])
-        except ValueError:
-            value = ValueError
-        if value is ValueError or (isinstance(default, (list, dict)) and not isinstance(value, type(default))):
-            self.warnings.append(f"{record} metadata field {key!r} is not valid JSON of the expected shape; ignored")
-            return default
-        return value
-
-    def _integer(self, record: dict[str, str], key: str, name: str = "cosim.run") -> int | None:
-        try:
-            return int(record[key]) if key in record else None
-        except ValueError:
-            self.warnings.append(f"{name} metadata field {key!r} is not an integer; ignored")
-            return None
-
-    def _number(self, run: dict[str, str], key: str) -> float | None:
-        try:
-            value = float(run[key]) if key in run else None
-        except ValueError:
-            self.warnings.append(f"cosim.run metadata field {key!r} is not a number; ignored")
-            return None
-        return value if value and math.isfinite(value) and value > 0 else None
+                              if e.kind == "pseudoinverse" and e.params.get("weights") is None), None)
 
     def topic_owner(self) -> dict[str, str]:
-        return {message_topic(m): name for name, e in self.estimators.items() for m in e.get("messages", [])}
+        return self.record.estimate_topics()
 
 
 # -- ticks assembled from their parts -----------------------------------------------------------
@@ -209,6 +157,8 @@ class _Scorer:
         self.segment: _Segment | None = None
         self.estimators = {name: _EstimationScore(run) for name in run.estimators}
         self.diagnosis: dict[str, _DiagnosisScore] = {}
+        #: The alarm signal of each estimator that publishes one.
+        self.alarms = {name: next(iter(alarms)) for name, e in run.estimators.items() if (alarms := e.signals_of(DiagnosticKind.ALARM))}
         self.bus = _BusScore(run)
         self.lost_events = 0
         self.misses: dict[str, int] = defaultdict(int)
@@ -301,13 +251,13 @@ class _Scorer:
                 self.onsets.setdefault(label, k)
         self.active = active
         for name, estimate in tick.estimates.items():
-            if tick.x is not None and all(isinstance(estimate.get(f"xhat_{s}"), (int, float)) for s in self.run.states):
-                error = math.sqrt(math.fsum((tick.x[s] - estimate[f"xhat_{s}"]) ** 2 for s in self.run.states))
+            if tick.x is not None and all(isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in self.run.states):
+                error = math.sqrt(math.fsum((tick.x[s] - estimate[estimate_signal(s)]) ** 2 for s in self.run.states))
                 self.estimators[name].add(k, error, self.segment)
-            alarm = estimate.get(_ALARM)
-            if isinstance(alarm, (int, float)):
+            alarm = self.alarms.get(name)
+            if alarm is not None and isinstance(estimate.get(alarm), (int, float)):
                 if name not in self.diagnosis:
-                    self.diagnosis[name] = _DiagnosisScore(self.run, name, estimate)
+                    self.diagnosis[name] = _DiagnosisScore(self.run, name, alarm)
                 self.diagnosis[name].add(k, estimate, active, self.segment)
 
     def _close_segment(self) -> None:
@@ -377,54 +327,17 @@ class _EstimationScore:
 # -- detection and isolation --------------------------------------------------------------------
 
 
-def isolation_targets(flags: list[str], params: dict[str, Any], sensors: list[str], actuators: list[str]) -> dict[str, list[str]]:
-    """What each isolation flag ``isolated_<name>`` names, as truth fault targets (sensor and
-    actuator names). A flag's targets are, in this order of precedence:
-
-    1. its entry in ``params["isolation_targets"]``, a table flag name → list of sensor/actuator names;
-    2. for a flag ``T<j>`` (thruster j), the actuators numbered (from 1, in the plant's actuator
-       order, the columns of B) in ``params["groups"][j − 1]``: the ``cofd`` kind's thrusters;
-    3. the flag's name itself, if it is a sensor or an actuator;
-    4. else nothing: raising that flag can only be a wrong isolation.
-    """
-    explicit = params.get("isolation_targets")
-    explicit = explicit if isinstance(explicit, dict) else {}
-    groups = params.get("groups")
-    groups = groups if isinstance(groups, (list, tuple)) else []
-    known = set(sensors) | set(actuators)
-
-    def targets(flag: str) -> list[str]:
-        if isinstance(explicit.get(flag), list):
-            return [str(t) for t in explicit[flag]]
-        j = int(flag[1:]) if flag[:1] == "T" and flag[1:].isdigit() else 0
-        if 1 <= j <= len(groups) and isinstance(groups[j - 1], (list, tuple)):
-            return [actuators[int(c) - 1] for c in groups[j - 1] if isinstance(c, (int, float)) and 1 <= c <= len(actuators)]
-        return [flag] if flag in known else []
-
-    return {flag: targets(flag) for flag in flags}
-
-
-def _with_defaults(kind: str | None, params: dict[str, Any]) -> dict[str, Any]:
-    """The logged parameters completed with the kind's defaults (the log holds only those given)."""
-    from dataclasses import MISSING, fields
-
-    # imported here: slow to import, and needed only for processes with isolation flags
-    from estimators import ESTIMATORS
-
-    cls = ESTIMATORS.get(kind) if kind else None
-    defaults = {f.name: f.default for f in fields(cls.Params) if f.default is not MISSING} if cls else {}
-    return {**defaults, **params}
-
-
 class _DiagnosisScore:
-    def __init__(self, run: _Run, name: str, first: dict[str, Any]) -> None:
+    """Detection and isolation by one estimator that publishes an alarm (and isolation flags)."""
+
+    def __init__(self, run: _Run, name: str, alarm: str) -> None:
         self.run = run
-        self.flags = sorted(key.removeprefix(_ISOLATED) for key in first if key.startswith(_ISOLATED))
-        params = run.estimators.get(name, {}).get("params", {})
-        params = params if isinstance(params, dict) else {}
-        if self.flags:
-            params = _with_defaults(run.estimators.get(name, {}).get("kind"), params)
-        self.targets = isolation_targets(self.flags, params, run.sensors, run.actuators)
+        record = run.estimators[name]
+        self.alarm = alarm
+        #: flag (what it isolates, e.g. a thruster T1) → its signal; and what the flag names as faulty
+        self.signals = {target or signal: signal for signal, target in sorted(record.signals_of(DiagnosticKind.ISOLATION).items())}
+        self.flags = sorted(self.signals)
+        self.targets = {flag: record.isolates.get(signal, []) for flag, signal in self.signals.items()}
         self.alarm_prev = False
         self.scored = 0
         self.fault_free_ticks = 0
@@ -439,8 +352,8 @@ class _DiagnosisScore:
         return {flag for flag, names in self.targets.items() if targets & set(names)}
 
     def add(self, k: int, estimate: dict[str, Any], active: set[str], segment: _Segment | None) -> None:
-        alarm = estimate[_ALARM] > 0.5
-        raised = {flag for flag in self.flags if isinstance(v := estimate.get(_ISOLATED + flag), (int, float)) and v > 0.5}
+        alarm = estimate[self.alarm] > 0.5
+        raised = {flag for flag, signal in self.signals.items() if isinstance(v := estimate.get(signal), (int, float)) and v > 0.5}
         self.scored += 1
         self.alarm_ticks += alarm
         if not active:
@@ -550,8 +463,8 @@ class _BusScore:
 
 
 def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]) -> dict[str, Any]:
-    raw, dt = run.raw or {}, run.sample_time
-    ticks = scorer.ticks if run.raw is not None else channels.get(STATE, 0)
+    dt = run.sample_time
+    ticks = scorer.ticks if run.known else channels.get(STATE, 0)
     seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)
     lost = run.frames_lost if run.frames_lost is not None else scorer.lost_events
     estimators = {}
@@ -559,7 +472,7 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
     for name, score in scorer.estimators.items():
         post, base = score.rms("post"), baseline.rms("post") if baseline else None
         estimators[name] = {
-            "kind": run.estimators[name].get("kind"),
+            "kind": run.estimators[name].kind,
             "rms_pre_fault": score.rms("pre"),
             "rms_post_fault": post,
             "final_error": score.final[1],
@@ -573,7 +486,7 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         hours = score.fault_free_ticks * dt / 3600 if dt else 0.0
         occurred = [label for label in score.faults]
         diagnosis[name] = {
-            "kind": run.estimators.get(name, {}).get("kind"),
+            "kind": run.estimators[name].kind if name in run.estimators else None,
             "isolation_flags": score.targets,
             "ticks_scored": score.scored,
             "alarm_time_s": round(score.alarm_ticks * dt, 9),
@@ -591,7 +504,7 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         faults[label] = {"kind": None, "targets": [], "start": None, "end": None,
                          "onset": seconds(scorer.onsets[label]), "cleared": seconds(scorer.ends.get(label))}
     missing = list(run.missing)
-    if run.raw is not None:
+    if run.known:
         for topic, what in ((STATE, "estimation errors"), (FAULTS, "per-fault onsets, detection and isolation"),
                             (FRAMES, "frames per id and bus load")):
             if not channels.get(topic):
@@ -601,8 +514,8 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
     span = None if scorer.first_ns is None else round((scorer.last_ns - scorer.first_ns) / 1e9, 9)
     return {
         "file": str(path),
-        "scenario": raw.get("scenario"),
-        "source": raw.get("source"),
+        "scenario": run.record.scenario,
+        "source": run.record.source,
         "seed": run.seed,
         "status": run.status,
         "sample_time": dt,
@@ -616,7 +529,7 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         "estimators": estimators,
         "baseline": run.baseline,
         "diagnosis": diagnosis,
-        "bus": scorer.bus.report(run, ticks, lost, scorer.misses) if raw else None,
+        "bus": scorer.bus.report(run, ticks, lost, scorer.misses) if run.known else None,
         "missing": missing,
         "warnings": warnings,
     }

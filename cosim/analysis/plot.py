@@ -28,7 +28,6 @@ Estimators are rebuilt from the log's metadata (kind, parameters, design model) 
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,10 +35,13 @@ from pathlib import Path
 import numpy as np
 
 import estimators
+from cosim.bus.codec import estimate_signal
 from cosim.errors import LogError, ScenarioError
-from cosim.log.mcapfile import LogReader
-from cosim.run.node import model_from_dict
+from cosim.log.metadata import EstimatorRecord, LogMetadata, ScenarioRecord
+from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
+from estimators import LinearModel
+from estimators.base import DiagnosticKind
 
 
 @dataclass
@@ -47,7 +49,12 @@ class EstimatorSeries:
     kind: str
     params: dict
     model: dict | None
+    record: EstimatorRecord
     values: dict[int, dict[str, float]] = field(default_factory=lambda: defaultdict(dict))
+
+    def signals(self, kind: DiagnosticKind) -> dict[str, str]:
+        """Its diagnostic signals of one kind, each with its target."""
+        return self.record.signals_of(kind)
 
 
 @dataclass
@@ -69,22 +76,30 @@ class RunSeries:
     toml: str = ""
     """The scenario file as given (empty for logs without it)."""
     control: dict[int, dict[str, float]] = field(default_factory=dict)
-    """The controller node's CONTROL_STATUS signals per tick (closed-loop runs)."""
+    """The controller node's status signals per tick (closed-loop runs)."""
+    reconfigured: list[str] = field(default_factory=list)
+    """The controller's status signals that say it has reconfigured."""
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
-        return np.array(sorted(k for k in have if k in self.truth and all(f"xhat_{s}" in have[k] for s in self.states)), dtype=int)
+        return np.array(sorted(k for k in have if k in self.truth and all(estimate_signal(s) in have[k] for s in self.states)), dtype=int)
 
     def error(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         ks = self.ticks(name)
         values = self.estimators[name].values
-        x_hat = np.array([[values[k][f"xhat_{s}"] for s in self.states] for k in ks]).reshape(len(ks), len(self.states))
+        x_hat = np.array([[values[k][estimate_signal(s)] for s in self.states] for k in ks]).reshape(len(ks), len(self.states))
         x = np.array([self.truth[k] for k in ks]).reshape(len(ks), len(self.states))
         return ks * self.sample_time, np.linalg.norm(x - x_hat, axis=1)
 
-    def diagnostic(self, name: str, prefix: str) -> tuple[np.ndarray, np.ndarray] | None:
-        values = self.estimators[name].values
-        keys = [f"{prefix}_{o}" for o in self.sensors]
+    def diagnostic(self, name: str, kind: DiagnosticKind) -> tuple[np.ndarray, np.ndarray] | None:
+        """One estimator's diagnostics of ``kind`` that have a sensor as target, one column per
+        transmitted sensor (None unless it publishes one for every sensor)."""
+        e = self.estimators[name]
+        by_target = {target: signal for signal, target in e.record.signals_of(kind).items()}
+        if not all(o in by_target for o in self.sensors):
+            return None
+        values = e.values
+        keys = [by_target[o] for o in self.sensors]
         ks = np.array(sorted(k for k in values if all(key in values[k] for key in keys)), dtype=int)
         if ks.size == 0:
             return None
@@ -94,22 +109,19 @@ class RunSeries:
 def load(path: str | Path) -> RunSeries:
     """Read a run log into per-tick series (truth, faults, each estimator's decoded frames)."""
     with LogReader(path) as reader:
-        meta = reader.metadata()
-        if "cosim.run" not in meta:
+        meta = LogMetadata.read(reader.metadata())
+        run = meta.run
+        if run is None or run.sample_time is None or run.dt_ns is None:
             raise LogError(f"{path}: no cosim.run metadata; cosim plot needs a log written by cosim run")
-        run = meta["cosim.run"]
-        states, sensors = json.loads(run["states"]), json.loads(run["sensors"])
-        given = meta.get("cosim.scenario", {})
-        description = json.loads(given.get("resolved", "{}")).get("description", "")
-        ests = {
-            name: EstimatorSeries(e["kind"], e.get("params", {}), e.get("model"))
-            for name, e in json.loads(run["estimators"]).items()
-        }
-        owner = {message_topic(m): name for name, e in json.loads(run["estimators"]).items() for m in e["messages"]}
-        controller = json.loads(run.get("controller", "null")) or {}
-        status = [message_topic(m) for m in controller.get("messages", []) if m.startswith("CONTROL_STATUS")]
+        states, sensors = run.states, run.sensors
+        given = meta.scenario or ScenarioRecord()
+        description = given.resolved_json().get("description", "")
+        ests = {name: EstimatorSeries(e.kind, e.params, e.model, e) for name, e in run.estimators.items()}
+        owner = run.estimate_topics()
+        status = [message_topic(m) for m in run.controller.status_messages] if run.controller else []
+        reconfigured = run.controller.signals_of(DiagnosticKind.RECONFIGURATION) if run.controller else []
         control: dict[int, dict[str, float]] = defaultdict(dict)
-        dt_ns = round(float(run["sample_time"]) * 1e9)
+        dt_ns = run.dt_ns
         truth: dict[int, np.ndarray] = {}
         fault: dict[int, np.ndarray] = {}
         sensor_truth: dict[int, np.ndarray] = {}
@@ -124,8 +136,8 @@ def load(path: str | Path) -> RunSeries:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
                 ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update({k: v for k, v in msg.items() if k != "tick"})
-    return RunSeries(run["scenario"], description, float(run["sample_time"]), states, sensors, truth, fault, ests,
-                     json.loads(run.get("faults", "[]")), sensor_truth, given.get("toml", ""), dict(control))
+    return RunSeries(run.scenario or Path(path).stem, description, run.sample_time, states, sensors, truth, fault, ests,
+                     [f.to_json() for f in run.faults], sensor_truth, given.toml, dict(control), reconfigured)
 
 
 def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
@@ -153,12 +165,15 @@ def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
 def virtual_output(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(t, ẑ, z): a reconciliation scheme's virtual output and the true z = H_z y, or None."""
     e = series.estimators[name]
-    ks = np.array(sorted(k for k, v in e.values.items() if "zhat" in v and k in series.sensor_truth), dtype=int)
+    zhat = next(iter(e.signals(DiagnosticKind.VIRTUAL_OUTPUT)), None)
+    if zhat is None:
+        return None
+    ks = np.array(sorted(k for k, v in e.values.items() if zhat in v and k in series.sensor_truth), dtype=int)
     if ks.size == 0:
         return None
     hz = np.asarray(estimators.ESTIMATORS[e.kind].check_params(e.params).Hz, dtype=float)
     z = np.array([hz @ series.sensor_truth[k] for k in ks])
-    return ks * series.sample_time, np.array([e.values[k]["zhat"] for k in ks]), z
+    return ks * series.sample_time, np.array([e.values[k][zhat] for k in ks]), z
 
 
 def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -166,7 +181,7 @@ def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] |
     e = series.estimators[name]
     if e.model is None:
         return None
-    estimator = estimators.create(e.kind, model_from_dict(e.model), e.params, series.sample_time)
+    estimator = estimators.create(e.kind, LinearModel.from_dict(e.model), e.params, series.sample_time)
     ks = [k for k in sorted(e.values) if k in series.fault]
     out = []
     for k in ks:
@@ -213,16 +228,17 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     save(fig, "error.png")
 
     reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
-    weighted = [(name, prefix) for name in series.estimators for prefix in ("s", "z", "gamma")
-                if series.diagnostic(name, prefix) is not None and name not in reconciliators]
+    weighted = [(name, kind) for name in series.estimators
+                for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
+                if series.diagnostic(name, kind) is not None]
     if weighted:
         fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
-        labels = {"s": "selector s", "z": "optimizer z", "gamma": "weights Γ"}
-        for ax, (name, prefix) in zip(axes[:, 0], weighted):
-            t, w = series.diagnostic(name, prefix)
+        labels = {DiagnosticKind.SELECTOR: "selector s", DiagnosticKind.OPTIMIZER: "optimizer z", DiagnosticKind.WEIGHT: "weights Γ"}
+        for ax, (name, kind) in zip(axes[:, 0], weighted):
+            t, w = series.diagnostic(name, kind)
             for i, sensor in enumerate(series.sensors):
                 ax.plot(t, w[:, i], label=sensor, lw=1)
-            ax.set_ylabel(f"{name}\n{labels[prefix]}", fontsize=8)
+            ax.set_ylabel(f"{name}\n{labels[kind]}", fontsize=8)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, loc="right")
         axes[0, 0].set_title(f"{title}: pseudoinverse weights")
@@ -245,12 +261,12 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     effects = {name: e for name, e in effects.items() if e is not None}
     if effects:
         curves(effects, "|h_Γ|", "fault effect on the output injection", "bias_effect.png", log=True)
-    norms = {name: series.diagnostic(name, "gamma") for name in series.estimators if name not in reconciliators}
+    norms = {name: series.diagnostic(name, DiagnosticKind.WEIGHT) for name in series.estimators}
     norms = {name: (t, np.linalg.norm(w, axis=1)) for name, v in norms.items() if v is not None for t, w in [v]}
     if norms:
         curves(norms, "|Γ|", "norm of the weights", "gamma_norm.png", log=False)
 
-    bias = {name: series.diagnostic(name, "phihat") for name in series.estimators}
+    bias = {name: series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE) for name in series.estimators}
     bias = {name: v for name, v in bias.items() if v is not None}
     if bias:
         fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False)
@@ -266,7 +282,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "bias_estimate.png")
 
-    residuals = {name: series.diagnostic(name, "r") for name in series.estimators}
+    residuals = {name: series.diagnostic(name, DiagnosticKind.RESIDUAL) for name in series.estimators}
     residuals = {name: v for name, v in residuals.items() if v is not None}
     if residuals:
         fig, axes = plt.subplots(2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False)
@@ -289,7 +305,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "residual.png")
 
-    gains = {name: v for name in reconciliators if (v := series.diagnostic(name, "gamma")) is not None}
+    gains = {name: v for name in reconciliators if (v := series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)) is not None}
     if gains:
         fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.1 * len(series.sensors)), sharex=True, squeeze=False)
         t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
@@ -331,26 +347,34 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         for t, label in isolations:
             ax.axvline(t, color="C3", ls="--", lw=1)
             ax.annotate(label, (t, 1), xycoords=("data", "axes fraction"), fontsize=7, color="C3", va="top", ha="left")
-        if (t := first_tick(series.control, "reconfigured")) is not None:
+        if series.reconfigured and (t := first_tick(series.control, series.reconfigured[0])) is not None:
             ax.axvline(t * series.sample_time, color="C2", ls="--", lw=1.2)
 
-    diagnosers = {name: e for name, e in series.estimators.items() if any("thr1_1" in v for v in e.values.values())}
+    # Diagnosis nodes whose residual components have thresholds (COFD): one panel per observer.
+    diagnosers = {name: e for name, e in series.estimators.items() if e.signals(DiagnosticKind.THRESHOLD)}
     for name, e in diagnosers.items():
-        ks = np.array(sorted(k for k, v in e.values.items() if "thr1_1" in v), dtype=int)
-        observers = [h for h in range(1, 5) if any(e.values[k].get(f"thr{h}_1", 0) > 0 for k in ks[:1])]
+        bounded = {residual: threshold for threshold, residual in e.signals(DiagnosticKind.THRESHOLD).items()}
+        ks = np.array(sorted(k for k, v in e.values.items() if all(t in v for t in bounded.values())), dtype=int)
+        if ks.size == 0:
+            continue
+        first = e.values[ks[0]]
+        observers: dict[str, list[str]] = {}  # observer → its residual components in use (threshold > 0)
+        for residual, observer in e.signals(DiagnosticKind.RESIDUAL).items():
+            if residual in bounded and first.get(bounded[residual], 0.0) > 0:
+                observers.setdefault(observer, []).append(residual)
         if not observers:
             continue
         t = ks * series.sample_time
-        masks = [int(e.values[k].get("fault_mask", 0)) for k in ks]
-        isolations = [(t[i], "+".join(f"T{j + 1}" for j in range(8) if m >> j & 1)) for i, m in enumerate(masks)
-                      if m and (i == 0 or m != masks[i - 1])]
+        flags = e.signals(DiagnosticKind.ISOLATION)
+        raised = ["+".join(target for flag, target in flags.items() if e.values[k].get(flag, 0.0) > 0.5) for k in ks]
+        isolations = [(t[i], label) for i, label in enumerate(raised) if label and (i == 0 or label != raised[i - 1])]
         fig, axes = plt.subplots(len(observers), 1, figsize=(9, 2.3 * len(observers)), sharex=True, squeeze=False)
-        for ax, h in zip(axes[:, 0], observers):
-            for i in (i for i in (1, 2, 3) if e.values[ks[0]].get(f"thr{h}_{i}", 0.0) > 0):  # an observer's ℓ components
-                ratio = np.array([abs(e.values[k][f"r{h}_{i}"]) / e.values[k][f"thr{h}_{i}"] for k in ks])
-                ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=f"e{i}")
+        for ax, (observer, components) in zip(axes[:, 0], observers.items()):
+            for residual in components:
+                ratio = np.array([abs(e.values[k][residual]) / e.values[k][bounded[residual]] for k in ks])
+                ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=residual)
             ax.axhline(1.0, color="k", lw=0.8)
-            ax.set_ylabel(f"|r^({h})_i| / thr", fontsize=8)
+            ax.set_ylabel(f"{observer}\n|r_i| / threshold", fontsize=8)
             events(ax, isolations)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, loc="upper left", ncol=3)

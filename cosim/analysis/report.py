@@ -23,7 +23,8 @@ from typing import Any
 
 from cosim import __version__
 from cosim.errors import CosimError
-from cosim.log.mcapfile import LogReader
+from cosim.log.metadata import LogMetadata, ScenarioRecord
+from cosim.log.reader import LogReader
 
 #: What each figure of ``cosim plot`` shows (the file names are plot.py's).
 CAPTIONS = {
@@ -83,14 +84,13 @@ def report(path: str | Path, out: str | Path) -> Path:
     """Write the HTML report of one log to ``out``; returns ``out``."""
     path, out = Path(path), Path(out)
     with LogReader(path) as reader:
-        meta = reader.metadata()
+        meta = LogMetadata.read(reader.metadata())
     values = metrics(path)
     notes = [*values.get("warnings", []), *(f"missing: {m}" for m in values.get("missing", []))]
     figures, figure_note = _figures(path)
     if figure_note:
         notes.append(figure_note)
-    run = meta.get("cosim.run", {})
-    title = f"{run.get('scenario') or path.stem}: run report"
+    title = f"{(meta.run.scenario if meta.run else None) or path.stem}: run report"
     body = [
         f"<h1>{_e(title)}</h1>",
         f"<p class=\"lead\">{_e(path.name)} · status {_e(values.get('status', 'unknown'))}</p>",
@@ -117,47 +117,43 @@ def report(path: str | Path, out: str | Path) -> Path:
 # -- sections -----------------------------------------------------------------------------------
 
 
-def _scenario(meta: dict[str, dict[str, str]]) -> str:
+def _scenario(meta: LogMetadata) -> str:
     """Name, description and the settings that tell runs apart, from the log's metadata."""
-    run = meta.get("cosim.run")
+    run = meta.run
     if run is None:
         return "<p>The log has no <code>cosim.run</code> metadata (not written by cosim run): no scenario to show.</p>"
-    record = meta.get("cosim.scenario", {})
-    resolved = _loads(record.get("resolved"), {})
-    bus, timing = _loads(run.get("bus"), {}), _loads(run.get("timing"), {})
-    sample_time, ticks = float(run.get("sample_time", "nan")), int(run.get("ticks", "0"))
+    resolved = (meta.scenario or ScenarioRecord()).resolved_json()
+    bus, timing = run.bus, run.timing
+    sample_time, ticks = run.sample_time or math.nan, run.ticks or 0
     parts = []
     if resolved.get("description"):
         parts.append(f"<p>{_e(resolved['description'])}</p>")
     settings = {
-        "scenario": f"{run.get('scenario')} ({run.get('source')})",
-        "plant": run.get("plant"),
+        "scenario": f"{run.scenario} ({run.source})",
+        "plant": run.plant,
         "duration": f"{ticks * sample_time:g} s: {ticks} ticks of τ = {sample_time:g} s",
-        "seed": run.get("seed"),
-        "sensors": ", ".join(_loads(run.get("sensors"), [])),
-        "actuators": ", ".join(_loads(run.get("actuators"), [])) or "none",
+        "seed": run.seed,
+        "sensors": ", ".join(run.sensors),
+        "actuators": ", ".join(run.actuators) or "none",
         "bus": (f"{'CAN FD' if bus.get('fd') else 'classic CAN'} at {bus.get('bitrate', 0) / 1000:g} kbit/s"
                 + (f", data phase {bus.get('data_bitrate', 0) / 1e6:g} Mbit/s" if bus.get("fd") else "")
-                + f", {meta.get('cosim.bus', {}).get('interface', bus.get('interface', '?'))}"),
+                + f", {meta.bus.get('interface', bus.get('interface', '?'))}"),
         "timing": timing.get("mode", "?") + (f" at {timing.get('speed'):g}×" if timing.get("mode") == "realtime" else ""),
     }
-    if "disturbances" in run and _loads(run["disturbances"], []):
-        settings["unknown inputs"] = ", ".join(_loads(run["disturbances"], []))
-    replay = meta.get("cosim.replay")
+    if run.disturbances:
+        settings["unknown inputs"] = ", ".join(run.disturbances)
+    replay = meta.replay
     if replay:
-        changed = _loads(replay.get("params"), {})
-        what = "a new estimator" if _loads(replay.get("new"), False) else "an estimator of the run"
-        settings["replay"] = (f"of {replay.get('log')}: {replay.get('estimator')} ({replay.get('kind')}), {what}"
-                              + (f", with {_compact(changed)}" if changed else ""))
+        what = "a new estimator" if replay.new else "an estimator of the run"
+        settings["replay"] = (f"of {replay.log}: {replay.estimator} ({replay.kind}), {what}"
+                              + (f", with {_compact(replay.params)}" if replay.params else ""))
     parts.append("<dl class=\"settings\">" + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in settings.items()) + "</dl>")
     given = {e.get("name"): e.get("params", {}) for e in resolved.get("estimators", [])}
-    estimators = _loads(run.get("estimators"), {})
-    if estimators:
-        rows = [[name, e.get("kind"), _compact(given.get(name, {})) or "defaults"] for name, e in estimators.items()]
+    if run.estimators:
+        rows = [[name, e.kind, _compact(given.get(name, {})) or "defaults"] for name, e in run.estimators.items()]
         parts += ["<h3>Estimators</h3>", _table(["estimator", "kind", "parameters"], rows)]
-    faults = _loads(run.get("faults"), [])
-    if faults:
-        rows = [[f.get("label"), f.get("kind"), f.get("start"), "end of run" if f.get("end") is None else f.get("end")] for f in faults]
+    if run.faults:
+        rows = [[f.label, f.kind, f.start, "end of run" if f.end is None else f.end] for f in run.faults]
         parts += ["<h3>Noise and faults</h3>", _table(["label", "kind", "start [s]", "end [s]"], rows)]
     return "\n".join(parts)
 
@@ -286,13 +282,6 @@ def _format(value: Any) -> str:
 def _compact(params: dict[str, Any], limit: int = 240) -> str:
     text = ", ".join(f"{k} = {json.dumps(v)}" for k, v in params.items())
     return text if len(text) <= limit else text[: limit - 1] + "…"
-
-
-def _loads(text: str | None, default: Any) -> Any:
-    try:
-        return json.loads(text) if text is not None else default
-    except ValueError:
-        return default
 
 
 def _e(value: Any) -> str:

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 import can
 
 from cosim.bus import registry
-from cosim.bus.transport import BusConfig, open_bus
 from cosim.bus.codec import (
     BOOTUP,
     COMMAND,
@@ -45,8 +44,10 @@ from cosim.bus.codec import (
     Codec,
     Decoded,
 )
+from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CodecError, CosimError
 
+_WAIT = 0.2  # s: how long a client waits for a frame before it checks its own timeout
 
 @dataclass
 class TickFrames:
@@ -250,35 +251,35 @@ class Client:
         returns. ``timeout``: give up after that many seconds without a tick."""
         last = time.monotonic()
         while not self.stopped:
-            frame = self.bus.recv(0.2)
-            if frame is None:
-                if timeout is not None and time.monotonic() - last > timeout:
-                    raise CosimError(f"no tick for {timeout:g} s: is the co-simulation still running?")
-                continue
-            for tick in self.feed(frame):
-                last = time.monotonic()
-                yield tick
-                self.done(tick)
+            for frame in drain(self.bus, _WAIT):
+                for tick in self.feed(frame):
+                    last = time.monotonic()
+                    yield tick
+                    self.done(tick)
+                if self.stopped:
+                    return
+            if timeout is not None and time.monotonic() - last > timeout:
+                raise CosimError(f"no tick for {timeout:g} s: is the co-simulation still running?")
 
     def frames(self, timeout: float | None = None) -> Iterator[Decoded]:
         """Every decoded frame on the bus (for monitors), until the run stops."""
         last = time.monotonic()
         while not self.stopped:
-            frame = self.bus.recv(0.2)
-            if frame is None:
-                if timeout is not None and time.monotonic() - last > timeout:
+            for frame in drain(self.bus, _WAIT):
+                last = time.monotonic()
+                try:
+                    decoded = self.codec.decode(frame)
+                except CodecError:
+                    continue
+                if decoded is None:
+                    continue
+                if decoded.spec.role == NMT and decoded.values["command"] == NMT_STOP and decoded.values["node"] == 0:
+                    self.stopped = True
+                yield decoded
+                if self.stopped:
                     return
-                continue
-            last = time.monotonic()
-            try:
-                decoded = self.codec.decode(frame)
-            except CodecError:
-                continue
-            if decoded is None:
-                continue
-            if decoded.spec.role == NMT and decoded.values["command"] == NMT_STOP and decoded.values["node"] == 0:
-                self.stopped = True
-            yield decoded
+            if timeout is not None and time.monotonic() - last > timeout:
+                return
 
     # -- sending --------------------------------------------------------------------------------
 

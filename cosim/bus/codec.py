@@ -40,17 +40,20 @@ import math
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 
 import can
 import cantools
 from cantools.database.can import Bus, Database, Message, Node, Signal
 from cantools.database.can.formats.dbc.dbc_attribute import DbcAttribute
-from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttributeDefinition
+from cantools.database.can.formats.dbc.dbc_attribute_definition import (
+    DbcAttributeDefinition,
+)
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.conversion import BaseConversion
 
+from cosim.bus.signals import Channel
 from cosim.errors import CodecError
-from mjcf import Channel
 
 NMT_ID = 0x000
 SYNC_ID = 0x080
@@ -68,8 +71,25 @@ CLASSIC_TICK_BITS = 16
 FD_TICK_BITS = 32
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
-NMT, SYNC, HEARTBEAT = "nmt", "sync", "heartbeat"
-SENSOR, COMMAND, CONTROL, ESTIMATE, CLIENT = "sensor", "command", "control", "estimate", "client"
+
+
+class Role(StrEnum):
+    """What a message is for: its id block, its name and who may send it follow from its role."""
+
+    NMT = "nmt"
+    SYNC = "sync"
+    HEARTBEAT = "heartbeat"
+    SENSOR = "sensor"
+    COMMAND = "command"
+    CONTROL = "control"
+    ESTIMATE = "estimate"
+    CLIENT = "client"
+
+
+NMT, SYNC, HEARTBEAT = Role.NMT, Role.SYNC, Role.HEARTBEAT
+SENSOR, COMMAND, CONTROL, ESTIMATE, CLIENT = Role.SENSOR, Role.COMMAND, Role.CONTROL, Role.ESTIMATE, Role.CLIENT
+#: The DBC nodes of the runner's own frames, of the sensors and of the controller node (or the
+#: runner's open-loop inputs); estimators and clients are nodes named as in the scenario.
 RUNNER, PLANT, CONTROLLER = "runner", "plant", "controller"
 
 NMT_START, NMT_STOP = 0x01, 0x02  # CANopen NMT command specifiers
@@ -86,6 +106,36 @@ ID_BLOCKS = {
 }
 #: Signal prefix per role (estimates are named after the state they estimate).
 SIGNAL_PREFIX = {ESTIMATE: "xhat_"}
+#: Message name prefix per role; a node's data messages are numbered (``EST_kalman_0``, ...) when
+#: they need more than one frame per tick.
+MESSAGE_PREFIX = {SENSOR: "SENSOR", COMMAND: "COMMAND", CONTROL: "CONTROL_STATUS", ESTIMATE: "EST", CLIENT: "CLIENT",
+                  HEARTBEAT: "HEARTBEAT"}
+
+
+def sensor_message(sensor: str) -> str:
+    """The name of the message that carries a sensor's reading."""
+    return f"{MESSAGE_PREFIX[SENSOR]}_{sensor}"
+
+
+def command_message(actuator: str) -> str:
+    """The name of the message that carries an actuator's command."""
+    return f"{MESSAGE_PREFIX[COMMAND]}_{actuator}"
+
+
+def heartbeat_message(node: str) -> str:
+    """The name of a node's heartbeat message."""
+    return f"{MESSAGE_PREFIX[HEARTBEAT]}_{node}"
+
+
+def estimate_signal(state: str) -> str:
+    """The signal that carries an estimator's estimate of a state component."""
+    return SIGNAL_PREFIX[ESTIMATE] + state
+
+
+def estimated_state(signal: str) -> str | None:
+    """The state component an estimate signal carries; None for a diagnostic signal."""
+    prefix = SIGNAL_PREFIX[ESTIMATE]
+    return signal[len(prefix):] if signal.startswith(prefix) else None
 
 
 @dataclass(frozen=True)
@@ -198,16 +248,16 @@ class Codec:
             MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames")),
         ]
         for i, channel in enumerate(sensors):
-            specs += pack_channels(f"SENSOR_{channel.name}", SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
+            specs += pack_channels(sensor_message(channel.name), SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
         for i, channel in enumerate(actuators):
-            specs += pack_channels(f"COMMAND_{channel.name}", COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
+            specs += pack_channels(command_message(channel.name), COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
         if controller:
-            specs += pack_channels("CONTROL_STATUS", CONTROL_BASE, CONTROLLER, CONTROL, list(controller), fd,
+            specs += pack_channels(MESSAGE_PREFIX[CONTROL], CONTROL_BASE, CONTROLLER, CONTROL, list(controller), fd,
                                    [c.name for c in controller])
         diagnostics = dict(diagnostics or {})
         for group, base, stride, role, prefix in (
-            (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, "EST"),
-            (clients, CLIENT_BASE, CLIENT_STRIDE, CLIENT, "CLIENT"),
+            (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, MESSAGE_PREFIX[ESTIMATE]),
+            (clients, CLIENT_BASE, CLIENT_STRIDE, CLIENT, MESSAGE_PREFIX[CLIENT]),
         ):
             for e, (name, channels) in enumerate(group.items()):
                 extra = list(diagnostics.get(name, ())) if role == ESTIMATE else []
@@ -217,7 +267,7 @@ class Codec:
                     raise CodecError(f"{name} needs {len(packed)} frames per tick; at most {stride} fit its id block")
                 specs += packed
         for node_id, name in enumerate(nodes, start=1):
-            specs.append(MessageSpec(f"HEARTBEAT_{name}", HEARTBEAT_BASE + node_id, name, HEARTBEAT, (), ("state", "tick", "frames", "lost")))
+            specs.append(MessageSpec(heartbeat_message(name), HEARTBEAT_BASE + node_id, name, HEARTBEAT, (), ("state", "tick", "frames", "lost")))
         cycle_ms = None if cycle_time is None or cycle_time < 1e-3 else int(round(cycle_time * 1000))
         self._setup(_database(specs, fd, bitrate, data_bitrate, cycle_ms), specs, fd)
 
@@ -267,6 +317,14 @@ class Codec:
             key=lambda s: s.frame_id,
         )
 
+    def sensor(self, name: str) -> MessageSpec:
+        """The message of a sensor's reading."""
+        return self.specs[sensor_message(name)]
+
+    def command(self, name: str) -> MessageSpec:
+        """The message of an actuator's command."""
+        return self.specs[command_message(name)]
+
     def data_messages(self, sender: str) -> list[MessageSpec]:
         """The messages a node sends every tick (its heartbeat excluded)."""
         return [s for s in self.messages(sender=sender) if s.role != HEARTBEAT]
@@ -288,7 +346,7 @@ class Codec:
 
     def heartbeat(self, node: str, state: int, tick: int = 0, frames: int = 0, lost: int = 0) -> can.Message:
         return self._classic(
-            f"HEARTBEAT_{node}", {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)}
+            heartbeat_message(node), {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)}
         )
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
@@ -417,13 +475,13 @@ def _role(message: Message) -> str:
         return NMT
     if message.name == "SYNC":
         return SYNC
-    if message.name.startswith("HEARTBEAT_"):
+    if message.name.startswith(MESSAGE_PREFIX[HEARTBEAT] + "_"):
         return HEARTBEAT
     if sender == PLANT:
         return SENSOR
     if sender == CONTROLLER:
-        return COMMAND if message.name.startswith("COMMAND_") else CONTROL
-    if message.name.startswith("EST_"):
+        return COMMAND if message.name.startswith(MESSAGE_PREFIX[COMMAND] + "_") else CONTROL
+    if message.name.startswith(MESSAGE_PREFIX[ESTIMATE] + "_"):
         return ESTIMATE
     return CLIENT
 

@@ -24,6 +24,7 @@ import errno
 import random
 import socket
 import struct
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -153,3 +154,13 @@ def _enlarge_receive_buffer(bus: can.BusABC) -> None:
             return
         except OSError:
             continue
+
+
+def drain(bus: can.BusABC, timeout: float = 0.0) -> Iterator[can.Message]:
+    """The frames waiting on ``bus``: the first waited for up to ``timeout`` seconds, then every one
+    already there, without waiting. Every receive loop of cosim (runner, nodes, clients, monitor)
+    takes its frames through here."""
+    frame = bus.recv(timeout)
+    while frame is not None:
+        yield frame
+        frame = bus.recv(0.0)

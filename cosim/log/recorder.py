@@ -32,8 +32,17 @@ import can
 import numpy as np
 from can.util import len2dlc
 
-from cosim.bus.codec import CLASSIC_TICK_BITS, Codec, Decoded
-from cosim.log.mcapfile import McapLog, number, object_schema
+from cosim.bus.codec import (
+    CLASSIC_TICK_BITS,
+    CLIENT,
+    COMMAND,
+    ESTIMATE,
+    NMT,
+    SENSOR,
+    Codec,
+    Decoded,
+)
+from cosim.log.writer import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
@@ -92,7 +101,7 @@ class RunRecorder:
         }, "A frame on the run's CAN bus"))
         self._decoded: dict[str, int] = {}
         for spec in codec.specs.values():
-            if spec.channels or spec.role in ("estimate", "client", "sensor", "command"):
+            if spec.channels or spec.role in (ESTIMATE, CLIENT, SENSOR, COMMAND):
                 properties = {"tick": {"type": "integer", "description": "tick counter signal as carried by the frame"}}
                 for channel, signal in zip(spec.channels, spec.signals):
                     properties[signal] = number(channel.description, channel.unit)
@@ -145,7 +154,7 @@ class RunRecorder:
         })
         self.frames += 1
         if decoded is not None:
-            payload = decoded.values if spec.role == "nmt" else {"tick": decoded.tick, **decoded.values}
+            payload = decoded.values if spec.role == NMT else {"tick": decoded.tick, **decoded.values}
             self.log.write(self._decoded[spec.name], t_ns, payload)
 
     def truth(

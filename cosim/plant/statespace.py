@@ -14,10 +14,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from cosim.bus.signals import Channel
 from cosim.errors import ModelError
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
-from mjcf import Channel, PlantInfo
+from mjcf import PlantInfo
 
 NAME = "state-space"
 

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import estimators
-from cosim.run.node import model_to_dict
 from estimators import LinearModel
 
 
@@ -37,7 +36,7 @@ def directory() -> Path | None:
 def key(kind: str, params: dict[str, Any], model: LinearModel) -> str:
     free = estimators.ESTIMATORS[kind].design_free if kind in estimators.ESTIMATORS else frozenset()
     params = {name: value for name, value in params.items() if name not in free}
-    text = json.dumps({"kind": kind, "params": params, "model": model_to_dict(model)}, sort_keys=True, default=str)
+    text = json.dumps({"kind": kind, "params": params, "model": model.to_dict()}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 
 

@@ -25,9 +25,9 @@ import can
 import numpy as np
 
 import estimators
-from cosim.bus.transport import BusConfig, open_bus
 from cosim.bus.client import Client, TickFrames
-from cosim.bus.codec import CONTROLLER, Codec
+from cosim.bus.codec import COMMAND, CONTROLLER, Codec, estimated_state
+from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
 from estimators import Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
@@ -51,34 +51,16 @@ class NodeSpec:
 
     def to_json(self) -> str:
         return json.dumps({
-            "name": self.name, "kind": self.kind, "params": self.params, "model": model_to_dict(self.model), "dbc": self.dbc,
+            "name": self.name, "kind": self.kind, "params": self.params, "model": self.model.to_dict(), "dbc": self.dbc,
             "bus": self.bus.to_dict(), "sample_time": self.sample_time, "upstream": self.upstream, "diagnosis": self.diagnosis,
         })
 
     @classmethod
     def from_json(cls, text: str) -> NodeSpec:
         data = json.loads(text)
-        model = model_from_dict(data["model"])
+        model = LinearModel.from_dict(data["model"])
         return cls(data["name"], data["kind"], data["params"], model, data["dbc"], BusConfig.from_dict(data["bus"]),
                    data["sample_time"], data.get("upstream", {}), data.get("diagnosis", ""))
-
-
-def model_to_dict(m: LinearModel) -> dict[str, Any]:
-    """A LinearModel as plain JSON-able values (for node specs and log metadata)."""
-    return {
-        "A": m.A.tolist(), "B": m.B.tolist(), "C": m.C.tolist(), "D": m.D.tolist(), "dt": m.dt,
-        "states": list(m.states), "inputs": list(m.inputs), "outputs": list(m.outputs),
-        "x_op": m.x_op.tolist(), "u_op": m.u_op.tolist(), "y_op": m.y_op.tolist(),
-        "E": m.E.tolist(), "disturbances": list(m.disturbances),
-    }
-
-
-def model_from_dict(m: dict[str, Any]) -> LinearModel:
-    return LinearModel(
-        np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
-        tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
-        np.array(m["E"]).reshape(len(m["states"]), len(m.get("disturbances", ()))) if "E" in m else None, tuple(m.get("disturbances", ())),
-    )
 
 
 class _Node(ABC):
@@ -100,12 +82,10 @@ class _Node(ABC):
         """Handle every frame waiting on the bus (waiting up to ``timeout`` for the first);
         returns the number of ticks answered."""
         answered = 0
-        frame = self.client.bus.recv(timeout)
-        while frame is not None:
+        for frame in drain(self.client.bus, timeout):
             for tick in self.client.feed(frame):
                 self.answer(tick)
                 answered += 1
-            frame = self.client.bus.recv(0.0)
         return answered
 
 
@@ -128,8 +108,9 @@ class EstimatorNode(_Node):
         self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
         model = estimator.model
         signals = [signal for message in self.client.messages for signal in message.signals]
-        self._states = [(signal, model.states.index(signal.removeprefix("xhat_"))) for signal in signals if signal.startswith("xhat_")]
-        self._diagnostics = [signal for signal in signals if not signal.startswith("xhat_")]
+        states = {signal: estimated_state(signal) for signal in signals}
+        self._states = [(signal, model.states.index(state)) for signal, state in states.items() if state is not None]
+        self._diagnostics = [signal for signal, state in states.items() if state is None]
         self._u = np.zeros(model.m)
         self.ticks = 0
 
@@ -164,8 +145,8 @@ class ControllerNode(_Node):
         self.controller = controller
         self.client = Client(CONTROLLER, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
         self._inputs = {channel.name: signal for message in self.client.messages for channel, signal in zip(message.channels, message.signals)
-                        if message.name.startswith("COMMAND_")}
-        self._diagnostics = [signal for message in self.client.messages if not message.name.startswith("COMMAND_") for signal in message.signals]
+                        if message.role == COMMAND}
+        self._diagnostics = [signal for message in self.client.messages if message.role != COMMAND for signal in message.signals]
         self.ticks = 0
 
     def answer(self, tick: TickFrames) -> None:

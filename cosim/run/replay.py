@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Iterator
@@ -33,34 +32,41 @@ from typing import Any
 import can
 
 import estimators
-from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.bus.codec import (
     COMMAND,
     CONTROL,
     CONTROLLER,
     HEARTBEAT,
     OPERATIONAL,
+    PLANT,
+    RUNNER,
     SENSOR,
     SYNC,
     Codec,
+    Decoded,
 )
+from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
-from cosim.run.interrupts import DeferredInterrupts
-from cosim.log.mcapfile import LogReader, McapLog
-from cosim.run.node import model_from_dict, model_to_dict
-from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, RunRecorder
-from cosim.run.runner import (
-    NodeFailure,
-    Progress,
-    Run,
-    RunResult,
-    Traffic,
-    build_estimators,
-    design_warnings,
-    ending,
+from cosim.log.metadata import (
+    DBC_ATTACHMENT,
+    REPLAY,
+    RUN,
+    SCENARIO,
+    VERSIONS,
+    LogMetadata,
+    ReplayRecord,
+    RunRecord,
     versions,
 )
-from cosim.scenario import Scenario
+from cosim.log.reader import LogReader
+from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE
+from cosim.log.writer import McapLog
+from cosim.run.interrupts import DeferredInterrupts
+from cosim.run.loop import execute, start_participants
+from cosim.run.node import NodeSpec
+from cosim.run.plan import RunPlan, build_estimators, design_warnings, estimator_record
+from cosim.run.session import Progress, RunResult, Session, Timing
+from cosim.scenario import LoadedScenario, Scenario
 from estimators import LinearModel, ParameterError
 
 #: The truth topics a replay copies from the original log.
@@ -133,13 +139,36 @@ def parse_params(items: list[str]) -> dict[str, Any]:
     return params
 
 
-class Replay(Run):
+class LogSource:
+    """Ticks of a log: the frames the runner put on the bus, as logged, and the truth, copied."""
+
+    def __init__(self, reader: LogReader, log_codec: Codec, codec: Codec, ticks: int, out: McapLog, path: Path) -> None:
+        self.reader, self.codec, self.ticks, self.path = reader, codec, ticks, path
+        self._ticks = logged_ticks(reader, log_codec)
+        self._truth = {topic: out.channel(topic, {}) for topic in TRUTH}  # registered, with their schemas, by the recorder
+        self._out = out
+        self._logged: LoggedTick | None = None
+
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
+        logged = self._logged = next(self._ticks, None)
+        if logged is None or logged.tick != k:
+            damage = "; ".join(self.reader.warnings) or "the log is damaged"
+            raise CosimError(f"{self.path}: tick {k} is missing from the log ({damage}); the replay stops there")
+        return [(frame, self.codec.decode(frame)) for frame in logged.frames]
+
+    def advance(self, k: int, session: Session) -> None:
+        assert self._logged is not None
+        for topic, time_ns, payload in self._logged.truth:
+            self._out.write(self._truth[topic], time_ns, payload)
+
+
+class Replay:
     """One estimator fed with a log's bus traffic, into a new log.
 
     ``estimator`` names one of the run's estimators, or with ``kind`` a new one; ``params`` change
     (or, for a new one, give) its parameters. ``interface``, ``channel`` and ``port`` choose the
-    replay's bus (default: a fresh host-local ``udp_multicast`` bus). The methods that start the
-    node, wait for it and tell what went wrong with it are the runner's.
+    replay's bus (default: a fresh host-local ``udp_multicast`` bus). The replay is the runner's
+    session and tick loop over a ``LogSource``, with a plan that holds the one estimator.
     """
 
     def __init__(self, log: str | Path, out: str | Path, estimator: str, *, kind: str | None = None,
@@ -149,24 +178,24 @@ class Replay(Run):
         if self.out.exists() and self.log.exists() and self.out.samefile(self.log):
             raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
         with LogReader(self.log) as reader:
-            self.meta, self.attachments = reader.metadata(), reader.attachments()
+            raw, self.attachments = reader.metadata(), reader.attachments()
             self.ticks = _sync_count(reader)
-        run, scenario_record = self.meta.get("cosim.run"), self.meta.get("cosim.scenario")
-        if run is None or scenario_record is None or "cosim.dbc" not in self.attachments:
+        self.meta = LogMetadata.read(raw)
+        run, scenario_record = self.meta.run, self.meta.scenario
+        if run is None or scenario_record is None or DBC_ATTACHMENT not in self.attachments:
             raise LogError(f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run")
-        self.closed_loop = json.loads(run.get("controller", "null")) is not None
+        self.closed_loop = run.controller is not None
         if self.ticks == 0:
             raise LogError(f"{self.log}: the log has no tick (no SYNC frame): there is nothing to replay")
         try:
-            original = Scenario.model_validate(_without_nulls(json.loads(scenario_record["resolved"])))
+            original = Scenario.model_validate(_without_nulls(json.loads(scenario_record.resolved)))
         except ValueError as error:
             raise LogError(f"{self.log}: its scenario cannot be read by this version of cosim ({error})") from None
-        self.source = str(self.log)
-        self.log_codec = Codec.from_dbc(self.attachments["cosim.dbc"].decode())
-        recorded = json.loads(run["estimators"])
+        self.log_codec = Codec.from_dbc(self.attachments[DBC_ATTACHMENT].decode())
+        recorded = run.estimators
         overrides = dict(params or {})
         self.name, self.new = estimator, kind is not None
-        if self.new:
+        if kind is not None:
             if estimator in recorded:
                 raise CosimError(f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
                                  f"replay it, or give the new one another name")
@@ -175,129 +204,95 @@ class Replay(Run):
                                  f"controller node's ids would move); replay one of the run's estimators")
             if kind not in estimators.ESTIMATORS:
                 raise CosimError(f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})")
-            model = _recorded_model(run, recorded, estimators.ESTIMATORS[kind].continuous, kind, self.log)
+            model = _recorded_model(run, estimators.ESTIMATORS[kind].continuous, kind, self.log)
             spec_params = overrides
         else:
             if estimator not in recorded:
                 raise CosimError(f"--estimator {estimator}: the run has no estimator of that name (it has: "
                                  f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one")
-            kind = recorded[estimator]["kind"]
-            model = model_from_dict(recorded[estimator]["model"])
-            given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator]["params"])
+            kind = recorded[estimator].kind
+            if recorded[estimator].model is None:
+                raise LogError(f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed")
+            model = LinearModel.from_dict(recorded[estimator].model)
+            given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator].params)
             # Changed parameters mean a new design; unchanged ones come with the run's design.
-            spec_params = {**given, **overrides} if overrides else recorded[estimator]["params"]
+            spec_params = {**given, **overrides} if overrides else recorded[estimator].params
         try:
             estimators.ESTIMATORS[kind].check_params(spec_params)
         except ParameterError as error:
             raise CosimError(f"--param {error}") from None
         self.kind, self.overrides = kind, overrides
-        self.scenario = original.with_overrides(
+        scenario = original.with_overrides(
             estimators=[{"name": estimator, "kind": kind, "params": spec_params}], clients=[], mode="lockstep",
             interface=interface or "udp_multicast", channel=channel or "", port=port or 0,
         ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
         # The run's own DBC keeps a replayed estimator's ids, so that its frames can match bit for bit.
-        self.codec = self.scenario.codec() if self.new else self.log_codec
+        codec = scenario.codec() if self.new else self.log_codec
         if self.new or overrides:
-            self.estimators = build_estimators(self.scenario, model, f"{self.log} (replay)", model)
+            built = build_estimators(scenario, model, f"{self.log} (replay)", model)
         else:
             try:
-                self.estimators = {estimator: estimators.create(kind, model, spec_params, self.scenario.sample_time)}
+                built = {estimator: estimators.create(kind, model, spec_params, scenario.sample_time)}
             except ParameterError as error:
                 raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
-        self.warnings = design_warnings(self.scenario, self.estimators)
+        self.params = spec_params
+        self.plan = RunPlan(
+            LoadedScenario(scenario, str(self.log), scenario_record.toml), scenario, tuple(run.states), model, None, built, None,
+            codec, tuple(design_warnings(scenario, built)), tuple(run.faults), run.fault_onset_tick, _units(scenario),
+        )
         self.bus: BusConfig | None = None
-        self.participants = []
+        self.session: Session | None = None
 
-    def node_spec(self, name: str, bus: BusConfig):
-        """The runner's node spec; in a closed loop the node reads the replayed controller's commands."""
-        spec = super().node_spec(name, bus)
-        return replace(spec, upstream={CONTROLLER: 0}) if self.closed_loop else spec
+    @property
+    def scenario(self) -> Scenario:
+        return self.plan.scenario
 
-    def _metadata(self, log: McapLog) -> None:
-        """The original run's records, with this estimator as the run's only one, and ``cosim.replay``."""
-        run = dict(self.meta["cosim.run"])
-        spec = self.node_spec(self.name, self.bus)
-        run["estimators"] = json.dumps({self.name: {
-            "kind": self.kind, "messages": [m.name for m in self.codec.data_messages(self.name)],
-            "states": list(spec.model.states), "params": spec.params, "model": model_to_dict(spec.model),
-        }})
-        run["clients"] = json.dumps({})
-        log.metadata("cosim.run", run)
-        log.metadata("cosim.scenario", self.meta["cosim.scenario"])
-        log.metadata("cosim.versions", versions())
-        log.metadata("cosim.replay", {
-            "log": str(self.log), "estimator": self.name, "kind": self.kind, "new": json.dumps(self.new),
-            "params": json.dumps(self.overrides), "ticks": str(self.ticks),
-        })
-        for name, data in self.attachments.items():
-            if name != "cosim.dbc":
-                log.attach(name, "application/xml" if name.endswith(".xml") else "application/octet-stream", data)
-        log.attach("cosim.dbc", "text/plain", self.codec.dbc.encode())
+    @property
+    def result(self) -> RunResult | None:
+        return self.session.result if self.session is not None else None
 
     def execute(self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
-                on_start: Callable[[Run], None] | None = None) -> RunResult:
+                on_start: Callable[[Replay], None] | None = None) -> RunResult:
         """Replay every logged tick; the new log is complete and valid whatever ends the replay."""
-        s, codec, name = self.scenario, self.codec, self.name
-        status, error, k = "completed", "", 0
-        marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
-        startup, tick_start = 0.0, None
-        start = last_report = time.perf_counter()
-        self.bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
-        with (DeferredInterrupts() as interrupts, LogReader(self.log) as reader, McapLog(self.out) as log,
-              open_bus(self.bus) as bus, tempfile.TemporaryDirectory(prefix="cosim-replay-") as workdir):
-            run = self.meta["cosim.run"]
-            recorder = RunRecorder(log, codec, states=tuple(json.loads(run["states"])), sensors=s.sensors, actuators=s.actuators,
-                                   units=_units(s), disturbances=s.disturbance_inputs)
-            truth = {topic: log.channel(topic, {}) for topic in TRUTH}  # registered, with their schemas, by the recorder
-            traffic = Traffic(codec, recorder)
-            self._metadata(log)
-            log.metadata("cosim.bus", {key: str(value) for key, value in self.bus.to_dict().items()})
-            recorder.event(0, 0.0, 0, "start", f"replay of {self.log} into {name} ({self.kind}), ticks={self.ticks}")
-            for warning in self.warnings:
-                recorder.event(0, 0.0, 0, "warning", warning, "warning")
-            try:
-                self._start(self.bus, Path(workdir))
+        plan, s = self.plan, self.plan.scenario
+        self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
+        timing = Timing(s.sample_time, "lockstep", 1.0, s.timing.node_timeout, s.timing.join_timeout)
+        recorder = {"states": plan.state_names, "sensors": s.sensors, "actuators": s.actuators, "units": plan.units,
+                    "disturbances": s.disturbance_inputs}
+        with (LogReader(self.log) as reader,
+              Session(self.out, bus, plan.codec, timing, recorder=recorder, own_senders=(RUNNER, PLANT, CONTROLLER)) as session):
+            self.session = session
+            self._write_metadata(session)
+            session.event(0, "start", f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}")
+            for warning in plan.warnings:
+                session.event(0, "warning", warning, "warning")
+            source = LogSource(reader, self.log_codec, plan.codec, self.ticks, session.log, self.log)
+
+            def start() -> None:
+                start_participants(plan, session, self.node_spec)
                 if on_start is not None:
                     on_start(self)
-                self._join(bus, traffic, interrupts)
-                traffic.flush(*marker)  # the boot-up heartbeat
-                tick_start = time.perf_counter()
-                startup = tick_start - start
-                ticks = logged_ticks(reader, self.log_codec)
-                for k in range(self.ticks):
-                    interrupts.check()
-                    logged = next(ticks, None)
-                    if logged is None or logged.tick != k:
-                        damage = "; ".join(reader.warnings) or "the log is damaged"
-                        raise CosimError(f"{self.log}: tick {k} is missing from the log ({damage}); the replay stops there")
-                    t, t_ns = s.time(k), k * s.dt_ns
-                    sent = [(frame, codec.decode(frame)) for frame in logged.frames]
-                    for frame, _ in sent:
-                        bus.send(frame)
-                    # While the node works on tick k: log what tick k-1 brought, tick k's frames and its truth.
-                    traffic.flush(*marker)
-                    marker = (k, t, t_ns)
-                    for frame, decoded in sent:
-                        recorder.frame(k, t, t_ns, frame, decoded)
-                    for topic, time_ns, payload in logged.truth:
-                        log.write(truth[topic], time_ns, payload)
-                    self._wait(bus, traffic, interrupts, lambda k=k: traffic.closed.get(name, -1) >= k,
-                               time.perf_counter() + s.timing.node_timeout, lambda k=k: self._hung(traffic, k))
-                    if name in traffic.left:
-                        raise NodeFailure(f"{name} left the bus at tick {k} (stopped heartbeat)")
-                    if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
-                        last_report = now
-                        on_progress(Progress(k + 1, self.ticks, s.time(k + 1), now - start, recorder.frames))
-                k = self.ticks
-            except BaseException as exc:
-                status, error = ending(exc)
-                raise
-            finally:
-                loop = time.perf_counter() - tick_start if tick_start is not None else 0.0
-                self.result = self._finish(bus, traffic, recorder, log, marker, k, status, error, 0, [], start, startup, loop)
-        if on_progress is not None:
-            on_progress(Progress(k, self.ticks, s.time(k), time.perf_counter() - start, self.result.frames))
-        return self.result
+
+            return execute(source, session, start, [self.name], on_progress, progress_every)
+
+    def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
+        """The runner's node spec; in a closed loop the node reads the replayed controller's commands."""
+        spec = self.plan.node_spec(name, bus)
+        return replace(spec, upstream={CONTROLLER: 0}) if self.closed_loop else spec
+
+    def _write_metadata(self, session: Session) -> None:
+        """The original run's records, with this estimator as the run's only one, and ``cosim.replay``."""
+        log, codec = session.log, self.plan.codec
+        assert self.meta.run is not None and self.meta.scenario is not None
+        record = estimator_record(codec, self.name, self.kind, self.params, self.plan.estimators[self.name])
+        log.metadata(RUN, self.meta.run.with_only(self.name, record).to_metadata())
+        log.metadata(SCENARIO, self.meta.scenario.to_metadata())
+        log.metadata(VERSIONS, versions())
+        log.metadata(REPLAY, ReplayRecord(str(self.log), self.name, self.kind, self.new, self.overrides, self.ticks).to_metadata())
+        for name, data in self.attachments.items():
+            if name != DBC_ATTACHMENT:
+                log.attach(name, "application/xml" if name.endswith(".xml") else "application/octet-stream", data)
+        log.attach(DBC_ATTACHMENT, "text/plain", codec.dbc.encode())
 
 
 def _sync_count(reader: LogReader) -> int:
@@ -310,15 +305,14 @@ def _sync_count(reader: LogReader) -> int:
     return sum(1 for _ in reader.messages([topic]))
 
 
-def _recorded_model(run: dict[str, str], recorded: dict[str, Any], continuous: bool, kind: str, log: Path) -> LinearModel:
+def _recorded_model(run: RunRecord, continuous: bool, kind: str, log: Path) -> LinearModel:
     """The plant's linear model as the log records it, in continuous or discrete time."""
-    key = "continuous_model" if continuous else "model"
-    if run.get(key) not in (None, "null"):
-        return model_from_dict(json.loads(run[key]))
-    for entry in recorded.values():  # the model an estimator of the run was designed on
-        model = model_from_dict(entry["model"])
-        if (model.dt is None) == continuous:
-            return model
+    recorded = run.continuous_model if continuous else run.model
+    if recorded is not None:
+        return LinearModel.from_dict(recorded)
+    for entry in run.estimators.values():  # the model an estimator of the run was designed on
+        if entry.model is not None and (entry.model.get("dt") is None) == continuous:
+            return LinearModel.from_dict(entry.model)
     time_domain = "continuous" if continuous else "discrete"
     raise CosimError(f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
                      f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it")
@@ -364,10 +358,10 @@ def play(log: str | Path, interface: str = "udp_multicast", channel: str = "", p
         raise CosimError(f"--speed {speed:g}: must be a positive number of simulated seconds per wall-clock second")
     sent, sim_time = 0, 0.0
     with LogReader(log) as reader, DeferredInterrupts() as interrupts:
-        run = reader.metadata().get("cosim.run")
+        run = LogMetadata.read(reader.metadata()).run
         if run is None:
             raise LogError(f"{log}: no cosim.run metadata; --live plays the /can/frames of a log written by cosim run")
-        bus = allocate(interface, channel, port, bool(json.loads(run.get("bus", "{}")).get("fd", False)))
+        bus = allocate(interface, channel, port, bool(run.bus.get("fd", False)))
         with open_bus(bus) as live:
             if on_start is not None:
                 on_start(bus)

@@ -1,12 +1,8 @@
-"""MCAP logs of JSON messages with JSON Schemas, written with the official ``mcap`` library.
+"""Reading cosim's MCAP logs, damaged ones included: as far as they go, with what was wrong said.
 
-``McapLog`` is a context manager: whatever ends the run (normal completion, an exception,
-Ctrl-C), leaving the ``with`` block finishes the file, so the chunks written so far, their message
-indexes and the summary section are on disk and the file is valid. Files are chunked,
-zstd-compressed and fully indexed (viewers built on the TypeScript reader need message indexes).
-
-Nothing wall-clock goes into the file (attachment times are simulated times), so a deterministic
-run writes a byte-identical log.
+``LogReader`` reads the summary and indexes where they are intact, and falls back to a sequential
+scan of the records where they are not; reading stops at the first damaged record with a warning
+that says where, and a damaged chunk is skipped. Only a file that is not MCAP at all raises.
 """
 
 from __future__ import annotations
@@ -16,108 +12,21 @@ import json
 import struct
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import orjson
 import zstandard
-from mcap.exceptions import EndOfFile, McapError
 from mcap import records
+from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.well_known import SchemaEncoding
 
-from cosim import __version__
 from cosim.errors import LogError
-
-_JSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
-
 
 #: What the mcap reader raises on truncated or corrupted input (OSError and OverflowError: a
 #: damaged summary or footer gives offsets outside the file, which ``seek`` refuses).
 READ_ERRORS = (McapError, ValueError, EOFError, struct.error, zstandard.ZstdError, OSError, OverflowError)
-
-
-def dumps(payload: Any) -> bytes:
-    """JSON bytes of a message. NaN and ±inf become null (JSON has no such numbers)."""
-    return orjson.dumps(payload, option=_JSON_OPTIONS)
-
-
-class McapLog:
-    """Writes JSON messages on named topics, each with a JSON Schema, into one MCAP file."""
-
-    def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
-        self._writer.start(profile="", library=f"cosim/{__version__}")
-        self._channels: dict[str, int] = {}
-        self._sequence: dict[int, int] = {}
-        self.messages = 0
-        self.closed = False
-
-    def __enter__(self) -> McapLog:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def channel(self, topic: str, schema: dict[str, Any]) -> int:
-        """Register a topic with its JSON Schema (once); returns its channel id."""
-        if topic in self._channels:
-            return self._channels[topic]
-        title = schema.get("title", topic)
-        schema_id = self._writer.register_schema(name=title, encoding="jsonschema", data=json.dumps(schema).encode())
-        channel_id = self._writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
-        self._channels[topic] = channel_id
-        self._sequence[channel_id] = 0
-        return channel_id
-
-    def write(self, channel_id: int, time_ns: int, payload: Any) -> None:
-        """Append one message; ``time_ns`` is simulated time (log and publish time)."""
-        sequence = self._sequence[channel_id]
-        self._sequence[channel_id] = sequence + 1
-        self._writer.add_message(channel_id, log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence)
-        self.messages += 1
-
-    def metadata(self, name: str, values: dict[str, str]) -> None:
-        self._writer.add_metadata(name, {key: str(value) for key, value in values.items()})
-
-    def attach(self, name: str, media_type: str, data: bytes, time_ns: int = 0) -> None:
-        self._writer.add_attachment(create_time=time_ns, log_time=time_ns, name=name, media_type=media_type, data=data)
-
-    def close(self) -> None:
-        """Write the last chunk, the indexes and the summary; idempotent."""
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._stream.close()
-
-
-def object_schema(title: str, properties: dict[str, Any], description: str = "") -> dict[str, Any]:
-    """A JSON Schema for an object with the given properties (all required)."""
-    schema: dict[str, Any] = {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "type": "object",
-        "properties": properties,
-        "required": list(properties),
-    }
-    if description:
-        schema["description"] = description
-    return schema
-
-
-def number(description: str = "", unit: str = "", nullable: bool = False) -> dict[str, Any]:
-    """Schema of a number field (with its unit in the description); nullable for NaN/missing."""
-    text = f"{description} [{unit}]" if unit else description
-    schema: dict[str, Any] = {"type": ["number", "null"] if nullable else "number"}
-    if text:
-        schema["description"] = text
-    return schema
 
 
 class LogReader:
@@ -185,7 +94,7 @@ class LogReader:
 
         def parsed(schema_id: int) -> dict[str, Any]:
             schema = schemas.get(schema_id)
-            if schema is None or schema.encoding != "jsonschema":
+            if schema is None or schema.encoding != SchemaEncoding.JSONSchema:
                 return {}
             try:
                 return json.loads(schema.data)

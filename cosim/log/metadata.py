@@ -1,0 +1,365 @@
+"""The metadata records of a run log, each spelled once: what they hold, how they are written and read.
+
+An MCAP metadata record is a flat map of strings; cosim writes these (nested values as JSON):
+
+- ``cosim.run`` (``RunRecord``): the scenario's name, seed, timing, plant, signal names, each
+  estimator (kind, messages, parameters with its design, design model, diagnostics), the controller,
+  the faults and the bus, written before tick 0;
+- ``cosim.scenario`` (``ScenarioRecord``): the TOML as given and the validated scenario as JSON;
+- ``cosim.versions``: the versions of Python, cosim and the libraries that shape a log;
+- ``cosim.bus``: where the run's bus was (``cosim.bus.transport.BusConfig``);
+- ``cosim.result`` (``ResultRecord``): how the run ended, written last;
+- ``cosim.replay`` (``ReplayRecord``): in a replay's log, what was replayed.
+
+Reading is lenient: ``LogMetadata.read`` takes whatever a log has, and a field that is missing or
+damaged gets its default and a warning, so that a reader of a damaged or foreign log reports what
+it can instead of failing.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import platform
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from cosim import __version__
+
+RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = "cosim.run", "cosim.scenario", "cosim.versions", "cosim.bus", "cosim.result", "cosim.replay"
+#: The attachment holding the run's CAN database.
+DBC_ATTACHMENT = "cosim.dbc"
+_LIBRARIES = ("mujoco", "numpy", "scipy", "python-can", "cantools", "mcap")
+
+
+def versions() -> dict[str, str]:
+    """The ``cosim.versions`` record of this process."""
+    found = {"python": platform.python_version(), "cosim": __version__}
+    for package in _LIBRARIES:
+        try:
+            found[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            found[package] = "unknown"
+    return found
+
+
+class _Fields:
+    """Typed reads of one record's string fields; a damaged field gives its default and a warning."""
+
+    def __init__(self, record: dict[str, str], name: str, warnings: list[str]) -> None:
+        self.record, self.name, self.warnings = record, name, warnings
+
+    def text(self, key: str, default: str = "") -> str:
+        return self.record.get(key, default)
+
+    def json(self, key: str, default: Any) -> Any:
+        if key not in self.record:
+            return default
+        try:
+            value = json.loads(self.record[key])
+        except ValueError:
+            value = ValueError
+        if value is ValueError or (isinstance(default, (list, dict)) and not isinstance(value, type(default))):
+            self.warnings.append(f"{self.name} metadata field {key!r} is not valid JSON of the expected shape; ignored")
+            return default
+        return value
+
+    def integer(self, key: str) -> int | None:
+        try:
+            return int(self.record[key]) if key in self.record else None
+        except ValueError:
+            self.warnings.append(f"{self.name} metadata field {key!r} is not an integer; ignored")
+            return None
+
+    def positive(self, key: str) -> float | None:
+        try:
+            value = float(self.record[key]) if key in self.record else None
+        except ValueError:
+            self.warnings.append(f"{self.name} metadata field {key!r} is not a number; ignored")
+            return None
+        return value if value and math.isfinite(value) and value > 0 else None
+
+
+@dataclass(frozen=True)
+class DiagnosticRecord:
+    """What a diagnostic signal of an estimator is (``estimators.Diagnostic``): its kind (``alarm``,
+    ``residual``, ...), what it refers to (a sensor, a thruster, ...) and its unit."""
+
+    kind: str = ""
+    target: str = ""
+    unit: str = ""
+
+
+def _diagnostics_json(diagnostics: dict[str, DiagnosticRecord]) -> dict[str, Any]:
+    return {name: {"kind": d.kind, "target": d.target, "unit": d.unit} for name, d in diagnostics.items()}
+
+
+def _diagnostics_from(value: Any) -> dict[str, DiagnosticRecord]:
+    if not isinstance(value, dict):
+        return {}
+    return {str(name): DiagnosticRecord(**{k: str(v) for k, v in d.items() if k in ("kind", "target", "unit")})
+            for name, d in value.items() if isinstance(d, dict)}
+
+
+@dataclass(frozen=True)
+class EstimatorRecord:
+    """One estimator of the run: kind, its messages, the states it estimates, its parameters (those
+    given and its design), its design model (``LinearModel.to_dict``) and its diagnostics by signal."""
+
+    kind: str
+    messages: list[str] = field(default_factory=list)
+    states: list[str] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    model: dict[str, Any] | None = None
+    diagnostics: dict[str, DiagnosticRecord] = field(default_factory=dict)
+    isolates: dict[str, list[str]] = field(default_factory=dict)
+    """What each isolation diagnostic names as faulty: sensor or actuator names."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, "messages": self.messages, "states": self.states, "params": self.params, "model": self.model,
+                "diagnostics": _diagnostics_json(self.diagnostics), "isolates": self.isolates}
+
+    @classmethod
+    def from_json(cls, value: Any) -> EstimatorRecord:
+        value = value if isinstance(value, dict) else {}
+        params, isolates = value.get("params"), value.get("isolates")
+        return cls(
+            str(value.get("kind") or ""), list(value.get("messages") or []), list(value.get("states") or []),
+            params if isinstance(params, dict) else {}, value.get("model") if isinstance(value.get("model"), dict) else None,
+            _diagnostics_from(value.get("diagnostics")),
+            {str(k): [str(t) for t in v] for k, v in isolates.items() if isinstance(v, list)} if isinstance(isolates, dict) else {},
+        )
+
+    def signals_of(self, kind: str) -> dict[str, str]:
+        """The diagnostic signals of one kind, each with its target."""
+        return {name: d.target for name, d in self.diagnostics.items() if d.kind == kind}
+
+
+@dataclass(frozen=True)
+class ControllerRecord:
+    """The controller node of a closed-loop run: its kind, parameters, diagnosis node, its messages
+    (commands, then its status) and its design model."""
+
+    kind: str
+    params: dict[str, Any] = field(default_factory=dict)
+    diagnosis: str = ""
+    messages: list[str] = field(default_factory=list)
+    model: dict[str, Any] | None = None
+    status_messages: list[str] = field(default_factory=list)
+    diagnostics: dict[str, DiagnosticRecord] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, "params": self.params, "diagnosis": self.diagnosis, "messages": self.messages,
+                "model": self.model, "status_messages": self.status_messages, "diagnostics": _diagnostics_json(self.diagnostics)}
+
+    def signals_of(self, kind: str) -> list[str]:
+        """The status signals of one diagnostic kind."""
+        return [name for name, d in self.diagnostics.items() if d.kind == kind]
+
+    @classmethod
+    def from_json(cls, value: Any) -> ControllerRecord | None:
+        if not isinstance(value, dict):
+            return None
+        return cls(str(value.get("kind") or ""), value.get("params") or {}, str(value.get("diagnosis") or ""),
+                   list(value.get("messages") or []), value.get("model"), list(value.get("status_messages") or []),
+                   _diagnostics_from(value.get("diagnostics")))
+
+
+@dataclass(frozen=True)
+class FaultRecord:
+    """A fault of the run: its label, kind, window (``end`` None: until the end of the run) and the
+    sensors or actuators it acts on (None where a log does not say)."""
+
+    label: str
+    kind: str | None = None
+    start: float | None = None
+    end: float | None = None
+    targets: list[str] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"label": self.label, "kind": self.kind, "start": self.start, "end": self.end, "targets": self.targets}
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """``cosim.run``: what a reader of the log needs to know about the run, written before tick 0."""
+
+    scenario: str | None = None
+    source: str | None = None
+    seed: int | None = None
+    sample_time: float | None = None
+    duration: float | None = None
+    ticks: int | None = None
+    plant: str | None = None
+    states: list[str] = field(default_factory=list)
+    sensors: list[str] = field(default_factory=list)
+    actuators: list[str] = field(default_factory=list)
+    disturbances: list[str] = field(default_factory=list)
+    estimators: dict[str, EstimatorRecord] = field(default_factory=dict)
+    model: dict[str, Any] | None = None
+    continuous_model: dict[str, Any] | None = None
+    clients: dict[str, Any] = field(default_factory=dict)
+    controller: ControllerRecord | None = None
+    fault_onset: float | None = None
+    fault_onset_tick: int | None = None
+    faults: list[FaultRecord] = field(default_factory=list)
+    bus: dict[str, Any] = field(default_factory=dict)
+    """interface, fd, bitrate, data_bitrate"""
+    timing: dict[str, Any] = field(default_factory=dict)
+    """mode, speed, node_timeout, join_timeout"""
+
+    @property
+    def dt_ns(self) -> int | None:
+        """The sample time in nanoseconds (log time of tick k is k · dt_ns)."""
+        return round(self.sample_time * 1e9) if self.sample_time else None
+
+    def estimate_topics(self) -> dict[str, str]:
+        """Decoded topic of every estimator message → the estimator."""
+        from cosim.log.recorder import message_topic
+
+        return {message_topic(m): name for name, e in self.estimators.items() for m in e.messages}
+
+    def to_metadata(self) -> dict[str, str]:
+        return {
+            "scenario": str(self.scenario), "source": str(self.source), "seed": str(self.seed), "sample_time": repr(self.sample_time),
+            "duration": repr(self.duration), "ticks": str(self.ticks), "plant": str(self.plant),
+            "states": json.dumps(self.states), "sensors": json.dumps(self.sensors),
+            "actuators": json.dumps(self.actuators), "disturbances": json.dumps(self.disturbances),
+            "estimators": json.dumps({name: e.to_json() for name, e in self.estimators.items()}),
+            "model": json.dumps(self.model),
+            "continuous_model": json.dumps(self.continuous_model),
+            "clients": json.dumps(self.clients),
+            "controller": json.dumps(None if self.controller is None else self.controller.to_json()),
+            "fault_onset": json.dumps(self.fault_onset),
+            "fault_onset_tick": json.dumps(self.fault_onset_tick),
+            "faults": json.dumps([f.to_json() for f in self.faults]),
+            "bus": json.dumps(self.bus),
+            "timing": json.dumps(self.timing),
+        }
+
+    @classmethod
+    def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> RunRecord:
+        f = _Fields(record, RUN, warnings)
+        faults = [FaultRecord(str(x.get("label")), x.get("kind"), x.get("start"), x.get("end"),
+                              [str(t) for t in x["targets"]] if isinstance(x.get("targets"), list) else None)
+                  for x in f.json("faults", []) if isinstance(x, dict) and "label" in x]
+        onset_tick = f.json("fault_onset_tick", None)
+        return cls(
+            scenario=record.get("scenario"), source=record.get("source"), seed=f.integer("seed"),
+            sample_time=f.positive("sample_time"), duration=f.positive("duration"), ticks=f.integer("ticks"),
+            plant=record.get("plant"), states=f.json("states", []), sensors=f.json("sensors", []),
+            actuators=f.json("actuators", []), disturbances=f.json("disturbances", []),
+            estimators={str(name): EstimatorRecord.from_json(e) for name, e in f.json("estimators", {}).items()},
+            model=f.json("model", None), continuous_model=f.json("continuous_model", None), clients=f.json("clients", {}),
+            controller=ControllerRecord.from_json(f.json("controller", None)), fault_onset=f.json("fault_onset", None),
+            fault_onset_tick=onset_tick if isinstance(onset_tick, int) else None, faults=faults,
+            bus=f.json("bus", {}), timing=f.json("timing", {}),
+        )
+
+    def with_only(self, name: str, estimator: EstimatorRecord) -> RunRecord:
+        """The same run with ``estimator`` as its only estimator and no clients (a replay's record)."""
+        return replace(self, estimators={name: estimator}, clients={})
+
+
+@dataclass(frozen=True)
+class ScenarioRecord:
+    """``cosim.scenario``: the scenario file as given and the validated scenario as JSON."""
+
+    source: str = ""
+    toml: str = ""
+    resolved: str = ""
+
+    def to_metadata(self) -> dict[str, str]:
+        return {"source": self.source, "toml": self.toml, "resolved": self.resolved}
+
+    def resolved_json(self, warnings: list[str] | None = None) -> dict[str, Any]:
+        """The validated scenario as plain values ({} where the record has none or it is damaged)."""
+        return _Fields({"resolved": self.resolved} if self.resolved else {}, SCENARIO, [] if warnings is None else warnings).json("resolved", {})
+
+
+@dataclass(frozen=True)
+class SenderCounts:
+    """Frames of one node the runner received, of them lost, and of the runner's frames it missed."""
+
+    frames: int = 0
+    lost: int = 0
+    runner_frames_missed: int = 0
+
+
+@dataclass(frozen=True)
+class ResultRecord:
+    """``cosim.result``: how the run ended, written when the log is closed."""
+
+    status: str
+    ticks: int | None = None
+    frames_total: int | None = None
+    frames_lost: int | None = None
+    deadline_misses: int | None = None
+    error: str = ""
+    senders: dict[str, SenderCounts] = field(default_factory=dict)
+
+    def to_metadata(self) -> dict[str, str]:
+        return {
+            "status": self.status, "ticks": str(self.ticks), "frames_total": str(self.frames_total),
+            "frames_lost": str(self.frames_lost), "deadline_misses": str(self.deadline_misses), "error": self.error,
+            "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
+        }
+
+    @classmethod
+    def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> ResultRecord:
+        f = _Fields(record, RESULT, warnings)
+        senders = {}
+        for name, counts in f.json("senders", {}).items():
+            if isinstance(counts, dict):
+                try:
+                    senders[str(name)] = SenderCounts(*(int(counts.get(k, 0)) for k in ("frames", "lost", "runner_frames_missed")))
+                except (TypeError, ValueError):
+                    warnings.append(f"{RESULT} metadata field 'senders' has a damaged entry for {name!r}; ignored")
+        return cls(record.get("status", "incomplete"), f.integer("ticks"), f.integer("frames_total"), f.integer("frames_lost"),
+                   f.integer("deadline_misses"), record.get("error", ""), senders)
+
+
+@dataclass(frozen=True)
+class ReplayRecord:
+    """``cosim.replay``: the log replayed, the estimator fed with it and what was changed."""
+
+    log: str
+    estimator: str
+    kind: str
+    new: bool = False
+    params: dict[str, Any] = field(default_factory=dict)
+    ticks: int = 0
+
+    def to_metadata(self) -> dict[str, str]:
+        return {"log": self.log, "estimator": self.estimator, "kind": self.kind, "new": json.dumps(self.new),
+                "params": json.dumps(self.params), "ticks": str(self.ticks)}
+
+    @classmethod
+    def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> ReplayRecord:
+        f = _Fields(record, REPLAY, warnings)
+        return cls(record.get("log", ""), record.get("estimator", ""), record.get("kind", ""), bool(f.json("new", False)),
+                   f.json("params", {}), f.integer("ticks") or 0)
+
+
+@dataclass(frozen=True)
+class LogMetadata:
+    """Every cosim metadata record a log holds (None where it has none), and what was wrong with them."""
+
+    run: RunRecord | None = None
+    scenario: ScenarioRecord | None = None
+    result: ResultRecord | None = None
+    replay: ReplayRecord | None = None
+    bus: dict[str, str] = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @classmethod
+    def read(cls, meta: dict[str, dict[str, str]]) -> LogMetadata:
+        """The records of a log's metadata (``LogReader.metadata()``), read leniently."""
+        warnings: list[str] = []
+        run = RunRecord.from_metadata(meta[RUN], warnings) if RUN in meta else None
+        scenario = ScenarioRecord(**{k: v for k, v in meta[SCENARIO].items() if k in ("source", "toml", "resolved")}) if SCENARIO in meta else None
+        result = ResultRecord.from_metadata(meta[RESULT], warnings) if RESULT in meta else None
+        replay = ReplayRecord.from_metadata(meta[REPLAY], warnings) if REPLAY in meta else None
+        return cls(run, scenario, result, replay, dict(meta.get(BUS, {})), dict(meta.get(VERSIONS, {})), warnings)

@@ -1,0 +1,180 @@
+"""The tick loop, written once, over a source of ticks: the simulated plant, or a log.
+
+Tick k at t_k = k τ, in four phases:
+
+  1. ``session.begin(k)``: Ctrl-C is taken between ticks; in realtime, wait for the tick's time;
+  2. ``session.send(k, source.frames(k))``: the runner's frames of tick k (SYNC(k), then the sensor
+     and command frames) go on the bus; while the nodes work on them, the previous tick's traffic
+     and these frames are logged;
+  3. ``source.advance(k, session)``: the source does what follows the frames: the plant applies
+     the commands (in a closed loop, the controller node's, waited for) through the actuator
+     faults, logs the truth of tick k and advances the physics; a log copies its truth;
+  4. ``session.end(k)``: every lockstep participant has answered tick k (lockstep) or its deadline
+     has passed (realtime).
+
+``execute`` wraps the loop: every participant joins first, and whatever ends the run, the nodes
+are stopped and the log says how it ended.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+import can
+import numpy as np
+
+import faults as fm
+from cosim.bus.codec import CONTROLLER, Decoded
+from cosim.bus.transport import BusConfig
+from cosim.errors import CosimError
+from cosim.plant import build_plant
+from cosim.run.launcher import ExternalClient, LocalController, LocalNode, ProcessNode
+from cosim.run.node import NodeSpec
+from cosim.run.plan import RunPlan
+from cosim.run.session import Progress, RunResult, Session, ending
+from cosim.scenario import build_faults, build_waveform
+
+_ENVIRONMENT = 0xE1  # spawn key of the disturbance models' random streams (the faults use others)
+
+
+class TickSource(Protocol):
+    """Where a run's ticks come from."""
+
+    ticks: int
+
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
+        """The runner's frames of tick k, SYNC(k) first, each with what a receiver decodes from it."""
+
+    def advance(self, k: int, session: Session) -> None:
+        """What follows tick k's frames on the bus, before the tick is closed."""
+
+
+class PlantSource:
+    """Ticks of the simulated plant: sense, inject the sensor faults, encode; then actuate through the
+    actuator faults, log the truth and step the physics.
+
+    The actuators hold the operating point's inputs until a controller node's first command; in an
+    open-loop run they receive the scenario's input signals as the command frames carry them
+    (quantized in classic CAN)."""
+
+    def __init__(self, plan: RunPlan) -> None:
+        s = self.scenario = plan.scenario
+        self.codec = plan.codec
+        self.ticks = s.ticks
+        self.plant = build_plant(s)
+        self.plant.reset(s.plant.initial_state)
+        self.faults = build_faults(s)
+        self.closed_loop = s.controller is not None
+        self.inputs = [next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
+                       for name in s.actuators]
+        self.disturbances = [next((build_waveform(d.signal) for d in s.disturbances if d.input == name and d.signal is not None),
+                                  fm.Constant(0.0)) for name in s.disturbance_inputs]
+        self.environments = [
+            s.plant_info.disturbance_models[d.model](
+                np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_ENVIRONMENT, i))), **d.params)
+            for i, d in enumerate(s.disturbances) if d.model
+        ]
+        self.sensor_specs = [plan.codec.sensor(n) for n in s.sensors]
+        self.command_specs = [plan.codec.command(n) for n in s.actuators]
+        self.u_cmd = plan.model.u_op.copy()  # what the actuators hold before a controller's first command
+        self._sensed: tuple[np.ndarray, np.ndarray, fm.SensorOutcome] | None = None
+        self._commands: list[tuple[can.Message, Decoded]] = []
+
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
+        codec, t = self.codec, self.scenario.time(k)
+        x, y_true = self.plant.state(), self.plant.sensors()
+        outcome = self.faults.sensors(y_true, t)
+        self._sensed = (x, y_true, outcome)
+        sent = [codec.encode_decoded(spec.name, k, (value,)) for spec, value, on in zip(self.sensor_specs, outcome.measured, outcome.sent) if on]
+        self._commands = [] if self.closed_loop else [
+            codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(self.command_specs, self.inputs)]
+        sync = codec.sync(k, len(sent) + len(self._commands))
+        return [(sync, codec.decode(sync)), *sent, *self._commands]
+
+    def advance(self, k: int, session: Session) -> None:
+        s, t = self.scenario, self.scenario.time(k)
+        assert self._sensed is not None
+        x, y_true, outcome = self._sensed
+        if self.closed_loop:
+            self.u_cmd = session.commands(k, s.actuators, self.u_cmd)
+        else:
+            self.u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(self._commands, self.command_specs)])
+        u_eff, delta = self.faults.actuators(self.u_cmd, t)
+        d = np.array([w(t) for w in self.disturbances]) + sum((b(t) for b in self.environments), np.zeros(len(self.disturbances)))
+        session.recorder.truth(
+            k, t, k * s.dt_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
+            measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=self.u_cmd,
+            u_eff=u_eff, delta=delta, disturbance=d,
+        )
+        if not np.all(np.isfinite(u_eff)):
+            bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
+            raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
+        self.plant.step(u_eff, d)
+
+
+def run_ticks(source: TickSource, session: Session, progress: Callable[[int], None]) -> int:
+    """Every tick of ``source`` through ``session``; returns the number of ticks run."""
+    for k in range(source.ticks):
+        session.begin(k)
+        session.send(k, source.frames(k))
+        source.advance(k, session)
+        session.end(k)
+        progress(k + 1)
+    return source.ticks
+
+
+def execute(source: TickSource, session: Session, start: Callable[[], None], senders: list[str],
+            on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2) -> RunResult:
+    """Start the participants (``start`` adds them to ``session.participants``), wait for them to
+    join, run every tick of ``source`` and finish the log, however the run ends: the log then says
+    how it ended and what each of ``senders`` sent. Re-raises what stopped it."""
+    status, error, k = "completed", "", 0
+    last_report = time.perf_counter()
+
+    def progress(done: int) -> None:
+        nonlocal k, last_report
+        k = done
+        if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
+            last_report = now
+            on_progress(session.progress(done, source.ticks))
+
+    try:
+        start()
+        session.join()
+        k = run_ticks(source, session, progress)
+    except BaseException as exc:
+        status, error = ending(exc)
+        raise
+    finally:
+        result = session.finish(k, status, error, senders)
+        if on_progress is not None:
+            on_progress(session.progress(k, source.ticks))
+    return result
+
+
+def start_participants(plan: RunPlan, session: Session, node_spec: Callable[[str, BusConfig], NodeSpec] | None = None) -> None:
+    """Start the estimator nodes, the controller node and wait for the declared clients of a run,
+    each added to the session's participants as soon as it exists (to be stopped, whatever comes)."""
+    s, bus = plan.scenario, session.config
+    node_spec = node_spec or plan.node_spec
+    external = set(plan.external_nodes)
+    found = session.participants
+    for name, estimator in plan.estimators.items():
+        spec = node_spec(name, bus)
+        if name in external:
+            found.append(ExternalClient(name, True, kind="node"))
+        elif bus.interface == "virtual":
+            found.append(LocalNode(spec, estimator))
+        else:
+            found.append(ProcessNode(spec, session.workdir))
+    if s.controller is not None and plan.controller is not None:
+        spec = node_spec(CONTROLLER, bus)
+        if CONTROLLER in external:
+            found.append(ExternalClient(CONTROLLER, True, kind="controller"))
+        elif bus.interface == "virtual":
+            found.append(LocalController(spec, plan.controller))
+        else:
+            found.append(ProcessNode(spec, session.workdir, kind="controller"))
+    found += [ExternalClient(c.name, c.lockstep) for c in s.clients]

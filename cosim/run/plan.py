@@ -1,0 +1,227 @@
+"""What a run is built from, fixed before tick 0: the plan.
+
+``RunPlan.build`` takes a loaded scenario (with command-line overrides), linearizes its plant at
+its operating point (MuJoCo itself, ``cosim.plant``), designs every estimator and the controller on
+that model (through the design cache), builds the run's CAN database and says what the log's
+``cosim.run`` record will hold. Nothing in a plan changes while the run goes; what does (the
+plant's state, the faults' random streams) lives in the tick source built from it
+(``cosim.run.loop.PlantSource``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+import estimators
+import faults as fm
+from cosim.bus.codec import CONTROL, CONTROLLER, Codec
+from cosim.bus.transport import BusConfig
+from cosim.errors import ModelError, ScenarioError
+from cosim.log.metadata import (
+    ControllerRecord,
+    DiagnosticRecord,
+    EstimatorRecord,
+    FaultRecord,
+    RunRecord,
+    ScenarioRecord,
+)
+from cosim.plant import build_plant
+from cosim.run import design_cache
+from cosim.run.node import NodeSpec
+from cosim.scenario import LoadedScenario, Scenario, build_faults
+from estimators import Diagnostic, Estimator, LinearModel, ParameterError
+from estimators import controller as controllers
+from estimators.design import fault_rejectable
+
+
+def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> dict[str, Estimator]:
+    """Each estimator of the scenario, designed on ``model`` (discrete time), or on ``continuous``
+    (the continuous-time linearization) for the kinds that integrate their own ODE."""
+    built = {}
+    for i, spec in enumerate(s.estimators):
+        try:
+            chosen = continuous if estimators.ESTIMATORS[spec.kind].continuous else model
+            if chosen is None:
+                raise ParameterError("model", f"{spec.kind} needs the continuous-time model")
+            cached = design_cache.load(spec.kind, spec.params, chosen)
+            built[spec.name] = estimators.create(spec.kind, chosen, {**spec.params, **(cached or {})}, s.sample_time)
+            if cached is None:
+                design_cache.store(spec.kind, spec.params, chosen, built[spec.name].design_params())
+        except ParameterError as error:
+            raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
+    return built
+
+
+def build_controller(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> controllers.Controller | None:
+    """The scenario's controller on the plant's linear model, with its parameters checked."""
+    if s.controller is None:
+        return None
+    kind = controllers.CONTROLLERS[s.controller.kind]
+    chosen = continuous if kind.continuous else model
+    if chosen is None:
+        raise ScenarioError(f"{source}: controller: {s.controller.kind} needs the continuous-time model")
+    try:
+        return kind.from_params(chosen, s.controller.params, s.sample_time)
+    except ParameterError as error:
+        raise ScenarioError(f"{source}: controller.params.{error}") from None
+
+
+def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
+    """Warnings about scenario faults that an estimator cannot reject by design: a constant bias
+    whose direction lies in Im(Y) (TAC 2024 Remark 4, CDC 2016 Remark 2)."""
+    found = []
+    for spec in s.faults:
+        if spec.kind != "bias":
+            continue
+        sensors = spec.sensors if spec.sensors is not None else list(s.sensors)
+        values = np.broadcast_to(np.asarray(spec.value, dtype=float), (len(sensors),))
+        for name, estimator in built.items():
+            Y = getattr(estimator, "Y", None)
+            if Y is None:  # not an output-allocation observer
+                continue
+            phi = np.zeros(estimator.model.p)
+            for sensor, value in zip(sensors, values):
+                if sensor in estimator.model.outputs:
+                    phi[estimator.model.outputs.index(sensor)] = value
+            sigma = getattr(estimator, "Sigma", np.eye(len(phi)))
+            if not fault_rejectable(Y, sigma @ phi):
+                found.append(f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so no "
+                             "choice of pseudoinverse weights can reject it (TAC 2024 Remark 4)")
+    return found
+
+
+def first_tick_at(s: Scenario, start: float) -> int:
+    """The first tick k with t_k >= start: where a fault starting at ``start`` is first active."""
+    k = max(0, math.ceil(start / s.sample_time) - 1)
+    while s.time(k) < start:
+        k += 1
+    return k
+
+
+def fault_record(fault: fm.Fault, s: Scenario) -> FaultRecord:
+    """What the log says about one fault: its window and the signals it acts on."""
+    signals = s.actuators if isinstance(fault, fm.ActuatorFault) else s.sensors
+    return FaultRecord(fault.label, fault.kind, fault.start, fault.end if np.isfinite(fault.end) else None,
+                       [signals[c] for c in fault.channels])
+
+
+def diagnostic_records(channels: list[Diagnostic]) -> dict[str, DiagnosticRecord]:
+    """What the log says about each diagnostic signal."""
+    return {d.name: DiagnosticRecord(d.kind.value, d.target, d.unit) for d in channels}
+
+
+def estimator_record(codec: Codec, name: str, kind: str, params: dict[str, Any], estimator: Estimator) -> EstimatorRecord:
+    """The ``cosim.run`` entry of one estimator: designed ``estimator`` of ``kind``, given ``params``."""
+    model = estimator.model
+    diagnostics = diagnostic_records(estimators.ESTIMATORS[kind].diagnostic_channels(model.states, model.outputs))
+    return EstimatorRecord(kind, [m.name for m in codec.data_messages(name)], list(model.states),
+                           {**params, **estimator.design_params()}, model.to_dict(), diagnostics, estimator.isolation_targets())
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """One run of a scenario, designed: everything that is fixed before tick 0."""
+
+    loaded: LoadedScenario
+    scenario: Scenario
+    state_names: tuple[str, ...]
+    model: LinearModel
+    """The discrete-time linearization the estimators and the controller are designed on."""
+    continuous_model: LinearModel | None
+    """The continuous-time one (None for a discrete-time state-space plant)."""
+    estimators: dict[str, Estimator]
+    controller: controllers.Controller | None
+    codec: Codec
+    warnings: tuple[str, ...]
+    faults: tuple[FaultRecord, ...]
+    onset_tick: int | None
+    units: dict[str, dict[str, str]]
+
+    @classmethod
+    def build(cls, loaded: LoadedScenario, seed: int | None = None, **overrides: Any) -> RunPlan:
+        """The plan of ``loaded`` with ``seed`` and ``overrides`` (see ``Scenario.with_overrides``),
+        validated like the file; a ScenarioError names whatever cannot be built."""
+        try:
+            s = loaded.scenario.with_overrides(seed=seed, **overrides)
+        except ScenarioError as error:
+            raise ScenarioError(f"{loaded.source}: {error}") from None
+        try:
+            plant = build_plant(s)
+        except ModelError as error:
+            raise ScenarioError(f"{loaded.source}: {error}") from None
+        # Estimators are designed on the linearization at the plant's keyframe (its operating point),
+        # or at its design keyframe if it has one.
+        if s.plant_info.design_keyframe:
+            plant.reset(keyframe=s.plant_info.design_keyframe)
+        model = plant.linearize()
+        needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
+            s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous)
+        try:  # computed even when no estimator needs it: the log records it, for replay to design new ones on
+            continuous: LinearModel | None = plant.linearize(continuous=True)
+        except ModelError:  # a discrete-time state-space plant has none
+            if needs_continuous:
+                raise
+            continuous = None
+        built = build_estimators(s, model, loaded.source, continuous)
+        injector = build_faults(s)
+        onset = injector.first_onset
+        sensors, actuators, states = s.channels()
+        return cls(
+            loaded, s, tuple(plant.state_names), model, continuous, built, build_controller(s, model, loaded.source, continuous),
+            s.codec(), tuple(design_warnings(s, built)),
+            tuple(fault_record(f, s) for f in injector.faults),
+            None if onset is None else first_tick_at(s, onset),
+            {"states": {c.name: c.unit for c in states}, "sensors": {c.name: c.unit for c in sensors},
+             "actuators": {c.name: c.unit for c in actuators}, "disturbances": {c.name: c.unit for c in s.plant_info.disturbances}},
+        )
+
+    @property
+    def external_nodes(self) -> list[str]:
+        """The nodes started by hand ('cosim node NAME --run ID')."""
+        names = [e.name for e in self.scenario.estimators if e.external]
+        c = self.scenario.controller
+        return names + [CONTROLLER] if c is not None and c.external else names
+
+    def node_spec(self, name: str, bus: BusConfig) -> NodeSpec:
+        """What the node ``name`` (an estimator, or the controller) needs to run on ``bus``."""
+        s = self.scenario
+        if name == CONTROLLER and s.controller is not None and self.controller is not None:
+            diagnosis = s.controller.diagnosis
+            return NodeSpec(CONTROLLER, s.controller.kind, s.controller.params, self.controller.model, self.codec.dbc, bus,
+                            s.sample_time, {diagnosis: 1} if diagnosis else {}, diagnosis)
+        spec = next(e for e in s.estimators if e.name == name)
+        estimator = self.estimators[name]
+        return NodeSpec(name, spec.kind, {**spec.params, **estimator.design_params()}, estimator.model, self.codec.dbc, bus,
+                        s.sample_time, {CONTROLLER: 0} if s.controller is not None else {})
+
+    def run_record(self) -> RunRecord:
+        """The log's ``cosim.run`` record."""
+        s, codec = self.scenario, self.codec
+        controller = None
+        if s.controller is not None and self.controller is not None:
+            kind = controllers.CONTROLLERS[s.controller.kind]
+            controller = ControllerRecord(
+                s.controller.kind, s.controller.params, s.controller.diagnosis, [m.name for m in codec.data_messages(CONTROLLER)],
+                self.controller.model.to_dict(), [m.name for m in codec.messages(role=CONTROL)],
+                diagnostic_records(kind.diagnostic_channels(s.actuators, s.sensors)))
+        return RunRecord(
+            scenario=s.name, source=self.loaded.source, seed=s.seed, sample_time=s.sample_time, duration=s.duration,
+            ticks=s.ticks, plant=s.plant.model, states=list(self.state_names), sensors=list(s.sensors),
+            actuators=list(s.actuators), disturbances=list(s.disturbance_inputs),
+            estimators={spec.name: estimator_record(codec, spec.name, spec.kind, spec.params, self.estimators[spec.name])
+                        for spec in s.estimators},
+            model=self.model.to_dict(), continuous_model=None if self.continuous_model is None else self.continuous_model.to_dict(),
+            clients={c.name: {"lockstep": c.lockstep, "messages": [m.name for m in codec.data_messages(c.name)]} for c in s.clients},
+            controller=controller, fault_onset=min((f.start for f in self.faults if f.start is not None), default=None),
+            fault_onset_tick=self.onset_tick, faults=list(self.faults),
+            bus={"interface": s.bus.interface, "fd": s.bus.fd, "bitrate": s.bus.bitrate, "data_bitrate": s.bus.data_bitrate},
+            timing=s.timing.model_dump(),
+        )
+
+    def scenario_record(self) -> ScenarioRecord:
+        """The log's ``cosim.scenario`` record."""
+        return ScenarioRecord(self.loaded.source, self.loaded.text, self.scenario.model_dump_json())

@@ -1,0 +1,410 @@
+"""The bus side of a run: the participants it supervises, the frames it hears, the log it writes.
+
+A ``Session`` holds what one run or replay needs while its ticks go: the log (``McapLog`` and its
+``RunRecorder``), the open bus, the participants (node processes, in-process nodes, external
+clients), the frame accounting (``Traffic``) and Ctrl-C handling. Opened as a context manager, it
+closes all of them whatever ends the run. The tick loop (``cosim.run.loop``) drives it through a
+few phases per tick: ``begin``, ``send``, ``commands`` (closed loop), ``end``; ``finish`` stops
+the nodes and writes how the run ended.
+
+Frames of one tick are logged in a canonical order: the runner's own frames as sent, then the
+frames received during the tick by arbitration id (lowest first, as a CAN bus arbitrates frames
+pending together); the wall-clock arrival order of UDP datagrams from several processes is not
+deterministic, this order is.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from cosim.bus.codec import (
+    BOOTUP,
+    CLIENT,
+    COMMAND,
+    CONTROL,
+    CONTROLLER,
+    ESTIMATE,
+    HEARTBEAT,
+    NMT_STOP,
+    OPERATIONAL,
+    STOPPED,
+    Codec,
+    Decoded,
+)
+from cosim.bus.registry import Registration
+from cosim.bus.transport import BusConfig, drain, open_bus
+from cosim.errors import CodecError, CosimError
+from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
+from cosim.log.recorder import RunRecorder
+from cosim.log.writer import McapLog
+from cosim.run.interrupts import DeferredInterrupts
+from cosim.run.launcher import Participant
+
+_POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
+_HEALTH = 0.25  # s: how often it asks its participants whether they are still alive
+
+
+class NodeFailure(CosimError):
+    """A node or client died, hung or left during the run."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    tick: int
+    ticks: int
+    sim_time: float
+    wall_time: float
+    frames: int
+    deadline_misses: int = 0
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
+
+
+@dataclass(frozen=True)
+class RunResult:
+    path: Path
+    status: str
+    ticks: int
+    frames: int
+    frames_lost: int
+    wall_time: float
+    sim_time: float
+    error: str = ""
+    deadline_misses: int = 0
+    senders: dict[str, dict[str, int]] = field(default_factory=dict)
+    startup_time: float = 0.0
+    """Wall time from the start until every node had joined."""
+    loop_time: float = 0.0
+    """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
+
+
+def ending(exc: BaseException) -> tuple[str, str]:
+    """The status and error a log records for what stopped a run: Ctrl-C or SIGTERM (interrupted),
+    a CosimError (its message) or anything else (its type and message)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", ""
+    if isinstance(exc, CosimError):
+        return "error", str(exc)
+    return "error", f"{type(exc).__name__}: {exc}"
+
+
+class Traffic(can.Listener):
+    """What the runner hears during a run, with the bookkeeping behind loss and lateness.
+
+    Frames are taken as they arrive and logged tick by tick (``flush``). Heartbeats are decoded on
+    arrival, since the runner waits for them, and so are the controller node's commands;
+    everything else is decoded when logged. The runner's own frames come back on udp_multicast
+    (loopback): they are recognized by id, counted, and not logged twice. A node's heartbeat
+    closing tick j says how many frames it sent for j; frames of it missing at that point are
+    counted as lost, and the nodes report in their heartbeats how many of the runner's frames they
+    found missing.
+    """
+
+    def __init__(self, codec: Codec, recorder: RunRecorder, own_senders: tuple[str, ...], commands: bool = False) -> None:
+        self.codec = codec
+        self.recorder = recorder
+        self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
+        self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
+        self.joined: set[str] = set()
+        self.left: set[str] = set()
+        self.lost: Counter[str] = Counter()  # node -> frames of it the runner did not get
+        self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
+        self.received: Counter[str] = Counter()
+        self.echoes = 0
+        self._counts: Counter[tuple[str, int]] = Counter()
+        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
+        self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
+        self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if commands else set()
+        self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
+
+    def on_message_received(self, msg: can.Message) -> None:
+        identifier = None if msg.is_extended_id else msg.arbitration_id
+        if identifier in self._own:
+            self.echoes += 1
+            return
+        decoded = None
+        if identifier in self._heartbeats:
+            decoded = self._decode(msg)
+            if decoded is not None:
+                sender, state = decoded.spec.sender, decoded.values["state"]
+                if state == BOOTUP:
+                    self.joined.add(sender)
+                elif state == STOPPED:
+                    self.left.add(sender)
+                elif state == OPERATIONAL:
+                    self.closed[sender] = decoded.tick
+        elif identifier in self._commands:
+            decoded = self._decode(msg)
+            if decoded is not None:
+                channel = decoded.spec.channels[0]
+                self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
+        self.pending.append((msg, decoded))
+
+    def _decode(self, frame: can.Message) -> Decoded | None:
+        try:
+            return self.codec.decode(frame)
+        except CodecError:
+            return None  # logged raw, as an unknown frame
+
+    def flush(self, tick: int, t: float, t_ns: int) -> None:
+        """Account for the frames received during tick k, then log them by arbitration id."""
+        taken = []
+        for frame, decoded in self.pending:
+            if decoded is None:
+                decoded = self._decode(frame)
+            taken.append((frame, decoded))
+            if decoded is None:
+                continue
+            sender, role = decoded.spec.sender, decoded.spec.role
+            self.received[sender] += 1
+            if role in (ESTIMATE, CLIENT, COMMAND, CONTROL):
+                self._counts[(sender, decoded.tick)] += 1
+            elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
+                counter = decoded.tick % self.codec.tick_modulus
+                self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
+                self.missed_by[sender] = int(decoded.values["lost"])
+        self.pending.clear()
+        for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
+            self.recorder.frame(tick, t, t_ns, frame, decoded)
+
+    @property
+    def frames_lost(self) -> int:
+        return sum(self.lost.values()) + sum(self.missed_by.values())
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How a session paces its ticks: ``lockstep`` (wait for every node) or ``realtime`` at
+    ``speed``, with the lockstep time a node may take and the time to join."""
+
+    sample_time: float
+    mode: str = "lockstep"
+    speed: float = 1.0
+    node_timeout: float = 10.0
+    join_timeout: float = 30.0
+
+    @property
+    def realtime(self) -> bool:
+        return self.mode == "realtime"
+
+    @property
+    def period(self) -> float:
+        """Wall-clock seconds per tick in realtime."""
+        return self.sample_time / self.speed
+
+
+class Session:
+    """One run's bus, participants, accounting and log, from before tick 0 until the log is closed.
+
+    ``own_senders`` are the DBC nodes whose frames the runner itself sends (they come back on a
+    multicast bus and are not logged twice); with ``commands`` the controller node's command
+    frames are collected for ``commands``. ``registration`` (the run's entry for clients and
+    monitors) is written while the session is open.
+    """
+
+    def __init__(self, out: Path, config: BusConfig, codec: Codec, timing: Timing, *, recorder: dict[str, Any],
+                 own_senders: tuple[str, ...], commands: bool = False, registration: Registration | None = None) -> None:
+        self.out, self.config, self.codec, self.timing = out, config, codec, timing
+        self._recorder_args, self._own, self._with_commands = recorder, own_senders, commands
+        self._registration = registration
+        self.participants: list[Participant] = []
+        self.misses = 0
+        self.warnings: list[str] = []
+        self.result: RunResult | None = None
+        self.start = time.perf_counter()
+        self.tick_start: float | None = None
+        self._marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
+        self._stack = ExitStack()
+
+    def __enter__(self) -> Session:
+        stack = self._stack
+        self.interrupts = stack.enter_context(DeferredInterrupts())
+        self.log = stack.enter_context(McapLog(self.out))
+        self.bus = stack.enter_context(open_bus(self.config))
+        self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
+        if self._registration is not None:
+            stack.enter_context(self._registration)
+        self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
+        self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
+        self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stack.close()
+
+    # -- time ---------------------------------------------------------------------------------
+
+    def time(self, k: int) -> tuple[float, int]:
+        """t_k in seconds and in nanoseconds."""
+        t_ns = k * round(self.timing.sample_time * 1e9)
+        return t_ns / 1e9, t_ns
+
+    def event(self, k: int, event: str, detail: str = "", level: str = "info") -> None:
+        self.recorder.event(k, *self.time(k), event, detail, level)
+
+    # -- waiting --------------------------------------------------------------------------------
+
+    def wait(self, done: Callable[[], bool], deadline: float, on_timeout: Callable[[], None]) -> None:
+        """Receive into the traffic until ``done()`` or the wall-clock ``deadline``, servicing the
+        in-process participants and checking on the others."""
+        last_check = time.perf_counter()
+        while not done():
+            self.interrupts.check()
+            for participant in self.participants:
+                participant.service()
+            now = time.perf_counter()
+            if now >= deadline:
+                on_timeout()
+                return
+            for frame in drain(self.bus, min(_POLL, deadline - now)):
+                self.traffic(frame)
+            if time.perf_counter() - last_check > _HEALTH:
+                last_check = time.perf_counter()
+                self._check_health()
+        for frame in drain(self.bus):  # what else has arrived (a monitor's frames, late echoes)
+            self.traffic(frame)
+
+    def _check_health(self) -> None:
+        for participant in self.participants:
+            if (reason := participant.failure()) is not None:
+                raise NodeFailure(reason)
+
+    def join(self) -> None:
+        """Wait for the participants: every one must join (its boot-up heartbeat) before tick 0."""
+        participants = self.participants
+        expected = {p.name for p in participants}
+        timeout = self.timing.join_timeout
+
+        def late() -> None:
+            self._check_health()
+            missing = ", ".join(f"{p.kind} {p.name}" for p in participants if p.name not in self.traffic.joined)
+            raise NodeFailure(f"{missing} did not join the bus {self.config.describe()} within {timeout:g} s "
+                              f"(raise [timing] join_timeout if it starts slowly)")
+
+        self.wait(lambda: expected <= self.traffic.joined, time.perf_counter() + timeout, late)
+        self.traffic.flush(*self._marker)  # the boot-up heartbeats
+        self.tick_start = time.perf_counter()
+
+    def _hung(self, tick: int, name: str | None = None) -> None:
+        waiting = [p for p in self.participants if p.lockstep and self.traffic.closed.get(p.name, -1) < tick and name in (None, p.name)]
+        if any(p.name == CONTROLLER for p in waiting):
+            waiting = [p for p in waiting if p.name == CONTROLLER]  # the others wait for its commands
+        raise NodeFailure(waiting[0].hung(tick, self.timing.node_timeout))
+
+    def _deadline(self, k: int) -> float:
+        """The wall-clock time by which tick k must be over (realtime)."""
+        assert self.tick_start is not None
+        return self.tick_start + k * self.timing.period
+
+    # -- the phases of a tick ---------------------------------------------------------------------
+
+    def begin(self, k: int) -> None:
+        """Tick k starts: Ctrl-C is taken here; in realtime, not before its time."""
+        self.interrupts.check()
+        if self.timing.realtime:
+            self.wait(lambda: False, self._deadline(k), lambda: None)
+
+    def send(self, k: int, frames: list[tuple[can.Message, Decoded]]) -> None:
+        """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
+        previous tick brought and these frames."""
+        for frame, _ in frames:
+            self.bus.send(frame)
+        self.traffic.flush(*self._marker)
+        t, t_ns = self.time(k)
+        self._marker = (k, t, t_ns)
+        for frame, decoded in frames:
+            self.recorder.frame(k, t, t_ns, frame, decoded)
+
+    def commands(self, k: int, actuators: tuple[str, ...], held: np.ndarray) -> np.ndarray:
+        """The controller node's commands of tick k: waited for (lockstep), or until the tick's
+        deadline (realtime), where a late or missing command holds the actuator's last one."""
+        traffic = self.traffic
+        arrived = lambda: traffic.closed.get(CONTROLLER, -1) >= k  # noqa: E731
+        if self.timing.realtime:
+            self.wait(arrived, self._deadline(k + 1), lambda: None)
+            if not arrived():
+                self._miss(k, CONTROLLER)
+        else:
+            self.wait(arrived, time.perf_counter() + self.timing.node_timeout, lambda: self._hung(k, CONTROLLER))
+        modulus = self.codec.tick_modulus
+        got = traffic.commands.pop(k % modulus, {})
+        for old in [tick for tick in traffic.commands if (k - tick) % modulus < modulus // 2]:
+            del traffic.commands[old]
+        return np.array([got.get(name, u) for name, u in zip(actuators, held)])
+
+    def _miss(self, k: int, node: str) -> None:
+        self.misses += 1
+        self.recorder.deadline_miss(k, *self.time(k), node, self.misses)
+
+    def end(self, k: int) -> None:
+        """Tick k is over once every lockstep participant has answered it (lockstep, within the node
+        timeout) or at its deadline (realtime, where each missing answer is a deadline miss)."""
+        lockstep = [p.name for p in self.participants if p.lockstep]
+        closed = self.traffic.closed
+        if self.timing.realtime:
+            self.wait(lambda: False, self._deadline(k + 1), lambda: None)
+            for name in lockstep:
+                if closed.get(name, -1) < k and name != CONTROLLER:
+                    self._miss(k, name)
+        else:
+            self.wait(lambda: all(closed.get(n, -1) >= k for n in lockstep), time.perf_counter() + self.timing.node_timeout,
+                      lambda: self._hung(k))
+        left = self.traffic.left & set(lockstep)
+        if left:
+            raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
+
+    def progress(self, k: int, ticks: int) -> Progress:
+        """Where the run is after ``k`` ticks."""
+        return Progress(k, ticks, self.time(k)[0], time.perf_counter() - self.start, self.recorder.frames, self.misses)
+
+    # -- the end --------------------------------------------------------------------------------
+
+    def finish(self, k: int, status: str, error: str, senders: list[str]) -> RunResult:
+        """End the run at tick k, however it ends: log what has arrived, stop the nodes (NMT stop),
+        log what they sent until then and how the run ended (``cosim.result``)."""
+        loop = time.perf_counter() - self.tick_start if self.tick_start is not None else 0.0
+        startup = self.tick_start - self.start if self.tick_start is not None else 0.0
+        traffic, codec = self.traffic, self.codec
+        for frame in drain(self.bus):  # what is already here came before the stop command
+            traffic(frame)
+        traffic.flush(*self._marker)
+        t_end, t_end_ns = self.time(k)
+        stop = codec.nmt(NMT_STOP)
+        try:
+            self.bus.send(stop)
+        except can.CanError:
+            pass
+        self.recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
+        for participant in self.participants:
+            if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
+                self.warnings.append(warning)
+        frame = self.bus.recv(0.1)
+        while frame is not None:
+            traffic(frame)
+            frame = self.bus.recv(0.02)
+        traffic.flush(k, t_end, t_end_ns)
+        for warning in self.warnings:
+            self.event(k, "warning", warning, "warning")
+        counts = {name: SenderCounts(traffic.received[name], traffic.lost[name], traffic.missed_by.get(name, 0)) for name in senders}
+        self.event(k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
+        self.log.metadata(RESULT, ResultRecord(status, k, self.recorder.frames, traffic.frames_lost, self.misses, error,
+                                                       counts).to_metadata())
+        self.result = RunResult(self.out, status, k, self.recorder.frames, traffic.frames_lost, time.perf_counter() - self.start,
+                                t_end, error, self.misses, {name: vars(c) for name, c in counts.items()}, startup, loop)
+        return self.result

@@ -1,0 +1,194 @@
+"""Noise and fault tables, and the fault models they build.
+
+A fault kind is two classes: its table here (the keys a scenario gives, validated) and its model in
+``faults.models``, which registers itself under the same ``kind``. ``build_faults`` turns a
+scenario's tables into models through that registry: a table's ``parameters`` are the model's
+keyword arguments beside its channels and window.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Annotated, Any, ClassVar, Literal, Union
+
+from pydantic import BeforeValidator, Discriminator, Field, model_validator
+
+import faults as fm
+from cosim.scenario.tables import (
+    Identifier,
+    NonNegative,
+    Probability,
+    Strict,
+    Vector,
+    as_list,
+)
+from cosim.scenario.waveforms import ConstantSpec, WaveformSpec, build_waveform
+
+
+def _widen(values: Sequence[Any], n: int) -> tuple[Any, ...]:
+    """One value per channel: a single value stands for all n."""
+    return tuple(values) * n if len(values) == 1 else tuple(values)
+
+
+class Windowed(Strict):
+    """A fault or noise model active on [start, end)."""
+
+    name: Identifier | None = None
+    start: NonNegative = 0.0
+    end: Annotated[float, Field(allow_inf_nan=True)] = math.inf
+
+    @model_validator(mode="after")
+    def _window(self) -> Windowed:
+        if not self.end > self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        return self
+
+    acts_on: ClassVar[str] = "sensors"
+    """Which plant signals it acts on: "sensors" or "actuators"."""
+    per_channel: ClassVar[tuple[str, ...]] = ()
+    """The keys that hold one value per channel (checked against the number of channels)."""
+
+    @property
+    def targets(self) -> list[str] | None:
+        """The signals it acts on, by name; None: all of them."""
+        return getattr(self, self.acts_on)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        """The fault model's keyword arguments besides its channels, window and label."""
+        return {}
+
+
+class OnSensors(Windowed):
+    sensors: list[str] | None = None
+    """Sensors affected, by name; default: every transmitted sensor."""
+
+
+class OnActuators(Windowed):
+    acts_on = "actuators"
+    actuators: list[str] | None = None
+    """Actuators affected, by name; default: every actuator."""
+
+
+class BiasSpec(OnSensors):
+    kind: Literal["bias"]
+    value: Vector
+    amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
+    per_channel = ("value",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
+
+
+class DriftSpec(OnSensors):
+    kind: Literal["drift"]
+    rate: Vector
+    per_channel = ("rate",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"rate": _widen(self.rate, channels)}
+
+
+class GainSpec(OnSensors):
+    kind: Literal["gain"]
+    gain: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
+    per_channel = ("gain",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"gain": _widen(tuple(build_waveform(g) for g in self.gain), channels)}
+
+
+class GaussianNoiseSpec(OnSensors):
+    kind: Literal["gaussian_noise"]
+    std: Annotated[Vector, Field(min_length=1)]
+    per_channel = ("std",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"std": _widen(self.std, channels)}
+
+
+class UniformNoiseSpec(OnSensors):
+    kind: Literal["uniform_noise"]
+    bound: Annotated[Vector, Field(min_length=1)]
+    per_channel = ("bound",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"bound": _widen(self.bound, channels)}
+
+
+class StuckSpec(OnSensors):
+    kind: Literal["stuck"]
+    value: Vector | None = None
+    per_channel = ("value",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"value": None if self.value is None else _widen(self.value, channels)}
+
+
+class DropoutSpec(OnSensors):
+    kind: Literal["dropout"]
+    probability: Probability
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"probability": self.probability}
+
+
+class OutliersSpec(OnSensors):
+    kind: Literal["outliers"]
+    probability: Probability
+    magnitude: Vector
+    per_channel = ("magnitude",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"probability": self.probability, "magnitude": _widen(self.magnitude, channels)}
+
+
+class ActuatorEffectivenessSpec(OnActuators):
+    kind: Literal["actuator_effectiveness"]
+    effectiveness: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
+    per_channel = ("effectiveness",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"effectiveness": _widen(tuple(build_waveform(w) for w in self.effectiveness), channels)}
+
+
+class ActuatorOffsetSpec(OnActuators):
+    """Additive actuator fault u ← u + g(t − start)·value (the f_a of the course notes' eq. (11))."""
+
+    kind: Literal["actuator_offset"]
+    value: Vector
+    amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
+    per_channel = ("value",)
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
+
+
+NoiseSpec = Annotated[Union[GaussianNoiseSpec, UniformNoiseSpec], Discriminator("kind")]
+FaultSpec = Annotated[
+    Union[
+        BiasSpec, DriftSpec, GainSpec, GaussianNoiseSpec, UniformNoiseSpec, StuckSpec, DropoutSpec, OutliersSpec,
+        ActuatorEffectivenessSpec, ActuatorOffsetSpec,
+    ],
+    Discriminator("kind"),
+]
+
+
+def build_fault(spec: Windowed, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
+    """The fault model of one table, on the transmitted ``sensors`` or the ``actuators``."""
+    signals = list(actuators if spec.acts_on == "actuators" else sensors)
+    names = spec.targets if spec.targets is not None else signals
+    channels = tuple(signals.index(name) for name in names)
+    model = fm.FAULT_MODELS[getattr(spec, "kind")]
+    return model(channels=channels, start=spec.start, end=spec.end, label=label, **spec.parameters(len(channels)))
+
+
+def build_faults(scenario: Any) -> fm.FaultInjector:
+    """The scenario's noise and faults as fault models on its transmitted sensors and actuators."""
+    sensors, actuators = scenario.sensors, scenario.actuators
+    noise_labels, fault_labels = scenario.fault_labels()
+    noise = [build_fault(spec, label, sensors, actuators) for spec, label in zip(scenario.noise, noise_labels)]
+    built = [build_fault(spec, label, sensors, actuators) for spec, label in zip(scenario.faults, fault_labels)]
+    sensor_faults = [f for f in built if isinstance(f, fm.SensorFault)]
+    actuator_faults = [f for f in built if isinstance(f, fm.ActuatorFault)]
+    return fm.FaultInjector(noise, sensor_faults, actuator_faults, scenario.seed)

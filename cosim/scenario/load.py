@@ -1,0 +1,230 @@
+"""Loading a scenario: TOML text or a built-in name in, one validated ``Scenario`` or one error out.
+
+Structure and types are checked first (pydantic, ``cosim.scenario.spec``); once those are right,
+``check`` looks at the scenario as a whole: names the plant does not have, vector lengths,
+estimator and controller parameters, fault labels, the bus signals. Every problem is reported in
+one ScenarioError, each naming its field (``faults[0].value``) and the fix.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+import scenarios
+from cosim.errors import CodecError, ScenarioError
+from cosim.plant import statespace
+from cosim.scenario.spec import Scenario
+from cosim.scenario.tables import problem_message, problem_path
+from estimators import ESTIMATORS, ParameterError
+from estimators.controller import CONTROLLERS
+
+BUILTIN_DIR = Path(scenarios.__file__).resolve().parent
+DEFAULT_SCENARIO = "masses-bias"
+
+
+@dataclass(frozen=True)
+class LoadedScenario:
+    """A validated scenario with where it came from and its original text."""
+
+    scenario: Scenario
+    source: str
+    text: str
+
+
+def builtin_names() -> list[str]:
+    return sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+
+
+def load(name_or_path: str | Path | None = None) -> LoadedScenario:
+    """Load a scenario by built-in name or TOML path (default: the default scenario)."""
+    target = DEFAULT_SCENARIO if name_or_path is None else str(name_or_path)
+    path = Path(target)
+    if path.suffix != ".toml" and (BUILTIN_DIR / f"{target}.toml").exists():
+        path, source = BUILTIN_DIR / f"{target}.toml", f"builtin:{target}"
+    elif path.exists():
+        source = str(path)
+    else:
+        known = ", ".join(builtin_names())
+        raise ScenarioError(f"no scenario {target!r}: not a file and not a built-in scenario (built-in: {known})")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{source}: cannot read the scenario ({error})") from None
+    return LoadedScenario(scenario=parse(text, source), source=source, text=text)
+
+
+def parse(text: str, source: str = "<scenario>") -> Scenario:
+    """Validate scenario TOML text; raises one ScenarioError listing every problem."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ScenarioError(f"{source}: invalid TOML: {error}") from None
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as error:
+        problems = [f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors()]
+        raise ScenarioError(_report(source, problems)) from None
+    problems = check(scenario)
+    if problems:
+        raise ScenarioError(_report(source, problems))
+    return scenario
+
+
+def _report(source: str, problems: list[str]) -> str:
+    if len(problems) == 1:
+        return f"{source}: {problems[0]}"
+    return f"{source}: {len(problems)} problems:\n" + "\n".join(f"  - {p}" for p in problems)
+
+
+
+def check(s: Scenario) -> list[str]:
+    """The problems that need the plant's names and the scenario as a whole."""
+    problems: list[str] = []
+    if s.plant.state_space is not None and s.plant.model != statespace.NAME:
+        return [f'plant.state_space: only used with plant.model = "{statespace.NAME}" (got {s.plant.model!r})']
+    try:
+        info = s.plant_info
+    except KeyError as error:
+        return [f"plant.model: {error.args[0]}{'' if s.plant.model == statespace.NAME else f', or {statespace.NAME!r} with a [plant.state_space] table'}"]
+    sensor_names = [c.name for c in info.sensors]
+    actuator_names = [c.name for c in info.actuators]
+    state_names = [c.name for c in info.states]
+
+    def unknown(field: str, names: list[str], known: list[str], what: str) -> None:
+        for name in names:
+            if name not in known:
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                problems.append(f"{field}: {info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
+
+    if s.sample_time > s.duration:
+        problems.append(f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s")
+    elif abs(s.duration / s.sample_time - round(s.duration / s.sample_time)) > 1e-9 * s.duration / s.sample_time:
+        n = s.duration / s.sample_time
+        below, above = math.floor(n) * s.sample_time, math.ceil(n) * s.sample_time
+        problems.append(f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or {above:g}")
+    if s.plant.sensors is not None:
+        unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
+        if len(set(s.plant.sensors)) != len(s.plant.sensors):
+            problems.append("plant.sensors: a sensor is listed twice")
+    unknown("plant.initial_state", list(s.plant.initial_state), state_names, "state")
+    transmitted = list(s.sensors)
+    seen_inputs: set[str] = set()
+    for i, spec in enumerate(s.inputs):
+        unknown(f"inputs[{i}].actuator", [spec.actuator], actuator_names, "actuator")
+        if spec.actuator in seen_inputs:
+            problems.append(f"inputs[{i}].actuator: {spec.actuator!r} already has an input signal")
+        seen_inputs.add(spec.actuator)
+    disturbance_names = [c.name for c in info.disturbances]
+    seen_inputs.clear()
+    for i, spec in enumerate(s.disturbances):
+        if spec.model:
+            models = sorted(info.disturbance_models)
+            if spec.model not in models:
+                problems.append(f"disturbances[{i}].model: {info.name} has no disturbance model {spec.model!r}"
+                                f"{'; it has: ' + ', '.join(models) if models else ''}")
+            else:
+                try:
+                    info.disturbance_models[spec.model](np.random.default_rng(0), **spec.params)
+                except (TypeError, ValueError) as error:
+                    problems.append(f"disturbances[{i}].params: {error}")
+            continue
+        unknown(f"disturbances[{i}].input", [spec.input], disturbance_names, "disturbance input")
+        if spec.input in seen_inputs:
+            problems.append(f"disturbances[{i}].input: {spec.input!r} already has a signal")
+        seen_inputs.add(spec.input)
+    for group, specs in (("noise", s.noise), ("faults", s.faults)):
+        for i, spec in enumerate(specs):
+            field = f"{group}[{i}]"
+            names, what = (actuator_names, "actuator") if spec.acts_on == "actuators" else (transmitted, "transmitted sensor")
+            channels = spec.targets if spec.targets is not None else names
+            unknown(f"{field}.{spec.acts_on}", channels, names, what)
+            _lengths(problems, field, spec, len(channels), spec.per_channel)
+            for key in ("std", "bound", "magnitude"):
+                if any(v < 0 for v in getattr(spec, key, None) or []):
+                    problems.append(f"{field}.{key}: must be non-negative")
+    noise_labels, fault_labels = s.fault_labels()
+    labels = noise_labels + fault_labels
+    for label in sorted({label for label in labels if labels.count(label) > 1}):
+        problems.append(f"faults: two noise models or faults are labelled {label!r}; give them distinct names")
+    diagnostic_names = sorted({
+        d.name for e in s.estimators if e.kind in ESTIMATORS
+        for d in ESTIMATORS[e.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
+    })
+    for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"),
+                               ("states", state_names + diagnostic_names, "state or estimator diagnostic")):
+        overrides = getattr(s.bus, table)
+        unknown(f"bus.{table}", list(overrides), known, what)
+    estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]
+    for i, spec in enumerate(s.clients):
+        if estimator_names.count(spec.name) > 1:
+            problems.append(f"clients[{i}].name: {spec.name!r} is also the name of an estimator or another client")
+        for j, signal in enumerate(spec.signals):
+            if not signal.minimum < signal.maximum:
+                problems.append(f"clients[{i}].signals[{j}]: minimum must be below maximum")
+    for i, spec in enumerate(s.estimators):
+        if spec.kind not in ESTIMATORS:
+            close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.append(f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}")
+        else:
+            try:
+                ESTIMATORS[spec.kind].check_params(spec.params)
+            except ParameterError as error:
+                problems.append(f"estimators[{i}].params.{error}")
+        if estimator_names.count(spec.name) > 1:
+            problems.append(f"estimators[{i}].name: {spec.name!r} is used by two estimators")
+    for name in estimator_names:
+        if name == "controller":
+            problems.append("estimators: the name 'controller' is the controller node's; choose another name")
+    if (c := s.controller) is not None:
+        if c.kind not in CONTROLLERS:
+            close = difflib.get_close_matches(c.kind, list(CONTROLLERS), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.append(f"controller.kind: unknown controller {c.kind!r}{hint}; known: {', '.join(sorted(CONTROLLERS))}")
+        else:
+            try:
+                CONTROLLERS[c.kind].check_params(c.params)
+            except ParameterError as error:
+                problems.append(f"controller.params.{error}")
+        diagnosis = next((e for e in s.estimators if e.name == c.diagnosis), None)
+        if c.diagnosis and diagnosis is None:
+            problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
+        reports = CONTROLLERS[c.kind].reports if c.kind in CONTROLLERS else ()
+        if reports and not c.diagnosis:
+            problems.append(f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the estimators")
+        elif reports and diagnosis is not None and diagnosis.kind in ESTIMATORS:
+            published = {d.name for d in ESTIMATORS[diagnosis.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))}
+            missing = [name for name in reports if name not in published]
+            if missing:
+                problems.append(f"controller.diagnosis: {c.diagnosis!r} ({diagnosis.kind}) does not publish {', '.join(missing)}, "
+                                f"which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)")
+        if s.inputs:
+            problems.append("inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)")
+    if not problems:
+        problems += _check_bus(s)
+    return problems
+
+
+def _check_bus(s: Scenario) -> list[str]:
+    """The bus signals with their overrides must make a valid CAN database."""
+    try:
+        s.codec()
+    except (ScenarioError, CodecError) as error:
+        return [str(error)]
+    return []
+
+
+def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tuple[str, ...]) -> None:
+    for key in keys:
+        value = getattr(spec, key, None)
+        if value is not None and len(value) not in (1, channels):
+            problems.append(f"{field}.{key}: has {len(value)} values for {channels} channels; give one per channel (or one for all)")

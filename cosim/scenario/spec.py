@@ -1,0 +1,343 @@
+"""The scenario's tables: plant, inputs, disturbances, noise and faults, bus, timing, estimators,
+clients and controller, and what a validated scenario derives from them (ticks, signals, its CAN
+database)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, ValidationError, model_validator
+
+import mjcf
+from cosim.bus.codec import Codec
+from cosim.bus.signals import Channel
+from cosim.errors import ScenarioError
+from cosim.plant import statespace
+from cosim.scenario.faults import FaultSpec, NoiseSpec
+from cosim.scenario.tables import (
+    Identifier,
+    Positive,
+    Strict,
+    problem_message,
+    problem_path,
+)
+from cosim.scenario.waveforms import WaveformSpec
+from estimators import ESTIMATORS
+from estimators.controller import CONTROLLERS
+
+
+class StateSpaceSpec(Strict):
+    """A plant given by its matrices (``plant.model = "state-space"``): ẋ = A x + B u + E d (or
+    x⁺ = A x + B u + E d with ``time = "discrete"``, one step per sample), y = C x + D u, with
+    known inputs u and unknown inputs (disturbances) d."""
+
+    time: Literal["continuous", "discrete"] = "continuous"
+    A: list[list[float]]
+    B: list[list[float]]
+    C: list[list[float]]
+    D: list[list[float]] | None = None
+    E: list[list[float]] | None = None
+    """Unknown-input matrix, one column per disturbance; driven by [[disturbances]]."""
+    states: list[str] | None = None
+    """State names; default x1, x2, …"""
+    inputs: list[str] | None = None
+    """Input (actuator) names; default u1, u2, …"""
+    outputs: list[str] | None = None
+    """Output (sensor) names; default y1, y2, …"""
+    disturbances: list[str] | None = None
+    """Unknown input names; default d1, d2, …"""
+    unit: str = ""
+    bound: float = Field(1e3, gt=0)
+    """Bus range ±bound of every signal (classic CAN)."""
+    resolution: float = Field(1e-6, gt=0)
+    """Bus resolution of every signal (classic CAN)."""
+
+    @model_validator(mode="after")
+    def _shapes(self) -> StateSpaceSpec:
+        n = len(self.A)
+        problems = []
+        if n == 0 or any(len(row) != n for row in self.A):
+            problems.append("A must be square (a list of n rows of n numbers)")
+        m = len(self.B[0]) if self.B else 0
+        if len(self.B) != n or m == 0 or any(len(row) != m for row in self.B):
+            problems.append(f"B must have {n} rows of equally many numbers (one column per input)")
+        p = len(self.C)
+        if p == 0 or any(len(row) != n for row in self.C):
+            problems.append(f"C must have rows of {n} numbers (one row per output)")
+        if self.D is not None and (len(self.D) != p or any(len(row) != m for row in self.D)):
+            problems.append(f"D must have {p} rows of {m} numbers")
+        nd = len(self.E[0]) if self.E else 0
+        if self.E is not None and (len(self.E) != n or nd == 0 or any(len(row) != nd for row in self.E)):
+            problems.append(f"E must have {n} rows of equally many numbers (one column per disturbance)")
+        for field_name, names, size in (("states", self.states, n), ("inputs", self.inputs, m), ("outputs", self.outputs, p),
+                                        ("disturbances", self.disturbances, nd)):
+            if names is not None and (len(names) != size or len(set(names)) != size):
+                problems.append(f"{field_name} must name {size} distinct signals")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+    @property
+    def state_names(self) -> list[str]:
+        return self.states or [f"x{i + 1}" for i in range(len(self.A))]
+
+    @property
+    def input_names(self) -> list[str]:
+        return self.inputs or [f"u{i + 1}" for i in range(len(self.B[0]))]
+
+    @property
+    def output_names(self) -> list[str]:
+        return self.outputs or [f"y{i + 1}" for i in range(len(self.C))]
+
+    @property
+    def disturbance_names(self) -> list[str]:
+        return self.disturbances or [f"d{i + 1}" for i in range(len(self.E[0]) if self.E else 0)]
+
+
+class PlantSpec(Strict):
+    model: str
+    """A registered MJCF plant (``cosim scenarios`` lists them), or "state-space" with [plant.state_space]."""
+    state_space: StateSpaceSpec | None = None
+    sensors: list[str] | None = None
+    """Transmitted sensors, in order; default: all the plant declares."""
+    initial_state: dict[str, float] = {}
+    """Initial state components by name; the others come from the plant's keyframe."""
+
+
+class InputSpec(Strict):
+    actuator: str
+    signal: WaveformSpec
+
+
+class DisturbanceSpec(Strict):
+    """An unknown input of the plant (``plant.disturbances`` of its module, or the columns of E of
+    a state-space plant) and its signal, or one of the plant's random environments (``model``, a
+    seeded generator of all its unknown inputs at once, e.g. a sea state) with its ``params``;
+    logged as truth, never sent on the bus. Several add up."""
+
+    input: str = ""
+    signal: WaveformSpec | None = None
+    model: str = ""
+    params: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _one_form(self) -> DisturbanceSpec:
+        if bool(self.model) == bool(self.input or self.signal is not None):
+            raise ValueError("give either input and signal (one unknown input) or model (a random environment of the plant)")
+        if self.input and self.signal is None:
+            raise ValueError("input needs a signal")
+        if self.signal is not None and not self.input:
+            raise ValueError("signal needs an input")
+        if self.params and not self.model:
+            raise ValueError("params belong to a model")
+        return self
+
+
+class ChannelOverride(Strict):
+    minimum: float | None = None
+    maximum: float | None = None
+    resolution: Positive | None = None
+
+
+class BusSpec(Strict):
+    interface: Literal["udp_multicast", "socketcan", "virtual"] = "udp_multicast"
+    channel: str = ""
+    """udp_multicast: the multicast group (default: a fresh host-only group per run); socketcan: the
+    interface (default vcan0); virtual: the channel name (default: a fresh one)."""
+    port: Annotated[int, Field(ge=0, le=65535)] = 0
+    """udp_multicast: the UDP port (default 0: a free port per run)."""
+    fd: bool = False
+    bitrate: Annotated[int, Field(gt=0)] = 500_000
+    data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
+    sensors: dict[str, ChannelOverride] = {}
+    actuators: dict[str, ChannelOverride] = {}
+    states: dict[str, ChannelOverride] = {}
+
+
+class TimingSpec(Strict):
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    """lockstep: each tick waits for every node's answer (deterministic); realtime: ticks follow
+    the wall clock and late answers are counted as deadline misses."""
+    speed: Positive = 1.0
+    """realtime: simulated seconds per wall-clock second."""
+    node_timeout: Positive = 10.0
+    """lockstep: a node that does not answer a tick within this many seconds is reported as hung."""
+    join_timeout: Positive = 30.0
+    """How long to wait for nodes and declared clients to join before tick 0."""
+
+
+class SignalSpec(Strict):
+    name: Identifier
+    unit: str = ""
+    description: str = ""
+    minimum: float
+    maximum: float
+    resolution: Positive
+
+    def channel(self) -> Channel:
+        return Channel(self.name, self.unit, self.description, self.minimum, self.maximum, self.resolution)
+
+
+class ClientSpec(Strict):
+    """A program that joins the run's bus on its own (written with ``cosim.bus.client``)."""
+
+    name: Identifier
+    lockstep: bool = True
+    """The runner waits for it to join before tick 0 and for its heartbeat every tick."""
+    signals: list[SignalSpec] = []
+    """The signals it publishes, packed into CLIENT_<name> messages of the DBC."""
+
+
+class EstimatorSpec(Strict):
+    name: Identifier
+    kind: str
+    params: dict[str, Any] = {}
+    external: bool = False
+    """Do not start this node: it is started by hand with 'cosim node NAME' (e.g. in a debugger)."""
+
+
+class ControllerSpec(Strict):
+    """A feedback controller closing the loop over the bus (the ``controller`` node): it commands
+    every actuator from the sensor readings, in place of open-loop [[inputs]]."""
+
+    kind: str
+    params: dict[str, Any] = {}
+    diagnosis: str = ""
+    """An estimator whose diagnostics (the controller kind's reports, e.g. a fault mask) the
+    controller reads, one tick late."""
+    external: bool = False
+    """Do not start the node: it is started by hand with 'cosim node controller'."""
+
+
+class Scenario(Strict):
+    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
+    description: str = ""
+    seed: Annotated[int, Field(ge=0)] = 0
+    duration: Positive
+    sample_time: Positive
+    plant: PlantSpec
+    inputs: list[InputSpec] = []
+    disturbances: list[DisturbanceSpec] = []
+    noise: list[NoiseSpec] = []
+    faults: list[FaultSpec] = []
+    bus: BusSpec = BusSpec()
+    timing: TimingSpec = TimingSpec()
+    estimators: list[EstimatorSpec] = []
+    clients: list[ClientSpec] = []
+    controller: ControllerSpec | None = None
+
+    @property
+    def ticks(self) -> int:
+        """Ticks k = 0 … N−1 at t_k = k τ, N = duration / τ (a whole number, checked on load)."""
+        return max(1, round(self.duration / self.sample_time))
+
+    @property
+    def dt_ns(self) -> int:
+        """The sample time in nanoseconds; t_k = k · dt_ns exactly."""
+        return round(self.sample_time * 1e9)
+
+    def time(self, k: int) -> float:
+        """t_k in seconds, as the float nearest to k τ (so that a fault starting at a multiple of τ,
+        written as a decimal in the scenario, starts exactly at that tick)."""
+        return k * self.dt_ns / 1e9
+
+    def with_seed(self, seed: int | None) -> Scenario:
+        """The same scenario with another seed (None keeps it)."""
+        return self.with_overrides(seed=seed)
+
+    def with_overrides(self, **changes: Any) -> Scenario:
+        """The scenario with command-line overrides, validated like the file: ``seed``, and
+        ``interface``, ``channel``, ``port`` of [bus] and ``mode``, ``speed`` of [timing]
+        (None keeps a value)."""
+        data = self.model_dump()
+        tables = {"interface": "bus", "channel": "bus", "port": "bus", "mode": "timing", "speed": "timing"}
+        for key, value in changes.items():
+            if value is None:
+                continue
+            if key in tables:
+                data[tables[key]][key] = value
+            else:
+                data[key] = value
+        try:
+            return Scenario.model_validate(data)
+        except ValidationError as error:
+            raise ScenarioError("; ".join(f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors())) from None
+
+    def fault_labels(self) -> tuple[list[str], list[str]]:
+        """Labels of the noise models and of the faults: their name, or kind and position."""
+        noise = [spec.name or f"noise{i}" for i, spec in enumerate(self.noise)]
+        faults = [spec.name or f"{spec.kind}{i}" for i, spec in enumerate(self.faults)]
+        return noise, faults
+
+    def codec(self) -> Codec:
+        """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
+        sensors, actuators, states = self.channels()
+        return Codec(
+            sensors, actuators, {e.name: states for e in self.estimators}, diagnostics=self.diagnostic_channels(),
+            clients=self.client_channels(), controller=self.controller_channels(), fd=self.bus.fd,
+            bitrate=self.bus.bitrate, data_bitrate=self.bus.data_bitrate, cycle_time=self.sample_time,
+        )
+
+    def diagnostic_channels(self) -> dict[str, list[Channel]]:
+        """Each estimator's diagnostics as bus signals ([bus.states] overrides apply to them too)."""
+        states = tuple(c.name for c in self.plant_info.states)
+        return {
+            e.name: [
+                _override(Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+                for d in ESTIMATORS[e.kind].diagnostic_channels(states, self.sensors)
+            ]
+            for e in self.estimators
+        }
+
+    def controller_channels(self) -> list[Channel] | None:
+        """The controller node's diagnostics as bus signals, or None for open-loop inputs."""
+        if self.controller is None:
+            return None
+        return [
+            _override(Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+            for d in CONTROLLERS[self.controller.kind].diagnostic_channels(self.actuators, self.sensors)
+        ]
+
+    def client_channels(self) -> dict[str, list[Channel]]:
+        return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
+
+    def channels(self) -> tuple[list[Channel], list[Channel], list[Channel]]:
+        """The transmitted sensors, the actuators and the states as bus signals, with the [bus]
+        overrides of their range and resolution applied."""
+        info = self.plant_info
+        return (
+            [_override(info.sensor(n), self.bus.sensors, "sensors") for n in self.sensors],
+            [_override(info.actuator(n), self.bus.actuators, "actuators") for n in self.actuators],
+            [_override(c, self.bus.states, "states") for c in info.states],
+        )
+
+    @property
+    def plant_info(self) -> mjcf.PlantInfo:
+        if self.plant.model == statespace.NAME:
+            if self.plant.state_space is None:
+                raise KeyError('plant.model "state-space" needs a [plant.state_space] table with A, B and C')
+            return statespace.plant_info(self.plant.state_space)
+        return mjcf.get(self.plant.model)
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        return tuple(self.plant.sensors) if self.plant.sensors is not None else tuple(s.name for s in self.plant_info.sensors)
+
+    @property
+    def actuators(self) -> tuple[str, ...]:
+        return tuple(a.name for a in self.plant_info.actuators)
+
+    @property
+    def disturbance_inputs(self) -> tuple[str, ...]:
+        return tuple(d.name for d in self.plant_info.disturbances)
+
+
+def _override(channel: Channel, overrides: dict[str, ChannelOverride], table: str) -> Channel:
+    spec = overrides.get(channel.name)
+    if spec is None:
+        return channel
+    try:
+        return replace(channel, **{k: v for k, v in spec.model_dump().items() if v is not None})
+    except ValueError as error:
+        raise ScenarioError(f"bus.{table}.{channel.name}: {error.args[0].split(': ', 1)[-1]}") from None
