@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from cosim import scenario  # noqa: E402
 from cosim.bus.codec import signal_bits  # noqa: E402
-from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
+from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.run import Run  # noqa: E402
 
 
@@ -48,8 +48,10 @@ def workload(run: Run, n: int):
     """n (message name, tick, values) triples cycling over the run's sensor, command and estimate messages."""
     specs = [s for s in run.codec.messages() if s.channels]
     rng = np.random.default_rng(0)
-    return [(s.name, i, [float(rng.uniform(c.minimum, c.maximum) * 0.5) for c in s.channels])
-            for i, s in zip(range(n), specs * (n // len(specs) + 1))]
+    return [
+        (s.name, i, [float(rng.uniform(c.minimum, c.maximum) * 0.5) for c in s.channels])
+        for i, s in zip(range(n), specs * (n // len(specs) + 1))
+    ]
 
 
 def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
@@ -61,8 +63,7 @@ def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
 
     # The same classic-CAN layout by hand: 16-bit tick, then two's complement integers.
     layouts = {
-        spec.name: [(c.resolution, signal_bits(c)) for c in spec.channels]
-        for spec in codec.messages() if spec.channels
+        spec.name: [(c.resolution, signal_bits(c)) for c in spec.channels] for spec in codec.messages() if spec.channels
     }
 
     def by_hand() -> None:
@@ -79,8 +80,11 @@ def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
                 shift += bits
 
     ours_s, hand_s = best_of(repeat, ours), best_of(repeat, by_hand)
-    return {"codec_frames_per_s": len(items) / ours_s, "codec_baseline_frames_per_s": len(items) / hand_s,
-            "codec_ratio": hand_s / ours_s}
+    return {
+        "codec_frames_per_s": len(items) / ours_s,
+        "codec_baseline_frames_per_s": len(items) / hand_s,
+        "codec_ratio": hand_s / ours_s,
+    }
 
 
 def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
@@ -93,32 +97,60 @@ def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
 
         def ours() -> None:
             with McapLog(path) as log:
-                recorder = RunRecorder(log, codec, states=run.plan.state_names, sensors=s.sensors,
-                                       actuators=s.actuators, units=run.plan.units)
+                recorder = RunRecorder(
+                    log,
+                    codec,
+                    states=run.plan.state_names,
+                    sensors=s.sensors,
+                    actuators=s.actuators,
+                    units=run.plan.units,
+                )
                 for i, (frame, d) in enumerate(zip(frames, decoded)):
                     recorder.frame(i, i * 0.01, i * 10_000_000, frame, d)
 
         # The bare writer: the same number of records with the same payload sizes, pre-serialized.
         payloads = []
         for i, (frame, d) in enumerate(zip(frames, decoded)):
-            payloads.append(dumps({"tick": i, "t": i * 0.01, "seq": i, "id": frame.arbitration_id, "extended": False,
-                                   "fd": False, "brs": False, "dlc": len(frame.data), "data": bytes(frame.data).hex(),
-                                   "sender": d.spec.sender, "message": d.spec.name}))
+            payloads.append(
+                dumps(
+                    {
+                        "tick": i,
+                        "t": i * 0.01,
+                        "seq": i,
+                        "id": frame.arbitration_id,
+                        "extended": False,
+                        "fd": False,
+                        "brs": False,
+                        "dlc": len(frame.data),
+                        "data": bytes(frame.data).hex(),
+                        "sender": d.spec.sender,
+                        "message": d.spec.name,
+                    }
+                )
+            )
             payloads.append(dumps({"tick": d.tick, **d.values}))
 
         def bare() -> None:
             with open(path, "wb") as stream:
-                writer = Writer(stream, chunk_size=512 * 1024, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+                writer = Writer(
+                    stream, chunk_size=512 * 1024, compression=CompressionType.ZSTD, index_types=IndexType.ALL
+                )
                 writer.start()
                 schema = writer.register_schema("s", "jsonschema", b"{}")
-                channels = [writer.register_channel("/a", "json", schema), writer.register_channel("/b", "json", schema)]
+                channels = [
+                    writer.register_channel("/a", "json", schema),
+                    writer.register_channel("/b", "json", schema),
+                ]
                 for i, payload in enumerate(payloads):
                     writer.add_message(channels[i % 2], (i // 2) * 10_000_000, payload, (i // 2) * 10_000_000, i // 2)
                 writer.finish()
 
         ours_s, bare_s = best_of(repeat, ours), best_of(repeat, bare)
-    return {"logger_frames_per_s": len(frames) / ours_s, "logger_baseline_frames_per_s": len(frames) / bare_s,
-            "logger_ratio": bare_s / ours_s}
+    return {
+        "logger_frames_per_s": len(frames) / ours_s,
+        "logger_baseline_frames_per_s": len(frames) / bare_s,
+        "logger_ratio": bare_s / ours_s,
+    }
 
 
 def bench_run(loaded, repeat: int) -> dict[str, float]:
@@ -127,8 +159,12 @@ def bench_run(loaded, repeat: int) -> dict[str, float]:
         for _ in range(repeat):
             results.append(Run(loaded, Path(tmp) / "run.mcap", interface="virtual").execute())
         best = min(results, key=lambda r: r.wall_time)
-    return {"run_wall_s": best.wall_time, "run_ticks_per_s": best.ticks / best.wall_time,
-            "run_frames_per_s": best.frames / best.wall_time, "run_realtime_factor": best.realtime_factor}
+    return {
+        "run_wall_s": best.wall_time,
+        "run_ticks_per_s": best.ticks / best.wall_time,
+        "run_frames_per_s": best.frames / best.wall_time,
+        "run_realtime_factor": best.realtime_factor,
+    }
 
 
 def main() -> None:

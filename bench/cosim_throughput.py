@@ -92,9 +92,13 @@ def pipeline(interface: str, repeat: int) -> dict[str, float]:
             if best is None or result.loop_time < best.loop_time:
                 best = result
     return {
-        "pipeline_frames": best.frames, "pipeline_loop_s": best.loop_time, "pipeline_startup_s": best.startup_time,
-        "pipeline_frames_per_s": best.frames / best.loop_time, "pipeline_ticks_per_s": best.ticks / best.loop_time,
-        "realtime_factor": best.sim_time / best.loop_time, "lost_frames": best.frames_lost,
+        "pipeline_frames": best.frames,
+        "pipeline_loop_s": best.loop_time,
+        "pipeline_startup_s": best.startup_time,
+        "pipeline_frames_per_s": best.frames / best.loop_time,
+        "pipeline_ticks_per_s": best.ticks / best.loop_time,
+        "realtime_factor": best.sim_time / best.loop_time,
+        "lost_frames": best.frames_lost,
     }
 
 
@@ -108,7 +112,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="repetitions of each measurement; the fastest is kept")
     args = parser.parse_args()
     config = allocate(args.interface, args.channel)
-    raw = max((raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"])
+    raw = max(
+        (raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"]
+    )
     figures = {"interface": args.interface} | raw | pipeline(args.interface, args.repeat)
     figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
     if args.json:
@@ -117,7 +123,10 @@ def main() -> None:
     rows = [
         (f"raw {args.interface}, two processes, send -> receive", f"{figures['raw_frames_per_s']:,.0f} frames/s"),
         ("  frames lost", f"{figures['raw_lost_frames']}"),
-        ("pipeline: lockstep co-simulation, 2 estimator processes, logging", f"{figures['pipeline_frames_per_s']:,.0f} frames/s"),
+        (
+            "pipeline: lockstep co-simulation, 2 estimator processes, logging",
+            f"{figures['pipeline_frames_per_s']:,.0f} frames/s",
+        ),
         ("  ticks per second", f"{figures['pipeline_ticks_per_s']:,.0f} ticks/s"),
         ("  start-up of the nodes (not in the rates)", f"{figures['pipeline_startup_s']:.2f} s"),
         ("  real-time factor", f"{figures['realtime_factor']:.1f} x"),

@@ -34,19 +34,39 @@ SENSORS = ("x1", "x2", "x1_minus_x2")
 
 def masses_model(sensors) -> LinearModel:
     A, B = zoh_discretize(*masses.continuous_model(), 0.01)
-    return LinearModel(A, B, masses.output_matrix(sensors), np.zeros((len(sensors), 1)), 0.01,
-                       ("x1", "x2", "v1", "v2"), ("force",), tuple(sensors))
+    return LinearModel(
+        A,
+        B,
+        masses.output_matrix(sensors),
+        np.zeros((len(sensors), 1)),
+        0.01,
+        ("x1", "x2", "v1", "v2"),
+        ("force",),
+        tuple(sensors),
+    )
 
 
 def cdc_model() -> LinearModel:
     A = np.array([[-1.0, 3, 0], [0.1, -5, 0.4], [0, 0, -5]])
     C = np.array([[1.0, 1], [1, 0], [2, 1]]) @ np.array([[1.0, 0, 0], [0, 1, 0]])
-    return LinearModel(A, np.array([[1.0], [0], [-1]]), C, np.zeros((3, 1)), None, ("x1", "x2", "x3"), ("u",), ("y1", "y2", "y3"))
+    return LinearModel(
+        A, np.array([[1.0], [0], [-1]]), C, np.zeros((3, 1)), None, ("x1", "x2", "x3"), ("u",), ("y1", "y2", "y3")
+    )
 
 
 def tank_model() -> LinearModel:
-    return LinearModel(three_tank.PAPER_A, three_tank.PAPER_B, three_tank.PAPER_C, np.zeros((4, 2)), 1.0, ("h1", "h2", "h3"),
-                       ("Q1", "Q2"), ("y1", "y2", "y3", "y4"), E=three_tank.PAPER_E, disturbances=("v",))
+    return LinearModel(
+        three_tank.PAPER_A,
+        three_tank.PAPER_B,
+        three_tank.PAPER_C,
+        np.zeros((4, 2)),
+        1.0,
+        ("h1", "h2", "h3"),
+        ("Q1", "Q2"),
+        ("y1", "y2", "y3", "y4"),
+        E=three_tank.PAPER_E,
+        disturbances=("v",),
+    )
 
 
 def tank_workload(model: LinearModel, steps: int) -> tuple[np.ndarray, np.ndarray]:
@@ -62,7 +82,9 @@ def tank_workload(model: LinearModel, steps: int) -> tuple[np.ndarray, np.ndarra
     return ys, us
 
 
-def workload(model: LinearModel, phi: np.ndarray, steps: int, noise: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def workload(
+    model: LinearModel, phi: np.ndarray, steps: int, noise: float, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """Measurements and inputs of ``steps`` ticks of the plant (1) with the bias φ."""
     rng = np.random.default_rng(seed)
     Ad, Bd = (model.A, model.B) if model.dt is not None else zoh_discretize(model.A, model.B, 0.02)
@@ -111,15 +133,28 @@ def main() -> int:
         "adaptive": (lambda: estimators.create("adaptive", m3), ys3, us3),
         "adaptive_filtered": (lambda: estimators.create("adaptive", m3, {"filter": 1e-4, "eps_phi": 1e4}), ys3, us3),
         "adaptive_injection_p4": (lambda: estimators.create("adaptive", m4, {"injection": True}), ys4, us4),
-        "adaptive-ct": (lambda: estimators.create("adaptive-ct", cdc, {"gain": gain, "Y": Y, "kappa": 1.0}, 0.02), ysc, usc),
+        "adaptive-ct": (
+            lambda: estimators.create("adaptive-ct", cdc, {"gain": gain, "Y": Y, "kappa": 1.0}, 0.02),
+            ysc,
+            usc,
+        ),
     }
     tank = tank_model()
     yst, ust = tank_workload(tank, args.steps)
     hz = [1 / 3, 1 / 3, 0.0, 1 / 3]
     L = estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5}).L.tolist()  # Theorem 2 once, 0.1 s
-    cases["lft-uio-sr_eq53"] = (lambda: estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L}), yst, ust)
+    cases["lft-uio-sr_eq53"] = (
+        lambda: estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L}),
+        yst,
+        ust,
+    )
     cases["lft-uio-sr_model"] = (
-        lambda: estimators.create("lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L, "gain_estimator": "model"}), yst, ust)
+        lambda: estimators.create(
+            "lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L, "gain_estimator": "model"}
+        ),
+        yst,
+        ust,
+    )
     warmup = args.steps // 3
     figures = {name: time_steps(make, ys, us, warmup, args.repeat) for name, (make, ys, us) in cases.items()}
     if args.json:

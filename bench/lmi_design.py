@@ -65,24 +65,32 @@ def main(argv: list[str] | None = None) -> int:
     lft_diag, lft_diag_s = timed(lambda: lft_uio_design(model, low, high, multiplier="diagonal"))
     figures = {
         "gamma_min": args.gamma_min,
-        "lti_design_s": lti_s, "lti_sigma": lti.sigma,
-        "lft_design_s": lft_s, "lft_sigma": lft.sigma,
+        "lti_design_s": lti_s,
+        "lti_sigma": lti.sigma,
+        "lft_design_s": lft_s,
+        "lft_sigma": lft.sigma,
         "lft_rho": max_spectral_radius(model, lambda g: lft.L, low, high, form="lft"),
-        "lft_diagonal_design_s": lft_diag_s, "lft_diagonal_sigma": lft_diag.sigma,
+        "lft_diagonal_design_s": lft_diag_s,
+        "lft_diagonal_sigma": lft_diag.sigma,
         "lft_ratio": lft_s / lti_s,
         "lft_speedup_vs_paper": PAPER_SECONDS["lft"] / lft_s,
     }
     if not args.skip_lpv:
         lpv, lpv_s = timed(lambda: lpv_uio_design(model, low, high))
         figures |= {
-            "lpv_design_s": lpv_s, "lpv_sigma": lpv.sigma, "lpv_rho": max_spectral_radius(model, lpv.gain, low, high),
+            "lpv_design_s": lpv_s,
+            "lpv_sigma": lpv.sigma,
+            "lpv_rho": max_spectral_radius(model, lpv.gain, low, high),
             "lpv_min_eigenvalue": lpv.min_eigenvalue,
-            "lpv_ratio": lpv_s / lti_s, "lpv_speedup_vs_paper": PAPER_SECONDS["lpv"] / lpv_s,
+            "lpv_ratio": lpv_s / lti_s,
+            "lpv_speedup_vs_paper": PAPER_SECONDS["lpv"] / lpv_s,
         }
     if args.reference and not args.skip_lpv:
         ref, ref_s = timed(lambda: lpv_uio_design(model, low, high, backend="cvxpy"))
         figures |= {
-            "lpv_cvxpy_design_s": ref_s, "lpv_cvxpy_sigma": ref.sigma, "lpv_cvxpy_ratio": ref_s / lti_s,
+            "lpv_cvxpy_design_s": ref_s,
+            "lpv_cvxpy_sigma": ref.sigma,
+            "lpv_cvxpy_ratio": ref_s / lti_s,
             "lpv_sigma_rel_diff": abs(lpv.sigma - ref.sigma) / ref.sigma,
         }
     if args.json:
@@ -90,16 +98,30 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"LMI designs on the three-tank model (59), Γ = [{args.gamma_min:g}, 1]^4\n")
     print(f"{'design':<28}{'time (s)':>10}{'× LTI':>9}{'σ':>10}{'target (s)':>12}{'paper (s)':>11}")
-    rows = [("LTI (γ = 1, baseline)", lti_s, lti.sigma, None, None),
-            ("LFT, Theorem 2", lft_s, lft.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
-            ("LFT, diagonal multipliers", lft_diag_s, lft_diag.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"])]
+    rows = [
+        ("LTI (γ = 1, baseline)", lti_s, lti.sigma, None, None),
+        ("LFT, Theorem 2", lft_s, lft.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+        ("LFT, diagonal multipliers", lft_diag_s, lft_diag.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+    ]
     if not args.skip_lpv:
-        rows.append(("LPV, Theorem 1", figures["lpv_design_s"], figures["lpv_sigma"], TARGET_SECONDS["lpv"], PAPER_SECONDS["lpv"]))
+        rows.append(
+            (
+                "LPV, Theorem 1",
+                figures["lpv_design_s"],
+                figures["lpv_sigma"],
+                TARGET_SECONDS["lpv"],
+                PAPER_SECONDS["lpv"],
+            )
+        )
     if "lpv_cvxpy_design_s" in figures:
-        rows.append(("LPV, as printed, via cvxpy", figures["lpv_cvxpy_design_s"], figures["lpv_cvxpy_sigma"], None, None))
+        rows.append(
+            ("LPV, as printed, via cvxpy", figures["lpv_cvxpy_design_s"], figures["lpv_cvxpy_sigma"], None, None)
+        )
     for name, seconds, sigma, target, paper in rows:
-        print(f"{name:<28}{seconds:>10.2f}{seconds / lti_s:>9.1f}{sigma:>10.3f}"
-              f"{'' if target is None else f'{target:>12g}'}{'' if paper is None else f'{paper:>11g}'}")
+        print(
+            f"{name:<28}{seconds:>10.2f}{seconds / lti_s:>9.1f}{sigma:>10.3f}"
+            f"{'' if target is None else f'{target:>12g}'}{'' if paper is None else f'{paper:>11g}'}"
+        )
     if "lpv_sigma_rel_diff" in figures:
         print(f"\nLPV σ, direct against cvxpy: relative difference {figures['lpv_sigma_rel_diff']:.1e}")
     return 0

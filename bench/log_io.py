@@ -36,8 +36,8 @@ from cosim import __version__, scenario  # noqa: E402
 from cosim.analysis.export import FORMATS, export  # noqa: E402
 from cosim.analysis.summary import summarize  # noqa: E402
 from cosim.log.reader import LogReader  # noqa: E402
-from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.log.recorder import FRAMES  # noqa: E402
+from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.run import Run  # noqa: E402
 
 CHUNK_SIZE = 512 * 1024  # McapLog's default
@@ -57,7 +57,9 @@ def record_log(folder: Path, seconds: float) -> Path:
     loaded = scenario.load()
     short = loaded.scenario.model_copy(update={"duration": seconds})
     path = folder / "recorded.mcap"
-    Run(scenario.LoadedScenario(short, f"{loaded.source} ({seconds:g} s)", loaded.text), path, interface="virtual").execute()
+    Run(
+        scenario.LoadedScenario(short, f"{loaded.source} ({seconds:g} s)", loaded.text), path, interface="virtual"
+    ).execute()
     return path
 
 
@@ -84,16 +86,22 @@ def write_bare(path: Path, schemas, messages, metadata, attachments) -> None:
         writer.start(profile="", library=f"bare/{__version__}")
         channels, sequence = {}, {}
         for topic, schema in schemas.items():
-            schema_id = writer.register_schema(name=schema.get("title", topic), encoding="jsonschema", data=json.dumps(schema).encode())
+            schema_id = writer.register_schema(
+                name=schema.get("title", topic), encoding="jsonschema", data=json.dumps(schema).encode()
+            )
             channels[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
             sequence[topic] = 0
         for topic, time_ns, payload in messages:
-            writer.add_message(channels[topic], log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence[topic])
+            writer.add_message(
+                channels[topic], log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence[topic]
+            )
             sequence[topic] += 1
         for name, values in metadata.items():
             writer.add_metadata(name, values)
         for name, data in attachments.items():
-            writer.add_attachment(create_time=0, log_time=0, name=name, media_type="application/octet-stream", data=data)
+            writer.add_attachment(
+                create_time=0, log_time=0, name=name, media_type="application/octet-stream", data=data
+            )
         writer.finish()
 
 
@@ -118,12 +126,16 @@ def measure(seconds: float, repeat: int) -> dict[str, float]:
         inspect_s = best_of(repeat, lambda: summarize(ours_log))
         read_s = best_of(repeat, lambda: read_bare(ours_log))
         rate = lambda s: frames / s  # noqa: E731
-        figures.update({
-            "write_frames_per_s": rate(write_s), "bare_write_frames_per_s": rate(bare_write_s),
-            "write_ratio": bare_write_s / write_s,
-            "inspect_frames_per_s": rate(inspect_s), "bare_read_frames_per_s": rate(read_s),
-            "inspect_ratio": read_s / inspect_s,
-        })
+        figures.update(
+            {
+                "write_frames_per_s": rate(write_s),
+                "bare_write_frames_per_s": rate(bare_write_s),
+                "write_ratio": bare_write_s / write_s,
+                "inspect_frames_per_s": rate(inspect_s),
+                "bare_read_frames_per_s": rate(read_s),
+                "inspect_ratio": read_s / inspect_s,
+            }
+        )
         for fmt in FORMATS:
             out = folder / f"out{FORMATS[fmt]}"
             export_s = best_of(repeat, lambda: export(ours_log, fmt, out))
@@ -134,13 +146,40 @@ def measure(seconds: float, repeat: int) -> dict[str, float]:
 
 
 def table(f: dict[str, float]) -> str:
-    rows = [("write (McapLog)", f["write_frames_per_s"], "bare mcap Writer", f["bare_write_frames_per_s"], f["write_ratio"]),
-            ("inspect", f["inspect_frames_per_s"], "bare mcap read + JSON", f["bare_read_frames_per_s"], f["inspect_ratio"])]
-    rows += [(f"export --to {fmt}", f[f"export_{fmt}_frames_per_s"], "bare mcap read + JSON", f["bare_read_frames_per_s"],
-              f[f"export_{fmt}_ratio"]) for fmt in FORMATS]
-    lines = [f"log of the default scenario: {f['ticks']:.0f} ticks, {f['frames']:.0f} frames, {f['messages']:.0f} messages",
-             f"{'operation':<20} {'frames/s':>10}   {'baseline (same run)':<22} {'frames/s':>10}   {'ratio':>5}"]
-    lines += [f"{name:<20} {ours:>10,.0f}   {base_name:<22} {base:>10,.0f}   {ratio:>5.2f}" for name, ours, base_name, base, ratio in rows]
+    rows = [
+        (
+            "write (McapLog)",
+            f["write_frames_per_s"],
+            "bare mcap Writer",
+            f["bare_write_frames_per_s"],
+            f["write_ratio"],
+        ),
+        (
+            "inspect",
+            f["inspect_frames_per_s"],
+            "bare mcap read + JSON",
+            f["bare_read_frames_per_s"],
+            f["inspect_ratio"],
+        ),
+    ]
+    rows += [
+        (
+            f"export --to {fmt}",
+            f[f"export_{fmt}_frames_per_s"],
+            "bare mcap read + JSON",
+            f["bare_read_frames_per_s"],
+            f[f"export_{fmt}_ratio"],
+        )
+        for fmt in FORMATS
+    ]
+    lines = [
+        f"log of the default scenario: {f['ticks']:.0f} ticks, {f['frames']:.0f} frames, {f['messages']:.0f} messages",
+        f"{'operation':<20} {'frames/s':>10}   {'baseline (same run)':<22} {'frames/s':>10}   {'ratio':>5}",
+    ]
+    lines += [
+        f"{name:<20} {ours:>10,.0f}   {base_name:<22} {base:>10,.0f}   {ratio:>5.2f}"
+        for name, ours, base_name, base, ratio in rows
+    ]
     lines.append(f"export_ratio (slowest format) = {f['export_ratio']:.2f}")
     return "\n".join(lines)
 
@@ -148,7 +187,9 @@ def table(f: dict[str, float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--seconds", type=float, default=30.0, help="simulated seconds of the default scenario (default 30)")
+    parser.add_argument(
+        "--seconds", type=float, default=30.0, help="simulated seconds of the default scenario (default 30)"
+    )
     parser.add_argument("--repeat", type=int, default=3, help="repetitions; the best is kept")
     args = parser.parse_args()
     figures = measure(args.seconds, args.repeat)

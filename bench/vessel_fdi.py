@@ -51,8 +51,15 @@ def largest_epsilon(estimator, u: np.ndarray, faulty: tuple[int, ...]) -> float:
     columns = W @ estimator.N if estimator.params.zeta is not None else W
     v = np.linalg.lstsq(estimator.N, u, rcond=None)[0] if estimator.params.zeta is not None else u
     groups = [(j,) for j in range(5)] if estimator.params.zeta is not None else GROUPS
-    steady = sum(np.array([np.linalg.solve(o.F, o.R @ columns[:, list(groups[j])] @ v[list(groups[j])])[:3] for o in estimator.observers])
-                 for j in faulty)
+    steady = sum(
+        np.array(
+            [
+                np.linalg.solve(o.F, o.R @ columns[:, list(groups[j])] @ v[list(groups[j])])[:3]
+                for o in estimator.observers
+            ]
+        )
+        for j in faulty
+    )
     ratio = np.abs(steady) / per_epsilon
     for epsilon in sorted(set(ratio.ravel()), reverse=True):
         if isolate(ratio > epsilon * (1 - 1e-9), estimator.signatures, estimator.hypotheses) == faulty:
@@ -63,7 +70,9 @@ def largest_epsilon(estimator, u: np.ndarray, faulty: tuple[int, ...]) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--epsilon", type=float, default=100.0, help="disturbance bound of the simulated runs (N)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures instead of the tables")
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object of the figures instead of the tables"
+    )
     args = parser.parse_args()
     figures: dict = {"epsilon": args.epsilon, "largest_epsilon": {}, "closed_loop": {}}
     with contextlib.redirect_stdout(io.StringIO()) if args.json else contextlib.nullcontext():
@@ -88,7 +97,9 @@ def report(epsilon: float, figures: dict) -> None:
     print("\nlargest ε at which a full loss is isolated (nominal inputs):")
     for j in range(5):
         figures["largest_epsilon"][f"T{j + 1}"] = largest_epsilon(single, u0, (j,))
-        print(f"  T{j + 1}: single family {largest_epsilon(single, u0, (j,)):9.0f} N   cluster family {largest_epsilon(cluster, u0, (j,)):9.0f} N")
+        print(
+            f"  T{j + 1}: single family {largest_epsilon(single, u0, (j,)):9.0f} N   cluster family {largest_epsilon(cluster, u0, (j,)):9.0f} N"
+        )
     for pair in SHIP_PAIRS:
         H = tuple(j - 1 for j in pair)
         figures["largest_epsilon"][f"T{pair[0]}+T{pair[1]}"] = largest_epsilon(cluster, u0, H)
@@ -97,25 +108,42 @@ def report(epsilon: float, figures: dict) -> None:
     print(f"\nclosed loop on (23), ε = {epsilon:g} N, τ = {tau} s, 120 s, δ = e^(−rate t) from t = 0")
     print("| scenario | family | detected at (s) | first isolation (s) | complete at (s) | isolated | correct |")
     print("|---|---|---|---|---|---|---|")
-    runs = [("nominal", {}, False), *((f"T{j}", {j: 0.03}, False) for j in range(1, 6)),
-            ("T2+T5 (δ2 = e^(−0.02t), δ5 = e^(−0.01t))", {2: 0.02, 5: 0.01}, True),
-            *((f"T{a}+T{b}", {a: 0.03, b: 0.03}, True) for a, b in SHIP_PAIRS if (a, b) != (2, 5))]
+    runs = [
+        ("nominal", {}, False),
+        *((f"T{j}", {j: 0.03}, False) for j in range(1, 6)),
+        ("T2+T5 (δ2 = e^(−0.02t), δ5 = e^(−0.01t))", {2: 0.02, 5: 0.01}, True),
+        *((f"T{a}+T{b}", {a: 0.03, b: 0.03}, True) for a, b in SHIP_PAIRS if (a, b) != (2, 5)),
+    ]
     for label, faults, clustered in runs:
         params = {"disturbance_bound": epsilon, **({"zeta": list(zeta)} if clustered else {})}
         controller = VesselController(M, D, G, tau, VesselControllerParams(zeta=zeta if clustered else None))
-        trajectory = simulate(120.0, tau, controller, create("cofd", model(), params, tau), exponential_faults(faults), disturbance(epsilon, seed=1))
+        trajectory = simulate(
+            120.0,
+            tau,
+            controller,
+            create("cofd", model(), params, tau),
+            exponential_faults(faults),
+            disturbance(epsilon, seed=1),
+        )
         alarm, mask = trajectory.series("alarm"), trajectory.series("fault_mask")
         detected = trajectory.t[np.flatnonzero(alarm)[0]] if alarm.any() else None
         isolated = trajectory.t[np.flatnonzero(mask)[0]] if mask.any() else None
         found = [j + 1 for j in range(5) if int(mask[-1]) >> j & 1]
         complete = trajectory.t[np.flatnonzero(mask == mask[-1])[0]] if mask.any() else None
         ever = int(np.bitwise_or.reduce(mask.astype(int)))
-        correct = found == sorted(faults) and ever == int(mask[-1])  # never a healthy thruster, all faulty ones in the end
-        figures["closed_loop"][label] = {"detected_s": None if detected is None else float(detected),
-                                         "isolated_s": None if complete is None else float(complete),
-                                         "isolated": [f"T{j}" for j in found], "correct": bool(correct)}
-        print(f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
-              f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | {', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |")
+        correct = found == sorted(faults) and ever == int(
+            mask[-1]
+        )  # never a healthy thruster, all faulty ones in the end
+        figures["closed_loop"][label] = {
+            "detected_s": None if detected is None else float(detected),
+            "isolated_s": None if complete is None else float(complete),
+            "isolated": [f"T{j}" for j in found],
+            "correct": bool(correct),
+        }
+        print(
+            f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
+            f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | {', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |"
+        )
 
 
 if __name__ == "__main__":

@@ -42,8 +42,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     seed = loaded.scenario.seed if args.seed is None else args.seed
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{loaded.scenario.name}-seed{seed}-{stamp}.mcap"
-    run = Run(loaded, out, args.seed, interface=args.interface, channel=args.channel, port=args.port,
-              mode=args.mode, speed=args.speed)
+    run = Run(
+        loaded,
+        out,
+        args.seed,
+        interface=args.interface,
+        channel=args.channel,
+        port=args.port,
+        mode=args.mode,
+        speed=args.speed,
+    )
     s = run.scenario
     console = _console(stderr=True)
     timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
@@ -59,8 +67,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
         waiting = [c.name for c in s.clients]
         if waiting:
-            console.print(f"waiting for client{'s' if len(waiting) > 1 else ''} {', '.join(waiting)} to join "
-                          f"(up to {s.timing.join_timeout:g} s)")
+            console.print(
+                f"waiting for client{'s' if len(waiting) > 1 else ''} {', '.join(waiting)} to join "
+                f"(up to {s.timing.join_timeout:g} s)"
+            )
 
     try:
         result = run.execute(on_start=started) if args.quiet else _with_progress(run, console, started)
@@ -79,8 +89,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     for name, counts in result.senders.items():
         if counts["lost"] or counts["runner_frames_missed"]:
-            console.print(f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
-                          f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]")
+            console.print(
+                f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
+                f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]"
+            )
     print(out)
     return 0
 
@@ -193,15 +205,27 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     misplaced = [flag for flag, given in (("--speed", args.speed is not None),) if given]
     if misplaced:
-        raise CosimError(f"{misplaced[0]}: only with --live (an estimator replay runs in lockstep, as fast as the node answers)")
+        raise CosimError(
+            f"{misplaced[0]}: only with --live (an estimator replay runs in lockstep, as fast as the node answers)"
+        )
     if not args.estimator:
         raise CosimError("replay needs --estimator NAME (one of the run's, or a new one with --kind), or --live")
     log = Path(args.log)
     out = Path(args.out) if args.out else log.with_name(f"{log.stem}-replay-{args.estimator}.mcap")
-    replay = Replay(log, out, args.estimator, kind=args.kind, params=parse_params(args.param or []),
-                    interface=args.interface, channel=args.channel, port=args.port)
+    replay = Replay(
+        log,
+        out,
+        args.estimator,
+        kind=args.kind,
+        params=parse_params(args.param or []),
+        interface=args.interface,
+        channel=args.channel,
+        port=args.port,
+    )
     origin = "new, " if replay.new else ""
-    console.print(f"replaying {replay.ticks} ticks of {escape(str(log))} into {escape(replay.name)} ({origin}{replay.kind})")
+    console.print(
+        f"replaying {replay.ticks} ticks of {escape(str(log))} into {escape(replay.name)} ({origin}{replay.kind})"
+    )
 
     def started(run) -> None:
         console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
@@ -214,7 +238,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     except CosimError as error:
         console.print(f"[red]error:[/red] {escape(str(error))}\nthe replay up to that point is in {escape(str(out))}")
         return 1
-    console.print(f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s")
+    console.print(
+        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s"
+    )
     print(out)
     return 0
 
@@ -222,15 +248,25 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def _play(args: argparse.Namespace, console: Console) -> int:
     from cosim.run.replay import play
 
-    misplaced = [flag for flag, given in (("--estimator", args.estimator), ("--kind", args.kind), ("--param", args.param),
-                                          ("--out", args.out)) if given]
+    misplaced = [
+        flag
+        for flag, given in (
+            ("--estimator", args.estimator),
+            ("--kind", args.kind),
+            ("--param", args.param),
+            ("--out", args.out),
+        )
+        if given
+    ]
     if misplaced:
         raise CosimError(f"{misplaced[0]}: not with --live, which plays the log's frames onto a bus as they are")
     speed = 1.0 if args.speed is None else args.speed
 
     def started(bus) -> None:
-        console.print(f"playing {escape(args.log)} onto {bus.describe()} at {speed:g}x real time\n"
-                      f"join with: {escape(bus.python_can())}")
+        console.print(
+            f"playing {escape(args.log)} onto {bus.describe()} at {speed:g}x real time\n"
+            f"join with: {escape(bus.python_can())}"
+        )
 
     try:
         result = play(args.log, args.interface or "udp_multicast", args.channel or "", args.port or 0, speed, started)
@@ -284,52 +320,86 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"cosim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    p = sub.add_parser("run", help="run a scenario and log it to MCAP", description="Run a scenario: simulate the plant, "
-                       "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.")
-    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or path to a TOML file (default: masses-bias)")
-    p.add_argument("--out", "-o", metavar="FILE.mcap", help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap)")
-    p.add_argument("--seed", type=_seed, metavar="N", help="random seed for noise and faults, >= 0 (default: the scenario's)")
-    p.add_argument("--interface", choices=("udp_multicast", "socketcan", "virtual"),
-                   help="bus transport (default: the scenario's, udp_multicast unless it says otherwise)")
-    p.add_argument("--channel", help="bus channel: multicast group, CAN interface or virtual channel (default: a fresh one)")
+    p = sub.add_parser(
+        "run",
+        help="run a scenario and log it to MCAP",
+        description="Run a scenario: simulate the plant, "
+        "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.",
+    )
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        metavar="SCENARIO",
+        help="built-in scenario name or path to a TOML file (default: masses-bias)",
+    )
+    p.add_argument(
+        "--out", "-o", metavar="FILE.mcap", help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap)"
+    )
+    p.add_argument(
+        "--seed", type=_seed, metavar="N", help="random seed for noise and faults, >= 0 (default: the scenario's)"
+    )
+    p.add_argument(
+        "--interface",
+        choices=("udp_multicast", "socketcan", "virtual"),
+        help="bus transport (default: the scenario's, udp_multicast unless it says otherwise)",
+    )
+    p.add_argument(
+        "--channel", help="bus channel: multicast group, CAN interface or virtual channel (default: a fresh one)"
+    )
     p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
     p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
     p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("node", help="run one estimator (or the controller) as a CAN node", description="Run one estimator, "
-                       "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
-                       "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
-                       "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger).")
+    p = sub.add_parser(
+        "node",
+        help="run one estimator (or the controller) as a CAN node",
+        description="Run one estimator, "
+        "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
+        "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
+        "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger).",
+    )
     p.add_argument("estimator", metavar="NAME", help="the estimator's name in the scenario, or 'controller'")
     p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
     p.set_defaults(func=cmd_node)
 
-    p = sub.add_parser("monitor", help="show a running co-simulation's signals live", description="Attach to a running "
-                       "co-simulation and show its decoded signals live, message by message.")
+    p = sub.add_parser(
+        "monitor",
+        help="show a running co-simulation's signals live",
+        description="Attach to a running co-simulation and show its decoded signals live, message by message.",
+    )
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
     p.set_defaults(func=cmd_monitor)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios", description="List the built-in scenarios.")
     p.set_defaults(func=cmd_scenarios)
 
-    p = sub.add_parser("inspect", help="summarize a log", description="Summarize a run log: channels and message counts, "
-                       "duration, scenario, frame counts, and per estimator the RMS of |x - x̂| before and after the first fault.")
+    p = sub.add_parser(
+        "inspect",
+        help="summarize a log",
+        description="Summarize a run log: channels and message counts, "
+        "duration, scenario, frame counts, and per estimator the RMS of |x - x̂| before and after the first fault.",
+    )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--json", action="store_true", help="print one JSON object (stable keys, for other tools)")
     p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser("plot", help="draw a log's figures as PNG files", description="Draw the paper-style figures of "
-                       "a run log: estimation-error norms per estimator, pseudoinverse weights (s, z or Γ), the fault's "
-                       "effect |h_Γ| on each observer's injection, |Γ|, and the bias estimates against the true fault.")
+    p = sub.add_parser(
+        "plot",
+        help="draw a log's figures as PNG files",
+        description="Draw the paper-style figures of "
+        "a run log: estimation-error norms per estimator, pseudoinverse weights (s, z or Γ), the fault's "
+        "effect |h_Γ| on each observer's injection, |Γ|, and the bias estimates against the true fault.",
+    )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="DIR", help="output directory (default: FILE-plots next to the log)")
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser(
-        "export", help="export a log for other tools (CSV, Parquet, BLF, MF4, candump)",
+        "export",
+        help="export a log for other tools (CSV, Parquet, BLF, MF4, candump)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Export a run log for the tools engineers already use. The log is streamed: any length fits in "
         "memory.\n\n"
@@ -347,12 +417,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--to", required=True, choices=("csv", "parquet", "blf", "mf4", "candump"), help="output format")
-    p.add_argument("--out", "-o", metavar="PATH", help="output file (default: FILE.csv, .parquet, .blf, .mf4 or .log next to the log)")
-    p.add_argument("--dbc", metavar="FILE.dbc", help="mf4 only: the DBC to attach, for a log that has none (default: the log's)")
+    p.add_argument(
+        "--out",
+        "-o",
+        metavar="PATH",
+        help="output file (default: FILE.csv, .parquet, .blf, .mf4 or .log next to the log)",
+    )
+    p.add_argument(
+        "--dbc", metavar="FILE.dbc", help="mf4 only: the DBC to attach, for a log that has none (default: the log's)"
+    )
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser(
-        "replay", help="feed a log's bus traffic to an estimator, or play it onto a live bus",
+        "replay",
+        help="feed a log's bus traffic to an estimator, or play it onto a live bus",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Replay a run log without simulating the plant again.\n\n"
         "With --estimator: the frames the runner put on the bus (SYNC, sensor and command frames, tick by tick, as\n"
@@ -371,30 +449,55 @@ def build_parser() -> argparse.ArgumentParser:
         "  cosim replay runs/my.mcap --live --interface socketcan --channel vcan0",
     )
     p.add_argument("log", metavar="FILE.mcap")
-    p.add_argument("--estimator", "-e", metavar="NAME", help="the estimator to feed: one of the run's, or the name of a new one (with --kind)")
-    p.add_argument("--kind", metavar="KIND", help="a new estimator of this kind (pseudoinverse, kalman, adaptive, uio, ...)")
-    p.add_argument("--param", action="append", metavar="KEY=VALUE",
-                   help="an estimator parameter, VALUE in TOML syntax (0.5, [0.8, 0.9], \"text\"); repeat for several")
-    p.add_argument("--out", "-o", metavar="NEW.mcap", help="where to write the replay's log (default: FILE-replay-NAME.mcap)")
+    p.add_argument(
+        "--estimator",
+        "-e",
+        metavar="NAME",
+        help="the estimator to feed: one of the run's, or the name of a new one (with --kind)",
+    )
+    p.add_argument(
+        "--kind", metavar="KIND", help="a new estimator of this kind (pseudoinverse, kalman, adaptive, uio, ...)"
+    )
+    p.add_argument(
+        "--param",
+        action="append",
+        metavar="KEY=VALUE",
+        help='an estimator parameter, VALUE in TOML syntax (0.5, [0.8, 0.9], "text"); repeat for several',
+    )
+    p.add_argument(
+        "--out", "-o", metavar="NEW.mcap", help="where to write the replay's log (default: FILE-replay-NAME.mcap)"
+    )
     p.add_argument("--live", action="store_true", help="play every frame of the log onto a bus in real time instead")
-    p.add_argument("--speed", type=float, metavar="X", help="--live: simulated seconds per wall-clock second (default 1)")
-    p.add_argument("--interface", choices=("udp_multicast", "socketcan", "virtual"), help="bus transport (default: udp_multicast)")
+    p.add_argument(
+        "--speed", type=float, metavar="X", help="--live: simulated seconds per wall-clock second (default 1)"
+    )
+    p.add_argument(
+        "--interface", choices=("udp_multicast", "socketcan", "virtual"), help="bus transport (default: udp_multicast)"
+    )
     p.add_argument("--channel", help="bus channel: multicast group or CAN interface (default: a fresh group)")
     p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_replay)
 
-    p = sub.add_parser("report", help="write a self-contained HTML report of a log",
-                       description="Write one HTML page about a run log: the scenario and its settings, the metrics "
-                       "of 'cosim inspect' as tables, and the figures of 'cosim plot'. The page is self-contained "
-                       "(figures inlined, no network needed) and reads on a laptop and on a phone.")
+    p = sub.add_parser(
+        "report",
+        help="write a self-contained HTML report of a log",
+        description="Write one HTML page about a run log: the scenario and its settings, the metrics "
+        "of 'cosim inspect' as tables, and the figures of 'cosim plot'. The page is self-contained "
+        "(figures inlined, no network needed) and reads on a laptop and on a phone.",
+    )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="REPORT.html", help="output file (default: FILE.html next to the log)")
     p.set_defaults(func=cmd_report)
 
-    p = sub.add_parser("dbc", help="write the CAN database of a scenario", description="Write the DBC database of a "
-                       "scenario's bus, so that external tools can decode its frames.")
-    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or TOML path (default: masses-bias)")
+    p = sub.add_parser(
+        "dbc",
+        help="write the CAN database of a scenario",
+        description="Write the DBC database of a scenario's bus, so that external tools can decode its frames.",
+    )
+    p.add_argument(
+        "scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or TOML path (default: masses-bias)"
+    )
     p.add_argument("--out", "-o", metavar="FILE.dbc", help="output file (default: standard output)")
     p.set_defaults(func=cmd_dbc)
     return parser

@@ -24,13 +24,26 @@ from estimators.reconciliation import (
 )
 from estimators.uio import UnknownInputObserver
 
-ESTIMATORS: dict[str, type[Estimator]] = {cls.kind: cls for cls in (
-    PseudoinverseObserver, AdaptivePseudoinverseObserver, InjectionObserver, ContinuousAdaptiveObserver, KalmanFilter,
-    UnknownInputObserver, LpvUioReconciliator, LftUioReconciliator, NoReconciliation, COFDDiagnosis,
-)}
+ESTIMATORS: dict[str, type[Estimator]] = {
+    cls.kind: cls
+    for cls in (
+        PseudoinverseObserver,
+        AdaptivePseudoinverseObserver,
+        InjectionObserver,
+        ContinuousAdaptiveObserver,
+        KalmanFilter,
+        UnknownInputObserver,
+        LpvUioReconciliator,
+        LftUioReconciliator,
+        NoReconciliation,
+        COFDDiagnosis,
+    )
+}
 
 
-def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Estimator:
+def create(
+    kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None
+) -> Estimator:
     """The estimator of the given kind for ``model`` (continuous-time kinds also need the sample
     time); unknown kinds and bad parameters raise ParameterError naming the culprit."""
     if kind not in ESTIMATORS:
@@ -39,4 +52,15 @@ def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, 
 
 
 # Importing the controller kinds registers them in CONTROLLERS.
-__all__ = ["CONTROLLERS", "ESTIMATORS", "PidController", "ThrustAllocationController", "Diagnostic", "Estimate", "Estimator", "LinearModel", "ParameterError", "create"]
+__all__ = [
+    "CONTROLLERS",
+    "ESTIMATORS",
+    "PidController",
+    "ThrustAllocationController",
+    "Diagnostic",
+    "Estimate",
+    "Estimator",
+    "LinearModel",
+    "ParameterError",
+    "create",
+]

@@ -59,8 +59,9 @@ class BiasEstimator:
     With A − M H Schur and A − I nonsingular, φ̂ − φ → 0 exponentially (Proposition 1).
     """
 
-    def __init__(self, A: np.ndarray, B: np.ndarray, Y: np.ndarray, H: np.ndarray, M: np.ndarray,
-                 xi0: np.ndarray | None = None) -> None:
+    def __init__(
+        self, A: np.ndarray, B: np.ndarray, Y: np.ndarray, H: np.ndarray, M: np.ndarray, xi0: np.ndarray | None = None
+    ) -> None:
         n, p = A.shape[0], Y.shape[0]
         self.A, self.B, self.H, self.M = A, B, H, M
         self.C = Y @ H
@@ -187,8 +188,9 @@ def scale_and_filter(phi_hat: np.ndarray, filtered: np.ndarray, tau: float, eps_
 # -- estimators ---------------------------------------------------------------------------------
 
 
-def _vector_diagnostics(prefix: str, names: tuple[str, ...], what: str, kind: DiagnosticKind, bound: float,
-                        resolution: float) -> list[Diagnostic]:
+def _vector_diagnostics(
+    prefix: str, names: tuple[str, ...], what: str, kind: DiagnosticKind, bound: float, resolution: float
+) -> list[Diagnostic]:
     return [Diagnostic(f"{prefix}_{name}", "", f"{what} ({name})", bound, resolution, kind, name) for name in names]
 
 
@@ -277,7 +279,9 @@ class AdaptivePseudoinverseObserver(Estimator):
         self.bias = BiasEstimator(model.A, model.B, self.Y, self.H, self.M, self.x_hat)
         self.z = _unit(params.z0, p, "z0")
         if abs(np.linalg.det((self.Y.T * self.z) @ self.Y)) <= params.epsilon:
-            raise ParameterError("z0", f"|det R(z0)| is not above epsilon = {params.epsilon}: the selector would never start")
+            raise ParameterError(
+                "z0", f"|det R(z0)| is not above epsilon = {params.epsilon}: the selector would never start"
+            )
         self.s = self.z.copy()
         self.h = 0
         self.phi_filtered = np.zeros(p)
@@ -307,14 +311,16 @@ class AdaptivePseudoinverseObserver(Estimator):
             self.phi_hat = phi_hat
             innovation = y - self.C @ x_k - (h * phi_hat if self.params.injection else 0.0)
             injected = self.L @ (weighted_pseudoinverse(self.Y, s) @ innovation)
-            self.x_hat = A @ x_k + B @ du + injected                      # (13) / (53)
-            if self.params.filter is not None:                            # Algorithm 1
-                self.phi_filtered = scale_and_filter(phi_hat, self.phi_filtered, self.params.filter, self.params.eps_phi)
+            self.x_hat = A @ x_k + B @ du + injected  # (13) / (53)
+            if self.params.filter is not None:  # Algorithm 1
+                self.phi_filtered = scale_and_filter(
+                    phi_hat, self.phi_filtered, self.params.filter, self.params.eps_phi
+                )
                 self.z = optimizer_step(z, self.phi_filtered, self.Y)
             else:
-                self.z = optimizer_step(z, phi_hat, self.Y)              # (16), (37e)
-            self.s, self.h = select(s, z, self.Y, self.params.epsilon)    # (17) / (52)
-            self.bias.update(y, du)                                       # (7a)
+                self.z = optimizer_step(z, phi_hat, self.Y)  # (16), (37e)
+            self.s, self.h = select(s, z, self.Y, self.params.epsilon)  # (17) / (52)
+            self.bias.update(y, du)  # (7a)
         diagnostics = self._named("phihat", self.Sigma.T @ self.phi_hat)
         diagnostics |= self._named("z", z) | self._named("s", s) | {"h": float(h)}
         diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
@@ -382,7 +388,7 @@ class InjectionObserver(Estimator):
             tau = self.params.filter
             self.phi_used = phi_hat if tau is None else (1.0 - tau) * self.phi_used + tau * phi_hat
             injected = self.L @ (self.bias.P_Y @ (dy - self.phi_used) - self.H @ x_k)
-            self.x_hat = A @ x_k + B @ du + injected                      # (56)
+            self.x_hat = A @ x_k + B @ du + injected  # (56)
             self.bias.update(dy, du)
         diagnostics = {f"phihat_{o}": float(v) for o, v in zip(self.model.outputs, self.phi_used)}
         diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}

@@ -53,7 +53,9 @@ def pseudo_inverse_allocation(G: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """u = Gᵀ(GGᵀ)⁻¹ τ, eq. (4): the least-norm u with G u = τ. G (k, m) of rank k; returns (m,)."""
     G, tau = _check_effect_matrix(G, tau)
     if _rank(G) < G.shape[0]:
-        raise AllocationError(f"rank(G) = {_rank(G)} < k = {G.shape[0]}: some direction of τ cannot be produced by any u (eq. (4) needs G of full row rank)")
+        raise AllocationError(
+            f"rank(G) = {_rank(G)} < k = {G.shape[0]}: some direction of τ cannot be produced by any u (eq. (4) needs G of full row rank)"
+        )
     return G.T @ np.linalg.solve(G @ G.T, tau)
 
 
@@ -65,7 +67,9 @@ def reduced_allocation(G: np.ndarray, tau: np.ndarray, faulty: tuple[int, ...] |
     return allocate(G, tau, allocation_basis(G.shape[1], faulty=faulty), exact=True)
 
 
-def cluster_matrix(groups: list[tuple[int, ...]] | tuple[tuple[int, ...], ...], zeta: tuple[float, ...] | list[float], m: int) -> np.ndarray:
+def cluster_matrix(
+    groups: list[tuple[int, ...]] | tuple[tuple[int, ...], ...], zeta: tuple[float, ...] | list[float], m: int
+) -> np.ndarray:
     """The input combinations N (m, q) of the common-mode constraints (20), (24): u = N v.
 
     ``groups`` partitions the inputs 0 … m−1 into q clusters (e.g. the ship's thrusters
@@ -77,11 +81,15 @@ def cluster_matrix(groups: list[tuple[int, ...]] | tuple[tuple[int, ...], ...], 
     groups = [tuple(int(i) for i in g) for g in groups]
     flat = [i for g in groups for i in g]
     if any(len(g) == 0 for g in groups) or sorted(flat) != list(range(m)):
-        raise AllocationError(f"groups {[list(g) for g in groups]} must split the inputs 0…{m - 1} into non-empty clusters, each input in exactly one")
+        raise AllocationError(
+            f"groups {[list(g) for g in groups]} must split the inputs 0…{m - 1} into non-empty clusters, each input in exactly one"
+        )
     needed = sum(len(g) - 1 for g in groups)
     zeta = [float(z) for z in zeta]
     if len(zeta) != needed:
-        raise AllocationError(f"zeta has {len(zeta)} ratios; the clusters {[list(g) for g in groups]} need {needed} (one per input after the first of each cluster)")
+        raise AllocationError(
+            f"zeta has {len(zeta)} ratios; the clusters {[list(g) for g in groups]} need {needed} (one per input after the first of each cluster)"
+        )
     if not all(np.isfinite(zeta)):
         raise AllocationError(f"zeta {zeta} must be finite")
     N = np.zeros((m, len(groups)))
@@ -130,7 +138,8 @@ def allocate(G: np.ndarray, tau: np.ndarray, N: np.ndarray | None = None, exact:
     if exact and (N.shape[1] == 0 or _rank(GN) < G.shape[0]):
         raise AllocationError(
             f"the admissible inputs produce only a rank-{_rank(GN) if N.shape[1] else 0} effect (k = {G.shape[0]}): τ cannot be met "
-            "exactly (eq. (5) and (21) need rank k); keep more inputs, or relax the cluster constraints")
+            "exactly (eq. (5) and (21) need rank k); keep more inputs, or relax the cluster constraints"
+        )
     return N @ (np.linalg.pinv(GN) @ tau) if N.shape[1] else np.zeros(G.shape[1])
 
 
@@ -141,11 +150,15 @@ def constrained_allocation(G: np.ndarray, tau: np.ndarray, groups, zeta) -> np.n
     m, k = G.shape[1], G.shape[0]
     constraints = sum(len(g) - 1 for g in groups)
     if constraints > m - k:
-        raise AllocationError(f"{constraints} cluster constraints leave {m - constraints} free inputs for k = {k} effects: eq. (19) allows at most m − k = {m - k}")
+        raise AllocationError(
+            f"{constraints} cluster constraints leave {m - constraints} free inputs for k = {k} effects: eq. (19) allows at most m − k = {m - k}"
+        )
     return allocate(G, tau, allocation_basis(m, groups, zeta), exact=True)
 
 
-def bounded_allocation(G: np.ndarray, tau: np.ndarray, lower, upper, N: np.ndarray | None = None, gamma: float = 1e6) -> np.ndarray:
+def bounded_allocation(
+    G: np.ndarray, tau: np.ndarray, lower, upper, N: np.ndarray | None = None, gamma: float = 1e6
+) -> np.ndarray:
     """u in span N with lower ≤ u ≤ upper that meets G u = τ when the limits allow, least-norm
     among those; otherwise the τ̂ = G u closest to τ (eq. (3)).
 
@@ -170,7 +183,9 @@ def bounded_allocation(G: np.ndarray, tau: np.ndarray, lower, upper, N: np.ndarr
             a, b = lower[i] / N[i, j], upper[i] / N[i, j]
             lo[j], hi[j] = max(lo[j], min(a, b)), min(hi[j], max(a, b))
     if np.any(lo > hi):
-        raise AllocationError("the limits leave no admissible input in some cluster (its ratios ζ force an input beyond its limit)")
+        raise AllocationError(
+            "the limits leave no admissible input in some cluster (its ratios ζ force an input beyond its limit)"
+        )
     if N.shape[1] == 0:
         return np.zeros(m)
     GN = G @ N
@@ -245,11 +260,20 @@ class VesselController:
     while the allocation cannot meet τ_c (thrust limits, or too few thrusters left): anti-windup.
     """
 
-    def __init__(self, M: np.ndarray, D: np.ndarray, G: np.ndarray, sample_time: float,
-                 params: VesselControllerParams = VesselControllerParams()) -> None:
+    def __init__(
+        self,
+        M: np.ndarray,
+        D: np.ndarray,
+        G: np.ndarray,
+        sample_time: float,
+        params: VesselControllerParams = VesselControllerParams(),
+    ) -> None:
         self.M, self.D, self.G = (np.asarray(X, dtype=float) for X in (M, D, G))
         if self.M.shape != (3, 3) or self.D.shape != (3, 3) or self.G.ndim != 2 or self.G.shape[0] != 3:
-            raise ParameterError("model", f"expected M and D of shape (3, 3) and G of shape (3, m), got {self.M.shape}, {self.D.shape}, {self.G.shape}")
+            raise ParameterError(
+                "model",
+                f"expected M and D of shape (3, 3) and G of shape (3, m), got {self.M.shape}, {self.D.shape}, {self.G.shape}",
+            )
         if not sample_time > 0:
             raise ParameterError("sample_time", f"must be positive, got {sample_time}")
         m = self.G.shape[1]
@@ -288,7 +312,17 @@ class VesselController:
     @staticmethod
     def diagnostic_names() -> list[str]:
         """The keys of the diagnostics ``step`` returns."""
-        return ["tau_x", "tau_y", "tau_n", "a_psi", "heading_error", "tau_error", "cluster", "reconfigured", "active_mask"]
+        return [
+            "tau_x",
+            "tau_y",
+            "tau_n",
+            "a_psi",
+            "heading_error",
+            "tau_error",
+            "cluster",
+            "reconfigured",
+            "active_mask",
+        ]
 
     def step(self, y: np.ndarray, t: float, fault_mask: int = 0) -> tuple[np.ndarray, dict[str, float]]:
         """u_k (shape (m,)) from y_k = [x, y, ψ, u, v, r] (NaN: a reading that did not arrive, the
@@ -307,7 +341,9 @@ class VesselController:
         if fault_mask & ~self.reported:
             self.reported |= fault_mask
             self.report_time = float(t)
-        if self.reported & ~self.active_mask and t >= max(self.params.reconfigure_at, self.report_time + self.params.reconfigure_delay):
+        if self.reported & ~self.active_mask and t >= max(
+            self.params.reconfigure_at, self.report_time + self.params.reconfigure_delay
+        ):
             self.active_mask |= self.reported
 
         error = _wrap(psi - self.heading_ref)
@@ -332,9 +368,15 @@ class VesselController:
         if tau_error <= 1e-6 * np.linalg.norm(tau):  # anti-windup: integrate only while τ_c is met
             self.heading_integral, self.speed_integral = heading_integral, speed_integral
         diagnostics = {
-            "tau_x": tau[0], "tau_y": tau[1], "tau_n": tau[2], "a_psi": a_psi, "heading_error": error,
-            "tau_error": tau_error, "cluster": float(clustered),
-            "reconfigured": float(self.active_mask != 0), "active_mask": float(self.active_mask),
+            "tau_x": tau[0],
+            "tau_y": tau[1],
+            "tau_n": tau[2],
+            "a_psi": a_psi,
+            "heading_error": error,
+            "tau_error": tau_error,
+            "cluster": float(clustered),
+            "reconfigured": float(self.active_mask != 0),
+            "active_mask": float(self.active_mask),
         }
         return u, {name: float(value) for name, value in diagnostics.items()}
 
@@ -344,7 +386,10 @@ def input_groups(groups, m: int, parameter: str = "groups") -> list[tuple[int, .
     split the m inputs, each in exactly one thruster; ParameterError(``parameter``) otherwise."""
     out = [tuple(whole(i, parameter) - 1 for i in g) for g in groups]
     if not out or any(not g for g in out) or sorted(i for g in out for i in g) != list(range(m)):
-        raise ParameterError(parameter, f"{[[int(i) for i in g] for g in groups]} must split the inputs 1…{m} into thrusters, each input in exactly one")
+        raise ParameterError(
+            parameter,
+            f"{[[int(i) for i in g] for g in groups]} must split the inputs 1…{m} into thrusters, each input in exactly one",
+        )
     return out
 
 
@@ -376,9 +421,12 @@ class ThrustAllocationController(Controller):
         super().__init__(model, params, sample_time)
         missing = [name for name in self.OUTPUTS if name not in model.outputs]
         if missing or model.n != 6 or model.E.shape != (6, 3):
-            raise ParameterError("model", f"{self.kind} needs a planar vessel: states [η, ν], sensors {', '.join(self.OUTPUTS)} "
-                                          f"and three earth-frame disturbance inputs (E = [0; M⁻¹]); "
-                                          f"got states {model.states}, sensors {model.outputs}, {model.E.shape[1]} disturbances")
+            raise ParameterError(
+                "model",
+                f"{self.kind} needs a planar vessel: states [η, ν], sensors {', '.join(self.OUTPUTS)} "
+                f"and three earth-frame disturbance inputs (E = [0; M⁻¹]); "
+                f"got states {model.states}, sensors {model.outputs}, {model.E.shape[1]} disturbances",
+            )
         self._rows = [model.outputs.index(name) for name in self.OUTPUTS]
         M = np.linalg.inv(model.E[3:, :])
         self.law = VesselController(M, -M @ model.A[3:, 3:], M @ model.B[3:, :], self.sample_time, params)
@@ -386,18 +434,41 @@ class ThrustAllocationController(Controller):
     @classmethod
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         force, moment = ("N", 1e8, 1.0), ("N m", 1e10, 1.0)
-        units = {"tau_x": force, "tau_y": force, "tau_n": moment, "a_psi": moment, "tau_error": force,
-                 "heading_error": ("rad", 4.0, 1e-6), "cluster": ("", 1.0, 1.0), "reconfigured": ("", 1.0, 1.0),
-                 "active_mask": ("", 255.0, 1.0)}
-        text = {"tau_x": "commanded surge force τ_c", "tau_y": "commanded sway force τ_c", "tau_n": "commanded yaw moment τ_c",
-                "a_psi": "heading PID output a_ψ", "heading_error": "ψ − ψ_ref", "tau_error": "|G u − τ_c| (unmet effect)",
-                "cluster": "1 while the cluster constraints (24) hold", "reconfigured": "1 once the allocation left thrusters out (5)",
-                "active_mask": "thrusters left out of the allocation (bit j: T(j+1))"}
-        kinds = {"heading_error": DiagnosticKind.CONTROL_ERROR, "tau_error": DiagnosticKind.CONTROL_ERROR,
-                 "cluster": DiagnosticKind.CONSTRAINT, "reconfigured": DiagnosticKind.RECONFIGURATION,
-                 "active_mask": DiagnosticKind.FAULT_MASK}
-        return [Diagnostic(name, units[name][0], text[name], units[name][1], units[name][2], kinds.get(name, DiagnosticKind.EFFORT))
-                for name in VesselController.diagnostic_names()]
+        units = {
+            "tau_x": force,
+            "tau_y": force,
+            "tau_n": moment,
+            "a_psi": moment,
+            "tau_error": force,
+            "heading_error": ("rad", 4.0, 1e-6),
+            "cluster": ("", 1.0, 1.0),
+            "reconfigured": ("", 1.0, 1.0),
+            "active_mask": ("", 255.0, 1.0),
+        }
+        text = {
+            "tau_x": "commanded surge force τ_c",
+            "tau_y": "commanded sway force τ_c",
+            "tau_n": "commanded yaw moment τ_c",
+            "a_psi": "heading PID output a_ψ",
+            "heading_error": "ψ − ψ_ref",
+            "tau_error": "|G u − τ_c| (unmet effect)",
+            "cluster": "1 while the cluster constraints (24) hold",
+            "reconfigured": "1 once the allocation left thrusters out (5)",
+            "active_mask": "thrusters left out of the allocation (bit j: T(j+1))",
+        }
+        kinds = {
+            "heading_error": DiagnosticKind.CONTROL_ERROR,
+            "tau_error": DiagnosticKind.CONTROL_ERROR,
+            "cluster": DiagnosticKind.CONSTRAINT,
+            "reconfigured": DiagnosticKind.RECONFIGURATION,
+            "active_mask": DiagnosticKind.FAULT_MASK,
+        }
+        return [
+            Diagnostic(
+                name, units[name][0], text[name], units[name][1], units[name][2], kinds.get(name, DiagnosticKind.EFFORT)
+            )
+            for name in VesselController.diagnostic_names()
+        ]
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get("fault_mask", 0)))

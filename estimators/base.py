@@ -119,7 +119,9 @@ class Configurable:
         return cls.Params(**{name: coerce(value, hints[name], name) for name, value in params.items()})
 
     @classmethod
-    def from_params(cls, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Any:
+    def from_params(
+        cls, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None
+    ) -> Any:
         """Build from a plain dict of parameters, with a ParameterError naming any bad one."""
         return cls(model, cls.check_params(params), sample_time)
 
@@ -144,7 +146,9 @@ class Estimator(Configurable, ABC):
     def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
         if self.continuous:
             if model.dt is not None:
-                raise ParameterError("model", f"{self.kind} needs a continuous-time model (got a discrete one, dt = {model.dt})")
+                raise ParameterError(
+                    "model", f"{self.kind} needs a continuous-time model (got a discrete one, dt = {model.dt})"
+                )
             if sample_time is None or not sample_time > 0:
                 raise ParameterError("sample_time", f"{self.kind} integrates between samples and needs the sample time")
         elif model.dt is None:
@@ -162,7 +166,9 @@ class Estimator(Configurable, ABC):
         y = np.asarray(y, dtype=float)
         u = np.asarray(u, dtype=float)
         if y.shape != (self.model.p,) or u.shape != (self.model.m,):
-            raise ValueError(f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}")
+            raise ValueError(
+                f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}"
+            )
         estimate = self._step(y - self.model.y_op, u - self.model.u_op)
         return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
 
@@ -175,8 +181,11 @@ class Estimator(Configurable, ABC):
         """What each isolation diagnostic names as faulty, as sensor or actuator names (the fault
         targets of a scenario): by default its target, where that is an output or an input."""
         known = {*self.model.outputs, *self.model.inputs}
-        return {d.name: [d.target] for d in self.diagnostic_channels(self.model.states, self.model.outputs)
-                if d.kind == DiagnosticKind.ISOLATION and d.target in known}
+        return {
+            d.name: [d.target]
+            for d in self.diagnostic_channels(self.model.states, self.model.outputs)
+            if d.kind == DiagnosticKind.ISOLATION and d.target in known
+        }
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray | None:
         """What an output bias φ leaves in the observer's injection at a tick with these diagnostics
@@ -211,10 +220,18 @@ def coerce(value: Any, hint: Any, name: str) -> Any:
             return _number(value, name)
         if option is int and numeric and isinstance(value, int):
             return value
-        if typing.get_origin(option) is tuple and sequence and value and all(isinstance(row, (list, tuple)) for row in value):
+        if (
+            typing.get_origin(option) is tuple
+            and sequence
+            and value
+            and all(isinstance(row, (list, tuple)) for row in value)
+        ):
             inner = typing.get_args(option)[0]
             if typing.get_origin(inner) is tuple:  # a matrix: tuple[tuple[float, ...], ...]
-                return tuple(tuple(_number(item, f"{name}[{i}][{j}]") for j, item in enumerate(row)) for i, row in enumerate(value))
+                return tuple(
+                    tuple(_number(item, f"{name}[{i}][{j}]") for j, item in enumerate(row))
+                    for i, row in enumerate(value)
+                )
         if option is bool and isinstance(value, bool):
             return value
         if option is str and isinstance(value, str):

@@ -77,7 +77,9 @@ def output_directions(C: np.ndarray, S_star: np.ndarray | None = None) -> np.nda
     C = np.asarray(C, dtype=float)
     p, n = C.shape
     if _rank(C) < p:
-        raise DesignError("C", f"rank(C) = {_rank(C)} < p = {p}: no S with C S = I exists (eq. (10)); drop the redundant outputs")
+        raise DesignError(
+            "C", f"rank(C) = {_rank(C)} < p = {p}: no S with C S = I exists (eq. (10)); drop the redundant outputs"
+        )
     right = C.T @ np.linalg.inv(C @ C.T)
     S_star = np.zeros((n, p)) if S_star is None else np.asarray(S_star, dtype=float)
     return right + (np.eye(n) - right @ C) @ S_star
@@ -119,8 +121,15 @@ class COFDObserver:
         return UIODesign(self.H, self.R, self.F, self.K1, self.K2)
 
 
-def cofd_observer(A: np.ndarray, W: np.ndarray, C: np.ndarray, J, F: np.ndarray,
-                  S: np.ndarray | None = None, H_star: np.ndarray | None = None) -> COFDObserver:
+def cofd_observer(
+    A: np.ndarray,
+    W: np.ndarray,
+    C: np.ndarray,
+    J,
+    F: np.ndarray,
+    S: np.ndarray | None = None,
+    H_star: np.ndarray | None = None,
+) -> COFDObserver:
     """The COFD observer with R W_J = Ŝ (13) and observer matrix F, eq. (15)–(17), (6)–(8).
 
     A (n, n), W (n, m), C (p, n), J: ℓ distinct columns of W (0-based, order = output direction),
@@ -148,7 +157,9 @@ def cofd_observer(A: np.ndarray, W: np.ndarray, C: np.ndarray, J, F: np.ndarray,
         raise DesignError("family", f"multi-index {[j + 1 for j in J]} must list distinct columns 1…{W.shape[1]} of W")
     ell = len(J)
     if ell > p:
-        raise DesignError("family", f"multi-index {[j + 1 for j in J]} has {ell} columns but there are only p = {p} output directions")
+        raise DesignError(
+            "family", f"multi-index {[j + 1 for j in J]} has {ell} columns but there are only p = {p} output directions"
+        )
     S = output_directions(C) if S is None else np.asarray(S, dtype=float)
     if S.shape != (n, p) or not np.allclose(C @ S, np.eye(p), atol=1e-9):
         raise DesignError("S", "S must satisfy C S = I (eq. (10))")
@@ -156,10 +167,14 @@ def cofd_observer(A: np.ndarray, W: np.ndarray, C: np.ndarray, J, F: np.ndarray,
     WJ = W[:, list(J)]
     CWJ = C @ WJ
     if _rank(WJ) != ell or _rank(CWJ) != ell:
-        raise DesignError("family", (
-            f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem 3.1 "
-            f"(condition 1) needs both = {ell}: these inputs' faults cannot be given independent output directions. "
-            "Choose columns of W that are linearly independent (and stay so through C)"))
+        raise DesignError(
+            "family",
+            (
+                f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem 3.1 "
+                f"(condition 1) needs both = {ell}: these inputs' faults cannot be given independent output directions. "
+                "Choose columns of W that are linearly independent (and stay so through C)"
+            ),
+        )
     CWJ_left = _left_inverse(CWJ)
     H = (WJ - S_hat) @ CWJ_left  # eq. (15)
     if H_star is not None:
@@ -167,23 +182,37 @@ def cofd_observer(A: np.ndarray, W: np.ndarray, C: np.ndarray, J, F: np.ndarray,
     R = np.eye(n) - H @ C  # eq. (6)
     eig = np.linalg.eigvals(F)
     if np.max(eig.real) >= 0:
-        raise DesignError("F", f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real part negative")
+        raise DesignError(
+            "F",
+            f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real part negative",
+        )
     for j in range(ell):
         s = S_hat[:, j]
         lam = s @ F @ s / (s @ s)
         if np.linalg.norm(F @ s - lam * s) > 1e-9 * max(1.0, np.abs(F).max()) * np.linalg.norm(s):
-            raise DesignError("F", (
-                f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} would not keep "
-                f"the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {ell} (with C = I: F diagonal in its first {ell} rows and columns)"))
+            raise DesignError(
+                "F",
+                (
+                    f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} would not keep "
+                    f"the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {ell} (with C = I: F diagonal in its first {ell} rows and columns)"
+                ),
+            )
     C_right = C.T @ np.linalg.inv(C @ C.T)
     K1 = (R @ A - F) @ C_right
     if not np.allclose(R @ A - K1 @ C, F, atol=1e-9 * max(1.0, np.abs(R @ A).max(), np.abs(F).max())):
-        raise DesignError("F", ("F = R A − K1 C (eq. (7)) has no solution K1: R A − F must vanish on the kernel of C. "
-                                "Choose F from the reachable ones, R A − K1 C for some K1 (eq. (17))"))
+        raise DesignError(
+            "F",
+            (
+                "F = R A − K1 C (eq. (7)) has no solution K1: R A − F must vanish on the kernel of C. "
+                "Choose F from the reachable ones, R A − K1 C for some K1 (eq. (17))"
+            ),
+        )
     return COFDObserver(J, S_hat, H, R, F, K1, F @ H)
 
 
-def cofd_family(A: np.ndarray, W: np.ndarray, C: np.ndarray, family, F: np.ndarray, S: np.ndarray | None = None) -> list[COFDObserver]:
+def cofd_family(
+    A: np.ndarray, W: np.ndarray, C: np.ndarray, family, F: np.ndarray, S: np.ndarray | None = None
+) -> list[COFDObserver]:
     """The observers {O_h} of eq. (13), one per multi-index of ``family`` (0-based columns of W),
     all with the same F and Ŝ (the paper's simplification after (13)). DesignError names the observer."""
     observers = []
@@ -209,11 +238,17 @@ def cluster_directions(W: np.ndarray, groups, zeta) -> np.ndarray:
     k, m = _rank(W), W.shape[1]
     constraints = m - N.shape[1]
     if constraints > m - k:
-        raise DesignError("zeta", f"{constraints} cluster constraints exceed the redundancy m − k = {m - k} (eq. (19)): merge fewer inputs")
+        raise DesignError(
+            "zeta",
+            f"{constraints} cluster constraints exceed the redundancy m − k = {m - k} (eq. (19)): merge fewer inputs",
+        )
     W_star = W @ N
     if _rank(W_star) < k:
-        raise DesignError("zeta", f"rank [W_{{1}} … W_{{q}}] = {_rank(W_star)} < rank W = {k} (eq. (21)): with these ratios ζ some effect "
-                                  "can no longer be produced; choose other ratios")
+        raise DesignError(
+            "zeta",
+            f"rank [W_{{1}} … W_{{q}}] = {_rank(W_star)} < rank W = {k} (eq. (21)): with these ratios ζ some effect "
+            "can no longer be produced; choose other ratios",
+        )
     return W_star
 
 
@@ -249,7 +284,7 @@ def fault_signatures(observers: list[COFDObserver], C: np.ndarray, W: np.ndarray
         effect = C @ o.R @ W
         tol = _tol(effect)
         for j, g in enumerate(groups):
-            signatures[h, :len(o.J), j] = np.abs(effect[:len(o.J), list(g)]).max(axis=1) > tol
+            signatures[h, : len(o.J), j] = np.abs(effect[: len(o.J), list(g)]).max(axis=1) > tol
     return signatures
 
 
@@ -281,7 +316,11 @@ def unisolable(signatures: np.ndarray, hypotheses) -> list[tuple[tuple[int, ...]
     for H in hypotheses:
         sig = hypothesis_signature(signatures, H)
         for other in hypotheses:
-            if tuple(other) != tuple(H) and not set(H) < set(other) and not (sig & ~hypothesis_signature(signatures, other)).any():
+            if (
+                tuple(other) != tuple(H)
+                and not set(H) < set(other)
+                and not (sig & ~hypothesis_signature(signatures, other)).any()
+            ):
                 clashes.append((tuple(H), tuple(other)))
     return clashes
 
@@ -341,24 +380,41 @@ class COFDDiagnosis(Estimator):
         n, m = model.n, model.m
         self.groups = input_groups(params.groups, m)
         if len(self.groups) > MAX_GROUPS:
-            raise ParameterError("groups", f"at most {MAX_GROUPS} thrusters have diagnostics on the bus, got {len(self.groups)}")
+            raise ParameterError(
+                "groups", f"at most {MAX_GROUPS} thrusters have diagnostics on the bus, got {len(self.groups)}"
+            )
         if len(params.F) != n or max(params.F) >= 0:
-            raise ParameterError("F", f"give the {n} diagonal entries of F, all negative (F Hurwitz, Theorem 3.1), got {list(params.F)}")
+            raise ParameterError(
+                "F", f"give the {n} diagonal entries of F, all negative (F Hurwitz, Theorem 3.1), got {list(params.F)}"
+            )
         if params.margin < 1:
-            raise ParameterError("margin", f"must be at least 1 (a smaller one lets the worst-case disturbance raise alarms), got {params.margin}")
+            raise ParameterError(
+                "margin",
+                f"must be at least 1 (a smaller one lets the worst-case disturbance raise alarms), got {params.margin}",
+            )
         if not params.disturbance_bound >= 0 or params.persistence < 0:
-            raise ParameterError("disturbance_bound" if not params.disturbance_bound >= 0 else "persistence", "must be at least 0")
+            raise ParameterError(
+                "disturbance_bound" if not params.disturbance_bound >= 0 else "persistence", "must be at least 0"
+            )
         E = model.E if params.E is None else np.array(params.E, dtype=float)
         if E.ndim != 2 or E.shape[0] != n or E.shape[1] == 0:
-            raise ParameterError("E", f"need the unknown input's direction, a matrix with {n} rows: the model has none, give params.E")
+            raise ParameterError(
+                "E", f"need the unknown input's direction, a matrix with {n} rows: the model has none, give params.E"
+            )
         cluster = params.zeta is not None
         columns = len(self.groups) if cluster else m
         family = params.family or (SHIP_CLUSTER_FAMILY if cluster else SHIP_FAMILY)
         family = [tuple(whole(j, "family") - 1 for j in J) for J in family]
         if len(family) > MAX_OBSERVERS or any(len(J) > MAX_COMPONENTS for J in family):
-            raise ParameterError("family", f"at most {MAX_OBSERVERS} observers of at most {MAX_COMPONENTS} columns have diagnostics on the bus")
+            raise ParameterError(
+                "family",
+                f"at most {MAX_OBSERVERS} observers of at most {MAX_COMPONENTS} columns have diagnostics on the bus",
+            )
         if any(not 0 <= j < columns for J in family for j in J):
-            raise ParameterError("family", f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got {[[j + 1 for j in J] for J in family]}")
+            raise ParameterError(
+                "family",
+                f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got {[[j + 1 for j in J] for J in family]}",
+            )
         try:
             W = model.B
             if cluster:
@@ -370,18 +426,29 @@ class COFDDiagnosis(Estimator):
         effect_groups = [(j,) for j in range(len(self.groups))] if cluster else self.groups
         self.signatures = fault_signatures(self.observers, model.C, W_star if cluster else W, effect_groups)
         pairs = params.pairs if params.pairs is not None else (SHIP_PAIRS if cluster else ())
-        self.hypotheses = [(j,) for j in range(len(self.groups))] + [tuple(sorted(whole(t, "pairs") - 1 for t in pair)) for pair in pairs]
+        self.hypotheses = [(j,) for j in range(len(self.groups))] + [
+            tuple(sorted(whole(t, "pairs") - 1 for t in pair)) for pair in pairs
+        ]
         if any(not 0 <= t < len(self.groups) for H in self.hypotheses for t in H):
             raise ParameterError("pairs", f"thruster numbers run 1…{len(self.groups)}")
         clashes = unisolable(self.signatures, self.hypotheses)
         if clashes:
             H, other = clashes[0]
-            raise ParameterError("family" if not cluster else "pairs", (
-                f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component it moves can also be "
-                f"moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that separate them, drop the hypothesis from "
-                "pairs, or use the cluster family (zeta) for common-mode faults"))
+            raise ParameterError(
+                "family" if not cluster else "pairs",
+                (
+                    f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component it moves can also be "
+                    f"moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that separate them, drop the hypothesis from "
+                    "pairs, or use the cluster family (zeta) for common-mode faults"
+                ),
+            )
         self.ell = max(len(J) for J in family)
-        self.thresholds = np.array([params.margin * residual_bounds(o, model.C, E, params.disturbance_bound)[:self.ell] for o in self.observers])
+        self.thresholds = np.array(
+            [
+                params.margin * residual_bounds(o, model.C, E, params.disturbance_bound)[: self.ell]
+                for o in self.observers
+            ]
+        )
         self.discrete = [discretize(o.as_uio(), W, self.sample_time) for o in self.observers]
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
         if self.x_init is not None and self.x_init.shape != (n,):
@@ -399,12 +466,61 @@ class COFDDiagnosis(Estimator):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         pairs = [(h, i) for h in range(1, MAX_OBSERVERS + 1) for i in range(1, MAX_COMPONENTS + 1)]
         return [
-            *(Diagnostic(f"r{h}_{i}", "", f"residual r^({h}) = C e^({h}) along e_{i} (Sec. 3.2)", 1e9, 1e-3, DiagnosticKind.RESIDUAL, f"observer {h}") for h, i in pairs),
-            *(Diagnostic(f"thr{h}_{i}", "", f"threshold of r{h}_{i}: margin × its bound under |b| ≤ ε", 1e9, 1e-3, DiagnosticKind.THRESHOLD, f"r{h}_{i}") for h, i in pairs),
-            Diagnostic("alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0, DiagnosticKind.ALARM),
-            *(Diagnostic(f"isolated_T{j}", "", f"1 once thruster T{j} is isolated as faulty (latched)", 1.0, 1.0, DiagnosticKind.ISOLATION, f"T{j}") for j in range(1, MAX_GROUPS + 1)),
-            Diagnostic("fault_mask", "", "isolated thrusters, bit j − 1 for Tj (latched)", 2.0**MAX_GROUPS, 1.0, DiagnosticKind.FAULT_MASK),
-            Diagnostic("constraints_met", "", "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)", 1.0, 1.0, DiagnosticKind.CONSTRAINT),
+            *(
+                Diagnostic(
+                    f"r{h}_{i}",
+                    "",
+                    f"residual r^({h}) = C e^({h}) along e_{i} (Sec. 3.2)",
+                    1e9,
+                    1e-3,
+                    DiagnosticKind.RESIDUAL,
+                    f"observer {h}",
+                )
+                for h, i in pairs
+            ),
+            *(
+                Diagnostic(
+                    f"thr{h}_{i}",
+                    "",
+                    f"threshold of r{h}_{i}: margin × its bound under |b| ≤ ε",
+                    1e9,
+                    1e-3,
+                    DiagnosticKind.THRESHOLD,
+                    f"r{h}_{i}",
+                )
+                for h, i in pairs
+            ),
+            Diagnostic(
+                "alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0, DiagnosticKind.ALARM
+            ),
+            *(
+                Diagnostic(
+                    f"isolated_T{j}",
+                    "",
+                    f"1 once thruster T{j} is isolated as faulty (latched)",
+                    1.0,
+                    1.0,
+                    DiagnosticKind.ISOLATION,
+                    f"T{j}",
+                )
+                for j in range(1, MAX_GROUPS + 1)
+            ),
+            Diagnostic(
+                "fault_mask",
+                "",
+                "isolated thrusters, bit j − 1 for Tj (latched)",
+                2.0**MAX_GROUPS,
+                1.0,
+                DiagnosticKind.FAULT_MASK,
+            ),
+            Diagnostic(
+                "constraints_met",
+                "",
+                "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)",
+                1.0,
+                1.0,
+                DiagnosticKind.CONSTRAINT,
+            ),
         ]
 
     def _constraints_met(self, u: np.ndarray) -> bool:
@@ -426,10 +542,12 @@ class COFDDiagnosis(Estimator):
             self.z = [x0 - o.H @ y for o in self.observers]
         else:
             self.t += self.sample_time
-            self.z = [Phi @ z + Gu @ self.u_prev + Gy0 @ self.y_prev + Gy1 @ y
-                      for z, (Phi, Gu, Gy0, Gy1) in zip(self.z, self.discrete)]
+            self.z = [
+                Phi @ z + Gu @ self.u_prev + Gy0 @ self.y_prev + Gy1 @ y
+                for z, (Phi, Gu, Gy0, Gy1) in zip(self.z, self.discrete)
+            ]
         x_hats = [z + o.H @ y for z, o in zip(self.z, self.observers)]
-        residuals = np.array([(y - model.C @ x)[:self.ell] for x in x_hats])
+        residuals = np.array([(y - model.C @ x)[: self.ell] for x in x_hats])
         fired = np.abs(residuals) > self.thresholds
         constraints_met = self._constraints_met(self.u_prev + model.u_op)  # (24) constrains the absolute inputs
         found = isolate(fired, self.signatures, self.hypotheses) if constraints_met else None

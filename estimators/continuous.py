@@ -47,8 +47,18 @@ def gradient(Y: np.ndarray, gamma: np.ndarray, y: np.ndarray, z_hat: np.ndarray)
     return 2.0 * (y - Y @ Zy) * (Y @ np.linalg.solve(R, Zy - z_hat))
 
 
-def vector_field(x_hat: np.ndarray, gamma: np.ndarray, y: np.ndarray, Bu: np.ndarray, A: np.ndarray,
-                 H: np.ndarray, L: np.ndarray, Y: np.ndarray, kappa_phi: float, kappa_gamma: float) -> tuple[np.ndarray, np.ndarray]:
+def vector_field(
+    x_hat: np.ndarray,
+    gamma: np.ndarray,
+    y: np.ndarray,
+    Bu: np.ndarray,
+    A: np.ndarray,
+    H: np.ndarray,
+    L: np.ndarray,
+    Y: np.ndarray,
+    kappa_phi: float,
+    kappa_gamma: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """(dx̂/dt, dΓ/dt) of eq. (6)–(7) with y and u frozen (B u passed in as ``Bu``)."""
     weighted = Y.T * gamma
     R = weighted @ Y
@@ -149,8 +159,24 @@ class ContinuousAdaptiveObserver(Estimator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *(Diagnostic(f"gamma_{o}", "", f"pseudo-inverse weight Γ ({o}), eq. (7)", 1e3, 1e-6, DiagnosticKind.WEIGHT, o) for o in outputs),
-            *(Diagnostic(f"inj_{s}", "", f"injected term L (Z_Γ y − H x̂) ({s}), eq. (6)", 1e6, 1e-6, DiagnosticKind.INJECTION, s) for s in states),
+            *(
+                Diagnostic(
+                    f"gamma_{o}", "", f"pseudo-inverse weight Γ ({o}), eq. (7)", 1e3, 1e-6, DiagnosticKind.WEIGHT, o
+                )
+                for o in outputs
+            ),
+            *(
+                Diagnostic(
+                    f"inj_{s}",
+                    "",
+                    f"injected term L (Z_Γ y − H x̂) ({s}), eq. (6)",
+                    1e6,
+                    1e-6,
+                    DiagnosticKind.INJECTION,
+                    s,
+                )
+                for s in states
+            ),
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
@@ -175,7 +201,9 @@ class ContinuousAdaptiveObserver(Estimator):
         def f(w: np.ndarray) -> np.ndarray:
             return np.concatenate(vector_field(w[:n], w[n:], y, Bu, A, H, L, Y, kp, kg))
 
-        w = integrate(f, np.concatenate([self.x_hat, self.gamma]), self.sample_time, self, self.params.rtol, self.params.atol)
+        w = integrate(
+            f, np.concatenate([self.x_hat, self.gamma]), self.sample_time, self, self.params.rtol, self.params.atol
+        )
         self.x_hat = w[:n]
         if abs(np.linalg.det((Y.T * w[n:]) @ Y)) >= self.params.min_det:
             self.gamma = w[n:]  # else hold Γ: Z_Γ would be undefined (the reset of Remark 1 is not attempted)
@@ -184,7 +212,6 @@ class ContinuousAdaptiveObserver(Estimator):
         """h_Γ = Z_Γ φ (Sec. IV), the part of the injection due to the fault."""
         gamma = np.array([diagnostics[f"gamma_{o}"] for o in self.model.outputs])
         return pseudoinverse(self.Y, gamma) @ phi
-
 
 
 _D = 1.0 / (2.0 + np.sqrt(2.0))

@@ -64,7 +64,9 @@ class Controller(Configurable, ABC):
 def _indices(names: tuple[str, ...], known: tuple[str, ...], parameter: str, what: str) -> list[int]:
     missing = [name for name in names if name not in known]
     if missing:
-        raise ParameterError(parameter, f"{', '.join(missing)} is not a {what} of the plant (it has: {', '.join(known)})")
+        raise ParameterError(
+            parameter, f"{', '.join(missing)} is not a {what} of the plant (it has: {', '.join(known)})"
+        )
     return [known.index(name) for name in names]
 
 
@@ -102,7 +104,10 @@ class PidController(Controller):
     def __init__(self, model: LinearModel, params: Params, sample_time: float | None = None) -> None:
         super().__init__(model, params, sample_time)
         if not params.outputs or len(params.outputs) != len(params.inputs):
-            raise ParameterError("outputs", "give the same number (at least one) of outputs and inputs: loop i drives inputs[i] from outputs[i]")
+            raise ParameterError(
+                "outputs",
+                "give the same number (at least one) of outputs and inputs: loop i drives inputs[i] from outputs[i]",
+            )
         loops = len(params.outputs)
         self._y = _indices(params.outputs, model.outputs, "outputs", "sensor")
         self._u = _indices(params.inputs, model.inputs, "inputs", "input")
@@ -118,7 +123,18 @@ class PidController(Controller):
 
     @classmethod
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [Diagnostic(f"e_{name}", "", f"control error r - y of the loop on {name}", 1e6, 1e-6, DiagnosticKind.CONTROL_ERROR, name) for name in outputs]
+        return [
+            Diagnostic(
+                f"e_{name}",
+                "",
+                f"control error r - y of the loop on {name}",
+                1e6,
+                1e-6,
+                DiagnosticKind.CONTROL_ERROR,
+                name,
+            )
+            for name in outputs
+        ]
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         y = np.asarray(y, dtype=float)[self._y]
@@ -131,7 +147,9 @@ class PidController(Controller):
         unclipped = u_op + self.kp * error + self.ki * integral - self.kd * derivative
         winding_up = ((unclipped > self.upper) & (error > 0)) | ((unclipped < self.lower) & (error < 0))
         self.integral = np.where(ok & ~winding_up, integral, self.integral)
-        command = np.clip(u_op + self.kp * error + self.ki * self.integral - self.kd * derivative, self.lower, self.upper)
+        command = np.clip(
+            u_op + self.kp * error + self.ki * self.integral - self.kd * derivative, self.lower, self.upper
+        )
         self.u[self._u] = np.where(ok, command, self.u[self._u])
         self.previous = np.where(ok, y, previous)
         diagnostics = dict.fromkeys(self._published, 0.0)  # outputs without a loop have no error
@@ -148,7 +166,9 @@ def register(cls: type[Controller]) -> type[Controller]:
     return cls
 
 
-def create(kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None) -> Controller:
+def create(
+    kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None
+) -> Controller:
     """The controller of the given kind; unknown kinds and bad parameters raise ParameterError."""
     if kind not in CONTROLLERS:
         raise ParameterError("kind", f"unknown controller {kind!r} (known: {', '.join(sorted(CONTROLLERS))})")

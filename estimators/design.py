@@ -91,9 +91,13 @@ def check_assumption1(A: np.ndarray, C: np.ndarray, *, discrete: bool = True, to
     for lam in np.linalg.eigvals(A):
         unstable = abs(lam) >= 1.0 - tol if discrete else lam.real >= -tol
         if unstable and np.linalg.matrix_rank(np.vstack([A - lam * np.eye(n), C]), tol=1e-8) < n:
-            raise AssumptionError(f"(C, A) is not detectable: the mode λ = {lam:.6g} is unstable and unobservable (Assumption 1.2)")
+            raise AssumptionError(
+                f"(C, A) is not detectable: the mode λ = {lam:.6g} is unstable and unobservable (Assumption 1.2)"
+            )
     if discrete and np.min(np.abs(np.linalg.eigvals(A) - 1.0)) < tol:
-        raise AssumptionError("A has an eigenvalue at 1, so a constant bias cannot be told from the state (Assumption 1.3)")
+        raise AssumptionError(
+            "A has an eigenvalue at 1, so a constant bias cannot be told from the state (Assumption 1.3)"
+        )
 
 
 def fault_rejectable(Y: np.ndarray, phi: np.ndarray, tol: float = 1e-9) -> bool:
@@ -110,8 +114,12 @@ def warn_if_not_rejectable(Y: np.ndarray, phi: np.ndarray, label: str) -> bool:
     """Issue a RuntimeWarning (and return False) when ``fault_rejectable`` is False."""
     if fault_rejectable(Y, phi):
         return True
-    warnings.warn(f"{label}: the bias direction {np.round(phi, 6).tolist()} lies in Im(Y); an adaptive pseudoinverse "
-                  "cannot reject it (TAC 2024 Remark 4)", RuntimeWarning, stacklevel=2)
+    warnings.warn(
+        f"{label}: the bias direction {np.round(phi, 6).tolist()} lies in Im(Y); an adaptive pseudoinverse "
+        "cannot reject it (TAC 2024 Remark 4)",
+        RuntimeWarning,
+        stacklevel=2,
+    )
     return False
 
 
@@ -133,7 +141,9 @@ def observer_gain(A: np.ndarray, H: np.ndarray, poles: np.ndarray | list[float],
     if counts.max() <= np.linalg.matrix_rank(H):
         import scipy.signal  # imported here: it takes a second to import, and only design needs it
 
-        with warnings.catch_warnings():  # "convergence not reached" concerns robustness only; the spectrum is checked below
+        with (
+            warnings.catch_warnings()
+        ):  # "convergence not reached" concerns robustness only; the spectrum is checked below
             warnings.simplefilter("ignore", UserWarning)
             L = scipy.signal.place_poles(A.T, H.T, poles).gain_matrix.T
     else:
@@ -186,7 +196,7 @@ def place_repeated(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarra
     desired = np.zeros((len(lasts), n))
     for block, (size, polynomial) in enumerate(zip([s for s in sizes if s], _deal(poles, [s for s in sizes if s]))):
         first = lasts[block] - size + 1
-        desired[block, first:first + size] = -polynomial[1:][::-1]
+        desired[block, first : first + size] = -polynomial[1:][::-1]
     K_bar = np.linalg.lstsq(B_bar[lasts], A_bar[lasts] - desired, rcond=None)[0]
     return K_bar @ T
 
@@ -232,8 +242,10 @@ def check_spectrum(closed_loop: np.ndarray, poles: np.ndarray, tol: float = 1e-6
     wanted = np.real_if_close(np.poly(np.asarray(poles)))
     scale = np.maximum(1.0, np.abs(wanted))
     if not np.all(np.abs(achieved - wanted) <= tol * scale):
-        raise ValueError(f"pole placement missed: wanted {np.sort_complex(np.asarray(poles, dtype=complex))}, got "
-                         f"{np.sort_complex(np.linalg.eigvals(closed_loop))}")
+        raise ValueError(
+            f"pole placement missed: wanted {np.sort_complex(np.asarray(poles, dtype=complex))}, got "
+            f"{np.sort_complex(np.linalg.eigvals(closed_loop))}"
+        )
 
 
 def weighted_pseudoinverse(Y: np.ndarray, s: np.ndarray) -> np.ndarray:

@@ -72,7 +72,13 @@ class SensorFaultModel:
             value = np.atleast_2d(np.asarray(getattr(self, name), dtype=float))
             object.__setattr__(self, name, value)
         n, m = self.A.shape[0], self.C.shape[0]
-        if self.A.shape != (n, n) or self.B.shape[0] != n or self.E.shape[0] != n or self.C.shape[1] != n or self.F.shape[0] != m:
+        if (
+            self.A.shape != (n, n)
+            or self.B.shape[0] != n
+            or self.E.shape[0] != n
+            or self.C.shape[1] != n
+            or self.F.shape[0] != m
+        ):
             raise ValueError(
                 f"inconsistent shapes A {self.A.shape}, B {self.B.shape}, E {self.E.shape}, C {self.C.shape}, F {self.F.shape}"
             )
@@ -214,8 +220,14 @@ class LpvDesign:
 
 
 def lpv_uio_design(
-    model: SensorFaultModel, lower: np.ndarray, upper: np.ndarray, *, solver: str = "CLARABEL", margin: float = MARGIN,
-    vertices: np.ndarray | None = None, backend: str | None = None,
+    model: SensorFaultModel,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    solver: str = "CLARABEL",
+    margin: float = MARGIN,
+    vertices: np.ndarray | None = None,
+    backend: str | None = None,
 ) -> LpvDesign:
     """Theorem 1 on the box Γ = [lower, upper] with the vertices of Remark 2.
 
@@ -256,8 +268,9 @@ def lpv_uio_design(
     return LpvDesign(vertices, Ts, Cs, P, G, Y, mu, min_eig, seconds, lower, upper)
 
 
-def theorem1_lmis(TA: np.ndarray, C: np.ndarray, F: np.ndarray, P: np.ndarray, G: np.ndarray, Y: np.ndarray,
-                  mu: float) -> np.ndarray:
+def theorem1_lmis(
+    TA: np.ndarray, C: np.ndarray, F: np.ndarray, P: np.ndarray, G: np.ndarray, Y: np.ndarray, mu: float
+) -> np.ndarray:
     """Every LMI of Theorem 1 at a given point: Ξ_ij (19) for all (i, j), then Ξ_ijk (20,
     corrected) for i < k and all j, as printed in ``lpv_uio_design``.
 
@@ -271,17 +284,19 @@ def theorem1_lmis(TA: np.ndarray, C: np.ndarray, F: np.ndarray, P: np.ndarray, G
     sym_G = G + G.transpose(0, 2, 1)
     i, k = np.triu_indices(l, 1)
     # One row per (i, k) pair: i = k gives (19), i < k the cross terms of (20).
-    rows = [(sym_G, top[np.arange(l), np.arange(l)], right[np.arange(l), np.arange(l)], P - eye, 1.0),
-            (sym_G[i] + sym_G[k], top[i, k] + top[k, i], right[i, k] + right[k, i], P[i] + P[k] - 2 * eye, 2.0)]
+    rows = [
+        (sym_G, top[np.arange(l), np.arange(l)], right[np.arange(l), np.arange(l)], P - eye, 1.0),
+        (sym_G[i] + sym_G[k], top[i, k] + top[k, i], right[i, k] + right[k, i], P[i] + P[k] - 2 * eye, 2.0),
+    ]
     lmis = []
     for diag, off, gf, lyap, scale in rows:
         n = len(diag)
         M = np.zeros((n, l, 2 * nx + nw, 2 * nx + nw))
         M[..., :nx, :nx] = diag[:, None] - scale * P[None, :]
-        M[..., :nx, nx:2 * nx] = off[:, None]
-        M[..., :nx, 2 * nx:] = gf[:, None]
-        M[..., nx:2 * nx, nx:2 * nx] = lyap[:, None]
-        M[..., 2 * nx:, 2 * nx:] = scale * mu * np.eye(nw)
+        M[..., :nx, nx : 2 * nx] = off[:, None]
+        M[..., :nx, 2 * nx :] = gf[:, None]
+        M[..., nx : 2 * nx, nx : 2 * nx] = lyap[:, None]
+        M[..., 2 * nx :, 2 * nx :] = scale * mu * np.eye(nw)
         M[..., nx:, :nx] = M[..., :nx, nx:].swapaxes(-1, -2)
         lmis.append(M.reshape(n * l, *M.shape[2:]))
     return np.concatenate(lmis)
@@ -336,17 +351,21 @@ def theorem1_conic_data(TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: fl
     for r, (i, k) in enumerate(pairs):
         const = -margin * np.eye(size)
         for first, second in ((i, k), (k, i)) if i != k else ((i, i),):
-            terms = [(off_G + first * nx * nx, _first_row_coefficients(K[second], nx)),
-                     (off_Y + first * nx * m, -_first_row_coefficients(J[second], nx)),
-                     (off_P + first * nt, _placed(basis, size, nx)),
-                     (off_S + r * nt, -_placed(basis, size, 0)),
-                     (0, _placed(np.eye(nw)[None], size, 2 * nx))]
+            terms = [
+                (off_G + first * nx * nx, _first_row_coefficients(K[second], nx)),
+                (off_Y + first * nx * m, -_first_row_coefficients(J[second], nx)),
+                (off_P + first * nt, _placed(basis, size, nx)),
+                (off_S + r * nt, -_placed(basis, size, 0)),
+                (0, _placed(np.eye(nw)[None], size, 2 * nx)),
+            ]
             blocks += [(row, column, _svec(coef).T) for column, coef in terms]
-            const[nx:2 * nx, nx:2 * nx] -= np.eye(nx)
+            const[nx : 2 * nx, nx : 2 * nx] -= np.eye(nx)
         b.append(_svec(const))
         row += size * (size + 1) // 2
     # S_r − P_j ⪰ 0 for every pair r and vertex j: svec(S_r) − svec(P_j), identity blocks.
-    pair, vertex, entry = (g.ravel() for g in np.meshgrid(np.arange(len(pairs)), np.arange(l), np.arange(nt), indexing="ij"))
+    pair, vertex, entry = (
+        g.ravel() for g in np.meshgrid(np.arange(len(pairs)), np.arange(l), np.arange(nt), indexing="ij")
+    )
     small_rows = row + np.arange(pair.size)
     sizes += [nx] * (len(pairs) * l)
     b.append(np.zeros(pair.size))
@@ -358,8 +377,9 @@ def theorem1_conic_data(TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: fl
         rows.append(row0 + nz_r)
         cols.append(col0 + nz_c)
         vals.append(-coef[nz_r, nz_c])
-    A = scipy.sparse.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                                shape=(row + pair.size, n_var))
+    A = scipy.sparse.csc_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row + pair.size, n_var)
+    )
     cost = np.zeros(n_var)
     cost[0] = 1.0
     layout = {"mu": 0, "P": slice(off_P, off_G), "G": slice(off_G, off_Y), "Y": slice(off_Y, off_S)}
@@ -393,7 +413,7 @@ def _theorem1_direct(TA, C, F, margin, solver):
     if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
         raise DesignError(f"Theorem 1 (LPV-UIO): {_INFEASIBLE.format(status='infeasible')}")
     if status not in ("Solved", "AlmostSolved"):
-        raise DesignError(f"Theorem 1 (LPV-UIO): Clarabel stopped with status {status}; try backend=\"cvxpy\"")
+        raise DesignError(f'Theorem 1 (LPV-UIO): Clarabel stopped with status {status}; try backend="cvxpy"')
     x = np.asarray(solution.x)
     P = _smat(x[layout["P"]].reshape(l, -1), nx)
     G = x[layout["G"]].reshape(l, nx, nx).transpose(0, 2, 1)
@@ -416,21 +436,29 @@ def _theorem1_cvxpy(TA, C, F, margin, solver):
     for i in range(l):
         top = G[i] @ TA[i] - Y[i] @ C[i]
         for j in range(l):
-            blocks.append(cp.bmat([
-                [G[i] + G[i].T - P[j], top, G[i] @ F[i]],
-                [top.T, P[i] - I, Z],
-                [(G[i] @ F[i]).T, Z.T, mu * np.eye(nw)],
-            ]))
+            blocks.append(
+                cp.bmat(
+                    [
+                        [G[i] + G[i].T - P[j], top, G[i] @ F[i]],
+                        [top.T, P[i] - I, Z],
+                        [(G[i] @ F[i]).T, Z.T, mu * np.eye(nw)],
+                    ]
+                )
+            )
     for i in range(l - 1):
         for k in range(i + 1, l):
             top = G[i] @ TA[k] + G[k] @ TA[i] - Y[i] @ C[k] - Y[k] @ C[i]
             right = G[i] @ F[k] + G[k] @ F[i]
             for j in range(l):
-                blocks.append(cp.bmat([
-                    [G[i] + G[i].T + G[k] + G[k].T - 2 * P[j], top, right],
-                    [top.T, P[i] + P[k] - 2 * I, Z],
-                    [right.T, Z.T, 2 * mu * np.eye(nw)],
-                ]))
+                blocks.append(
+                    cp.bmat(
+                        [
+                            [G[i] + G[i].T + G[k] + G[k].T - 2 * P[j], top, right],
+                            [top.T, P[i] + P[k] - 2 * I, Z],
+                            [right.T, Z.T, 2 * mu * np.eye(nw)],
+                        ]
+                    )
+                )
     size = 2 * nx + nw
     # Each block is symmetric by construction (lower blocks are transposes of upper ones).
     constraints = [B >> margin * np.eye(size) for B in blocks]
@@ -473,7 +501,7 @@ def _placed(coef: np.ndarray, size: int, at: int) -> np.ndarray:
     of size×size matrices."""
     n = coef.shape[-1]
     out = np.zeros((len(coef), size, size))
-    out[:, at:at + n, at:at + n] = coef
+    out[:, at : at + n, at : at + n] = coef
     return out
 
 
@@ -528,8 +556,12 @@ def sensor_fault_lft(model: SensorFaultModel, lower: np.ndarray, upper: np.ndarr
     Cy0 = np.hstack([model.C, np.zeros((m, q))])  # [C_y 0]
     ZF = np.hstack([np.zeros((m, n)), model.F])  # [0 F]
     return SensorFaultLft(
-        T11=np.eye(nx) - EG @ Cy0 - EG @ (a[:, None] * ZF), T12=-EG * b[None, :], T21=ZF,
-        C11=ZF + c[:, None] * Cy0, C12=np.diag(d), C21=Cy0,
+        T11=np.eye(nx) - EG @ Cy0 - EG @ (a[:, None] * ZF),
+        T12=-EG * b[None, :],
+        T21=ZF,
+        C11=ZF + c[:, None] * Cy0,
+        C12=np.diag(d),
+        C21=Cy0,
     )
 
 
@@ -552,7 +584,12 @@ class LftDesign:
 
 
 def lft_uio_design(
-    model: SensorFaultModel, lower: np.ndarray, upper: np.ndarray, *, solver: str = "CLARABEL", margin: float = MARGIN,
+    model: SensorFaultModel,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    *,
+    solver: str = "CLARABEL",
+    margin: float = MARGIN,
     multiplier: str = "scalar",
 ) -> LftDesign:
     """Theorem 2: minimise μ subject to the LMI (42) in Q = Qᵀ ≻ 0, S, λ > 0:
@@ -588,25 +625,31 @@ def lft_uio_design(
     lam = cp.Variable(1 if multiplier == "scalar" else npq)
     Lam = lam * np.eye(npq) if multiplier == "scalar" else cp.diag(lam)
     row1 = [Qv, Qv @ lft.T11 @ Abar - S @ lft.C11, cp.hstack([Qv @ lft.T12, -S @ lft.C12]), Qv @ Fe]
-    M = cp.bmat([
-        row1,
-        [row1[1].T, Qv - np.eye(nx) - Cqx.T @ Lam @ Cqx, np.zeros((nx, npq)), -Cqx.T @ Lam @ Fw],
-        [row1[2].T, np.zeros((npq, nx)), Lam, np.zeros((npq, nw))],
-        [row1[3].T, (-Cqx.T @ Lam @ Fw).T, np.zeros((nw, npq)), mu * np.eye(nw) - Fw.T @ Lam @ Fw],
-    ])
+    M = cp.bmat(
+        [
+            row1,
+            [row1[1].T, Qv - np.eye(nx) - Cqx.T @ Lam @ Cqx, np.zeros((nx, npq)), -Cqx.T @ Lam @ Fw],
+            [row1[2].T, np.zeros((npq, nx)), Lam, np.zeros((npq, nw))],
+            [row1[3].T, (-Cqx.T @ Lam @ Fw).T, np.zeros((nw, npq)), mu * np.eye(nw) - Fw.T @ Lam @ Fw],
+        ]
+    )
     size = 2 * nx + npq + nw
     problem = cp.Problem(cp.Minimize(mu), [M >> margin * np.eye(size), Qv >> margin * np.eye(nx), lam >= margin])
     _solve(problem, solver, "Theorem 2 (LFT-UIO)")
     seconds = time.perf_counter() - start
     min_eig = float(np.linalg.eigvalsh((M.value + M.value.T) / 2).min())
     _check(min_eig, margin, "Theorem 2 (LFT-UIO)")
-    return LftDesign(np.linalg.solve(Qv.value, S.value), Qv.value, np.atleast_1d(lam.value), float(mu.value), min_eig, seconds)
+    return LftDesign(
+        np.linalg.solve(Qv.value, S.value), Qv.value, np.atleast_1d(lam.value), float(mu.value), min_eig, seconds
+    )
 
 
 # -- checks ------------------------------------------------------------------------------------
 
 
-def max_spectral_radius(model: SensorFaultModel, gain, lower, upper, *, form: str = "pinv", samples: int = 200, seed: int = 0) -> float:
+def max_spectral_radius(
+    model: SensorFaultModel, gain, lower, upper, *, form: str = "pinv", samples: int = 200, seed: int = 0
+) -> float:
     """max over γ of ρ(T_γ Ā − L(γ) C̄_γ), the error dynamics (17)/(37) with γ̂ = γ, at the corners
     of Γ and ``samples`` random points; ``gain`` maps γ to L (shape (nx, m))."""
     rng = np.random.default_rng(seed)
@@ -634,7 +677,7 @@ def _solve(problem, solver: str, what: str) -> None:
     try:
         problem.solve(solver=solver, **options)
     except cp.error.SolverError as error:
-        raise DesignError(f"{what}: the SDP solver {solver} failed ({error}); try solver = \"SCS\"") from None
+        raise DesignError(f'{what}: the SDP solver {solver} failed ({error}); try solver = "SCS"') from None
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         raise DesignError(f"{what}: {_INFEASIBLE.format(status=problem.status)}")
 

@@ -39,7 +39,13 @@ class LinearModel:
         object.__setattr__(self, "disturbances", tuple(self.disturbances))
         if self.E is None:
             object.__setattr__(self, "E", np.zeros((n, len(self.disturbances))))
-        for name, shape in (("A", (n, n)), ("B", (n, m)), ("C", (p, n)), ("D", (p, m)), ("E", (n, len(self.disturbances)))):
+        for name, shape in (
+            ("A", (n, n)),
+            ("B", (n, m)),
+            ("C", (p, n)),
+            ("D", (p, m)),
+            ("E", (n, len(self.disturbances))),
+        ):
             # C order whatever the source: BLAS takes another path for a Fortran-ordered matrix and
             # rounds differently, and a node or a replay that reads the model from JSON must compute
             # bit for bit what the runner's in-memory model computes.
@@ -68,17 +74,37 @@ class LinearModel:
         """The same model with only the named outputs, in the given order."""
         rows = [self.outputs.index(name) for name in names]
         return LinearModel(
-            self.A, self.B, self.C[rows], self.D[rows], self.dt, self.states, self.inputs, tuple(names),
-            self.x_op, self.u_op, self.y_op[rows], self.E, self.disturbances,
+            self.A,
+            self.B,
+            self.C[rows],
+            self.D[rows],
+            self.dt,
+            self.states,
+            self.inputs,
+            tuple(names),
+            self.x_op,
+            self.u_op,
+            self.y_op[rows],
+            self.E,
+            self.disturbances,
         )
 
     def to_dict(self) -> dict[str, Any]:
         """The model as plain JSON-able values (node specs, log metadata, the design cache)."""
         return {
-            "A": self.A.tolist(), "B": self.B.tolist(), "C": self.C.tolist(), "D": self.D.tolist(), "dt": self.dt,
-            "states": list(self.states), "inputs": list(self.inputs), "outputs": list(self.outputs),
-            "x_op": self.x_op.tolist(), "u_op": self.u_op.tolist(), "y_op": self.y_op.tolist(),
-            "E": self.E.tolist(), "disturbances": list(self.disturbances),
+            "A": self.A.tolist(),
+            "B": self.B.tolist(),
+            "C": self.C.tolist(),
+            "D": self.D.tolist(),
+            "dt": self.dt,
+            "states": list(self.states),
+            "inputs": list(self.inputs),
+            "outputs": list(self.outputs),
+            "x_op": self.x_op.tolist(),
+            "u_op": self.u_op.tolist(),
+            "y_op": self.y_op.tolist(),
+            "E": self.E.tolist(),
+            "disturbances": list(self.disturbances),
         }
 
     @classmethod
@@ -87,7 +113,17 @@ class LinearModel:
         disturbances = tuple(m.get("disturbances", ()))
         E = np.array(m["E"]).reshape(len(m["states"]), len(disturbances)) if "E" in m else None
         return cls(
-            np.array(m["A"]), np.array(m["B"]), np.array(m["C"]), np.array(m["D"]), m["dt"], tuple(m["states"]),
-            tuple(m["inputs"]), tuple(m["outputs"]), np.array(m["x_op"]), np.array(m["u_op"]), np.array(m["y_op"]),
-            E, disturbances,
+            np.array(m["A"]),
+            np.array(m["B"]),
+            np.array(m["C"]),
+            np.array(m["D"]),
+            m["dt"],
+            tuple(m["states"]),
+            tuple(m["inputs"]),
+            tuple(m["outputs"]),
+            np.array(m["x_op"]),
+            np.array(m["u_op"]),
+            np.array(m["y_op"]),
+            E,
+            disturbances,
         )

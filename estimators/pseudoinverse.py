@@ -52,15 +52,21 @@ class PseudoinverseObserver(Estimator):
         self.Y, self.H = output_factorization(model.C)
         q, p = self.H.shape[0], model.p
         if q >= p:
-            raise ParameterError("model", f"outputs are not redundant: rank(C) = {q} is not below p = {p} (TAC 2024, Assumption 1.1)")
+            raise ParameterError(
+                "model", f"outputs are not redundant: rank(C) = {q} is not below p = {p} (TAC 2024, Assumption 1.1)"
+            )
         weights = np.full(p, 1.0 / np.sqrt(p)) if params.weights is None else np.asarray(params.weights, dtype=float)
         if weights.shape != (p,):
-            raise ParameterError("weights", f"expected {p} weights (one per output: {', '.join(model.outputs)}), got {weights.size}")
+            raise ParameterError(
+                "weights", f"expected {p} weights (one per output: {', '.join(model.outputs)}), got {weights.size}"
+            )
         self.weights = weights / np.linalg.norm(weights)
         if abs(np.linalg.det(self.Y.T @ (self.weights[:, None] * self.Y))) < params.min_det:
             raise ParameterError("weights", "R(s) = Yᵀ diag(s) Y is singular for these weights (eq. (14))")
         if np.any(np.abs(np.asarray(params.poles)) >= 1.0):
-            raise ParameterError("poles", f"{list(params.poles)}: every pole must lie inside the unit circle, so that A − L H is Schur")
+            raise ParameterError(
+                "poles", f"{list(params.poles)}: every pole must lie inside the unit circle, so that A − L H is Schur"
+            )
         try:
             self.L = observer_gain(model.A, self.H, params.poles)
         except ValueError as error:

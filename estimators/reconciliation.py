@@ -160,10 +160,10 @@ def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: 
     forced = np.zeros((N, m, N - 1, nu))
     for k in range(N):
         Z[k, :, :m] = -np.eye(m)
-        Z[k, :, m:m + n] = -C @ powers[k]
+        Z[k, :, m : m + n] = -C @ powers[k]
         for i in range(k):
             CA = C @ powers[k - 1 - i]
-            Z[k, :, m + n + i * nv:m + n + (i + 1) * nv] = -CA @ E
+            Z[k, :, m + n + i * nv : m + n + (i + 1) * nv] = -CA @ E
             forced[k, :, i, :] = CA @ B
     weight = 1.0 / np.linalg.norm(C, axis=1)
     Z = (Z * weight[None, :, None]).reshape(N * m, -1)
@@ -233,7 +233,9 @@ class _Reconciliator(Estimator):
         offset = model.y_op - model.C @ model.x_op
         self.x_s = -np.linalg.lstsq(model.C, offset, rcond=None)[0]
         if np.max(np.abs(model.C @ self.x_s + offset)) > 1e-6 * (1.0 + np.max(np.abs(offset))) or np.any(model.D):
-            raise ParameterError("model", "sensor reconciliation needs sensors affine in the state with an offset in Im(C), and D = 0")
+            raise ParameterError(
+                "model", "sensor reconciliation needs sensors affine in the state with an offset in Im(C), and D = 0"
+            )
         shifted = model.x_op - self.x_s
         self.c = shifted - model.A @ shifted - model.B @ model.u_op  # x_p⁺ = A x_p + B u + c
 
@@ -264,7 +266,11 @@ class NoReconciliation(_Reconciliator):
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         available = ~np.isnan(y)
         y0 = np.where(available, y, 0.0)
-        x = np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] + self.x_s if available.any() else self.model.x_op
+        x = (
+            np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] + self.x_s
+            if available.any()
+            else self.model.x_op
+        )
         return Estimate(x, {"zhat": float(self.Hz @ y0)})
 
 
@@ -278,16 +284,23 @@ class UioReconciliator(_Reconciliator):
         super().__init__(model, params, sample_time)
         n, p = model.n, model.p
         if model.E.shape[1] == 0:
-            raise ParameterError("model", "the plant declares no unknown input: a UIO needs E (plant disturbances or [plant.state_space] E)")
+            raise ParameterError(
+                "model",
+                "the plant declares no unknown input: a UIO needs E (plant disturbances or [plant.state_space] E)",
+            )
         if not 0.0 < params.gamma_min < params.gamma_max <= 1.0:
-            raise ParameterError("gamma_min", f"Γ = [{params.gamma_min}, {params.gamma_max}]^m needs 0 < γ̲ < γ̄ ≤ 1 (eq. (5))")
+            raise ParameterError(
+                "gamma_min", f"Γ = [{params.gamma_min}, {params.gamma_max}]^m needs 0 < γ̲ < γ̄ ≤ 1 (eq. (5))"
+            )
         design_min = params.gamma_min if params.design_gamma_min is None else params.design_gamma_min
         if not params.gamma_min <= design_min < params.gamma_max:
-            raise ParameterError("design_gamma_min", f"must lie in [gamma_min, gamma_max) = [{params.gamma_min}, {params.gamma_max})")
+            raise ParameterError(
+                "design_gamma_min", f"must lie in [gamma_min, gamma_max) = [{params.gamma_min}, {params.gamma_max})"
+            )
         if params.window < 2:
             raise ParameterError("window", "the parameter estimator needs N ≥ 2 samples")
         if params.gain_estimator not in ("paper", "model"):
-            raise ParameterError("gain_estimator", f"{params.gain_estimator!r}: use \"paper\" (eq. (53)) or \"model\"")
+            raise ParameterError("gain_estimator", f'{params.gain_estimator!r}: use "paper" (eq. (53)) or "model"')
         self.aug = SensorFaultModel(model.A, np.hstack([model.B, self.c[:, None]]), model.E, model.C, self.F)
         self.lower, self.upper = np.full(p, design_min), np.full(p, params.gamma_max)
         self.Abar, self.Bbar = self.aug.Abar, self.aug.Bbar
@@ -296,7 +309,11 @@ class UioReconciliator(_Reconciliator):
         if x0.shape != (n,):
             raise ParameterError("x0", f"expected {n} values ({', '.join(model.states)}), got {x0.size}")
         self.x_bar0 = np.concatenate([x0 - self.x_s, np.zeros(self.aug.q)])
-        self.model_window = None if params.gain_estimator == "paper" else model_window(model.A, self.aug.B, model.E, model.C, params.window)
+        self.model_window = (
+            None
+            if params.gain_estimator == "paper"
+            else model_window(model.A, self.aug.B, model.E, model.C, params.window)
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -399,11 +416,38 @@ class UioReconciliator(_Reconciliator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *[Diagnostic(f"gamma_{name}", "", f"estimated effectiveness γ̂ of sensor {name} (eq. (53))", 2.0, 1e-6, DiagnosticKind.GAIN_ESTIMATE, name) for name in outputs],
-            Diagnostic("bhat", "", "estimated sensor bias b̂ (augmented state, eq. (7))", 1e4, 1e-4, DiagnosticKind.BIAS),
+            *[
+                Diagnostic(
+                    f"gamma_{name}",
+                    "",
+                    f"estimated effectiveness γ̂ of sensor {name} (eq. (53))",
+                    2.0,
+                    1e-6,
+                    DiagnosticKind.GAIN_ESTIMATE,
+                    name,
+                )
+                for name in outputs
+            ],
+            Diagnostic(
+                "bhat", "", "estimated sensor bias b̂ (augmented state, eq. (7))", 1e4, 1e-4, DiagnosticKind.BIAS
+            ),
             *super().diagnostic_channels(states, outputs),
-            Diagnostic("pe", "", "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); 0: not met)", 2.0, 1e-9, DiagnosticKind.EXCITATION),
-            Diagnostic("fit", "", "relative residual of the window's equations for γ̂ ((53), or the model window)", 1e3, 1e-6, DiagnosticKind.FIT),
+            Diagnostic(
+                "pe",
+                "",
+                "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); 0: not met)",
+                2.0,
+                1e-9,
+                DiagnosticKind.EXCITATION,
+            ),
+            Diagnostic(
+                "fit",
+                "",
+                "relative residual of the window's equations for γ̂ ((53), or the model window)",
+                1e3,
+                1e-6,
+                DiagnosticKind.FIT,
+            ),
         ]
 
 
@@ -416,7 +460,7 @@ class LpvUioReconciliator(UioReconciliator):
     def _design(self) -> None:
         p = self.params
         if p.G is not None and p.Y is not None:
-            nx, l = self.aug.n + self.aug.q, 2 ** self.model.p
+            nx, l = self.aug.n + self.aug.q, 2**self.model.p
             G, Y = np.asarray(p.G, dtype=float), np.asarray(p.Y, dtype=float)
             if G.shape != (l * nx, nx) or Y.shape != (l * nx, self.model.p):
                 raise ParameterError("G", f"precomputed G and Y must be {l * nx}×{nx} and {l * nx}×{self.model.p}")
@@ -448,7 +492,7 @@ class LftUioReconciliator(UioReconciliator):
                 raise ParameterError("L", f"expected a {nx}×{self.model.p} gain, got {self.L.shape}")
         else:
             if self.params.multiplier not in ("scalar", "diagonal"):
-                raise ParameterError("multiplier", f"{self.params.multiplier!r}: use \"scalar\" (eq. (42)) or \"diagonal\"")
+                raise ParameterError("multiplier", f'{self.params.multiplier!r}: use "scalar" (eq. (42)) or "diagonal"')
             self.design: LftDesign | None = self._solve(lft_uio_design, multiplier=self.params.multiplier)
             self.L = self.design.L
 

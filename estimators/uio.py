@@ -109,10 +109,14 @@ def uio_gains(C: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rank_E = np.linalg.matrix_rank(E, tol=_tol(E))
     rank_CE = np.linalg.matrix_rank(CE, tol=_tol(CE))
     if rank_CE != rank_E:
-        raise UIOConditionError("rank", (
-            f"rank(CE) = {rank_CE} < rank(E) = {rank_E}: no H with H C E = E exists (eq. (8) needs rank(CE) = rank(E)); "
-            "some direction of the unknown input is invisible in the outputs' first derivative. Measure a state "
-            "that the unknown input drives directly, or model fewer unknown inputs (columns of E)"))
+        raise UIOConditionError(
+            "rank",
+            (
+                f"rank(CE) = {rank_CE} < rank(E) = {rank_E}: no H with H C E = E exists (eq. (8) needs rank(CE) = rank(E)); "
+                "some direction of the unknown input is invisible in the outputs' first derivative. Measure a state "
+                "that the unknown input drives directly, or model fewer unknown inputs (columns of E)"
+            ),
+        )
     H = E @ np.linalg.pinv(CE)
     T = np.eye(E.shape[0]) - H @ C
     if not np.allclose(H @ CE, E, atol=1e-9 * max(1.0, np.abs(E).max())):
@@ -146,12 +150,18 @@ def check_detectable(TA: np.ndarray, C: np.ndarray) -> np.ndarray:
     _, modes = unobservable_modes(TA, C)
     bad = [lam for lam in modes if lam.real >= -1e-9]
     if bad:
-        listed = ", ".join(f"{complex(lam).real:.6g}" + (f"{complex(lam).imag:+.6g}j" if abs(lam.imag) > 1e-12 else "") for lam in bad)
-        raise UIOConditionError("detectability", (
-            f"(TA, C) is not detectable: the mode(s) {listed} of TA are unobservable through C and not stable, so "
-            "F = TA − K1 C keeps them for every K1 and cannot be Hurwitz (eq. (8)). They are the unstable invariant "
-            "zeros of (A, E, C): the unknown input can drive the state along them without any trace in y. Add a "
-            "sensor or model fewer unknown inputs"))
+        listed = ", ".join(
+            f"{complex(lam).real:.6g}" + (f"{complex(lam).imag:+.6g}j" if abs(lam.imag) > 1e-12 else "") for lam in bad
+        )
+        raise UIOConditionError(
+            "detectability",
+            (
+                f"(TA, C) is not detectable: the mode(s) {listed} of TA are unobservable through C and not stable, so "
+                "F = TA − K1 C keeps them for every K1 and cannot be Hurwitz (eq. (8)). They are the unstable invariant "
+                "zeros of (A, E, C): the unknown input can drive the state along them without any trace in y. Add a "
+                "sensor or model fewer unknown inputs"
+            ),
+        )
     return modes
 
 
@@ -204,12 +214,16 @@ def _place(TA: np.ndarray, C: np.ndarray, poles: np.ndarray, fixed: np.ndarray) 
         for lam in fixed:
             match = min(range(len(rest)), key=lambda i: abs(rest[i] - lam)) if rest else None
             if match is None or abs(rest[match] - lam) > 1e-6 * max(1.0, abs(lam)):
-                raise ValueError(f"(TA, C) is detectable but not observable: F keeps the modes {listed} of TA whatever K1; "
-                                 f"list them among the poles, or give only the {n - fixed.size} placeable poles")
+                raise ValueError(
+                    f"(TA, C) is detectable but not observable: F keeps the modes {listed} of TA whatever K1; "
+                    f"list them among the poles, or give only the {n - fixed.size} placeable poles"
+                )
             rest.pop(match)
         poles = np.real_if_close(np.array(rest))
     elif poles.size != n - fixed.size:
-        raise ValueError(f"need {n} poles (including the fixed modes {listed}) or the {n - fixed.size} placeable ones, got {poles.size}")
+        raise ValueError(
+            f"need {n} poles (including the fixed modes {listed}) or the {n - fixed.size} placeable ones, got {poles.size}"
+        )
     Q, _ = unobservable_modes(TA, C)
     k = n - fixed.size
     Qo = Q[:, :k]
@@ -252,29 +266,41 @@ class UnknownInputObserver(Estimator):
         if params.E is not None:
             E = np.array(params.E, dtype=float)
             if E.ndim != 2 or E.shape[0] != n:
-                raise ParameterError("E", f"expected a matrix with {n} rows (one per state: {', '.join(model.states)}), got shape {E.shape}")
+                raise ParameterError(
+                    "E",
+                    f"expected a matrix with {n} rows (one per state: {', '.join(model.states)}), got shape {E.shape}",
+                )
         elif model.E.shape[1]:
             E = model.E
         else:
-            raise ParameterError("E", "the model has no unknown input (E has no column): give params.E, or E and "
-                                      "disturbances in [plant.state_space] (or disturbance actuators in the MJCF plant)")
+            raise ParameterError(
+                "E",
+                "the model has no unknown input (E has no column): give params.E, or E and "
+                "disturbances in [plant.state_space] (or disturbance actuators in the MJCF plant)",
+            )
         try:
             self.design = uio_design(model.A, model.B, model.C, E, params.poles, params.K1)
         except UIOConditionError as error:
-            raise ParameterError("E" if error.condition == "rank" else "model", f"{error} (course notes, eq. (8))") from None
+            raise ParameterError(
+                "E" if error.condition == "rank" else "model", f"{error} (course notes, eq. (8))"
+            ) from None
         except ValueError as error:
             raise ParameterError("K1" if params.K1 is not None else "poles", str(error)) from None
         if params.y_hold not in ("linear", "zero-order"):
-            raise ParameterError("y_hold", f"expected \"linear\" or \"zero-order\", got {params.y_hold!r}")
+            raise ParameterError("y_hold", f'expected "linear" or "zero-order", got {params.y_hold!r}')
         if not (math.isfinite(params.threshold) and params.threshold > 0):
-            raise ParameterError("threshold", f"expected a positive number (the alarm limit on |r|), got {params.threshold}")
+            raise ParameterError(
+                "threshold", f"expected a positive number (the alarm limit on |r|), got {params.threshold}"
+            )
         if params.arm_time is not None and not (math.isfinite(params.arm_time) and params.arm_time >= 0):
             raise ParameterError("arm_time", f"expected a time >= 0 in seconds, got {params.arm_time}")
         slowest = float(np.max(np.linalg.eigvals(self.design.F).real))
         self.arm_time = 5.0 / -slowest if params.arm_time is None else params.arm_time
         self.ticks = 0
         self.E = E
-        self.Phi, self.Gu, self.Gy0, self.Gy1 = discretize(self.design, model.B, self.sample_time, params.y_hold == "linear")
+        self.Phi, self.Gu, self.Gy0, self.Gy1 = discretize(
+            self.design, model.B, self.sample_time, params.y_hold == "linear"
+        )
         self.x_init = initial_state(model, params.x0)
         self.z: np.ndarray | None = None
         self.y_prev = model.C @ self.x_init  # also what a missing reading is replaced by until one arrives
@@ -283,7 +309,10 @@ class UnknownInputObserver(Estimator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *(Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL, o) for o in outputs),
+            *(
+                Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL, o)
+                for o in outputs
+            ),
             Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL_NORM),
             Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0, DiagnosticKind.ALARM),
         ]
@@ -321,11 +350,11 @@ def discretize(design: UIODesign, B: np.ndarray, tau: float, linear_y: bool = Tr
     size = n + m + 2 * p
     M = np.zeros((size, size))
     M[:n, :n] = F
-    M[:n, n:n + m] = design.T @ B
-    M[:n, n + m:n + m + p] = K
-    M[n + m:n + m + p, n + m + p:] = np.eye(p)
+    M[:n, n : n + m] = design.T @ B
+    M[:n, n + m : n + m + p] = K
+    M[n + m : n + m + p, n + m + p :] = np.eye(p)
     X = scipy.linalg.expm(M * tau)
-    Phi, Gu, Ga, Gb = X[:n, :n], X[:n, n:n + m], X[:n, n + m:n + m + p], X[:n, n + m + p:]
+    Phi, Gu, Ga, Gb = X[:n, :n], X[:n, n : n + m], X[:n, n + m : n + m + p], X[:n, n + m + p :]
     if linear_y:
         return Phi, Gu, Ga - Gb / tau, Gb / tau
     return Phi, Gu, Ga, np.zeros_like(Ga)

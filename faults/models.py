@@ -24,7 +24,6 @@ import numpy as np
 
 from faults.waveforms import Constant, Waveform
 
-
 #: Every fault model by kind: a model class registers itself when it is defined with a ``kind``.
 FAULT_MODELS: dict[str, type[Fault]] = {}
 

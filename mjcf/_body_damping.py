@@ -42,15 +42,21 @@ def layout(model: mujoco.MjModel) -> tuple[int, int, int, int, int] | None:
     if nid < 0:
         return None
     if model.numeric_size[nid] != 9:
-        raise ValueError(f"custom numeric {NUMERIC!r} has {model.numeric_size[nid]} values; give the 3x3 matrix D row by row (9)")
+        raise ValueError(
+            f"custom numeric {NUMERIC!r} has {model.numeric_size[nid]} values; give the 3x3 matrix D row by row (9)"
+        )
     tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, JOINTS)
     if tid < 0:
-        raise ValueError(f"custom numeric {NUMERIC!r} needs a custom text {JOINTS!r} naming the x, y and heading joints")
+        raise ValueError(
+            f"custom numeric {NUMERIC!r} needs a custom text {JOINTS!r} naming the x, y and heading joints"
+        )
     start = model.text_adr[tid]
     names = model.text_data[start : start + model.text_size[tid]].split(b"\0")[0].decode().split()
     kinds = (mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE)
     if len(names) != 3:
-        raise ValueError(f"custom text {JOINTS!r} names {len(names)} joints; name three: x slide, y slide, heading hinge")
+        raise ValueError(
+            f"custom text {JOINTS!r} names {len(names)} joints; name three: x slide, y slide, heading hinge"
+        )
     ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) for name in names]
     for name, jid, kind in zip(names, ids, kinds):
         if jid < 0 or model.jnt_type[jid] != kind:
@@ -80,4 +86,3 @@ def passive(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     qfrc[ix] += c * fu - s * fv
     qfrc[iy] += s * fu + c * fv
     qfrc[ir] += fr
-

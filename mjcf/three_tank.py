@@ -110,8 +110,14 @@ INFO = PlantInfo(
         # deviation of the same quantities from it. A loss of effectiveness scales what they
         # transmit, y = Δ(γ) C (h - h_op) + F b, which is the paper's model (2) exactly.
         *(
-            replace(_level(f"y{i + 1}", f"{name} - its value at the operating point (eq. (58)-(59), output {i + 1})", scale),
-                    minimum=-scale * 100.0, source=name, zero=float(np.dot(SENSOR_ROWS[name], OPERATING_LEVELS)))
+            replace(
+                _level(
+                    f"y{i + 1}", f"{name} - its value at the operating point (eq. (58)-(59), output {i + 1})", scale
+                ),
+                minimum=-scale * 100.0,
+                source=name,
+                zero=float(np.dot(SENSOR_ROWS[name], OPERATING_LEVELS)),
+            )
             for i, (name, scale) in enumerate((("h1_x10", 10.0), ("h1", 1.0), ("h2", 1.0), ("h_sum", 3.0)))
         ),
     ),

@@ -133,11 +133,16 @@ PARAMETERS = {
     "length": Parameter(LENGTH, "m", _PAPER),
     "width": Parameter(WIDTH, "m", _PAPER),
     "x_g": Parameter(X_G, "m", "M23 / mass: the rigid offset that gives M's sway-yaw coupling (vessel.xml, INERTIA)"),
-    "hull_yaw_inertia": Parameter(HULL_YAW_INERTIA, "kg m^2", "mass (length^2 + width^2) / 12, a box about the centre of mass"),
+    "hull_yaw_inertia": Parameter(
+        HULL_YAW_INERTIA, "kg m^2", "mass (length^2 + width^2) / 12, a box about the centre of mass"
+    ),
     "added_mass_x": Parameter(PAPER_M[0, 0] - MASS, "kg", "M11 - mass, armature of the x slide (world axis)"),
     "added_mass_y": Parameter(PAPER_M[1, 1] - MASS, "kg", "M22 - mass, armature of the y slide (world axis)"),
-    "added_yaw_inertia": Parameter(PAPER_M[2, 2] - HULL_YAW_INERTIA - MASS * X_G**2, "kg m^2",
-                                   "M33 - hull_yaw_inertia - mass x_g^2, armature of the heading hinge"),
+    "added_yaw_inertia": Parameter(
+        PAPER_M[2, 2] - HULL_YAW_INERTIA - MASS * X_G**2,
+        "kg m^2",
+        "M33 - hull_yaw_inertia - mass x_g^2, armature of the heading hinge",
+    ),
     **{f"M{i + 1}{j + 1}": Parameter(float(PAPER_M[i, j]), "SI", _PAPER) for i in range(3) for j in range(3)},
     **{f"D{i + 1}{j + 1}": Parameter(float(PAPER_D[i, j]), "SI", _PAPER) for i in range(3) for j in range(3)},
     **{f"d{k + 1}": Parameter(t.distance, "m", t.source) for k, t in enumerate(THRUSTERS)},
@@ -192,8 +197,12 @@ INFO = PlantInfo(
         _yaw_rate("r", "yaw rate"),
     ),
     actuators=tuple(
-        _thrust(name, f"{name[:2]} {'x (surge)' if name.endswith('x') else 'y (sway)'} thrust, body frame"
-                if len(name) == 3 else f"{name} tunnel thrust, y (sway), body frame")
+        _thrust(
+            name,
+            f"{name[:2]} {'x (surge)' if name.endswith('x') else 'y (sway)'} thrust, body frame"
+            if len(name) == 3
+            else f"{name} tunnel thrust, y (sway), body frame",
+        )
         for name in INPUTS
     ),
     parameters=PARAMETERS,
@@ -214,6 +223,7 @@ INITIAL_NU = (2.2, 1.9, 0.0)
 
 
 # The environmental disturbance b(t) -------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class EnvironmentDisturbance:
@@ -239,8 +249,10 @@ class EnvironmentDisturbance:
 
     def __post_init__(self) -> None:
         if self.bound > DISTURBANCE_BOUND:
-            raise ValueError(f"environment disturbance: |b| may reach {self.bound:.4g} > ε = {DISTURBANCE_BOUND:g}; "
-                             f"lower current, wave_force or wave_moment")
+            raise ValueError(
+                f"environment disturbance: |b| may reach {self.bound:.4g} > ε = {DISTURBANCE_BOUND:g}; "
+                f"lower current, wave_force or wave_moment"
+            )
 
     @property
     def bound(self) -> float:
@@ -271,7 +283,9 @@ class EnvironmentDisturbance:
                 raise ValueError(f"environment disturbance: {name} = {value!r}; give a finite value >= 0")
         low, high = wave_periods
         if not 0 < low <= high or not swing_period > 0 or components < 1:
-            raise ValueError("environment disturbance: wave_periods must be 0 < low <= high, swing_period > 0, components >= 1")
+            raise ValueError(
+                "environment disturbance: wave_periods must be 0 < low <= high, swing_period > 0, components >= 1"
+            )
         if isinstance(rng_or_seed, np.random.Generator):
             rng = np.random.Generator(type(rng_or_seed.bit_generator)())
             rng.bit_generator.state = rng_or_seed.bit_generator.state

@@ -43,7 +43,13 @@ def disturbance(epsilon: float, seed: int = 0) -> Callable[[float], np.ndarray]:
 
     def b(t: float) -> np.ndarray:
         direction = phase + 0.05 * t
-        wave = np.array([0.8 * np.cos(direction) * np.sin(0.6 * t), 0.8 * np.sin(direction) * np.sin(0.6 * t), 0.6 * np.cos(0.45 * t)])
+        wave = np.array(
+            [
+                0.8 * np.cos(direction) * np.sin(0.6 * t),
+                0.8 * np.sin(direction) * np.sin(0.6 * t),
+                0.6 * np.cos(0.45 * t),
+            ]
+        )
         return current + 0.4 * epsilon * wave
 
     return b
@@ -51,6 +57,7 @@ def disturbance(epsilon: float, seed: int = 0) -> Callable[[float], np.ndarray]:
 
 def exponential_faults(rates: dict[int, float]) -> Callable[[float], np.ndarray]:
     """δ_j(t) = e^(−rate t) on thruster j (1-based) from t = 0, Δ = diag(δ1, δ1, δ2, δ2, δ3, δ3, δ4, δ5)."""
+
     def delta(t: float) -> np.ndarray:
         per_thruster = np.ones(5)
         for j, rate in rates.items():
@@ -75,7 +82,16 @@ class Trajectory:
         return np.array([c[name] for c in self.controls])
 
 
-def simulate(duration: float, tau: float, controller, estimator=None, delta=None, b=None, x0=X0, mask: Callable[[float], int] | None = None) -> Trajectory:
+def simulate(
+    duration: float,
+    tau: float,
+    controller,
+    estimator=None,
+    delta=None,
+    b=None,
+    x0=X0,
+    mask: Callable[[float], int] | None = None,
+) -> Trajectory:
     """Closed loop: at t_k the controller gets y_k = x_k and the fault mask (the estimator's of
     tick k − 1, or ``mask(t)``), the estimator gets y_k and the command u_k; the plant holds
     Δ(t_k) u_k and b(t_k) over [t_k, t_k+1)."""

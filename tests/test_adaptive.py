@@ -37,8 +37,16 @@ P4 = ("x1", "x2", "x1_minus_x2", "x2_minus_x1")
 
 def masses_model(sensors=P3) -> LinearModel:
     A, B = zoh_discretize(*masses.continuous_model(), 0.01)
-    return LinearModel(A, B, masses.output_matrix(sensors), np.zeros((len(sensors), 1)), 0.01,
-                       ("x1", "x2", "v1", "v2"), ("force",), tuple(sensors))
+    return LinearModel(
+        A,
+        B,
+        masses.output_matrix(sensors),
+        np.zeros((len(sensors), 1)),
+        0.01,
+        ("x1", "x2", "v1", "v2"),
+        ("force",),
+        tuple(sensors),
+    )
 
 
 def simulate(model, phi_of_k, ests, ticks, x0=(0.2, -0.1, 0.0, 0.0)):
@@ -65,9 +73,16 @@ def test_assumption2_construction_on_example_1():
     C = masses.output_matrix(P3)
     Y, H, sigma = assumption2_factorization(C)
     r3 = math.sqrt(3)
-    np.testing.assert_allclose(Y, np.array([[(3 + r3) / 6, (3 - r3) / 6, 1 / r3], [(3 - r3) / 6, (3 + r3) / 6, -1 / r3]]).T, atol=1e-15)
-    np.testing.assert_allclose(H, np.array([[(3 + r3) / (2 * r3), (-3 + r3) / (2 * r3), 0, 0],
-                                            [(-3 + r3) / (2 * r3), (3 + r3) / (2 * r3), 0, 0]]), atol=1e-15)
+    np.testing.assert_allclose(
+        Y, np.array([[(3 + r3) / 6, (3 - r3) / 6, 1 / r3], [(3 - r3) / 6, (3 + r3) / 6, -1 / r3]]).T, atol=1e-15
+    )
+    np.testing.assert_allclose(
+        H,
+        np.array(
+            [[(3 + r3) / (2 * r3), (-3 + r3) / (2 * r3), 0, 0], [(-3 + r3) / (2 * r3), (3 + r3) / (2 * r3), 0, 0]]
+        ),
+        atol=1e-15,
+    )
     np.testing.assert_array_equal(sigma, np.eye(3))
 
 
@@ -103,7 +118,9 @@ def test_remark_4_bias_in_the_image_of_Y_is_flagged():
     assert not fault_rejectable(Y, Y @ np.array([0.3, -2.0]))  # the same reading offset as a state shift
 
 
-@pytest.mark.parametrize("poles", [(0, 0, 0, 0), (0, 0, 0.01, 0.01), (0.5, 0.5, 0.5, 0.2), (0.3 + 0.2j, 0.3 - 0.2j, 0.3, 0.3)])
+@pytest.mark.parametrize(
+    "poles", [(0, 0, 0, 0), (0, 0, 0.01, 0.01), (0.5, 0.5, 0.5, 0.2), (0.3 + 0.2j, 0.3 - 0.2j, 0.3, 0.3)]
+)
 def test_pole_placement_with_repeated_poles(poles):
     """σ(A − M H) as asked, including multiplicities above rk H = 2 that scipy refuses."""
     model = masses_model()
@@ -244,7 +261,10 @@ def test_residual_injection_recovers_when_the_selector_refuses_z():
 def test_injection_observer_56_is_unbiased_for_a_constant_bias():
     model = masses_model()
     phi = np.array([1.0, -1.5, 0.5])
-    ests = {"raw": estimators.create("injection", model), "filtered": estimators.create("injection", model, {"filter": 0.05})}
+    ests = {
+        "raw": estimators.create("injection", model),
+        "filtered": estimators.create("injection", model, {"filter": 0.05}),
+    }
     errors, _ = simulate(model, lambda k: phi, ests, 3000)
     assert errors["raw"][-1] < 1e-8 and errors["filtered"][-1] < 1e-6
 
@@ -276,8 +296,16 @@ L2 = np.array([[8, 2.9], [-0.1, 8], [-1.4, 37.5]])
 
 
 def cdc_model() -> LinearModel:
-    return LinearModel(A_CDC, np.array([[1.0], [0], [-1]]), Y_CDC @ H_CDC, np.zeros((3, 1)), None,
-                       ("x1", "x2", "x3"), ("u",), ("y1", "y2", "y3"))
+    return LinearModel(
+        A_CDC,
+        np.array([[1.0], [0], [-1]]),
+        Y_CDC @ H_CDC,
+        np.zeros((3, 1)),
+        None,
+        ("x1", "x2", "x3"),
+        ("u",),
+        ("y1", "y2", "y3"),
+    )
 
 
 def test_cdc_gains_are_the_slow_and_the_fast_observer():
@@ -299,7 +327,9 @@ def test_cdc_gradient_8_matches_finite_differences_and_lemma_3():
         np.testing.assert_allclose(gradient(Y_CDC, gamma, y, z_hat), numeric, rtol=1e-6, atol=1e-8)
         # Lemma 3: ∂(Z_Γ φ)/∂Γ · Γ = 0 (scale invariance)
         phi = rng.normal(size=3)
-        directional = (pseudoinverse(Y_CDC, gamma * (1 + d)) @ phi - pseudoinverse(Y_CDC, gamma * (1 - d)) @ phi) / (2 * d)
+        directional = (pseudoinverse(Y_CDC, gamma * (1 + d)) @ phi - pseudoinverse(Y_CDC, gamma * (1 - d)) @ phi) / (
+            2 * d
+        )
         np.testing.assert_allclose(directional, 0, atol=1e-8)
 
 
@@ -307,7 +337,9 @@ def test_cdc_integration_between_samples_matches_a_tight_reference():
     """One sample interval right after a fault, stiff adaptation (κ = 10): the estimator's Rosenbrock
     integration against scipy's Radau at rtol 1e-11."""
     model = cdc_model()
-    e = estimators.create("adaptive-ct", model, {"gain": L1.tolist(), "Y": Y_CDC.tolist(), "kappa": 10.0}, sample_time=0.02)
+    e = estimators.create(
+        "adaptive-ct", model, {"gain": L1.tolist(), "Y": Y_CDC.tolist(), "kappa": 10.0}, sample_time=0.02
+    )
     y = np.array([3.0, 0.5, -1.0])
     w0 = np.concatenate([e.x_hat, e.gamma])
     for _ in range(25):
@@ -324,15 +356,23 @@ def test_cdc_example_1_adaptation_removes_the_fault():
     """Example 1: κ = 0 keeps an error, κ = 1 and 10 remove it; final weights about equal for all."""
     model = cdc_model()
     Ad, _ = zoh_discretize(A_CDC, model.B, 0.02)
-    ests = {(L, k): estimators.create("adaptive-ct", model, {"gain": g.tolist(), "Y": Y_CDC.tolist(), "kappa": k}, sample_time=0.02)
-            for L, g in (("L1", L1), ("L2", L2)) for k in (0.0, 10.0)}
+    ests = {
+        (L, k): estimators.create(
+            "adaptive-ct", model, {"gain": g.tolist(), "Y": Y_CDC.tolist(), "kappa": k}, sample_time=0.02
+        )
+        for L, g in (("L1", L1), ("L2", L2))
+        for k in (0.0, 10.0)
+    }
     x = np.array([1.0, -1.0, 0.5])
     final = {}
     for k in range(2000):
         y = model.C @ x + (np.array([3.0, 0.5, -1.0]) if k >= 500 else 0.0)
         for key, e in ests.items():
             estimate = e.step(y, np.zeros(1))
-            final[key] = (np.linalg.norm(x - estimate.x), np.array([estimate.diagnostics[f"gamma_y{i}"] for i in (1, 2, 3)]))
+            final[key] = (
+                np.linalg.norm(x - estimate.x),
+                np.array([estimate.diagnostics[f"gamma_y{i}"] for i in (1, 2, 3)]),
+            )
         x = Ad @ x
     assert final[("L1", 0.0)][0] > 3 and final[("L2", 0.0)][0] > 5
     assert final[("L1", 10.0)][0] < 1e-2 and final[("L2", 10.0)][0] < 1e-2

@@ -154,12 +154,20 @@ def test_reconfiguration_at_t0_drops_T1_and_tracks_the_original_velocities():
     """δ1 = e^(−0.03 t) from 0, reported at 20 s; t0 = 180 s (Sec. 4, Figs. 5–6): before t0 the
     allocation still uses T1 and the speed decays; from t0 T1 is off, the effect is met by the
     others and surge and sway return to ν0 (to 1 mm/s by 300 s), the heading held throughout."""
-    trajectory = simulate(400.0, TAU, VesselController(M, D, G, TAU), delta=exponential_faults({1: 0.03}),
-                          b=disturbance(1e3, seed=4), mask=lambda t: 1 if t >= 20.0 else 0)
+    trajectory = simulate(
+        400.0,
+        TAU,
+        VesselController(M, D, G, TAU),
+        delta=exponential_faults({1: 0.03}),
+        b=disturbance(1e3, seed=4),
+        mask=lambda t: 1 if t >= 20.0 else 0,
+    )
     before, after = trajectory.t < 180.0, trajectory.t >= 180.0
     assert np.all(np.abs(trajectory.u[before][:, :2]).max(axis=1) > 0)
     assert np.all(trajectory.u[after][:, :2] == 0)
-    assert trajectory.control("reconfigured")[before].max() == 0 and trajectory.control("reconfigured")[after].min() == 1
+    assert (
+        trajectory.control("reconfigured")[before].max() == 0 and trajectory.control("reconfigured")[after].min() == 1
+    )
     assert np.linalg.norm(trajectory.x[trajectory.t.searchsorted(179.9), 3:5] - X0[3:5]) > 0.5
     late = trajectory.t >= 300.0
     assert np.abs(trajectory.x[late][:, 3:5] - X0[3:5]).max() < 1e-3
@@ -180,7 +188,9 @@ def test_cluster_mode_holds_the_constraints_until_reconfiguration():
     params = VesselControllerParams(zeta=zeta, reconfigure_at=30.0)
     trajectory = simulate(60.0, TAU, VesselController(M, D, G, TAU, params), mask=lambda t: 2 + 16 if t >= 10.0 else 0)
     before = trajectory.t < 30.0
-    np.testing.assert_allclose(trajectory.u[before][:, [1, 3, 5]], np.array(zeta) * trajectory.u[before][:, [0, 2, 4]], rtol=1e-9)
+    np.testing.assert_allclose(
+        trajectory.u[before][:, [1, 3, 5]], np.array(zeta) * trajectory.u[before][:, [0, 2, 4]], rtol=1e-9
+    )
     assert trajectory.control("cluster")[before].min() == 1 and trajectory.control("cluster")[~before].max() == 0
     assert np.all(trajectory.u[~before][:, [2, 3, 7]] == 0)
 
@@ -188,18 +198,27 @@ def test_cluster_mode_holds_the_constraints_until_reconfiguration():
 def test_thrust_limits_bound_every_command():
     """3.5e5 N per input: enough for τ_c without T1 (3.04e5 N), not for G̃⁺τ_c (4.03e5 N)."""
     params = VesselControllerParams(thrust_limit=(3.5e5,))
-    trajectory = simulate(400.0, TAU, VesselController(M, D, G, TAU, params), delta=exponential_faults({1: 0.03}), mask=lambda t: 1 if t >= 20 else 0)
+    trajectory = simulate(
+        400.0,
+        TAU,
+        VesselController(M, D, G, TAU, params),
+        delta=exponential_faults({1: 0.03}),
+        mask=lambda t: 1 if t >= 20 else 0,
+    )
     assert np.abs(trajectory.u).max() <= 3.5e5 * (1 + 1e-9)
     assert np.abs(trajectory.x[trajectory.t >= 380.0][:, 3:5] - X0[3:5]).max() < 1e-2
 
 
-@pytest.mark.parametrize("params, field", [
-    ({"thrust_limit": (-1.0,)}, "thrust_limit"),
-    ({"groups": ((1, 2), (3, 4))}, "groups"),
-    ({"zeta": (1.0,)}, "zeta"),
-    ({"speed": (1.0, 2.0, 3.0)}, "speed"),
-    ({"heading_bandwidth": 0.0}, "heading_bandwidth"),
-])
+@pytest.mark.parametrize(
+    "params, field",
+    [
+        ({"thrust_limit": (-1.0,)}, "thrust_limit"),
+        ({"groups": ((1, 2), (3, 4))}, "groups"),
+        ({"zeta": (1.0,)}, "zeta"),
+        ({"speed": (1.0, 2.0, 3.0)}, "speed"),
+        ({"heading_bandwidth": 0.0}, "heading_bandwidth"),
+    ],
+)
 def test_bad_controller_parameters_name_the_field(params, field):
     with pytest.raises(ParameterError) as error:
         VesselController(M, D, G, TAU, VesselControllerParams(**params))

@@ -12,16 +12,29 @@ from tests.conftest import ROOT
 
 
 def bench(script: str, *args: str) -> dict:
-    result = subprocess.run([sys.executable, str(ROOT / "bench" / script), "--json", *args], capture_output=True,
-                            text=True, timeout=300, cwd=ROOT)
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / script), "--json", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
     assert result.returncode == 0, result.stderr
     return json.loads(result.stdout)
 
 
 def test_codec_log_benchmark_reports_ratios_against_its_baselines():
     figures = bench("codec_log.py", "--frames", "500", "--repeat", "1")
-    for key in ("codec_frames_per_s", "codec_baseline_frames_per_s", "codec_ratio", "logger_frames_per_s",
-                "logger_baseline_frames_per_s", "logger_ratio", "run_wall_s", "run_realtime_factor"):
+    for key in (
+        "codec_frames_per_s",
+        "codec_baseline_frames_per_s",
+        "codec_ratio",
+        "logger_frames_per_s",
+        "logger_baseline_frames_per_s",
+        "logger_ratio",
+        "run_wall_s",
+        "run_realtime_factor",
+    ):
         assert figures[key] > 0, key
 
 
@@ -35,7 +48,15 @@ def test_cosim_throughput_benchmark_reports_its_figures():
 
 def test_estimator_step_benchmark_times_every_kind_against_kalman():
     figures = bench("estimator_step.py", "--steps", "300", "--repeat", "1")
-    assert {"kalman", "pseudoinverse", "injection", "adaptive", "adaptive-ct", "lft-uio-sr_eq53", "lft-uio-sr_model"} <= set(figures)
+    assert {
+        "kalman",
+        "pseudoinverse",
+        "injection",
+        "adaptive",
+        "adaptive-ct",
+        "lft-uio-sr_eq53",
+        "lft-uio-sr_model",
+    } <= set(figures)
     assert all(v > 0 for v in figures.values())
 
 
@@ -47,11 +68,21 @@ def test_lmi_design_benchmark_reports_its_figures():
 
 def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
     figures = bench("log_io.py", "--seconds", "0.5", "--repeat", "1")
-    for key in ("write_ratio", "inspect_ratio", "export_ratio", "write_frames_per_s", "bare_write_frames_per_s",
-                "inspect_frames_per_s", "bare_read_frames_per_s", "export_mf4_frames_per_s"):
+    for key in (
+        "write_ratio",
+        "inspect_ratio",
+        "export_ratio",
+        "write_frames_per_s",
+        "bare_write_frames_per_s",
+        "inspect_frames_per_s",
+        "bare_read_frames_per_s",
+        "export_mf4_frames_per_s",
+    ):
         assert figures[key] > 0, key
     assert abs(figures["write_ratio"] - figures["write_frames_per_s"] / figures["bare_write_frames_per_s"]) < 1e-9
-    assert figures["export_ratio"] == min(figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump"))
+    assert figures["export_ratio"] == min(
+        figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump")
+    )
 
 
 def test_vessel_fdi_figures_isolate_every_fault_on_the_linear_model():

@@ -33,7 +33,9 @@ def test_scenarios_lists_the_default():
 
 def test_dbc_to_stdout_is_a_database():
     result = run_cli("dbc")
-    assert result.returncode == 0 and 'BO_ 128 SYNC: 5 runner' in result.stdout and "SENSOR_x1_minus_x2" in result.stdout
+    assert (
+        result.returncode == 0 and "BO_ 128 SYNC: 5 runner" in result.stdout and "SENSOR_x1_minus_x2" in result.stdout
+    )
 
 
 def test_inspect_of_a_file_that_is_not_mcap(tmp_path):
@@ -67,7 +69,11 @@ def test_inspect_of_a_log_written_by_another_program(tmp_path):
 def test_bad_output_paths_and_seeds_are_one_line_errors(tmp_path):
     result = run_cli("run", "--seed", "-1")
     assert result.returncode == 2 and "--seed: -1 is negative; seeds are >= 0" in result.stderr
-    for args in (("run", "-q", "--out", str(tmp_path)), ("dbc", "--out", str(tmp_path / "no" / "x.dbc")), ("inspect", str(tmp_path))):
+    for args in (
+        ("run", "-q", "--out", str(tmp_path)),
+        ("dbc", "--out", str(tmp_path / "no" / "x.dbc")),
+        ("inspect", str(tmp_path)),
+    ):
         result = run_cli(*args)
         assert result.returncode == 1 and "Traceback" not in result.stderr, args
         assert result.stderr.strip().splitlines()[-1].startswith("error: "), args

@@ -63,7 +63,12 @@ def integrator_model(dt=0.1) -> LinearModel:
 
 
 def test_pid_is_the_textbook_law_with_derivative_on_the_measurement():
-    pid = create("pid", integrator_model(), {"outputs": ["y"], "inputs": ["u"], "setpoint": [1.0], "kp": [2.0], "ki": [0.5], "kd": [0.3]}, 0.1)
+    pid = create(
+        "pid",
+        integrator_model(),
+        {"outputs": ["y"], "inputs": ["u"], "setpoint": [1.0], "kp": [2.0], "ki": [0.5], "kd": [0.3]},
+        0.1,
+    )
     first = pid.step(np.array([0.0]), 0.0, {})
     assert first.u[0] == pytest.approx(2.0 * 1.0 + 0.5 * 0.1 * 1.0)  # no derivative kick at the first sample
     second = pid.step(np.array([0.2]), 0.1, {})
@@ -85,20 +90,35 @@ def test_pid_regulates_an_integrator_and_holds_a_missing_reading():
 
 
 def test_pid_anti_windup_stops_integrating_while_saturated():
-    pid = create("pid", integrator_model(), {"outputs": ["y"], "inputs": ["u"], "setpoint": [10.0], "kp": [1.0], "ki": [1.0],
-                                             "upper": [0.5], "lower": [-0.5]}, 0.1)
+    pid = create(
+        "pid",
+        integrator_model(),
+        {
+            "outputs": ["y"],
+            "inputs": ["u"],
+            "setpoint": [10.0],
+            "kp": [1.0],
+            "ki": [1.0],
+            "upper": [0.5],
+            "lower": [-0.5],
+        },
+        0.1,
+    )
     for k in range(100):
         assert pid.step(np.array([0.0]), 0.1 * k, {}).u[0] == 0.5
     assert pid.integral[0] == pytest.approx(0.0)  # never advanced: the error pushed further out each time
 
 
-@pytest.mark.parametrize("params, field", [
-    ({"outputs": ["nope"], "inputs": ["u"]}, "outputs"),
-    ({"outputs": ["y"], "inputs": ["u", "u"]}, "outputs"),
-    ({"outputs": ["y"], "inputs": ["u"], "kp": [1.0, 2.0, 3.0]}, "kp"),
-    ({"outputs": ["y"], "inputs": ["u"], "lower": [1.0], "upper": [0.0]}, "lower"),
-    ({"outputs": "y", "inputs": ["u"]}, "outputs"),
-])
+@pytest.mark.parametrize(
+    "params, field",
+    [
+        ({"outputs": ["nope"], "inputs": ["u"]}, "outputs"),
+        ({"outputs": ["y"], "inputs": ["u", "u"]}, "outputs"),
+        ({"outputs": ["y"], "inputs": ["u"], "kp": [1.0, 2.0, 3.0]}, "kp"),
+        ({"outputs": ["y"], "inputs": ["u"], "lower": [1.0], "upper": [0.0]}, "lower"),
+        ({"outputs": "y", "inputs": ["u"]}, "outputs"),
+    ],
+)
 def test_bad_pid_parameters_name_the_field(params, field):
     with pytest.raises(ParameterError) as error:
         PidController.from_params(integrator_model(), params, 0.1)
@@ -171,35 +191,47 @@ def test_a_closed_loop_run_over_processes_matches_the_in_process_bus_and_regulat
     assert np.max(np.abs(xhat[100:600] - x2[100:600])) < 1e-3
 
 
-@pytest.mark.parametrize("extra, message", [
-    ('[[inputs]]\nactuator = "force"\nsignal = 1.0\n', "inputs: the controller commands every actuator"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ('[[inputs]]\nactuator = "force"\nsignal = 1.0\n', "inputs: the controller commands every actuator"),
+    ],
+)
 def test_inputs_and_a_controller_exclude_each_other(tmp_path, extra, message):
     with pytest.raises(ScenarioError, match=message):
         load(tmp_path, PID_SCENARIO.replace("[[estimators]]", extra + "[[estimators]]"))
 
 
-@pytest.mark.parametrize("old, new, message", [
-    ('kind = "pid"', 'kind = "pdi"', r"controller.kind: unknown controller 'pdi' \(did you mean 'pid'\?\)"),
-    ('diagnosis = "kf"', 'diagnosis = "kff"', "controller.diagnosis: 'kff' is not an estimator"),
-    ('kp = [8.0]', 'kp = "high"', "controller.params.kp: expected a list of numbers"),
-    ('name = "kf"', 'name = "controller"', "the name 'controller' is the controller node's"),
-])
+@pytest.mark.parametrize(
+    "old, new, message",
+    [
+        ('kind = "pid"', 'kind = "pdi"', r"controller.kind: unknown controller 'pdi' \(did you mean 'pid'\?\)"),
+        ('diagnosis = "kf"', 'diagnosis = "kff"', "controller.diagnosis: 'kff' is not an estimator"),
+        ("kp = [8.0]", 'kp = "high"', "controller.params.kp: expected a list of numbers"),
+        ('name = "kf"', 'name = "controller"', "the name 'controller' is the controller node's"),
+    ],
+)
 def test_bad_controller_tables_name_the_field(tmp_path, old, new, message):
     with pytest.raises(ScenarioError, match=message):
         load(tmp_path, PID_SCENARIO.replace(old, new))
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"diagnosis": '"kf"'}, r"'kf' \(kalman\) does not publish fault_mask, which thrust-allocation reads"),
-    ({"diagnosis": '""'}, "thrust-allocation reads fault_mask from a diagnosis node; name one of the estimators"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"diagnosis": '"kf"'}, r"'kf' \(kalman\) does not publish fault_mask, which thrust-allocation reads"),
+        ({"diagnosis": '""'}, "thrust-allocation reads fault_mask from a diagnosis node; name one of the estimators"),
+    ],
+)
 def test_a_controller_must_listen_to_a_node_that_publishes_what_it_reads(tmp_path, change, message):
-    text = scenario.load("vessel-fault-T1").text.replace('diagnosis = "fdi"', f'diagnosis = {change["diagnosis"]}')
-    text = text.replace('name = "fdi"\nkind = "cofd"', 'name = "kf"\nkind = "kalman"') if change["diagnosis"] == '"kf"' else text
+    text = scenario.load("vessel-fault-T1").text.replace('diagnosis = "fdi"', f"diagnosis = {change['diagnosis']}")
+    text = (
+        text.replace('name = "fdi"\nkind = "cofd"', 'name = "kf"\nkind = "kalman"')
+        if change["diagnosis"] == '"kf"'
+        else text
+    )
     with pytest.raises(ScenarioError, match=message):
         load(tmp_path, text, "vessel.toml")
-
 
 
 def test_clients_of_a_closed_loop_run_read_the_controllers_commands():

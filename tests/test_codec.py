@@ -48,7 +48,10 @@ def test_range_limits_are_inclusive_and_errors_name_the_signal(fd):
     c = codec(fd)
     for value in (-8.0, 8.0):
         assert c.decode(c.encode("SENSOR_x1", 0, [value])).values["x1"] == pytest.approx(value, abs=1e-6)
-    with pytest.raises(CodecError, match=r"SENSOR_x1\.x1 at tick 7 = 8\.5 m is outside its declared range \[-8, 8\] m.*\[bus\.sensors\.x1\]"):
+    with pytest.raises(
+        CodecError,
+        match=r"SENSOR_x1\.x1 at tick 7 = 8\.5 m is outside its declared range \[-8, 8\] m.*\[bus\.sensors\.x1\]",
+    ):
         c.encode("SENSOR_x1", 7, [8.5])
     with pytest.raises(CodecError, match=r"EST_kalman.*xhat_v2 at tick 0 = -9 m/s.*\[bus\.states\.v2\]"):
         last = c.data_messages("kalman")[-1]
@@ -78,7 +81,10 @@ def test_fd_layout_is_one_float64_frame_per_estimator():
 
 def test_a_signal_too_wide_for_classic_can_is_refused_with_the_fix():
     fine = Channel("x", "m", "", -1e3, 1e3, 1e-12)
-    with pytest.raises(CodecError, match=r"needs 51 bits.*set a coarser resolution or a narrower range with \[bus\.sensors\.x\], or use CAN FD"):
+    with pytest.raises(
+        CodecError,
+        match=r"needs 51 bits.*set a coarser resolution or a narrower range with \[bus\.sensors\.x\], or use CAN FD",
+    ):
         Codec([fine], [], {})
     Codec([fine], [], {}, fd=True)  # float64 in FD has no such limit
 
@@ -144,15 +150,28 @@ def test_fd_data_bitrate_is_in_the_dbc():
 @pytest.mark.parametrize("fd", [False, True])
 def test_the_codec_rebuilds_exactly_from_its_dbc(fd):
     """Nodes and clients get their codec from the DBC text: same messages, same bytes."""
-    c = Codec(SENSORS, INFO.actuators, {"uniform": INFO.states, "kalman": INFO.states},
-              clients={"avg": [Channel("z", "m", "average", -8, 8, 1e-6)]}, fd=fd, cycle_time=0.01)
+    c = Codec(
+        SENSORS,
+        INFO.actuators,
+        {"uniform": INFO.states, "kalman": INFO.states},
+        clients={"avg": [Channel("z", "m", "average", -8, 8, 1e-6)]},
+        fd=fd,
+        cycle_time=0.01,
+    )
     d = Codec.from_dbc(c.dbc)
     assert d.fd == fd and d.node_ids == c.node_ids == {"uniform": 1, "kalman": 2, "avg": 3}
     assert set(d.specs) == set(c.specs)
     for name, spec in c.specs.items():
         other = d.specs[name]
-        assert (other.frame_id, other.sender, other.role, other.signals) == (spec.frame_id, spec.sender, spec.role, spec.signals)
-        assert [(x.name, x.unit, x.minimum, x.maximum) for x in other.channels] == [(x.name, x.unit, x.minimum, x.maximum) for x in spec.channels]
+        assert (other.frame_id, other.sender, other.role, other.signals) == (
+            spec.frame_id,
+            spec.sender,
+            spec.role,
+            spec.signals,
+        )
+        assert [(x.name, x.unit, x.minimum, x.maximum) for x in other.channels] == [
+            (x.name, x.unit, x.minimum, x.maximum) for x in spec.channels
+        ]
         if spec.channels:
             values = [0.5] * len(spec.channels)
             assert bytes(d.encode(name, 77, values).data) == bytes(c.encode(name, 77, values).data)

@@ -63,7 +63,12 @@ def diagnosis(**params) -> COFDDiagnosis:
 
 def residuals(trajectory) -> np.ndarray:
     """|r<h>_<i>| / thr<h>_<i> over time, shape (4, 3, ticks)."""
-    return np.array([[np.abs(trajectory.series(f"r{h}_{i}")) / trajectory.series(f"thr{h}_{i}") for i in (1, 2, 3)] for h in (1, 2, 3, 4)])
+    return np.array(
+        [
+            [np.abs(trajectory.series(f"r{h}_{i}")) / trajectory.series(f"thr{h}_{i}") for i in (1, 2, 3)]
+            for h in (1, 2, 3, 4)
+        ]
+    )
 
 
 def first_time(trajectory, name: str) -> float | None:
@@ -147,17 +152,20 @@ def test_the_residual_bound_has_the_closed_form_for_diagonal_F():
 # -- design errors ---------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("params, field, words", [
-    ({"family": [[2, 4, 1]]}, "family", "Theorem 3.1"),  # W2 = W4
-    ({"family": [[1, 2, 9]]}, "family", "1…8"),
-    ({"F": [-1, -1, 2, -5, -6, -7]}, "F", "negative"),
-    ({"F": [-1, -1, -2]}, "F", "6 diagonal"),
-    ({"zeta": [2.0, 3.0]}, "zeta", "need 3"),
-    ({"margin": 0.5}, "margin", "at least 1"),
-    ({"groups": [[1, 2], [3, 4], [5, 6], [7]]}, "groups", "split the inputs"),
-    ({"pairs": [[2, 5]]}, "family", "cannot be isolated"),
-    ({"family": [[1, 2, 3], [3, 4, 1], [5, 6, 1]]}, "family", "cannot be isolated"),  # T4, T5 unseparated
-])
+@pytest.mark.parametrize(
+    "params, field, words",
+    [
+        ({"family": [[2, 4, 1]]}, "family", "Theorem 3.1"),  # W2 = W4
+        ({"family": [[1, 2, 9]]}, "family", "1…8"),
+        ({"F": [-1, -1, 2, -5, -6, -7]}, "F", "negative"),
+        ({"F": [-1, -1, -2]}, "F", "6 diagonal"),
+        ({"zeta": [2.0, 3.0]}, "zeta", "need 3"),
+        ({"margin": 0.5}, "margin", "at least 1"),
+        ({"groups": [[1, 2], [3, 4], [5, 6], [7]]}, "groups", "split the inputs"),
+        ({"pairs": [[2, 5]]}, "family", "cannot be isolated"),
+        ({"family": [[1, 2, 3], [3, 4, 1], [5, 6, 1]]}, "family", "cannot be isolated"),  # T4, T5 unseparated
+    ],
+)
 def test_bad_designs_name_the_parameter_and_the_fix(params, field, words):
     with pytest.raises(ParameterError) as error:
         diagnosis(**params)
@@ -213,7 +221,14 @@ def test_no_alarm_without_faults_under_the_papers_disturbance_bound():
 def test_T1_fault_is_isolated_as_the_paper_reads_the_residuals():
     """δ1 = e^(−0.03 t) (Sec. 4, Figs. 2–3): r^(1) along e3 stays below its threshold while e1, e2
     exceed theirs; r^(2), r^(3), r^(4) exceed theirs along e3; T1 alone is reported."""
-    trajectory = simulate(60.0, TAU, VesselController(M, D, G, TAU), diagnosis(), exponential_faults({1: 0.03}), disturbance(EPSILON, seed=1))
+    trajectory = simulate(
+        60.0,
+        TAU,
+        VesselController(M, D, G, TAU),
+        diagnosis(),
+        exponential_faults({1: 0.03}),
+        disturbance(EPSILON, seed=1),
+    )
     ratio = residuals(trajectory)
     assert ratio[0, 2].max() < 1
     assert ratio[0, 0].max() > 10 and ratio[0, 1].max() > 10
@@ -225,7 +240,14 @@ def test_T1_fault_is_isolated_as_the_paper_reads_the_residuals():
 
 @pytest.mark.parametrize("thruster", [1, 2, 3, 4, 5])
 def test_each_single_fault_is_isolated_to_its_thruster(thruster):
-    trajectory = simulate(60.0, TAU, VesselController(M, D, G, TAU), diagnosis(), exponential_faults({thruster: 0.03}), disturbance(EPSILON, seed=thruster))
+    trajectory = simulate(
+        60.0,
+        TAU,
+        VesselController(M, D, G, TAU),
+        diagnosis(),
+        exponential_faults({thruster: 0.03}),
+        disturbance(EPSILON, seed=thruster),
+    )
     mask = trajectory.series("fault_mask")
     assert set(mask) <= {0.0, float(1 << (thruster - 1))}
     assert mask[-1] == 1 << (thruster - 1)
@@ -235,8 +257,12 @@ def test_each_single_fault_is_isolated_to_its_thruster(thruster):
 
 
 def test_isolation_waits_for_persistence():
-    fast = simulate(20.0, TAU, VesselController(M, D, G, TAU), diagnosis(persistence=0.0), exponential_faults({1: 0.03}))
-    slow = simulate(20.0, TAU, VesselController(M, D, G, TAU), diagnosis(persistence=3.0), exponential_faults({1: 0.03}))
+    fast = simulate(
+        20.0, TAU, VesselController(M, D, G, TAU), diagnosis(persistence=0.0), exponential_faults({1: 0.03})
+    )
+    slow = simulate(
+        20.0, TAU, VesselController(M, D, G, TAU), diagnosis(persistence=3.0), exponential_faults({1: 0.03})
+    )
     assert first_time(slow, "fault_mask") == pytest.approx(first_time(fast, "fault_mask") + 3.0)
 
 
@@ -245,7 +271,9 @@ def test_isolation_waits_for_persistence():
 
 def cluster_run(faults: dict[int, float], duration: float = 120.0, seed: int = 2):
     controller = VesselController(M, D, G, TAU, VesselControllerParams(zeta=ZETA))
-    return simulate(duration, TAU, controller, diagnosis(zeta=list(ZETA)), exponential_faults(faults), disturbance(EPSILON, seed))
+    return simulate(
+        duration, TAU, controller, diagnosis(zeta=list(ZETA)), exponential_faults(faults), disturbance(EPSILON, seed)
+    )
 
 
 def test_T2_T5_common_mode_fault_is_isolated_by_cluster_residuals():
@@ -273,7 +301,9 @@ def test_the_other_common_mode_pairs_of_table_1_are_isolated(pair):
 def test_cluster_isolation_waits_while_the_commands_break_the_constraints():
     """Without the constraints (24) the fault directions are not those of W*: no isolation. (The
     paper's ratios 2.27, 3.41, 1.38 against the unconstrained pseudo-inverse allocation.)"""
-    trajectory = simulate(60.0, TAU, VesselController(M, D, G, TAU), diagnosis(zeta=[2.27, 3.41, 1.38]), exponential_faults({2: 0.03}))
+    trajectory = simulate(
+        60.0, TAU, VesselController(M, D, G, TAU), diagnosis(zeta=[2.27, 3.41, 1.38]), exponential_faults({2: 0.03})
+    )
     assert trajectory.series("constraints_met")[1:].max() == 0
     assert trajectory.series("alarm").max() == 1
     assert trajectory.series("fault_mask").max() == 0

@@ -45,8 +45,14 @@ def short(tmp_path, duration=3.0, extra="", name="short.toml", base=None):
 
 
 def cli(*args, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "cosim.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd=ROOT, **kwargs)
+    return subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        **kwargs,
+    )
 
 
 def wait_for(condition, timeout=60.0):
@@ -63,7 +69,12 @@ def test_the_default_run_is_separate_processes_over_a_host_only_multicast_bus(de
         bus = reader.metadata()["cosim.bus"]
         result = reader.metadata()["cosim.result"]
     assert bus["interface"] == "udp_multicast"
-    assert bus["channel"].startswith("ff11:") and bus["hop_limit"] == "1" or bus["channel"].startswith("239.255.") and bus["hop_limit"] == "0"
+    assert (
+        bus["channel"].startswith("ff11:")
+        and bus["hop_limit"] == "1"
+        or bus["channel"].startswith("239.255.")
+        and bus["hop_limit"] == "0"
+    )
     assert json.loads(result["senders"]) == {
         "uniform": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
         "kalman": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
@@ -91,8 +102,10 @@ def test_lockstep_is_deterministic_whatever_the_machine_load(tmp_path):
 
 def test_concurrent_runs_never_hear_each_other(tmp_path):
     loaded = short(tmp_path, 4.0)
-    procs = [cli("run", "-q", str(loaded.source), "--seed", str(seed), "--out", str(tmp_path / f"together{seed}.mcap"))
-             for seed in (1, 2)]
+    procs = [
+        cli("run", "-q", str(loaded.source), "--seed", str(seed), "--out", str(tmp_path / f"together{seed}.mcap"))
+        for seed in (1, 2)
+    ]
     for proc in procs:
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
@@ -122,13 +135,37 @@ def test_bus_traffic_never_leaves_the_host(tmp_path):
 def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
     bus = allocate("udp_multicast")
     capture = tmp_path / "capture.log"
-    logger = subprocess.Popen([sys.executable, "-m", "can.logger", "-i", "udp_multicast", "-c", bus.channel,
-                               "--bus-kwargs", f"port={bus.port}", "-f", str(capture)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    logger = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "can.logger",
+            "-i",
+            "udp_multicast",
+            "-c",
+            bus.channel,
+            "--bus-kwargs",
+            f"port={bus.port}",
+            "-f",
+            str(capture),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     time.sleep(2.0)  # the logger joins the group
     try:
-        proc = cli("run", "-q", str(short(tmp_path, 2.0).source), "--channel", bus.channel, "--port", str(bus.port),
-                   "--out", str(tmp_path / "logged.mcap"))
+        proc = cli(
+            "run",
+            "-q",
+            str(short(tmp_path, 2.0).source),
+            "--channel",
+            bus.channel,
+            "--port",
+            str(bus.port),
+            "--out",
+            str(tmp_path / "logged.mcap"),
+        )
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
         assert f"bus: udp_multicast channel {bus.channel} port {bus.port}" in err
@@ -137,12 +174,18 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
         logger.send_signal(signal.SIGINT)
         logger.communicate(timeout=30)
     captured = list(can.LogReader(str(capture)))
-    dbc = subprocess.run([sys.executable, "-m", "cosim.cli", "dbc", str(tmp_path / "short.toml")], capture_output=True,
-                         text=True, check=True).stdout
+    dbc = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "dbc", str(tmp_path / "short.toml")],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     db = load_dbc(dbc)
     with LogReader(tmp_path / "logged.mcap") as reader:
         logged = [msg for _, _, msg in reader.messages(["/can/frames"])]
-    assert Counter((f.arbitration_id, bytes(f.data).hex()) for f in captured) == Counter((f["id"], f["data"]) for f in logged)
+    assert Counter((f.arbitration_id, bytes(f.data).hex()) for f in captured) == Counter(
+        (f["id"], f["data"]) for f in logged
+    )
     for frame in captured:
         message = db.get_message_by_frame_id(frame.arbitration_id)
         decoded = db.decode_message(frame.arbitration_id, bytes(frame.data))
@@ -156,6 +199,7 @@ def _kill_at(tick: int, action):
         if progress.tick >= tick and not done:
             done.append(True)
             action()
+
     return on_progress
 
 
@@ -204,7 +248,7 @@ def test_ctrl_c_stops_every_process_and_leaves_a_valid_log(tmp_path):
     assert meta["cosim.result"]["status"] == "interrupted"
     stop = [i for i, f in enumerate(frames) if f["message"] == "NMT"]
     assert len(stop) == 1  # after it, at most what a node was still sending for the interrupted tick
-    assert {f["sender"] for f in frames[stop[0] + 1:]} <= {"uniform", "kalman"}
+    assert {f["sender"] for f in frames[stop[0] + 1 :]} <= {"uniform", "kalman"}
 
 
 def test_realtime_mode_paces_ticks_and_counts_deadline_misses(tmp_path):
@@ -236,8 +280,12 @@ def test_a_user_written_client_joins_in_lockstep(tmp_path):
     out = tmp_path / "client.mcap"
     runner = cli("run", "-q", str(loaded.source), "--out", str(out))
     wait_for(lambda: registry.active())
-    client = subprocess.run([sys.executable, str(ROOT / "examples" / "least_squares_client.py")], capture_output=True,
-                            text=True, timeout=120)
+    client = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "least_squares_client.py")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     _, err = runner.communicate(timeout=120)
     assert client.returncode == 0, client.stderr
     assert runner.returncode == 0, err
@@ -246,7 +294,8 @@ def test_a_user_written_client_joins_in_lockstep(tmp_path):
         for topic, _, msg in reader.messages():
             if topic.startswith("/can/SENSOR_"):
                 sensors.setdefault(msg["tick"], {})[topic.removeprefix("/can/SENSOR_")] = next(
-                    v for key, v in msg.items() if key != "tick")
+                    v for key, v in msg.items() if key != "tick"
+                )
             elif topic == "/can/CLIENT_lsq":
                 fixes[msg["tick"]] = msg
             elif topic == "/can/HEARTBEAT_lsq":
@@ -260,13 +309,22 @@ def test_a_user_written_client_joins_in_lockstep(tmp_path):
 
 
 def test_a_declared_client_that_never_joins_is_reported(tmp_path):
-    base = (ROOT / "examples" / "least-squares-client.toml").read_text().replace("join_timeout = 120.0", "join_timeout = 1.0")
-    with pytest.raises(CosimError, match=r"client lsq(, node uniform)? did not join the bus udp_multicast channel \S+ port \d+ within 1 s"):
+    base = (
+        (ROOT / "examples" / "least-squares-client.toml")
+        .read_text()
+        .replace("join_timeout = 120.0", "join_timeout = 1.0")
+    )
+    with pytest.raises(
+        CosimError,
+        match=r"client lsq(, node uniform)? did not join the bus udp_multicast channel \S+ port \d+ within 1 s",
+    ):
         run(short(tmp_path, 1.0, base=base, name="nojoin.toml"), tmp_path / "nojoin.mcap")
 
 
 def test_an_external_estimator_started_by_hand(tmp_path, default_loaded):
-    text = default_loaded.text.replace('name = "kalman"\nkind = "kalman"', 'name = "kalman"\nkind = "kalman"\nexternal = true')
+    text = default_loaded.text.replace(
+        'name = "kalman"\nkind = "kalman"', 'name = "kalman"\nkind = "kalman"\nexternal = true'
+    )
     loaded = short(tmp_path, 3.0, "\n[timing]\njoin_timeout = 60.0\n", base=text, name="external.toml")
     out = tmp_path / "external.mcap"
     runner = cli("run", "-q", str(loaded.source), "--out", str(out))
@@ -297,7 +355,9 @@ def test_no_running_cosimulation_is_a_clear_error():
     assert result.returncode == 1 and result.stderr.startswith("error: no co-simulation is running on this machine")
 
 
-@pytest.mark.skipif(not Path("/sys/class/net/vcan0").exists(), reason="no vcan0 interface (needs the vcan kernel module)")
+@pytest.mark.skipif(
+    not Path("/sys/class/net/vcan0").exists(), reason="no vcan0 interface (needs the vcan kernel module)"
+)
 def test_socketcan_on_vcan(tmp_path, default_loaded):
     result = run(short(tmp_path, 2.0), tmp_path / "vcan.mcap", interface="socketcan", channel="vcan0")
     virtual = run(short(tmp_path, 2.0), tmp_path / "v.mcap", interface="virtual")

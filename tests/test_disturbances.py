@@ -49,16 +49,22 @@ def test_state_space_plant_integrates_the_unknown_input_exactly():
 def test_an_unknown_disturbance_name_is_a_clear_error(tmp_path):
     path = tmp_path / "bad.toml"
     path.write_text(PLANT + '\n[[disturbances]]\ninput = "lek"\nsignal = 1.0\n')
-    with pytest.raises(ScenarioError, match=r"disturbances\[0\]\.input: .*no disturbance input 'lek' \(did you mean 'leak'\?\)"):
+    with pytest.raises(
+        ScenarioError, match=r"disturbances\[0\]\.input: .*no disturbance input 'lek' \(did you mean 'leak'\?\)"
+    ):
         scenario.load(path)
 
 
 def test_disturbance_is_logged_as_truth_and_not_sent(tmp_path):
     path = tmp_path / "dist.toml"
-    path.write_text(PLANT + '\n[[disturbances]]\ninput = "leak"\nsignal = { kind = "sine", amplitude = 2.0, frequency = 1.0 }\n')
+    path.write_text(
+        PLANT + '\n[[disturbances]]\ninput = "leak"\nsignal = { kind = "sine", amplitude = 2.0, frequency = 1.0 }\n'
+    )
     result = run(scenario.load(path), tmp_path / "dist.mcap")
     with LogReader(result.path) as reader:
         inputs = [msg for _, _, msg in reader.messages(["/truth/inputs"])]
         dbc = reader.attachments()["cosim.dbc"].decode()
-    assert [round(m["disturbance"]["leak"], 12) for m in inputs] == [round(2.0 * np.sin(2 * np.pi * m["t"]), 12) for m in inputs]
+    assert [round(m["disturbance"]["leak"], 12) for m in inputs] == [
+        round(2.0 * np.sin(2 * np.pi * m["t"]), 12) for m in inputs
+    ]
     assert "leak" not in dbc

@@ -37,7 +37,9 @@ def test_factorization_reproduces_example_1():
     Y, H = output_factorization(C)
     r3 = math.sqrt(3)
     Y_paper = np.array([[(3 + r3) / 6, (3 - r3) / 6, 1 / r3], [(3 - r3) / 6, (3 + r3) / 6, -1 / r3]]).T
-    H_paper = np.array([[(3 + r3) / (2 * r3), (-3 + r3) / (2 * r3), 0, 0], [(-3 + r3) / (2 * r3), (3 + r3) / (2 * r3), 0, 0]])
+    H_paper = np.array(
+        [[(3 + r3) / (2 * r3), (-3 + r3) / (2 * r3), 0, 0], [(-3 + r3) / (2 * r3), (3 + r3) / (2 * r3), 0, 0]]
+    )
     np.testing.assert_allclose(Y, Y_paper, atol=1e-15)
     np.testing.assert_allclose(H, H_paper, atol=1e-15)
     np.testing.assert_allclose(Y.T @ Y, np.eye(2), atol=1e-15)
@@ -162,7 +164,11 @@ def test_kalman_skips_missing_rows():
 @pytest.mark.parametrize(
     ("kind", "params", "message"),
     [
-        ("pseudoinverse", {"pole": [0.5]}, r"pole: unknown parameter of pseudoinverse \(known: min_det, poles, weights, x0\)"),
+        (
+            "pseudoinverse",
+            {"pole": [0.5]},
+            r"pole: unknown parameter of pseudoinverse \(known: min_det, poles, weights, x0\)",
+        ),
         ("pseudoinverse", {"weights": [1, 1]}, r"weights: expected 3 weights \(one per output: x1, x2, x1_minus_x2\)"),
         ("pseudoinverse", {"poles": [0.5, 0.6]}, r"poles: need 4 poles"),
         ("pseudoinverse", {"x0": [1.0]}, r"x0: expected 4 values \(x1, x2, v1, v2\)"),

@@ -91,7 +91,11 @@ def expected_table(log: Path) -> dict[int, dict[str, object]]:
                         rows[k][f"{topic[7:]}.{key}"] = ",".join(value)
                     elif key not in ("tick", "t"):
                         rows[k][f"{topic[7:]}.{key}"] = value
-            elif topic.startswith("/can/") and topic != FRAMES and not topic.startswith(("/can/SYNC", "/can/NMT", "/can/HEARTBEAT")):
+            elif (
+                topic.startswith("/can/")
+                and topic != FRAMES
+                and not topic.startswith(("/can/SYNC", "/can/NMT", "/can/HEARTBEAT"))
+            ):
                 k = t // 10_000_000  # τ = 10 ms; lockstep logs a frame at the tick it carries
                 assert message["tick"] == k % 2**16 or message["tick"] == k
                 for key, value in message.items():
@@ -141,14 +145,23 @@ def test_parquet_reads_back_in_pyarrow_with_units_and_every_value(fd_log, tmp_pa
     records = table.to_pylist()
     check_table(records, fd_log)
     dropped = [r for r in records if r["faults.dropped"]]
-    assert dropped and all(r["SENSOR_x2_minus_x1.x2_minus_x1 [m]"] is None for r in dropped)  # a frame not sent is empty
+    assert dropped and all(
+        r["SENSOR_x2_minus_x1.x2_minus_x1 [m]"] is None for r in dropped
+    )  # a frame not sent is empty
 
 
 def test_table_columns_are_named_after_topic_and_field_with_units(classic_log):
     with LogReader(classic_log) as reader:
         names = [c.name for c in table_columns(reader.schemas())]
-    assert {"inputs.commanded.force [N]", "faults.noise.x1 [m]", "faults.effectiveness.force", "faults.active",
-            "SENSOR_x1_minus_x2.x1_minus_x2 [m]", "EST_uniform_1.xhat_v2 [m/s]", "COMMAND_force.force [N]"} <= set(names)
+    assert {
+        "inputs.commanded.force [N]",
+        "faults.noise.x1 [m]",
+        "faults.effectiveness.force",
+        "faults.active",
+        "SENSOR_x1_minus_x2.x1_minus_x2 [m]",
+        "EST_uniform_1.xhat_v2 [m/s]",
+        "COMMAND_force.force [N]",
+    } <= set(names)
     assert not any(n.startswith(("SYNC", "HEARTBEAT", "NMT")) for n in names) and len(names) == len(set(names))
 
 
@@ -173,7 +186,9 @@ def check_decoded(decoded: dict[str, list[tuple[float, dict]]], log: Path) -> No
         assert len(decoded[name]) == len(entries), name
         for (t, values), (t_read, read) in zip(entries, decoded[name]):
             assert abs(t_read - t / 1e9) < 1e-6
-            assert {k: float(v) for k, v in read.items() if k in values} == {k: float(v) for k, v in values.items()}, name
+            assert {k: float(v) for k, v in read.items() if k in values} == {k: float(v) for k, v in values.items()}, (
+                name
+            )
 
 
 @pytest.mark.parametrize("which", ["classic_log", "fd_log"])
@@ -199,7 +214,9 @@ def test_candump_reads_back_with_python_can_and_decodes_with_cantools(which, req
         for entry in Parser(stream):
             lines += 1
             message = database.get_message_by_frame_id(entry.frame_id)
-            decoded[message.name].append((entry.timestamp.timestamp(), message.decode(entry.data, decode_choices=False)))
+            decoded[message.name].append(
+                (entry.timestamp.timestamp(), message.decode(entry.data, decode_choices=False))
+            )
     assert lines == result.count
     check_decoded(decoded, log)
 
@@ -214,11 +231,21 @@ def test_mf4_is_a_bus_log_that_asammdf_decodes_with_the_attached_dbc(which, requ
         assert mdf.version == "4.10"
         data, name, _ = mdf.extract_attachment(0)
         assert name.name == "cosim.dbc" and data.decode() == logged_dbc(log)
-        ids, lengths, payload, edl, brs = (mdf.get(f"CAN_DataFrame.{c}") for c in ("ID", "DataLength", "DataBytes", "EDL", "BRS"))
+        ids, lengths, payload, edl, brs = (
+            mdf.get(f"CAN_DataFrame.{c}") for c in ("ID", "DataLength", "DataBytes", "EDL", "BRS")
+        )
         read = [
-            can.Message(timestamp=t, arbitration_id=int(i) & 0x1FFFFFFF, is_extended_id=bool(int(i) >> 31), is_fd=bool(e),
-                        bitrate_switch=bool(b), data=bytes(d[:n]))
-            for t, i, n, d, e, b in zip(ids.timestamps, ids.samples, lengths.samples, payload.samples, edl.samples, brs.samples)
+            can.Message(
+                timestamp=t,
+                arbitration_id=int(i) & 0x1FFFFFFF,
+                is_extended_id=bool(int(i) >> 31),
+                is_fd=bool(e),
+                bitrate_switch=bool(b),
+                data=bytes(d[:n]),
+            )
+            for t, i, n, d, e, b in zip(
+                ids.timestamps, ids.samples, lengths.samples, payload.samples, edl.samples, brs.samples
+            )
         ]
         check_frames(read, log, 1e-9)
         dbc = tmp_path / name.name
@@ -244,7 +271,9 @@ def test_exports_are_deterministic(classic_log, tmp_path):
 def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, tmp_path):
     log = run_short(name, 0.5 if name != "three-tank-reconciliation" else 3.0, tmp_path / f"{name}.mcap")
     metrics = compute_metrics(log)
-    assert metrics["status"] == "completed" and metrics["warnings"] == [] and metrics["missing"] == [], metrics["missing"]
+    assert metrics["status"] == "completed" and metrics["warnings"] == [] and metrics["missing"] == [], metrics[
+        "missing"
+    ]
     assert set(metrics["estimators"]) == {e.name for e in load(name).scenario.estimators}
     with LogReader(log) as reader:
         frames = sum(1 for _ in reader.messages([FRAMES]))
@@ -274,7 +303,11 @@ def test_bad_input_gives_one_message_naming_the_fix(classic_log, tmp_path, capsy
     foreign = tmp_path / "foreign.mcap"  # /can/frames but no DBC and no cosim metadata: another program's log
     with McapLog(foreign) as other:
         channel = other.channel(FRAMES, {"type": "object"})
-        other.write(channel, 0, {"id": 0x123, "extended": False, "fd": False, "brs": False, "dlc": 2, "length": 2, "data": "abcd"})
+        other.write(
+            channel,
+            0,
+            {"id": 0x123, "extended": False, "fd": False, "brs": False, "dlc": 2, "length": 2, "data": "abcd"},
+        )
     with pytest.raises(CosimError, match=r"no DBC attached .* pass --dbc FILE.dbc \(write it with 'cosim dbc SCENARIO"):
         export(foreign, "mf4")
     with pytest.raises(CosimError, match="no cosim.run metadata"):
@@ -319,7 +352,11 @@ def long_log(path: Path, ticks: int) -> Path:
     scenario = loaded.scenario
     codec: Codec = scenario.codec()
     states, sensors, actuators = ("x1", "x2", "v1", "v2"), tuple(scenario.sensors), tuple(scenario.actuators)
-    units = {"states": dict.fromkeys(states, "m"), "sensors": dict.fromkeys(sensors, "m"), "actuators": dict.fromkeys(actuators, "N")}
+    units = {
+        "states": dict.fromkeys(states, "m"),
+        "sensors": dict.fromkeys(sensors, "m"),
+        "actuators": dict.fromkeys(actuators, "N"),
+    }
     estimates = codec.messages(role="estimate")
     with McapLog(path) as log:
         log.metadata("cosim.run", {"scenario": scenario.name, "sample_time": "0.01", "bus": json.dumps({"fd": False})})
@@ -334,8 +371,20 @@ def long_log(path: Path, ticks: int) -> Path:
             for frame, decoded in frames:
                 recorder.frame(k, t, t_ns, frame, decoded if decoded is not None else codec.decode(frame))
             x = np.array([y[0], y[1], 0.0, 0.0])
-            recorder.truth(k, t, t_ns, x=x, y_true=np.array(y), noise=np.zeros(len(y)), fault=np.zeros(len(y)),
-                           measured=np.array(y), active=(), u_cmd=np.zeros(1), u_eff=np.zeros(1), delta=np.ones(1))
+            recorder.truth(
+                k,
+                t,
+                t_ns,
+                x=x,
+                y_true=np.array(y),
+                noise=np.zeros(len(y)),
+                fault=np.zeros(len(y)),
+                measured=np.array(y),
+                active=(),
+                u_cmd=np.zeros(1),
+                u_eff=np.zeros(1),
+                delta=np.ones(1),
+            )
     return path
 
 

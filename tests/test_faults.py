@@ -122,7 +122,9 @@ def test_outliers_are_spikes_of_the_given_magnitude():
 
 def test_actuator_loss_of_effectiveness():
     """u_eff = δ(t) u with δ1 = e^(−0.03 t) (Cristofaro & Johansen, Sec. 4) on a group of inputs."""
-    inj = injector(actuator=[fm.ActuatorEffectiveness(channels=(0, 1), start=0.0, effectiveness=(fm.Exponential(0.03),) * 2)])
+    inj = injector(
+        actuator=[fm.ActuatorEffectiveness(channels=(0, 1), start=0.0, effectiveness=(fm.Exponential(0.03),) * 2)]
+    )
     u_eff, delta = inj.actuators(np.array([2.0, 4.0, 1.0]), 10.0)
     np.testing.assert_allclose(delta, [math.exp(-0.3), math.exp(-0.3), 1.0])
     np.testing.assert_allclose(u_eff, [2 * math.exp(-0.3), 4 * math.exp(-0.3), 1.0])
@@ -131,8 +133,10 @@ def test_actuator_loss_of_effectiveness():
 
 def test_measured_is_true_plus_noise_plus_fault():
     inj = injector(
-        fm.Bias(channels=(0, 1, 2), value=(1.0, -1.5, 0.5)), fm.Gain(channels=(1,), gain=(fm.Constant(0.5),)),
-        noise=[fm.GaussianNoise(channels=(0, 1, 2), std=0.1)], seed=7,
+        fm.Bias(channels=(0, 1, 2), value=(1.0, -1.5, 0.5)),
+        fm.Gain(channels=(1,), gain=(fm.Constant(0.5),)),
+        noise=[fm.GaussianNoise(channels=(0, 1, 2), std=0.1)],
+        seed=7,
     )
     out = inj.sensors(Y, 1.0)
     np.testing.assert_allclose(out.measured, Y + out.noise + out.fault, atol=1e-15)
@@ -146,6 +150,7 @@ def test_vector_length_is_checked():
 
 def test_random_streams_are_keyed_by_label_not_position():
     """Removing or reordering other faults does not change a fault's random sequence."""
+
     def draws(faults):
         inj = injector(*faults, seed=9)
         return np.array([inj.sensors(np.zeros(2), k * 0.01).fault for k in range(50)])
@@ -163,7 +168,11 @@ def test_duplicate_labels_are_refused():
 
 def test_actuator_offset_is_additive_inside_its_window():
     """u_eff = u + g(t − start) · value (the f_a of the course notes' eq. (11)), on the chosen inputs only."""
-    inj = injector(actuator=[fm.ActuatorOffset(channels=(1,), start=2.0, end=5.0, value=(0.5,), amplitude=fm.Ramp(1.0, offset=1.0))])
+    inj = injector(
+        actuator=[
+            fm.ActuatorOffset(channels=(1,), start=2.0, end=5.0, value=(0.5,), amplitude=fm.Ramp(1.0, offset=1.0))
+        ]
+    )
     u = np.array([1.0, -2.0])
     u_eff, delta = inj.actuators(u, 3.0)
     np.testing.assert_allclose(u_eff, [1.0, -2.0 + 0.5 * 2.0])
@@ -175,7 +184,9 @@ def test_actuator_offset_is_additive_inside_its_window():
 
 def test_actuator_offset_composes_with_loss_of_effectiveness():
     """u_eff = (∏ δ) ∘ u + Σ f_a, whatever the order of the faults."""
-    loss = lambda: fm.ActuatorEffectiveness(channels=(0, 1), label="loss", effectiveness=(fm.Constant(0.5), fm.Constant(0.25)))
+    loss = lambda: fm.ActuatorEffectiveness(
+        channels=(0, 1), label="loss", effectiveness=(fm.Constant(0.5), fm.Constant(0.25))
+    )
     offset = lambda: fm.ActuatorOffset(channels=(0,), label="offset", value=(2.0,))
     more = lambda: fm.ActuatorOffset(channels=(0, 1), label="more", value=(1.0, -1.0))
     u = np.array([4.0, 8.0])
@@ -206,8 +217,11 @@ inputs = ["ua", "ub"]
 def test_actuator_offset_in_a_scenario():
     from cosim.scenario import build_faults, parse
 
-    s = parse(SCENARIO + '[[faults]]\nname = "stuck_on"\nkind = "actuator_offset"\nactuators = ["ub"]\nvalue = 0.3\nstart = 0.5\n'
-                         'amplitude = { kind = "constant", value = 2.0 }\n')
+    s = parse(
+        SCENARIO
+        + '[[faults]]\nname = "stuck_on"\nkind = "actuator_offset"\nactuators = ["ub"]\nvalue = 0.3\nstart = 0.5\n'
+        'amplitude = { kind = "constant", value = 2.0 }\n'
+    )
     inj = build_faults(s)
     assert [(f.label, f.kind, f.channels) for f in inj.faults] == [("stuck_on", "actuator_offset", (1,))]
     np.testing.assert_allclose(inj.actuators(np.array([1.0, 1.0]), 0.5)[0], [1.0, 1.6])
@@ -215,12 +229,18 @@ def test_actuator_offset_in_a_scenario():
     np.testing.assert_allclose(every.actuators(np.zeros(2), 0.0)[0], [0.1, 0.2])
 
 
-@pytest.mark.parametrize(("extra", "message"), [
-    ('actuators = ["uc"]\nvalue = 1.0\n', r"faults\[0\]\.actuators: state-space has no actuator 'uc'; it has: ua, ub"),
-    ('value = [1.0, 2.0, 3.0]\n', r"faults\[0\]\.value: has 3 values for 2 channels"),
-    ('actuators = ["ua"]\n', r"faults\[0\]\.value: required but missing"),
-    ('value = 1.0\nsensors = ["y1"]\n', r"faults\[0\]: unknown key 'sensors'"),
-])
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (
+            'actuators = ["uc"]\nvalue = 1.0\n',
+            r"faults\[0\]\.actuators: state-space has no actuator 'uc'; it has: ua, ub",
+        ),
+        ("value = [1.0, 2.0, 3.0]\n", r"faults\[0\]\.value: has 3 values for 2 channels"),
+        ('actuators = ["ua"]\n', r"faults\[0\]\.value: required but missing"),
+        ('value = 1.0\nsensors = ["y1"]\n', r"faults\[0\]: unknown key 'sensors'"),
+    ],
+)
 def test_actuator_offset_errors_name_the_field(extra, message):
     from cosim.errors import ScenarioError
     from cosim.scenario import parse

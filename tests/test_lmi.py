@@ -20,8 +20,13 @@ from estimators.lmi import (
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
 # A 2-state plant with 3 sensors: 8 vertices, 64 + 224 LMIs (19)–(20) of size 10.
-SMALL = SensorFaultModel(np.array([[0.95, 0.05], [0.0, 0.9]]), np.eye(2), np.array([[1.0], [0.5]]),
-                         np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]), np.ones((3, 1)))
+SMALL = SensorFaultModel(
+    np.array([[0.95, 0.05], [0.0, 0.9]]),
+    np.eye(2),
+    np.array([[1.0], [0.5]]),
+    np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]),
+    np.ones((3, 1)),
+)
 THREE_TANK = SensorFaultModel(PAPER_A, PAPER_B, PAPER_E, PAPER_C, np.ones((4, 1)))
 
 
@@ -52,17 +57,18 @@ def test_the_conic_data_are_the_printed_lmis_with_s_in_place_of_p_j():
     P = P + P.transpose(0, 2, 1)
     G, Y, mu = rng.normal(size=(l, nx, nx)), rng.normal(size=(l, nx, 3)), 0.7
     j = 5
-    x = np.concatenate([[mu], *(svec(p) for p in P), *(g.T.ravel() for g in G), *(y.T.ravel() for y in Y),
-                        *([svec(P[j])] * pairs)])
+    x = np.concatenate(
+        [[mu], *(svec(p) for p in P), *(g.T.ravel() for g in G), *(y.T.ravel() for y in Y), *([svec(P[j])] * pairs)]
+    )
     assert x.size == A.shape[1] and cost @ x == mu
     slack = b - A @ x
     lmis = theorem1_lmis(TA, C, F, P, G, Y, mu)
     assert len(lmis) == l * l + l * l * (l - 1) // 2
     size = 2 * nx + nw
-    big = slack[:pairs * size * (size + 1) // 2].reshape(pairs, -1)
+    big = slack[: pairs * size * (size + 1) // 2].reshape(pairs, -1)
     for r in range(pairs):
         np.testing.assert_allclose(big[r], svec(lmis[r * l + j] - MARGIN * np.eye(size)), atol=1e-12)
-    small = slack[pairs * size * (size + 1) // 2:].reshape(pairs, l, -1)
+    small = slack[pairs * size * (size + 1) // 2 :].reshape(pairs, l, -1)
     for k in range(l):
         np.testing.assert_allclose(small[:, k], np.broadcast_to(svec(P[j] - P[k]), small[:, k].shape), atol=1e-12)
 

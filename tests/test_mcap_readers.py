@@ -67,8 +67,12 @@ def describe(channels, schemas, messages, metadata, attachments, message_count) 
             "digest": digest(messages[channel_id]),
         }
     return {
-        "messageCount": message_count, "topics": topics, "metadata": metadata,
-        "attachments": {a.name: {"mediaType": a.media_type, "sha256": hashlib.sha256(a.data).hexdigest()} for a in attachments},
+        "messageCount": message_count,
+        "topics": topics,
+        "metadata": metadata,
+        "attachments": {
+            a.name: {"mediaType": a.media_type, "sha256": hashlib.sha256(a.data).hexdigest()} for a in attachments
+        },
     }
 
 
@@ -82,7 +86,9 @@ def read_with_mcap(path: Path) -> dict:
             messages[channel.id].append((message.sequence, message.log_time, bytes(message.data)))
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
         attachments = list(reader.iter_attachments())
-        return describe(summary.channels, summary.schemas, messages, metadata, attachments, summary.statistics.message_count)
+        return describe(
+            summary.channels, summary.schemas, messages, metadata, attachments, summary.statistics.message_count
+        )
 
 
 def read_with_pybag(path: Path) -> dict:
@@ -110,7 +116,7 @@ def attachment_crcs_follow_the_spec(path: Path) -> int:
     with open(path, "rb") as stream:
         indexes = make_reader(stream).get_summary().attachment_indexes
     for index in indexes:
-        body = data[index.offset + 9: index.offset + index.length]  # after opcode (1) and record length (8)
+        body = data[index.offset + 9 : index.offset + index.length]  # after opcode (1) and record length (8)
         assert zlib.crc32(body[:-4]) == struct.unpack("<I", body[-4:])[0], index.name
     return len(indexes)
 
@@ -119,7 +125,9 @@ def test_pybag_reads_what_the_official_reader_reads(log):
     official = read_with_mcap(log)
     assert official["messageCount"] == sum(t["count"] for t in official["topics"].values()) > 10_000
     assert read_with_pybag(log) == official
-    assert attachment_crcs_follow_the_spec(log) == len(official["attachments"]) and "cosim.dbc" in official["attachments"]
+    assert (
+        attachment_crcs_follow_the_spec(log) == len(official["attachments"]) and "cosim.dbc" in official["attachments"]
+    )
 
 
 def typescript_reader() -> Path:
@@ -128,23 +136,37 @@ def typescript_reader() -> Path:
     if node is None or npm is None:
         pytest.skip("Node.js (node and npm, >= 18) is not installed: the @mcap/core reader cannot run")
     lock = (TS_DIR / "package-lock.json").read_bytes()
-    folder = Path(os.environ.get("COSIM_MCAP_TS_DIR") or Path.home() / ".cache" / "cosim" / f"mcap-ts-{hashlib.sha256(lock).hexdigest()[:12]}")
+    folder = Path(
+        os.environ.get("COSIM_MCAP_TS_DIR")
+        or Path.home() / ".cache" / "cosim" / f"mcap-ts-{hashlib.sha256(lock).hexdigest()[:12]}"
+    )
     folder.mkdir(parents=True, exist_ok=True)
     for name in ("package.json", "package-lock.json", "read_mcap.mjs"):
         shutil.copyfile(TS_DIR / name, folder / name)
     if not (folder / "node_modules" / "@mcap" / "core").is_dir():
-        result = subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--ignore-scripts"], cwd=folder, capture_output=True,
-                                text=True, timeout=600)
+        result = subprocess.run(
+            [npm, "ci", "--no-audit", "--no-fund", "--ignore-scripts"],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert result.returncode == 0, f"npm ci in {folder} failed:\n{result.stderr}"
     return folder
 
 
 def test_the_typescript_reader_of_foxglove_reads_what_the_official_reader_reads(log):
     folder = typescript_reader()
-    result = subprocess.run(["node", str(folder / "read_mcap.mjs"), str(log)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        ["node", str(folder / "read_mcap.mjs"), str(log)], capture_output=True, text=True, timeout=300
+    )
     assert result.returncode == 0, result.stderr
     seen = json.loads(result.stdout)
-    assert seen.pop("library") == f"cosim/{cosim.__version__}" and seen.pop("compression") == ["zstd"] and seen.pop("chunks") > 1
+    assert (
+        seen.pop("library") == f"cosim/{cosim.__version__}"
+        and seen.pop("compression") == ["zstd"]
+        and seen.pop("chunks") > 1
+    )
     seen.pop("profile")
     assert seen == read_with_mcap(log)
 

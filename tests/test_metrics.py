@@ -36,6 +36,7 @@ from estimators.model import LinearModel
 
 def naive_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data: bytes) -> tuple[int, int]:
     """The same frame lengths from explicit bit lists, a bit-serial CRC and a literal stuffing walk."""
+
     def field(value, width):
         return [(value >> i) & 1 for i in range(width - 1, -1, -1)]
 
@@ -105,7 +106,9 @@ def test_exact_lengths_match_a_literal_walk_and_never_exceed_the_worst_case():
         brs = fd and rng.random() < 0.7
         dlc = rng.choice(list(sizes)) if fd else rng.randrange(9)
         n = sizes.get(dlc, dlc)
-        pattern = rng.choice([lambda: rng.randrange(256), lambda: rng.choice([0, 255]), lambda: rng.choice([0x0F, 0xF0, 0x55])])
+        pattern = rng.choice(
+            [lambda: rng.randrange(256), lambda: rng.choice([0, 255]), lambda: rng.choice([0x0F, 0xF0, 0x55])]
+        )
         data = bytes(pattern() for _ in range(n))
         can_id = rng.getrandbits(29 if extended else 11)
         exact = frame_bits(can_id, extended, fd, brs, dlc, data)
@@ -153,36 +156,92 @@ def active(k):
     return (["f1"] if 40 <= k < 60 else []) + (["f2"] if k >= 70 else [])
 
 
-CLASSIC_ZERO = (53, 0)      # frame_bits(0x000, classic, no data)
-FD_ZERO = (32, 109)         # frame_bits(0x100, FD + BRS, 8 zero bytes)
+CLASSIC_ZERO = (53, 0)  # frame_bits(0x000, classic, no data)
+FD_ZERO = (32, 109)  # frame_bits(0x100, FD + BRS, 8 zero bytes)
 
 
 def write_hand_log(path, *, order_estimates_first: bool = True) -> None:
     estimators = {
         "uniform": {"kind": "pseudoinverse", "messages": ["EST_uniform"], "params": {"poles": [0.5, 0.6]}},
         "good": {"kind": "adaptive", "messages": ["EST_good"], "params": {}},
-        "fdi": {"kind": "cofd", "messages": ["EST_fdi", "EST_fdi_1"], "params": {},
-                "diagnostics": {"alarm": {"kind": "alarm"}, **{f"isolated_{f}": {"kind": "isolation", "target": f} for f in ("T1", "T2", "y1")}},
-                "isolates": {"isolated_T1": ["T1x", "T1y"], "isolated_T2": ["T2x"], "isolated_y1": ["y1"]}},
-        "silent": {"kind": "uio", "messages": ["EST_silent"], "params": {}, "diagnostics": {"alarm": {"kind": "alarm"}}},
+        "fdi": {
+            "kind": "cofd",
+            "messages": ["EST_fdi", "EST_fdi_1"],
+            "params": {},
+            "diagnostics": {
+                "alarm": {"kind": "alarm"},
+                **{f"isolated_{f}": {"kind": "isolation", "target": f} for f in ("T1", "T2", "y1")},
+            },
+            "isolates": {"isolated_T1": ["T1x", "T1y"], "isolated_T2": ["T2x"], "isolated_y1": ["y1"]},
+        },
+        "silent": {
+            "kind": "uio",
+            "messages": ["EST_silent"],
+            "params": {},
+            "diagnostics": {"alarm": {"kind": "alarm"}},
+        },
     }
     with McapLog(path) as log:
-        log.metadata("cosim.run", {
-            "scenario": "hand", "source": "test", "seed": "7", "sample_time": repr(DT), "ticks": str(N),
-            "states": json.dumps(["x1", "x2"]), "sensors": json.dumps(SENSORS), "actuators": json.dumps(ACTUATORS),
-            "estimators": json.dumps(estimators), "fault_onset": json.dumps(4.0), "fault_onset_tick": json.dumps(40),
-            "faults": json.dumps([{"label": "f1", "kind": "bias", "start": 4.0, "end": 6.0, "targets": ["y1"]},
-                                  {"label": "f2", "kind": "actuator_effectiveness", "start": 7.0, "end": None, "targets": ["T1x"]}]),
-            "bus": json.dumps({"interface": "virtual", "fd": True, "bitrate": 500000, "data_bitrate": 2000000}),
-        })
-        log.metadata("cosim.scenario", {"source": "test", "toml": "", "resolved": json.dumps({"faults": [
-            {"name": "f1", "kind": "bias", "sensors": ["y1"]},
-            {"name": "f2", "kind": "actuator_effectiveness", "actuators": ["T1x"]},
-        ]})})
+        log.metadata(
+            "cosim.run",
+            {
+                "scenario": "hand",
+                "source": "test",
+                "seed": "7",
+                "sample_time": repr(DT),
+                "ticks": str(N),
+                "states": json.dumps(["x1", "x2"]),
+                "sensors": json.dumps(SENSORS),
+                "actuators": json.dumps(ACTUATORS),
+                "estimators": json.dumps(estimators),
+                "fault_onset": json.dumps(4.0),
+                "fault_onset_tick": json.dumps(40),
+                "faults": json.dumps(
+                    [
+                        {"label": "f1", "kind": "bias", "start": 4.0, "end": 6.0, "targets": ["y1"]},
+                        {
+                            "label": "f2",
+                            "kind": "actuator_effectiveness",
+                            "start": 7.0,
+                            "end": None,
+                            "targets": ["T1x"],
+                        },
+                    ]
+                ),
+                "bus": json.dumps({"interface": "virtual", "fd": True, "bitrate": 500000, "data_bitrate": 2000000}),
+            },
+        )
+        log.metadata(
+            "cosim.scenario",
+            {
+                "source": "test",
+                "toml": "",
+                "resolved": json.dumps(
+                    {
+                        "faults": [
+                            {"name": "f1", "kind": "bias", "sensors": ["y1"]},
+                            {"name": "f2", "kind": "actuator_effectiveness", "actuators": ["T1x"]},
+                        ]
+                    }
+                ),
+            },
+        )
         any_schema = object_schema("any", {})
-        ch = {topic: log.channel(topic, any_schema) for topic in
-              (STATE, FAULTS, FRAMES, EVENTS, DEADLINE_MISSES, "/can/EST_uniform", "/can/EST_good", "/can/EST_fdi",
-               "/can/EST_fdi_1", "/can/EST_silent")}
+        ch = {
+            topic: log.channel(topic, any_schema)
+            for topic in (
+                STATE,
+                FAULTS,
+                FRAMES,
+                EVENTS,
+                DEADLINE_MISSES,
+                "/can/EST_uniform",
+                "/can/EST_good",
+                "/can/EST_fdi",
+                "/can/EST_fdi_1",
+                "/can/EST_silent",
+            )
+        }
         seq = 0
         for k in range(N):
             t_ns = round(k * DT * 1e9)
@@ -194,14 +253,52 @@ def write_hand_log(path, *, order_estimates_first: bool = True) -> None:
             if k != 5:  # the good estimator's frame of tick 5 never came
                 estimates.append(("/can/EST_good", {"tick": k, "xhat_x1": 1.0, "xhat_x2": -2.0 - good_error(k)}))
             alarm, flags = fdi_outputs(k)
-            estimates.append(("/can/EST_fdi_1", {"tick": k, "alarm": float(alarm),
-                                                 **{f"isolated_{f}": float(v) for f, v in flags.items()}}))
-            truth = [(STATE, {"tick": k, "t": k * DT, "x1": 1.0, "x2": -2.0}),
-                     (FAULTS, {"tick": k, "t": k * DT, "active": active(k), "dropped": []})]
-            frames = [(FRAMES, {"tick": k, "t": k * DT, "seq": seq, "id": 0x000, "extended": False, "fd": False, "brs": False,
-                                "dlc": 0, "length": 0, "data": "", "sender": "runner", "message": "NMT"}),
-                      (FRAMES, {"tick": k, "t": k * DT, "seq": seq + 1, "id": 0x100, "extended": False, "fd": True, "brs": True,
-                                "dlc": 8, "length": 8, "data": "00" * 8, "sender": "plant", "message": "SENSOR_y1"})]
+            estimates.append(
+                (
+                    "/can/EST_fdi_1",
+                    {"tick": k, "alarm": float(alarm), **{f"isolated_{f}": float(v) for f, v in flags.items()}},
+                )
+            )
+            truth = [
+                (STATE, {"tick": k, "t": k * DT, "x1": 1.0, "x2": -2.0}),
+                (FAULTS, {"tick": k, "t": k * DT, "active": active(k), "dropped": []}),
+            ]
+            frames = [
+                (
+                    FRAMES,
+                    {
+                        "tick": k,
+                        "t": k * DT,
+                        "seq": seq,
+                        "id": 0x000,
+                        "extended": False,
+                        "fd": False,
+                        "brs": False,
+                        "dlc": 0,
+                        "length": 0,
+                        "data": "",
+                        "sender": "runner",
+                        "message": "NMT",
+                    },
+                ),
+                (
+                    FRAMES,
+                    {
+                        "tick": k,
+                        "t": k * DT,
+                        "seq": seq + 1,
+                        "id": 0x100,
+                        "extended": False,
+                        "fd": True,
+                        "brs": True,
+                        "dlc": 8,
+                        "length": 8,
+                        "data": "00" * 8,
+                        "sender": "plant",
+                        "message": "SENSOR_y1",
+                    },
+                ),
+            ]
             if k == 50:
                 frames.append((FRAMES, {**frames[0][1], "seq": seq + 2}))
             seq += len(frames)
@@ -209,9 +306,18 @@ def write_hand_log(path, *, order_estimates_first: bool = True) -> None:
                 log.write(ch[topic], t_ns, msg)
             if k in (3, 4):
                 log.write(ch[DEADLINE_MISSES], t_ns, {"tick": k, "t": k * DT, "node": "fdi", "count": k - 2})
-        log.metadata("cosim.result", {"status": "completed", "ticks": str(N), "frames_total": str(seq), "frames_lost": "5",
-                                      "deadline_misses": "2", "error": "",
-                                      "senders": json.dumps({"fdi": {"frames": 1, "lost": 3, "runner_frames_missed": 2}})})
+        log.metadata(
+            "cosim.result",
+            {
+                "status": "completed",
+                "ticks": str(N),
+                "frames_total": str(seq),
+                "frames_lost": "5",
+                "deadline_misses": "2",
+                "error": "",
+                "senders": json.dumps({"fdi": {"frames": 1, "lost": 3, "runner_frames_missed": 2}}),
+            },
+        )
 
 
 @pytest.fixture(scope="module")
@@ -227,11 +333,24 @@ def hand(hand_log):
 
 
 def test_hand_log_run_and_faults(hand):
-    assert (hand["scenario"], hand["seed"], hand["status"], hand["ticks"], hand["duration_s"]) == ("hand", 7, "completed", N, 10.0)
+    assert (hand["scenario"], hand["seed"], hand["status"], hand["ticks"], hand["duration_s"]) == (
+        "hand",
+        7,
+        "completed",
+        N,
+        10.0,
+    )
     assert hand["warnings"] == [] and hand["missing"] == []
     assert hand["faults"] == {
         "f1": {"kind": "bias", "targets": ["y1"], "start": 4.0, "end": 6.0, "onset": 4.0, "cleared": 6.0},
-        "f2": {"kind": "actuator_effectiveness", "targets": ["T1x"], "start": 7.0, "end": None, "onset": 7.0, "cleared": None},
+        "f2": {
+            "kind": "actuator_effectiveness",
+            "targets": ["T1x"],
+            "start": 7.0,
+            "end": None,
+            "onset": 7.0,
+            "cleared": None,
+        },
     }
     assert json.loads(json.dumps(hand)) == hand  # JSON-able as is
 
@@ -244,13 +363,28 @@ def test_hand_log_estimation(hand):
     assert uniform["rms_post_fault"] == pytest.approx(post, rel=1e-12)
     assert uniform["final_error"] == pytest.approx(2.0) and uniform["ticks_scored"] == N
     assert uniform["band"] == pytest.approx(BAND_FACTOR * 0.1)
-    assert uniform["faults"]["f1"] == {"peak_error": pytest.approx(3.0), "peak_at": 0.5, "recovery_time": None, "recovered": False}
+    assert uniform["faults"]["f1"] == {
+        "peak_error": pytest.approx(3.0),
+        "peak_at": 0.5,
+        "recovery_time": None,
+        "recovered": False,
+    }
     assert uniform["faults"]["f2"]["peak_error"] == pytest.approx(2.0) and uniform["faults"]["f2"]["recovered"] is False
     assert uniform["bias_rejection_ratio"] == 1.0
     # good: band 2 x 0.05; out of it until tick 49, so back at tick 50, 1.0 s after the onset at 40
     assert good["ticks_scored"] == N - 1 and good["band"] == pytest.approx(0.1)
-    assert good["faults"]["f1"] == {"peak_error": pytest.approx(0.5), "peak_at": 0.0, "recovery_time": 1.0, "recovered": True}
-    assert good["faults"]["f2"] == {"peak_error": pytest.approx(0.09), "peak_at": 0.0, "recovery_time": 0.0, "recovered": True}
+    assert good["faults"]["f1"] == {
+        "peak_error": pytest.approx(0.5),
+        "peak_at": 0.0,
+        "recovery_time": 1.0,
+        "recovered": True,
+    }
+    assert good["faults"]["f2"] == {
+        "peak_error": pytest.approx(0.09),
+        "peak_at": 0.0,
+        "recovery_time": 0.0,
+        "recovered": True,
+    }
     good_post = math.sqrt((10 * 0.25 + 20 * 0.0064 + 30 * 0.0081) / 60)
     assert good["rms_post_fault"] == pytest.approx(good_post, rel=1e-12)
     assert good["bias_rejection_ratio"] == pytest.approx(good_post / post, rel=1e-12)
@@ -265,27 +399,52 @@ def test_hand_log_detection_and_isolation(hand):
     assert fdi["fault_free_time_s"] == 5.0 and fdi["false_alarms"] == 3
     assert fdi["false_alarm_rate_per_hour"] == pytest.approx(3 / (5.0 / 3600))
     assert fdi["missed_detections"] == 0
-    assert fdi["faults"]["f1"] == {"detected": True, "detection_delay": 0.3, "alarm_before_onset": False, "isolable": True,
-                                   "expected": ["y1"], "isolation_delay": 0.5, "isolated": ["y1"], "isolation_correct": True}
+    assert fdi["faults"]["f1"] == {
+        "detected": True,
+        "detection_delay": 0.3,
+        "alarm_before_onset": False,
+        "isolable": True,
+        "expected": ["y1"],
+        "isolation_delay": 0.5,
+        "isolated": ["y1"],
+        "isolation_correct": True,
+    }
     # f2 acts on T1x: T2 is raised first (at 75), T1 only at 80: isolated at 80, wrongly (T2 came first)
-    assert fdi["faults"]["f2"] == {"detected": True, "detection_delay": 0.2, "alarm_before_onset": False, "isolable": True,
-                                   "expected": ["T1"], "isolation_delay": 1.0, "isolated": ["T1", "T2"], "isolation_correct": False}
+    assert fdi["faults"]["f2"] == {
+        "detected": True,
+        "detection_delay": 0.2,
+        "alarm_before_onset": False,
+        "isolable": True,
+        "expected": ["T1"],
+        "isolation_delay": 1.0,
+        "isolated": ["T1", "T2"],
+        "isolation_correct": False,
+    }
     silent = hand["diagnosis"]["silent"]
-    assert silent["missed_detections"] == 2 and silent["false_alarms"] == 0 and silent["false_alarm_rate_per_hour"] == 0.0
+    assert (
+        silent["missed_detections"] == 2 and silent["false_alarms"] == 0 and silent["false_alarm_rate_per_hour"] == 0.0
+    )
     assert silent["faults"]["f1"]["detection_delay"] is None and silent["faults"]["f1"]["isolation_correct"] is None
     assert set(hand["diagnosis"]) == {"fdi", "silent"}  # estimators without alarm are no diagnosis process
 
 
 def test_hand_log_bus(hand):
     bus = hand["bus"]
-    assert bus["by_id"] == {"0x000": {"message": "NMT", "frames": 101, "bits": 101 * 53},
-                            "0x100": {"message": "SENSOR_y1", "frames": 100, "bits": 100 * 141}}
+    assert bus["by_id"] == {
+        "0x000": {"message": "NMT", "frames": 101, "bits": 101 * 53},
+        "0x100": {"message": "SENSOR_y1", "frames": 100, "bits": 100 * 141},
+    }
     per_tick = (CLASSIC_ZERO[0] + FD_ZERO[0]) / 500000 + FD_ZERO[1] / 2000000
     assert bus["load"] == pytest.approx((100 * per_tick + 53 / 500000) / 10.0, rel=1e-12)
     assert bus["peak_tick_load"] == pytest.approx((per_tick + 53 / 500000) / DT, rel=1e-12)
     worst = (55 + 34) / 500000 + 113 / 2000000
     assert bus["load_worst_case"] == pytest.approx((100 * worst + 55 / 500000) / 10.0, rel=1e-12)
-    assert (bus["lost"], bus["lost_by_sender"], bus["deadline_misses"], bus["deadline_misses_by_node"]) == (5, {"fdi": 5}, 2, {"fdi": 2})
+    assert (bus["lost"], bus["lost_by_sender"], bus["deadline_misses"], bus["deadline_misses_by_node"]) == (
+        5,
+        {"fdi": 5},
+        2,
+        {"fdi": 2},
+    )
     assert hand["frames"] == {"total": 201, "lost": 5}
 
 
@@ -303,8 +462,15 @@ def test_isolation_flags_name_what_the_estimator_declares():
     cofd = create("cofd", model(), {}, 0.1)
     targets = cofd.isolation_targets()
     assert targets["isolated_T1"] == ["T1x", "T1y"] and targets["isolated_T4"] == ["T4"]
-    assert create("uio", LinearModel(-np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)), None, ("a", "b"), ("u", "v"),
-                                     ("y1", "y2")), {"poles": [-1.0, -2.0], "E": [[1.0], [0.0]]}, 0.1).isolation_targets() == {}
+    assert (
+        create(
+            "uio",
+            LinearModel(-np.eye(2), np.eye(2), np.eye(2), np.zeros((2, 2)), None, ("a", "b"), ("u", "v"), ("y1", "y2")),
+            {"poles": [-1.0, -2.0], "E": [[1.0], [0.0]]},
+            0.1,
+        ).isolation_targets()
+        == {}
+    )
 
 
 # -- the UIO's alarm ----------------------------------------------------------------------------
@@ -314,8 +480,18 @@ def uio_model():
     A = np.array([[0.0, 1.0, 0.0], [-2.0, -3.0, 0.0], [0.0, 0.0, -2.0]])
     B = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 1.0]])
     C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    return LinearModel(A, B, C, np.zeros((2, 2)), None, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"),
-                       E=np.array([[2.0], [0.0], [0.5]]), disturbances=("d",))
+    return LinearModel(
+        A,
+        B,
+        C,
+        np.zeros((2, 2)),
+        None,
+        ("x1", "x2", "x3"),
+        ("u1", "u2"),
+        ("y1", "y2"),
+        E=np.array([[2.0], [0.0], [0.5]]),
+        disturbances=("d",),
+    )
 
 
 def test_uio_alarm_parameters():
@@ -390,7 +566,11 @@ def test_real_scenario_metrics_agree_with_a_direct_computation(uio_run):
     assert uio["isolation_flags"] == {} and uio["faults"]["sensor_y2"]["isolation_correct"] is None
     assert all(alarm[k] == 0.0 for k in range(4000) if not act[k] and k < 2000)
     bus = report["bus"]
-    assert sum(e["frames"] for e in bus["by_id"].values()) == report["frames"]["total"] == report["channels"]["/can/frames"]
+    assert (
+        sum(e["frames"] for e in bus["by_id"].values())
+        == report["frames"]["total"]
+        == report["channels"]["/can/frames"]
+    )
     assert 0 < bus["load"] <= bus["load_worst_case"] < 1 and bus["load"] <= bus["peak_tick_load"]
     assert bus["lost"] == 0 and bus["deadline_misses"] == 0
 
@@ -401,7 +581,10 @@ def test_real_scenario_metrics_agree_with_a_direct_computation(uio_run):
 def chunk_spans(path):
     with open(path, "rb") as stream:
         summary = make_reader(stream).get_summary()
-    return [(c.chunk_start_offset, c.chunk_length) for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)]
+    return [
+        (c.chunk_start_offset, c.chunk_length)
+        for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -438,13 +621,18 @@ def test_a_log_cut_in_the_middle_of_a_chunk_gives_a_partial_result(long_hand_log
 def test_flipped_bytes_in_a_chunk_skip_that_chunk(long_hand_log, tmp_path, hand):
     data = bytearray(long_hand_log.read_bytes())
     start, length = chunk_spans(long_hand_log)[3]
-    data[start + length // 2: start + length // 2 + 8] = bytes(b ^ 0xFF for b in data[start + length // 2: start + length // 2 + 8])
+    data[start + length // 2 : start + length // 2 + 8] = bytes(
+        b ^ 0xFF for b in data[start + length // 2 : start + length // 2 + 8]
+    )
     flipped = tmp_path / "flipped.mcap"
     flipped.write_bytes(bytes(data))
     report = compute_metrics(flipped)
     (warning,) = report["warnings"]
     assert warning.startswith("a damaged chunk was skipped")
-    assert report["ticks"] == N and report["estimators"]["uniform"]["final_error"] == hand["estimators"]["uniform"]["final_error"]
+    assert (
+        report["ticks"] == N
+        and report["estimators"]["uniform"]["final_error"] == hand["estimators"]["uniform"]["final_error"]
+    )
 
 
 def test_random_damage_never_raises_anything_but_a_log_error(long_hand_log, tmp_path):
@@ -470,7 +658,9 @@ def test_random_damage_never_raises_anything_but_a_log_error(long_hand_log, tmp_
 def test_the_cli_on_a_cut_log_prints_a_partial_report_without_traceback(long_hand_log, tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(long_hand_log.read_bytes()[: len(long_hand_log.read_bytes()) // 3])
-    result = subprocess.run([sys.executable, "-m", "cosim.cli", "inspect", str(cut)], check=False, capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "inspect", str(cut)], check=False, capture_output=True, text=True
+    )
     assert result.returncode == 0 and "Traceback" not in result.stderr
     assert "warning:" in result.stdout and "estimation error" in result.stdout and "bus" in result.stdout
 
@@ -485,11 +675,16 @@ def test_a_log_written_by_another_program_says_what_is_missing(tmp_path):
         state = writer.register_channel("/truth/state", "json", schema)
         for i in range(5):
             writer.add_message(pose, i * 1_000_000_000, b'{"x": 1}', i)
-            writer.add_message(state, i * 1_000_000_000, b'[1, 2]', i)  # not a cosim truth message
+            writer.add_message(state, i * 1_000_000_000, b"[1, 2]", i)  # not a cosim truth message
         writer.finish()
     report = compute_metrics(path)
     assert report["channels"] == {"/pose": 5, "/truth/state": 5} and report["time_span_s"] == 4.0
-    assert report["scenario"] is None and report["estimators"] == {} and report["diagnosis"] == {} and report["bus"] is None
+    assert (
+        report["scenario"] is None
+        and report["estimators"] == {}
+        and report["diagnosis"] == {}
+        and report["bus"] is None
+    )
     assert any("cosim.run metadata" in m for m in report["missing"])
     assert any("no cosim.run metadata" in w for w in report["warnings"])
 

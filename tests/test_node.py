@@ -23,8 +23,13 @@ SENSORS = ("x1", "x2", "x1_minus_x2")
 
 
 def codec(fd=False) -> Codec:
-    return Codec(INFO.sensors[:3], INFO.actuators, {"est": INFO.states},
-                 clients={"avg": [Channel("z", "m", "", -8, 8, 1e-6)]}, fd=fd)
+    return Codec(
+        INFO.sensors[:3],
+        INFO.actuators,
+        {"est": INFO.states},
+        clients={"avg": [Channel("z", "m", "", -8, 8, 1e-6)]},
+        fd=fd,
+    )
 
 
 def tick_frames(c: Codec, k: int, readings: dict[str, float], force: float) -> list[can.Message]:
@@ -49,7 +54,9 @@ def test_a_tick_completes_when_its_announced_frames_arrived():
 def test_a_dropped_sensor_frame_is_not_awaited():
     c = codec()
     assembler = TickAssembler(c)
-    (tick,) = push_all(assembler, tick_frames(c, 0, {"x1": 0.1, "x2": 0.2}, 0.0))  # the range sensor's frame was not sent
+    (tick,) = push_all(
+        assembler, tick_frames(c, 0, {"x1": 0.1, "x2": 0.2}, 0.0)
+    )  # the range sensor's frame was not sent
     assert "x1_minus_x2" not in tick.sensors and assembler.lost == 0
 
 
@@ -72,8 +79,15 @@ def test_a_late_frame_of_an_earlier_tick_is_counted_not_used():
 
 def node_spec(fd: bool, channel: str) -> NodeSpec:
     model = Plant(INFO, 0.01, SENSORS).linearize()
-    return NodeSpec("est", "pseudoinverse", {"x0": [0.1, 0.0, 0.0, 0.0]}, model, codec(fd).dbc,
-                    BusConfig("virtual", channel, fd=fd), 0.01)
+    return NodeSpec(
+        "est",
+        "pseudoinverse",
+        {"x0": [0.1, 0.0, 0.0, 0.0]},
+        model,
+        codec(fd).dbc,
+        BusConfig("virtual", channel, fd=fd),
+        0.01,
+    )
 
 
 def test_node_spec_round_trips_through_json_exactly():
@@ -89,7 +103,10 @@ def test_node_spec_round_trips_through_json_exactly():
 def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
     spec = node_spec(fd, f"node-test-{fd}")
     c = Codec.from_dbc(spec.dbc)
-    with can.Bus(interface="virtual", channel=spec.bus.channel) as runner, can.Bus(interface="virtual", channel=spec.bus.channel) as bus:
+    with (
+        can.Bus(interface="virtual", channel=spec.bus.channel) as runner,
+        can.Bus(interface="virtual", channel=spec.bus.channel) as bus,
+    ):
         node = EstimatorNode(spec, bus)
         node.client.join()
         boot = c.decode(runner.recv(0.0))
@@ -113,7 +130,10 @@ def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
 
 def test_a_client_publishes_its_declared_messages_and_heartbeats():
     c = codec()
-    with can.Bus(interface="virtual", channel="client-test") as runner, can.Bus(interface="virtual", channel="client-test") as bus:
+    with (
+        can.Bus(interface="virtual", channel="client-test") as runner,
+        can.Bus(interface="virtual", channel="client-test") as bus,
+    ):
         client = Client("avg", c, bus)
         assert client.declared and client.lockstep
         client.join()
@@ -130,7 +150,11 @@ def test_a_client_publishes_its_declared_messages_and_heartbeats():
         client.close()
         received = [c.decode(f) for f in iter(lambda: runner.recv(0.0), None)]
     assert [(d.spec.name, d.values.get("state")) for d in received] == [
-        ("HEARTBEAT_avg", BOOTUP), ("CLIENT_avg", None), ("HEARTBEAT_avg", OPERATIONAL), ("HEARTBEAT_avg", STOPPED)]
+        ("HEARTBEAT_avg", BOOTUP),
+        ("CLIENT_avg", None),
+        ("HEARTBEAT_avg", OPERATIONAL),
+        ("HEARTBEAT_avg", STOPPED),
+    ]
     assert received[1].tick == 7 and received[1].values["z"] == pytest.approx(0.2, abs=1e-6)
     assert received[2].tick == 7 and received[2].values["frames"] == 1
 

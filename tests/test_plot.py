@@ -31,6 +31,9 @@ def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
     scenario = load("uio-fault-detection").scenario.model_copy(update={"duration": 10.5})
     Run(LoadedScenario(scenario, "uio-fault-detection (10.5 s)", ""), log, interface="virtual").execute()
     series = load_series(log)
-    assert [(f["label"], f["start"], f["end"]) for f in series.faults] == [("sensor_y2", 10.0, 20.0), ("actuator_u1", 30.0, None)]
+    assert [(f["label"], f["start"], f["end"]) for f in series.faults] == [
+        ("sensor_y2", 10.0, 20.0),
+        ("actuator_u1", 30.0, None),
+    ]
     written = {path.name: path for path in plot(log, tmp_path / "figs")}
     assert "residual.png" in written and written["residual.png"].stat().st_size > 10_000

@@ -34,8 +34,18 @@ LOW, HIGH = np.full(4, 0.5), np.ones(4)
 
 
 def paper_model() -> LinearModel:
-    return LinearModel(A, B, C, np.zeros((4, 2)), 1.0, ("h1", "h2", "h3"), ("Q1", "Q2"), ("y1", "y2", "y3", "y4"),
-                       E=E, disturbances=("v",))
+    return LinearModel(
+        A,
+        B,
+        C,
+        np.zeros((4, 2)),
+        1.0,
+        ("h1", "h2", "h3"),
+        ("Q1", "Q2"),
+        ("y1", "y2", "y3", "y4"),
+        E=E,
+        disturbances=("v",),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +81,9 @@ def test_lft_represents_t_and_cbar_exactly_with_unit_bounded_theta():
         delta_T = (1 / gamma - a) / b
         delta_C = (gamma - 0.505) / 0.495
         assert np.all(np.abs(delta_T) <= 1) and np.all(np.abs(delta_C) <= 1)
-        np.testing.assert_allclose(lft.T11 + lft.T12 @ np.diag(delta_T) @ lft.T21, uio_matrices(PAPER, gamma, form="lft")[1], atol=1e-10)
+        np.testing.assert_allclose(
+            lft.T11 + lft.T12 @ np.diag(delta_T) @ lft.T21, uio_matrices(PAPER, gamma, form="lft")[1], atol=1e-10
+        )
         np.testing.assert_allclose(lft.C11 + lft.C12 @ np.diag(delta_C) @ lft.C21, PAPER.Cbar(gamma), atol=1e-12)
 
 
@@ -82,7 +94,9 @@ def test_box_coordinates_are_an_exact_embedding_of_cbar():
         rho = box_coordinates(gamma, LOW, HIGH)
         assert rho.min() >= 0 and abs(rho.sum() - 1) < 1e-12
         np.testing.assert_allclose(rho @ vertices, gamma, atol=1e-12)
-        np.testing.assert_allclose(np.tensordot(rho, [PAPER.Cbar(v) for v in vertices], axes=1), PAPER.Cbar(gamma), atol=1e-12)
+        np.testing.assert_allclose(
+            np.tensordot(rho, [PAPER.Cbar(v) for v in vertices], axes=1), PAPER.Cbar(gamma), atol=1e-12
+        )
 
 
 def test_lft_design_certificate(lft_design):
@@ -98,12 +112,14 @@ def test_lft_design_certificate(lft_design):
     Fw = np.zeros((8, 5))
     Fw[:4, :1] = lft.T21 @ Fb
     r1 = [Q, Q @ lft.T11 @ Ab - S @ lft.C11, np.hstack([Q @ lft.T12, -S @ lft.C12]), Q @ Fe]
-    M = np.block([
-        r1,
-        [r1[1].T, Q - np.eye(4) - lam * Cqx.T @ Cqx, np.zeros((4, 8)), -lam * Cqx.T @ Fw],
-        [r1[2].T, np.zeros((8, 4)), lam * np.eye(8), np.zeros((8, 5))],
-        [r1[3].T, -lam * Fw.T @ Cqx, np.zeros((5, 8)), mu * np.eye(5) - lam * Fw.T @ Fw],
-    ])
+    M = np.block(
+        [
+            r1,
+            [r1[1].T, Q - np.eye(4) - lam * Cqx.T @ Cqx, np.zeros((4, 8)), -lam * Cqx.T @ Fw],
+            [r1[2].T, np.zeros((8, 4)), lam * np.eye(8), np.zeros((8, 5))],
+            [r1[3].T, -lam * Fw.T @ Cqx, np.zeros((5, 8)), mu * np.eye(5) - lam * Fw.T @ Fw],
+        ]
+    )
     assert np.linalg.eigvalsh((M + M.T) / 2).min() > 0
     assert max_spectral_radius(PAPER, lambda g: d.L, LOW, HIGH, form="lft") < 1
 
@@ -146,8 +162,13 @@ def test_lpv_design_on_a_small_plant_certifies_the_scheduled_observer():
     """Theorem 1 on a 2-state plant with 3 sensors (8 vertices): every LMI holds at the solution and,
     with the parameter switching arbitrarily between ticks, the Lyapunov decrease (29) holds for
     V = eᵀP(ρ̂)e with the scheduled gain L(ρ̂) = G(ρ̂)⁻¹Y(ρ̂)."""
-    model = SensorFaultModel(np.array([[0.95, 0.05], [0.0, 0.9]]), np.eye(2), np.array([[1.0], [0.5]]),
-                             np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]), np.ones((3, 1)))
+    model = SensorFaultModel(
+        np.array([[0.95, 0.05], [0.0, 0.9]]),
+        np.eye(2),
+        np.array([[1.0], [0.5]]),
+        np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]),
+        np.ones((3, 1)),
+    )
     low, high = np.full(3, 0.5), np.ones(3)
     design = lpv_uio_design(model, low, high)
     assert design.min_eigenvalue > 0 and design.P.shape == (8, 3, 3)
@@ -195,8 +216,14 @@ def simulate(est, steps, gamma_of_t, bias_of_t, seed=0, oracle=False):
         if oracle and k >= est.params.window:
             est.gamma = gamma.copy()
         estimate = est.step(y, u)
-        rows.append((np.linalg.norm(estimate.x - x), estimate.diagnostics["zhat"] - np.dot(HZ, C @ x), np.dot(HZ, y) - np.dot(HZ, C @ x),
-                     estimate.diagnostics))
+        rows.append(
+            (
+                np.linalg.norm(estimate.x - x),
+                estimate.diagnostics["zhat"] - np.dot(HZ, C @ x),
+                np.dot(HZ, y) - np.dot(HZ, C @ x),
+                estimate.diagnostics,
+            )
+        )
         x = A @ x + B @ u + E[:, 0] * v
     return rows
 
@@ -204,7 +231,9 @@ def simulate(est, steps, gamma_of_t, bias_of_t, seed=0, oracle=False):
 def test_bias_is_rejected_and_the_virtual_output_recovered(lft_design):
     """With healthy gains the UIO estimates the bias: ẑ → z while H_z y is off by H_z F b. (The
     LPV observer is checked on the three-tank scenario's log: its 4-sensor design takes a minute.)"""
-    est = estimators.create("lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist()})
+    est = estimators.create(
+        "lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist()}
+    )
     rows = simulate(est, 600, lambda k: np.ones(4), lambda k: 2.0 * (k >= 200))
     z_err = np.array([r[1] for r in rows[400:]])
     raw = np.array([r[2] for r in rows[400:]])
@@ -214,7 +243,9 @@ def test_bias_is_rejected_and_the_virtual_output_recovered(lft_design):
 
 def test_remark_3_exact_gains_give_exact_estimates(lft_design):
     """With γ̂ = γ the error converges to zero (Remark 3), and the estimator (53) then returns γ."""
-    est = estimators.create("lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist()})
+    est = estimators.create(
+        "lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist()}
+    )
     true = np.array([0.6, 0.75, 1.0, 1.0])
     rows = simulate(est, 800, lambda k: np.where(k >= 100, true, 1.0), lambda k: 2.0 * (k >= 50), oracle=True)
     assert max(r[0] for r in rows[600:]) < 1e-6
@@ -237,15 +268,18 @@ def test_no_reconciliation_is_the_raw_virtual_output():
     np.testing.assert_allclose(out.x, np.linalg.lstsq(C, y, rcond=None)[0])
 
 
-@pytest.mark.parametrize("params, message", [
-    ({}, "Hz: required"),
-    ({"Hz": HZ, "gamma_min": 0.0}, "gamma_min"),
-    ({"Hz": HZ, "design_gamma_min": 0.001}, "design_gamma_min"),
-    ({"Hz": HZ, "window": 1}, "window"),
-    ({"Hz": HZ, "multiplier": "full"}, "multiplier"),
-    ({"Hz": HZ, "gain_estimator": "kalman"}, "gain_estimator"),
-    ({"Hz": HZ[:3]}, "Hz: expected 4 values"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({}, "Hz: required"),
+        ({"Hz": HZ, "gamma_min": 0.0}, "gamma_min"),
+        ({"Hz": HZ, "design_gamma_min": 0.001}, "design_gamma_min"),
+        ({"Hz": HZ, "window": 1}, "window"),
+        ({"Hz": HZ, "multiplier": "full"}, "multiplier"),
+        ({"Hz": HZ, "gain_estimator": "kalman"}, "gain_estimator"),
+        ({"Hz": HZ[:3]}, "Hz: expected 4 values"),
+    ],
+)
 def test_bad_parameters_are_named(params, message):
     with pytest.raises(ParameterError, match=message):
         estimators.create("lft-uio-sr", paper_model(), params)
@@ -271,7 +305,12 @@ def test_the_runner_caches_designs(tmp_path, monkeypatch):
     second = estimators.create("lft-uio-sr", paper_model(), {**params, **cached})
     assert second.design is None and np.array_equal(second.L, first.L)
     # Parameters the design does not depend on share it; those it depends on do not.
-    assert design_cache.load("lft-uio-sr", {**params, "gain_estimator": "model", "window": 80, "fit_tol": 0.2}, paper_model()) == cached
+    assert (
+        design_cache.load(
+            "lft-uio-sr", {**params, "gain_estimator": "model", "window": 80, "fit_tol": 0.2}, paper_model()
+        )
+        == cached
+    )
     assert design_cache.load("lft-uio-sr", {**params, "design_gamma_min": 0.6}, paper_model()) is None
     monkeypatch.setenv("COSIM_CACHE_DIR", "off")
     assert design_cache.load("lft-uio-sr", params, paper_model()) is None
@@ -348,7 +387,9 @@ def test_the_papers_regression_cannot_tell_the_gains_apart(lft_design):
     """Finding (docs/three-tank.md): hold γ̂ = (0.8, 0.9, 1, 1) against the true (0.6, 0.75, 1, 1).
     The UIO's x̂ then explains y through γ̂ almost as well as the truth does, so (53) returns
     nearly γ̂ again: the alternation UIO ↔ (53) hardly moves. The model window returns γ."""
-    est = estimators.create("lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist(), "window": 300})
+    est = estimators.create(
+        "lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "L": lft_design.L.tolist(), "window": 300}
+    )
     held = np.array([0.8, 0.9, 1.0, 1.0])
     x = np.zeros(3)
     for k in range(600):

@@ -119,7 +119,10 @@ def test_replaying_an_estimator_of_the_run_reproduces_its_frames_bit_for_bit(log
     assert frames(result.path, lambda m: m["sender"] == estimator) == mine
     assert frames(result.path, runner_frames) == frames(original, runner_frames)
     assert topics(result.path, TRUTH) == topics(original, TRUTH)
-    messages = [f"/can/{m}" for m in json.loads(LogReader(original).metadata()["cosim.run"]["estimators"])[estimator]["messages"]]
+    messages = [
+        f"/can/{m}"
+        for m in json.loads(LogReader(original).metadata()["cosim.run"]["estimators"])[estimator]["messages"]
+    ]
     assert topics(result.path, messages) == topics(original, messages)
     with LogReader(result.path) as reader:
         meta = reader.metadata()
@@ -206,14 +209,18 @@ def test_changed_parameters_change_the_estimates_and_are_recorded(logs, tmp_path
 
 def test_a_new_estimator_is_designed_on_the_logged_model_and_scored(logs, tmp_path):
     original = logs("uio-fault-detection")
-    result = Replay(original, tmp_path / "new.mcap", "kf2", kind="kalman", params={"measurement_std": 0.01, "process_std": 0.01}).execute()
+    result = Replay(
+        original, tmp_path / "new.mcap", "kf2", kind="kalman", params={"measurement_std": 0.01, "process_std": 0.01}
+    ).execute()
     assert result.status == "completed" and result.frames_lost == 0
     # The same kind and parameters as the run's kalman, under another name (other ids): the same values.
     replayed, logged = estimates(result.path, "kf2"), estimates(original, "kalman")
     assert len(replayed) == result.ticks and replayed == logged
     report = summarize(result.path)
     assert report["estimators"]["kf2"]["kind"] == "kalman"
-    assert report["estimators"]["kf2"]["rms_pre_fault"] == pytest.approx(summarize(original)["estimators"]["kalman"]["rms_pre_fault"])
+    assert report["estimators"]["kf2"]["rms_pre_fault"] == pytest.approx(
+        summarize(original)["estimators"]["kalman"]["rms_pre_fault"]
+    )
 
 
 def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_path, capsys):
@@ -224,7 +231,12 @@ def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_pat
     capsys.readouterr()
     cases = {
         ("--estimator", "nope"): "--estimator nope: the run has no estimator of that name (it has: uniform, kalman)",
-        ("--estimator", "kalman", "--kind", "kalman"): "--estimator kalman: the run already has an estimator of that name",
+        (
+            "--estimator",
+            "kalman",
+            "--kind",
+            "kalman",
+        ): "--estimator kalman: the run already has an estimator of that name",
         ("--estimator", "k", "--kind", "kalmann"): "--kind kalmann: unknown estimator kind",
         ("--estimator", "kalman", "--param", "measurement_std=abc"): "--param measurement_std: expected a number",
         ("--estimator", "kalman", "--param", "noise"): "--param 'noise': expected KEY=VALUE",
@@ -241,7 +253,13 @@ def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_pat
 
 
 def test_parameters_are_toml_values():
-    assert parse_params(["a=0.5", "b=[1, 2]", 'c="x"', "d=true", "e=word"]) == {"a": 0.5, "b": [1, 2], "c": "x", "d": True, "e": "word"}
+    assert parse_params(["a=0.5", "b=[1, 2]", 'c="x"', "d=true", "e=word"]) == {
+        "a": 0.5,
+        "b": [1, 2],
+        "c": "x",
+        "d": True,
+        "e": "word",
+    }
 
 
 def test_live_playback_reaches_a_python_can_receiver_on_time(logs, tmp_path):
@@ -254,20 +272,40 @@ def test_live_playback_reaches_a_python_can_receiver_on_time(logs, tmp_path):
     bus = allocate("udp_multicast")
     received = []
     with open_bus(bus) as receiver:
-        player = subprocess.Popen([sys.executable, "-m", "cosim.cli", "replay", str(original), "--live", "--speed", str(speed),
-                                   "--channel", bus.channel, "--port", str(bus.port)], stderr=subprocess.PIPE, text=True)
+        player = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "cosim.cli",
+                "replay",
+                str(original),
+                "--live",
+                "--speed",
+                str(speed),
+                "--channel",
+                bus.channel,
+                "--port",
+                str(bus.port),
+            ],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         deadline = time.monotonic() + 30
         while len(received) < len(logged) and time.monotonic() < deadline:
             frame = receiver.recv(0.5)
             if frame is not None:
                 received.append((frame.timestamp, frame))  # the kernel's receive time (SO_TIMESTAMPNS)
         assert player.wait(30) == 0, player.stderr.read()
-    assert [(f.arbitration_id, f.data.hex(), f.is_fd) for _, f in received] == [(m["id"], m["data"], m["fd"]) for _, m in logged]
+    assert [(f.arbitration_id, f.data.hex(), f.is_fd) for _, f in received] == [
+        (m["id"], m["data"], m["fd"]) for _, m in logged
+    ]
     arrival = np.array([t for t, _ in received]) - received[0][0]
     due = (np.array([t for t, _ in logged]) - logged[0][0]) / speed
     late = arrival - due
-    print(f"lateness: median {np.median(late) * 1e3:.2f} ms, 90 % {np.quantile(late, 0.9) * 1e3:.2f} ms, "
-          f"max {late.max() * 1e3:.2f} ms, min {late.min() * 1e3:.2f} ms")
+    print(
+        f"lateness: median {np.median(late) * 1e3:.2f} ms, 90 % {np.quantile(late, 0.9) * 1e3:.2f} ms, "
+        f"max {late.max() * 1e3:.2f} ms, min {late.min() * 1e3:.2f} ms"
+    )
     assert due[-1] == pytest.approx(1.0)  # 2 s of simulated time
     assert late.min() > -0.002  # never ahead of time
     assert np.median(late) < 0.005 and np.quantile(late, 0.9) < 0.02

@@ -25,11 +25,23 @@ from cosim.scenario import LoadedScenario
 
 CHROMIUM = Path("/usr/bin/chromium")
 #: Flags that keep Chromium off the (closed) network and out of first-run work.
-FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-         "--disable-component-update", "--disable-sync"]
+FLAGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 SCREENS = {
     "laptop": {"viewport": {"width": 1366, "height": 768}},
-    "phone": {"viewport": {"width": 390, "height": 844}, "device_scale_factor": 3, "is_mobile": True, "has_touch": True},
+    "phone": {
+        "viewport": {"width": 390, "height": 844},
+        "device_scale_factor": 3,
+        "is_mobile": True,
+        "has_touch": True,
+    },
 }
 
 
@@ -63,8 +75,12 @@ def test_the_page_is_self_contained_with_every_figure_inlined(log, page, tmp_pat
 
 def test_every_metric_of_the_dict_gets_a_cell(log, tmp_path, monkeypatch):
     """The tables follow the metrics dict, whatever its keys: scalars, records, nested records."""
-    values = {"status": "completed", "estimators": {"a": {"kind": "k", "brand_new_metric": 0.123456, "per_fault": {"f1": {"delay": 2.5}}}},
-              "bus": {"load": 0.25, "by_id": {"0x080": {"frames": 7}}}, "warnings": ["careful"]}
+    values = {
+        "status": "completed",
+        "estimators": {"a": {"kind": "k", "brand_new_metric": 0.123456, "per_fault": {"f1": {"delay": 2.5}}}},
+        "bus": {"load": 0.25, "by_id": {"0x080": {"frames": 7}}},
+        "warnings": ["careful"],
+    }
     monkeypatch.setattr(report_module, "metrics", lambda path: values)
     monkeypatch.setattr(report_module, "_figures", lambda path: ([], ""))
     text = report(log, tmp_path / "r.html").read_text()
@@ -110,7 +126,10 @@ def test_the_page_renders_in_a_real_browser_on_a_laptop_and_a_phone(page, tmp_pa
             context = browser.new_context(**SCREENS[screen])
             tab = context.new_page()
             problems, requests = [], []
-            tab.on("console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None)
+            tab.on(
+                "console",
+                lambda m: problems.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None,
+            )
             tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
             tab.on("requestfailed", lambda r: problems.append(f"request failed: {r.url[:80]}"))
             tab.on("request", lambda r: requests.append(r.url))

@@ -27,9 +27,19 @@ from cosim.log.reader import LogReader
 from cosim.run import Run, run
 from tests.conftest import short_scenario
 
-PER_TICK = {"SYNC": 1, "SENSOR_x1": 1, "SENSOR_x2": 1, "SENSOR_x1_minus_x2": 1, "COMMAND_force": 1,
-            "EST_uniform_0": 1, "EST_uniform_1": 1, "EST_kalman_0": 1, "EST_kalman_1": 1,
-            "HEARTBEAT_uniform": 1, "HEARTBEAT_kalman": 1}
+PER_TICK = {
+    "SYNC": 1,
+    "SENSOR_x1": 1,
+    "SENSOR_x2": 1,
+    "SENSOR_x1_minus_x2": 1,
+    "COMMAND_force": 1,
+    "EST_uniform_0": 1,
+    "EST_uniform_1": 1,
+    "EST_kalman_0": 1,
+    "EST_kalman_1": 1,
+    "HEARTBEAT_uniform": 1,
+    "HEARTBEAT_kalman": 1,
+}
 TOTAL = 3000 * 11 + 2 + 1  # ticks, the two boot-up heartbeats, the final NMT stop
 
 
@@ -101,7 +111,14 @@ def test_inspect_reports_counts_and_errors(default_run, default_loaded):
     assert report["ticks"] == 3000 and report["duration_s"] == 30.0
     assert report["frames"] == {"total": TOTAL, "lost": 0}
     assert report["channels"]["/can/frames"] == TOTAL
-    for topic in ("/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults", "/can/SYNC", "/can/EST_uniform_1"):
+    for topic in (
+        "/truth/state",
+        "/truth/sensors",
+        "/truth/inputs",
+        "/truth/faults",
+        "/can/SYNC",
+        "/can/EST_uniform_1",
+    ):
         assert report["channels"][topic] == 3000
     assert report["fault_onset"] == 5.0
     uniform, kalman = report["estimators"]["uniform"], report["estimators"]["kalman"]
@@ -163,13 +180,17 @@ def test_truth_faults_and_sent_readings_agree(default_run):
 
 def test_same_seed_gives_the_same_log_bytes(tmp_path, default_loaded):
     loaded = write_short(tmp_path, default_loaded.text, 6.0)
-    a, b, c = (run(loaded, tmp_path / f"{n}.mcap", seed=s, interface="virtual", channel="determinism")
-               for n, s in (("a", 1), ("b", 1), ("c", 2)))
+    a, b, c = (
+        run(loaded, tmp_path / f"{n}.mcap", seed=s, interface="virtual", channel="determinism")
+        for n, s in (("a", 1), ("b", 1), ("c", 2))
+    )
     digest = lambda r: hashlib.sha256(r.path.read_bytes()).hexdigest()  # noqa: E731
     assert digest(a) == digest(b)
     assert digest(a) != digest(c)
     fa, fc = frames_by_tick(a.path), frames_by_tick(c.path)
-    assert [f["data"] for f in fa[100] if f["message"] == "SENSOR_x1"] != [f["data"] for f in fc[100] if f["message"] == "SENSOR_x1"]
+    assert [f["data"] for f in fa[100] if f["message"] == "SENSOR_x1"] != [
+        f["data"] for f in fc[100] if f["message"] == "SENSOR_x1"
+    ]
 
 
 def test_an_interrupted_run_leaves_a_valid_log_up_to_that_tick(tmp_path, default_loaded):
@@ -191,7 +212,9 @@ def test_an_error_mid_run_is_recorded_and_the_log_stays_valid(tmp_path, default_
     path = tmp_path / "narrow.toml"
     path.write_text(short_scenario(default_loaded.text, 10.0) + "\n[bus.sensors.x1]\nmaximum = 0.9\n")
     # x1 stays below 0.35 m; the +1 m bias from t = 5 s pushes the reading past 0.9 m at once
-    with pytest.raises(CodecError, match=r"SENSOR_x1\.x1 at tick 500 = 0\.9\d+ m is outside its declared range \[-8, 0\.9\] m"):
+    with pytest.raises(
+        CodecError, match=r"SENSOR_x1\.x1 at tick 500 = 0\.9\d+ m is outside its declared range \[-8, 0\.9\] m"
+    ):
         run(scenario.load(path), tmp_path / "err.mcap")
     report = inspect_json(tmp_path / "err.mcap")
     assert report["status"] == "error" and report["ticks"] == 500
@@ -201,8 +224,12 @@ def test_an_error_mid_run_is_recorded_and_the_log_stays_valid(tmp_path, default_
 
 def test_ctrl_c_in_the_terminal(tmp_path):
     out = tmp_path / "ctrlc.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 200_000):
         time.sleep(0.05)
@@ -217,8 +244,13 @@ def test_ctrl_c_in_the_terminal(tmp_path):
 
 def test_sigterm_also_finishes_the_log(tmp_path):
     out = tmp_path / "term.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ})
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ},
+    )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 100_000):
         time.sleep(0.05)
@@ -236,7 +268,9 @@ def test_fault_tour_on_can_fd(tmp_path):
     ticks = frames_by_tick(tmp_path / "tour.mcap")
     faults, inputs, sent = {}, {}, defaultdict(dict)
     with LogReader(tmp_path / "tour.mcap") as reader:
-        for topic, _, msg in reader.messages(["/truth/faults", "/truth/inputs", "/can/SENSOR_x2_minus_x1", "/can/SENSOR_x1_minus_x2"]):
+        for topic, _, msg in reader.messages(
+            ["/truth/faults", "/truth/inputs", "/can/SENSOR_x2_minus_x1", "/can/SENSOR_x1_minus_x2"]
+        ):
             if topic == "/truth/faults":
                 faults[msg["tick"]] = msg
             elif topic == "/truth/inputs":
@@ -261,7 +295,9 @@ def test_fault_tour_on_can_fd(tmp_path):
             assert sent["x2_minus_x1"][k]["x2_minus_x1"] == faults[k]["measured"]["x2_minus_x1"]
     stuck = {faults[k]["measured"]["x1_minus_x2"] for k in range(800, 1200)}
     assert len(stuck) == 1 and len({faults[k]["measured"]["x1_minus_x2"] for k in range(1200, 1210)}) == 10
-    assert faults[1399]["active"] and "force_loss" not in faults[1399]["active"] and "force_loss" in faults[1400]["active"]
+    assert (
+        faults[1399]["active"] and "force_loss" not in faults[1399]["active"] and "force_loss" in faults[1400]["active"]
+    )
     for k in (1400, 1700, 1999):
         delta = np.exp(-0.1 * (k * 0.01 - 14.0))
         assert inputs[k]["effective"]["force"] == pytest.approx(delta * inputs[k]["commanded"]["force"], rel=1e-12)
@@ -289,14 +325,23 @@ def test_a_corrupted_chunk_is_skipped_with_a_warning(default_run, tmp_path):
     flipped.write_bytes(bytes(data))
     report = inspect_json(flipped)
     (warning,) = report["warnings"]
-    assert re.match(r"a damaged chunk was skipped: bytes \d+-\d+, t = [\d.]+-[\d.]+ s \((crc validation failed|decompression error)", warning)
-    assert report["estimators"]["uniform"]["final_error"] == pytest.approx(inspect_json(default_run.path)["estimators"]["uniform"]["final_error"])
+    assert re.match(
+        r"a damaged chunk was skipped: bytes \d+-\d+, t = [\d.]+-[\d.]+ s \((crc validation failed|decompression error)",
+        warning,
+    )
+    assert report["estimators"]["uniform"]["final_error"] == pytest.approx(
+        inspect_json(default_run.path)["estimators"]["uniform"]["final_error"]
+    )
 
 
 def test_sigterm_exits_with_143(tmp_path):
     out = tmp_path / "term143.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", "-q", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 100_000):
         time.sleep(0.05)

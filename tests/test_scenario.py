@@ -46,21 +46,48 @@ def test_scalars_stand_for_vectors_and_numbers_for_waveforms():
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        ('[[faults]]\nkind = "bias"\nvalu = [1, 2, 3]\n', r"faults\[0\]: unknown key 'valu' \(did you mean 'value'\?\)"),
+        (
+            '[[faults]]\nkind = "bias"\nvalu = [1, 2, 3]\n',
+            r"faults\[0\]: unknown key 'valu' \(did you mean 'value'\?\)",
+        ),
         ('[[faults]]\nkind = "bias"\nvalue = [1, 2]\n', r"faults\[0\]\.value: has 2 values for 3 channels"),
         ('[[faults]]\nkind = "biass"\nvalue = 1\n', r"faults\[0\]: unknown kind 'biass'; expected one of 'bias'"),
-        ('[[faults]]\nkind = "bias"\nvalue = 1\nsensors = ["x3"]\n', r"faults\[0\]\.sensors: masses has no transmitted sensor 'x3'"),
-        ('[[faults]]\nkind = "bias"\nvalue = 1\nstart = 3\nend = 2\n', r"faults\[0\]: end \(2\.0\) must be after start \(3\.0\)"),
-        ('[[faults]]\nkind = "dropout"\nprobability = 1.5\n', r"faults\[0\]\.probability: Input should be less than or equal to 1"),
-        ('[[faults]]\nkind = "gain"\ngain = [1, {kind = "ramp"}, 0.5]\n', r"faults\[0\]\.gain\[1\]\.slope: required but missing"),
-        ('[[faults]]\nkind = "bias"\nvalue = 1\namplitude = {kind = "sin", amplitude = 1}\n', r"faults\[0\]\.amplitude: unknown kind 'sin'"),
+        (
+            '[[faults]]\nkind = "bias"\nvalue = 1\nsensors = ["x3"]\n',
+            r"faults\[0\]\.sensors: masses has no transmitted sensor 'x3'",
+        ),
+        (
+            '[[faults]]\nkind = "bias"\nvalue = 1\nstart = 3\nend = 2\n',
+            r"faults\[0\]: end \(2\.0\) must be after start \(3\.0\)",
+        ),
+        (
+            '[[faults]]\nkind = "dropout"\nprobability = 1.5\n',
+            r"faults\[0\]\.probability: Input should be less than or equal to 1",
+        ),
+        (
+            '[[faults]]\nkind = "gain"\ngain = [1, {kind = "ramp"}, 0.5]\n',
+            r"faults\[0\]\.gain\[1\]\.slope: required but missing",
+        ),
+        (
+            '[[faults]]\nkind = "bias"\nvalue = 1\namplitude = {kind = "sin", amplitude = 1}\n',
+            r"faults\[0\]\.amplitude: unknown kind 'sin'",
+        ),
         ('[[noise]]\nkind = "gaussian_noise"\nstd = -1\n', r"noise\[0\]\.std: must be non-negative"),
-        ('[[noise]]\nkind = "bias"\nvalue = 1\n', r"noise\[0\]: unknown kind 'bias'; expected one of 'gaussian_noise', 'uniform_noise'"),
-        ('[[inputs]]\nactuator = "forse"\nsignal = 1\n', r"inputs\[0\]\.actuator: masses has no actuator 'forse' \(did you mean 'force'\?\)"),
+        (
+            '[[noise]]\nkind = "bias"\nvalue = 1\n',
+            r"noise\[0\]: unknown kind 'bias'; expected one of 'gaussian_noise', 'uniform_noise'",
+        ),
+        (
+            '[[inputs]]\nactuator = "forse"\nsignal = 1\n',
+            r"inputs\[0\]\.actuator: masses has no actuator 'forse' \(did you mean 'force'\?\)",
+        ),
         ('[[estimators]]\nname = "a b"\nkind = "kalman"\n', r"estimators\[0\]\.name: String should match pattern"),
-        ('[[estimators]]\nname = "k"\nkind = "kalmn"\n', r"estimators\[0\]\.kind: unknown estimator 'kalmn' \(did you mean 'kalman'\?\)"),
+        (
+            '[[estimators]]\nname = "k"\nkind = "kalmn"\n',
+            r"estimators\[0\]\.kind: unknown estimator 'kalmn' \(did you mean 'kalman'\?\)",
+        ),
         ('[bus]\nfd = "yes"\n', r"bus\.fd: Input should be a valid boolean"),
-        ('[bus.sensors.x9]\nmaximum = 3\n', r"bus\.sensors: masses has no transmitted sensor 'x9'"),
+        ("[bus.sensors.x9]\nmaximum = 3\n", r"bus\.sensors: masses has no transmitted sensor 'x9'"),
         ('[bus]\ninterface = "pcan"\n', r"bus\.interface: Input should be 'udp_multicast', 'socketcan' or 'virtual'"),
     ],
 )
@@ -76,11 +103,17 @@ def test_bad_scenarios_name_the_field(extra, message):
         (BASE.replace("duration = 1.0", "duration = -1.0"), r"duration: Input should be greater than 0"),
         (BASE.replace("duration = 1.0", 'duration = "long"'), r"duration: Input should be a valid number"),
         (BASE.replace("duration = 1.0", 'duration = "30"'), r"duration: Input should be a valid number"),
-        (BASE.replace('model = "masses"', 'model = "tanks"'), r"plant\.model: unknown plant 'tanks'; known plants: masses"),
+        (
+            BASE.replace('model = "masses"', 'model = "tanks"'),
+            r"plant\.model: unknown plant 'tanks'; known plants: masses",
+        ),
         (BASE.replace('name = "t"\n', ""), r"name: required but missing"),
         (BASE + "colour = 1\n", r"plant: unknown key 'colour'"),
         (BASE.replace("sample_time = 0.01", "sample_time = 2.0"), r"sample_time: 2\.0 s is longer than the duration"),
-        ('name = "x"\n[plant\n', r"invalid TOML: Expected '\]' at the end of a table declaration \(at line 2, column 7\)"),
+        (
+            'name = "x"\n[plant\n',
+            r"invalid TOML: Expected '\]' at the end of a table declaration \(at line 2, column 7\)",
+        ),
     ],
 )
 def test_bad_top_level_fields(text, message):
@@ -98,7 +131,9 @@ def test_all_problems_are_reported_together():
 
 
 def test_unknown_scenario_name_lists_the_builtin_ones():
-    with pytest.raises(ScenarioError, match=r"no scenario 'nope': not a file and not a built-in scenario \(built-in: .*masses-bias"):
+    with pytest.raises(
+        ScenarioError, match=r"no scenario 'nope': not a file and not a built-in scenario \(built-in: .*masses-bias"
+    ):
         scenario.load("nope")
 
 
@@ -108,7 +143,10 @@ def test_cli_reports_a_bad_scenario_in_one_message_without_traceback(tmp_path):
     result = subprocess.run([sys.executable, "-m", "cosim.cli", "run", str(bad)], capture_output=True, text=True)
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
-    assert result.stderr.strip() == f"error: {bad}: faults[0].value: has 2 values for 3 channels; give one per channel (or one for all)"
+    assert (
+        result.stderr.strip()
+        == f"error: {bad}: faults[0].value: has 2 values for 3 channels; give one per channel (or one for all)"
+    )
 
 
 def test_estimator_parameter_errors_name_the_estimator(tmp_path):
@@ -124,8 +162,12 @@ def test_sample_time_that_is_not_a_multiple_of_the_timestep(tmp_path):
     from cosim.run import Run
 
     bad = tmp_path / "bad.toml"
-    bad.write_text(BASE.replace("sample_time = 0.01", "sample_time = 0.0105").replace("duration = 1.0", "duration = 1.05"))
-    with pytest.raises(ScenarioError, match=r"sample_time = 0\.0105 s is not a whole multiple of the timestep 0\.001 s"):
+    bad.write_text(
+        BASE.replace("sample_time = 0.01", "sample_time = 0.0105").replace("duration = 1.0", "duration = 1.05")
+    )
+    with pytest.raises(
+        ScenarioError, match=r"sample_time = 0\.0105 s is not a whole multiple of the timestep 0\.001 s"
+    ):
         Run(scenario.load(bad), tmp_path / "x.mcap")
 
 
@@ -135,17 +177,31 @@ def test_sample_time_that_is_not_a_multiple_of_the_timestep(tmp_path):
         ('[[faults]]\nkind = "bias"\nvalue = nan\n', r"faults\[0\]\.value: Input should be a finite number"),
         ('[[faults]]\nkind = "gain"\ngain = inf\n', r"faults\[0\]\.gain: Input should be a finite number"),
         ('[[faults]]\nkind = "bias"\nvalue = 1\nend = nan\n', r"faults\[0\]: end \(nan\) must be after start"),
-        ('[[faults]]\nkind = "bias"\nvalue = 1\n[[faults]]\nkind = "drift"\nrate = 1\nname = "bias0"\n', r"two noise models or faults are labelled 'bias0'"),
-        ('[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { weights = "abc" }\n', r"estimators\[0\]\.params\.weights: expected a list of numbers, got 'abc'"),
-        ('[[estimators]]\nname = "k"\nkind = "kalman"\nparams = { measurement_std = "a" }\n', r"params\.measurement_std: expected a number or a list of numbers"),
-        ('[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { poles = ["a", 1, 2, 3] }\n', r"params\.poles\[0\]: expected a number, got 'a'"),
-        ('[bus.sensors.x1]\nminimum = 3\nmaximum = 2\n', r"bus\.sensors\.x1: minimum must be below maximum"),
-        ('[bus.states.v1]\nresolution = 1e-15\n', r"needs \d+ bits .* \[bus\.states\.v1\], or use CAN FD"),
+        (
+            '[[faults]]\nkind = "bias"\nvalue = 1\n[[faults]]\nkind = "drift"\nrate = 1\nname = "bias0"\n',
+            r"two noise models or faults are labelled 'bias0'",
+        ),
+        (
+            '[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { weights = "abc" }\n',
+            r"estimators\[0\]\.params\.weights: expected a list of numbers, got 'abc'",
+        ),
+        (
+            '[[estimators]]\nname = "k"\nkind = "kalman"\nparams = { measurement_std = "a" }\n',
+            r"params\.measurement_std: expected a number or a list of numbers",
+        ),
+        (
+            '[[estimators]]\nname = "u"\nkind = "pseudoinverse"\nparams = { poles = ["a", 1, 2, 3] }\n',
+            r"params\.poles\[0\]: expected a number, got 'a'",
+        ),
+        ("[bus.sensors.x1]\nminimum = 3\nmaximum = 2\n", r"bus\.sensors\.x1: minimum must be below maximum"),
+        ("[bus.states.v1]\nresolution = 1e-15\n", r"needs \d+ bits .* \[bus\.states\.v1\], or use CAN FD"),
     ],
 )
 def test_non_finite_values_labels_params_and_bus_are_checked_on_load(extra, message):
     with pytest.raises(ScenarioError, match=message):
-        scenario.parse(BASE + extra + ('[[estimators]]\nname = "e"\nkind = "kalman"\n' if "states" in extra else ""), "bad.toml")
+        scenario.parse(
+            BASE + extra + ('[[estimators]]\nname = "e"\nkind = "kalman"\n' if "states" in extra else ""), "bad.toml"
+        )
 
 
 def test_an_open_ended_fault_may_say_end_inf():
@@ -154,7 +210,9 @@ def test_an_open_ended_fault_may_say_end_inf():
 
 
 def test_duration_must_be_a_whole_number_of_ticks_and_infinity_is_refused():
-    with pytest.raises(ScenarioError, match=r"duration: 0\.015 s is not a whole number of sample times \(0\.01 s\); use 0\.01 or 0\.02"):
+    with pytest.raises(
+        ScenarioError, match=r"duration: 0\.015 s is not a whole number of sample times \(0\.01 s\); use 0\.01 or 0\.02"
+    ):
         scenario.parse(BASE.replace("duration = 1.0", "duration = 0.015"))
     with pytest.raises(ScenarioError, match=r"duration: Input should be a finite number"):
         scenario.parse(BASE.replace("duration = 1.0", "duration = inf"))
@@ -176,8 +234,10 @@ def test_fault_onset_is_the_first_tick_at_or_after_start_even_when_kτ_rounds_be
     from cosim.run.plan import first_tick_at
     from cosim.scenario import build_faults
 
-    s = scenario.parse(BASE.replace("sample_time = 0.01", "sample_time = 0.03").replace("duration = 1.0", "duration = 0.6")
-                       + '[[faults]]\nkind = "bias"\nvalue = 1\nstart = 0.33\n')
+    s = scenario.parse(
+        BASE.replace("sample_time = 0.01", "sample_time = 0.03").replace("duration = 1.0", "duration = 0.6")
+        + '[[faults]]\nkind = "bias"\nvalue = 1\nstart = 0.33\n'
+    )
     assert 11 * 0.03 < 0.33  # the trap
     assert first_tick_at(s, 0.33) == 11
     injector = build_faults(s)

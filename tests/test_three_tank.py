@@ -29,8 +29,15 @@ def dof(model: mujoco.MjModel, joint: str) -> int:
 
 def ode(h0, q1: float, q2: float, v: float, t_end: float) -> np.ndarray:
     """Eq. (57) with the erratum, solved to rtol 1e-10, sampled every second after t = 0."""
-    sol = solve_ivp(lambda t, h: tt.level_rates(h, q1, q2, v), (0.0, t_end), h0, method="LSODA",
-                    rtol=1e-10, atol=1e-12, t_eval=np.arange(1.0, t_end + 0.5))
+    sol = solve_ivp(
+        lambda t, h: tt.level_rates(h, q1, q2, v),
+        (0.0, t_end),
+        h0,
+        method="LSODA",
+        rtol=1e-10,
+        atol=1e-12,
+        t_eval=np.arange(1.0, t_end + 0.5),
+    )
     assert sol.success
     return sol.y.T
 
@@ -245,8 +252,11 @@ def test_model_parameters(plant):
     level = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, "h1")
     np.testing.assert_allclose(m.tendon_stiffness[level], rho * tt.G * tt.AREA / 1e4, rtol=1e-15)
     np.testing.assert_allclose(m.tendon_range[level], [0.0, tt.H_MAX])
-    np.testing.assert_allclose(plant._tendons, 100.0 / tt.AREA * np.array(
-        [[-1, 0, 0, 1, 0, 1], [0, 1, -1, 0, 1, 1], [1, -1, 0, 0, 0, 1]]), rtol=1e-15)
+    np.testing.assert_allclose(
+        plant._tendons,
+        100.0 / tt.AREA * np.array([[-1, 0, 0, 1, 0, 1], [0, 1, -1, 0, 1, 1], [1, -1, 0, 0, 0, 1]]),
+        rtol=1e-15,
+    )
     assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_DISCRETE
     assert tt.SAMPLE_TIME / m.opt.timestep == 100
 

@@ -24,11 +24,16 @@ def series(tmp_path_factory):
     result = run(scenario.load("three-tank-reconciliation"), tmp_path_factory.mktemp("tt") / "tt.mcap")
     assert result.status == "completed" and result.frames_lost == 0
     with LogReader(result.path) as reader:
-        z_true = {msg["tick"]: float(HZ @ np.array([msg[f"y{i}"] for i in (1, 2, 3, 4)])) for _, _, msg in reader.messages(["/truth/sensors"])}
+        z_true = {
+            msg["tick"]: float(HZ @ np.array([msg[f"y{i}"] for i in (1, 2, 3, 4)]))
+            for _, _, msg in reader.messages(["/truth/sensors"])
+        }
     estimates = load(result.path).estimators
     z_hat = {name: {k: v["zhat"] for k, v in estimates[name].values.items()} for name in (*PAPER, *OURS, "raw")}
-    gamma = {name: {k: np.array([v[f"gamma_y{i}"] for i in (1, 2, 3, 4)]) for k, v in estimates[name].values.items()}
-             for name in (*PAPER, *OURS)}
+    gamma = {
+        name: {k: np.array([v[f"gamma_y{i}"] for i in (1, 2, 3, 4)]) for k, v in estimates[name].values.items()}
+        for name in (*PAPER, *OURS)
+    }
     return z_true, z_hat, gamma, result.path
 
 

@@ -37,8 +37,9 @@ def truncated(M: np.ndarray) -> np.ndarray:
 
 
 def model() -> LinearModel:
-    return LinearModel(A, B, C, np.zeros((2, 2)), None, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"),
-                       E=E, disturbances=("d",))
+    return LinearModel(
+        A, B, C, np.zeros((2, 2)), None, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"), E=E, disturbances=("d",)
+    )
 
 
 # -- the worked example (13)-(16) ----------------------------------------------------------------
@@ -109,8 +110,18 @@ def test_rank_condition_is_a_clear_error():
 def two_states(b: float):
     """ẋ1 = x2 + d, ẋ2 = −x1 + b x2, y = x1: (TA, C) has the unobservable mode b (the zero of (A, E, C))."""
     A2 = np.array([[0.0, 1.0], [-1.0, b]])
-    return LinearModel(A2, np.array([[0.0], [1.0]]), np.array([[1.0, 0.0]]), np.zeros((1, 1)), None, ("x1", "x2"),
-                       ("u",), ("y",), E=np.array([[1.0], [0.0]]), disturbances=("d",))
+    return LinearModel(
+        A2,
+        np.array([[0.0], [1.0]]),
+        np.array([[1.0, 0.0]]),
+        np.zeros((1, 1)),
+        None,
+        ("x1", "x2"),
+        ("u",),
+        ("y",),
+        E=np.array([[1.0], [0.0]]),
+        disturbances=("d",),
+    )
 
 
 def test_detectability_condition_is_a_clear_error():
@@ -147,8 +158,14 @@ def test_parameter_errors():
     with pytest.raises(ParameterError, match=r"^y_hold: "):
         estimators.create("uio", model(), {"poles": [-1, -2, -3], "y_hold": "cubic"}, TAU)
     with pytest.raises(ParameterError, match=r"^model: uio needs a continuous-time model"):
-        estimators.create("uio", LinearModel(A, B, C, np.zeros((2, 2)), TAU, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"),
-                                             E=E, disturbances=("d",)), {"poles": [-1, -2, -3]}, TAU)
+        estimators.create(
+            "uio",
+            LinearModel(
+                A, B, C, np.zeros((2, 2)), TAU, ("x1", "x2", "x3"), ("u1", "u2"), ("y1", "y2"), E=E, disturbances=("d",)
+            ),
+            {"poles": [-1, -2, -3]},
+            TAU,
+        )
 
 
 # -- in-process simulation ----------------------------------------------------------------------

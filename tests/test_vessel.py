@@ -57,7 +57,9 @@ def test_thruster_matrix_is_built_from_the_papers_geometry():
     d1, phi1, phi2 = 20.0, np.pi + 0.3, np.pi - 0.3
     assert G.shape == (3, 8)
     np.testing.assert_array_equal(G[:2], [[1, 0, 1, 0, 1, 0, 0, 0], [0, 1, 0, 1, 0, 1, 1, 1]])
-    np.testing.assert_allclose(G[2, :4], [d1 * np.sin(phi1), d1 * np.cos(phi1), d1 * np.sin(phi2), d1 * np.cos(phi2)], rtol=1e-15)
+    np.testing.assert_allclose(
+        G[2, :4], [d1 * np.sin(phi1), d1 * np.cos(phi1), d1 * np.sin(phi2), d1 * np.cos(phi2)], rtol=1e-15
+    )
     np.testing.assert_allclose(G[2, :4], [-5.9104041, -19.1067298, 5.9104041, -19.1067298], atol=1e-6)
     np.testing.assert_allclose(G[2, 4:], [0.0, 18.5, 30.0, 35.0], atol=1e-12)  # φ3 = φ4 = φ5 = 0
     # The thruster triples of the COFD observers (Sec. 4: R⁽ʰ⁾[W_i W_j W_k] = I) are independent.
@@ -100,6 +102,7 @@ def test_the_documented_cost_at_ninety_degrees(plant):
     body = T.T @ full_inertia(plant, at(plant, np.pi / 2)) @ T
     assert body[0, 0] / PAPER_M[0, 0] - 1 == pytest.approx(0.66, abs=0.005)
     assert body[1, 1] / PAPER_M[1, 1] - 1 == pytest.approx(-0.40, abs=0.005)
+
     def time_constants(M):  # of ν' = −M⁻¹ D ν, slowest first
         return np.sort(1.0 / np.linalg.eigvals(np.linalg.solve(M, PAPER_D)).real)[::-1]
 
@@ -125,7 +128,9 @@ def test_body_damping_callback_leaves_other_models_alone(plant):
     d.qvel[:] = [0.3, -0.2]
     mujoco.mj_forward(masses.model, d)
     assert _body_damping.layout(masses.model) is None
-    np.testing.assert_allclose(d.qfrc_passive, [-5e-3 * 0.3 - 9e-3 * 0.5, 9e-3 * 0.5], rtol=1e-12)  # d1 x1', d2 (x1' - x2')
+    np.testing.assert_allclose(
+        d.qfrc_passive, [-5e-3 * 0.3 - 9e-3 * 0.5, 9e-3 * 0.5], rtol=1e-12
+    )  # d1 x1', d2 (x1' - x2')
 
 
 def test_body_damping_declaration_errors_name_the_fix():
@@ -137,16 +142,20 @@ def test_body_damping_declaration_errors_name_the_fix():
         finally:
             mujoco.set_mjcb_passive(callback)
 
-    body = '<worldbody><body><joint name="x" type="slide"/><joint name="y" type="slide" axis="0 1 0"/>' \
-           '<joint name="psi" type="hinge" axis="0 0 1"/><geom size="1"/></body></worldbody>'
+    body = (
+        '<worldbody><body><joint name="x" type="slide"/><joint name="y" type="slide" axis="0 1 0"/>'
+        '<joint name="psi" type="hinge" axis="0 0 1"/><geom size="1"/></body></worldbody>'
+    )
     short = compile(f'<mujoco><custom><numeric name="body_damping" data="1 2 3"/></custom>{body}</mujoco>')
     with pytest.raises(ValueError, match="9"):
         _body_damping.layout(short)
     nojoints = compile(f'<mujoco><custom><numeric name="body_damping" size="9"/></custom>{body}</mujoco>')
     with pytest.raises(ValueError, match="body_damping_joints"):
         _body_damping.layout(nojoints)
-    wrong = compile('<mujoco><custom><numeric name="body_damping" size="9"/><text name="body_damping_joints" data="x psi y"/>'
-                    f'</custom>{body}</mujoco>')
+    wrong = compile(
+        '<mujoco><custom><numeric name="body_damping" size="9"/><text name="body_damping_joints" data="x psi y"/>'
+        f"</custom>{body}</mujoco>"
+    )
     with pytest.raises(ValueError, match="'psi' is not a slide joint"):
         _body_damping.layout(wrong)
 
@@ -169,7 +178,9 @@ def test_linearization_at_rest_is_eq_23(plant):
     scale = np.abs(A[3:, 3:]).max()
     np.testing.assert_allclose(lin.A, A, rtol=1e-9, atol=1e-9 * scale)
     np.testing.assert_allclose(lin.B, B_u, rtol=1e-9, atol=1e-9 * np.abs(B_u).max())
-    np.testing.assert_allclose(lin.B @ np.linalg.pinv(vessel.thruster_matrix()), B_tau, rtol=1e-9, atol=1e-9 * np.abs(B_tau).max())
+    np.testing.assert_allclose(
+        lin.B @ np.linalg.pinv(vessel.thruster_matrix()), B_tau, rtol=1e-9, atol=1e-9 * np.abs(B_tau).max()
+    )
     np.testing.assert_allclose(lin.C, C, atol=1e-9)
     np.testing.assert_allclose(lin.E, vessel.disturbance_matrix(), rtol=1e-9, atol=1e-9 * np.abs(B_tau).max())
     assert lin.states == ("x", "y", "psi", "x_dot", "y_dot", "r")

@@ -30,7 +30,9 @@ def logs(tmp_path_factory):
         interface = None if name in OVER_PROCESSES else "virtual"
         loaded = scenario.load(name)
         if name in SHORTENED:  # every isolation is over by then: only the test's time is saved
-            loaded = LoadedScenario(loaded.scenario.model_copy(update={"duration": SHORTENED[name]}), loaded.source, loaded.text)
+            loaded = LoadedScenario(
+                loaded.scenario.model_copy(update={"duration": SHORTENED[name]}), loaded.source, loaded.text
+            )
         result = run(loaded, out / f"{name}.mcap", interface=interface)
         assert result.status == "completed" and result.frames_lost == 0, (name, result.error)
         paths[name] = result.path

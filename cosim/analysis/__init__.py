@@ -1,0 +1,1 @@
+"""Reading logs after the fact: metrics (``cosim inspect``), figures, the HTML report and exports."""

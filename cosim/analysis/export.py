@@ -33,7 +33,7 @@ import json
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from hashlib import md5
 from pathlib import Path
 from typing import Any
@@ -117,7 +117,10 @@ def export(log: str | Path, fmt: str, out: str | Path | None = None, dbc: str | 
 def table_columns(schemas: dict[str, dict[str, Any]]) -> list[Column]:
     """The tidy table's columns, from the JSON Schemas of the log's topics: ``tick``, ``t [s]``,
     the truth topics, then the decoded data messages in channel order."""
-    columns = [Column("tick", "", (), "int", "", "tick counter k"), Column("t [s]", "", (), "float", "s", "simulated time t_k")]
+    columns = [
+        Column("tick", "", (), "int", "", "tick counter k"),
+        Column("t [s]", "", (), "float", "s", "simulated time t_k"),
+    ]
     decoded = [t for t in schemas if t.startswith("/can/") and t != FRAMES and not CONTROL_MESSAGES.match(t)]
     for topic in [t for t in TRUTH_TOPICS if t in schemas] + decoded:
         prefix = topic.rsplit("/", 1)[-1]
@@ -135,7 +138,9 @@ def _flatten(topic: str, prefix: str, path: tuple[str, ...], properties: dict[st
         if "object" in types:
             columns += _flatten(topic, prefix, here, schema.get("properties", {}))
             continue
-        kind = ("int" if "integer" in types else "float" if "number" in types else "bool" if "boolean" in types else "text")
+        kind = (
+            "int" if "integer" in types else "float" if "number" in types else "bool" if "boolean" in types else "text"
+        )
         description = schema.get("description", "")
         match = _UNIT.search(description)
         unit = match.group(1) if match else ""
@@ -150,8 +155,10 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
     Holds at most ROW_WINDOW open rows: memory does not grow with the length of the log."""
     run = LogMetadata.read(reader.metadata()).run
     if run is None or run.dt_ns is None:
-        raise LogError(f"{reader.path}: no cosim.run metadata, so not a log of 'cosim run'; tidy tables need its ticks "
-                       f"and truth (export its frames with --to blf, mf4 or candump)")
+        raise LogError(
+            f"{reader.path}: no cosim.run metadata, so not a log of 'cosim run'; tidy tables need its ticks "
+            f"and truth (export its frames with --to blf, mf4 or candump)"
+        )
     dt_ns = run.dt_ns
     fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
     for i, column in enumerate(columns):
@@ -183,7 +190,9 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
     for k in sorted(open_rows):
         yield open_rows[k]
     if late:
-        warnings.append(f"{late} messages came more than {ROW_WINDOW} ticks after their tick and were left out of the table")
+        warnings.append(
+            f"{late} messages came more than {ROW_WINDOW} ticks after their tick and were left out of the table"
+        )
 
 
 def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:
@@ -224,8 +233,12 @@ def _write_parquet(path: Path, columns: list[Column], rows: Iterator[list[Any]],
 
     types = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "text": pa.string()}
     schema = pa.schema(
-        [pa.field(c.name, types[c.kind], metadata={"unit": c.unit, "description": c.description, "source": _source(c)})
-         for c in columns],
+        [
+            pa.field(
+                c.name, types[c.kind], metadata={"unit": c.unit, "description": c.description, "source": _source(c)}
+            )
+            for c in columns
+        ],
         metadata={RUN: json.dumps(reader.metadata().get(RUN, {})), "cosim.source_log": reader.path.name},
     )
     count = 0
@@ -263,8 +276,10 @@ def frames(reader: LogReader) -> Iterator[tuple[int, dict[str, Any]]]:
 
 def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None) -> tuple[int, list[str]]:
     if FRAMES not in reader.schemas():
-        raise LogError(f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
-                       f"tables of its messages come with --to csv or parquet")
+        raise LogError(
+            f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
+            f"tables of its messages come with --to csv or parquet"
+        )
     writers: dict[str, Callable[..., int]] = {"blf": _write_blf, "candump": _write_candump, "mf4": _write_mf4}
     if fmt == "mf4":
         return _write_mf4(path, frames(reader), _dbc_text(reader, dbc)), []
@@ -276,11 +291,15 @@ def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
         try:
             return Path(dbc).read_bytes()
         except OSError as error:
-            raise CosimError(f"--dbc {dbc}: cannot be read ({error.strerror}); write one with 'cosim dbc SCENARIO --out FILE.dbc'") from None
+            raise CosimError(
+                f"--dbc {dbc}: cannot be read ({error.strerror}); write one with 'cosim dbc SCENARIO --out FILE.dbc'"
+            ) from None
     attached = reader.attachments().get(DBC_ATTACHMENT)
     if attached is None:
-        raise LogError(f"{reader.path}: no DBC attached ({DBC_ATTACHMENT}), and the MF4 bus log carries one; pass "
-                       f"--dbc FILE.dbc (write it with 'cosim dbc SCENARIO --out FILE.dbc' for the run's scenario)")
+        raise LogError(
+            f"{reader.path}: no DBC attached ({DBC_ATTACHMENT}), and the MF4 bus log carries one; pass "
+            f"--dbc FILE.dbc (write it with 'cosim dbc SCENARIO --out FILE.dbc' for the run's scenario)"
+        )
     return attached
 
 
@@ -288,8 +307,12 @@ def _can_message(log_time: int, frame: dict[str, Any], timestamp: float | None =
     import can
 
     return can.Message(
-        timestamp=log_time / 1e9 if timestamp is None else timestamp, arbitration_id=frame["id"], is_extended_id=frame["extended"], is_fd=frame["fd"],
-        bitrate_switch=frame["brs"], data=bytes.fromhex(frame["data"]),
+        timestamp=log_time / 1e9 if timestamp is None else timestamp,
+        arbitration_id=frame["id"],
+        is_extended_id=frame["extended"],
+        is_fd=frame["fd"],
+        bitrate_switch=frame["brs"],
+        data=bytes.fromhex(frame["data"]),
     )
 
 
@@ -328,12 +351,20 @@ def mf4_frame_dtype():
     """The record of ASAM MDF bus logging's CAN_DataFrame channel group, as asammdf reads it."""
     import numpy as np
 
-    return np.dtype([
-        ("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"), ("CAN_DataFrame.IDE", "<u1"),
-        ("CAN_DataFrame.DLC", "<u1"), ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(64,)u1"),
-        ("CAN_DataFrame.Dir", "<u1"), ("CAN_DataFrame.EDL", "<u1"), ("CAN_DataFrame.BRS", "<u1"),
-        ("CAN_DataFrame.ESI", "<u1"),
-    ])
+    return np.dtype(
+        [
+            ("CAN_DataFrame.BusChannel", "<u1"),
+            ("CAN_DataFrame.ID", "<u4"),
+            ("CAN_DataFrame.IDE", "<u1"),
+            ("CAN_DataFrame.DLC", "<u1"),
+            ("CAN_DataFrame.DataLength", "<u1"),
+            ("CAN_DataFrame.DataBytes", "(64,)u1"),
+            ("CAN_DataFrame.Dir", "<u1"),
+            ("CAN_DataFrame.EDL", "<u1"),
+            ("CAN_DataFrame.BRS", "<u1"),
+            ("CAN_DataFrame.ESI", "<u1"),
+        ]
+    )
 
 
 def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: bytes) -> int:
@@ -346,12 +377,17 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
     mdf = MDF(version="4.10")
     mdf.configure(read_fragment_size=MF4_FRAGMENT_BYTES, write_fragment_size=MF4_FRAGMENT_BYTES)
     try:
-        mdf.header.start_time = datetime(1970, 1, 1, tzinfo=timezone.utc)  # simulated time: no wall clock
-        mdf.append(Signal(
-            name="CAN_DataFrame", samples=np.zeros(0, dtype=dtype), timestamps=np.zeros(0, dtype="<f8"),
-            attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),
-            source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
-        ), comment="cosim run: every frame on the bus, simulated time")
+        mdf.header.start_time = datetime(1970, 1, 1, tzinfo=UTC)  # simulated time: no wall clock
+        mdf.append(
+            Signal(
+                name="CAN_DataFrame",
+                samples=np.zeros(0, dtype=dtype),
+                timestamps=np.zeros(0, dtype="<f8"),
+                attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),
+                source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
+            ),
+            comment="cosim run: every frame on the bus, simulated time",
+        )
         batch: list[tuple] = []  # (t_ns, id, extended, dlc, length, data hex, fd, brs): small, unlike the dicts
         count = 0
 
@@ -359,7 +395,9 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
             t_ns, ids, extended, dlc, length, data, fd, brs = (np.array(column) for column in zip(*batch))
             records = np.zeros(len(batch), dtype=dtype)
             records["CAN_DataFrame.BusChannel"] = 1
-            records["CAN_DataFrame.ID"] = ids.astype("u4") | (extended.astype("u4") << 31)  # bit 31 flags an extended id
+            records["CAN_DataFrame.ID"] = ids.astype("u4") | (
+                extended.astype("u4") << 31
+            )  # bit 31 flags an extended id
             records["CAN_DataFrame.IDE"] = extended
             records["CAN_DataFrame.DLC"] = dlc
             records["CAN_DataFrame.DataLength"] = length
@@ -378,8 +416,10 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
         if batch:
             flush()
         created = FileHistory()
-        created.comment = (f"<FHcomment><TX>created by cosim export (simulated time)</TX><tool_id>cosim</tool_id>"
-                           f"<tool_vendor>cosim</tool_vendor><tool_version>{__version__}</tool_version></FHcomment>")
+        created.comment = (
+            f"<FHcomment><TX>created by cosim export (simulated time)</TX><tool_id>cosim</tool_id>"
+            f"<tool_vendor>cosim</tool_vendor><tool_version>{__version__}</tool_version></FHcomment>"
+        )
         mdf.file_history.append(created)
         for entry in mdf.file_history:  # asammdf stamps history entries with the wall clock: not reproducible
             entry.abs_time = 0

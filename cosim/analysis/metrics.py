@@ -58,12 +58,17 @@ def compute_metrics(path: str | Path) -> dict[str, Any]:
             run = _Run(meta)
         except (KeyError, TypeError, ValueError, AttributeError, IndexError) as error:  # valid JSON, damaged content
             run = _Run({})
-            run.warnings.insert(0, f"the cosim metadata is damaged ({type(error).__name__}: {error}); the log is read as a foreign one")
+            run.warnings.insert(
+                0, f"the cosim metadata is damaged ({type(error).__name__}: {error}); the log is read as a foreign one"
+            )
         summary = reader.summary()
         counts: dict[str, int] = {}
         if summary is not None and summary.statistics is not None:
-            counts = {summary.channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()
-                      if cid in summary.channels}
+            counts = {
+                summary.channels[cid].topic: n
+                for cid, n in summary.statistics.channel_message_counts.items()
+                if cid in summary.channels
+            }
             for channel in summary.channels.values():
                 counts.setdefault(channel.topic, 0)
         scorer = _Scorer(run)
@@ -74,8 +79,10 @@ def compute_metrics(path: str | Path) -> dict[str, Any]:
                 scorer.feed(topic, log_time, msg)
         except (OSError, OverflowError, MemoryError) as error:  # a damaged index points outside the file
             where = "at its start" if scorer.last_ns is None else f"after t = {scorer.last_ns / 1e9:g} s"
-            scorer.warnings.append(f"reading stopped {where}: the file's summary is damaged ({type(error).__name__}: {error}); "
-                                   f"the {sum(scanned.values())} messages before were read")
+            scorer.warnings.append(
+                f"reading stopped {where}: the file's summary is damaged ({type(error).__name__}: {error}); "
+                f"the {sum(scanned.values())} messages before were read"
+            )
         scorer.finish()
         warnings = reader.warnings + run.warnings + scorer.warnings
     return _report(path, run, scorer, counts or dict(scanned), warnings)
@@ -96,13 +103,19 @@ class _Run:
         self.frames_total = result.frames_total if result else None
         self.frames_lost = result.frames_lost if result else None
         self.deadline_misses = result.deadline_misses if result else None
-        self.lost_by_sender = {name: c.lost + c.runner_frames_missed for name, c in result.senders.items()} if result else {}
+        self.lost_by_sender = (
+            {name: c.lost + c.runner_frames_missed for name, c in result.senders.items()} if result else {}
+        )
         self.known = records.run is not None
         if records.run is None:
-            self.warnings.append("no cosim.run metadata: not a cosim log, or written by another program; "
-                                 "estimator errors, fault and diagnosis metrics and the bus load are unavailable")
-            self.missing.append("cosim.run metadata (sample time, states, estimators, faults, bus): without it only "
-                                "channels, message counts and the time span are reported")
+            self.warnings.append(
+                "no cosim.run metadata: not a cosim log, or written by another program; "
+                "estimator errors, fault and diagnosis metrics and the bus load are unavailable"
+            )
+            self.missing.append(
+                "cosim.run metadata (sample time, states, estimators, faults, bus): without it only "
+                "channels, message counts and the time span are reported"
+            )
         if result is None:
             self.missing.append("cosim.result metadata (status, frame counts): the run did not finish writing its log")
         self.record = run = records.run or RunRecord()
@@ -111,11 +124,19 @@ class _Run:
         self.estimators: dict[str, EstimatorRecord] = run.estimators
         self.onset, self.onset_tick, self.bus, self.seed = run.fault_onset, run.fault_onset_tick, run.bus, run.seed
         self.faults: dict[str, dict[str, Any]] = {
-            f.label: {"kind": f.kind, "targets": list(f.targets or []), "start": f.start, "end": f.end} for f in run.faults}
+            f.label: {"kind": f.kind, "targets": list(f.targets or []), "start": f.start, "end": f.end}
+            for f in run.faults
+        }
         if any(f.targets is None for f in run.faults):
             self.missing.append("fault targets (cosim.run faults): isolation is not scored for the faults without them")
-        self.baseline = next((name for name, e in self.estimators.items()
-                              if e.kind == "pseudoinverse" and e.params.get("weights") is None), None)
+        self.baseline = next(
+            (
+                name
+                for name, e in self.estimators.items()
+                if e.kind == "pseudoinverse" and e.params.get("weights") is None
+            ),
+            None,
+        )
 
     def topic_owner(self) -> dict[str, str]:
         return self.record.estimate_topics()
@@ -158,7 +179,11 @@ class _Scorer:
         self.estimators = {name: _EstimationScore(run) for name in run.estimators}
         self.diagnosis: dict[str, _DiagnosisScore] = {}
         #: The alarm signal of each estimator that publishes one.
-        self.alarms = {name: next(iter(alarms)) for name, e in run.estimators.items() if (alarms := e.signals_of(DiagnosticKind.ALARM))}
+        self.alarms = {
+            name: next(iter(alarms))
+            for name, e in run.estimators.items()
+            if (alarms := e.signals_of(DiagnosticKind.ALARM))
+        }
         self.bus = _BusScore(run)
         self.lost_events = 0
         self.misses: dict[str, int] = defaultdict(int)
@@ -185,8 +210,10 @@ class _Scorer:
                 self._part(topic, log_time, msg)
         except (KeyError, TypeError, ValueError) as error:
             self.broken.add(topic)
-            self.warnings.append(f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
-                                 f"({type(error).__name__}: {error}); the topic is ignored from there on")
+            self.warnings.append(
+                f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
+                f"({type(error).__name__}: {error}); the topic is ignored from there on"
+            )
 
     def _part(self, topic: str, log_time: int, msg: dict[str, Any]) -> None:
         if topic == STATE:
@@ -232,7 +259,9 @@ class _Scorer:
         self._close_segment()
         self.bus.finish()
         if self.late:
-            self.warnings.append(f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored")
+            self.warnings.append(
+                f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored"
+            )
 
     # scoring, tick by tick in order
 
@@ -251,7 +280,9 @@ class _Scorer:
                 self.onsets.setdefault(label, k)
         self.active = active
         for name, estimate in tick.estimates.items():
-            if tick.x is not None and all(isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in self.run.states):
+            if tick.x is not None and all(
+                isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in self.run.states
+            ):
                 error = math.sqrt(math.fsum((tick.x[s] - estimate[estimate_signal(s)]) ** 2 for s in self.run.states))
                 self.estimators[name].add(k, error, self.segment)
             alarm = self.alarms.get(name)
@@ -335,7 +366,9 @@ class _DiagnosisScore:
         record = run.estimators[name]
         self.alarm = alarm
         #: flag (what it isolates, e.g. a thruster T1) → its signal; and what the flag names as faulty
-        self.signals = {target or signal: signal for signal, target in sorted(record.signals_of(DiagnosticKind.ISOLATION).items())}
+        self.signals = {
+            target or signal: signal for signal, target in sorted(record.signals_of(DiagnosticKind.ISOLATION).items())
+        }
         self.flags = sorted(self.signals)
         self.targets = {flag: record.isolates.get(signal, []) for flag, signal in self.signals.items()}
         self.alarm_prev = False
@@ -353,7 +386,11 @@ class _DiagnosisScore:
 
     def add(self, k: int, estimate: dict[str, Any], active: set[str], segment: _Segment | None) -> None:
         alarm = estimate[self.alarm] > 0.5
-        raised = {flag for flag, signal in self.signals.items() if isinstance(v := estimate.get(signal), (int, float)) and v > 0.5}
+        raised = {
+            flag
+            for flag, signal in self.signals.items()
+            if isinstance(v := estimate.get(signal), (int, float)) and v > 0.5
+        }
         self.scored += 1
         self.alarm_ticks += alarm
         if not active:
@@ -361,9 +398,18 @@ class _DiagnosisScore:
             self.false_alarms += alarm and not self.alarm_prev
         if segment is not None:
             for label in segment.labels:
-                state = self.open.setdefault(label, {"start": segment.start, "alarm_before_onset": self.alarm_prev,
-                                                     "detected": None, "isolated": None, "decision": None, "correct": None,
-                                                     "wrong": False})
+                state = self.open.setdefault(
+                    label,
+                    {
+                        "start": segment.start,
+                        "alarm_before_onset": self.alarm_prev,
+                        "detected": None,
+                        "isolated": None,
+                        "decision": None,
+                        "correct": None,
+                        "wrong": False,
+                    },
+                )
                 if state["detected"] is None and alarm:
                     state["detected"] = k
                 if state["isolated"] is None and raised:
@@ -462,7 +508,9 @@ class _BusScore:
 # -- the report ---------------------------------------------------------------------------------
 
 
-def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]) -> dict[str, Any]:
+def _report(
+    path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, int], warnings: list[str]
+) -> dict[str, Any]:
     dt = run.sample_time
     ticks = scorer.ticks if run.known else channels.get(STATE, 0)
     seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)
@@ -501,12 +549,21 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         for label, info in run.faults.items()
     }
     for label in scorer.onsets.keys() - faults.keys():  # active in the truth but absent from the metadata
-        faults[label] = {"kind": None, "targets": [], "start": None, "end": None,
-                         "onset": seconds(scorer.onsets[label]), "cleared": seconds(scorer.ends.get(label))}
+        faults[label] = {
+            "kind": None,
+            "targets": [],
+            "start": None,
+            "end": None,
+            "onset": seconds(scorer.onsets[label]),
+            "cleared": seconds(scorer.ends.get(label)),
+        }
     missing = list(run.missing)
     if run.known:
-        for topic, what in ((STATE, "estimation errors"), (FAULTS, "per-fault onsets, detection and isolation"),
-                            (FRAMES, "frames per id and bus load")):
+        for topic, what in (
+            (STATE, "estimation errors"),
+            (FAULTS, "per-fault onsets, detection and isolation"),
+            (FRAMES, "frames per id and bus load"),
+        ):
             if not channels.get(topic):
                 missing.append(f"{topic} messages: no {what}")
         if scorer.bus.frames and not scorer.bus.bitrate:
@@ -523,7 +580,10 @@ def _report(path: str | Path, run: _Run, scorer: _Scorer, channels: dict[str, in
         "duration_s": round(ticks * dt, 9) if dt else None,
         "time_span_s": span,
         "channels": dict(sorted(channels.items())),
-        "frames": {"total": run.frames_total if run.frames_total is not None else channels.get(FRAMES, 0), "lost": lost},
+        "frames": {
+            "total": run.frames_total if run.frames_total is not None else channels.get(FRAMES, 0),
+            "lost": lost,
+        },
         "fault_onset": run.onset,
         "faults": faults,
         "estimators": estimators,

@@ -82,12 +82,17 @@ class RunSeries:
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
-        return np.array(sorted(k for k in have if k in self.truth and all(estimate_signal(s) in have[k] for s in self.states)), dtype=int)
+        return np.array(
+            sorted(k for k in have if k in self.truth and all(estimate_signal(s) in have[k] for s in self.states)),
+            dtype=int,
+        )
 
     def error(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         ks = self.ticks(name)
         values = self.estimators[name].values
-        x_hat = np.array([[values[k][estimate_signal(s)] for s in self.states] for k in ks]).reshape(len(ks), len(self.states))
+        x_hat = np.array([[values[k][estimate_signal(s)] for s in self.states] for k in ks]).reshape(
+            len(ks), len(self.states)
+        )
         x = np.array([self.truth[k] for k in ks]).reshape(len(ks), len(self.states))
         return ks * self.sample_time, np.linalg.norm(x - x_hat, axis=1)
 
@@ -131,13 +136,30 @@ def load(path: str | Path) -> RunSeries:
             elif topic == SENSORS:
                 sensor_truth[msg["tick"]] = np.array([msg[s] for s in sensors])
             elif topic in status:
-                control[carried_tick(log_time // dt_ns, msg["tick"])].update({k: v for k, v in msg.items() if k != "tick"})
+                control[carried_tick(log_time // dt_ns, msg["tick"])].update(
+                    {k: v for k, v in msg.items() if k != "tick"}
+                )
             elif topic == FAULTS:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
             else:
-                ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update({k: v for k, v in msg.items() if k != "tick"})
-    return RunSeries(run.scenario or Path(path).stem, description, run.sample_time, states, sensors, truth, fault, ests,
-                     [f.to_json() for f in run.faults], sensor_truth, given.toml, dict(control), reconfigured)
+                ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update(
+                    {k: v for k, v in msg.items() if k != "tick"}
+                )
+    return RunSeries(
+        run.scenario or Path(path).stem,
+        description,
+        run.sample_time,
+        states,
+        sensors,
+        truth,
+        fault,
+        ests,
+        [f.to_json() for f in run.faults],
+        sensor_truth,
+        given.toml,
+        dict(control),
+        reconfigured,
+    )
 
 
 def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
@@ -228,12 +250,19 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     save(fig, "error.png")
 
     reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
-    weighted = [(name, kind) for name in series.estimators
-                for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
-                if series.diagnostic(name, kind) is not None]
+    weighted = [
+        (name, kind)
+        for name in series.estimators
+        for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
+        if series.diagnostic(name, kind) is not None
+    ]
     if weighted:
         fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
-        labels = {DiagnosticKind.SELECTOR: "selector s", DiagnosticKind.OPTIMIZER: "optimizer z", DiagnosticKind.WEIGHT: "weights Γ"}
+        labels = {
+            DiagnosticKind.SELECTOR: "selector s",
+            DiagnosticKind.OPTIMIZER: "optimizer z",
+            DiagnosticKind.WEIGHT: "weights Γ",
+        }
         for ax, (name, kind) in zip(axes[:, 0], weighted):
             t, w = series.diagnostic(name, kind)
             for i, sensor in enumerate(series.sensors):
@@ -269,7 +298,9 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     bias = {name: series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE) for name in series.estimators}
     bias = {name: v for name, v in bias.items() if v is not None}
     if bias:
-        fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False)
+        fig, axes = plt.subplots(
+            len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False
+        )
         ks = np.array(sorted(series.fault))
         for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
             for name, (t, v) in bias.items():
@@ -285,7 +316,9 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
     residuals = {name: series.diagnostic(name, DiagnosticKind.RESIDUAL) for name in series.estimators}
     residuals = {name: v for name, v in residuals.items() if v is not None}
     if residuals:
-        fig, axes = plt.subplots(2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False)
+        fig, axes = plt.subplots(
+            2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False
+        )
         end = max(t[-1] for t, _ in residuals.values())
         for i, (name, (t, r)) in enumerate(residuals.items()):
             linear, log = axes[2 * i, 0], axes[2 * i + 1, 0]
@@ -305,9 +338,13 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "residual.png")
 
-    gains = {name: v for name in reconciliators if (v := series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)) is not None}
+    gains = {
+        name: v for name in reconciliators if (v := series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)) is not None
+    }
     if gains:
-        fig, axes = plt.subplots(len(series.sensors), 1, figsize=(9, 2.1 * len(series.sensors)), sharex=True, squeeze=False)
+        fig, axes = plt.subplots(
+            len(series.sensors), 1, figsize=(9, 2.1 * len(series.sensors)), sharex=True, squeeze=False
+        )
         t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
         truth = true_gains(series, t_all)
         for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
@@ -378,7 +415,9 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
             events(ax, isolations)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7, loc="upper left", ncol=3)
-        axes[0, 0].set_title(f"{title}: {name}, COFD residual components over their thresholds (faults dotted, isolations red)")
+        axes[0, 0].set_title(
+            f"{title}: {name}, COFD residual components over their thresholds (faults dotted, isolations red)"
+        )
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "cofd_residuals.png" if len(diagnosers) == 1 else f"cofd_residuals_{name}.png")
 

@@ -93,21 +93,25 @@ def report(path: str | Path, out: str | Path) -> Path:
     title = f"{(meta.run.scenario if meta.run else None) or path.stem}: run report"
     body = [
         f"<h1>{_e(title)}</h1>",
-        f"<p class=\"lead\">{_e(path.name)} · status {_e(values.get('status', 'unknown'))}</p>",
+        f'<p class="lead">{_e(path.name)} · status {_e(values.get("status", "unknown"))}</p>',
     ]
     if notes:
-        body.append("<div class=\"notes\" role=\"note\"><strong>Notes</strong><ul>"
-                    + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul></div>")
-    body += ["<h2 id=\"scenario\">Scenario</h2>", _scenario(meta)]
-    body += ["<h2 id=\"metrics\">Metrics</h2>", _metrics_html(values)]
-    body.append("<h2 id=\"figures\">Figures</h2>")
+        body.append(
+            '<div class="notes" role="note"><strong>Notes</strong><ul>'
+            + "".join(f"<li>{_e(n)}</li>" for n in notes)
+            + "</ul></div>"
+        )
+    body += ['<h2 id="scenario">Scenario</h2>', _scenario(meta)]
+    body += ['<h2 id="metrics">Metrics</h2>', _metrics_html(values)]
+    body.append('<h2 id="figures">Figures</h2>')
     body += figures or ["<p>No figures.</p>"]
     body.append(f"<footer>cosim {_e(__version__)} · <code>cosim report {_e(path.name)}</code></footer>")
     page = (
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
         f"<title>{_e(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n<main>\n"
-        + "\n".join(body) + "\n</main>\n</body>\n</html>\n"
+        + "\n".join(body)
+        + "\n</main>\n</body>\n</html>\n"
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(page, encoding="utf-8")
@@ -135,19 +139,25 @@ def _scenario(meta: LogMetadata) -> str:
         "seed": run.seed,
         "sensors": ", ".join(run.sensors),
         "actuators": ", ".join(run.actuators) or "none",
-        "bus": (f"{'CAN FD' if bus.get('fd') else 'classic CAN'} at {bus.get('bitrate', 0) / 1000:g} kbit/s"
-                + (f", data phase {bus.get('data_bitrate', 0) / 1e6:g} Mbit/s" if bus.get("fd") else "")
-                + f", {meta.bus.get('interface', bus.get('interface', '?'))}"),
-        "timing": timing.get("mode", "?") + (f" at {timing.get('speed'):g}×" if timing.get("mode") == "realtime" else ""),
+        "bus": (
+            f"{'CAN FD' if bus.get('fd') else 'classic CAN'} at {bus.get('bitrate', 0) / 1000:g} kbit/s"
+            + (f", data phase {bus.get('data_bitrate', 0) / 1e6:g} Mbit/s" if bus.get("fd") else "")
+            + f", {meta.bus.get('interface', bus.get('interface', '?'))}"
+        ),
+        "timing": timing.get("mode", "?")
+        + (f" at {timing.get('speed'):g}×" if timing.get("mode") == "realtime" else ""),
     }
     if run.disturbances:
         settings["unknown inputs"] = ", ".join(run.disturbances)
     replay = meta.replay
     if replay:
         what = "a new estimator" if replay.new else "an estimator of the run"
-        settings["replay"] = (f"of {replay.log}: {replay.estimator} ({replay.kind}), {what}"
-                              + (f", with {_compact(replay.params)}" if replay.params else ""))
-    parts.append("<dl class=\"settings\">" + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in settings.items()) + "</dl>")
+        settings["replay"] = f"of {replay.log}: {replay.estimator} ({replay.kind}), {what}" + (
+            f", with {_compact(replay.params)}" if replay.params else ""
+        )
+    parts.append(
+        '<dl class="settings">' + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in settings.items()) + "</dl>"
+    )
     given = {e.get("name"): e.get("params", {}) for e in resolved.get("estimators", [])}
     if run.estimators:
         rows = [[name, e.kind, _compact(given.get(name, {})) or "defaults"] for name, e in run.estimators.items()]
@@ -178,8 +188,10 @@ def _figures(path: Path) -> tuple[list[str], str]:
         for png in written:
             data = base64.b64encode(png.read_bytes()).decode("ascii")
             caption = CAPTIONS.get(png.stem, png.stem.replace("_", " "))
-            figures.append(f"<figure id=\"fig-{_e(png.stem)}\"><img src=\"data:image/png;base64,{data}\" "
-                           f"alt=\"{_e(caption)}\"><figcaption>{_e(caption)}</figcaption></figure>")
+            figures.append(
+                f'<figure id="fig-{_e(png.stem)}"><img src="data:image/png;base64,{data}" '
+                f'alt="{_e(caption)}"><figcaption>{_e(caption)}</figcaption></figure>'
+            )
     return figures, ""
 
 
@@ -195,7 +207,9 @@ def _leaf(value: Any) -> bool:
     if isinstance(value, dict) and len(value) > _CELL_ITEMS:
         return False  # too many for one cell: a table of its own
     if isinstance(value, (dict, list)):
-        return not value or all(not isinstance(v, (dict, list)) for v in (value.values() if isinstance(value, dict) else value))
+        return not value or all(
+            not isinstance(v, (dict, list)) for v in (value.values() if isinstance(value, dict) else value)
+        )
     return True
 
 
@@ -219,7 +233,9 @@ def _sections(title: str, data: dict[str, Any]) -> list[str]:
         elif isinstance(value, dict):
             parts += _sections(name, value)
         else:  # a list holding records or lists: one row each
-            parts += _record_tables(name, {str(i): v if isinstance(v, dict) else {"value": v} for i, v in enumerate(value)})
+            parts += _record_tables(
+                name, {str(i): v if isinstance(v, dict) else {"value": v} for i, v in enumerate(value)}
+            )
     return parts
 
 
@@ -237,28 +253,41 @@ def _record_tables(title: str, rows: dict[str, dict[str, Any]]) -> list[str]:
                 nested.setdefault(key, {})[name] = value
     parts = [f"<h3>{_e(title)}</h3>"]
     if columns:
-        parts.append(_table(["", *(c.replace("_", " ") for c in columns)], [[name, *(row.get(c) for c in columns)] for name, row in rows.items()]))
+        parts.append(
+            _table(
+                ["", *(c.replace("_", " ") for c in columns)],
+                [[name, *(row.get(c) for c in columns)] for name, row in rows.items()],
+            )
+        )
     for key, by_record in nested.items():
         if all(_records(v) for v in by_record.values()):
             flat = {f"{name} · {sub}": subrow for name, value in by_record.items() for sub, subrow in value.items()}
             parts += _record_tables(f"{title} · {key}", flat)
         else:
-            parts += _record_tables(f"{title} · {key}", {name: value if isinstance(value, dict) else {"value": value}
-                                                         for name, value in by_record.items()})
+            parts += _record_tables(
+                f"{title} · {key}",
+                {name: value if isinstance(value, dict) else {"value": value} for name, value in by_record.items()},
+            )
     return parts
 
 
 def _table(header: list[str], rows: list[list[Any]], kind: str = "rows") -> str:
     """A table whose first column names the rows; ``kind`` "kv" for key-value pairs."""
-    head = "".join(f"<th scope=\"col\">{_e(h)}</th>" for h in header)
+    head = "".join(f'<th scope="col">{_e(h)}</th>' for h in header)
     body = "".join(
-        "<tr>" + "".join(
-            f"<th scope=\"row\">{_e(cell)}</th>" if i == 0 else f"<td class=\"{'num' if _numeric(cell) else 'text'}\">{_e(_format(cell))}</td>"
+        "<tr>"
+        + "".join(
+            f'<th scope="row">{_e(cell)}</th>'
+            if i == 0
+            else f'<td class="{"num" if _numeric(cell) else "text"}">{_e(_format(cell))}</td>'
             for i, cell in enumerate(row)
-        ) + "</tr>"
+        )
+        + "</tr>"
         for row in rows
     )
-    return f"<div class=\"scroll\"><table class=\"{kind}\"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>"
+    return (
+        f'<div class="scroll"><table class="{kind}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
+    )
 
 
 def _numeric(value: Any) -> bool:

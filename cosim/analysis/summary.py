@@ -46,42 +46,79 @@ def render(report: dict[str, Any], console: Console) -> None:
         channels.add_row(escape(topic), str(count))
     console.print(channels)
     if report["faults"]:
-        faults = _table("faults (onset and clearance from /truth/faults)", ["fault", "kind", "targets", "onset [s]", "cleared [s]"])
+        faults = _table(
+            "faults (onset and clearance from /truth/faults)", ["fault", "kind", "targets", "onset [s]", "cleared [s]"]
+        )
         for label, f in report["faults"].items():
-            faults.add_row(escape(label), str(f["kind"]), ", ".join(f["targets"]) or "-", _number(f["onset"], "g"), _number(f["cleared"], "g"))
+            faults.add_row(
+                escape(label),
+                str(f["kind"]),
+                ", ".join(f["targets"]) or "-",
+                _number(f["onset"], "g"),
+                _number(f["cleared"], "g"),
+            )
         console.print(faults)
     if report["estimators"]:
-        table = _table("estimation error |x - x̂|", ["estimator", "kind", "RMS before fault", "RMS after fault", "final", "band",
-                                                    "bias rejection"])
-        per_fault = _table("per fault: peak error, its time and the recovery time after onset [s]",
-                           ["estimator", "fault", "peak", "peak at", "recovery"])
+        table = _table(
+            "estimation error |x - x̂|",
+            ["estimator", "kind", "RMS before fault", "RMS after fault", "final", "band", "bias rejection"],
+        )
+        per_fault = _table(
+            "per fault: peak error, its time and the recovery time after onset [s]",
+            ["estimator", "fault", "peak", "peak at", "recovery"],
+        )
         for name, e in report["estimators"].items():
-            table.add_row(escape(name), str(e["kind"]), _number(e["rms_pre_fault"]), _number(e["rms_post_fault"]),
-                          _number(e["final_error"]), _number(e["band"]), _number(e["bias_rejection_ratio"], ".3f"))
+            table.add_row(
+                escape(name),
+                str(e["kind"]),
+                _number(e["rms_pre_fault"]),
+                _number(e["rms_post_fault"]),
+                _number(e["final_error"]),
+                _number(e["band"]),
+                _number(e["bias_rejection_ratio"], ".3f"),
+            )
             for label, f in e["faults"].items():
-                per_fault.add_row(escape(name), escape(label), _number(f["peak_error"]), _number(f["peak_at"], "g"),
-                                  _number(f["recovery_time"], "g") if f["recovered"] else "not recovered")
+                per_fault.add_row(
+                    escape(name),
+                    escape(label),
+                    _number(f["peak_error"]),
+                    _number(f["peak_at"], "g"),
+                    _number(f["recovery_time"], "g") if f["recovered"] else "not recovered",
+                )
         console.print(table)
         if per_fault.row_count:
             console.print(per_fault)
     for name, d in report["diagnosis"].items():
         rate = d["false_alarm_rate_per_hour"]
-        console.print(f"[bold]diagnosis {escape(name)}[/bold] ({d['kind']}): {d['false_alarms']} false alarms "
-                      f"({_number(rate, '.3g')} per hour over {d['fault_free_time_s']:g} s fault-free), "
-                      f"{d['missed_detections']} missed detections")
+        console.print(
+            f"[bold]diagnosis {escape(name)}[/bold] ({d['kind']}): {d['false_alarms']} false alarms "
+            f"({_number(rate, '.3g')} per hour over {d['fault_free_time_s']:g} s fault-free), "
+            f"{d['missed_detections']} missed detections"
+        )
         table = _table("", ["fault", "detected", "delay [s]", "isolated", "delay [s]", "correct"])
         for label, f in d["faults"].items():
-            table.add_row(escape(label), "yes" if f["detected"] else "no", _number(f["detection_delay"], "g"),
-                          "-" if f["isolated"] is None else ", ".join(f["isolated"]), _number(f["isolation_delay"], "g"),
-                          "-" if f["isolation_correct"] is None else ("yes" if f["isolation_correct"] else "no"))
+            table.add_row(
+                escape(label),
+                "yes" if f["detected"] else "no",
+                _number(f["detection_delay"], "g"),
+                "-" if f["isolated"] is None else ", ".join(f["isolated"]),
+                _number(f["isolation_delay"], "g"),
+                "-" if f["isolation_correct"] is None else ("yes" if f["isolation_correct"] else "no"),
+            )
         if table.row_count:
             console.print(table)
     bus = report.get("bus")
     if bus:
-        rate = "-" if bus["bitrate"] is None else f"{bus['bitrate']:g} bit/s" + (f", data {bus['data_bitrate']:g} bit/s" if bus["fd"] else "")
-        console.print(f"[bold]bus[/bold] ({'CAN FD' if bus['fd'] else 'classic CAN'}, {rate}): load {_number(bus['load'], '.2%')} "
-                      f"(worst-case stuffing {_number(bus['load_worst_case'], '.2%')}, busiest tick {_number(bus['peak_tick_load'], '.2%')}), "
-                      f"{bus['lost']} frames lost, {bus['deadline_misses']} deadline misses")
+        rate = (
+            "-"
+            if bus["bitrate"] is None
+            else f"{bus['bitrate']:g} bit/s" + (f", data {bus['data_bitrate']:g} bit/s" if bus["fd"] else "")
+        )
+        console.print(
+            f"[bold]bus[/bold] ({'CAN FD' if bus['fd'] else 'classic CAN'}, {rate}): load {_number(bus['load'], '.2%')} "
+            f"(worst-case stuffing {_number(bus['load_worst_case'], '.2%')}, busiest tick {_number(bus['peak_tick_load'], '.2%')}), "
+            f"{bus['lost']} frames lost, {bus['deadline_misses']} deadline misses"
+        )
         ids = _table("", ["id", "message", "frames", "bits"])
         for frame_id, entry in bus["by_id"].items():
             ids.add_row(frame_id, escape(str(entry["message"])), str(entry["frames"]), str(entry["bits"]))

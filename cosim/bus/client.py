@@ -49,6 +49,7 @@ from cosim.errors import CodecError, CosimError
 
 _WAIT = 0.2  # s: how long a client waits for a frame before it checks its own timeout
 
+
 @dataclass
 class TickFrames:
     """The decoded inputs of one tick: sensor readings and commands that arrived, by channel name.
@@ -126,7 +127,9 @@ class TickAssembler:
                 heard.announced = int(decoded.values["frames"])
             return
         if decoded.spec.role == COMMAND:
-            heard.commands.update({c.name: decoded.values[s] for c, s in zip(decoded.spec.channels, decoded.spec.signals)})
+            heard.commands.update(
+                {c.name: decoded.values[s] for c, s in zip(decoded.spec.channels, decoded.spec.signals)}
+            )
         else:
             heard.values.update({s: decoded.values[s] for s in decoded.spec.signals})
         heard.frames += 1
@@ -172,8 +175,15 @@ class Client:
     """
 
     def __init__(
-        self, name: str | None, codec: Codec, bus: can.BusABC, *, lockstep: bool = True,
-        sample_time: float | None = None, owns_bus: bool = False, upstream: dict[str, int] | None = None,
+        self,
+        name: str | None,
+        codec: Codec,
+        bus: can.BusABC,
+        *,
+        lockstep: bool = True,
+        sample_time: float | None = None,
+        owns_bus: bool = False,
+        upstream: dict[str, int] | None = None,
     ) -> None:
         self.name = name
         self.codec = codec
@@ -191,7 +201,9 @@ class Client:
         # Only these frames concern a participant; telling them by id spares decoding the rest
         # (other nodes' frames, and our own frames that come back on udp_multicast).
         self._wanted = {
-            s.frame_id for s in codec.specs.values() if s.role in (SYNC, NMT, SENSOR, COMMAND) or s.sender in self.assembler.upstream
+            s.frame_id
+            for s in codec.specs.values()
+            if s.role in (SYNC, NMT, SENSOR, COMMAND) or s.sender in self.assembler.upstream
         }
 
     # -- life cycle -----------------------------------------------------------------------------
@@ -286,7 +298,9 @@ class Client:
     def publish(self, tick: TickFrames | int, values: Mapping[str, float]) -> None:
         """Send this node's messages for a tick, with ``values`` by signal name (all of them)."""
         if not self.declared:
-            raise CosimError(f"{self.name!r} has no messages in this run's DBC; declare it in the scenario's [[clients]]")
+            raise CosimError(
+                f"{self.name!r} has no messages in this run's DBC; declare it in the scenario's [[clients]]"
+            )
         k = tick.tick if isinstance(tick, TickFrames) else tick
         for spec in self.messages:
             missing = [s for s in spec.signals if s not in values]
@@ -301,4 +315,3 @@ class Client:
             k = tick.tick if isinstance(tick, TickFrames) else tick
             self.bus.send(self.codec.heartbeat(self.name, OPERATIONAL, k, self._published, self.assembler.lost))
         self._published = 0
-

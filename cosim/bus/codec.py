@@ -72,7 +72,6 @@ FD_TICK_BITS = 32
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
-
 class Role(StrEnum):
     """What a message is for: its id block, its name and who may send it follow from its role."""
 
@@ -96,7 +95,13 @@ NMT_START, NMT_STOP = 0x01, 0x02  # CANopen NMT command specifiers
 BOOTUP, STOPPED, OPERATIONAL = 0x00, 0x04, 0x05  # CANopen NMT states, as heartbeats carry them
 
 #: The scenario table that overrides a channel's range, per message role.
-OVERRIDE_TABLE = {SENSOR: "bus.sensors", COMMAND: "bus.actuators", CONTROL: "bus.states", ESTIMATE: "bus.states", CLIENT: "clients"}
+OVERRIDE_TABLE = {
+    SENSOR: "bus.sensors",
+    COMMAND: "bus.actuators",
+    CONTROL: "bus.states",
+    ESTIMATE: "bus.states",
+    CLIENT: "clients",
+}
 #: Identifier blocks: [first, end) per role.
 ID_BLOCKS = {
     SENSOR: (SENSOR_BASE, COMMAND_BASE),
@@ -108,8 +113,14 @@ ID_BLOCKS = {
 SIGNAL_PREFIX = {ESTIMATE: "xhat_"}
 #: Message name prefix per role; a node's data messages are numbered (``EST_kalman_0``, ...) when
 #: they need more than one frame per tick.
-MESSAGE_PREFIX = {SENSOR: "SENSOR", COMMAND: "COMMAND", CONTROL: "CONTROL_STATUS", ESTIMATE: "EST", CLIENT: "CLIENT",
-                  HEARTBEAT: "HEARTBEAT"}
+MESSAGE_PREFIX = {
+    SENSOR: "SENSOR",
+    COMMAND: "COMMAND",
+    CONTROL: "CONTROL_STATUS",
+    ESTIMATE: "EST",
+    CLIENT: "CLIENT",
+    HEARTBEAT: "HEARTBEAT",
+}
 
 
 def sensor_message(sensor: str) -> str:
@@ -135,7 +146,7 @@ def estimate_signal(state: str) -> str:
 def estimated_state(signal: str) -> str | None:
     """The state component an estimate signal carries; None for a diagnostic signal."""
     prefix = SIGNAL_PREFIX[ESTIMATE]
-    return signal[len(prefix):] if signal.startswith(prefix) else None
+    return signal[len(prefix) :] if signal.startswith(prefix) else None
 
 
 @dataclass(frozen=True)
@@ -172,8 +183,15 @@ def _fd_length(nbytes: int) -> int:
     raise CodecError(f"{nbytes} bytes do not fit a CAN FD frame (at most 64)")
 
 
-def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: Sequence[Channel], fd: bool,
-                  signals: Sequence[str] | None = None) -> list[MessageSpec]:
+def pack_channels(
+    prefix: str,
+    base_id: int,
+    sender: str,
+    role: str,
+    channels: Sequence[Channel],
+    fd: bool,
+    signals: Sequence[str] | None = None,
+) -> list[MessageSpec]:
     """Lay channels out in as few frames as fit, in order: 8-byte classic frames of scaled integers
     after a 16-bit tick, or 64-byte FD frames of float64 after a 32-bit tick. Signals are named
     after their channels (with the role's prefix) unless ``signals`` names them."""
@@ -198,8 +216,12 @@ def pack_channels(prefix: str, base_id: int, sender: str, role: str, channels: S
         used += bits
     return [
         MessageSpec(
-            prefix if len(groups) == 1 else f"{prefix}_{n}", base_id + n, sender, role,
-            tuple(c for c, _ in group), tuple(name for _, name in group),
+            prefix if len(groups) == 1 else f"{prefix}_{n}",
+            base_id + n,
+            sender,
+            role,
+            tuple(c for c, _ in group),
+            tuple(name for _, name in group),
         )
         for n, group in enumerate(groups)
     ]
@@ -230,19 +252,27 @@ class Codec:
         cycle_time: float | None = None,
     ) -> None:
         clients = dict(clients or {})
-        counts = {SENSOR: len(sensors), COMMAND: len(actuators), ESTIMATE: len(estimators) * ESTIMATE_STRIDE,
-                  CLIENT: len(clients) * CLIENT_STRIDE}
+        counts = {
+            SENSOR: len(sensors),
+            COMMAND: len(actuators),
+            ESTIMATE: len(estimators) * ESTIMATE_STRIDE,
+            CLIENT: len(clients) * CLIENT_STRIDE,
+        }
         for role, count in counts.items():
             first, end = ID_BLOCKS[role]
             if count > end - first:
                 stride = {ESTIMATE: ESTIMATE_STRIDE, CLIENT: CLIENT_STRIDE}.get(role, 1)
                 what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators", CLIENT: "clients"}[role]
-                raise CodecError(f"too many {what} for the bus: at most {(end - first) // stride} fit ids 0x{first:03X}-0x{end - 1:03X}")
+                raise CodecError(
+                    f"too many {what} for the bus: at most {(end - first) // stride} fit ids 0x{first:03X}-0x{end - 1:03X}"
+                )
         nodes = [*estimators, *clients, *([CONTROLLER] if controller is not None else [])]
         if len(set(nodes)) != len(nodes):
             raise CodecError(f"estimator, client and controller names must differ: {', '.join(nodes)}")
         if controller is not None and len(actuators) > CONTROL_BASE - COMMAND_BASE:
-            raise CodecError(f"too many actuators for a controller node: at most {CONTROL_BASE - COMMAND_BASE} fit ids 0x{COMMAND_BASE:03X}-0x{CONTROL_BASE - 1:03X}")
+            raise CodecError(
+                f"too many actuators for a controller node: at most {CONTROL_BASE - COMMAND_BASE} fit ids 0x{COMMAND_BASE:03X}-0x{CONTROL_BASE - 1:03X}"
+            )
         specs = [
             MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), ("command", "node")),
             MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames")),
@@ -252,8 +282,15 @@ class Codec:
         for i, channel in enumerate(actuators):
             specs += pack_channels(command_message(channel.name), COMMAND_BASE + i, CONTROLLER, COMMAND, [channel], fd)
         if controller:
-            specs += pack_channels(MESSAGE_PREFIX[CONTROL], CONTROL_BASE, CONTROLLER, CONTROL, list(controller), fd,
-                                   [c.name for c in controller])
+            specs += pack_channels(
+                MESSAGE_PREFIX[CONTROL],
+                CONTROL_BASE,
+                CONTROLLER,
+                CONTROL,
+                list(controller),
+                fd,
+                [c.name for c in controller],
+            )
         diagnostics = dict(diagnostics or {})
         for group, base, stride, role, prefix in (
             (estimators, ESTIMATE_BASE, ESTIMATE_STRIDE, ESTIMATE, MESSAGE_PREFIX[ESTIMATE]),
@@ -262,12 +299,23 @@ class Codec:
             for e, (name, channels) in enumerate(group.items()):
                 extra = list(diagnostics.get(name, ())) if role == ESTIMATE else []
                 signals = [SIGNAL_PREFIX.get(role, "") + c.name for c in channels] + [c.name for c in extra]
-                packed = pack_channels(f"{prefix}_{name}", base + stride * e, name, role, [*channels, *extra], fd, signals)
+                packed = pack_channels(
+                    f"{prefix}_{name}", base + stride * e, name, role, [*channels, *extra], fd, signals
+                )
                 if len(packed) > stride:
                     raise CodecError(f"{name} needs {len(packed)} frames per tick; at most {stride} fit its id block")
                 specs += packed
         for node_id, name in enumerate(nodes, start=1):
-            specs.append(MessageSpec(heartbeat_message(name), HEARTBEAT_BASE + node_id, name, HEARTBEAT, (), ("state", "tick", "frames", "lost")))
+            specs.append(
+                MessageSpec(
+                    heartbeat_message(name),
+                    HEARTBEAT_BASE + node_id,
+                    name,
+                    HEARTBEAT,
+                    (),
+                    ("state", "tick", "frames", "lost"),
+                )
+            )
         cycle_ms = None if cycle_time is None or cycle_time < 1e-3 else int(round(cycle_time * 1000))
         self._setup(_database(specs, fd, bitrate, data_bitrate, cycle_ms), specs, fd)
 
@@ -295,8 +343,11 @@ class Codec:
         self._messages: dict[str, Message] = {m.name: m for m in database.messages}
         # cantools' own scaled <-> raw conversions, to know a value as a frame carries it
         self._conversions = {
-            spec.name: [(signal, self._messages[spec.name].get_signal_by_name(signal).conversion) for signal in spec.signals]
-            for spec in specs if spec.channels
+            spec.name: [
+                (signal, self._messages[spec.name].get_signal_by_name(signal).conversion) for signal in spec.signals
+            ]
+            for spec in specs
+            if spec.channels
         }
         self.tick_modulus = 2**FD_TICK_BITS if fd else 2**CLASSIC_TICK_BITS
         self.node_ids: dict[str, int] = {
@@ -313,7 +364,11 @@ class Codec:
     def messages(self, role: str | None = None, sender: str | None = None) -> list[MessageSpec]:
         """Message specs, optionally only those of one role or sender, in id order."""
         return sorted(
-            (s for s in self.specs.values() if (role is None or s.role == role) and (sender is None or s.sender == sender)),
+            (
+                s
+                for s in self.specs.values()
+                if (role is None or s.role == role) and (sender is None or s.sender == sender)
+            ),
             key=lambda s: s.frame_id,
         )
 
@@ -346,7 +401,8 @@ class Codec:
 
     def heartbeat(self, node: str, state: int, tick: int = 0, frames: int = 0, lost: int = 0) -> can.Message:
         return self._classic(
-            heartbeat_message(node), {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)}
+            heartbeat_message(node),
+            {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)},
         )
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
@@ -409,7 +465,10 @@ def _range_message(spec: MessageSpec, signal: str, channel: Channel, value: floa
 #: The integer signals of the control messages: (name, start bit, length, comment).
 _CONTROL_LAYOUT = {
     NMT: [("command", 0, 8, "NMT command: 1 start, 2 stop"), ("node", 8, 8, "addressed node id, 0 for all")],
-    SYNC: [("tick", 0, 32, "tick counter k"), ("frames", 32, 8, "data frames the runner sends for tick k after this SYNC")],
+    SYNC: [
+        ("tick", 0, 32, "tick counter k"),
+        ("frames", 32, 8, "data frames the runner sends for tick k after this SYNC"),
+    ],
     HEARTBEAT: [
         ("state", 0, 8, "NMT state: 0 boot-up, 4 stopped, 5 operational"),
         ("tick", 8, 32, "the tick this heartbeat closes"),
@@ -424,11 +483,21 @@ def _database(specs: list[MessageSpec], fd: bool, bitrate: int, data_bitrate: in
     messages = []
     for spec in specs:
         if spec.role in _CONTROL_LAYOUT:
-            signals = [Signal(name, start, length, comment=comment) for name, start, length, comment in _CONTROL_LAYOUT[spec.role]]
+            signals = [
+                Signal(name, start, length, comment=comment)
+                for name, start, length, comment in _CONTROL_LAYOUT[spec.role]
+            ]
             length = (max(s.start + s.length for s in signals) + 7) // 8
             messages.append(
-                Message(spec.frame_id, spec.name, length, signals, senders=[spec.sender],
-                        cycle_time=None if spec.role == NMT else cycle_ms, comment=_CONTROL_COMMENTS[spec.role])
+                Message(
+                    spec.frame_id,
+                    spec.name,
+                    length,
+                    signals,
+                    senders=[spec.sender],
+                    cycle_time=None if spec.role == NMT else cycle_ms,
+                    comment=_CONTROL_COMMENTS[spec.role],
+                )
             )
             continue
         tick_bits = FD_TICK_BITS if fd else CLASSIC_TICK_BITS
@@ -441,27 +510,48 @@ def _database(specs: list[MessageSpec], fd: bool, bitrate: int, data_bitrate: in
                 length, conversion, signed = signal_bits(channel), BaseConversion.factory(channel.resolution, 0.0), True
             signals.append(
                 Signal(
-                    signal_name, start, length, is_signed=signed, conversion=conversion, minimum=channel.minimum,
-                    maximum=channel.maximum, unit=channel.unit, comment=channel.description or None,
+                    signal_name,
+                    start,
+                    length,
+                    is_signed=signed,
+                    conversion=conversion,
+                    minimum=channel.minimum,
+                    maximum=channel.maximum,
+                    unit=channel.unit,
+                    comment=channel.description or None,
                 )
             )
             start += length
         nbytes = (start + 7) // 8
         messages.append(
-            Message(spec.frame_id, spec.name, _fd_length(nbytes) if fd else nbytes, signals, senders=[spec.sender],
-                    is_fd=fd, cycle_time=cycle_ms)
+            Message(
+                spec.frame_id,
+                spec.name,
+                _fd_length(nbytes) if fd else nbytes,
+                signals,
+                senders=[spec.sender],
+                is_fd=fd,
+                cycle_time=cycle_ms,
+            )
         )
     nodes = sorted({spec.sender for spec in specs})
     bus_type = DbcAttributeDefinition("BusType", default_value="CAN", type_name="STRING")
     attributes = OrderedDict(BusType=DbcAttribute("CAN FD" if fd else "CAN", bus_type))
     definitions = OrderedDict(BusType=bus_type)
     if fd:  # Vector's attribute for the data-phase bit rate
-        fd_rate = DbcAttributeDefinition("BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000)
+        fd_rate = DbcAttributeDefinition(
+            "BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000
+        )
         attributes["BaudrateCANFD"] = DbcAttribute(data_bitrate, fd_rate)
         definitions["BaudrateCANFD"] = fd_rate
     bus = Bus("cosim", baudrate=bitrate, fd_baudrate=data_bitrate if fd else None)
-    return Database(messages, [Node(n) for n in nodes], buses=[bus], version="cosim",
-                    dbc_specifics=DbcSpecifics(attributes=attributes, attribute_definitions=definitions))
+    return Database(
+        messages,
+        [Node(n) for n in nodes],
+        buses=[bus],
+        version="cosim",
+        dbc_specifics=DbcSpecifics(attributes=attributes, attribute_definitions=definitions),
+    )
 
 
 def _bus_type(database: Database) -> str:
@@ -490,7 +580,9 @@ def _spec_from_message(message: Message) -> MessageSpec:
     role = _role(message)
     sender = message.senders[0] if message.senders else "unknown"
     if role in _CONTROL_LAYOUT:
-        return MessageSpec(message.name, message.frame_id, sender, role, (), tuple(name for name, *_ in _CONTROL_LAYOUT[role]))
+        return MessageSpec(
+            message.name, message.frame_id, sender, role, (), tuple(name for name, *_ in _CONTROL_LAYOUT[role])
+        )
     prefix = SIGNAL_PREFIX.get(role, "")
     channels, names = [], []
     for signal in sorted(message.signals, key=lambda s: s.start):
@@ -498,11 +590,16 @@ def _spec_from_message(message: Message) -> MessageSpec:
             continue
         comment = signal.comment if isinstance(signal.comment, str) else ""
         resolution = signal.scale if not signal.is_float else 2.0**-52
-        channels.append(Channel(
-            signal.name.removeprefix(prefix), signal.unit or "", comment,
-            signal.minimum if signal.minimum is not None else -math.inf,
-            signal.maximum if signal.maximum is not None else math.inf, resolution,
-        ))
+        channels.append(
+            Channel(
+                signal.name.removeprefix(prefix),
+                signal.unit or "",
+                comment,
+                signal.minimum if signal.minimum is not None else -math.inf,
+                signal.maximum if signal.maximum is not None else math.inf,
+                resolution,
+            )
+        )
         names.append(signal.name)
     return MessageSpec(message.name, message.frame_id, sender, role, tuple(channels), tuple(names))
 

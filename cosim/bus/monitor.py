@@ -22,7 +22,9 @@ def _table(latest: dict[str, Decoded], header: str) -> Group:
         decoded = latest[name]
         units = {signal: channel.unit for channel, signal in zip(decoded.spec.channels, decoded.spec.signals)}
         signals = "  ".join(
-            f"{key}={value:.6g}{(' ' + units[key]) if units.get(key) else ''}" if isinstance(value, float) else f"{key}={value}"
+            f"{key}={value:.6g}{(' ' + units[key]) if units.get(key) else ''}"
+            if isinstance(value, float)
+            else f"{key}={value}"
             for key, value in decoded.values.items()
         )
         table.add_row(name, decoded.spec.sender, str(decoded.tick), signals)

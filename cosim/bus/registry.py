@@ -73,6 +73,8 @@ def find(run: str | None = None) -> dict[str, Any]:
         which = f" with id {run!r}" if run else ""
         raise CosimError(f"no co-simulation{which} is running on this machine (start one with 'cosim run')")
     if len(runs) > 1:
-        listing = "; ".join(f"{info['id']} ({info['scenario']}, {info['bus']['interface']} {info['bus']['channel']})" for info in runs)
+        listing = "; ".join(
+            f"{info['id']} ({info['scenario']}, {info['bus']['interface']} {info['bus']['channel']})" for info in runs
+        )
         raise CosimError(f"{len(runs)} co-simulations are running: {listing}; choose one by id")
     return runs[0]

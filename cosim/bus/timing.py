@@ -149,7 +149,7 @@ def frame_bits_worst_case(extended: bool, fd: bool, brs: bool, length: int) -> t
     if not fd:
         region = (54 if extended else 34) + 8 * length
         return region + (region - 1) // 4 + TAIL_BITS, 0
-    arbitration = (36 if extended else 17)
+    arbitration = 36 if extended else 17
     region = arbitration + 5 + 8 * length
     stuffed = (region - 1) // 4
     stuffed_a = (arbitration - 1) // 4

@@ -84,7 +84,7 @@ def allocate(interface: str, channel: str = "", port: int = 0, fd: bool = False)
             raise CosimError(
                 f"bus: there is no CAN interface {channel!r} on this machine; create a virtual one with "
                 f"'sudo modprobe vcan && sudo ip link add dev {channel} type vcan && sudo ip link set up {channel}', "
-                f"or use interface = \"udp_multicast\""
+                f'or use interface = "udp_multicast"'
             )
         return BusConfig("socketcan", channel, fd=fd)
     if interface == "virtual":

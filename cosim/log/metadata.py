@@ -27,7 +27,14 @@ from typing import Any
 
 from cosim import __version__
 
-RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = "cosim.run", "cosim.scenario", "cosim.versions", "cosim.bus", "cosim.result", "cosim.replay"
+RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = (
+    "cosim.run",
+    "cosim.scenario",
+    "cosim.versions",
+    "cosim.bus",
+    "cosim.result",
+    "cosim.replay",
+)
 #: The attachment holding the run's CAN database.
 DBC_ATTACHMENT = "cosim.dbc"
 _LIBRARIES = ("mujoco", "numpy", "scipy", "python-can", "cantools", "mcap")
@@ -98,8 +105,11 @@ def _diagnostics_json(diagnostics: dict[str, DiagnosticRecord]) -> dict[str, Any
 def _diagnostics_from(value: Any) -> dict[str, DiagnosticRecord]:
     if not isinstance(value, dict):
         return {}
-    return {str(name): DiagnosticRecord(**{k: str(v) for k, v in d.items() if k in ("kind", "target", "unit")})
-            for name, d in value.items() if isinstance(d, dict)}
+    return {
+        str(name): DiagnosticRecord(**{k: str(v) for k, v in d.items() if k in ("kind", "target", "unit")})
+        for name, d in value.items()
+        if isinstance(d, dict)
+    }
 
 
 @dataclass(frozen=True)
@@ -117,18 +127,30 @@ class EstimatorRecord:
     """What each isolation diagnostic names as faulty: sensor or actuator names."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"kind": self.kind, "messages": self.messages, "states": self.states, "params": self.params, "model": self.model,
-                "diagnostics": _diagnostics_json(self.diagnostics), "isolates": self.isolates}
+        return {
+            "kind": self.kind,
+            "messages": self.messages,
+            "states": self.states,
+            "params": self.params,
+            "model": self.model,
+            "diagnostics": _diagnostics_json(self.diagnostics),
+            "isolates": self.isolates,
+        }
 
     @classmethod
     def from_json(cls, value: Any) -> EstimatorRecord:
         value = value if isinstance(value, dict) else {}
         params, isolates = value.get("params"), value.get("isolates")
         return cls(
-            str(value.get("kind") or ""), list(value.get("messages") or []), list(value.get("states") or []),
-            params if isinstance(params, dict) else {}, value.get("model") if isinstance(value.get("model"), dict) else None,
+            str(value.get("kind") or ""),
+            list(value.get("messages") or []),
+            list(value.get("states") or []),
+            params if isinstance(params, dict) else {},
+            value.get("model") if isinstance(value.get("model"), dict) else None,
             _diagnostics_from(value.get("diagnostics")),
-            {str(k): [str(t) for t in v] for k, v in isolates.items() if isinstance(v, list)} if isinstance(isolates, dict) else {},
+            {str(k): [str(t) for t in v] for k, v in isolates.items() if isinstance(v, list)}
+            if isinstance(isolates, dict)
+            else {},
         )
 
     def signals_of(self, kind: str) -> dict[str, str]:
@@ -150,8 +172,15 @@ class ControllerRecord:
     diagnostics: dict[str, DiagnosticRecord] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        return {"kind": self.kind, "params": self.params, "diagnosis": self.diagnosis, "messages": self.messages,
-                "model": self.model, "status_messages": self.status_messages, "diagnostics": _diagnostics_json(self.diagnostics)}
+        return {
+            "kind": self.kind,
+            "params": self.params,
+            "diagnosis": self.diagnosis,
+            "messages": self.messages,
+            "model": self.model,
+            "status_messages": self.status_messages,
+            "diagnostics": _diagnostics_json(self.diagnostics),
+        }
 
     def signals_of(self, kind: str) -> list[str]:
         """The status signals of one diagnostic kind."""
@@ -161,9 +190,15 @@ class ControllerRecord:
     def from_json(cls, value: Any) -> ControllerRecord | None:
         if not isinstance(value, dict):
             return None
-        return cls(str(value.get("kind") or ""), value.get("params") or {}, str(value.get("diagnosis") or ""),
-                   list(value.get("messages") or []), value.get("model"), list(value.get("status_messages") or []),
-                   _diagnostics_from(value.get("diagnostics")))
+        return cls(
+            str(value.get("kind") or ""),
+            value.get("params") or {},
+            str(value.get("diagnosis") or ""),
+            list(value.get("messages") or []),
+            value.get("model"),
+            list(value.get("status_messages") or []),
+            _diagnostics_from(value.get("diagnostics")),
+        )
 
 
 @dataclass(frozen=True)
@@ -222,10 +257,17 @@ class RunRecord:
 
     def to_metadata(self) -> dict[str, str]:
         return {
-            "scenario": str(self.scenario), "source": str(self.source), "seed": str(self.seed), "sample_time": repr(self.sample_time),
-            "duration": repr(self.duration), "ticks": str(self.ticks), "plant": str(self.plant),
-            "states": json.dumps(self.states), "sensors": json.dumps(self.sensors),
-            "actuators": json.dumps(self.actuators), "disturbances": json.dumps(self.disturbances),
+            "scenario": str(self.scenario),
+            "source": str(self.source),
+            "seed": str(self.seed),
+            "sample_time": repr(self.sample_time),
+            "duration": repr(self.duration),
+            "ticks": str(self.ticks),
+            "plant": str(self.plant),
+            "states": json.dumps(self.states),
+            "sensors": json.dumps(self.sensors),
+            "actuators": json.dumps(self.actuators),
+            "disturbances": json.dumps(self.disturbances),
             "estimators": json.dumps({name: e.to_json() for name, e in self.estimators.items()}),
             "model": json.dumps(self.model),
             "continuous_model": json.dumps(self.continuous_model),
@@ -241,20 +283,40 @@ class RunRecord:
     @classmethod
     def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> RunRecord:
         f = _Fields(record, RUN, warnings)
-        faults = [FaultRecord(str(x.get("label")), x.get("kind"), x.get("start"), x.get("end"),
-                              [str(t) for t in x["targets"]] if isinstance(x.get("targets"), list) else None)
-                  for x in f.json("faults", []) if isinstance(x, dict) and "label" in x]
+        faults = [
+            FaultRecord(
+                str(x.get("label")),
+                x.get("kind"),
+                x.get("start"),
+                x.get("end"),
+                [str(t) for t in x["targets"]] if isinstance(x.get("targets"), list) else None,
+            )
+            for x in f.json("faults", [])
+            if isinstance(x, dict) and "label" in x
+        ]
         onset_tick = f.json("fault_onset_tick", None)
         return cls(
-            scenario=record.get("scenario"), source=record.get("source"), seed=f.integer("seed"),
-            sample_time=f.positive("sample_time"), duration=f.positive("duration"), ticks=f.integer("ticks"),
-            plant=record.get("plant"), states=f.json("states", []), sensors=f.json("sensors", []),
-            actuators=f.json("actuators", []), disturbances=f.json("disturbances", []),
+            scenario=record.get("scenario"),
+            source=record.get("source"),
+            seed=f.integer("seed"),
+            sample_time=f.positive("sample_time"),
+            duration=f.positive("duration"),
+            ticks=f.integer("ticks"),
+            plant=record.get("plant"),
+            states=f.json("states", []),
+            sensors=f.json("sensors", []),
+            actuators=f.json("actuators", []),
+            disturbances=f.json("disturbances", []),
             estimators={str(name): EstimatorRecord.from_json(e) for name, e in f.json("estimators", {}).items()},
-            model=f.json("model", None), continuous_model=f.json("continuous_model", None), clients=f.json("clients", {}),
-            controller=ControllerRecord.from_json(f.json("controller", None)), fault_onset=f.json("fault_onset", None),
-            fault_onset_tick=onset_tick if isinstance(onset_tick, int) else None, faults=faults,
-            bus=f.json("bus", {}), timing=f.json("timing", {}),
+            model=f.json("model", None),
+            continuous_model=f.json("continuous_model", None),
+            clients=f.json("clients", {}),
+            controller=ControllerRecord.from_json(f.json("controller", None)),
+            fault_onset=f.json("fault_onset", None),
+            fault_onset_tick=onset_tick if isinstance(onset_tick, int) else None,
+            faults=faults,
+            bus=f.json("bus", {}),
+            timing=f.json("timing", {}),
         )
 
     def with_only(self, name: str, estimator: EstimatorRecord) -> RunRecord:
@@ -275,7 +337,9 @@ class ScenarioRecord:
 
     def resolved_json(self, warnings: list[str] | None = None) -> dict[str, Any]:
         """The validated scenario as plain values ({} where the record has none or it is damaged)."""
-        return _Fields({"resolved": self.resolved} if self.resolved else {}, SCENARIO, [] if warnings is None else warnings).json("resolved", {})
+        return _Fields(
+            {"resolved": self.resolved} if self.resolved else {}, SCENARIO, [] if warnings is None else warnings
+        ).json("resolved", {})
 
 
 @dataclass(frozen=True)
@@ -301,8 +365,12 @@ class ResultRecord:
 
     def to_metadata(self) -> dict[str, str]:
         return {
-            "status": self.status, "ticks": str(self.ticks), "frames_total": str(self.frames_total),
-            "frames_lost": str(self.frames_lost), "deadline_misses": str(self.deadline_misses), "error": self.error,
+            "status": self.status,
+            "ticks": str(self.ticks),
+            "frames_total": str(self.frames_total),
+            "frames_lost": str(self.frames_lost),
+            "deadline_misses": str(self.deadline_misses),
+            "error": self.error,
             "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
         }
 
@@ -313,11 +381,20 @@ class ResultRecord:
         for name, counts in f.json("senders", {}).items():
             if isinstance(counts, dict):
                 try:
-                    senders[str(name)] = SenderCounts(*(int(counts.get(k, 0)) for k in ("frames", "lost", "runner_frames_missed")))
+                    senders[str(name)] = SenderCounts(
+                        *(int(counts.get(k, 0)) for k in ("frames", "lost", "runner_frames_missed"))
+                    )
                 except (TypeError, ValueError):
                     warnings.append(f"{RESULT} metadata field 'senders' has a damaged entry for {name!r}; ignored")
-        return cls(record.get("status", "incomplete"), f.integer("ticks"), f.integer("frames_total"), f.integer("frames_lost"),
-                   f.integer("deadline_misses"), record.get("error", ""), senders)
+        return cls(
+            record.get("status", "incomplete"),
+            f.integer("ticks"),
+            f.integer("frames_total"),
+            f.integer("frames_lost"),
+            f.integer("deadline_misses"),
+            record.get("error", ""),
+            senders,
+        )
 
 
 @dataclass(frozen=True)
@@ -332,14 +409,26 @@ class ReplayRecord:
     ticks: int = 0
 
     def to_metadata(self) -> dict[str, str]:
-        return {"log": self.log, "estimator": self.estimator, "kind": self.kind, "new": json.dumps(self.new),
-                "params": json.dumps(self.params), "ticks": str(self.ticks)}
+        return {
+            "log": self.log,
+            "estimator": self.estimator,
+            "kind": self.kind,
+            "new": json.dumps(self.new),
+            "params": json.dumps(self.params),
+            "ticks": str(self.ticks),
+        }
 
     @classmethod
     def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> ReplayRecord:
         f = _Fields(record, REPLAY, warnings)
-        return cls(record.get("log", ""), record.get("estimator", ""), record.get("kind", ""), bool(f.json("new", False)),
-                   f.json("params", {}), f.integer("ticks") or 0)
+        return cls(
+            record.get("log", ""),
+            record.get("estimator", ""),
+            record.get("kind", ""),
+            bool(f.json("new", False)),
+            f.json("params", {}),
+            f.integer("ticks") or 0,
+        )
 
 
 @dataclass(frozen=True)
@@ -359,7 +448,11 @@ class LogMetadata:
         """The records of a log's metadata (``LogReader.metadata()``), read leniently."""
         warnings: list[str] = []
         run = RunRecord.from_metadata(meta[RUN], warnings) if RUN in meta else None
-        scenario = ScenarioRecord(**{k: v for k, v in meta[SCENARIO].items() if k in ("source", "toml", "resolved")}) if SCENARIO in meta else None
+        scenario = (
+            ScenarioRecord(**{k: v for k, v in meta[SCENARIO].items() if k in ("source", "toml", "resolved")})
+            if SCENARIO in meta
+            else None
+        )
         result = ResultRecord.from_metadata(meta[RESULT], warnings) if RESULT in meta else None
         replay = ReplayRecord.from_metadata(meta[REPLAY], warnings) if REPLAY in meta else None
         return cls(run, scenario, result, replay, dict(meta.get(BUS, {})), dict(meta.get(VERSIONS, {})), warnings)

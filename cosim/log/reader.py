@@ -74,10 +74,14 @@ class LogReader:
         return self._summary
 
     def metadata(self) -> dict[str, dict[str, str]]:
-        return {r.name: dict(r.metadata) for r in self._indexed_or_scanned(records.Metadata, self._reader.iter_metadata)}
+        return {
+            r.name: dict(r.metadata) for r in self._indexed_or_scanned(records.Metadata, self._reader.iter_metadata)
+        }
 
     def attachments(self) -> dict[str, bytes]:
-        return {r.name: bytes(r.data) for r in self._indexed_or_scanned(records.Attachment, self._reader.iter_attachments)}
+        return {
+            r.name: bytes(r.data) for r in self._indexed_or_scanned(records.Attachment, self._reader.iter_attachments)
+        }
 
     def schemas(self) -> dict[str, dict[str, Any]]:
         """Topic → its JSON Schema (parsed), in channel order: from the summary, else by a scan.
@@ -128,7 +132,9 @@ class LogReader:
         except READ_ERRORS as error:
             where = "at its start" if last is None else f"after t = {last / 1e9:g} s"
             reason = str(error) or type(error).__name__
-            self.warnings.append(f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read")
+            self.warnings.append(
+                f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read"
+            )
 
     def _indexed_messages(self, topics: list[str] | None) -> Iterator[tuple[str, records.Message]]:
         """Messages chunk by chunk from the chunk index; a damaged chunk is skipped with a warning."""

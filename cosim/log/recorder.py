@@ -53,7 +53,11 @@ _TIME = number("simulated time t_k = k τ", "s")
 
 
 def _named(names: tuple[str, ...], units: dict[str, str], description: str, nullable: bool = False) -> dict[str, Any]:
-    return {"type": "object", "description": description, "properties": {n: number(n, units.get(n, ""), nullable) for n in names}}
+    return {
+        "type": "object",
+        "description": description,
+        "properties": {n: number(n, units.get(n, ""), nullable) for n in names},
+    }
 
 
 def message_topic(name: str) -> str:
@@ -86,19 +90,30 @@ class RunRecorder:
         self.states, self.sensors, self.actuators = states, sensors, actuators
         self.disturbances = disturbances
         self.frames = 0
-        self._frames = log.channel(FRAMES, object_schema("cosim.CanFrame", {
-            "tick": _TICK, "t": _TIME,
-            "seq": {"type": "integer", "description": "position of the frame on the bus in this run"},
-            "id": {"type": "integer", "description": "arbitration id"},
-            "extended": {"type": "boolean", "description": "29-bit identifier"},
-            "fd": {"type": "boolean", "description": "CAN FD frame"},
-            "brs": {"type": "boolean", "description": "CAN FD bit rate switch"},
-            "dlc": {"type": "integer", "description": "data length code (0-8; 9-15 code 12-64 bytes in CAN FD)"},
-            "length": {"type": "integer", "description": "payload length in bytes"},
-            "data": {"type": "string", "description": "payload, hex"},
-            "sender": {"type": "string", "description": "transmitting node (from the DBC)"},
-            "message": {"type": ["string", "null"], "description": "DBC message name"},
-        }, "A frame on the run's CAN bus"))
+        self._frames = log.channel(
+            FRAMES,
+            object_schema(
+                "cosim.CanFrame",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "seq": {"type": "integer", "description": "position of the frame on the bus in this run"},
+                    "id": {"type": "integer", "description": "arbitration id"},
+                    "extended": {"type": "boolean", "description": "29-bit identifier"},
+                    "fd": {"type": "boolean", "description": "CAN FD frame"},
+                    "brs": {"type": "boolean", "description": "CAN FD bit rate switch"},
+                    "dlc": {
+                        "type": "integer",
+                        "description": "data length code (0-8; 9-15 code 12-64 bytes in CAN FD)",
+                    },
+                    "length": {"type": "integer", "description": "payload length in bytes"},
+                    "data": {"type": "string", "description": "payload, hex"},
+                    "sender": {"type": "string", "description": "transmitting node (from the DBC)"},
+                    "message": {"type": ["string", "null"], "description": "DBC message name"},
+                },
+                "A frame on the run's CAN bus",
+            ),
+        )
         self._decoded: dict[str, int] = {}
         for spec in codec.specs.values():
             if spec.channels or spec.role in (ESTIMATE, CLIENT, SENSOR, COMMAND):
@@ -108,78 +123,189 @@ class RunRecorder:
             else:  # NMT, SYNC and heartbeats: integer fields
                 properties = {name: {"type": "integer"} for name in spec.signals}
             self._decoded[spec.name] = log.channel(
-                message_topic(spec.name), object_schema(f"cosim.{spec.name}", properties, f"Decoded signals of {spec.name}")
+                message_topic(spec.name),
+                object_schema(f"cosim.{spec.name}", properties, f"Decoded signals of {spec.name}"),
             )
-        self._state = log.channel(STATE, object_schema("cosim.TruthState", {
-            "tick": _TICK, "t": _TIME, **{n: number(n, units["states"].get(n, "")) for n in states},
-        }, "State of the simulated plant"))
-        self._sensors = log.channel(SENSORS, object_schema("cosim.TruthSensors", {
-            "tick": _TICK, "t": _TIME, **{n: number(n, units["sensors"].get(n, "")) for n in sensors},
-        }, "True (fault-free, noise-free) sensor readings"))
-        self._inputs = log.channel(INPUTS, object_schema("cosim.TruthInputs", {
-            "tick": _TICK, "t": _TIME,
-            "commanded": _named(actuators, units["actuators"], "commanded input per actuator"),
-            "effective": _named(actuators, units["actuators"], "input acting on the plant after actuator faults"),
-            "disturbance": _named(disturbances, units.get("disturbances", {}), "unknown input acting on the plant (not on the bus)"),
-        }, "Actuator inputs and unknown inputs"))
-        self._faults = log.channel(FAULTS, object_schema("cosim.TruthFaults", {
-            "tick": _TICK, "t": _TIME,
-            "noise": _named(sensors, units["sensors"], "measurement noise added per sensor"),
-            "fault": _named(sensors, units["sensors"], "deviation added by faults per sensor", nullable=True),
-            "measured": _named(sensors, units["sensors"], "reading sent on the bus (null: not sent)", nullable=True),
-            "dropped": {"type": "array", "items": {"type": "string"}, "description": "sensors whose frame was not sent"},
-            "effectiveness": _named(actuators, {}, "actuator effectiveness factor δ"),
-            "active": {"type": "array", "items": {"type": "string"}, "description": "labels of the active faults"},
-        }, "Faults and noise applied by the fault layer"))
-        self._misses = log.channel(DEADLINE_MISSES, object_schema("cosim.DeadlineMiss", {
-            "tick": _TICK, "t": _TIME,
-            "node": {"type": "string", "description": "the node whose heartbeat for this tick was not in by its deadline"},
-            "count": {"type": "integer", "description": "deadline misses so far in the run"},
-        }, "Realtime mode: ticks a node did not answer in time"))
-        self._events = log.channel(EVENTS, object_schema("cosim.Event", {
-            "tick": _TICK, "t": _TIME,
-            "level": {"type": "string", "enum": ["info", "warning", "error"]},
-            "event": {"type": "string"},
-            "detail": {"type": "string"},
-            "count": {"type": "integer", "description": "how many (frames lost, deadlines missed, ...)"},
-        }, "Runner events"))
+        self._state = log.channel(
+            STATE,
+            object_schema(
+                "cosim.TruthState",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    **{n: number(n, units["states"].get(n, "")) for n in states},
+                },
+                "State of the simulated plant",
+            ),
+        )
+        self._sensors = log.channel(
+            SENSORS,
+            object_schema(
+                "cosim.TruthSensors",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    **{n: number(n, units["sensors"].get(n, "")) for n in sensors},
+                },
+                "True (fault-free, noise-free) sensor readings",
+            ),
+        )
+        self._inputs = log.channel(
+            INPUTS,
+            object_schema(
+                "cosim.TruthInputs",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "commanded": _named(actuators, units["actuators"], "commanded input per actuator"),
+                    "effective": _named(
+                        actuators, units["actuators"], "input acting on the plant after actuator faults"
+                    ),
+                    "disturbance": _named(
+                        disturbances,
+                        units.get("disturbances", {}),
+                        "unknown input acting on the plant (not on the bus)",
+                    ),
+                },
+                "Actuator inputs and unknown inputs",
+            ),
+        )
+        self._faults = log.channel(
+            FAULTS,
+            object_schema(
+                "cosim.TruthFaults",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "noise": _named(sensors, units["sensors"], "measurement noise added per sensor"),
+                    "fault": _named(sensors, units["sensors"], "deviation added by faults per sensor", nullable=True),
+                    "measured": _named(
+                        sensors, units["sensors"], "reading sent on the bus (null: not sent)", nullable=True
+                    ),
+                    "dropped": {
+                        "type": "array",
+                        "items": {"type": "string"},
+                        "description": "sensors whose frame was not sent",
+                    },
+                    "effectiveness": _named(actuators, {}, "actuator effectiveness factor δ"),
+                    "active": {
+                        "type": "array",
+                        "items": {"type": "string"},
+                        "description": "labels of the active faults",
+                    },
+                },
+                "Faults and noise applied by the fault layer",
+            ),
+        )
+        self._misses = log.channel(
+            DEADLINE_MISSES,
+            object_schema(
+                "cosim.DeadlineMiss",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "node": {
+                        "type": "string",
+                        "description": "the node whose heartbeat for this tick was not in by its deadline",
+                    },
+                    "count": {"type": "integer", "description": "deadline misses so far in the run"},
+                },
+                "Realtime mode: ticks a node did not answer in time",
+            ),
+        )
+        self._events = log.channel(
+            EVENTS,
+            object_schema(
+                "cosim.Event",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "level": {"type": "string", "enum": ["info", "warning", "error"]},
+                    "event": {"type": "string"},
+                    "detail": {"type": "string"},
+                    "count": {"type": "integer", "description": "how many (frames lost, deadlines missed, ...)"},
+                },
+                "Runner events",
+            ),
+        )
 
     def frame(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
         spec = decoded.spec if decoded is not None else None
-        self.log.write(self._frames, t_ns, {
-            "tick": tick, "t": t, "seq": self.frames, "id": frame.arbitration_id, "extended": frame.is_extended_id,
-            "fd": frame.is_fd, "brs": frame.bitrate_switch, "dlc": len2dlc(len(frame.data)), "length": len(frame.data),
-            "data": bytes(frame.data).hex(),
-            "sender": spec.sender if spec else "unknown", "message": spec.name if spec else None,
-        })
+        self.log.write(
+            self._frames,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t,
+                "seq": self.frames,
+                "id": frame.arbitration_id,
+                "extended": frame.is_extended_id,
+                "fd": frame.is_fd,
+                "brs": frame.bitrate_switch,
+                "dlc": len2dlc(len(frame.data)),
+                "length": len(frame.data),
+                "data": bytes(frame.data).hex(),
+                "sender": spec.sender if spec else "unknown",
+                "message": spec.name if spec else None,
+            },
+        )
         self.frames += 1
         if decoded is not None:
             payload = decoded.values if spec.role == NMT else {"tick": decoded.tick, **decoded.values}
             self.log.write(self._decoded[spec.name], t_ns, payload)
 
     def truth(
-        self, tick: int, t: float, t_ns: int, *, x: np.ndarray, y_true: np.ndarray, noise: np.ndarray,
-        fault: np.ndarray, measured: np.ndarray, active: tuple[str, ...], u_cmd: np.ndarray, u_eff: np.ndarray,
-        delta: np.ndarray, disturbance: np.ndarray | None = None,
+        self,
+        tick: int,
+        t: float,
+        t_ns: int,
+        *,
+        x: np.ndarray,
+        y_true: np.ndarray,
+        noise: np.ndarray,
+        fault: np.ndarray,
+        measured: np.ndarray,
+        active: tuple[str, ...],
+        u_cmd: np.ndarray,
+        u_eff: np.ndarray,
+        delta: np.ndarray,
+        disturbance: np.ndarray | None = None,
     ) -> None:
         log = self.log
         log.write(self._state, t_ns, {"tick": tick, "t": t, **dict(zip(self.states, x.tolist()))})
         log.write(self._sensors, t_ns, {"tick": tick, "t": t, **dict(zip(self.sensors, y_true.tolist()))})
-        log.write(self._inputs, t_ns, {
-            "tick": tick, "t": t,
-            "commanded": dict(zip(self.actuators, u_cmd.tolist())), "effective": dict(zip(self.actuators, u_eff.tolist())),
-            "disturbance": dict(zip(self.disturbances, [] if disturbance is None else disturbance.tolist())),
-        })
-        log.write(self._faults, t_ns, {
-            "tick": tick, "t": t,
-            "noise": dict(zip(self.sensors, noise.tolist())), "fault": dict(zip(self.sensors, fault.tolist())),
-            "measured": dict(zip(self.sensors, measured.tolist())),
-            "dropped": [name for name, value in zip(self.sensors, measured) if value != value],
-            "effectiveness": dict(zip(self.actuators, delta.tolist())), "active": list(active),
-        })
+        log.write(
+            self._inputs,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t,
+                "commanded": dict(zip(self.actuators, u_cmd.tolist())),
+                "effective": dict(zip(self.actuators, u_eff.tolist())),
+                "disturbance": dict(zip(self.disturbances, [] if disturbance is None else disturbance.tolist())),
+            },
+        )
+        log.write(
+            self._faults,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t,
+                "noise": dict(zip(self.sensors, noise.tolist())),
+                "fault": dict(zip(self.sensors, fault.tolist())),
+                "measured": dict(zip(self.sensors, measured.tolist())),
+                "dropped": [name for name, value in zip(self.sensors, measured) if value != value],
+                "effectiveness": dict(zip(self.actuators, delta.tolist())),
+                "active": list(active),
+            },
+        )
 
     def deadline_miss(self, tick: int, t: float, t_ns: int, node: str, count: int) -> None:
         self.log.write(self._misses, t_ns, {"tick": tick, "t": t, "node": node, "count": count})
 
-    def event(self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info", count: int = 0) -> None:
-        self.log.write(self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail, "count": count})
+    def event(
+        self, tick: int, t: float, t_ns: int, event: str, detail: str = "", level: str = "info", count: int = 0
+    ) -> None:
+        self.log.write(
+            self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail, "count": count}
+        )

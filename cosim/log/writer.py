@@ -36,7 +36,9 @@ class McapLog:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+        self._writer = Writer(
+            self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL
+        )
         self._writer.start(profile="", library=f"cosim/{__version__}")
         self._channels: dict[str, int] = {}
         self._sequence: dict[int, int] = {}
@@ -54,8 +56,12 @@ class McapLog:
         if topic in self._channels:
             return self._channels[topic]
         title = schema.get("title", topic)
-        schema_id = self._writer.register_schema(name=title, encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode())
-        channel_id = self._writer.register_channel(topic=topic, message_encoding=MessageEncoding.JSON, schema_id=schema_id)
+        schema_id = self._writer.register_schema(
+            name=title, encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode()
+        )
+        channel_id = self._writer.register_channel(
+            topic=topic, message_encoding=MessageEncoding.JSON, schema_id=schema_id
+        )
         self._channels[topic] = channel_id
         self._sequence[channel_id] = 0
         return channel_id
@@ -64,7 +70,9 @@ class McapLog:
         """Append one message; ``time_ns`` is simulated time (log and publish time)."""
         sequence = self._sequence[channel_id]
         self._sequence[channel_id] = sequence + 1
-        self._writer.add_message(channel_id, log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence)
+        self._writer.add_message(
+            channel_id, log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence
+        )
         self.messages += 1
 
     def metadata(self, name: str, values: dict[str, str]) -> None:

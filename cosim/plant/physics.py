@@ -64,7 +64,7 @@ class Plant:
         keyframe = keyframe or self.info.keyframe
         key = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
         if key < 0:
-            raise ModelError(f"{self.info.model_file}: no keyframe named {keyframe!r}; add <key name=\"{keyframe}\"/>")
+            raise ModelError(f'{self.info.model_file}: no keyframe named {keyframe!r}; add <key name="{keyframe}"/>')
         mujoco.mj_resetDataKeyframe(self.model, self.data, key)
         if initial or self._tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
             x = self.state()
@@ -129,7 +129,9 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
         mujoco.set_mjcb_passive(passive)
     if info.passive is not None:
         if passive is not None and passive is not info.passive:
-            raise ModelError(f"{info.model_file}: needs its passive-force callback, but another one is installed (mjcb_passive)")
+            raise ModelError(
+                f"{info.model_file}: needs its passive-force callback, but another one is installed (mjcb_passive)"
+            )
         mujoco.set_mjcb_passive(info.passive)
     _check_states(model, info)
     for actuator in (*info.actuators, *info.disturbances):
@@ -137,7 +139,9 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
             raise ModelError(f"{info.model_file}: no actuator named {actuator.name!r} (declared by the plant module)")
     declared = len(info.actuators) + len(info.disturbances)
     if declared != model.nu:
-        raise ModelError(f"{info.model_file}: the model has {model.nu} actuators, the plant module names {declared} (inputs and disturbances)")
+        raise ModelError(
+            f"{info.model_file}: the model has {model.nu} actuators, the plant module names {declared} (inputs and disturbances)"
+        )
     for sensor in info.sensors:
         sensor_address(model, info, sensor.name)
     return model
@@ -146,7 +150,9 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
 def _check_states(model: mujoco.MjModel, info: PlantInfo) -> None:
     if info.state_tendons:
         if len(info.states) != len(info.state_tendons):
-            raise ModelError(f"{info.model_file}: plant module names {len(info.states)} states but {len(info.state_tendons)} state tendons")
+            raise ModelError(
+                f"{info.model_file}: plant module names {len(info.states)} states but {len(info.state_tendons)} state tendons"
+            )
         return
     nstate = model.nq + model.nv + model.na
     if len(info.states) != nstate:
@@ -206,8 +212,10 @@ def quasi_static_velocities(model: mujoco.MjModel, data: mujoco.MjData, max_iter
         try:
             dv = np.linalg.solve(J, -f)
         except np.linalg.LinAlgError:
-            raise ModelError("no quasi-steady velocities: every joint of a tendon-state plant needs a velocity-dependent "
-                             "force (damping, a velocity servo)") from None
+            raise ModelError(
+                "no quasi-steady velocities: every joint of a tendon-state plant needs a velocity-dependent "
+                "force (damping, a velocity servo)"
+            ) from None
         v = v + dv
         if np.max(np.abs(dv), initial=0.0) <= 1e-13 * scale:
             return v
@@ -229,10 +237,14 @@ def sensor_address(model: mujoco.MjModel, info: PlantInfo, name: str) -> int:
     dim = int(model.sensor_dim[sid])
     if channel.component is None:
         if dim != 1:
-            raise ModelError(f"{info.model_file}: sensor {name!r} has {dim} components; use scalar sensors or give channel {channel.name!r} a component")
+            raise ModelError(
+                f"{info.model_file}: sensor {name!r} has {dim} components; use scalar sensors or give channel {channel.name!r} a component"
+            )
         return int(model.sensor_adr[sid])
     if not 0 <= channel.component < dim:
-        raise ModelError(f"{info.model_file}: channel {channel.name!r} reads component {channel.component} of sensor {name!r}, which has components 0 to {dim - 1}")
+        raise ModelError(
+            f"{info.model_file}: channel {channel.name!r} reads component {channel.component} of sensor {name!r}, which has components 0 to {dim - 1}"
+        )
     return int(model.sensor_adr[sid]) + channel.component
 
 
@@ -321,9 +333,19 @@ def linearize(
     mujoco.mj_forward(m, d)
     state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
     return LinearModel(
-        A, B, C, D, dt, state_names, plant.actuator_names, plant.sensor_names,
+        A,
+        B,
+        C,
+        D,
+        dt,
+        state_names,
+        plant.actuator_names,
+        plant.sensor_names,
         x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
-        u_op=ctrl0[plant._known], y_op=d.sensordata[sensors] - plant.sensor_zero, E=E, disturbances=plant.disturbance_names,
+        u_op=ctrl0[plant._known],
+        y_op=d.sensordata[sensors] - plant.sensor_zero,
+        E=E,
+        disturbances=plant.disturbance_names,
     )
 
 
@@ -382,16 +404,21 @@ def _linearize_tendon_state(
         # Positions off the state tendons (null space of T) must not matter, or h is not a state.
         null = np.linalg.svd(T)[2][ns:].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
         if null.size:
+
             def moved(dq: np.ndarray) -> np.ndarray:
                 d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + null @ dq, qvel0, ctrl0
                 mujoco.mj_forward(m, d)
                 return d.qfrc_smooth.copy()
 
-            if np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(jac_h[:nv]).max():  # > FD rounding
+            if (
+                np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(jac_h[:nv]).max()
+            ):  # > FD rounding
                 raise ModelError(f"{plant.info.model_file}: forces depend on coordinates other than the state tendons")
         f_v = jac_v[:nv]
         if np.linalg.cond(f_v) > 1e12:
-            raise ModelError(f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)")
+            raise ModelError(
+                f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)"
+            )
         dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
         dv_du = -np.linalg.solve(f_v, jac_u[:nv])
         A, BE = T @ dv_dh, T @ dv_du
@@ -417,8 +444,19 @@ def _linearize_tendon_state(
     finally:
         m.opt.disableflags = flags
     return LinearModel(
-        A, BE[:, plant._known], C, D, dt, plant.state_names, plant.actuator_names, plant.sensor_names,
-        x_op=h0, u_op=ctrl0[plant._known], y_op=y0 - plant.sensor_zero, E=BE[:, plant._unknown], disturbances=plant.disturbance_names,
+        A,
+        BE[:, plant._known],
+        C,
+        D,
+        dt,
+        plant.state_names,
+        plant.actuator_names,
+        plant.sensor_names,
+        x_op=h0,
+        u_op=ctrl0[plant._known],
+        y_op=y0 - plant.sensor_zero,
+        E=BE[:, plant._unknown],
+        disturbances=plant.disturbance_names,
     )
 
 

@@ -27,11 +27,18 @@ def plant_info(spec) -> PlantInfo:
     """The PlantInfo of a ``[plant.state_space]`` table (a validated ``StateSpaceSpec``)."""
 
     def channels(names: Sequence[str], what: str) -> tuple[Channel, ...]:
-        return tuple(Channel(n, spec.unit, f"{what} {n} of the state-space plant", -spec.bound, spec.bound, spec.resolution) for n in names)
+        return tuple(
+            Channel(n, spec.unit, f"{what} {n} of the state-space plant", -spec.bound, spec.bound, spec.resolution)
+            for n in names
+        )
 
     return PlantInfo(
-        NAME, f"{spec.time}-time state-space plant with {len(spec.state_names)} states", "",
-        channels(spec.state_names, "state"), channels(spec.output_names, "output"), channels(spec.input_names, "input"),
+        NAME,
+        f"{spec.time}-time state-space plant with {len(spec.state_names)} states",
+        "",
+        channels(spec.state_names, "state"),
+        channels(spec.output_names, "output"),
+        channels(spec.input_names, "input"),
         disturbances=channels(spec.disturbance_names, "unknown input"),
     )
 
@@ -91,12 +98,25 @@ class StateSpacePlant:
             self.x = self.x + self.Ed @ np.asarray(disturbance, dtype=float)
         self._k += 1
 
-    def linearize(self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False,
-                  method: str = "zoh") -> LinearModel:
+    def linearize(
+        self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False, method: str = "zoh"
+    ) -> LinearModel:
         """The model itself (it is linear): sampled at the sample time, or in continuous time."""
         if continuous and self.spec.time != "continuous":
-            raise ModelError("a continuous-time estimator needs a continuous-time plant: set plant.state_space.time = \"continuous\"")
+            raise ModelError(
+                'a continuous-time estimator needs a continuous-time plant: set plant.state_space.time = "continuous"'
+            )
         A, B, E = (self.A, self.B, self.E) if continuous else (self.Ad, self.Bd, self.Ed)
         rows = self._rows
-        return LinearModel(A, B, self.C[rows], self.D[rows], None if continuous else self.sample_time,
-                           self.state_names, self.actuator_names, self.sensor_names, E=E, disturbances=self.disturbance_names)
+        return LinearModel(
+            A,
+            B,
+            self.C[rows],
+            self.D[rows],
+            None if continuous else self.sample_time,
+            self.state_names,
+            self.actuator_names,
+            self.sensor_names,
+            E=E,
+            disturbances=self.disturbance_names,
+        )

@@ -9,8 +9,14 @@ from __future__ import annotations
 
 from typing import Any
 
-_EXPORTS = {"Run": "cosim.run.runner", "run": "cosim.run.runner", "RunResult": "cosim.run.session",
-            "Progress": "cosim.run.session", "Replay": "cosim.run.replay", "RunPlan": "cosim.run.plan"}
+_EXPORTS = {
+    "Run": "cosim.run.runner",
+    "run": "cosim.run.runner",
+    "RunResult": "cosim.run.session",
+    "Progress": "cosim.run.session",
+    "Replay": "cosim.run.replay",
+    "RunPlan": "cosim.run.plan",
+}
 
 __all__ = sorted(_EXPORTS)
 

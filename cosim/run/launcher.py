@@ -55,7 +55,10 @@ class ProcessNode(Participant):
             # nodes itself after finishing the log.
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "cosim.cli", "node", spec.name, "--spec", str(spec_path)],
-                stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, start_new_session=True,
+                stdin=subprocess.DEVNULL,
+                stdout=output,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
             )
 
     def last_output(self, lines: int = 12) -> str:

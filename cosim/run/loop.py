@@ -67,14 +67,23 @@ class PlantSource:
         self.plant.reset(s.plant.initial_state)
         self.faults = build_faults(s)
         self.closed_loop = s.controller is not None
-        self.inputs = [next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
-                       for name in s.actuators]
-        self.disturbances = [next((build_waveform(d.signal) for d in s.disturbances if d.input == name and d.signal is not None),
-                                  fm.Constant(0.0)) for name in s.disturbance_inputs]
+        self.inputs = [
+            next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
+            for name in s.actuators
+        ]
+        self.disturbances = [
+            next(
+                (build_waveform(d.signal) for d in s.disturbances if d.input == name and d.signal is not None),
+                fm.Constant(0.0),
+            )
+            for name in s.disturbance_inputs
+        ]
         self.environments = [
             s.plant_info.disturbance_models[d.model](
-                np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_ENVIRONMENT, i))), **d.params)
-            for i, d in enumerate(s.disturbances) if d.model
+                np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_ENVIRONMENT, i))), **d.params
+            )
+            for i, d in enumerate(s.disturbances)
+            if d.model
         ]
         self.sensor_specs = [plan.codec.sensor(n) for n in s.sensors]
         self.command_specs = [plan.codec.command(n) for n in s.actuators]
@@ -87,9 +96,16 @@ class PlantSource:
         x, y_true = self.plant.state(), self.plant.sensors()
         outcome = self.faults.sensors(y_true, t)
         self._sensed = (x, y_true, outcome)
-        sent = [codec.encode_decoded(spec.name, k, (value,)) for spec, value, on in zip(self.sensor_specs, outcome.measured, outcome.sent) if on]
-        self._commands = [] if self.closed_loop else [
-            codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(self.command_specs, self.inputs)]
+        sent = [
+            codec.encode_decoded(spec.name, k, (value,))
+            for spec, value, on in zip(self.sensor_specs, outcome.measured, outcome.sent)
+            if on
+        ]
+        self._commands = (
+            []
+            if self.closed_loop
+            else [codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(self.command_specs, self.inputs)]
+        )
         sync = codec.sync(k, len(sent) + len(self._commands))
         return [(sync, codec.decode(sync)), *sent, *self._commands]
 
@@ -100,17 +116,33 @@ class PlantSource:
         if self.closed_loop:
             self.u_cmd = session.commands(k, s.actuators, self.u_cmd)
         else:
-            self.u_cmd = np.array([decoded.values[spec.signals[0]] for (_, decoded), spec in zip(self._commands, self.command_specs)])
+            self.u_cmd = np.array(
+                [decoded.values[spec.signals[0]] for (_, decoded), spec in zip(self._commands, self.command_specs)]
+            )
         u_eff, delta = self.faults.actuators(self.u_cmd, t)
-        d = np.array([w(t) for w in self.disturbances]) + sum((b(t) for b in self.environments), np.zeros(len(self.disturbances)))
+        d = np.array([w(t) for w in self.disturbances]) + sum(
+            (b(t) for b in self.environments), np.zeros(len(self.disturbances))
+        )
         session.recorder.truth(
-            k, t, k * s.dt_ns, x=x, y_true=y_true, noise=outcome.noise, fault=outcome.fault,
-            measured=np.where(outcome.sent, outcome.measured, np.nan), active=outcome.active, u_cmd=self.u_cmd,
-            u_eff=u_eff, delta=delta, disturbance=d,
+            k,
+            t,
+            k * s.dt_ns,
+            x=x,
+            y_true=y_true,
+            noise=outcome.noise,
+            fault=outcome.fault,
+            measured=np.where(outcome.sent, outcome.measured, np.nan),
+            active=outcome.active,
+            u_cmd=self.u_cmd,
+            u_eff=u_eff,
+            delta=delta,
+            disturbance=d,
         )
         if not np.all(np.isfinite(u_eff)):
             bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
-            raise CosimError(f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults")
+            raise CosimError(
+                f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults"
+            )
         self.plant.step(u_eff, d)
 
 
@@ -125,8 +157,14 @@ def run_ticks(source: TickSource, session: Session, progress: Callable[[int], No
     return source.ticks
 
 
-def execute(source: TickSource, session: Session, start: Callable[[], None], senders: list[str],
-            on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2) -> RunResult:
+def execute(
+    source: TickSource,
+    session: Session,
+    start: Callable[[], None],
+    senders: list[str],
+    on_progress: Callable[[Progress], None] | None = None,
+    progress_every: float = 0.2,
+) -> RunResult:
     """Start the participants (``start`` adds them to ``session.participants``), wait for them to
     join, run every tick of ``source`` and finish the log, however the run ends: the log then says
     how it ended and what each of ``senders`` sent. Re-raises what stopped it."""
@@ -154,7 +192,9 @@ def execute(source: TickSource, session: Session, start: Callable[[], None], sen
     return result
 
 
-def start_participants(plan: RunPlan, session: Session, node_spec: Callable[[str, BusConfig], NodeSpec] | None = None) -> None:
+def start_participants(
+    plan: RunPlan, session: Session, node_spec: Callable[[str, BusConfig], NodeSpec] | None = None
+) -> None:
     """Start the estimator nodes, the controller node and wait for the declared clients of a run,
     each added to the session's participants as soon as it exists (to be stopped, whatever comes)."""
     s, bus = plan.scenario, session.config

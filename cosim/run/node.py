@@ -50,17 +50,35 @@ class NodeSpec:
     """The controller's diagnosis node (upstream with lag 1), whose report it reads."""
 
     def to_json(self) -> str:
-        return json.dumps({
-            "name": self.name, "kind": self.kind, "params": self.params, "model": self.model.to_dict(), "dbc": self.dbc,
-            "bus": self.bus.to_dict(), "sample_time": self.sample_time, "upstream": self.upstream, "diagnosis": self.diagnosis,
-        })
+        return json.dumps(
+            {
+                "name": self.name,
+                "kind": self.kind,
+                "params": self.params,
+                "model": self.model.to_dict(),
+                "dbc": self.dbc,
+                "bus": self.bus.to_dict(),
+                "sample_time": self.sample_time,
+                "upstream": self.upstream,
+                "diagnosis": self.diagnosis,
+            }
+        )
 
     @classmethod
     def from_json(cls, text: str) -> NodeSpec:
         data = json.loads(text)
         model = LinearModel.from_dict(data["model"])
-        return cls(data["name"], data["kind"], data["params"], model, data["dbc"], BusConfig.from_dict(data["bus"]),
-                   data["sample_time"], data.get("upstream", {}), data.get("diagnosis", ""))
+        return cls(
+            data["name"],
+            data["kind"],
+            data["params"],
+            model,
+            data["dbc"],
+            BusConfig.from_dict(data["bus"]),
+            data["sample_time"],
+            data.get("upstream", {}),
+            data.get("diagnosis", ""),
+        )
 
 
 class _Node(ABC):
@@ -144,9 +162,15 @@ class ControllerNode(_Node):
                 raise CosimError(f"controller: params.{error}") from None
         self.controller = controller
         self.client = Client(CONTROLLER, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
-        self._inputs = {channel.name: signal for message in self.client.messages for channel, signal in zip(message.channels, message.signals)
-                        if message.role == COMMAND}
-        self._diagnostics = [signal for message in self.client.messages if message.role != COMMAND for signal in message.signals]
+        self._inputs = {
+            channel.name: signal
+            for message in self.client.messages
+            for channel, signal in zip(message.channels, message.signals)
+            if message.role == COMMAND
+        }
+        self._diagnostics = [
+            signal for message in self.client.messages if message.role != COMMAND for signal in message.signals
+        ]
         self.ticks = 0
 
     def answer(self, tick: TickFrames) -> None:

@@ -38,7 +38,9 @@ from estimators import controller as controllers
 from estimators.design import fault_rejectable
 
 
-def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> dict[str, Estimator]:
+def build_estimators(
+    s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None
+) -> dict[str, Estimator]:
     """Each estimator of the scenario, designed on ``model`` (discrete time), or on ``continuous``
     (the continuous-time linearization) for the kinds that integrate their own ODE."""
     built = {}
@@ -56,7 +58,9 @@ def build_estimators(s: Scenario, model: LinearModel, source: str, continuous: L
     return built
 
 
-def build_controller(s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None) -> controllers.Controller | None:
+def build_controller(
+    s: Scenario, model: LinearModel, source: str, continuous: LinearModel | None = None
+) -> controllers.Controller | None:
     """The scenario's controller on the plant's linear model, with its parameters checked."""
     if s.controller is None:
         return None
@@ -89,8 +93,10 @@ def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
                     phi[estimator.model.outputs.index(sensor)] = value
             sigma = getattr(estimator, "Sigma", np.eye(len(phi)))
             if not fault_rejectable(Y, sigma @ phi):
-                found.append(f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so no "
-                             "choice of pseudoinverse weights can reject it (TAC 2024 Remark 4)")
+                found.append(
+                    f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so no "
+                    "choice of pseudoinverse weights can reject it (TAC 2024 Remark 4)"
+                )
     return found
 
 
@@ -105,8 +111,13 @@ def first_tick_at(s: Scenario, start: float) -> int:
 def fault_record(fault: fm.Fault, s: Scenario) -> FaultRecord:
     """What the log says about one fault: its window and the signals it acts on."""
     signals = s.actuators if isinstance(fault, fm.ActuatorFault) else s.sensors
-    return FaultRecord(fault.label, fault.kind, fault.start, fault.end if np.isfinite(fault.end) else None,
-                       [signals[c] for c in fault.channels])
+    return FaultRecord(
+        fault.label,
+        fault.kind,
+        fault.start,
+        fault.end if np.isfinite(fault.end) else None,
+        [signals[c] for c in fault.channels],
+    )
 
 
 def diagnostic_records(channels: list[Diagnostic]) -> dict[str, DiagnosticRecord]:
@@ -114,12 +125,21 @@ def diagnostic_records(channels: list[Diagnostic]) -> dict[str, DiagnosticRecord
     return {d.name: DiagnosticRecord(d.kind.value, d.target, d.unit) for d in channels}
 
 
-def estimator_record(codec: Codec, name: str, kind: str, params: dict[str, Any], estimator: Estimator) -> EstimatorRecord:
+def estimator_record(
+    codec: Codec, name: str, kind: str, params: dict[str, Any], estimator: Estimator
+) -> EstimatorRecord:
     """The ``cosim.run`` entry of one estimator: designed ``estimator`` of ``kind``, given ``params``."""
     model = estimator.model
     diagnostics = diagnostic_records(estimators.ESTIMATORS[kind].diagnostic_channels(model.states, model.outputs))
-    return EstimatorRecord(kind, [m.name for m in codec.data_messages(name)], list(model.states),
-                           {**params, **estimator.design_params()}, model.to_dict(), diagnostics, estimator.isolation_targets())
+    return EstimatorRecord(
+        kind,
+        [m.name for m in codec.data_messages(name)],
+        list(model.states),
+        {**params, **estimator.design_params()},
+        model.to_dict(),
+        diagnostics,
+        estimator.isolation_targets(),
+    )
 
 
 @dataclass(frozen=True)
@@ -159,7 +179,8 @@ class RunPlan:
             plant.reset(keyframe=s.plant_info.design_keyframe)
         model = plant.linearize()
         needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
-            s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous)
+            s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous
+        )
         try:  # computed even when no estimator needs it: the log records it, for replay to design new ones on
             continuous: LinearModel | None = plant.linearize(continuous=True)
         except ModelError:  # a discrete-time state-space plant has none
@@ -171,12 +192,23 @@ class RunPlan:
         onset = injector.first_onset
         sensors, actuators, states = s.channels()
         return cls(
-            loaded, s, tuple(plant.state_names), model, continuous, built, build_controller(s, model, loaded.source, continuous),
-            s.codec(), tuple(design_warnings(s, built)),
+            loaded,
+            s,
+            tuple(plant.state_names),
+            model,
+            continuous,
+            built,
+            build_controller(s, model, loaded.source, continuous),
+            s.codec(),
+            tuple(design_warnings(s, built)),
             tuple(fault_record(f, s) for f in injector.faults),
             None if onset is None else first_tick_at(s, onset),
-            {"states": {c.name: c.unit for c in states}, "sensors": {c.name: c.unit for c in sensors},
-             "actuators": {c.name: c.unit for c in actuators}, "disturbances": {c.name: c.unit for c in s.plant_info.disturbances}},
+            {
+                "states": {c.name: c.unit for c in states},
+                "sensors": {c.name: c.unit for c in sensors},
+                "actuators": {c.name: c.unit for c in actuators},
+                "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
+            },
         )
 
     @property
@@ -191,12 +223,29 @@ class RunPlan:
         s = self.scenario
         if name == CONTROLLER and s.controller is not None and self.controller is not None:
             diagnosis = s.controller.diagnosis
-            return NodeSpec(CONTROLLER, s.controller.kind, s.controller.params, self.controller.model, self.codec.dbc, bus,
-                            s.sample_time, {diagnosis: 1} if diagnosis else {}, diagnosis)
+            return NodeSpec(
+                CONTROLLER,
+                s.controller.kind,
+                s.controller.params,
+                self.controller.model,
+                self.codec.dbc,
+                bus,
+                s.sample_time,
+                {diagnosis: 1} if diagnosis else {},
+                diagnosis,
+            )
         spec = next(e for e in s.estimators if e.name == name)
         estimator = self.estimators[name]
-        return NodeSpec(name, spec.kind, {**spec.params, **estimator.design_params()}, estimator.model, self.codec.dbc, bus,
-                        s.sample_time, {CONTROLLER: 0} if s.controller is not None else {})
+        return NodeSpec(
+            name,
+            spec.kind,
+            {**spec.params, **estimator.design_params()},
+            estimator.model,
+            self.codec.dbc,
+            bus,
+            s.sample_time,
+            {CONTROLLER: 0} if s.controller is not None else {},
+        )
 
     def run_record(self) -> RunRecord:
         """The log's ``cosim.run`` record."""
@@ -205,20 +254,46 @@ class RunPlan:
         if s.controller is not None and self.controller is not None:
             kind = controllers.CONTROLLERS[s.controller.kind]
             controller = ControllerRecord(
-                s.controller.kind, s.controller.params, s.controller.diagnosis, [m.name for m in codec.data_messages(CONTROLLER)],
-                self.controller.model.to_dict(), [m.name for m in codec.messages(role=CONTROL)],
-                diagnostic_records(kind.diagnostic_channels(s.actuators, s.sensors)))
+                s.controller.kind,
+                s.controller.params,
+                s.controller.diagnosis,
+                [m.name for m in codec.data_messages(CONTROLLER)],
+                self.controller.model.to_dict(),
+                [m.name for m in codec.messages(role=CONTROL)],
+                diagnostic_records(kind.diagnostic_channels(s.actuators, s.sensors)),
+            )
         return RunRecord(
-            scenario=s.name, source=self.loaded.source, seed=s.seed, sample_time=s.sample_time, duration=s.duration,
-            ticks=s.ticks, plant=s.plant.model, states=list(self.state_names), sensors=list(s.sensors),
-            actuators=list(s.actuators), disturbances=list(s.disturbance_inputs),
-            estimators={spec.name: estimator_record(codec, spec.name, spec.kind, spec.params, self.estimators[spec.name])
-                        for spec in s.estimators},
-            model=self.model.to_dict(), continuous_model=None if self.continuous_model is None else self.continuous_model.to_dict(),
-            clients={c.name: {"lockstep": c.lockstep, "messages": [m.name for m in codec.data_messages(c.name)]} for c in s.clients},
-            controller=controller, fault_onset=min((f.start for f in self.faults if f.start is not None), default=None),
-            fault_onset_tick=self.onset_tick, faults=list(self.faults),
-            bus={"interface": s.bus.interface, "fd": s.bus.fd, "bitrate": s.bus.bitrate, "data_bitrate": s.bus.data_bitrate},
+            scenario=s.name,
+            source=self.loaded.source,
+            seed=s.seed,
+            sample_time=s.sample_time,
+            duration=s.duration,
+            ticks=s.ticks,
+            plant=s.plant.model,
+            states=list(self.state_names),
+            sensors=list(s.sensors),
+            actuators=list(s.actuators),
+            disturbances=list(s.disturbance_inputs),
+            estimators={
+                spec.name: estimator_record(codec, spec.name, spec.kind, spec.params, self.estimators[spec.name])
+                for spec in s.estimators
+            },
+            model=self.model.to_dict(),
+            continuous_model=None if self.continuous_model is None else self.continuous_model.to_dict(),
+            clients={
+                c.name: {"lockstep": c.lockstep, "messages": [m.name for m in codec.data_messages(c.name)]}
+                for c in s.clients
+            },
+            controller=controller,
+            fault_onset=min((f.start for f in self.faults if f.start is not None), default=None),
+            fault_onset_tick=self.onset_tick,
+            faults=list(self.faults),
+            bus={
+                "interface": s.bus.interface,
+                "fd": s.bus.fd,
+                "bitrate": s.bus.bitrate,
+                "data_bitrate": s.bus.data_bitrate,
+            },
             timing=s.timing.model_dump(),
         )
 

@@ -88,7 +88,10 @@ class LoggedTick:
 def frame_of(record: dict[str, Any]) -> can.Message:
     """The CAN frame a ``/can/frames`` record describes."""
     return can.Message(
-        arbitration_id=record["id"], is_extended_id=record["extended"], is_fd=record["fd"], bitrate_switch=record["brs"],
+        arbitration_id=record["id"],
+        is_extended_id=record["extended"],
+        is_fd=record["fd"],
+        bitrate_switch=record["brs"],
         data=bytes.fromhex(record["data"]),
     )
 
@@ -145,7 +148,9 @@ class LogSource:
     def __init__(self, reader: LogReader, log_codec: Codec, codec: Codec, ticks: int, out: McapLog, path: Path) -> None:
         self.reader, self.codec, self.ticks, self.path = reader, codec, ticks, path
         self._ticks = logged_ticks(reader, log_codec)
-        self._truth = {topic: out.channel(topic, {}) for topic in TRUTH}  # registered, with their schemas, by the recorder
+        self._truth = {
+            topic: out.channel(topic, {}) for topic in TRUTH
+        }  # registered, with their schemas, by the recorder
         self._out = out
         self._logged: LoggedTick | None = None
 
@@ -171,9 +176,18 @@ class Replay:
     session and tick loop over a ``LogSource``, with a plan that holds the one estimator.
     """
 
-    def __init__(self, log: str | Path, out: str | Path, estimator: str, *, kind: str | None = None,
-                 params: dict[str, Any] | None = None, interface: str | None = None, channel: str | None = None,
-                 port: int | None = None) -> None:
+    def __init__(
+        self,
+        log: str | Path,
+        out: str | Path,
+        estimator: str,
+        *,
+        kind: str | None = None,
+        params: dict[str, Any] | None = None,
+        interface: str | None = None,
+        channel: str | None = None,
+        port: int | None = None,
+    ) -> None:
         self.log, self.out = Path(log), Path(out)
         if self.out.exists() and self.log.exists() and self.out.samefile(self.log):
             raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
@@ -183,7 +197,9 @@ class Replay:
         self.meta = LogMetadata.read(raw)
         run, scenario_record = self.meta.run, self.meta.scenario
         if run is None or scenario_record is None or DBC_ATTACHMENT not in self.attachments:
-            raise LogError(f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run")
+            raise LogError(
+                f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run"
+            )
         self.closed_loop = run.controller is not None
         if self.ticks == 0:
             raise LogError(f"{self.log}: the log has no tick (no SYNC frame): there is nothing to replay")
@@ -197,22 +213,32 @@ class Replay:
         self.name, self.new = estimator, kind is not None
         if kind is not None:
             if estimator in recorded:
-                raise CosimError(f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
-                                 f"replay it, or give the new one another name")
+                raise CosimError(
+                    f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
+                    f"replay it, or give the new one another name"
+                )
             if self.closed_loop:
-                raise CosimError(f"--kind {kind}: a new estimator cannot join the replay of a closed-loop run (the "
-                                 f"controller node's ids would move); replay one of the run's estimators")
+                raise CosimError(
+                    f"--kind {kind}: a new estimator cannot join the replay of a closed-loop run (the "
+                    f"controller node's ids would move); replay one of the run's estimators"
+                )
             if kind not in estimators.ESTIMATORS:
-                raise CosimError(f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})")
+                raise CosimError(
+                    f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})"
+                )
             model = _recorded_model(run, estimators.ESTIMATORS[kind].continuous, kind, self.log)
             spec_params = overrides
         else:
             if estimator not in recorded:
-                raise CosimError(f"--estimator {estimator}: the run has no estimator of that name (it has: "
-                                 f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one")
+                raise CosimError(
+                    f"--estimator {estimator}: the run has no estimator of that name (it has: "
+                    f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one"
+                )
             kind = recorded[estimator].kind
             if recorded[estimator].model is None:
-                raise LogError(f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed")
+                raise LogError(
+                    f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed"
+                )
             model = LinearModel.from_dict(recorded[estimator].model)
             given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator].params)
             # Changed parameters mean a new design; unchanged ones come with the run's design.
@@ -223,8 +249,12 @@ class Replay:
             raise CosimError(f"--param {error}") from None
         self.kind, self.overrides = kind, overrides
         scenario = original.with_overrides(
-            estimators=[{"name": estimator, "kind": kind, "params": spec_params}], clients=[], mode="lockstep",
-            interface=interface or "udp_multicast", channel=channel or "", port=port or 0,
+            estimators=[{"name": estimator, "kind": kind, "params": spec_params}],
+            clients=[],
+            mode="lockstep",
+            interface=interface or "udp_multicast",
+            channel=channel or "",
+            port=port or 0,
         ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
         # The run's own DBC keeps a replayed estimator's ids, so that its frames can match bit for bit.
         codec = scenario.codec() if self.new else self.log_codec
@@ -237,8 +267,18 @@ class Replay:
                 raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
         self.params = spec_params
         self.plan = RunPlan(
-            LoadedScenario(scenario, str(self.log), scenario_record.toml), scenario, tuple(run.states), model, None, built, None,
-            codec, tuple(design_warnings(scenario, built)), tuple(run.faults), run.fault_onset_tick, _units(scenario),
+            LoadedScenario(scenario, str(self.log), scenario_record.toml),
+            scenario,
+            tuple(run.states),
+            model,
+            None,
+            built,
+            None,
+            codec,
+            tuple(design_warnings(scenario, built)),
+            tuple(run.faults),
+            run.fault_onset_tick,
+            _units(scenario),
         )
         self.bus: BusConfig | None = None
         self.session: Session | None = None
@@ -251,16 +291,29 @@ class Replay:
     def result(self) -> RunResult | None:
         return self.session.result if self.session is not None else None
 
-    def execute(self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
-                on_start: Callable[[Replay], None] | None = None) -> RunResult:
+    def execute(
+        self,
+        on_progress: Callable[[Progress], None] | None = None,
+        progress_every: float = 0.2,
+        on_start: Callable[[Replay], None] | None = None,
+    ) -> RunResult:
         """Replay every logged tick; the new log is complete and valid whatever ends the replay."""
         plan, s = self.plan, self.plan.scenario
         self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
         timing = Timing(s.sample_time, "lockstep", 1.0, s.timing.node_timeout, s.timing.join_timeout)
-        recorder = {"states": plan.state_names, "sensors": s.sensors, "actuators": s.actuators, "units": plan.units,
-                    "disturbances": s.disturbance_inputs}
-        with (LogReader(self.log) as reader,
-              Session(self.out, bus, plan.codec, timing, recorder=recorder, own_senders=(RUNNER, PLANT, CONTROLLER)) as session):
+        recorder = {
+            "states": plan.state_names,
+            "sensors": s.sensors,
+            "actuators": s.actuators,
+            "units": plan.units,
+            "disturbances": s.disturbance_inputs,
+        }
+        with (
+            LogReader(self.log) as reader,
+            Session(
+                self.out, bus, plan.codec, timing, recorder=recorder, own_senders=(RUNNER, PLANT, CONTROLLER)
+            ) as session,
+        ):
             self.session = session
             self._write_metadata(session)
             session.event(0, "start", f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}")
@@ -288,7 +341,10 @@ class Replay:
         log.metadata(RUN, self.meta.run.with_only(self.name, record).to_metadata())
         log.metadata(SCENARIO, self.meta.scenario.to_metadata())
         log.metadata(VERSIONS, versions())
-        log.metadata(REPLAY, ReplayRecord(str(self.log), self.name, self.kind, self.new, self.overrides, self.ticks).to_metadata())
+        log.metadata(
+            REPLAY,
+            ReplayRecord(str(self.log), self.name, self.kind, self.new, self.overrides, self.ticks).to_metadata(),
+        )
         for name, data in self.attachments.items():
             if name != DBC_ATTACHMENT:
                 log.attach(name, "application/xml" if name.endswith(".xml") else "application/octet-stream", data)
@@ -314,8 +370,10 @@ def _recorded_model(run: RunRecord, continuous: bool, kind: str, log: Path) -> L
         if entry.model is not None and (entry.model.get("dt") is None) == continuous:
             return LinearModel.from_dict(entry.model)
     time_domain = "continuous" if continuous else "discrete"
-    raise CosimError(f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
-                     f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it")
+    raise CosimError(
+        f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
+        f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it"
+    )
 
 
 def _without_nulls(data: Any) -> Any:
@@ -349,8 +407,14 @@ class Playback:
     warnings: list[str]
 
 
-def play(log: str | Path, interface: str = "udp_multicast", channel: str = "", port: int = 0, speed: float = 1.0,
-         on_start: Callable[[BusConfig], None] | None = None) -> Playback:
+def play(
+    log: str | Path,
+    interface: str = "udp_multicast",
+    channel: str = "",
+    port: int = 0,
+    speed: float = 1.0,
+    on_start: Callable[[BusConfig], None] | None = None,
+) -> Playback:
     """Send every frame of ``log`` onto a bus (default: a fresh host-local ``udp_multicast`` one):
     the frames of simulated time t at t / ``speed`` seconds of wall-clock time after the start, in
     the log's order. ``on_start`` gets the bus before the first frame; Ctrl-C stops between frames."""

@@ -65,23 +65,48 @@ class Run:
     def participants(self) -> list:
         return self.session.participants if self.session is not None else []
 
-    def execute(self, on_progress: Callable[[Progress], None] | None = None, progress_every: float = 0.2,
-                on_start: Callable[[Run], None] | None = None) -> RunResult:
+    def execute(
+        self,
+        on_progress: Callable[[Progress], None] | None = None,
+        progress_every: float = 0.2,
+        on_start: Callable[[Run], None] | None = None,
+    ) -> RunResult:
         """Run every tick; the log is complete and valid whatever ends the run."""
         plan, s = self.plan, self.plan.scenario
         self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
-        registration = Registration(self.run_id, {
-            "scenario": s.name, "source": self.loaded.source, "seed": s.seed, "sample_time": s.sample_time,
-            "bus": bus.to_dict(), "dbc": plan.codec.dbc, "log": str(self.out.resolve()),
-            "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
-        })
+        registration = Registration(
+            self.run_id,
+            {
+                "scenario": s.name,
+                "source": self.loaded.source,
+                "seed": s.seed,
+                "sample_time": s.sample_time,
+                "bus": bus.to_dict(),
+                "dbc": plan.codec.dbc,
+                "log": str(self.out.resolve()),
+                "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
+            },
+        )
         closed_loop = s.controller is not None
         timing = Timing(s.sample_time, s.timing.mode, s.timing.speed, s.timing.node_timeout, s.timing.join_timeout)
-        recorder = {"states": plan.state_names, "sensors": s.sensors, "actuators": s.actuators, "units": plan.units,
-                    "disturbances": s.disturbance_inputs}
+        recorder = {
+            "states": plan.state_names,
+            "sensors": s.sensors,
+            "actuators": s.actuators,
+            "units": plan.units,
+            "disturbances": s.disturbance_inputs,
+        }
         own = (RUNNER, PLANT) if closed_loop else (RUNNER, PLANT, CONTROLLER)
-        with Session(self.out, bus, plan.codec, timing, recorder=recorder, own_senders=own, commands=closed_loop,
-                     registration=registration) as session:
+        with Session(
+            self.out,
+            bus,
+            plan.codec,
+            timing,
+            recorder=recorder,
+            own_senders=own,
+            commands=closed_loop,
+            registration=registration,
+        ) as session:
             self.session = session
             self._write_metadata(session)
             session.event(0, "start", f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}")
@@ -107,7 +132,12 @@ class Run:
         log.attach(DBC_ATTACHMENT, "text/plain", plan.codec.dbc.encode())
 
 
-def run(loaded: LoadedScenario, out: str | Path, seed: int | None = None, on_progress: Callable[[Progress], None] | None = None,
-        **overrides: Any) -> RunResult:
+def run(
+    loaded: LoadedScenario,
+    out: str | Path,
+    seed: int | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
+    **overrides: Any,
+) -> RunResult:
     """Run a loaded scenario and write its log to ``out``."""
     return Run(loaded, out, seed, **overrides).execute(on_progress)

@@ -116,7 +116,9 @@ class Traffic(can.Listener):
     found missing.
     """
 
-    def __init__(self, codec: Codec, recorder: RunRecorder, own_senders: tuple[str, ...], commands: bool = False) -> None:
+    def __init__(
+        self, codec: Codec, recorder: RunRecorder, own_senders: tuple[str, ...], commands: bool = False
+    ) -> None:
         self.codec = codec
         self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
@@ -218,8 +220,18 @@ class Session:
     monitors) is written while the session is open.
     """
 
-    def __init__(self, out: Path, config: BusConfig, codec: Codec, timing: Timing, *, recorder: dict[str, Any],
-                 own_senders: tuple[str, ...], commands: bool = False, registration: Registration | None = None) -> None:
+    def __init__(
+        self,
+        out: Path,
+        config: BusConfig,
+        codec: Codec,
+        timing: Timing,
+        *,
+        recorder: dict[str, Any],
+        own_senders: tuple[str, ...],
+        commands: bool = False,
+        registration: Registration | None = None,
+    ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
         self._recorder_args, self._own, self._with_commands = recorder, own_senders, commands
         self._registration = registration
@@ -294,15 +306,21 @@ class Session:
         def late() -> None:
             self._check_health()
             missing = ", ".join(f"{p.kind} {p.name}" for p in participants if p.name not in self.traffic.joined)
-            raise NodeFailure(f"{missing} did not join the bus {self.config.describe()} within {timeout:g} s "
-                              f"(raise [timing] join_timeout if it starts slowly)")
+            raise NodeFailure(
+                f"{missing} did not join the bus {self.config.describe()} within {timeout:g} s "
+                f"(raise [timing] join_timeout if it starts slowly)"
+            )
 
         self.wait(lambda: expected <= self.traffic.joined, time.perf_counter() + timeout, late)
         self.traffic.flush(*self._marker)  # the boot-up heartbeats
         self.tick_start = time.perf_counter()
 
     def _hung(self, tick: int, name: str | None = None) -> None:
-        waiting = [p for p in self.participants if p.lockstep and self.traffic.closed.get(p.name, -1) < tick and name in (None, p.name)]
+        waiting = [
+            p
+            for p in self.participants
+            if p.lockstep and self.traffic.closed.get(p.name, -1) < tick and name in (None, p.name)
+        ]
         if any(p.name == CONTROLLER for p in waiting):
             waiting = [p for p in waiting if p.name == CONTROLLER]  # the others wait for its commands
         raise NodeFailure(waiting[0].hung(tick, self.timing.node_timeout))
@@ -363,8 +381,11 @@ class Session:
                 if closed.get(name, -1) < k and name != CONTROLLER:
                     self._miss(k, name)
         else:
-            self.wait(lambda: all(closed.get(n, -1) >= k for n in lockstep), time.perf_counter() + self.timing.node_timeout,
-                      lambda: self._hung(k))
+            self.wait(
+                lambda: all(closed.get(n, -1) >= k for n in lockstep),
+                time.perf_counter() + self.timing.node_timeout,
+                lambda: self._hung(k),
+            )
         left = self.traffic.left & set(lockstep)
         if left:
             raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
@@ -401,10 +422,31 @@ class Session:
         traffic.flush(k, t_end, t_end_ns)
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
-        counts = {name: SenderCounts(traffic.received[name], traffic.lost[name], traffic.missed_by.get(name, 0)) for name in senders}
-        self.event(k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error")
-        self.log.metadata(RESULT, ResultRecord(status, k, self.recorder.frames, traffic.frames_lost, self.misses, error,
-                                                       counts).to_metadata())
-        self.result = RunResult(self.out, status, k, self.recorder.frames, traffic.frames_lost, time.perf_counter() - self.start,
-                                t_end, error, self.misses, {name: vars(c) for name, c in counts.items()}, startup, loop)
+        counts = {
+            name: SenderCounts(traffic.received[name], traffic.lost[name], traffic.missed_by.get(name, 0))
+            for name in senders
+        }
+        self.event(
+            k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error"
+        )
+        self.log.metadata(
+            RESULT,
+            ResultRecord(
+                status, k, self.recorder.frames, traffic.frames_lost, self.misses, error, counts
+            ).to_metadata(),
+        )
+        self.result = RunResult(
+            self.out,
+            status,
+            k,
+            self.recorder.frames,
+            traffic.frames_lost,
+            time.perf_counter() - self.start,
+            t_end,
+            error,
+            self.misses,
+            {name: vars(c) for name, c in counts.items()},
+            startup,
+            loop,
+        )
         return self.result

@@ -35,7 +35,24 @@ from cosim.scenario.spec import EstimatorSpec, Scenario, StateSpaceSpec
 from cosim.scenario.waveforms import WaveformSpec, build_waveform
 
 __all__ = [
-    "BUILTIN_DIR", "DEFAULT_SCENARIO", "ActuatorEffectivenessSpec", "ActuatorOffsetSpec", "BiasSpec", "EstimatorSpec",
-    "FaultSpec", "GainSpec", "LoadedScenario", "NoiseSpec", "Scenario", "StateSpaceSpec", "WaveformSpec", "build_fault",
-    "build_faults", "build_waveform", "builtin_names", "check", "load", "parse",
+    "BUILTIN_DIR",
+    "DEFAULT_SCENARIO",
+    "ActuatorEffectivenessSpec",
+    "ActuatorOffsetSpec",
+    "BiasSpec",
+    "EstimatorSpec",
+    "FaultSpec",
+    "GainSpec",
+    "LoadedScenario",
+    "NoiseSpec",
+    "Scenario",
+    "StateSpaceSpec",
+    "WaveformSpec",
+    "build_fault",
+    "build_faults",
+    "build_waveform",
+    "builtin_names",
+    "check",
+    "load",
+    "parse",
 ]

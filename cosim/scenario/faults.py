@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BeforeValidator, Discriminator, Field, model_validator
 
@@ -164,12 +164,9 @@ class ActuatorOffsetSpec(OnActuators):
         return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
 
 
-NoiseSpec = Annotated[Union[GaussianNoiseSpec, UniformNoiseSpec], Discriminator("kind")]
+NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
 FaultSpec = Annotated[
-    Union[
-        BiasSpec, DriftSpec, GainSpec, GaussianNoiseSpec, UniformNoiseSpec, StuckSpec, DropoutSpec, OutliersSpec,
-        ActuatorEffectivenessSpec, ActuatorOffsetSpec,
-    ],
+    BiasSpec | DriftSpec | GainSpec | GaussianNoiseSpec | UniformNoiseSpec | StuckSpec | DropoutSpec | OutliersSpec | ActuatorEffectivenessSpec | ActuatorOffsetSpec,
     Discriminator("kind"),
 ]
 
@@ -179,7 +176,7 @@ def build_fault(spec: Windowed, label: str, sensors: Sequence[str], actuators: S
     signals = list(actuators if spec.acts_on == "actuators" else sensors)
     names = spec.targets if spec.targets is not None else signals
     channels = tuple(signals.index(name) for name in names)
-    model = fm.FAULT_MODELS[getattr(spec, "kind")]
+    model = fm.FAULT_MODELS[spec.kind]
     return model(channels=channels, start=spec.start, end=spec.end, label=label, **spec.parameters(len(channels)))
 
 

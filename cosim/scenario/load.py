@@ -84,7 +84,6 @@ def _report(source: str, problems: list[str]) -> str:
     return f"{source}: {len(problems)} problems:\n" + "\n".join(f"  - {p}" for p in problems)
 
 
-
 def check(s: Scenario) -> list[str]:
     """The problems that need the plant's names and the scenario as a whole."""
     problems: list[str] = []
@@ -93,7 +92,9 @@ def check(s: Scenario) -> list[str]:
     try:
         info = s.plant_info
     except KeyError as error:
-        return [f"plant.model: {error.args[0]}{'' if s.plant.model == statespace.NAME else f', or {statespace.NAME!r} with a [plant.state_space] table'}"]
+        return [
+            f"plant.model: {error.args[0]}{'' if s.plant.model == statespace.NAME else f', or {statespace.NAME!r} with a [plant.state_space] table'}"
+        ]
     sensor_names = [c.name for c in info.sensors]
     actuator_names = [c.name for c in info.actuators]
     state_names = [c.name for c in info.states]
@@ -110,7 +111,9 @@ def check(s: Scenario) -> list[str]:
     elif abs(s.duration / s.sample_time - round(s.duration / s.sample_time)) > 1e-9 * s.duration / s.sample_time:
         n = s.duration / s.sample_time
         below, above = math.floor(n) * s.sample_time, math.ceil(n) * s.sample_time
-        problems.append(f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or {above:g}")
+        problems.append(
+            f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or {above:g}"
+        )
     if s.plant.sensors is not None:
         unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
         if len(set(s.plant.sensors)) != len(s.plant.sensors):
@@ -129,8 +132,10 @@ def check(s: Scenario) -> list[str]:
         if spec.model:
             models = sorted(info.disturbance_models)
             if spec.model not in models:
-                problems.append(f"disturbances[{i}].model: {info.name} has no disturbance model {spec.model!r}"
-                                f"{'; it has: ' + ', '.join(models) if models else ''}")
+                problems.append(
+                    f"disturbances[{i}].model: {info.name} has no disturbance model {spec.model!r}"
+                    f"{'; it has: ' + ', '.join(models) if models else ''}"
+                )
             else:
                 try:
                     info.disturbance_models[spec.model](np.random.default_rng(0), **spec.params)
@@ -144,7 +149,9 @@ def check(s: Scenario) -> list[str]:
     for group, specs in (("noise", s.noise), ("faults", s.faults)):
         for i, spec in enumerate(specs):
             field = f"{group}[{i}]"
-            names, what = (actuator_names, "actuator") if spec.acts_on == "actuators" else (transmitted, "transmitted sensor")
+            names, what = (
+                (actuator_names, "actuator") if spec.acts_on == "actuators" else (transmitted, "transmitted sensor")
+            )
             channels = spec.targets if spec.targets is not None else names
             unknown(f"{field}.{spec.acts_on}", channels, names, what)
             _lengths(problems, field, spec, len(channels), spec.per_channel)
@@ -155,12 +162,19 @@ def check(s: Scenario) -> list[str]:
     labels = noise_labels + fault_labels
     for label in sorted({label for label in labels if labels.count(label) > 1}):
         problems.append(f"faults: two noise models or faults are labelled {label!r}; give them distinct names")
-    diagnostic_names = sorted({
-        d.name for e in s.estimators if e.kind in ESTIMATORS
-        for d in ESTIMATORS[e.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
-    })
-    for table, known, what in (("sensors", transmitted, "transmitted sensor"), ("actuators", actuator_names, "actuator"),
-                               ("states", state_names + diagnostic_names, "state or estimator diagnostic")):
+    diagnostic_names = sorted(
+        {
+            d.name
+            for e in s.estimators
+            if e.kind in ESTIMATORS
+            for d in ESTIMATORS[e.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
+        }
+    )
+    for table, known, what in (
+        ("sensors", transmitted, "transmitted sensor"),
+        ("actuators", actuator_names, "actuator"),
+        ("states", state_names + diagnostic_names, "state or estimator diagnostic"),
+    ):
         overrides = getattr(s.bus, table)
         unknown(f"bus.{table}", list(overrides), known, what)
     estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]
@@ -174,7 +188,9 @@ def check(s: Scenario) -> list[str]:
         if spec.kind not in ESTIMATORS:
             close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            problems.append(f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}")
+            problems.append(
+                f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}"
+            )
         else:
             try:
                 ESTIMATORS[spec.kind].check_params(spec.params)
@@ -189,7 +205,9 @@ def check(s: Scenario) -> list[str]:
         if c.kind not in CONTROLLERS:
             close = difflib.get_close_matches(c.kind, list(CONTROLLERS), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            problems.append(f"controller.kind: unknown controller {c.kind!r}{hint}; known: {', '.join(sorted(CONTROLLERS))}")
+            problems.append(
+                f"controller.kind: unknown controller {c.kind!r}{hint}; known: {', '.join(sorted(CONTROLLERS))}"
+            )
         else:
             try:
                 CONTROLLERS[c.kind].check_params(c.params)
@@ -200,15 +218,23 @@ def check(s: Scenario) -> list[str]:
             problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
         reports = CONTROLLERS[c.kind].reports if c.kind in CONTROLLERS else ()
         if reports and not c.diagnosis:
-            problems.append(f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the estimators")
+            problems.append(
+                f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the estimators"
+            )
         elif reports and diagnosis is not None and diagnosis.kind in ESTIMATORS:
-            published = {d.name for d in ESTIMATORS[diagnosis.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))}
+            published = {
+                d.name for d in ESTIMATORS[diagnosis.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
+            }
             missing = [name for name in reports if name not in published]
             if missing:
-                problems.append(f"controller.diagnosis: {c.diagnosis!r} ({diagnosis.kind}) does not publish {', '.join(missing)}, "
-                                f"which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)")
+                problems.append(
+                    f"controller.diagnosis: {c.diagnosis!r} ({diagnosis.kind}) does not publish {', '.join(missing)}, "
+                    f"which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)"
+                )
         if s.inputs:
-            problems.append("inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)")
+            problems.append(
+                "inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)"
+            )
     if not problems:
         problems += _check_bus(s)
     return problems
@@ -227,4 +253,6 @@ def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tu
     for key in keys:
         value = getattr(spec, key, None)
         if value is not None and len(value) not in (1, channels):
-            problems.append(f"{field}.{key}: has {len(value)} values for {channels} channels; give one per channel (or one for all)")
+            problems.append(
+                f"{field}.{key}: has {len(value)} values for {channels} channels; give one per channel (or one for all)"
+            )

@@ -70,8 +70,12 @@ class StateSpaceSpec(Strict):
         nd = len(self.E[0]) if self.E else 0
         if self.E is not None and (len(self.E) != n or nd == 0 or any(len(row) != nd for row in self.E)):
             problems.append(f"E must have {n} rows of equally many numbers (one column per disturbance)")
-        for field_name, names, size in (("states", self.states, n), ("inputs", self.inputs, m), ("outputs", self.outputs, p),
-                                        ("disturbances", self.disturbances, nd)):
+        for field_name, names, size in (
+            ("states", self.states, n),
+            ("inputs", self.inputs, m),
+            ("outputs", self.outputs, p),
+            ("disturbances", self.disturbances, nd),
+        ):
             if names is not None and (len(names) != size or len(set(names)) != size):
                 problems.append(f"{field_name} must name {size} distinct signals")
         if problems:
@@ -124,7 +128,9 @@ class DisturbanceSpec(Strict):
     @model_validator(mode="after")
     def _one_form(self) -> DisturbanceSpec:
         if bool(self.model) == bool(self.input or self.signal is not None):
-            raise ValueError("give either input and signal (one unknown input) or model (a random environment of the plant)")
+            raise ValueError(
+                "give either input and signal (one unknown input) or model (a random environment of the plant)"
+            )
         if self.input and self.signal is None:
             raise ValueError("input needs a signal")
         if self.signal is not None and not self.input:
@@ -262,7 +268,9 @@ class Scenario(Strict):
         try:
             return Scenario.model_validate(data)
         except ValidationError as error:
-            raise ScenarioError("; ".join(f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors())) from None
+            raise ScenarioError(
+                "; ".join(f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors())
+            ) from None
 
     def fault_labels(self) -> tuple[list[str], list[str]]:
         """Labels of the noise models and of the faults: their name, or kind and position."""
@@ -274,9 +282,16 @@ class Scenario(Strict):
         """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
         sensors, actuators, states = self.channels()
         return Codec(
-            sensors, actuators, {e.name: states for e in self.estimators}, diagnostics=self.diagnostic_channels(),
-            clients=self.client_channels(), controller=self.controller_channels(), fd=self.bus.fd,
-            bitrate=self.bus.bitrate, data_bitrate=self.bus.data_bitrate, cycle_time=self.sample_time,
+            sensors,
+            actuators,
+            {e.name: states for e in self.estimators},
+            diagnostics=self.diagnostic_channels(),
+            clients=self.client_channels(),
+            controller=self.controller_channels(),
+            fd=self.bus.fd,
+            bitrate=self.bus.bitrate,
+            data_bitrate=self.bus.data_bitrate,
+            cycle_time=self.sample_time,
         )
 
     def diagnostic_channels(self) -> dict[str, list[Channel]]:
@@ -284,7 +299,9 @@ class Scenario(Strict):
         states = tuple(c.name for c in self.plant_info.states)
         return {
             e.name: [
-                _override(Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+                _override(
+                    Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states"
+                )
                 for d in ESTIMATORS[e.kind].diagnostic_channels(states, self.sensors)
             ]
             for e in self.estimators
@@ -295,7 +312,9 @@ class Scenario(Strict):
         if self.controller is None:
             return None
         return [
-            _override(Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states")
+            _override(
+                Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states"
+            )
             for d in CONTROLLERS[self.controller.kind].diagnostic_channels(self.actuators, self.sensors)
         ]
 
@@ -322,7 +341,11 @@ class Scenario(Strict):
 
     @property
     def sensors(self) -> tuple[str, ...]:
-        return tuple(self.plant.sensors) if self.plant.sensors is not None else tuple(s.name for s in self.plant_info.sensors)
+        return (
+            tuple(self.plant.sensors)
+            if self.plant.sensors is not None
+            else tuple(s.name for s in self.plant_info.sensors)
+        )
 
     @property
     def actuators(self) -> tuple[str, ...]:

@@ -45,7 +45,6 @@ class Strict(BaseModel):
         return data
 
 
-
 def problem_path(loc: tuple[Any, ...], data: Any) -> str:
     """A readable field path, without the union tags pydantic inserts (``faults[0].bias.value``
     becomes ``faults[0].value``): a tag is the first item that names the current table's kind."""

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, Discriminator, Field
 
@@ -12,7 +12,11 @@ from cosim.scenario.tables import NonNegative, Positive, Strict
 
 def _as_waveform(value: Any) -> Any:
     """A number stands for a constant waveform."""
-    return {"kind": "constant", "value": value} if isinstance(value, (int, float)) and not isinstance(value, bool) else value
+    return (
+        {"kind": "constant", "value": value}
+        if isinstance(value, (int, float)) and not isinstance(value, bool)
+        else value
+    )
 
 
 class ConstantSpec(Strict):
@@ -55,7 +59,7 @@ class SumSpec(Strict):
 
 
 WaveformSpec = Annotated[
-    Union[ConstantSpec, SineSpec, SquareSpec, RampSpec, ExponentialSpec, SumSpec],
+    ConstantSpec | SineSpec | SquareSpec | RampSpec | ExponentialSpec | SumSpec,
     Discriminator("kind"),
     BeforeValidator(_as_waveform),
 ]
@@ -66,6 +70,10 @@ def build_waveform(spec: Any) -> fm.Waveform:
     if isinstance(spec, SumSpec):
         return fm.Sum(tuple(build_waveform(term) for term in spec.terms))
     cls = {
-        "constant": fm.Constant, "sine": fm.Sine, "square": fm.Square, "ramp": fm.Ramp, "exponential": fm.Exponential,
+        "constant": fm.Constant,
+        "sine": fm.Sine,
+        "square": fm.Square,
+        "ramp": fm.Ramp,
+        "exponential": fm.Exponential,
     }[spec.kind]
     return cls(**spec.model_dump(exclude={"kind"}))

@@ -1,0 +1,107 @@
+"""The dependency rule of the README's layout section, checked on every import of every module.
+
+cosim's rooms, from the bottom: the base (``cosim.errors``, ``cosim``), ``bus``, then ``log`` and
+``plant`` (beside each other), ``scenario``, then ``run`` and ``analysis`` (beside each other),
+``campaign``, and on top the command line (``cosim.cli``) and the users' facade ``cosim.client``.
+A room imports only rooms below it. The algorithms (``estimators``) and fault models (``faults``)
+import nothing of cosim; a plant module (``mjcf``) only the bus signal type.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BELOW = {
+    "base": set(),
+    "bus": {"base"},
+    "log": {"base", "bus"},
+    "plant": {"base", "bus"},
+    "scenario": {"base", "bus", "plant"},
+    "run": {"base", "bus", "log", "plant", "scenario"},
+    "analysis": {"base", "bus", "log", "plant", "scenario"},
+    "campaign": {"base", "bus", "log", "plant", "scenario", "run", "analysis"},
+    "top": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "campaign"},
+}
+OUTSIDE = {"estimators": (), "faults": (), "mjcf": ("cosim.bus.signals",)}
+
+
+def room(module: str) -> str | None:
+    """The room of a cosim module (None: not cosim's)."""
+    parts = module.split(".")
+    if parts[0] != "cosim":
+        return None
+    if len(parts) == 1 or parts[1] in ("errors", "__init__"):
+        return "base"
+    if parts[1] in ("cli", "client"):
+        return "top"
+    return parts[1] if parts[1] in BELOW else "base"
+
+
+def imports(path: Path, package: str) -> list[tuple[int, str]]:
+    """Every module a file imports (at any level, lazy imports included), absolute."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(
+                    package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else [])
+                )
+            found += [(node.lineno, f"{base}.{alias.name}") for alias in node.names]
+    return found
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def cosim_modules() -> list[Path]:
+    return sorted((ROOT / "cosim").rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", cosim_modules(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_a_room_imports_only_rooms_below_it(path):
+    name = module_name(path)
+    mine = room(name)
+    bad = [
+        f"line {line}: {target}"
+        for line, target in imports(path, name)
+        if (theirs := room(target)) is not None and theirs != mine and theirs not in BELOW[mine]
+    ]
+    assert not bad, f"{name} ({mine}) imports against the layout's rule: {'; '.join(bad)}"
+
+
+@pytest.mark.parametrize("package", sorted(OUTSIDE))
+def test_algorithms_faults_and_plant_modules_stay_out_of_cosim(package):
+    for path in sorted((ROOT / package).rglob("*.py")):
+        for line, target in imports(path, module_name(path)):
+            if target.split(".")[0] in ("cosim", "scenarios") or (package != "mjcf" and target.split(".")[0] == "mjcf"):
+                assert any(target.startswith(allowed) for allowed in OUTSIDE[package]), (
+                    f"{path}:{line} imports {target}"
+                )
+
+
+def test_every_module_opens_with_a_sentence_saying_what_it_holds():
+    for path in [
+        *cosim_modules(),
+        *sorted(ROOT.glob("estimators/*.py")),
+        *sorted(ROOT.glob("faults/*.py")),
+        *sorted(ROOT.glob("mjcf/*.py")),
+    ]:
+        doc = ast.get_docstring(ast.parse(path.read_text()))
+        assert doc and doc.split("\n\n")[0].rstrip().endswith((".", ":", ")")), f"{path} has no opening sentence"
+
+
+def test_the_rule_catches_an_import_against_it(tmp_path):
+    """The check itself: an analysis module importing the runner is refused."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("from cosim.run.runner import Run\nimport cosim.run.session\n")
+    found = [room(target) for _, target in imports(bad, "cosim.analysis.bad")]
+    assert found == ["run", "run"] and not {"run"} <= BELOW["analysis"]
