@@ -138,7 +138,7 @@ def measure(seconds: float, repeat: int) -> dict[str, float]:
         )
         for fmt in FORMATS:
             out = folder / f"out{FORMATS[fmt]}"
-            export_s = best_of(repeat, lambda: export(ours_log, fmt, out))
+            export_s = best_of(repeat, lambda fmt=fmt, out=out: export(ours_log, fmt, out))
             figures[f"export_{fmt}_frames_per_s"] = rate(export_s)
             figures[f"export_{fmt}_ratio"] = read_s / export_s
         figures["export_ratio"] = min(figures[f"export_{fmt}_ratio"] for fmt in FORMATS)

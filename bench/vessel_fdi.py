@@ -98,7 +98,8 @@ def report(epsilon: float, figures: dict) -> None:
     for j in range(5):
         figures["largest_epsilon"][f"T{j + 1}"] = largest_epsilon(single, u0, (j,))
         print(
-            f"  T{j + 1}: single family {largest_epsilon(single, u0, (j,)):9.0f} N   cluster family {largest_epsilon(cluster, u0, (j,)):9.0f} N"
+            f"  T{j + 1}: single family {largest_epsilon(single, u0, (j,)):9.0f} N   cluster family "
+            f"{largest_epsilon(cluster, u0, (j,)):9.0f} N"
         )
     for pair in SHIP_PAIRS:
         H = tuple(j - 1 for j in pair)
@@ -142,7 +143,8 @@ def report(epsilon: float, figures: dict) -> None:
         }
         print(
             f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
-            f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | {', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |"
+            f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | "
+            f"{', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |"
         )
 
 

@@ -56,7 +56,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     console = _console(stderr=True)
     timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
     console.print(
-        f"[bold]{escape(s.name)}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {s.seed}, {timing}; "
+        f"[bold]{escape(s.name)}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {s.seed}, "
+        f"{timing}; "
         f"estimators: {', '.join(run.estimators) or 'none'} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
     )
 
@@ -84,7 +85,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 1
     misses = f", {result.deadline_misses} deadline misses" if s.timing.mode == "realtime" else ""
     console.print(
-        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in {result.wall_time:.2f} s "
+        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "
+        f"{result.wall_time:.2f} s "
         f"(real-time factor {result.realtime_factor:.1f})"
     )
     for name, counts in result.senders.items():

@@ -54,7 +54,8 @@ def pseudo_inverse_allocation(G: np.ndarray, tau: np.ndarray) -> np.ndarray:
     G, tau = _check_effect_matrix(G, tau)
     if _rank(G) < G.shape[0]:
         raise AllocationError(
-            f"rank(G) = {_rank(G)} < k = {G.shape[0]}: some direction of τ cannot be produced by any u (eq. (4) needs G of full row rank)"
+            f"rank(G) = {_rank(G)} < k = {G.shape[0]}: some direction of τ cannot be produced by any u (eq. (4) needs "
+            "G of full row rank)"
         )
     return G.T @ np.linalg.solve(G @ G.T, tau)
 
@@ -82,13 +83,15 @@ def cluster_matrix(
     flat = [i for g in groups for i in g]
     if any(len(g) == 0 for g in groups) or sorted(flat) != list(range(m)):
         raise AllocationError(
-            f"groups {[list(g) for g in groups]} must split the inputs 0…{m - 1} into non-empty clusters, each input in exactly one"
+            f"groups {[list(g) for g in groups]} must split the inputs 0…{m - 1} into non-empty clusters, each input "
+            "in exactly one"
         )
     needed = sum(len(g) - 1 for g in groups)
     zeta = [float(z) for z in zeta]
     if len(zeta) != needed:
         raise AllocationError(
-            f"zeta has {len(zeta)} ratios; the clusters {[list(g) for g in groups]} need {needed} (one per input after the first of each cluster)"
+            f"zeta has {len(zeta)} ratios; the clusters {[list(g) for g in groups]} need {needed} (one per input "
+            "after the first of each cluster)"
         )
     if not all(np.isfinite(zeta)):
         raise AllocationError(f"zeta {zeta} must be finite")
@@ -137,7 +140,8 @@ def allocate(G: np.ndarray, tau: np.ndarray, N: np.ndarray | None = None, exact:
     GN = G @ N
     if exact and (N.shape[1] == 0 or _rank(GN) < G.shape[0]):
         raise AllocationError(
-            f"the admissible inputs produce only a rank-{_rank(GN) if N.shape[1] else 0} effect (k = {G.shape[0]}): τ cannot be met "
+            f"the admissible inputs produce only a rank-{_rank(GN) if N.shape[1] else 0} effect (k = {G.shape[0]}): τ "
+            "cannot be met "
             "exactly (eq. (5) and (21) need rank k); keep more inputs, or relax the cluster constraints"
         )
     return N @ (np.linalg.pinv(GN) @ tau) if N.shape[1] else np.zeros(G.shape[1])
@@ -151,7 +155,8 @@ def constrained_allocation(G: np.ndarray, tau: np.ndarray, groups, zeta) -> np.n
     constraints = sum(len(g) - 1 for g in groups)
     if constraints > m - k:
         raise AllocationError(
-            f"{constraints} cluster constraints leave {m - constraints} free inputs for k = {k} effects: eq. (19) allows at most m − k = {m - k}"
+            f"{constraints} cluster constraints leave {m - constraints} free inputs for k = {k} effects: eq. (19) "
+            f"allows at most m − k = {m - k}"
         )
     return allocate(G, tau, allocation_basis(m, groups, zeta), exact=True)
 
@@ -272,7 +277,8 @@ class VesselController:
         if self.M.shape != (3, 3) or self.D.shape != (3, 3) or self.G.ndim != 2 or self.G.shape[0] != 3:
             raise ParameterError(
                 "model",
-                f"expected M and D of shape (3, 3) and G of shape (3, m), got {self.M.shape}, {self.D.shape}, {self.G.shape}",
+                f"expected M and D of shape (3, 3) and G of shape (3, m), got {self.M.shape}, {self.D.shape}, "
+                f"{self.G.shape}",
             )
         if not sample_time > 0:
             raise ParameterError("sample_time", f"must be positive, got {sample_time}")
@@ -388,7 +394,8 @@ def input_groups(groups, m: int, parameter: str = "groups") -> list[tuple[int, .
     if not out or any(not g for g in out) or sorted(i for g in out for i in g) != list(range(m)):
         raise ParameterError(
             parameter,
-            f"{[[int(i) for i in g] for g in groups]} must split the inputs 1…{m} into thrusters, each input in exactly one",
+            f"{[[int(i) for i in g] for g in groups]} must split the inputs 1…{m} into thrusters, each input in "
+            "exactly one",
         )
     return out
 

@@ -170,8 +170,10 @@ def cofd_observer(
         raise DesignError(
             "family",
             (
-                f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem 3.1 "
-                f"(condition 1) needs both = {ell}: these inputs' faults cannot be given independent output directions. "
+                f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem "
+                "3.1 "
+                f"(condition 1) needs both = {ell}: these inputs' faults cannot be given independent output "
+                "directions. "
                 "Choose columns of W that are linearly independent (and stay so through C)"
             ),
         )
@@ -184,7 +186,8 @@ def cofd_observer(
     if np.max(eig.real) >= 0:
         raise DesignError(
             "F",
-            f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real part negative",
+            f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real "
+            "part negative",
         )
     for j in range(ell):
         s = S_hat[:, j]
@@ -193,8 +196,10 @@ def cofd_observer(
             raise DesignError(
                 "F",
                 (
-                    f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} would not keep "
-                    f"the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {ell} (with C = I: F diagonal in its first {ell} rows and columns)"
+                    f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} "
+                    "would not keep "
+                    f"the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {ell} (with C = I: F "
+                    f"diagonal in its first {ell} rows and columns)"
                 ),
             )
     C_right = C.T @ np.linalg.inv(C @ C.T)
@@ -267,7 +272,10 @@ def residual_bounds(observer: COFDObserver, C: np.ndarray, E: np.ndarray, epsilo
         return np.zeros(C.shape[0])
     decay = -np.max(np.linalg.eigvals(F).real)
     horizon = 40.0 / decay
-    integrand = lambda s: np.linalg.norm(C @ scipy.linalg.expm(F * s) @ RE, axis=1)
+
+    def integrand(s):
+        return np.linalg.norm(C @ scipy.linalg.expm(F * s) @ RE, axis=1)
+
     value, _ = scipy.integrate.quad_vec(integrand, 0.0, horizon, epsrel=1e-10, epsabs=0.0)
     return epsilon * value
 
@@ -413,7 +421,8 @@ class COFDDiagnosis(Estimator):
         if any(not 0 <= j < columns for J in family for j in J):
             raise ParameterError(
                 "family",
-                f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got {[[j + 1 for j in J] for J in family]}",
+                f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got "
+                f"{[[j + 1 for j in J] for J in family]}",
             )
         try:
             W = model.B
@@ -437,8 +446,10 @@ class COFDDiagnosis(Estimator):
             raise ParameterError(
                 "family" if not cluster else "pairs",
                 (
-                    f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component it moves can also be "
-                    f"moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that separate them, drop the hypothesis from "
+                    f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component "
+                    "it moves can also be "
+                    f"moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that separate them, drop "
+                    "the hypothesis from "
                     "pairs, or use the cluster family (zeta) for common-mode faults"
                 ),
             )

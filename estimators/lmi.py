@@ -80,7 +80,8 @@ class SensorFaultModel:
             or self.F.shape[0] != m
         ):
             raise ValueError(
-                f"inconsistent shapes A {self.A.shape}, B {self.B.shape}, E {self.E.shape}, C {self.C.shape}, F {self.F.shape}"
+                f"inconsistent shapes A {self.A.shape}, B {self.B.shape}, E {self.E.shape}, C {self.C.shape}, F "
+                f"{self.F.shape}"
             )
 
     @property

@@ -112,7 +112,8 @@ def uio_gains(C: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise UIOConditionError(
             "rank",
             (
-                f"rank(CE) = {rank_CE} < rank(E) = {rank_E}: no H with H C E = E exists (eq. (8) needs rank(CE) = rank(E)); "
+                f"rank(CE) = {rank_CE} < rank(E) = {rank_E}: no H with H C E = E exists (eq. (8) needs rank(CE) = "
+                "rank(E)); "
                 "some direction of the unknown input is invisible in the outputs' first derivative. Measure a state "
                 "that the unknown input drives directly, or model fewer unknown inputs (columns of E)"
             ),
@@ -157,7 +158,8 @@ def check_detectable(TA: np.ndarray, C: np.ndarray) -> np.ndarray:
             "detectability",
             (
                 f"(TA, C) is not detectable: the mode(s) {listed} of TA are unobservable through C and not stable, so "
-                "F = TA − K1 C keeps them for every K1 and cannot be Hurwitz (eq. (8)). They are the unstable invariant "
+                "F = TA − K1 C keeps them for every K1 and cannot be Hurwitz (eq. (8)). They are the unstable "
+                "invariant "
                 "zeros of (A, E, C): the unknown input can drive the state along them without any trace in y. Add a "
                 "sensor or model fewer unknown inputs"
             ),
@@ -222,7 +224,8 @@ def _place(TA: np.ndarray, C: np.ndarray, poles: np.ndarray, fixed: np.ndarray) 
         poles = np.real_if_close(np.array(rest))
     elif poles.size != n - fixed.size:
         raise ValueError(
-            f"need {n} poles (including the fixed modes {listed}) or the {n - fixed.size} placeable ones, got {poles.size}"
+            f"need {n} poles (including the fixed modes {listed}) or the {n - fixed.size} placeable ones, got "
+            f"{poles.size}"
         )
     Q, _ = unobservable_modes(TA, C)
     k = n - fixed.size

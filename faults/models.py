@@ -237,7 +237,8 @@ class ActuatorEffectiveness(ActuatorFault):
     def __post_init__(self) -> None:
         if len(self.effectiveness) != len(self.channels):
             raise ValueError(
-                f"effectiveness: expected {len(self.channels)} profiles (one per actuator), got {len(self.effectiveness)}"
+                f"effectiveness: expected {len(self.channels)} profiles (one per actuator), got "
+                f"{len(self.effectiveness)}"
             )
 
     def factors(self, t: float, n: int) -> np.ndarray:

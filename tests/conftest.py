@@ -37,9 +37,3 @@ def default_run(tmp_path_factory, default_loaded):
     out = tmp_path_factory.mktemp("run") / "default.mcap"
     result = run(default_loaded, out)
     return result
-
-
-def short_scenario(text: str, duration: float) -> str:
-    """The scenario text with another duration."""
-    lines = [f"duration = {duration}" if line.startswith("duration") else line for line in text.splitlines()]
-    return "\n".join(lines) + "\n"

@@ -183,7 +183,7 @@ def test_lemma_2_gamma_nonnegative_and_line_search_minimizes():
             # eq. (39), corrected: f′(ζ) = 2(β₂ζ² + β₁ζ + β₀) / |z + ζ eᵢ|⁴ at a sample point
             zeta, d = 0.37, 1e-6
 
-            def fz(t):
+            def fz(t, z=z, S=S, i=i):
                 w = z + t * np.eye(z.size)[i]
                 return w @ S @ w / (w @ w)
 
@@ -319,7 +319,7 @@ def test_cdc_gradient_8_matches_finite_differences_and_lemma_3():
     for _ in range(50):
         gamma, y, z_hat = rng.uniform(0.2, 1, 3), rng.normal(size=3), rng.normal(size=2)
 
-        def cost(g):
+        def cost(g, y=y, z_hat=z_hat):
             return np.sum((pseudoinverse(Y_CDC, g) @ y - z_hat) ** 2)
 
         d = 1e-6

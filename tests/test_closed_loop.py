@@ -16,28 +16,9 @@ from cosim.log.reader import LogReader
 from cosim.run import run
 from estimators import LinearModel, ParameterError
 from estimators.controller import PidController, create
+from tests.snippets import masses_pid
 
-PID_SCENARIO = """
-name = "masses-pid"
-duration = 12.0
-sample_time = 0.01
-seed = 3
-[plant]
-model = "masses"
-sensors = ["x1", "x2", "x1_minus_x2"]
-[controller]
-kind = "pid"
-diagnosis = "kf"
-params = { outputs = ["x2"], inputs = ["force"], setpoint = [0.5], kp = [8.0], ki = [2.0], kd = [4.0], lower = [-20.0], upper = [20.0] }
-[[estimators]]
-name = "kf"
-kind = "kalman"
-[[faults]]
-kind = "bias"
-sensors = ["x1"]
-value = 0.3
-start = 6.0
-"""
+PID_SCENARIO = masses_pid()
 
 
 def load(tmp_path, text=PID_SCENARIO, name="pid.toml"):

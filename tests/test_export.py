@@ -68,7 +68,10 @@ def logged_signals(log: Path) -> dict[str, list[tuple[int, dict]]]:
 
 def same(a, b) -> bool:
     """Equal, with NaN equal to NaN and to a missing (None) value."""
-    missing = lambda v: v is None or v == "" or (isinstance(v, float) and math.isnan(v))
+
+    def missing(v):
+        return v is None or v == "" or (isinstance(v, float) and math.isnan(v))
+
     return (missing(a) and missing(b)) or a == b
 
 

@@ -184,11 +184,18 @@ def test_actuator_offset_is_additive_inside_its_window():
 
 def test_actuator_offset_composes_with_loss_of_effectiveness():
     """u_eff = (∏ δ) ∘ u + Σ f_a, whatever the order of the faults."""
-    loss = lambda: fm.ActuatorEffectiveness(
-        channels=(0, 1), label="loss", effectiveness=(fm.Constant(0.5), fm.Constant(0.25))
-    )
-    offset = lambda: fm.ActuatorOffset(channels=(0,), label="offset", value=(2.0,))
-    more = lambda: fm.ActuatorOffset(channels=(0, 1), label="more", value=(1.0, -1.0))
+
+    def loss():
+        return fm.ActuatorEffectiveness(
+            channels=(0, 1), label="loss", effectiveness=(fm.Constant(0.5), fm.Constant(0.25))
+        )
+
+    def offset():
+        return fm.ActuatorOffset(channels=(0,), label="offset", value=(2.0,))
+
+    def more():
+        return fm.ActuatorOffset(channels=(0, 1), label="more", value=(1.0, -1.0))
+
     u = np.array([4.0, 8.0])
     for order in ((loss(), offset(), more()), (more(), offset(), loss())):
         u_eff, delta = injector(actuator=list(order)).actuators(u, 1.0)

@@ -20,5 +20,6 @@ def test_every_builtin_scenario_has_a_recorded_digest():
 def test_frames_match_the_recorded_digest(name):
     digest, count = run_digest(name)
     assert (digest, count) == (RECORDED[name]["sha256"], RECORDED[name]["frames"]), (
-        f"{name}: the participant frames changed; if on purpose, run 'python -m tests.frame_digests --update' and say why"
+        f"{name}: the participant frames changed; if on purpose, run 'python -m tests.frame_digests --update' and say "
+        "why"
     )

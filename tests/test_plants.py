@@ -10,6 +10,7 @@ import mjcf
 from cosim import scenario
 from cosim.plant.physics import Plant, load_model
 from cosim.run import run
+from tests.snippets import plant_only
 
 PLANTS = sorted(mjcf.PLANTS)
 
@@ -55,7 +56,7 @@ def test_the_linearization_at_the_operating_point_is_finite(name):
 def test_a_scenario_of_the_plant_runs_one_second(name, tmp_path):
     info = mjcf.get(name)
     dt = {"three_tank": 0.5}.get(name, 0.1)
-    text = f'name = "conformance"\nduration = 1.0\nsample_time = {dt}\n[plant]\nmodel = "{name}"\n[bus]\ninterface = "virtual"\nfd = true\n'
+    text = plant_only(name, dt)
     loaded = scenario.LoadedScenario(scenario.parse(text), "conformance", text)
     result = run(loaded, tmp_path / "one-second.mcap")
     assert result.status == "completed" and result.ticks == round(1.0 / dt) and result.frames_lost == 0

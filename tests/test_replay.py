@@ -27,6 +27,7 @@ from cosim.log.recorder import FRAMES
 from cosim.run import run
 from cosim.run.replay import TRUTH, Replay, parse_params
 from cosim.scenario import LoadedScenario, Scenario
+from tests.snippets import masses_pid
 
 #: (built-in scenario, duration [s], factor dividing every fault's start and end)
 SHORT = {
@@ -131,26 +132,7 @@ def test_replaying_an_estimator_of_the_run_reproduces_its_frames_bit_for_bit(log
     assert json.loads(meta["cosim.replay"]["new"]) is False
 
 
-CLOSED_LOOP = """
-name = "masses-pid-short"
-duration = 2.0
-sample_time = 0.01
-[plant]
-model = "masses"
-sensors = ["x1", "x2", "x1_minus_x2"]
-[controller]
-kind = "pid"
-diagnosis = "kf"
-params = { outputs = ["x2"], inputs = ["force"], setpoint = [0.5], kp = [8.0], ki = [2.0], kd = [4.0], lower = [-20.0], upper = [20.0] }
-[[estimators]]
-name = "kf"
-kind = "kalman"
-[[faults]]
-kind = "bias"
-sensors = ["x1"]
-value = 0.3
-start = 1.0
-"""
+CLOSED_LOOP = masses_pid("masses-pid-short", duration=2.0, seed=0, fault_start=1.0)
 
 
 def test_in_a_closed_loop_the_controller_frames_are_replayed_and_the_estimator_matches(tmp_path):

@@ -138,7 +138,9 @@ def test_the_page_renders_in_a_real_browser_on_a_laptop_and_a_phone(page, tmp_pa
                 const images = [...document.images];
                 await Promise.all(images.map(image => image.decode()));
                 return {
-                    images: images.map(image => ({natural: image.naturalWidth, shown: image.getBoundingClientRect().width})),
+                    images: images.map(image => ({
+                        natural: image.naturalWidth, shown: image.getBoundingClientRect().width,
+                    })),
                     scrollWidth: document.documentElement.scrollWidth, width: window.innerWidth,
                     fontSize: parseFloat(getComputedStyle(document.body).fontSize),
                     tables: document.querySelectorAll("table").length,

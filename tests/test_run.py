@@ -25,7 +25,7 @@ from cosim.cli import main
 from cosim.errors import CodecError
 from cosim.log.reader import LogReader
 from cosim.run import Run, run
-from tests.conftest import short_scenario
+from tests.snippets import short_scenario
 
 PER_TICK = {
     "SYNC": 1,
@@ -326,7 +326,8 @@ def test_a_corrupted_chunk_is_skipped_with_a_warning(default_run, tmp_path):
     report = inspect_json(flipped)
     (warning,) = report["warnings"]
     assert re.match(
-        r"a damaged chunk was skipped: bytes \d+-\d+, t = [\d.]+-[\d.]+ s \((crc validation failed|decompression error)",
+        r"a damaged chunk was skipped: bytes \d+-\d+, t = [\d.]+-[\d.]+ s \((crc validation failed|decompression "
+        r"error)",
         warning,
     )
     assert report["estimators"]["uniform"]["final_error"] == pytest.approx(

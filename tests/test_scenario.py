@@ -9,15 +9,9 @@ import pytest
 
 from cosim import scenario
 from cosim.errors import ScenarioError
+from tests.snippets import MASSES
 
-BASE = """
-name = "t"
-duration = 1.0
-sample_time = 0.01
-[plant]
-model = "masses"
-sensors = ["x1", "x2", "x1_minus_x2"]
-"""
+BASE = MASSES
 
 
 def test_builtin_scenarios_load():

@@ -193,8 +193,12 @@ def simulate(d, *, sensor_fault=None, actuator_fault=None, seconds=30.0, params=
     return np.array(ts), np.array(rs), np.array(es), estimator
 
 
-SINE = lambda t: 2.0 * np.sin(2 * np.pi * 0.5 * t)
-STEPS = lambda t: [1.5, -1.0, 0.5, -2.0][int(t // 3.5) % 4]  # piecewise constant, jumps every 3.5 s
+def SINE(t):
+    return 2.0 * np.sin(2 * np.pi * 0.5 * t)
+
+
+def STEPS(t):
+    return [1.5, -1.0, 0.5, -2.0][int(t // 3.5) % 4]  # piecewise constant, jumps every 3.5 s
 
 
 @pytest.mark.parametrize("d", [SINE, STEPS], ids=["sinusoidal", "piecewise-constant"])

@@ -424,7 +424,10 @@ class _DiagnosisScore:
 
     def close(self, segment: _Segment) -> None:
         dt = self.run.sample_time
-        since = lambda k: None if k is None else round((k - segment.start) * dt, 9)
+
+        def since(k):
+            return None if k is None else round((k - segment.start) * dt, 9)
+
         for label in segment.labels:
             state = self.open.pop(label, None)
             if state is None:  # no alarm value in the whole segment
@@ -451,7 +454,10 @@ class _DiagnosisScore:
 class _BusScore:
     def __init__(self, run: _Run) -> None:
         bus = run.bus
-        rate = lambda value: value if isinstance(value, (int, float)) and value > 0 else None
+
+        def rate(value):
+            return value if isinstance(value, (int, float)) and value > 0 else None
+
         self.bitrate = rate(bus.get("bitrate"))
         self.data_bitrate = rate(bus.get("data_bitrate")) or self.bitrate
         self.fd = bus.get("fd")
@@ -513,7 +519,10 @@ def _report(
 ) -> dict[str, Any]:
     dt = run.sample_time
     ticks = scorer.ticks if run.known else channels.get(STATE, 0)
-    seconds = lambda k: None if k is None or dt is None else round(k * dt, 9)
+
+    def seconds(k):
+        return None if k is None or dt is None else round(k * dt, 9)
+
     lost = run.frames_lost if run.frames_lost is not None else scorer.lost_events
     estimators = {}
     baseline = scorer.estimators.get(run.baseline) if run.baseline else None

@@ -39,7 +39,10 @@ CAPTIONS = {
 _CSS = """
 :root { --fg: #1b1f24; --muted: #57606a; --line: #d0d7de; --band: #f6f8fa; --accent: #0969da; --warn: #9a6700; }
 * { box-sizing: border-box; }
-body { margin: 0; font: 16px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: var(--fg); background: #fff; }
+body {
+  margin: 0; font: 16px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif;
+  color: var(--fg); background: #fff;
+}
 main { max-width: 1100px; margin: 0 auto; padding: 1rem 1.25rem 3rem; }
 h1 { font-size: 1.6rem; margin: .5rem 0 .25rem; overflow-wrap: anywhere; }
 h2 { font-size: 1.25rem; margin: 2rem 0 .5rem; padding-bottom: .25rem; border-bottom: 1px solid var(--line); }
@@ -57,7 +60,10 @@ table.kv td.num { text-align: left; }
 dl.settings { display: grid; grid-template-columns: max-content 1fr; gap: .2rem 1rem; margin: 0 0 1rem; }
 dl.settings dt { color: var(--muted); }
 dl.settings dd { margin: 0; overflow-wrap: anywhere; }
-code { font: .85em ui-monospace, SFMono-Regular, Menlo, monospace; background: var(--band); padding: 0 .2em; border-radius: 3px; }
+code {
+  font: .85em ui-monospace, SFMono-Regular, Menlo, monospace; background: var(--band);
+  padding: 0 .2em; border-radius: 3px;
+}
 figure { margin: 1rem 0 2rem; }
 figure img { display: block; width: 100%; height: auto; border: 1px solid var(--line); }
 figcaption { color: var(--muted); font-size: .9rem; margin-top: .3rem; }

@@ -115,8 +115,10 @@ def render(report: dict[str, Any], console: Console) -> None:
             else f"{bus['bitrate']:g} bit/s" + (f", data {bus['data_bitrate']:g} bit/s" if bus["fd"] else "")
         )
         console.print(
-            f"[bold]bus[/bold] ({'CAN FD' if bus['fd'] else 'classic CAN'}, {rate}): load {_number(bus['load'], '.2%')} "
-            f"(worst-case stuffing {_number(bus['load_worst_case'], '.2%')}, busiest tick {_number(bus['peak_tick_load'], '.2%')}), "
+            f"[bold]bus[/bold] ({'CAN FD' if bus['fd'] else 'classic CAN'}, {rate}): load "
+            f"{_number(bus['load'], '.2%')} "
+            f"(worst-case stuffing {_number(bus['load_worst_case'], '.2%')}, busiest tick "
+            f"{_number(bus['peak_tick_load'], '.2%')}), "
             f"{bus['lost']} frames lost, {bus['deadline_misses']} deadline misses"
         )
         ids = _table("", ["id", "message", "frames", "bits"])

@@ -264,14 +264,16 @@ class Codec:
                 stride = {ESTIMATE: ESTIMATE_STRIDE, CLIENT: CLIENT_STRIDE}.get(role, 1)
                 what = {SENSOR: "sensors", COMMAND: "actuators", ESTIMATE: "estimators", CLIENT: "clients"}[role]
                 raise CodecError(
-                    f"too many {what} for the bus: at most {(end - first) // stride} fit ids 0x{first:03X}-0x{end - 1:03X}"
+                    f"too many {what} for the bus: at most {(end - first) // stride} fit ids "
+                    f"0x{first:03X}-0x{end - 1:03X}"
                 )
         nodes = [*estimators, *clients, *([CONTROLLER] if controller is not None else [])]
         if len(set(nodes)) != len(nodes):
             raise CodecError(f"estimator, client and controller names must differ: {', '.join(nodes)}")
         if controller is not None and len(actuators) > CONTROL_BASE - COMMAND_BASE:
             raise CodecError(
-                f"too many actuators for a controller node: at most {CONTROL_BASE - COMMAND_BASE} fit ids 0x{COMMAND_BASE:03X}-0x{CONTROL_BASE - 1:03X}"
+                f"too many actuators for a controller node: at most {CONTROL_BASE - COMMAND_BASE} fit ids "
+                f"0x{COMMAND_BASE:03X}-0x{CONTROL_BASE - 1:03X}"
             )
         specs = [
             MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), ("command", "node")),

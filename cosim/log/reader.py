@@ -150,7 +150,8 @@ class LogReader:
                 inner = _chunk_messages(data, index.chunk_length)
             except READ_ERRORS as error:
                 self.warnings.append(
-                    f"a damaged chunk was skipped: bytes {index.chunk_start_offset}-{index.chunk_start_offset + index.chunk_length}, "
+                    "a damaged chunk was skipped: bytes "
+                    f"{index.chunk_start_offset}-{index.chunk_start_offset + index.chunk_length}, "
                     f"t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s ({error})"
                 )
                 continue

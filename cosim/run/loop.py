@@ -141,7 +141,8 @@ class PlantSource:
         if not np.all(np.isfinite(u_eff)):
             bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
             raise CosimError(
-                f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator faults"
+                f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator "
+                "faults"
             )
         self.plant.step(u_eff, d)
 

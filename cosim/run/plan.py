@@ -94,7 +94,8 @@ def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
             sigma = getattr(estimator, "Sigma", np.eye(len(phi)))
             if not fault_rejectable(Y, sigma @ phi):
                 found.append(
-                    f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so no "
+                    f"estimator {name}: the bias {spec.name or 'fault'} {np.round(phi, 6).tolist()} lies in Im(Y), so "
+                    "no "
                     "choice of pseudoinverse weights can reject it (TAC 2024 Remark 4)"
                 )
     return found

@@ -166,7 +166,16 @@ class ActuatorOffsetSpec(OnActuators):
 
 NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
 FaultSpec = Annotated[
-    BiasSpec | DriftSpec | GainSpec | GaussianNoiseSpec | UniformNoiseSpec | StuckSpec | DropoutSpec | OutliersSpec | ActuatorEffectivenessSpec | ActuatorOffsetSpec,
+    BiasSpec
+    | DriftSpec
+    | GainSpec
+    | GaussianNoiseSpec
+    | UniformNoiseSpec
+    | StuckSpec
+    | DropoutSpec
+    | OutliersSpec
+    | ActuatorEffectivenessSpec
+    | ActuatorOffsetSpec,
     Discriminator("kind"),
 ]
 

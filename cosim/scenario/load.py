@@ -92,9 +92,9 @@ def check(s: Scenario) -> list[str]:
     try:
         info = s.plant_info
     except KeyError as error:
-        return [
-            f"plant.model: {error.args[0]}{'' if s.plant.model == statespace.NAME else f', or {statespace.NAME!r} with a [plant.state_space] table'}"
-        ]
+        alternative = f", or {statespace.NAME!r} with a [plant.state_space] table"
+        alternative = "" if s.plant.model == statespace.NAME else alternative
+        return [f"plant.model: {error.args[0]}{alternative}"]
     sensor_names = [c.name for c in info.sensors]
     actuator_names = [c.name for c in info.actuators]
     state_names = [c.name for c in info.states]
@@ -112,7 +112,8 @@ def check(s: Scenario) -> list[str]:
         n = s.duration / s.sample_time
         below, above = math.floor(n) * s.sample_time, math.ceil(n) * s.sample_time
         problems.append(
-            f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or {above:g}"
+            f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or "
+            f"{above:g}"
         )
     if s.plant.sensors is not None:
         unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
@@ -219,7 +220,8 @@ def check(s: Scenario) -> list[str]:
         reports = CONTROLLERS[c.kind].reports if c.kind in CONTROLLERS else ()
         if reports and not c.diagnosis:
             problems.append(
-                f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the estimators"
+                f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the "
+                "estimators"
             )
         elif reports and diagnosis is not None and diagnosis.kind in ESTIMATORS:
             published = {
