@@ -352,6 +352,7 @@ def test_cdc_integration_between_samples_matches_a_tight_reference():
     np.testing.assert_allclose(np.concatenate([e.x_hat, e.gamma]), reference, rtol=2e-3, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_cdc_example_1_adaptation_removes_the_fault():
     """Example 1: κ = 0 keeps an error, κ = 1 and 10 remove it; final weights about equal for all."""
     model = cdc_model()

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from contextlib import redirect_stdout
 
+import pytest
 from mcap.writer import Writer
 
 from cosim.cli import main
@@ -66,6 +67,7 @@ def test_inspect_of_a_log_written_by_another_program(tmp_path):
     assert any("no cosim.run metadata" in w for w in report["warnings"])
 
 
+@pytest.mark.slow
 def test_bad_output_paths_and_seeds_are_one_line_errors(tmp_path):
     result = run_cli("run", "--seed", "-1")
     assert result.returncode == 2 and "--seed: -1 is negative; seeds are >= 0" in result.stderr

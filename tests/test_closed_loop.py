@@ -152,6 +152,7 @@ def test_the_controller_is_a_node_with_commands_status_and_heartbeat_in_the_dbc(
 # -- runs ---------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_closed_loop_run_over_processes_matches_the_in_process_bus_and_regulates(tmp_path):
     loaded = load(tmp_path)
     process = run(loaded, tmp_path / "udp.mcap")

@@ -23,7 +23,10 @@ from cosim.bus.transport import allocate
 from cosim.errors import CosimError
 from cosim.log.reader import LogReader
 from cosim.run import Run, run
-from tests.conftest import ROOT, short_scenario
+from tests.conftest import ROOT
+from tests.snippets import short_scenario
+
+pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
 
 
 @pytest.fixture(autouse=True)

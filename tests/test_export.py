@@ -270,6 +270,7 @@ def test_exports_are_deterministic(classic_log, tmp_path):
         assert a == b, fmt
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", builtin_names())
 def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, tmp_path):
     log = run_short(name, 0.5 if name != "three-tank-reconciliation" else 3.0, tmp_path / f"{name}.mcap")
@@ -391,6 +392,7 @@ def long_log(path: Path, ticks: int) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_exports_stream_in_bounded_memory(tmp_path, monkeypatch):
     """Peak Python memory of each export does not grow with the log: a log 4x longer (and well past
     every buffer, shrunk here to keep the test short) peaks at about the same."""

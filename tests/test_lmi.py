@@ -73,6 +73,7 @@ def test_the_conic_data_are_the_printed_lmis_with_s_in_place_of_p_j():
         np.testing.assert_allclose(small[:, k], np.broadcast_to(svec(P[j] - P[k]), small[:, k].shape), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_direct_and_cvxpy_backends_agree():
     """Same μ* (the reduction is exact), and both solutions pass every LMI (19)–(20)."""
     low, high = np.full(3, 0.5), np.ones(3)
@@ -92,6 +93,7 @@ def test_the_direct_design_is_deterministic():
     np.testing.assert_array_equal(first.Y, second.Y)
 
 
+@pytest.mark.slow
 def test_three_tank_design_reaches_the_reference_sigma():
     """Γ = [0.5, 1]^4, 16 vertices: 136 LMIs of size 13 and 2176 of size 4 in place of the 2176 of
     size 13; σ = 1.53030 is what the cvxpy route (the LMIs as printed) gives (docs/three-tank.md)."""
@@ -104,6 +106,7 @@ def test_three_tank_design_reaches_the_reference_sigma():
     assert max_spectral_radius(THREE_TANK, design.gain, low, high) < 0.25
 
 
+@pytest.mark.slow
 def test_theorem_1_is_infeasible_on_the_papers_full_box():
     """Recorded in docs/three-tank.md: on Γ = [0.01, 1]^4 the LMIs (19)–(20) have no solution."""
     with pytest.raises(DesignError, match="infeasible"):

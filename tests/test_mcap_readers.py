@@ -155,6 +155,7 @@ def typescript_reader() -> Path:
     return folder
 
 
+@pytest.mark.slow
 def test_the_typescript_reader_of_foxglove_reads_what_the_official_reader_reads(log):
     folder = typescript_reader()
     result = subprocess.run(

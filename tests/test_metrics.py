@@ -538,6 +538,7 @@ def direct_errors(path):
     return np.array(ticks), errors, act, alarm
 
 
+@pytest.mark.slow
 def test_real_scenario_metrics_agree_with_a_direct_computation(uio_run):
     report = compute_metrics(uio_run)
     assert report["warnings"] == [] and report["missing"] == []

@@ -108,6 +108,7 @@ def runner_frames(m) -> bool:
     return m["sender"] in ("runner", "plant", "controller") and m["message"] != "NMT" and not lifecycle
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, estimator, kind", KINDS, ids=[k for _, _, k in KINDS])
 def test_replaying_an_estimator_of_the_run_reproduces_its_frames_bit_for_bit(logs, tmp_path, name, estimator, kind):
     original = logs(name)
@@ -189,6 +190,7 @@ def test_changed_parameters_change_the_estimates_and_are_recorded(logs, tmp_path
     assert json.loads(meta["cosim.run"]["estimators"])["kalman"]["params"]["measurement_std"] == 0.05
 
 
+@pytest.mark.slow
 def test_a_new_estimator_is_designed_on_the_logged_model_and_scored(logs, tmp_path):
     original = logs("uio-fault-detection")
     result = Replay(
@@ -205,6 +207,7 @@ def test_a_new_estimator_is_designed_on_the_logged_model_and_scored(logs, tmp_pa
     )
 
 
+@pytest.mark.slow
 def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_path, capsys):
     original = str(logs("masses-faults-fd"))
     out = tmp_path / "cli.mcap"
@@ -244,6 +247,7 @@ def test_parameters_are_toml_values():
     }
 
 
+@pytest.mark.slow
 def test_live_playback_reaches_a_python_can_receiver_on_time(logs, tmp_path):
     """Every frame of the log, in order and unchanged, with the log's timing at 2x: a frame of
     simulated time t arrives t/2 s after the first one, within a few ms."""

@@ -62,6 +62,7 @@ def page(log, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_the_page_is_self_contained_with_every_figure_inlined(log, page, tmp_path):
     text = page.read_text(encoding="utf-8")
     assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in text
@@ -117,6 +118,7 @@ def _playwright():
     return sync_playwright
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("screen", SCREENS)
 def test_the_page_renders_in_a_real_browser_on_a_laptop_and_a_phone(page, tmp_path, screen):
     sync_playwright = _playwright()

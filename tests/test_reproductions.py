@@ -11,6 +11,8 @@ from cosim.run import Run
 from cosim.scenario import load as load_scenario
 from estimators.base import DiagnosticKind
 
+pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
+
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):

@@ -178,6 +178,7 @@ def test_truth_faults_and_sent_readings_agree(default_run):
     assert noise.std() == pytest.approx(1e-3, rel=0.05)
 
 
+@pytest.mark.slow
 def test_same_seed_gives_the_same_log_bytes(tmp_path, default_loaded):
     loaded = write_short(tmp_path, default_loaded.text, 6.0)
     a, b, c = (
@@ -208,6 +209,7 @@ def test_an_interrupted_run_leaves_a_valid_log_up_to_that_tick(tmp_path, default
     assert report["estimators"]["uniform"]["rms_post_fault"] > 0.5
 
 
+@pytest.mark.slow
 def test_an_error_mid_run_is_recorded_and_the_log_stays_valid(tmp_path, default_loaded):
     path = tmp_path / "narrow.toml"
     path.write_text(short_scenario(default_loaded.text, 10.0) + "\n[bus.sensors.x1]\nmaximum = 0.9\n")
@@ -222,6 +224,7 @@ def test_an_error_mid_run_is_recorded_and_the_log_stays_valid(tmp_path, default_
         assert "outside its declared range" in reader.metadata()["cosim.result"]["error"]
 
 
+@pytest.mark.slow
 def test_ctrl_c_in_the_terminal(tmp_path):
     out = tmp_path / "ctrlc.mcap"
     proc = subprocess.Popen(
@@ -242,6 +245,7 @@ def test_ctrl_c_in_the_terminal(tmp_path):
     assert report["frames"]["total"] == report["channels"]["/can/frames"]
 
 
+@pytest.mark.slow
 def test_sigterm_also_finishes_the_log(tmp_path):
     out = tmp_path / "term.mcap"
     proc = subprocess.Popen(
@@ -259,6 +263,7 @@ def test_sigterm_also_finishes_the_log(tmp_path):
     assert inspect_json(out)["status"] == "interrupted"
 
 
+@pytest.mark.slow
 def test_fault_tour_on_can_fd(tmp_path):
     """Every fault kind end to end on a CAN FD bus: dropped frames are absent (and not lost),
     stuck readings hold, the actuator loses effectiveness, FD frames carry exact float64 values."""
@@ -335,6 +340,7 @@ def test_a_corrupted_chunk_is_skipped_with_a_warning(default_run, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_sigterm_exits_with_143(tmp_path):
     out = tmp_path / "term143.mcap"
     proc = subprocess.Popen(
@@ -351,6 +357,7 @@ def test_sigterm_exits_with_143(tmp_path):
     assert proc.returncode == 143
 
 
+@pytest.mark.slow
 def test_a_non_finite_effective_input_stops_the_run_with_a_clear_error(tmp_path, default_loaded):
     text = short_scenario(default_loaded.text, 2.0) + (
         '\n[[faults]]\nname = "blowup"\nkind = "actuator_effectiveness"\nstart = 1.0\n'

@@ -267,6 +267,7 @@ def log(tmp_path_factory):
     return load_series(out)
 
 
+@pytest.mark.slow
 def test_uio_fault_detection_end_to_end(log):
     """The scenario's description: sensor fault +0.5 on y2 in [10, 20) s, actuator fault +2 on u1
     from 30 s, d = sine + square wave all along. Threshold on |r|: 0.05."""

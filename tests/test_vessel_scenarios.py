@@ -16,6 +16,8 @@ from cosim.log.reader import LogReader
 from cosim.run import run
 from cosim.scenario import LoadedScenario
 
+pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
+
 SINGLE = [f"vessel-fault-T{j}" for j in range(1, 6)]
 PAIRS = ["vessel-fault-T1-T3", "vessel-fault-T1-T4", "vessel-fault-T2-T3", "vessel-fault-T2-T5", "vessel-fault-T3-T4"]
 OVER_PROCESSES = {"vessel-nominal", "vessel-reconfiguration"}
