@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import estimators
 import faults as fm
-from cosim.bus.codec import CONTROL, CONTROLLER, Codec
+from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
+from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig
 from cosim.errors import ModelError, ScenarioError
 from cosim.log.metadata import (
@@ -32,6 +34,7 @@ from cosim.log.metadata import (
 from cosim.plant import build_plant
 from cosim.run import design_cache
 from cosim.run.node import NodeSpec
+from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
 from estimators import Diagnostic, Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
@@ -246,6 +249,33 @@ class RunPlan:
             bus,
             s.sample_time,
             {CONTROLLER: 0} if s.controller is not None else {},
+        )
+
+    @property
+    def senders(self) -> list[str]:
+        """The participants whose frames the runner accounts for: estimators, clients, controller node."""
+        s = self.scenario
+        return [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if self.controller is not None else [])]
+
+    def session(self, out: Path, bus: BusConfig, registration: Registration | None = None) -> Session:
+        """The session of a run of this plan on ``bus``, logging to ``out``."""
+        s = self.scenario
+        closed_loop = self.controller is not None
+        return Session(
+            out,
+            bus,
+            self.codec,
+            Timing(s.sample_time, s.timing.mode, s.timing.speed, s.timing.node_timeout, s.timing.join_timeout),
+            recorder={
+                "states": self.state_names,
+                "sensors": s.sensors,
+                "actuators": s.actuators,
+                "units": self.units,
+                "disturbances": s.disturbance_inputs,
+            },
+            own_senders=(RUNNER, PLANT) if closed_loop else (RUNNER, PLANT, CONTROLLER),
+            commands=closed_loop,
+            registration=registration,
         )
 
     def run_record(self) -> RunRecord:

@@ -32,19 +32,7 @@ from typing import Any
 import can
 
 import estimators
-from cosim.bus.codec import (
-    COMMAND,
-    CONTROL,
-    CONTROLLER,
-    HEARTBEAT,
-    OPERATIONAL,
-    PLANT,
-    RUNNER,
-    SENSOR,
-    SYNC,
-    Codec,
-    Decoded,
-)
+from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
 from cosim.log.metadata import (
@@ -65,7 +53,7 @@ from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.loop import execute, start_participants
 from cosim.run.node import NodeSpec
 from cosim.run.plan import RunPlan, build_estimators, design_warnings, estimator_record
-from cosim.run.session import Progress, RunResult, Session, Timing
+from cosim.run.session import Progress, RunResult, Session
 from cosim.scenario import LoadedScenario, Scenario
 from estimators import LinearModel, ParameterError
 
@@ -300,25 +288,10 @@ class Replay:
         """Replay every logged tick; the new log is complete and valid whatever ends the replay."""
         plan, s = self.plan, self.plan.scenario
         self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
-        timing = Timing(s.sample_time, "lockstep", 1.0, s.timing.node_timeout, s.timing.join_timeout)
-        recorder = {
-            "states": plan.state_names,
-            "sensors": s.sensors,
-            "actuators": s.actuators,
-            "units": plan.units,
-            "disturbances": s.disturbance_inputs,
-        }
-        with (
-            LogReader(self.log) as reader,
-            Session(
-                self.out, bus, plan.codec, timing, recorder=recorder, own_senders=(RUNNER, PLANT, CONTROLLER)
-            ) as session,
-        ):
+        with LogReader(self.log) as reader, plan.session(self.out, bus) as session:
             self.session = session
             self._write_metadata(session)
-            session.event(0, "start", f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}")
-            for warning in plan.warnings:
-                session.event(0, "warning", warning, "warning")
+            session.begin_log(f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}", plan.warnings)
             source = LogSource(reader, self.log_codec, plan.codec, self.ticks, session.log, self.log)
 
             def start() -> None:

@@ -15,13 +15,12 @@ from pathlib import Path
 from typing import Any
 from uuid import uuid4
 
-from cosim.bus.codec import CONTROLLER, PLANT, RUNNER
 from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig, allocate
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
 from cosim.run.loop import PlantSource, execute, start_participants
 from cosim.run.plan import RunPlan
-from cosim.run.session import Progress, RunResult, Session, Timing
+from cosim.run.session import Progress, RunResult, Session
 from cosim.scenario import LoadedScenario
 
 
@@ -87,39 +86,17 @@ class Run:
                 "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
             },
         )
-        closed_loop = s.controller is not None
-        timing = Timing(s.sample_time, s.timing.mode, s.timing.speed, s.timing.node_timeout, s.timing.join_timeout)
-        recorder = {
-            "states": plan.state_names,
-            "sensors": s.sensors,
-            "actuators": s.actuators,
-            "units": plan.units,
-            "disturbances": s.disturbance_inputs,
-        }
-        own = (RUNNER, PLANT) if closed_loop else (RUNNER, PLANT, CONTROLLER)
-        with Session(
-            self.out,
-            bus,
-            plan.codec,
-            timing,
-            recorder=recorder,
-            own_senders=own,
-            commands=closed_loop,
-            registration=registration,
-        ) as session:
+        with plan.session(self.out, bus, registration) as session:
             self.session = session
             self._write_metadata(session)
-            session.event(0, "start", f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}")
-            for warning in plan.warnings:
-                session.event(0, "warning", warning, "warning")
+            session.begin_log(f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}", plan.warnings)
 
             def start() -> None:
                 start_participants(plan, session)
                 if on_start is not None:
                     on_start(self)
 
-            senders = [*plan.estimators, *(c.name for c in s.clients), *([CONTROLLER] if closed_loop else [])]
-            return execute(PlantSource(plan), session, start, senders, on_progress, progress_every)
+            return execute(PlantSource(plan), session, start, plan.senders, on_progress, progress_every)
 
     def _write_metadata(self, session: Session) -> None:
         plan, log = self.plan, session.log

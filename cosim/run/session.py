@@ -267,6 +267,12 @@ class Session:
         t_ns = k * round(self.timing.sample_time * 1e9)
         return t_ns / 1e9, t_ns
 
+    def begin_log(self, detail: str, warnings: tuple[str, ...] | list[str] = ()) -> None:
+        """The run's first events: how it starts, and the warnings known before tick 0."""
+        self.event(0, "start", detail)
+        for warning in warnings:
+            self.event(0, "warning", warning, "warning")
+
     def event(self, k: int, event: str, detail: str = "", level: str = "info") -> None:
         self.recorder.event(k, *self.time(k), event, detail, level)
 
