@@ -106,6 +106,11 @@ class Configurable:
     kind: ClassVar[str]
     Params: ClassVar[type]
 
+    def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
+        """The constructor every kind has, which ``from_params`` calls: the model, the checked
+        ``Params`` and the sample time."""
+        raise NotImplementedError(f"{type(self).__name__} must define __init__(model, params, sample_time)")
+
     @classmethod
     def check_params(cls, params: dict[str, Any] | None = None) -> Any:
         """The ``Params`` dataclass built from plain values (e.g. parsed TOML), each converted to its
@@ -151,11 +156,13 @@ class Estimator(Configurable, ABC):
                 )
             if sample_time is None or not sample_time > 0:
                 raise ParameterError("sample_time", f"{self.kind} integrates between samples and needs the sample time")
+            self.sample_time: float = float(sample_time)
         elif model.dt is None:
             raise ParameterError("model", f"{self.kind} needs a discrete-time model (got a continuous one)")
+        else:
+            self.sample_time = float(sample_time) if sample_time is not None else model.dt
         self.model = model
         self.params = params
-        self.sample_time = float(sample_time) if sample_time is not None else model.dt
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
@@ -201,10 +208,10 @@ def initial_state(model: LinearModel, x0: tuple[float, ...] | None) -> np.ndarra
     """The initial deviation estimate: the given absolute x̂_0 minus the operating point, or 0."""
     if x0 is None:
         return np.zeros(model.n)
-    x0 = np.asarray(x0, dtype=float)
-    if x0.shape != (model.n,):
-        raise ParameterError("x0", f"expected {model.n} values ({', '.join(model.states)}), got {x0.size}")
-    return x0 - model.x_op
+    x = np.asarray(x0, dtype=float)
+    if x.shape != (model.n,):
+        raise ParameterError("x0", f"expected {model.n} values ({', '.join(model.states)}), got {x.size}")
+    return x - model.x_op
 
 
 def coerce(value: Any, hint: Any, name: str) -> Any:

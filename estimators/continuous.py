@@ -21,14 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.base import (
-    Diagnostic,
-    DiagnosticKind,
-    Estimate,
-    Estimator,
-    ParameterError,
-    initial_state,
-)
+from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError, initial_state
 from estimators.design import AssumptionError, check_assumption1, output_factorization
 from estimators.model import LinearModel
 
@@ -122,13 +115,11 @@ class ContinuousAdaptiveObserver(Estimator):
             if not np.allclose(self.Y @ self.H, model.C, atol=1e-9 * max(1.0, np.abs(model.C).max())):
                 raise ParameterError("Y", "C = Y H has no solution H: the columns of Y must span the columns of C")
         q = self.Y.shape[1]
-        if (params.gain is None) == (params.poles is None):
-            raise ParameterError("gain", "give exactly one of gain (the matrix L) and poles")
-        if params.gain is not None:
+        if params.gain is not None and params.poles is None:
             self.L = np.array(params.gain, dtype=float)
             if self.L.shape != (n, q):
                 raise ParameterError("gain", f"expected L of shape ({n}, {q}), got {self.L.shape}")
-        else:
+        elif params.poles is not None and params.gain is None:
             if np.any(np.real(params.poles) >= 0):
                 raise ParameterError("poles", f"{list(params.poles)}: every pole needs a negative real part")
             from estimators.design import observer_gain
@@ -137,6 +128,8 @@ class ContinuousAdaptiveObserver(Estimator):
                 self.L = observer_gain(model.A, self.H, params.poles)
             except ValueError as error:
                 raise ParameterError("poles", str(error)) from None
+        else:
+            raise ParameterError("gain", "give exactly one of gain (the matrix L) and poles")
         if np.max(np.linalg.eigvals(model.A - self.L @ self.H).real) >= 0:
             raise ParameterError("gain", "A − L H is not Hurwitz (Assumption 1)")
         if params.kappa < 0 or (params.kappa_gamma is not None and params.kappa_gamma < 0):

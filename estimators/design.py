@@ -7,6 +7,7 @@ Plain functions on arrays (python-control style). Equation numbers refer to Cris
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.linalg
@@ -123,7 +124,7 @@ def warn_if_not_rejectable(Y: np.ndarray, phi: np.ndarray, label: str) -> bool:
     return False
 
 
-def observer_gain(A: np.ndarray, H: np.ndarray, poles: np.ndarray | list[float], tol: float = 1e-6) -> np.ndarray:
+def observer_gain(A: np.ndarray, H: np.ndarray, poles: np.ndarray | Sequence[float], tol: float = 1e-6) -> np.ndarray:
     """A gain L such that the spectrum of A − L H is ``poles`` (a Luenberger design, eq. (5)).
 
     Placement is done on the dual pair (Aᵀ, Hᵀ). Where every pole's multiplicity is at most
@@ -173,7 +174,7 @@ def place_repeated(A: np.ndarray, B: np.ndarray, poles: np.ndarray) -> np.ndarra
         for i in sorted(open_chains):
             v = np.linalg.matrix_power(A, power) @ B_eff[:, i]
             trial = np.column_stack([basis, v])
-            if np.linalg.matrix_rank(trial, tol=1e-10 * max(1.0, np.linalg.norm(trial))) > basis.shape[1]:
+            if np.linalg.matrix_rank(trial, tol=1e-10 * max(1.0, float(np.linalg.norm(trial)))) > basis.shape[1]:
                 basis = trial
                 chains[i].append(v)
             else:

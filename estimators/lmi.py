@@ -466,7 +466,7 @@ def _theorem1_cvxpy(TA, C, F, margin, solver):
     constraints += [p >> margin * I for p in P]
     problem = cp.Problem(cp.Minimize(mu), constraints)
     _solve(problem, solver, "Theorem 1 (LPV-UIO)")
-    return float(mu.value), *(np.array([v.value for v in group]) for group in (P, G, Y))
+    return float(_solved(mu.value, "Theorem 1 (LPV-UIO)")), *(np.array([v.value for v in group]) for group in (P, G, Y))
 
 
 def _svec_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -513,8 +513,8 @@ def _first_row_coefficients(K: np.ndarray, rows: int) -> np.ndarray:
     U = np.zeros((c, rows, size, size))
     a = np.arange(rows)
     U[:, a, a, :] = K[:, None, :]
-    U = U.reshape(c * rows, size, size)
-    return U + U.transpose(0, 2, 1)
+    stacked = U.reshape(c * rows, size, size)
+    return stacked + stacked.transpose(0, 2, 1)
 
 
 # -- LFT design, Theorem 2 ----------------------------------------------------------------------
@@ -640,8 +640,9 @@ def lft_uio_design(
     seconds = time.perf_counter() - start
     min_eig = float(np.linalg.eigvalsh((M.value + M.value.T) / 2).min())
     _check(min_eig, margin, "Theorem 2 (LFT-UIO)")
+    Q_value, S_value, lam_value, mu_value = (_solved(v.value, "Theorem 2 (LFT-UIO)") for v in (Qv, S, lam, mu))
     return LftDesign(
-        np.linalg.solve(Qv.value, S.value), Qv.value, np.atleast_1d(lam.value), float(mu.value), min_eig, seconds
+        np.linalg.solve(Q_value, S_value), Q_value, np.atleast_1d(lam_value), float(mu_value), min_eig, seconds
     )
 
 
@@ -681,6 +682,14 @@ def _solve(problem, solver: str, what: str) -> None:
         raise DesignError(f'{what}: the SDP solver {solver} failed ({error}); try solver = "SCS"') from None
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         raise DesignError(f"{what}: {_INFEASIBLE.format(status=problem.status)}")
+
+
+def _solved(value: np.ndarray | None, what: str) -> np.ndarray:
+    """A variable's value after ``_solve`` returned (an optimal status sets every variable; cvxpy
+    types ``value`` optional, None before a solve)."""
+    if value is None:
+        raise DesignError(f"{what}: the SDP solver reported a solution but left a variable without a value")
+    return value
 
 
 def _check(min_eig: float, margin: float, what: str) -> None:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class LinearModel:
     """x⁺ = A x + B u + E d, y = C x + D u about an operating point (discrete time, ``dt``
     seconds), or ẋ = A x + B u + E d, y = C x + D u when ``dt`` is None (continuous time).
@@ -18,6 +18,9 @@ class LinearModel:
     observers decouple. The matrices act on deviations from the operating point
     (x_op, u_op, y_op): the plant's x ≈ x_op + δx, u = u_op + δu, y ≈ y_op + C δx + D δu.
     Shapes: A (n, n), B (n, m), C (p, n), D (p, m), E (n, len(disturbances)).
+
+    x_op, u_op, y_op and E may be given as None (the constructor's defaults): zeros of the right
+    shape. The attributes are always arrays.
     """
 
     A: np.ndarray
@@ -28,17 +31,44 @@ class LinearModel:
     states: tuple[str, ...]
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
-    x_op: np.ndarray = field(default=None)  # type: ignore[assignment]
-    u_op: np.ndarray = field(default=None)  # type: ignore[assignment]
-    y_op: np.ndarray = field(default=None)  # type: ignore[assignment]
-    E: np.ndarray = field(default=None)  # type: ignore[assignment]
-    disturbances: tuple[str, ...] = ()
+    x_op: np.ndarray
+    u_op: np.ndarray
+    y_op: np.ndarray
+    E: np.ndarray
+    disturbances: tuple[str, ...]
 
-    def __post_init__(self) -> None:
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray,
+        dt: float | None,
+        states: tuple[str, ...],
+        inputs: tuple[str, ...],
+        outputs: tuple[str, ...],
+        x_op: np.ndarray | None = None,
+        u_op: np.ndarray | None = None,
+        y_op: np.ndarray | None = None,
+        E: np.ndarray | None = None,
+        disturbances: tuple[str, ...] = (),
+    ) -> None:
+        # The attributes a dataclass __init__ would set (frozen: through object.__setattr__), then
+        # the normalization that dataclass's __post_init__ did.
+        for name, value in (
+            ("A", A),
+            ("B", B),
+            ("C", C),
+            ("D", D),
+            ("dt", dt),
+            ("states", states),
+            ("inputs", inputs),
+            ("outputs", outputs),
+            ("disturbances", tuple(disturbances)),
+        ):
+            object.__setattr__(self, name, value)
         n, m, p = len(self.states), len(self.inputs), len(self.outputs)
-        object.__setattr__(self, "disturbances", tuple(self.disturbances))
-        if self.E is None:
-            object.__setattr__(self, "E", np.zeros((n, len(self.disturbances))))
+        object.__setattr__(self, "E", np.zeros((n, len(self.disturbances))) if E is None else E)
         for name, shape in (
             ("A", (n, n)),
             ("B", (n, m)),
@@ -49,14 +79,12 @@ class LinearModel:
             # C order whatever the source: BLAS takes another path for a Fortran-ordered matrix and
             # rounds differently, and a node or a replay that reads the model from JSON must compute
             # bit for bit what the runner's in-memory model computes.
-            value = np.ascontiguousarray(getattr(self, name), dtype=float)
-            if value.shape != shape:
-                raise ValueError(f"LinearModel.{name} has shape {value.shape}, expected {shape}")
-            object.__setattr__(self, name, value)
-        for name, size in (("x_op", n), ("u_op", m), ("y_op", p)):
-            value = getattr(self, name)
-            value = np.zeros(size) if value is None else np.asarray(value, dtype=float).reshape(size)
-            object.__setattr__(self, name, value)
+            array = np.ascontiguousarray(getattr(self, name), dtype=float)
+            if array.shape != shape:
+                raise ValueError(f"LinearModel.{name} has shape {array.shape}, expected {shape}")
+            object.__setattr__(self, name, array)
+        for name, op, size in (("x_op", x_op, n), ("u_op", u_op, m), ("y_op", y_op, p)):
+            object.__setattr__(self, name, np.zeros(size) if op is None else np.asarray(op, dtype=float).reshape(size))
 
     @property
     def n(self) -> int:
