@@ -121,13 +121,13 @@ def allocation_basis(m: int, groups=None, zeta=None, faulty: tuple[int, ...] | l
     """The admissible inputs u = N v as an orthonormal basis N (m, r) with disjoint column supports:
     the unit vectors of the healthy inputs, or, with ``groups`` and ``zeta``, the normalized
     cluster combinations of ``cluster_matrix`` for the clusters without a faulty input."""
-    faulty = {int(i) for i in faulty}
-    if any(not 0 <= i < m for i in faulty):
-        raise AllocationError(f"faulty inputs {sorted(faulty)} must be columns 0…{m - 1} of G")
+    failed = {int(i) for i in faulty}
+    if any(not 0 <= i < m for i in failed):
+        raise AllocationError(f"faulty inputs {sorted(failed)} must be columns 0…{m - 1} of G")
     if zeta is None:
-        return np.eye(m)[:, [i for i in range(m) if i not in faulty]]
+        return np.eye(m)[:, [i for i in range(m) if i not in failed]]
     N = cluster_matrix(groups, zeta, m)
-    keep = [j for j in range(N.shape[1]) if not any(N[i, j] != 0 for i in faulty)]
+    keep = [j for j in range(N.shape[1]) if not any(N[i, j] != 0 for i in failed)]
     N = N[:, keep]
     return N / np.linalg.norm(N, axis=0)
 

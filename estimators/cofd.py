@@ -37,13 +37,7 @@ import scipy.integrate
 import scipy.linalg
 
 from estimators.allocation import AllocationError, cluster_matrix, input_groups, whole
-from estimators.base import (
-    Diagnostic,
-    DiagnosticKind,
-    Estimate,
-    Estimator,
-    ParameterError,
-)
+from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
 from estimators.design import AssumptionError
 from estimators.model import LinearModel
 from estimators.uio import UIODesign, discretize
@@ -298,7 +292,7 @@ def fault_signatures(observers: list[COFDObserver], C: np.ndarray, W: np.ndarray
 
 def hypothesis_signature(signatures: np.ndarray, hypothesis) -> np.ndarray:
     """The components a fault on every group of ``hypothesis`` (0-based) can move."""
-    return signatures[:, :, list(hypothesis)].any(axis=2)
+    return np.asarray(signatures[:, :, list(hypothesis)].any(axis=2))
 
 
 def isolate(fired: np.ndarray, signatures: np.ndarray, hypotheses) -> tuple[int, ...] | None:
@@ -411,8 +405,8 @@ class COFDDiagnosis(Estimator):
             )
         cluster = params.zeta is not None
         columns = len(self.groups) if cluster else m
-        family = params.family or (SHIP_CLUSTER_FAMILY if cluster else SHIP_FAMILY)
-        family = [tuple(whole(j, "family") - 1 for j in J) for J in family]
+        given = params.family or (SHIP_CLUSTER_FAMILY if cluster else SHIP_FAMILY)
+        family = [tuple(whole(j, "family") - 1 for j in J) for J in given]
         if len(family) > MAX_OBSERVERS or any(len(J) > MAX_COMPONENTS for J in family):
             raise ParameterError(
                 "family",
@@ -426,7 +420,7 @@ class COFDDiagnosis(Estimator):
             )
         try:
             W = model.B
-            if cluster:
+            if params.zeta is not None:  # cluster
                 W_star = cluster_directions(W, self.groups, params.zeta)
                 self.N = cluster_matrix(self.groups, params.zeta, m)
             self.observers = cofd_family(model.A, W_star if cluster else W, model.C, family, np.diag(params.F))
