@@ -41,19 +41,22 @@ from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import TYPE_CHECKING, cast
 
 import can
 import cantools
 from cantools.database.can import Bus, Database, Message, Node, Signal
 from cantools.database.can.formats.dbc.dbc_attribute import DbcAttribute
-from cantools.database.can.formats.dbc.dbc_attribute_definition import (
-    DbcAttributeDefinition,
-)
+from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttributeDefinition
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.conversion import BaseConversion
 
 from cosim.bus.signals import Channel
 from cosim.errors import CodecError
+
+if TYPE_CHECKING:
+    from cantools.database.can.formats.dbc.dbc_attribute import DbcAttributeType
+    from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttributeDefinitionType
 
 NMT_ID = 0x000
 SYNC_ID = 0x080
@@ -156,7 +159,7 @@ class MessageSpec:
     name: str
     frame_id: int
     sender: str
-    role: str
+    role: Role
     channels: tuple[Channel, ...]
     signals: tuple[str, ...]
 
@@ -187,7 +190,7 @@ def pack_channels(
     prefix: str,
     base_id: int,
     sender: str,
-    role: str,
+    role: Role,
     channels: Sequence[Channel],
     fd: bool,
     signals: Sequence[str] | None = None,
@@ -426,8 +429,10 @@ class Codec:
         frame = can.Message(
             arbitration_id=spec.frame_id, data=data, is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd
         )
+        # cantools types raw_to_scaled as any signal value (a choice's name among them); without
+        # decode_choices it is the number raw * scale + offset.
         carried = {
-            signal: conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(payload[signal]), False)
+            signal: cast(float, conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(payload[signal]), False))
             for signal, conversion in self._conversions[name]
         }
         return frame, Decoded(spec, counter, carried)
@@ -442,7 +447,9 @@ class Codec:
             return None
         message = self._messages[spec.name]
         try:
-            values = message.decode(bytes(frame.data), decode_choices=False)
+            # decode_simple is what decode calls for a message that is not a container (none here);
+            # cantools types its values as any signal value, but without decode_choices they are numbers.
+            values = cast(dict[str, float], message.decode_simple(bytes(frame.data), decode_choices=False))
         except Exception as error:  # cantools raises several types for short or malformed data
             raise CodecError(f"frame 0x{frame.arbitration_id:03X} ({spec.name}) cannot be decoded: {error}") from None
         tick = int(values.pop("tick", 0))
@@ -538,8 +545,10 @@ def _database(specs: list[MessageSpec], fd: bool, bitrate: int, data_bitrate: in
         )
     nodes = sorted({spec.sender for spec in specs})
     bus_type = DbcAttributeDefinition("BusType", default_value="CAN", type_name="STRING")
-    attributes = OrderedDict(BusType=DbcAttribute("CAN FD" if fd else "CAN", bus_type))
-    definitions = OrderedDict(BusType=bus_type)
+    attributes: OrderedDict[str, DbcAttributeType] = OrderedDict(
+        BusType=DbcAttribute("CAN FD" if fd else "CAN", bus_type)
+    )
+    definitions: OrderedDict[str, DbcAttributeDefinitionType] = OrderedDict(BusType=bus_type)
     if fd:  # Vector's attribute for the data-phase bit rate
         fd_rate = DbcAttributeDefinition(
             "BaudrateCANFD", default_value=2_000_000, type_name="INT", minimum=0, maximum=16_000_000
@@ -558,10 +567,10 @@ def _database(specs: list[MessageSpec], fd: bool, bitrate: int, data_bitrate: in
 
 def _bus_type(database: Database) -> str:
     attribute = database.dbc.attributes.get("BusType") if database.dbc else None
-    return attribute.value if attribute is not None else "CAN"
+    return str(attribute.value) if attribute is not None else "CAN"  # a STRING attribute
 
 
-def _role(message: Message) -> str:
+def _role(message: Message) -> Role:
     sender = message.senders[0] if message.senders else ""
     if message.name == "NMT":
         return NMT
@@ -608,4 +617,7 @@ def _spec_from_message(message: Message) -> MessageSpec:
 
 def load_dbc(text: str) -> cantools.database.can.Database:
     """Parse DBC text (for tools and tests that decode a bus from ``cosim dbc``)."""
-    return cantools.database.load_string(text, database_format="dbc")
+    database = cantools.database.load_string(text, database_format="dbc")
+    if not isinstance(database, Database):  # a diagnostics (CDD) database: never from the DBC format
+        raise CodecError(f"expected a CAN database, got a {type(database).__name__}")
+    return database
