@@ -15,14 +15,7 @@ from typing import Annotated, Any, ClassVar, Literal
 from pydantic import BeforeValidator, Discriminator, Field, model_validator
 
 import faults as fm
-from cosim.scenario.tables import (
-    Identifier,
-    NonNegative,
-    Probability,
-    Strict,
-    Vector,
-    as_list,
-)
+from cosim.scenario.tables import Identifier, NonNegative, Probability, Strict, Vector, as_list
 from cosim.scenario.waveforms import ConstantSpec, WaveformSpec, build_waveform
 
 
@@ -180,7 +173,7 @@ FaultSpec = Annotated[
 ]
 
 
-def build_fault(spec: Windowed, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
+def build_fault(spec: FaultSpec, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
     """The fault model of one table, on the transmitted ``sensors`` or the ``actuators``."""
     signals = list(actuators if spec.acts_on == "actuators" else sensors)
     names = spec.targets if spec.targets is not None else signals
@@ -193,7 +186,12 @@ def build_faults(scenario: Any) -> fm.FaultInjector:
     """The scenario's noise and faults as fault models on its transmitted sensors and actuators."""
     sensors, actuators = scenario.sensors, scenario.actuators
     noise_labels, fault_labels = scenario.fault_labels()
-    noise = [build_fault(spec, label, sensors, actuators) for spec, label in zip(scenario.noise, noise_labels)]
+    noise: list[fm.SensorFault] = []
+    for spec, label in zip(scenario.noise, noise_labels):
+        model = build_fault(spec, label, sensors, actuators)
+        if not isinstance(model, fm.SensorFault):  # noise tables are sensor models (NoiseSpec)
+            raise TypeError(f"noise model {label} is a {type(model).__name__}, not a sensor fault")
+        noise.append(model)
     built = [build_fault(spec, label, sensors, actuators) for spec, label in zip(scenario.faults, fault_labels)]
     sensor_faults = [f for f in built if isinstance(f, fm.SensorFault)]
     actuator_faults = [f for f in built if isinstance(f, fm.ActuatorFault)]

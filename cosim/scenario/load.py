@@ -129,35 +129,35 @@ def check(s: Scenario) -> list[str]:
         seen_inputs.add(spec.actuator)
     disturbance_names = [c.name for c in info.disturbances]
     seen_inputs.clear()
-    for i, spec in enumerate(s.disturbances):
-        if spec.model:
+    for i, disturbance in enumerate(s.disturbances):
+        if disturbance.model:
             models = sorted(info.disturbance_models)
-            if spec.model not in models:
+            if disturbance.model not in models:
                 problems.append(
-                    f"disturbances[{i}].model: {info.name} has no disturbance model {spec.model!r}"
+                    f"disturbances[{i}].model: {info.name} has no disturbance model {disturbance.model!r}"
                     f"{'; it has: ' + ', '.join(models) if models else ''}"
                 )
             else:
                 try:
-                    info.disturbance_models[spec.model](np.random.default_rng(0), **spec.params)
+                    info.disturbance_models[disturbance.model](np.random.default_rng(0), **disturbance.params)
                 except (TypeError, ValueError) as error:
                     problems.append(f"disturbances[{i}].params: {error}")
             continue
-        unknown(f"disturbances[{i}].input", [spec.input], disturbance_names, "disturbance input")
-        if spec.input in seen_inputs:
-            problems.append(f"disturbances[{i}].input: {spec.input!r} already has a signal")
-        seen_inputs.add(spec.input)
-    for group, specs in (("noise", s.noise), ("faults", s.faults)):
-        for i, spec in enumerate(specs):
+        unknown(f"disturbances[{i}].input", [disturbance.input], disturbance_names, "disturbance input")
+        if disturbance.input in seen_inputs:
+            problems.append(f"disturbances[{i}].input: {disturbance.input!r} already has a signal")
+        seen_inputs.add(disturbance.input)
+    for group, entries in (("noise", s.noise), ("faults", s.faults)):
+        for i, fault in enumerate(entries):
             field = f"{group}[{i}]"
             names, what = (
-                (actuator_names, "actuator") if spec.acts_on == "actuators" else (transmitted, "transmitted sensor")
+                (actuator_names, "actuator") if fault.acts_on == "actuators" else (transmitted, "transmitted sensor")
             )
-            channels = spec.targets if spec.targets is not None else names
-            unknown(f"{field}.{spec.acts_on}", channels, names, what)
-            _lengths(problems, field, spec, len(channels), spec.per_channel)
+            channels = fault.targets if fault.targets is not None else names
+            unknown(f"{field}.{fault.acts_on}", channels, names, what)
+            _lengths(problems, field, fault, len(channels), fault.per_channel)
             for key in ("std", "bound", "magnitude"):
-                if any(v < 0 for v in getattr(spec, key, None) or []):
+                if any(v < 0 for v in getattr(fault, key, None) or []):
                     problems.append(f"{field}.{key}: must be non-negative")
     noise_labels, fault_labels = s.fault_labels()
     labels = noise_labels + fault_labels
@@ -179,26 +179,27 @@ def check(s: Scenario) -> list[str]:
         overrides = getattr(s.bus, table)
         unknown(f"bus.{table}", list(overrides), known, what)
     estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]
-    for i, spec in enumerate(s.clients):
-        if estimator_names.count(spec.name) > 1:
-            problems.append(f"clients[{i}].name: {spec.name!r} is also the name of an estimator or another client")
-        for j, signal in enumerate(spec.signals):
+    for i, client in enumerate(s.clients):
+        if estimator_names.count(client.name) > 1:
+            problems.append(f"clients[{i}].name: {client.name!r} is also the name of an estimator or another client")
+        for j, signal in enumerate(client.signals):
             if not signal.minimum < signal.maximum:
                 problems.append(f"clients[{i}].signals[{j}]: minimum must be below maximum")
-    for i, spec in enumerate(s.estimators):
-        if spec.kind not in ESTIMATORS:
-            close = difflib.get_close_matches(spec.kind, list(ESTIMATORS), n=1)
+    for i, estimator in enumerate(s.estimators):
+        if estimator.kind not in ESTIMATORS:
+            close = difflib.get_close_matches(estimator.kind, list(ESTIMATORS), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             problems.append(
-                f"estimators[{i}].kind: unknown estimator {spec.kind!r}{hint}; known: {', '.join(sorted(ESTIMATORS))}"
+                f"estimators[{i}].kind: unknown estimator {estimator.kind!r}{hint}; "
+                f"known: {', '.join(sorted(ESTIMATORS))}"
             )
         else:
             try:
-                ESTIMATORS[spec.kind].check_params(spec.params)
+                ESTIMATORS[estimator.kind].check_params(estimator.params)
             except ParameterError as error:
                 problems.append(f"estimators[{i}].params.{error}")
-        if estimator_names.count(spec.name) > 1:
-            problems.append(f"estimators[{i}].name: {spec.name!r} is used by two estimators")
+        if estimator_names.count(estimator.name) > 1:
+            problems.append(f"estimators[{i}].name: {estimator.name!r} is used by two estimators")
     for name in estimator_names:
         if name == "controller":
             problems.append("estimators: the name 'controller' is the controller node's; choose another name")

@@ -11,6 +11,7 @@ import difflib
 from typing import Annotated, Any
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+from pydantic_core import ErrorDetails
 
 Identifier = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,23}$")]
 NonNegative = Annotated[float, Field(ge=0)]
@@ -66,7 +67,7 @@ def problem_path(loc: tuple[Any, ...], data: Any) -> str:
     return "".join(parts) or "(top level)"
 
 
-def problem_message(error: dict[str, Any]) -> str:
+def problem_message(error: ErrorDetails) -> str:
     kind = error["type"]
     if kind == "missing":
         return "required but missing"
