@@ -39,9 +39,11 @@ class PlantInfo:
     initial state, linear model): the other MuJoCo coordinates are fast internal dynamics (flows
     that settle within a timestep, cumulative volumes that nothing depends on), eliminated in
     linearization by their quasi-static limit (see ``cosim.plant.physics``).
-    ``passive``, when given, is a MuJoCo passive-force callback (``mjcb_passive``) for forces the
-    MJCF cannot express (the vessel's body-frame damping); ``cosim.plant.physics`` installs it when it loads
-    the model, and it must leave models that are not its own alone.
+    ``passive_forces``, when given, builds the forces a compiled model needs that its MJCF cannot
+    express (the vessel's body-frame damping, ``mjcf._body_damping.forces``): called once with the
+    model, it returns a function f(model, data) that adds them to ``data.qfrc_passive`` (or None).
+    ``cosim.plant.physics`` makes f MuJoCo's passive-force callback (``mjcb_passive``, process-wide)
+    for the duration of each MuJoCo call on the plant's model only, and restores the previous one.
     ``design_keyframe``, when given, is the keyframe at which the estimators' and controllers' linear
     model is taken (its state and ctrl are the operating point), where it differs from the initial
     state ``keyframe``: the vessel cruises from its initial state but is designed on, as the paper
@@ -62,7 +64,7 @@ class PlantInfo:
     keyframe: str = "rest"
     disturbances: tuple[Channel, ...] = ()
     state_tendons: tuple[str, ...] = ()
-    passive: Callable[[Any, Any], None] | None = None
+    passive_forces: Callable[[Any], Callable[[Any, Any], None] | None] | None = None
     disturbance_models: dict[str, Callable[..., Callable[[float], Any]]] = field(default_factory=dict)
     design_keyframe: str = ""
 

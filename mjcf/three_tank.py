@@ -158,9 +158,9 @@ def continuous_model(h: tuple[float, float, float] = OPERATING_LEVELS) -> tuple[
 
     Each orifice contributes its conductance dq/dΔh = q / (2 Δh); heads must be nonzero.
     """
-    h = np.asarray(h, dtype=float)
-    q13, q32, q20 = _flows(h / 100.0)
-    heads = (h[0] - h[2], h[2] - h[1], h[1])
+    levels = np.asarray(h, dtype=float)
+    q13, q32, q20 = _flows(levels / 100.0)
+    heads = (levels[0] - levels[2], levels[2] - levels[1], levels[1])
     k13, k32, k20 = (q * 1e6 / (2.0 * dh) / (AREA * 1e4) for q, dh in zip((q13, q32, q20), heads))  # 1/s
     Ac = np.array([[-k13, 0.0, k13], [0.0, -k32 - k20, k32], [k13, k32, -k13 - k32]])
     Bc = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]]) / (AREA * 1e4)

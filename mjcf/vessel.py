@@ -13,8 +13,8 @@ disturbance with |b(t)| ≤ ε = 5e6. Linearized at a heading ψ̄ (eq. (23)):
 The MJCF model ``vessel.xml`` holds the physics; its header explains how M, D and G are expressed
 and what the world-frame added mass costs away from heading 0. This module gives the paper's
 constants (``PAPER_M``, ``PAPER_D``, ``THRUSTERS``, ``thruster_matrix``, ``paper_model``,
-``DISTURBANCE_BOUND``), names the plant's signals (``INFO``, with the body-frame damping callback the model relies on,
-``mjcf._body_damping``), and generates the environmental disturbance
+``DISTURBANCE_BOUND``), names the plant's signals (``INFO``, with the body-frame damping the model relies on,
+``mjcf._body_damping``, as its passive forces), and generates the environmental disturbance
 b(t) (``EnvironmentDisturbance``, ``environment_disturbance``).
 
 The plant's state is MuJoCo's [qpos, qvel] = [x, y, ψ, ẋ, ẏ, r]: earth-frame velocities, which
@@ -211,7 +211,7 @@ INFO = PlantInfo(
         Channel("b_y", "N", "environmental force b_y, earth frame", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
         Channel("b_n", "N m", "environmental yaw moment b_n", -DISTURBANCE_BOUND, DISTURBANCE_BOUND, 1.0),
     ),
-    passive=_body_damping.passive,  # the part of D that MJCF cannot express (vessel.xml, DAMPING)
+    passive_forces=_body_damping.forces,  # the part of D that MJCF cannot express (vessel.xml, DAMPING)
     # [[disturbances]] model = "environment": current + waves, drawn from the scenario's seed.
     disturbance_models={"environment": lambda rng, **magnitudes: EnvironmentDisturbance.random(rng, **magnitudes)},
     design_keyframe="design",  # the paper's model (23): linearized at rest, heading 0 (vessel.xml)

@@ -11,13 +11,7 @@ from cosim.bus.codec import signal_bits
 from cosim.plant.physics import Plant
 from estimators.design import zoh_discretize
 from mjcf import _body_damping, vessel
-from mjcf.vessel import (
-    DISTURBANCE_BOUND,
-    PAPER_D,
-    PAPER_M,
-    EnvironmentDisturbance,
-    environment_disturbance,
-)
+from mjcf.vessel import DISTURBANCE_BOUND, PAPER_D, PAPER_M, EnvironmentDisturbance, environment_disturbance
 
 A_X, A_Y = PAPER_M[0, 0] - vessel.MASS, PAPER_M[1, 1] - vessel.MASS  # armature of the slides
 
@@ -34,7 +28,7 @@ def at(plant: Plant, psi: float, nu=(0.0, 0.0, 0.0), ctrl=None) -> mujoco.MjData
     d.qvel[:] = vessel.rotation(psi) @ np.asarray(nu, dtype=float)
     if ctrl is not None:
         d.ctrl[:] = ctrl
-    mujoco.mj_forward(plant.model, d)
+    plant.forward(d)
     return d
 
 
@@ -121,26 +115,134 @@ def test_damping_force_is_minus_D_nu_in_the_body_frame(plant, psi):
 
 
 def test_body_damping_callback_leaves_other_models_alone(plant):
-    assert mujoco.get_mjcb_passive() is _body_damping.passive  # installed by loading the vessel
-    info = mjcf.get("masses")
-    masses = Plant(info, 0.01)
+    masses = Plant(mjcf.get("masses"), 0.01)
     d = masses.data
     d.qvel[:] = [0.3, -0.2]
-    mujoco.mj_forward(masses.model, d)
-    assert _body_damping.layout(masses.model) is None
+    with plant.physics():  # the vessel's callback is installed: it hands the masses on (to nothing)
+        assert mujoco.get_mjcb_passive() is not None
+        mujoco.mj_forward(masses.model, d)
+    assert _body_damping.layout(masses.model) is None and _body_damping.forces(masses.model) is None
     np.testing.assert_allclose(
         d.qfrc_passive, [-5e-3 * 0.3 - 9e-3 * 0.5, 9e-3 * 0.5], rtol=1e-12
     )  # d1 x1', d2 (x1' - x2')
 
 
+def test_nothing_of_the_vessel_outlives_a_call():
+    """Loading, resetting, stepping and linearizing the vessel leave mjcb_passive as they found it;
+    outside its calls the raw model has no ΔD (MuJoCo alone: the hull turns, as in the viewer)."""
+    assert mujoco.get_mjcb_passive() is None
+    vessel_plant = Plant(mjcf.get("vessel"), 0.1)
+    vessel_plant.step(vessel_plant.data.ctrl[:8].copy())
+    vessel_plant.linearize()
+    vessel_plant.linearize(method="step")
+    vessel_plant.reset({"psi": 0.3})
+    assert mujoco.get_mjcb_passive() is None
+    d = at(vessel_plant, 0.0, (0.0, 1.0, 0.0))
+    bare = mujoco.MjData(vessel_plant.model)
+    bare.qvel[:] = d.qvel
+    mujoco.mj_forward(vessel_plant.model, bare)
+    np.testing.assert_allclose(bare.qfrc_passive, [0.0, -PAPER_D[0, 0], 0.0])  # joint damping only
+    np.testing.assert_allclose(d.qfrc_passive, -PAPER_D[:, 1], rtol=1e-12)
+
+
+def test_a_foreign_callback_is_restored_and_still_serves_its_models(plant):
+    """A callback someone else installed stays installed across the vessel's calls and keeps
+    acting on other models inside them; the vessel's forces apply to the vessel only."""
+    masses = Plant(mjcf.get("masses"), 0.01)
+    seen: list[str] = []
+
+    def foreign(model, data):
+        seen.append("masses" if model is masses.model else "other")
+
+    mujoco.set_mjcb_passive(foreign)
+    try:
+        with plant.physics():
+            mujoco.mj_forward(masses.model, masses.data)
+            mujoco.mj_forward(plant.model, plant.data)
+            with plant.physics():  # nested: nothing changes
+                mujoco.mj_forward(masses.model, masses.data)
+        assert mujoco.get_mjcb_passive() is foreign
+        assert seen == ["masses", "masses"]
+        plant.step(plant.data.ctrl[:8].copy())
+        assert mujoco.get_mjcb_passive() is foreign and seen == ["masses", "masses"]
+    finally:
+        mujoco.set_mjcb_passive(None)
+
+
+def test_an_error_inside_a_call_restores_the_callback(plant):
+    with pytest.raises(RuntimeError, match="inside"):
+        with plant.physics():
+            raise RuntimeError("inside")
+    assert mujoco.get_mjcb_passive() is None
+    with plant.physics():  # the lock was released too
+        pass
+
+
+def test_scoped_damping_is_bit_identical_to_the_global_callback(plant):
+    """The per-call damping (``_body_damping.forces``, installed for each step) and the process-wide
+    callback the plant used before (``_body_damping.passive``, installed once) give the same bits:
+    300 ticks with turning thrust and a disturbance, the hull sweeping through 0.85 rad."""
+    rng = np.random.default_rng(5)
+    inputs = [(rng.normal(size=8) * 2e5, rng.normal(size=3) * 1e5) for _ in range(300)]
+    inputs = [(u + [0, 0, 0, 0, 0, 4e5, 0, 0], b) for u, b in inputs]  # a yaw moment: the heading sweeps
+    plant.reset({"psi": -0.4, "r": 0.01})
+    start = (plant.data.qpos.copy(), plant.data.qvel.copy(), plant.data.ctrl.copy())
+    scoped = []
+    for u, b in inputs:
+        plant.step(u, b)
+        scoped.append(np.concatenate([plant.state(), plant.data.sensordata, plant.data.qacc]))
+    m, d = plant.model, mujoco.MjData(plant.model)
+    d.qpos[:], d.qvel[:], d.ctrl[:] = start
+    mujoco.set_mjcb_passive(_body_damping.passive)
+    try:
+        mujoco.mj_forward(m, d)
+        for (u, b), new in zip(inputs, scoped):
+            d.ctrl[:8], d.ctrl[8:] = u, b
+            mujoco.mj_step(m, d, nstep=plant.substeps)
+            mujoco.mj_forward(m, d)
+            np.testing.assert_array_equal(np.concatenate([d.qpos, d.qvel, d.sensordata, d.qacc]), new)
+    finally:
+        mujoco.set_mjcb_passive(None)
+    assert np.ptp([x[2] for x in scoped]) > 0.8
+    plant.reset()
+
+
+def test_threads_stepping_plants_at_once_get_the_physics_of_one_thread():
+    """Two vessels and a masses plant stepped in three threads at once: each trajectory equals the
+    same plant's alone (the callback is installed per call, under a lock; the masses never wait)."""
+    import threading
+
+    def trajectory(plant: Plant, ticks: int) -> np.ndarray:
+        u = plant.data.ctrl[plant._known].copy() * 1.3
+        out = []
+        for _ in range(ticks):
+            plant.step(u)
+            out.append(plant.state())
+        return np.array(out)
+
+    def plants() -> list[Plant]:
+        a, b = Plant(mjcf.get("vessel"), 0.1), Plant(mjcf.get("vessel"), 0.1)
+        b.reset({"psi": 1.0, "r": -0.01})
+        return [a, b, Plant(mjcf.get("masses"), 0.01)]
+
+    alone = [trajectory(p, 300) for p in plants()]
+    together: list = [None] * 3
+    threads = [
+        threading.Thread(target=lambda i=i, p=p: together.__setitem__(i, trajectory(p, 300)))
+        for i, p in enumerate(plants())
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for a, t in zip(alone, together):
+        np.testing.assert_array_equal(a, t)
+    assert mujoco.get_mjcb_passive() is None
+
+
 def test_body_damping_declaration_errors_name_the_fix():
     def compile(xml: str) -> mujoco.MjModel:
-        callback = mujoco.get_mjcb_passive()
-        mujoco.set_mjcb_passive(None)
-        try:
-            return mujoco.MjModel.from_xml_string(xml)
-        finally:
-            mujoco.set_mjcb_passive(callback)
+        return mujoco.MjModel.from_xml_string(xml)
 
     body = (
         '<worldbody><body><joint name="x" type="slide"/><joint name="y" type="slide" axis="0 1 0"/>'
@@ -158,6 +260,8 @@ def test_body_damping_declaration_errors_name_the_fix():
     )
     with pytest.raises(ValueError, match="'psi' is not a slide joint"):
         _body_damping.layout(wrong)
+    with pytest.raises(ValueError, match="'psi' is not a slide joint"):
+        _body_damping.forces(wrong)
 
 
 @pytest.mark.parametrize("psi", [0.0, 0.7])

@@ -3,11 +3,21 @@
 The dynamics come from ``mj_step`` only. The state is MuJoCo's [qpos, qvel, act], or, for a plant
 that declares ``state_tendons`` (the three-tank system: levels), the lengths of those fixed tendons;
 the plant module (``mjcf/<plant>.py``) names its components, the sensors and the actuators.
+
+Forces a plant's MJCF cannot express (``PlantInfo.passive_forces``: the vessel's body-frame
+damping) reach MuJoCo through its one process-wide passive-force callback, ``mjcb_passive``. A
+plant installs it only for the duration of its own MuJoCo calls (``Plant.physics``,
+``PassiveForces``) and puts the previous callback back: after any step, reset or linearization
+``mjcb_passive`` is what it was before, and a plant without such forces never touches it. A process
+that ran one plant runs the next as a fresh process would (docs/process-state.md).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -23,6 +33,72 @@ FD_STEP = 2.0**-20
 #: Relative size of the length steps in the linearization of a tendon-state plant (× FD_STEP).
 H_STEP = 2.0**10
 
+#: Held while this module changes MuJoCo's process-wide callbacks: during a ``PassiveForces`` block
+#: and while ``load_model`` compiles (which must run with no Python callback installed). Threads
+#: that step plants with passive forces take turns; plants without them never wait.
+CALLBACKS = threading.RLock()
+
+#: What ``Plant.physics`` returns for a plant without passive forces: nothing to install.
+_NOTHING = contextlib.nullcontext()
+
+
+class PassiveForces:
+    """A model's passive-force function installed as ``mjcb_passive`` for a ``with`` block only.
+
+    MuJoCo calls ``mjcb_passive`` in every ``mj_passive`` (each ``mj_forward``, each RK4 stage of
+    ``mj_step``), for every model in the process. Entering the block (under ``CALLBACKS``) installs
+    a callback that applies ``force`` to ``model`` (any MjData of it) and hands any other model to
+    the callback that was installed before, if any; leaving it, also by an exception, puts that
+    one back. Blocks nest (the same plant's, another plant's). Code outside this module that
+    installs its own Python ``mjcb_passive`` owns that state; while it is installed, compiling a
+    model elsewhere than ``load_model`` fails (MuJoCo calls it before the model has a Python object).
+    """
+
+    def __init__(self, model: mujoco.MjModel, force: Callable[[Any, Any], None]) -> None:
+        self.model = model
+        self.force = force
+        outer: list[Any] = []  # the callbacks found on entering, innermost last
+        self._outer = outer
+
+        def callback(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+            if m is model:
+                force(m, d)
+            elif outer[0] is not None:
+                outer[0](m, d)
+
+        self.callback = callback
+
+    def __enter__(self) -> PassiveForces:
+        CALLBACKS.acquire()
+        try:
+            current = mujoco.get_mjcb_passive()
+            if current is not self.callback:
+                mujoco.set_mjcb_passive(self.callback)
+            self._outer.append(current)
+        except BaseException:
+            CALLBACKS.release()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            previous = self._outer.pop()
+            if previous is not self.callback:
+                mujoco.set_mjcb_passive(previous)
+        finally:
+            CALLBACKS.release()
+
+
+def passive_forces(model: mujoco.MjModel, info: PlantInfo) -> PassiveForces | None:
+    """The plant's extra passive forces for this compiled model (None if it has none)."""
+    if info.passive_forces is None:
+        return None
+    try:
+        force = info.passive_forces(model)
+    except ValueError as error:
+        raise ModelError(f"{info.model_file}: {error}") from None
+    return None if force is None else PassiveForces(model, force)
+
 
 class Plant:
     """One MuJoCo simulation of a plant, advanced ``sample_time`` seconds per tick.
@@ -34,6 +110,7 @@ class Plant:
         self.info = info
         self.model = load_model(info)
         self.data = mujoco.MjData(self.model)
+        self.passive_forces = passive_forces(self.model, info)
         self.sample_time = float(sample_time)
         self.substeps = substeps(self.sample_time, self.model.opt.timestep, info.model_file)
         self.sensor_names = tuple(sensors) if sensors is not None else tuple(s.name for s in info.sensors)
@@ -59,6 +136,17 @@ class Plant:
     def time(self) -> float:
         return float(self.data.time)
 
+    def physics(self) -> contextlib.AbstractContextManager[Any]:
+        """The context in which MuJoCo calls on this plant's model (any MjData of it) compute all of
+        its physics: ``with plant.physics(): mujoco.mj_forward(plant.model, d)``. The plant's own
+        methods use it; outside the block nothing of the plant is installed in MuJoCo."""
+        return _NOTHING if self.passive_forces is None else self.passive_forces
+
+    def forward(self, data: mujoco.MjData | None = None) -> None:
+        """``mj_forward`` on the plant's data (or another MjData of its model), with all its physics."""
+        with self.physics():
+            mujoco.mj_forward(self.model, self.data if data is None else data)
+
     def reset(self, initial: dict[str, float] | None = None, keyframe: str | None = None) -> None:
         """Back to the plant's keyframe (or the one named), then override the named state components."""
         keyframe = keyframe or self.info.keyframe
@@ -71,7 +159,7 @@ class Plant:
             for name, value in (initial or {}).items():
                 x[self.state_names.index(name)] = value
             self.set_state(x)
-        mujoco.mj_forward(self.model, self.data)
+        self.forward()
 
     def state(self) -> np.ndarray:
         """[qpos, qvel, act], or the state tendons' lengths; a copy."""
@@ -85,14 +173,16 @@ class Plant:
         values for the current ctrl (``quasi_static_velocities``)."""
         m = self.model
         if self._tendons is not None:
+            assert self._tendons_pinv is not None
             self.data.qpos[:] += self._tendons_pinv @ (np.asarray(x, dtype=float) - self._tendons @ self.data.qpos)
-            self.data.qvel[:] = quasi_static_velocities(m, self.data)
-            mujoco.mj_forward(m, self.data)
+            with self.physics():
+                self.data.qvel[:] = quasi_static_velocities(m, self.data)
+            self.forward()
             return
         self.data.qpos[:] = x[: m.nq]
         self.data.qvel[:] = x[m.nq : m.nq + m.nv]
         self.data.act[:] = x[m.nq + m.nv :]
-        mujoco.mj_forward(m, self.data)
+        self.forward()
 
     def sensors(self) -> np.ndarray:
         """The selected sensors' true readings at the current state, a copy."""
@@ -103,9 +193,14 @@ class Plant:
         one sample time (zero-order hold) and advance the physics."""
         self.data.ctrl[self._known] = ctrl
         self.data.ctrl[self._unknown] = 0.0 if disturbance is None else disturbance
-        mujoco.mj_step(self.model, self.data, nstep=self.substeps)
-        # mj_step leaves sensordata at the state before its last integration; refresh it.
-        mujoco.mj_forward(self.model, self.data)
+        if self.passive_forces is None:
+            mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+            # mj_step leaves sensordata at the state before its last integration; refresh it.
+            mujoco.mj_forward(self.model, self.data)
+            return
+        with self.passive_forces:
+            mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+            mujoco.mj_forward(self.model, self.data)
 
     def linearize(
         self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False, method: str = "zoh"
@@ -116,23 +211,22 @@ class Plant:
 
 
 def load_model(info: PlantInfo) -> mujoco.MjModel:
-    """Compile the plant's MJCF, checking that it has what the plant module declares."""
-    # The compiler runs mj_passive before the model has a Python object, and a Python mjcb_passive
-    # (a plant module's extra passive forces, e.g. mjcf/_body_damping.py) cannot be called there.
-    passive = mujoco.get_mjcb_passive()
-    mujoco.set_mjcb_passive(None)
-    try:
-        model = mujoco.MjModel.from_xml_path(str(info.model_path))
-    except ValueError as error:
-        raise ModelError(f"{info.model_path}: MuJoCo could not compile the model: {error}") from None
-    finally:
-        mujoco.set_mjcb_passive(passive)
-    if info.passive is not None:
-        if passive is not None and passive is not info.passive:
-            raise ModelError(
-                f"{info.model_file}: needs its passive-force callback, but another one is installed (mjcb_passive)"
-            )
-        mujoco.set_mjcb_passive(info.passive)
+    """Compile the plant's MJCF, checking that it has what the plant module declares.
+
+    Installs nothing: the plant's passive forces are ``passive_forces``' business, per call."""
+    # The compiler runs mj_passive before the model has a Python object, so a Python mjcb_passive
+    # installed by someone else would make it fail: compile without one, then put it back.
+    with CALLBACKS:
+        outer = mujoco.get_mjcb_passive()
+        if outer is not None:
+            mujoco.set_mjcb_passive(None)
+        try:
+            model = mujoco.MjModel.from_xml_path(str(info.model_path))
+        except ValueError as error:
+            raise ModelError(f"{info.model_path}: MuJoCo could not compile the model: {error}") from None
+        finally:
+            if outer is not None:
+                mujoco.set_mjcb_passive(outer)
     _check_states(model, info)
     for actuator in (*info.actuators, *info.disturbances):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, actuator.name) < 0:
@@ -140,7 +234,8 @@ def load_model(info: PlantInfo) -> mujoco.MjModel:
     declared = len(info.actuators) + len(info.disturbances)
     if declared != model.nu:
         raise ModelError(
-            f"{info.model_file}: the model has {model.nu} actuators, the plant module names {declared} (inputs and disturbances)"
+            f"{info.model_file}: the model has {model.nu} actuators, the plant module names {declared} "
+            "(inputs and disturbances)"
         )
     for sensor in info.sensors:
         sensor_address(model, info, sensor.name)
@@ -151,7 +246,8 @@ def _check_states(model: mujoco.MjModel, info: PlantInfo) -> None:
     if info.state_tendons:
         if len(info.states) != len(info.state_tendons):
             raise ModelError(
-                f"{info.model_file}: plant module names {len(info.states)} states but {len(info.state_tendons)} state tendons"
+                f"{info.model_file}: plant module names {len(info.states)} states but "
+                f"{len(info.state_tendons)} state tendons"
             )
         return
     nstate = model.nq + model.nv + model.na
@@ -238,12 +334,14 @@ def sensor_address(model: mujoco.MjModel, info: PlantInfo, name: str) -> int:
     if channel.component is None:
         if dim != 1:
             raise ModelError(
-                f"{info.model_file}: sensor {name!r} has {dim} components; use scalar sensors or give channel {channel.name!r} a component"
+                f"{info.model_file}: sensor {name!r} has {dim} components; use scalar sensors or give channel "
+                f"{channel.name!r} a component"
             )
         return int(model.sensor_adr[sid])
     if not 0 <= channel.component < dim:
         raise ModelError(
-            f"{info.model_file}: channel {channel.name!r} reads component {channel.component} of sensor {name!r}, which has components 0 to {dim - 1}"
+            f"{info.model_file}: channel {channel.name!r} reads component {channel.component} of sensor {name!r}, "
+            f"which has components 0 to {dim - 1}"
         )
     return int(model.sensor_adr[sid]) + channel.component
 
@@ -265,9 +363,9 @@ def linearize(
     """Linearize a MuJoCo plant at the operating point (x, u), from MuJoCo itself.
 
     The continuous-time Jacobians ∂ẋ/∂x, ∂ẋ/∂u (with ẋ = [qvel, qacc, act_dot] from
-    ``mj_forward``; disturbance actuators give the columns of E) and the sensor Jacobians C = ∂y/∂x, D = ∂y/∂u are central finite differences in
-    MuJoCo's tangent space (positions perturbed with ``mj_integratePos``, so ball and free joints
-    are handled). Then, with ``dt`` given:
+    ``mj_forward``; disturbance actuators give the columns of E) and the sensor Jacobians
+    C = ∂y/∂x, D = ∂y/∂u are central finite differences in MuJoCo's tangent space (positions
+    perturbed with ``mj_integratePos``, so ball and free joints are handled). Then, with ``dt`` given:
 
     - ``method="zoh"``: exact zero-order-hold discretization A = exp(A_c dt),
       B = ∫₀^dt exp(A_c s) ds B_c — the discrete model of the linearized physics, as the papers use;
@@ -283,8 +381,16 @@ def linearize(
     """
     if method not in ("zoh", "step"):
         raise ValueError(f"unknown linearization method {method!r}; use 'zoh' or 'step'")
-    if plant._tendons is not None:
-        return _linearize_tendon_state(plant, x, u, dt=dt, method=method)
+    with plant.physics():
+        if plant._tendons is not None:
+            return _linearize_tendon_state(plant, x, u, dt=dt, method=method)
+        return _linearize_joint_state(plant, x, u, dt=dt, method=method)
+
+
+def _linearize_joint_state(
+    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
+) -> LinearModel:
+    """``linearize`` of a plant whose state is [qpos, qvel, act]."""
     m = plant.model
     d = mujoco.MjData(m)
     d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = plant.data.qpos, plant.data.qvel, plant.data.act, plant.data.ctrl
@@ -316,11 +422,12 @@ def linearize(
         set_point(dx, du)
         mujoco.mj_forward(m, d)
         y = d.sensordata[sensors].copy()
-        mujoco.mj_step(m, d, nstep=substeps(dt, m.opt.timestep, plant.info.model_file))
+        mujoco.mj_step(m, d, nstep=nstep)
         dq = np.zeros(nv)
         mujoco.mj_differentiatePos(m, dq, 1.0, qpos0, d.qpos)
         return np.concatenate([dq, d.qvel - qvel0, d.act - act0, y])
 
+    nstep = substeps(dt, m.opt.timestep, plant.info.model_file) if dt is not None else 0
     f = stepped if method == "step" and dt is not None else continuous
     jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
@@ -376,6 +483,7 @@ def _linearize_tendon_state(
     Control clamping is off while differencing (a pump linearized at zero flow).
     """
     m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    assert T is not None and T_pinv is not None
     d = mujoco.MjData(m)
     d.qpos[:], d.ctrl[:], d.qvel[:] = plant.data.qpos, plant.data.ctrl, plant.data.qvel
     if u is not None:
