@@ -33,14 +33,7 @@ from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
 from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
 from cosim.log.reader import LogReader
-from cosim.log.recorder import (
-    DEADLINE_MISSES,
-    EVENTS,
-    FAULTS,
-    FRAMES,
-    STATE,
-    carried_tick,
-)
+from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE, carried_tick
 from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
@@ -207,7 +200,7 @@ class _Scorer:
             elif topic == DEADLINE_MISSES:
                 self.misses[str(msg["node"])] += 1
             elif self.expected_parts and self.run.dt_ns:
-                self._part(topic, log_time, msg)
+                self._part(topic, log_time, msg, self.run.dt_ns)
         except (KeyError, TypeError, ValueError) as error:
             self.broken.add(topic)
             self.warnings.append(
@@ -215,7 +208,7 @@ class _Scorer:
                 f"({type(error).__name__}: {error}); the topic is ignored from there on"
             )
 
-    def _part(self, topic: str, log_time: int, msg: dict[str, Any]) -> None:
+    def _part(self, topic: str, log_time: int, msg: dict[str, Any], dt_ns: int) -> None:
         if topic == STATE:
             k = int(msg["tick"])
             self._tick(k).x = msg
@@ -223,7 +216,7 @@ class _Scorer:
             k = int(msg["tick"])
             self._tick(k).active = list(msg["active"])
         elif topic in self.owner:
-            k = carried_tick(log_time // self.run.dt_ns, msg["tick"])
+            k = carried_tick(log_time // dt_ns, msg["tick"])
             if k < self.next_tick:
                 self.late += 1
                 return
@@ -294,7 +287,8 @@ class _Scorer:
     def _close_segment(self) -> None:
         if self.segment is None:
             return
-        for score in (*self.estimators.values(), *self.diagnosis.values()):
+        scores: list[_EstimationScore | _DiagnosisScore] = [*self.estimators.values(), *self.diagnosis.values()]
+        for score in scores:
             score.close(self.segment)
         self.segment = None
 
@@ -338,6 +332,7 @@ class _EstimationScore:
 
     def close(self, segment: _Segment) -> None:
         dt, band = self.run.sample_time, self.band
+        assert dt is not None, "segments start at scored ticks, and ticks are scored only with a sample time"
         recovery = None
         if band is not None and self.seg_last is not None and self.seg_last[1] <= band:
             recovery = 0.0 if self.seg_last_out is None else round((self.seg_last_out + 1 - segment.start) * dt, 9)
@@ -539,19 +534,20 @@ def _report(
             "faults": score.faults,
         }
     diagnosis = {}
-    for name, score in scorer.diagnosis.items():
-        hours = score.fault_free_ticks * dt / 3600 if dt else 0.0
-        occurred = [label for label in score.faults]
+    for name, verdict in scorer.diagnosis.items():
+        assert dt is not None, "diagnosis is scored at ticks, and ticks are scored only with a sample time"
+        hours = verdict.fault_free_ticks * dt / 3600 if dt else 0.0
+        occurred = [label for label in verdict.faults]
         diagnosis[name] = {
             "kind": run.estimators[name].kind if name in run.estimators else None,
-            "isolation_flags": score.targets,
-            "ticks_scored": score.scored,
-            "alarm_time_s": round(score.alarm_ticks * dt, 9),
-            "fault_free_time_s": round(score.fault_free_ticks * dt, 9),
-            "false_alarms": score.false_alarms,
-            "false_alarm_rate_per_hour": score.false_alarms / hours if hours else None,
-            "missed_detections": sum(not score.faults[label]["detected"] for label in occurred),
-            "faults": score.faults,
+            "isolation_flags": verdict.targets,
+            "ticks_scored": verdict.scored,
+            "alarm_time_s": round(verdict.alarm_ticks * dt, 9),
+            "fault_free_time_s": round(verdict.fault_free_ticks * dt, 9),
+            "false_alarms": verdict.false_alarms,
+            "false_alarm_rate_per_hour": verdict.false_alarms / hours if hours else None,
+            "missed_detections": sum(not verdict.faults[label]["detected"] for label in occurred),
+            "faults": verdict.faults,
         }
     faults = {
         label: {**info, "onset": seconds(scorer.onsets.get(label)), "cleared": seconds(scorer.ends.get(label))}
@@ -577,7 +573,11 @@ def _report(
                 missing.append(f"{topic} messages: no {what}")
         if scorer.bus.frames and not scorer.bus.bitrate:
             missing.append("the bus bit rate (cosim.run.bus): no bus load")
-    span = None if scorer.first_ns is None else round((scorer.last_ns - scorer.first_ns) / 1e9, 9)
+    span = (
+        None
+        if scorer.first_ns is None or scorer.last_ns is None  # set together
+        else round((scorer.last_ns - scorer.first_ns) / 1e9, 9)
+    )
     return {
         "file": str(path),
         "scenario": run.record.scenario,
