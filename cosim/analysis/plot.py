@@ -29,6 +29,7 @@ Estimators are rebuilt from the log's metadata (kind, parameters, design model) 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -251,10 +252,11 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
 
     reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
     weighted = [
-        (name, kind)
+        (name, kind, data)
         for name in series.estimators
         for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
-        if series.diagnostic(name, kind) is not None
+        for data in [series.diagnostic(name, kind)]
+        if data is not None
     ]
     if weighted:
         fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
@@ -263,8 +265,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
             DiagnosticKind.OPTIMIZER: "optimizer z",
             DiagnosticKind.WEIGHT: "weights Γ",
         }
-        for ax, (name, kind) in zip(axes[:, 0], weighted):
-            t, w = series.diagnostic(name, kind)
+        for ax, (name, kind, (t, w)) in zip(axes[:, 0], weighted):
             for i, sensor in enumerate(series.sensors):
                 ax.plot(t, w[:, i], label=sensor, lw=1)
             ax.set_ylabel(f"{name}\n{labels[kind]}", fontsize=8)
@@ -286,17 +287,25 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         ax.legend(fontsize=8)
         save(fig, name)
 
-    effects = {name: bias_effect(series, name) for name in series.estimators}
-    effects = {name: e for name, e in effects.items() if e is not None}
+    effects = {name: e for name in series.estimators for e in [bias_effect(series, name)] if e is not None}
     if effects:
         curves(effects, "|h_Γ|", "fault effect on the output injection", "bias_effect.png", log=True)
-    norms = {name: series.diagnostic(name, DiagnosticKind.WEIGHT) for name in series.estimators}
-    norms = {name: (t, np.linalg.norm(w, axis=1)) for name, v in norms.items() if v is not None for t, w in [v]}
+    norms = {
+        name: (t, np.linalg.norm(w, axis=1))
+        for name in series.estimators
+        for v in [series.diagnostic(name, DiagnosticKind.WEIGHT)]
+        if v is not None
+        for t, w in [v]
+    }
     if norms:
         curves(norms, "|Γ|", "norm of the weights", "gamma_norm.png", log=False)
 
-    bias = {name: series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE) for name in series.estimators}
-    bias = {name: v for name, v in bias.items() if v is not None}
+    bias = {
+        name: v
+        for name in series.estimators
+        for v in [series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE)]
+        if v is not None
+    }
     if bias:
         fig, axes = plt.subplots(
             len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False
@@ -313,8 +322,12 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "bias_estimate.png")
 
-    residuals = {name: series.diagnostic(name, DiagnosticKind.RESIDUAL) for name in series.estimators}
-    residuals = {name: v for name, v in residuals.items() if v is not None}
+    residuals = {
+        name: v
+        for name in series.estimators
+        for v in [series.diagnostic(name, DiagnosticKind.RESIDUAL)]
+        if v is not None
+    }
     if residuals:
         fig, axes = plt.subplots(
             2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False
@@ -339,7 +352,10 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         save(fig, "residual.png")
 
     gains = {
-        name: v for name in reconciliators if (v := series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)) is not None
+        name: v
+        for name in reconciliators
+        for v in [series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)]
+        if v is not None
     }
     if gains:
         fig, axes = plt.subplots(
@@ -358,7 +374,7 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time [s]")
         save(fig, "gain_estimate.png")
 
-    outputs = {name: v for name in sorted(reconciliators) if (v := virtual_output(series, name)) is not None}
+    outputs = {name: v for name in sorted(reconciliators) for v in [virtual_output(series, name)] if v is not None}
     if outputs:
         fig, (values, errors) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
         t, _, z = next(iter(outputs.values()))
@@ -377,15 +393,15 @@ def plot(path: str | Path, out: str | Path) -> list[Path]:
             ax.legend(fontsize=7, ncol=2)
         save(fig, "virtual_output.png")
 
-    def events(ax, isolations: list[tuple[float, str]] = ()) -> None:
+    def events(ax, isolations: Sequence[tuple[float, str]] = ()) -> None:
         """Fault onsets (dotted), isolations and the reconfiguration (dashed)."""
         for f in series.faults:
             ax.axvline(f["start"], color="0.4", ls=":", lw=1)
         for t, label in isolations:
             ax.axvline(t, color="C3", ls="--", lw=1)
             ax.annotate(label, (t, 1), xycoords=("data", "axes fraction"), fontsize=7, color="C3", va="top", ha="left")
-        if series.reconfigured and (t := first_tick(series.control, series.reconfigured[0])) is not None:
-            ax.axvline(t * series.sample_time, color="C2", ls="--", lw=1.2)
+        if series.reconfigured and (k := first_tick(series.control, series.reconfigured[0])) is not None:
+            ax.axvline(k * series.sample_time, color="C2", ls="--", lw=1.2)
 
     # Diagnosis nodes whose residual components have thresholds (COFD): one panel per observer.
     diagnosers = {name: e for name, e in series.estimators.items() if e.signals(DiagnosticKind.THRESHOLD)}
