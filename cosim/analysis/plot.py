@@ -37,7 +37,7 @@ import numpy as np
 
 import estimators
 from cosim.bus.codec import estimate_signal
-from cosim.errors import LogError, ScenarioError
+from cosim.errors import LogError
 from cosim.log.metadata import EstimatorRecord, LogMetadata, ScenarioRecord
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
@@ -76,6 +76,8 @@ class RunSeries:
     """The fault-free readings of the transmitted sensors, per tick."""
     toml: str = ""
     """The scenario file as given (empty for logs without it)."""
+    resolved: str = ""
+    """The scenario as run, with its settings, as JSON (empty for logs without it)."""
     control: dict[int, dict[str, float]] = field(default_factory=dict)
     """The controller node's status signals per tick (closed-loop runs)."""
     reconfigured: list[str] = field(default_factory=list)
@@ -157,9 +159,10 @@ def load(path: str | Path) -> RunSeries:
         ests,
         [f.to_json() for f in run.faults],
         sensor_truth,
-        given.toml,
-        dict(control),
-        reconfigured,
+        toml=given.toml,
+        resolved=given.resolved,
+        control=dict(control),
+        reconfigured=reconfigured,
     )
 
 
@@ -167,11 +170,11 @@ def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:
     """The effectiveness γ_i(t) of each transmitted sensor (shape (len(t), p)): the product of the
     scenario's active gain faults on it, 1 where none is."""
     gains = np.ones((len(t), len(series.sensors)))
-    from cosim.scenario import GainSpec, build_waveform, parse
+    from cosim.scenario import GainSpec, Scenario, build_waveform
 
     try:
-        faults = parse(series.toml).faults if series.toml else []
-    except ScenarioError:
+        faults = Scenario.from_resolved(series.resolved).faults if series.resolved else []
+    except ValueError:
         return gains  # a scenario this version cannot read: no known gain faults
     for spec in faults:
         if not isinstance(spec, GainSpec):

@@ -326,14 +326,16 @@ class RunRecord:
 
 @dataclass(frozen=True)
 class ScenarioRecord:
-    """``cosim.scenario``: the scenario file as given and the validated scenario as JSON."""
+    """``cosim.scenario``: the scenario file as given, the settings applied to it from outside the
+    file (``--set``: a JSON list of [path, value]) and the validated scenario as JSON."""
 
     source: str = ""
     toml: str = ""
     resolved: str = ""
+    settings: str = "[]"
 
     def to_metadata(self) -> dict[str, str]:
-        return {"source": self.source, "toml": self.toml, "resolved": self.resolved}
+        return {"source": self.source, "toml": self.toml, "resolved": self.resolved, "settings": self.settings}
 
     def resolved_json(self, warnings: list[str] | None = None) -> dict[str, Any]:
         """The validated scenario as plain values ({} where the record has none or it is damaged)."""
@@ -448,10 +450,9 @@ class LogMetadata:
         """The records of a log's metadata (``LogReader.metadata()``), read leniently."""
         warnings: list[str] = []
         run = RunRecord.from_metadata(meta[RUN], warnings) if RUN in meta else None
+        fields = ("source", "toml", "resolved", "settings")
         scenario = (
-            ScenarioRecord(**{k: v for k, v in meta[SCENARIO].items() if k in ("source", "toml", "resolved")})
-            if SCENARIO in meta
-            else None
+            ScenarioRecord(**{k: v for k, v in meta[SCENARIO].items() if k in fields}) if SCENARIO in meta else None
         )
         result = ResultRecord.from_metadata(meta[RESULT], warnings) if RESULT in meta else None
         replay = ReplayRecord.from_metadata(meta[REPLAY], warnings) if REPLAY in meta else None

@@ -10,6 +10,7 @@ plant's state, the faults' random streams) lives in the tick source built from i
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -330,4 +331,5 @@ class RunPlan:
 
     def scenario_record(self) -> ScenarioRecord:
         """The log's ``cosim.scenario`` record."""
-        return ScenarioRecord(self.loaded.source, self.loaded.text, self.scenario.model_dump_json())
+        settings = json.dumps([[key, value] for key, value in self.loaded.settings])
+        return ScenarioRecord(self.loaded.source, self.loaded.text, self.scenario.model_dump_json(), settings)

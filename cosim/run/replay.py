@@ -20,7 +20,6 @@ time over ``speed``), like ``canplayer``: for external tools and clients listeni
 
 from __future__ import annotations
 
-import json
 import math
 import time
 import tomllib
@@ -192,7 +191,7 @@ class Replay:
         if self.ticks == 0:
             raise LogError(f"{self.log}: the log has no tick (no SYNC frame): there is nothing to replay")
         try:
-            original = Scenario.model_validate(_without_nulls(json.loads(scenario_record.resolved)))
+            original = Scenario.from_resolved(scenario_record.resolved)
         except ValueError as error:
             raise LogError(f"{self.log}: its scenario cannot be read by this version of cosim ({error})") from None
         self.log_codec = Codec.from_dbc(self.attachments[DBC_ATTACHMENT].decode())
@@ -347,16 +346,6 @@ def _recorded_model(run: RunRecord, continuous: bool, kind: str, log: Path) -> L
         f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
         f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it"
     )
-
-
-def _without_nulls(data: Any) -> Any:
-    """The logged scenario without its null fields, which then take their defaults: JSON has no
-    infinity, so a fault without an end (end = inf, the default) was written as null."""
-    if isinstance(data, dict):
-        return {key: _without_nulls(value) for key, value in data.items() if value is not None}
-    if isinstance(data, list):
-        return [_without_nulls(value) for value in data]
-    return data
 
 
 def _units(s: Scenario) -> dict[str, dict[str, str]]:

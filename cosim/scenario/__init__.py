@@ -8,8 +8,8 @@ A scalar may stand for a vector (it applies to every channel) and a number for a
 constant). Waveforms are tables with a ``kind``: constant, sine, square, ramp, exponential, sum.
 
 The modules: ``tables`` (strict tables and error messages), ``waveforms``, ``faults`` (noise and
-fault tables and the models they build), ``spec`` (the ``Scenario`` and its other tables) and
-``load`` (reading, checking, the built-in scenarios).
+fault tables and the models they build), ``spec`` (the ``Scenario`` and its other tables),
+``load`` (reading, checking, the built-in scenarios) and ``overrides`` (``--set KEY=VALUE``).
 """
 
 from cosim.scenario.faults import (
@@ -30,7 +30,9 @@ from cosim.scenario.load import (
     check,
     load,
     parse,
+    validate,
 )
+from cosim.scenario.overrides import apply, parse_setting, parse_value
 from cosim.scenario.spec import EstimatorSpec, Scenario, StateSpaceSpec
 from cosim.scenario.waveforms import WaveformSpec, build_waveform
 
@@ -48,6 +50,7 @@ __all__ = [
     "Scenario",
     "StateSpaceSpec",
     "WaveformSpec",
+    "apply",
     "build_fault",
     "build_faults",
     "build_waveform",
@@ -55,4 +58,7 @@ __all__ = [
     "check",
     "load",
     "parse",
+    "parse_setting",
+    "parse_value",
+    "validate",
 ]

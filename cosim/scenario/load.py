@@ -32,11 +32,13 @@ DEFAULT_SCENARIO = "masses-bias"
 
 @dataclass(frozen=True)
 class LoadedScenario:
-    """A validated scenario with where it came from and its original text."""
+    """A validated scenario with where it came from, its original text and the settings applied
+    to it from outside the file (``cosim.scenario.overrides``: path, value)."""
 
     scenario: Scenario
     source: str
     text: str
+    settings: tuple[tuple[str, Any], ...] = ()
 
 
 def builtin_names() -> list[str]:
@@ -67,6 +69,11 @@ def parse(text: str, source: str = "<scenario>") -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: invalid TOML: {error}") from None
+    return validate(data, source)
+
+
+def validate(data: dict[str, Any], source: str) -> Scenario:
+    """Validate scenario data (a file's TOML, parsed); raises one ScenarioError listing every problem."""
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as error:

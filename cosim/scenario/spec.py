@@ -4,6 +4,7 @@ database)."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from typing import Annotated, Any, Literal
 
@@ -15,13 +16,7 @@ from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
 from cosim.plant import statespace
 from cosim.scenario.faults import FaultSpec, NoiseSpec
-from cosim.scenario.tables import (
-    Identifier,
-    Positive,
-    Strict,
-    problem_message,
-    problem_path,
-)
+from cosim.scenario.tables import Identifier, Positive, Strict, problem_message, problem_path
 from cosim.scenario.waveforms import WaveformSpec
 from estimators import ESTIMATORS
 from estimators.controller import CONTROLLERS
@@ -272,6 +267,12 @@ class Scenario(Strict):
                 "; ".join(f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors())
             ) from None
 
+    @classmethod
+    def from_resolved(cls, text: str) -> Scenario:
+        """The scenario a log records as resolved JSON (``model_dump_json``); a ValueError if this
+        version cannot read it."""
+        return cls.model_validate(_without_nulls(json.loads(text)))
+
     def fault_labels(self) -> tuple[list[str], list[str]]:
         """Labels of the noise models and of the faults: their name, or kind and position."""
         noise = [spec.name or f"noise{i}" for i, spec in enumerate(self.noise)]
@@ -364,3 +365,13 @@ def _override(channel: Channel, overrides: dict[str, ChannelOverride], table: st
         return replace(channel, **{k: v for k, v in spec.model_dump().items() if v is not None})
     except ValueError as error:
         raise ScenarioError(f"bus.{table}.{channel.name}: {error.args[0].split(': ', 1)[-1]}") from None
+
+
+def _without_nulls(data: Any) -> Any:
+    """Resolved JSON without its null fields, which then take their defaults: JSON has no
+    infinity, so a fault without an end (end = inf, the default) was written as null."""
+    if isinstance(data, dict):
+        return {key: _without_nulls(value) for key, value in data.items() if value is not None}
+    if isinstance(data, list):
+        return [_without_nulls(value) for value in data]
+    return data
