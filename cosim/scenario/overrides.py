@@ -87,7 +87,8 @@ def set_path(data: dict[str, Any], key: str, value: Any) -> None:
             if part > len(node):
                 items = f"{len(node)} item" + ("" if len(node) == 1 else "s")
                 raise ScenarioError(
-                    f"--set {key}: {_where(parts[:depth])} has {items}; {here} is beyond its end (add one at index {len(node)})"
+                    f"--set {key}: {_where(parts[:depth])} has {items}; {here} is beyond its end (add one at index "
+                    f"{len(node)})"
                 )
             if part == len(node):
                 node.append(value if last else {})
