@@ -383,7 +383,9 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
                 name="CAN_DataFrame",
                 samples=np.zeros(0, dtype=dtype),
                 timestamps=np.zeros(0, dtype="<f8"),
-                attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),
+                # asammdf's Signal annotates the name as a Path, but hands it to MDF4.attach, whose
+                # file_name is a str or a path; the name stays a str, as the readers look it up.
+                attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),  # type: ignore[arg-type]
                 source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
             ),
             comment="cosim run: every frame on the bus, simulated time",

@@ -166,7 +166,9 @@ def _scenario(meta: LogMetadata) -> str:
     )
     given = {e.get("name"): e.get("params", {}) for e in resolved.get("estimators", [])}
     if run.estimators:
-        rows = [[name, e.kind, _compact(given.get(name, {})) or "defaults"] for name, e in run.estimators.items()]
+        rows: list[list[Any]] = [
+            [name, e.kind, _compact(given.get(name, {})) or "defaults"] for name, e in run.estimators.items()
+        ]
         parts += ["<h3>Estimators</h3>", _table(["estimator", "kind", "parameters"], rows)]
     if run.faults:
         rows = [[f.label, f.kind, f.start, "end of run" if f.end is None else f.end] for f in run.faults]
