@@ -188,9 +188,11 @@ class Client:
         self.name = name
         self.codec = codec
         self.bus = bus
-        self.declared = name is not None and name in codec.node_ids
+        #: The node this client is on the bus: its name, where the DBC declares it; else None.
+        self._node = name if name is not None and name in codec.node_ids else None
+        self.declared = self._node is not None
         self.lockstep = lockstep and self.declared
-        self.messages = codec.data_messages(name) if self.declared else []
+        self.messages = codec.data_messages(self._node) if self._node is not None else []
         if upstream is None and CONTROLLER in codec.node_ids and name != CONTROLLER:
             upstream = {CONTROLLER: 0}  # closed loop: the commands of tick k come from the controller node
         self.assembler = TickAssembler(codec, sample_time, upstream)
@@ -220,14 +222,14 @@ class Client:
 
     def join(self) -> None:
         """Announce this node (its boot-up heartbeat); the runner waits for it before tick 0."""
-        if self.declared and not self._joined:
-            self.bus.send(self.codec.heartbeat(self.name, BOOTUP))
+        if self._node is not None and not self._joined:
+            self.bus.send(self.codec.heartbeat(self._node, BOOTUP))
             self._joined = True
 
     def close(self) -> None:
         """Leave the bus (a stopped heartbeat, then the bus is closed if the client opened it)."""
-        if self.declared and self._joined and not self.stopped:
-            self.bus.send(self.codec.heartbeat(self.name, STOPPED))
+        if self._node is not None and self._joined and not self.stopped:
+            self.bus.send(self.codec.heartbeat(self._node, STOPPED))
         self.stopped = True
         if self._owns_bus:
             self.bus.shutdown()
@@ -253,7 +255,8 @@ class Client:
             return []
         if decoded.spec.role == NMT:
             node = int(decoded.values["node"])
-            if decoded.values["command"] == NMT_STOP and (node == 0 or node == self.codec.node_ids.get(self.name)):
+            ours = self._node is not None and node == self.codec.node_ids[self._node]
+            if decoded.values["command"] == NMT_STOP and (node == 0 or ours):
                 self.stopped = True
             return []
         return self.assembler.push(decoded)
@@ -311,7 +314,7 @@ class Client:
 
     def done(self, tick: TickFrames | int) -> None:
         """Close a tick: the heartbeat that tells the runner this node has answered it."""
-        if self.lockstep:
+        if self.lockstep and self._node is not None:  # lockstep only for a declared node
             k = tick.tick if isinstance(tick, TickFrames) else tick
-            self.bus.send(self.codec.heartbeat(self.name, OPERATIONAL, k, self._published, self.assembler.lost))
+            self.bus.send(self.codec.heartbeat(self._node, OPERATIONAL, k, self._published, self.assembler.lost))
         self._published = 0
