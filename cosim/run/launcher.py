@@ -103,6 +103,7 @@ class LocalNode(Participant):
     """An estimator node driven by the runner in its own process (the ``virtual`` interface)."""
 
     kind = "node"
+    node: EstimatorNode | ControllerNode  # a LocalController's is its ControllerNode
 
     def __init__(self, spec: NodeSpec, estimator: Estimator) -> None:
         self.name = spec.name

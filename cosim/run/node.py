@@ -86,6 +86,8 @@ class _Node(ABC):
     frames for the tick and closes it with the heartbeat."""
 
     client: Client
+    ticks: int
+    """Ticks answered so far."""
 
     @abstractmethod
     def answer(self, tick: TickFrames) -> None:
