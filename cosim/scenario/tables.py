@@ -8,10 +8,10 @@ turn pydantic's errors into the one-line messages cosim prints (``faults[0].valu
 from __future__ import annotations
 
 import difflib
+from collections.abc import Mapping
 from typing import Annotated, Any
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
-from pydantic_core import ErrorDetails
 
 Identifier = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,23}$")]
 NonNegative = Annotated[float, Field(ge=0)]
@@ -67,7 +67,8 @@ def problem_path(loc: tuple[Any, ...], data: Any) -> str:
     return "".join(parts) or "(top level)"
 
 
-def problem_message(error: ErrorDetails) -> str:
+def problem_message(error: Mapping[str, Any]) -> str:
+    """A readable message for one of pydantic's errors (its ``ErrorDetails``)."""
     kind = error["type"]
     if kind == "missing":
         return "required but missing"
