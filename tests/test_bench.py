@@ -90,3 +90,26 @@ def test_vessel_fdi_figures_isolate_every_fault_on_the_linear_model():
     assert figures["zeta"] == pytest.approx([2.485, 5.524, 1.013], abs=1e-3)
     assert all(run["correct"] for run in figures["closed_loop"].values()), figures["closed_loop"]
     assert figures["largest_epsilon"]["T5"] < figures["largest_epsilon"]["T4"] < figures["largest_epsilon"]["T1"]
+
+
+def test_plant_step_benchmark_times_both_damping_mechanisms_and_the_masses_after_the_vessel():
+    figures = bench(
+        "plant_step.py", "--ticks", "50", "--repeat", "1", "--masses-duration", "0.5", "--vessel-duration", "1"
+    )
+    for key in (
+        "vessel_step_us",
+        "vessel_step_global_us",
+        "vessel_step_bare_us",
+        "vessel_step_held_us",
+        "vessel_step_ratio",
+        "masses_fresh_s",
+        "masses_fresh_first_s",
+        "masses_after_vessel_s",
+        "masses_after_vessel_ratio",
+        "masses_old_global_s",
+        "masses_old_global_ratio",
+    ):
+        assert figures[key] > 0, key
+    assert figures["vessel_max_abs_diff"] == 0.0  # the scoped callback is the old physics, bit for bit
+    assert figures["vessel_held_max_abs_diff"] > 1e-9  # a force held over the tick is not
+    assert figures["vessel_ticks"] == 50 and figures["vessel_substeps"] == 10 and figures["masses_ticks"] == 50
