@@ -44,8 +44,9 @@ class TickSource(Protocol):
 
     ticks: int
 
-    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
-        """The runner's frames of tick k, SYNC(k) first, each with what a receiver decodes from it."""
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
+        """The runner's frames of tick k, SYNC(k) first, each with what a receiver decodes from it
+        (None for a frame the run's database does not describe)."""
 
     def advance(self, k: int, session: Session) -> None:
         """What follows tick k's frames on the bus, before the tick is closed."""
@@ -91,7 +92,7 @@ class PlantSource:
         self._sensed: tuple[np.ndarray, np.ndarray, fm.SensorOutcome] | None = None
         self._commands: list[tuple[can.Message, Decoded]] = []
 
-    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         codec, t = self.codec, self.scenario.time(k)
         x, y_true = self.plant.state(), self.plant.sensors()
         outcome = self.faults.sensors(y_true, t)

@@ -32,7 +32,7 @@ from cosim.log.metadata import (
     RunRecord,
     ScenarioRecord,
 )
-from cosim.plant import build_plant
+from cosim.plant import Plant, build_plant
 from cosim.run import design_cache
 from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
@@ -181,6 +181,8 @@ class RunPlan:
         # Estimators are designed on the linearization at the plant's keyframe (its operating point),
         # or at its design keyframe if it has one.
         if s.plant_info.design_keyframe:
+            if not isinstance(plant, Plant):  # keyframes are MuJoCo's: a state-space plant has none
+                raise ScenarioError(f"{loaded.source}: a state-space plant has no design keyframe")
             plant.reset(keyframe=s.plant_info.design_keyframe)
         model = plant.linearize()
         needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (

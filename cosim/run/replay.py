@@ -109,7 +109,10 @@ def _replayed(frame: can.Message, codec: Codec) -> bool:
     if spec is None:
         return False
     if spec.role == HEARTBEAT:
-        return spec.sender == CONTROLLER and codec.decode(frame).values["state"] == OPERATIONAL
+        if spec.sender != CONTROLLER:
+            return False
+        decoded = codec.decode(frame)  # not None: the codec knows the frame's id
+        return decoded is not None and decoded.values["state"] == OPERATIONAL
     return spec.role in REPLAYED_ROLES
 
 
@@ -141,7 +144,7 @@ class LogSource:
         self._out = out
         self._logged: LoggedTick | None = None
 
-    def frames(self, k: int) -> list[tuple[can.Message, Decoded]]:
+    def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         logged = self._logged = next(self._ticks, None)
         if logged is None or logged.tick != k:
             damage = "; ".join(self.reader.warnings) or "the log is damaged"
@@ -222,11 +225,12 @@ class Replay:
                     f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one"
                 )
             kind = recorded[estimator].kind
-            if recorded[estimator].model is None:
+            design_model = recorded[estimator].model
+            if design_model is None:
                 raise LogError(
                     f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed"
                 )
-            model = LinearModel.from_dict(recorded[estimator].model)
+            model = LinearModel.from_dict(design_model)
             given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator].params)
             # Changed parameters mean a new design; unchanged ones come with the run's design.
             spec_params = {**given, **overrides} if overrides else recorded[estimator].params

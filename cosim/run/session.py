@@ -246,15 +246,19 @@ class Session:
 
     def __enter__(self) -> Session:
         stack = self._stack
-        self.interrupts = stack.enter_context(DeferredInterrupts())
-        self.log = stack.enter_context(McapLog(self.out))
-        self.bus = stack.enter_context(open_bus(self.config))
-        self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
-        if self._registration is not None:
-            stack.enter_context(self._registration)
-        self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
-        self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
-        self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
+        try:
+            self.interrupts = stack.enter_context(DeferredInterrupts())
+            self.log = stack.enter_context(McapLog(self.out))
+            self.bus = stack.enter_context(open_bus(self.config))
+            self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
+            if self._registration is not None:
+                stack.enter_context(self._registration)
+            self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
+            self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
+            self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
+        except BaseException:  # undo what was entered (signal handlers, the log, the bus), as __exit__ would
+            stack.close()
+            raise
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -344,7 +348,7 @@ class Session:
         if self.timing.realtime:
             self.wait(lambda: False, self._deadline(k), lambda: None)
 
-    def send(self, k: int, frames: list[tuple[can.Message, Decoded]]) -> None:
+    def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
         for frame, _ in frames:
@@ -421,10 +425,10 @@ class Session:
         for participant in self.participants:
             if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
                 self.warnings.append(warning)
-        frame = self.bus.recv(0.1)
-        while frame is not None:
-            traffic(frame)
-            frame = self.bus.recv(0.02)
+        late = self.bus.recv(0.1)
+        while late is not None:
+            traffic(late)
+            late = self.bus.recv(0.02)
         traffic.flush(k, t_end, t_end_ns)
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
