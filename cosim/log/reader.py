@@ -20,6 +20,7 @@ from mcap import records
 from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
+from mcap.summary import Summary
 from mcap.well_known import SchemaEncoding
 
 from cosim.errors import LogError
@@ -122,7 +123,7 @@ class LogReader:
         count, last = 0, None
         try:
             if self._summary is not None and self._summary.chunk_indexes:
-                source = self._indexed_messages(topics)
+                source = self._indexed_messages(self._summary, topics)
             else:
                 source = self._stream_messages(topics)
             for topic, message in source:
@@ -136,9 +137,8 @@ class LogReader:
                 f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read"
             )
 
-    def _indexed_messages(self, topics: list[str] | None) -> Iterator[tuple[str, records.Message]]:
+    def _indexed_messages(self, summary: Summary, topics: list[str] | None) -> Iterator[tuple[str, records.Message]]:
         """Messages chunk by chunk from the chunk index; a damaged chunk is skipped with a warning."""
-        summary = self._summary
         channels = {cid: channel.topic for cid, channel in summary.channels.items()}
         wanted = None if topics is None else {cid for cid, topic in channels.items() if topic in topics}
         for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
