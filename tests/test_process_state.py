@@ -5,8 +5,9 @@ campaign-style sequence of other runs (state-space plants, many estimators, a ru
 Ctrl-C, one ended by an error, one over udp_multicast with node processes) comes first; then every
 built-in plant's scenario, shortened, runs in orders that put each plant after each other one and
 the vessel after itself. Each run's participant frames must be bit-identical to the same run in a
-fresh process (``python -m tests.test_process_state NAME DURATION``), and after each run the
-process state the audit lists must be what it was before.
+fresh process (``python -m tests.test_process_state NAME DURATION``, which computes every design
+itself where the runs here read the design cache), and after each run the process state the audit
+lists must be what it was before.
 """
 
 from __future__ import annotations
@@ -65,13 +66,15 @@ def run_digest(name: str, duration: float, out: Path, **overrides: Any) -> tuple
 
 
 def fresh_digest(name: str, duration: float) -> tuple[str, int]:
-    """The digest of the run in a new Python process (same environment: the session's design cache)."""
+    """The digest of the run in a new Python process without the design cache (every design
+    computed there; the runs in this process take theirs from the session's cache)."""
     child = subprocess.run(
         [sys.executable, "-m", "tests.test_process_state", name, repr(duration)],
         capture_output=True,
         text=True,
         cwd=ROOT,
         timeout=600,
+        env={**os.environ, "COSIM_CACHE_DIR": "off"},
     )
     assert child.returncode == 0, child.stderr
     digest, count = json.loads(child.stdout)
@@ -169,6 +172,17 @@ def test_plants_leave_no_process_state_behind():
         plant.linearize()
         plant.step(plant.data.ctrl[plant._known].copy())
         assert_state_is(state, f"the {name} plant's calls")
+
+
+def test_a_run_that_cannot_start_leaves_nothing_behind(monkeypatch, tmp_path):
+    """The session undoes what it had entered when a later part fails (here: no run registry):
+    the signal handlers, the log file, the bus."""
+    monkeypatch.setenv("COSIM_RUNTIME_DIR", str(tmp_path / "not-a-directory"))
+    (tmp_path / "not-a-directory").write_text("")
+    state = process_state()
+    with pytest.raises(OSError):
+        run(shortened("masses-bias", 0.1), tmp_path / "run.mcap", 0, interface="virtual")
+    assert_state_is(state, "a run whose session could not start")
 
 
 @pytest.mark.slow
