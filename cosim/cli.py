@@ -20,7 +20,10 @@ examples:
   cosim run                          run the default scenario (masses-bias)
   cosim run masses-bias --seed 3     a built-in scenario with another seed
   cosim run my.toml --out my.mcap    a scenario file of your own
+  cosim run masses-bias --set duration=5 --set 'faults[0].value=[0.5, 0, 0]'
   cosim scenarios                    list the built-in scenarios
+  cosim campaign masses-bias-sweep --out runs/sweep   many runs on a local Dask cluster
+  cosim leaderboard runs/sweep/results.parquet --html board.html
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
   cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, candump)
@@ -38,7 +41,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cosim import scenario
     from cosim.run import Run
 
-    loaded = scenario.load(args.scenario)
+    loaded = scenario.apply(scenario.load(args.scenario), [scenario.parse_setting(text) for text in args.set or []])
     seed = loaded.scenario.seed if args.seed is None else args.seed
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{loaded.scenario.name}-seed{seed}-{stamp}.mcap"
@@ -289,6 +292,138 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from cosim.campaign.coordinator import run_campaign
+    from cosim.campaign.spec import load_campaign
+
+    campaign = load_campaign(args.file)
+    console = _console(stderr=True)
+    spec = campaign.spec
+    console.print(
+        f"[bold]{escape(spec.name)}[/bold]: {campaign.size} runs of {escape(campaign.base.source)} "
+        f"({len(campaign.grid)} settings × {len(spec.replicates)} replicates, {spec.bus} bus) into "
+        f"{escape(str(args.out))}"
+    )
+    columns = (
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[failed]} failed"),
+        TextColumn("{task.fields[per_run]}"),
+        TimeElapsedColumn(),
+        TextColumn("ETA {task.fields[eta]}"),
+    )
+    with Progress(*columns, console=console, transient=False, disable=args.quiet) as progress:
+        task = progress.add_task("runs", total=campaign.size, failed=0, per_run="", eta="-")
+
+        def started(description: str, workers: int) -> None:
+            console.print(f"engine: {escape(description)}")
+
+        def update(p) -> None:
+            eta = "-" if p.eta_s is None else time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
+            progress.update(task, completed=p.done, failed=p.failed, per_run=f"{p.mean_run_s:.2f} s/run", eta=eta)
+
+        result = run_campaign(
+            campaign,
+            args.out,
+            engine=args.engine,
+            workers=args.workers,
+            address=args.address,
+            resume=args.resume,
+            keep_logs=args.keep_logs,
+            on_progress=update,
+            on_start=started,
+        )
+    resumed = f" ({result.resumed} from an earlier session)" if result.resumed else ""
+    console.print(
+        f"done: {result.runs} runs{resumed}, {result.failed} failed, in {result.wall_time:.1f} s on "
+        f"{escape(result.engine)}"
+    )
+    print(result.path)
+    return 0
+
+
+def cmd_campaigns(args: argparse.Namespace) -> int:
+    from cosim.campaign.spec import builtin_names, load_campaign
+
+    table = Table(box=None, pad_edge=False, show_header=True, header_style="bold")
+    for column in ("name", "runs", "description"):
+        table.add_column(column)
+    for name in builtin_names():
+        try:
+            campaign = load_campaign(name)
+            table.add_row(name, str(campaign.size), campaign.spec.description)
+        except CosimError as error:
+            table.add_row(name, "-", f"[red]invalid: {escape(str(error))}[/red]")
+    _console().print(table)
+    return 0
+
+
+def cmd_leaderboard(args: argparse.Namespace) -> int:
+    import orjson
+
+    from cosim.campaign.leaderboard import leaderboard
+
+    board = leaderboard(args.results, args.by)
+    if args.html:
+        from cosim.campaign.page import write_page
+
+        _console(stderr=True).print(f"wrote {escape(str(write_page(board, args.html)))}")
+    if args.json:
+        sys.stdout.write(orjson.dumps(board, option=orjson.OPT_INDENT_2).decode() + "\n")
+        return 0
+    _render_leaderboard(board, _console())
+    return 0
+
+
+def _render_leaderboard(board: dict, console: Console) -> None:
+    def num(value) -> str:
+        return "-" if value is None else f"{value:.4g}"
+
+    def pct(value) -> str:
+        return "-" if value is None else f"{100 * value:.1f} %"
+
+    unit = board["units"].get("rms_post_fault") or ""
+    console.print(
+        f"[bold]{escape(str(board.get('campaign') or board['table']))}[/bold]: {board['runs']} runs, "
+        f"{board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
+    )
+    for group in board["groups"]:
+        title = ", ".join(f"{k} = {v}" for k, v in group["group"].items())
+        table = Table(title=escape(title), title_justify="left", box=None, header_style="bold")
+        diagnosis = any(s["diagnoses"] for s in group["ranking"])
+        headers = ["#", "estimator", "kind", "runs", f"RMS p50 [{unit}]", "p90", "rejection"]
+        if diagnosis:
+            headers += ["detected", "missed", "false alarms/h", "delay p50 [s]", "isolation p50 [s]", "isolated right"]
+        for i, header in enumerate(headers):
+            table.add_column(header, justify="left" if 0 < i < 3 else "right")
+        for s in group["ranking"]:
+            cells = [
+                str(s["rank"]),
+                escape(s["estimator"]),
+                escape(s["kind"]),
+                f"{s['runs']}" + (f" +{s['failed']}!" if s["failed"] else ""),
+                num(s["rms_post_fault_median"]),
+                num(s["rms_post_fault_p90"]),
+                num(s["bias_rejection_median"]),
+            ]
+            if diagnosis:
+                cells += [
+                    pct(s["detection_rate"]),
+                    str(s["missed_detections"] if s["missed_detections"] is not None else "-"),
+                    num(s["false_alarms_per_hour"]),
+                    num(s["detection_delay_median_s"]),
+                    num(s["isolation_delay_median_s"]),
+                    pct(s["isolation_accuracy"]),
+                ]
+            table.add_row(*cells)
+        console.print(table)
+    if board["outliers"]:
+        console.print(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")
+
+
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
@@ -299,6 +434,16 @@ def cmd_dbc(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(text)
     return 0
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: give at least 1")
+    return value
 
 
 def _seed(text: str) -> int:
@@ -351,6 +496,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
     p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
     p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="change the scenario: KEY a path into it (duration, faults[0].value, estimators[1].params.epsilon, "
+        'bus.fd), VALUE in TOML (5, [0.5, 0, 0], "text", true); repeat for several; validated like the file',
+    )
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_run)
 
@@ -491,6 +643,64 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="REPORT.html", help="output file (default: FILE.html next to the log)")
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser(
+        "campaign",
+        help="run a campaign of many runs on a distributed engine",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run a campaign: a base scenario over seeds, axes (a grid of settings) and sampled settings, "
+        "every run\non a Dask cluster (a local one with a worker per core, or one joined with --address), into "
+        "one table,\nDIR/results.parquet: a row per run and estimator, every metric of 'cosim inspect' with units. "
+        "A run that\nfails is a row with its error; --resume after a kill redoes only the runs that did not finish.\n"
+        "The file's format is in docs/campaigns.md; 'cosim campaigns' lists the built-in ones.",
+        epilog="examples:\n  cosim campaign masses-bias-sweep --out runs/sweep\n"
+        "  cosim campaign my-campaign.toml --out runs/mine --workers 2 --keep-logs all\n"
+        "  cosim campaign my-campaign.toml --out runs/mine --resume\n"
+        "  cosim campaign my-campaign.toml --out runs/big --address tcp://10.0.0.5:8786",
+    )
+    p.add_argument("file", metavar="FILE", help="a built-in campaign or a campaign TOML file")
+    p.add_argument(
+        "--out", "-o", required=True, metavar="DIR", help="the campaign's folder (new, or with --resume its own)"
+    )
+    p.add_argument(
+        "--engine",
+        choices=("dask", "inline"),
+        default="dask",
+        help="dask (default): a Dask distributed cluster; inline: one run after the other in this process",
+    )
+    p.add_argument(
+        "--address", metavar="ADDR", help="join the Dask scheduler at ADDR instead of starting a local cluster"
+    )
+    p.add_argument(
+        "--workers", type=_positive, metavar="N", help="local cluster: worker processes (default: one per core)"
+    )
+    p.add_argument(
+        "--resume", action="store_true", help="finish the campaign in DIR: only the runs without results run"
+    )
+    p.add_argument(
+        "--keep-logs",
+        choices=("all", "failed", "none"),
+        default="failed",
+        help="which runs' MCAP logs stay in DIR/logs (default: those of failed runs)",
+    )
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+    p.set_defaults(func=cmd_campaign)
+
+    p = sub.add_parser("campaigns", help="list the built-in campaigns", description="List the built-in campaigns.")
+    p.set_defaults(func=cmd_campaigns)
+
+    p = sub.add_parser(
+        "leaderboard",
+        help="rank a campaign's estimators",
+        description="Rank the estimators of a campaign's results table per group of runs (the fault kind by default): "
+        "RMS error after onset (median, p90, bootstrap interval), bias rejection, detection rate, missed detections, "
+        "false alarms per hour, detection and isolation delays, isolation accuracy, with 95 % intervals.",
+    )
+    p.add_argument("results", metavar="RESULTS.parquet", help="a campaign's DIR/results.parquet")
+    p.add_argument("--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
+    p.set_defaults(func=cmd_leaderboard)
 
     p = sub.add_parser(
         "dbc",

@@ -2,7 +2,8 @@
 
 cosim's rooms, from the bottom: the base (``cosim.errors``, ``cosim``), ``bus``, then ``log`` and
 ``plant`` (beside each other), ``scenario``, then ``run`` and ``analysis`` (beside each other),
-``campaign``, and on top the command line (``cosim.cli``) and the users' facade ``cosim.client``.
+the Python API (``cosim.api``), ``campaign``, and on top the command line (``cosim.cli``) and the
+users' facade ``cosim.client``.
 A room imports only rooms below it. The algorithms (``estimators``) and fault models (``faults``)
 import nothing of cosim; a plant module (``mjcf``) only the bus signal type.
 """
@@ -23,8 +24,9 @@ BELOW = {
     "scenario": {"base", "bus", "plant"},
     "run": {"base", "bus", "log", "plant", "scenario"},
     "analysis": {"base", "bus", "log", "plant", "scenario"},
-    "campaign": {"base", "bus", "log", "plant", "scenario", "run", "analysis"},
-    "top": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "campaign"},
+    "api": {"base", "bus", "log", "plant", "scenario", "run", "analysis"},
+    "campaign": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "api"},
+    "top": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "api", "campaign"},
 }
 OUTSIDE = {"estimators": (), "faults": (), "mjcf": ("cosim.bus.signals",)}
 
@@ -38,7 +40,7 @@ def room(module: str) -> str | None:
         return "base"
     if parts[1] in ("cli", "client"):
         return "top"
-    return parts[1] if parts[1] in BELOW else "base"
+    return parts[1] if parts[1] in BELOW else "base"  # cosim.api is the room "api"
 
 
 def imports(path: Path, package: str) -> list[tuple[int, str]]:

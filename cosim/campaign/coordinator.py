@@ -1,0 +1,154 @@
+"""Running a campaign: its runs on an engine, their parts on disk, the results table at the end.
+
+``run_campaign`` writes into one folder: ``campaign.toml`` (the file as given), ``versions.json``,
+``parts/`` (one file per finished run), ``logs/`` (the logs kept) and ``results.parquet``. With
+``resume`` it finishes the campaign a killed coordinator left (SIGKILL included): the folder's
+campaign must be the same file, and only runs without a part run again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cosim.campaign.engine import open_engine
+from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
+from cosim.campaign.spec import Campaign
+from cosim.campaign.worker import execute_run
+from cosim.errors import CosimError
+from cosim.log.metadata import versions
+
+KEEP_LOGS = ("all", "failed", "none")
+
+
+@dataclass(frozen=True)
+class CampaignProgress:
+    done: int
+    failed: int
+    total: int
+    skipped: int
+    """Runs finished before this session (``resume``)."""
+    elapsed: float
+    mean_run_s: float
+
+    @property
+    def eta_s(self) -> float | None:
+        ran = self.done - self.skipped
+        if ran <= 0:
+            return None
+        return (self.total - self.done) * self.elapsed / ran
+
+
+@dataclass(frozen=True)
+class CampaignResult:
+    path: Path
+    runs: int
+    failed: int
+    resumed: int
+    wall_time: float
+    engine: str
+    workers: int
+
+
+def run_campaign(
+    campaign: Campaign,
+    out: str | Path,
+    *,
+    engine: str = "dask",
+    workers: int | None = None,
+    address: str | None = None,
+    resume: bool = False,
+    keep_logs: str = "failed",
+    on_progress: Callable[[CampaignProgress], None] | None = None,
+    on_start: Callable[[str, int], None] | None = None,
+) -> CampaignResult:
+    """Run every run of ``campaign`` (those without a part, with ``resume``) and write the table."""
+    if keep_logs not in KEEP_LOGS:
+        raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
+    folder = Path(out).resolve()
+    _prepare(folder, campaign, resume)
+    runs = campaign.runs()
+    done = done_runs(folder)
+    todo = [run for run in runs if run.index not in done]
+    failed = sum(_failed(folder, index) for index in done)
+    start = time.perf_counter()
+    run_time, finished = 0.0, len(done)
+    with open_engine(engine, workers, address) as pool:
+        if on_start is not None:
+            on_start(pool.description, pool.workers)
+        for spec, outcome in pool.results(execute_run, todo, str(folder), keep_logs):
+            if isinstance(outcome, BaseException):  # the worker process died running it
+                outcome = {
+                    "rows": [
+                        {
+                            "run": spec.index,
+                            "replicate": spec.replicate,
+                            "seed": spec.seed,
+                            **dict(spec.columns),
+                            "status": "error",
+                            "error": f"the worker running it died: {outcome}",
+                        }
+                    ]
+                }
+            write_part(folder, spec.index, outcome)
+            finished += 1
+            failed += any(row.get("status") != "completed" for row in outcome["rows"])
+            run_time += max((row.get("wall_time_s") or 0.0) for row in outcome["rows"])
+            if on_progress is not None:
+                ran = finished - len(done)
+                on_progress(
+                    CampaignProgress(
+                        finished,
+                        failed,
+                        len(runs),
+                        len(done),
+                        time.perf_counter() - start,
+                        run_time / ran if ran else 0.0,
+                    )
+                )
+        description, count = pool.description, pool.workers
+    states = {c.unit for c in campaign.base.scenario.plant_info.states}
+    varying: dict[str, list[Any]] = {}
+    for run in runs:
+        for name, value in run.columns:
+            varying.setdefault(name, []).append(value)
+    schema = TableSchema.of(varying, states.pop() if len(states) == 1 else "mixed units")
+    metadata = {
+        "cosim.campaign": campaign.text,
+        "cosim.campaign.name": campaign.spec.name,
+        "cosim.versions": json.dumps(versions()),
+    }
+    path = assemble(folder, [run.index for run in runs], schema, metadata)
+    return CampaignResult(path, len(runs), failed, len(done), time.perf_counter() - start, description, count)
+
+
+def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:
+    stored = folder / "campaign.toml"
+    if stored.exists():
+        if not resume:
+            raise CosimError(
+                f"--out {folder}: holds a campaign already; add --resume to finish it, or choose another folder"
+            )
+        if stored.read_text(encoding="utf-8") != campaign.text:
+            raise CosimError(
+                f"--resume: {folder} holds another campaign (its campaign.toml differs from {campaign.source}); "
+                f"resume it with that file, or choose another --out"
+            )
+        return
+    if folder.exists() and any(folder.iterdir()):
+        raise CosimError(f"--out {folder}: the folder is not empty and holds no campaign; choose a new or empty folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+    temporary = folder / "campaign.toml.tmp"
+    temporary.write_text(campaign.text, encoding="utf-8")
+    os.replace(temporary, stored)  # last: a folder with campaign.toml is a campaign
+
+
+def _failed(folder: Path, index: int) -> bool:
+    part = json.loads((folder / "parts" / f"run-{index:06d}.json").read_text())
+    return any(row.get("status") != "completed" for row in part["rows"])

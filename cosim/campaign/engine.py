@@ -1,0 +1,130 @@
+"""Where a campaign's runs execute: Dask distributed (a local cluster, or one joined by address), or
+inline in this process (for debugging; the same results).
+
+Dask, not Ray: the runs are independent, coarse (seconds each) Python tasks that need nothing but
+a task queue with retries, results streamed back as they complete and a cluster a user can start
+on other machines with one command (``dask scheduler`` / ``dask worker ADDRESS``). Dask
+distributed is pure Python (a small install beside cosim's), its local cluster starts in about a
+second and costs no core while idle; Ray's daemons (GCS, raylet, dashboard) and its several
+hundred MB are more than a 2-core machine should give up for this.
+
+``Engine.results`` submits at most a window of runs ahead of the completed ones, so the
+coordinator's memory does not grow with the campaign; results arrive in completion order, each
+with its run, and a worker that dies is reported as that run's failure.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager, ExitStack
+from typing import Any
+
+from cosim.errors import CosimError
+
+ENGINES = ("dask", "inline")
+#: Runs submitted ahead of the completed ones, per worker.
+WINDOW_PER_WORKER = 4
+
+
+class Engine(AbstractContextManager["Engine"]):
+    """Runs ``function(item, *args)`` for items, yielding (item, result or exception)."""
+
+    workers = 1
+    description = ""
+
+    def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
+        raise NotImplementedError
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+class InlineEngine(Engine):
+    """Every run in this process, one after the other."""
+
+    description = "inline (this process)"
+
+    def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
+        for item in items:
+            try:
+                yield item, function(item, *args)
+            except Exception as error:  # the worker function reports failures itself; this is a bug
+                yield item, error
+
+
+class DaskEngine(Engine):
+    """A Dask distributed cluster: a local one with ``workers`` single-threaded worker processes
+    (default: one per core), started and stopped here, or the one at ``address``."""
+
+    def __init__(self, workers: int | None = None, address: str | None = None) -> None:
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise CosimError("the campaign engine needs Dask distributed: pip install 'cosim[campaign]'") from None
+        self._stack = ExitStack()
+        if address:
+            try:
+                self.client = self._stack.enter_context(Client(address, timeout=15))
+            except (OSError, TimeoutError) as error:
+                raise CosimError(
+                    f"--address {address}: no Dask scheduler answers there ({error}); start one with "
+                    f"'dask scheduler' and workers with 'dask worker {address}'"
+                ) from None
+            self.workers = max(1, sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values()))
+            self.description = f"Dask cluster at {address} ({self.workers} worker threads)"
+        else:
+            self.workers = workers or os.cpu_count() or 1
+            cluster = self._stack.enter_context(
+                LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=40,  # logging.ERROR: a worker's chatter would scroll the progress display away
+                )
+            )
+            self.client = self._stack.enter_context(Client(cluster))
+            self.description = f"local Dask cluster, {self.workers} worker processes"
+
+    def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
+        from distributed import as_completed
+
+        queue = iter(items)
+        window = WINDOW_PER_WORKER * self.workers
+        running = as_completed()
+        by_key: dict[str, Any] = {}
+
+        def submit(count: int) -> None:
+            for item in queue:
+                future = self.client.submit(function, item, *args, pure=False, retries=1)
+                by_key[future.key] = item
+                running.add(future)
+                count -= 1
+                if count == 0:
+                    return
+
+        submit(window)
+        for future in running:
+            item = by_key.pop(future.key)
+            try:
+                yield item, future.result()
+            except Exception as error:  # the worker died (KilledWorker) or the task could not run
+                yield item, error
+            finally:
+                future.release()
+            submit(1)
+
+    def __exit__(self, *exc: object) -> None:
+        self._stack.close()
+
+
+def open_engine(name: str, workers: int | None = None, address: str | None = None) -> Engine:
+    """The engine by name: "dask" (local cluster or ``address``) or "inline"."""
+    if name == "dask":
+        return DaskEngine(workers, address)
+    if name == "inline":
+        if address:
+            raise CosimError("--address joins a Dask cluster: use it with --engine dask")
+        return InlineEngine()
+    raise CosimError(f"--engine {name}: unknown engine; use one of {', '.join(ENGINES)}")

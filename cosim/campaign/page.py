@@ -1,0 +1,140 @@
+"""The leaderboard as one self-contained HTML page (jinja2 template, figures inlined as PNG).
+
+Figures: the distribution of the RMS error after onset per estimator in each group, and, for the
+estimators that publish an alarm, the median detection delay against the false-alarm rate.
+Outliers and failed runs link to their logs (relative to the page) where the campaign kept them.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cosim import __version__
+from cosim.campaign.leaderboard import read_table
+
+
+def _num(value: Any) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def _pct(value: Any) -> str:
+    return "–" if value is None else f"{100 * value:.1f} %"
+
+
+def _ci(value: Any, pct: bool = False) -> str:
+    if value is None:
+        return ""
+    low, high = value
+    return f"[{_pct(low)}, {_pct(high)}]" if pct else f"[{_num(low)}, {_num(high)}]"
+
+
+def _png(fig: Any) -> str:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=130, bbox_inches="tight")
+    return base64.b64encode(buffer.getvalue()).decode()
+
+
+def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
+    """The page's figures, each with its caption."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns, units, _ = read_table(table)
+    n = len(columns["run"])
+    made = []
+    groups = [g["group"] for g in board["groups"]]
+    panels = []
+    for group in groups:
+        by_estimator: dict[str, list[float]] = {}
+        for i in range(n):
+            if columns["status"][i] != "completed" or any(columns[c][i] != v for c, v in group.items()):
+                continue
+            value = columns["rms_post_fault"][i]
+            if isinstance(value, float) and math.isfinite(value) and value > 0:
+                by_estimator.setdefault(columns["estimator"][i], []).append(value)
+        if by_estimator:
+            panels.append((group, by_estimator))
+    if panels:
+        fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
+        for ax, (group, data) in zip(axes[:, 0], panels):
+            names = sorted(data, key=lambda k: float(np.median(data[k])))
+            ax.boxplot([data[k] for k in names], vert=False, whis=(10, 90), showfliers=True)
+            ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+            ax.set_xscale("log")
+            ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")
+            ax.grid(alpha=0.3, axis="x")
+        unit = units.get("rms_post_fault", "")
+        axes[-1, 0].set_xlabel(f"RMS of |x − x̂| after onset [{unit}]" if unit else "RMS of |x − x̂| after onset")
+        fig.tight_layout()
+        made.append(
+            {
+                "data": _png(fig),
+                "caption": "Distribution of the RMS estimation error after the fault onset, per estimator and group "
+                "(box: quartiles, whiskers: 10th and 90th percentiles, log scale); best median first.",
+            }
+        )
+        plt.close(fig)
+    points = [
+        (g["group"], s)
+        for g in board["groups"]
+        for s in g["ranking"]
+        if s.get("false_alarms_per_hour") is not None and s.get("detection_delay_median_s") is not None
+    ]
+    if points:
+        fig, ax = plt.subplots(figsize=(7, 4.2))
+        for number, (group, score) in enumerate(points):
+            label = f"{score['estimator']} ({', '.join(str(v) for v in group.values())})"
+            x, y = score["false_alarms_per_hour"], score["detection_delay_median_s"]
+            upper = (score.get("detection_delay_p90_s") or y) - y
+            ax.errorbar([x], [y], yerr=[[0.0], [upper]], fmt="o", color=f"C{number % 10}", label=label, capsize=3)
+        ax.set_xlabel("false alarms per fault-free hour")
+        ax.set_ylabel("detection delay [s] (median, to p90)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+        fig.tight_layout()
+        made.append(
+            {
+                "data": _png(fig),
+                "caption": "Detection delay against false-alarm rate of the diagnosis schemes: "
+                "lower left is better; the bar reaches the 90th percentile of the delay.",
+            }
+        )
+        plt.close(fig)
+    return made
+
+
+def write_page(board: dict[str, Any], out: str | Path) -> Path:
+    """Write the leaderboard page to ``out``."""
+    import jinja2
+
+    out = Path(out)
+    environment = jinja2.Environment(
+        loader=jinja2.PackageLoader("cosim.campaign", "templates"), autoescape=True, undefined=jinja2.StrictUndefined
+    )
+    environment.filters.update(num=_num, pct=_pct, ci=_ci)
+    table = Path(board["table"])
+    for group in board["groups"]:
+        group["diagnosis"] = any(s["diagnoses"] for s in group["ranking"])
+    log_base = os.path.relpath(table.parent.resolve(), out.parent.resolve()).replace(os.sep, "/") + "/"
+    page = environment.get_template("leaderboard.html.j2").render(
+        board=board,
+        figures=figures(board, table),
+        title=f"{board.get('campaign') or table.parent.name}: leaderboard",
+        unit=board["units"].get("rms_post_fault") or "the state's units",
+        log_base=log_base,
+        version=__version__,
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(page, encoding="utf-8")
+    return out

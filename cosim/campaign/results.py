@@ -1,0 +1,206 @@
+"""The results table of a campaign: one row per run and estimator, its columns and units, and its parts.
+
+Each finished run leaves one part on disk, ``DIR/parts/run-<index>.json``, written whole or not at
+all (a temporary file renamed into place): a campaign killed at any moment has lost at most the
+runs in flight, and ``--resume`` redoes exactly the runs without a part. ``DIR/results.parquet`` is
+assembled from the parts in run order, in batches (the coordinator never holds the whole table).
+
+A row holds the run (index, replicate, seed, its axis and sample columns, status, error, wall
+time, the log if kept), the estimator, and its metrics from ``cosim inspect`` flattened: the
+estimation errors, the first fault's peak and recovery, and for an estimator that publishes an
+alarm its detection and isolation (``docs/campaigns.md`` defines every column).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+#: The fixed columns: name → (type, unit, description). "state" stands for the unit of the state norm.
+COLUMNS: dict[str, tuple[str, str, str]] = {
+    "run": ("int", "", "run index in the campaign"),
+    "replicate": ("int", "", "replicate (from the campaign's seeds)"),
+    "seed": ("int", "", "the run's scenario seed (cosim run --seed)"),
+    "status": ("text", "", "completed, interrupted or error"),
+    "error": ("text", "", "why the run failed (empty if it did not)"),
+    "wall_time_s": ("float", "s", "wall-clock time of the run and its metrics"),
+    "log": ("text", "", "the run's log, relative to the campaign folder (empty if not kept)"),
+    "estimator": ("text", "", "estimator name"),
+    "kind": ("text", "", "estimator kind"),
+    "fault_kind": ("text", "", "kinds of the run's faults, joined with +; none without faults"),
+    "fault_onset_s": ("float", "s", "first fault onset"),
+    "ticks": ("int", "", "ticks run"),
+    "frames_lost": ("int", "", "frames lost on the bus"),
+    "rms_pre_fault": ("float", "state", "RMS of |x − x̂| before the first fault"),
+    "rms_post_fault": ("float", "state", "RMS of |x − x̂| from the first fault onset"),
+    "final_error": ("float", "state", "|x − x̂| at the last tick"),
+    "band": ("float", "state", "pre-fault band: 2 × the largest settled pre-fault error"),
+    "bias_rejection_ratio": ("float", "", "post-fault RMS over the uniform-weight baseline's"),
+    "peak_error": ("float", "state", "largest |x − x̂| after the first fault's onset"),
+    "recovery_time_s": ("float", "s", "from the first fault's onset until |x − x̂| stays in the band (null: never)"),
+    "diagnoses": ("bool", "", "the estimator publishes an alarm"),
+    "false_alarms": ("int", "", "alarm episodes starting with no fault active"),
+    "false_alarm_rate_per_hour": ("float", "1/h", "false alarms per fault-free hour"),
+    "fault_free_time_s": ("float", "s", "scored time with no fault active"),
+    "missed_detections": ("int", "", "faults with no alarm in their segment"),
+    "detected": ("bool", "", "every fault of the run detected"),
+    "detection_delay_s": ("float", "s", "first fault: onset to the first alarm"),
+    "isolated": ("bool", "", "every isolable fault isolated"),
+    "isolation_delay_s": ("float", "s", "first fault: onset to its isolation"),
+    "isolation_correct": ("bool", "", "every isolable fault isolated to the right targets"),
+}
+IDENTITY = ("run", "replicate", "seed")
+#: Columns that vary between identical runs (wall-clock), left out when tables are compared.
+NONDETERMINISTIC = ("wall_time_s",)
+
+
+def part_path(folder: Path, index: int) -> Path:
+    return folder / "parts" / f"run-{index:06d}.json"
+
+
+def write_part(folder: Path, index: int, part: dict[str, Any]) -> None:
+    """Write a run's part atomically (a temporary file renamed into place)."""
+    path = part_path(folder, index)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(f".{os.getpid()}.tmp")
+    temporary.write_text(json.dumps(part, allow_nan=False, default=_jsonable))
+    os.replace(temporary, path)
+
+
+def done_runs(folder: Path) -> set[int]:
+    """The runs that have a part."""
+    return {int(p.stem.split("-")[1]) for p in (folder / "parts").glob("run-*.json")}
+
+
+def _jsonable(value: Any) -> Any:
+    raise TypeError(f"{type(value).__name__} is not JSON")
+
+
+def _finite(value: Any) -> Any:
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def rows_of(metrics: dict[str, Any]) -> list[dict[str, Any]]:
+    """The metric columns of a run's rows, one per estimator, from ``cosim inspect``'s object."""
+    faults = sorted(
+        metrics.get("faults", {}).items(), key=lambda item: (item[1].get("onset") is None, item[1].get("onset") or 0)
+    )
+    first = faults[0][0] if faults else None
+    kinds = "+".join(sorted({str(f.get("kind")) for _, f in faults})) or "none"
+    run = {
+        "fault_kind": kinds,
+        "fault_onset_s": metrics.get("fault_onset"),
+        "ticks": metrics.get("ticks"),
+        "frames_lost": metrics.get("frames", {}).get("lost"),
+    }
+    rows = []
+    names = list(metrics.get("estimators", {})) + [
+        n for n in metrics.get("diagnosis", {}) if n not in metrics.get("estimators", {})
+    ]
+    for name in names:
+        e = metrics.get("estimators", {}).get(name, {})
+        d = metrics.get("diagnosis", {}).get(name)
+        f = e.get("faults", {}).get(first, {}) if first else {}
+        row = {
+            **run,
+            "estimator": name,
+            "kind": e.get("kind") or (d or {}).get("kind"),
+            "rms_pre_fault": e.get("rms_pre_fault"),
+            "rms_post_fault": e.get("rms_post_fault"),
+            "final_error": e.get("final_error"),
+            "band": e.get("band"),
+            "bias_rejection_ratio": e.get("bias_rejection_ratio"),
+            "peak_error": f.get("peak_error"),
+            "recovery_time_s": f.get("recovery_time"),
+            "diagnoses": d is not None,
+        }
+        if d is not None:
+            scored = d.get("faults", {})
+            isolable = [x for x in scored.values() if x.get("isolable")]
+            head = scored.get(first, {}) if first else {}
+            row |= {
+                "false_alarms": d.get("false_alarms"),
+                "false_alarm_rate_per_hour": d.get("false_alarm_rate_per_hour"),
+                "fault_free_time_s": d.get("fault_free_time_s"),
+                "missed_detections": d.get("missed_detections"),
+                "detected": all(x.get("detected") for x in scored.values()) if scored else None,
+                "detection_delay_s": head.get("detection_delay"),
+                "isolated": all(x.get("isolation_delay") is not None for x in isolable) if isolable else None,
+                "isolation_delay_s": head.get("isolation_delay"),
+                "isolation_correct": all(bool(x.get("isolation_correct")) for x in isolable) if isolable else None,
+            }
+        rows.append({key: _finite(value) for key, value in row.items()})
+    return rows
+
+
+@dataclass(frozen=True)
+class TableSchema:
+    """The columns of one campaign's table: the fixed ones and its axis and sample columns, each
+    with a type ("int", "float", "bool", "text") and a unit."""
+
+    columns: tuple[tuple[str, str, str, str], ...]
+
+    @classmethod
+    def of(cls, varying: dict[str, list[Any]], state_unit: str) -> TableSchema:
+        """The schema for axis and sample columns with these values (in order) and the state's unit."""
+        fixed = [(n, t, state_unit if u == "state" else u, d) for n, (t, u, d) in COLUMNS.items()]
+        head, tail = fixed[: len(IDENTITY)], fixed[len(IDENTITY) :]
+        extra = []
+        for name, values in varying.items():
+            numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+            extra.append((name, "float" if numeric else "text", "", "campaign axis or sample"))
+        return cls(tuple(head + extra + tail))
+
+    @property
+    def names(self) -> list[str]:
+        return [c[0] for c in self.columns]
+
+    def arrow(self):  # pyarrow.Schema
+        import pyarrow as pa
+
+        types = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "text": pa.string()}
+        return pa.schema([pa.field(n, types[t], metadata={"unit": u, "description": d}) for n, t, u, d in self.columns])
+
+    def convert(self, row: dict[str, Any]) -> dict[str, Any]:
+        out = {}
+        for name, kind, _, _ in self.columns:
+            value = row.get(name)
+            if value is not None and kind == "float":
+                value = float(value)
+            elif value is not None and kind == "text" and not isinstance(value, str):
+                value = json.dumps(value)
+            out[name] = value
+        return out
+
+
+def assemble(
+    folder: Path, indices: Iterable[int], schema: TableSchema, metadata: dict[str, str], batch: int = 2000
+) -> Path:
+    """Write ``DIR/results.parquet`` from the parts of ``indices`` (in that order), in batches."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    arrow = schema.arrow().with_metadata(metadata)
+    target = folder / "results.parquet"
+    temporary = folder / "results.parquet.part"
+    with pq.ParquetWriter(temporary, arrow) as writer:
+        pending: list[dict[str, Any]] = []
+        for row in _rows(folder, indices):
+            pending.append(schema.convert(row))
+            if len(pending) >= batch:
+                writer.write_table(pa.Table.from_pylist(pending, schema=arrow))
+                pending.clear()
+        if pending:
+            writer.write_table(pa.Table.from_pylist(pending, schema=arrow))
+    os.replace(temporary, target)
+    return target
+
+
+def _rows(folder: Path, indices: Iterable[int]) -> Iterator[dict[str, Any]]:
+    for index in indices:
+        yield from json.loads(part_path(folder, index).read_text())["rows"]
