@@ -32,16 +32,7 @@ import can
 import numpy as np
 from can.util import len2dlc
 
-from cosim.bus.codec import (
-    CLASSIC_TICK_BITS,
-    CLIENT,
-    COMMAND,
-    ESTIMATE,
-    NMT,
-    SENSOR,
-    Codec,
-    Decoded,
-)
+from cosim.bus.codec import CLASSIC_TICK_BITS, CLIENT, COMMAND, ESTIMATE, NMT, SENSOR, Codec, Decoded
 from cosim.log.writer import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
@@ -130,11 +121,7 @@ class RunRecorder:
             STATE,
             object_schema(
                 "cosim.TruthState",
-                {
-                    "tick": _TICK,
-                    "t": _TIME,
-                    **{n: number(n, units["states"].get(n, "")) for n in states},
-                },
+                {"tick": _TICK, "t": _TIME, **{n: number(n, units["states"].get(n, "")) for n in states}},
                 "State of the simulated plant",
             ),
         )
@@ -142,11 +129,7 @@ class RunRecorder:
             SENSORS,
             object_schema(
                 "cosim.TruthSensors",
-                {
-                    "tick": _TICK,
-                    "t": _TIME,
-                    **{n: number(n, units["sensors"].get(n, "")) for n in sensors},
-                },
+                {"tick": _TICK, "t": _TIME, **{n: number(n, units["sensors"].get(n, "")) for n in sensors}},
                 "True (fault-free, noise-free) sensor readings",
             ),
         )
@@ -251,8 +234,8 @@ class RunRecorder:
         )
         self.frames += 1
         if decoded is not None:
-            payload = decoded.values if spec.role == NMT else {"tick": decoded.tick, **decoded.values}
-            self.log.write(self._decoded[spec.name], t_ns, payload)
+            payload = decoded.values if decoded.spec.role == NMT else {"tick": decoded.tick, **decoded.values}
+            self.log.write(self._decoded[decoded.spec.name], t_ns, payload)
 
     def truth(
         self,
