@@ -109,19 +109,23 @@ def forces(model: mujoco.MjModel) -> Force | None:
     """The body-frame damping of ``model`` as a force function f(model, data), or None for a model
     without ``body_damping`` (ValueError naming what is wrong for an incomplete declaration).
 
-    Layout and D are read now: f is for this model only (changing ``model.numeric_data`` later
-    changes nothing; build another). f reads ψ and q̇ from ``data`` and adds the force to
-    ``data.qfrc_passive`` with the same operations, in the same order, as ``passive``: the same
-    bits. It keeps the arrays of the last MjData it saw (a plant steps one MjData).
+    Layout and D are read now: f is for this model only, and leaves any other model alone
+    (changing ``model.numeric_data`` later changes nothing; build another). f reads ψ and q̇ from
+    ``data`` and adds the force to ``data.qfrc_passive`` with the same operations, in the same
+    order, as ``passive``: the same bits. It keeps the arrays of the last MjData it saw (a plant
+    steps one MjData).
     """
     where = layout(model)
     if where is None:
         return None
+    own = model
     adr, ix, iy, ir, ipsi = where
     D11, D12, D13, D21, D22, D23, D31, D32, D33 = model.numeric_data[adr : adr + 9].tolist()
     last: list = [None, None, None, None]  # data, its qvel, qpos, qfrc_passive
 
     def damping(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        if model is not own:
+            return
         if data is last[0]:
             _, qvel, qpos, qfrc = last
         else:

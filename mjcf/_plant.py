@@ -41,9 +41,10 @@ class PlantInfo:
     linearization by their quasi-static limit (see ``cosim.plant.physics``).
     ``passive_forces``, when given, builds the forces a compiled model needs that its MJCF cannot
     express (the vessel's body-frame damping, ``mjcf._body_damping.forces``): called once with the
-    model, it returns a function f(model, data) that adds them to ``data.qfrc_passive`` (or None).
-    ``cosim.plant.physics`` makes f MuJoCo's passive-force callback (``mjcb_passive``, process-wide)
-    for the duration of each MuJoCo call on the plant's model only, and restores the previous one.
+    model, it returns a function f(model, data) that adds them to ``data.qfrc_passive`` of that
+    model and leaves any other model alone (or None). ``cosim.plant.physics`` makes f MuJoCo's
+    passive-force callback (``mjcb_passive``, process-wide: MuJoCo calls it for every model stepped
+    meanwhile) for the duration of the plant's own MuJoCo calls only, and restores the previous one.
     ``design_keyframe``, when given, is the keyframe at which the estimators' and controllers' linear
     model is taken (its state and ctrl are the operating point), where it differs from the initial
     state ``keyframe``: the vessel cruises from its initial state but is designed on, as the paper

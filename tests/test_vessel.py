@@ -209,7 +209,7 @@ def test_scoped_damping_is_bit_identical_to_the_global_callback(plant):
 
 def test_threads_stepping_plants_at_once_get_the_physics_of_one_thread():
     """Two vessels and a masses plant stepped in three threads at once: each trajectory equals the
-    same plant's alone (the callback is installed per call, under a lock; the masses never wait)."""
+    same plant's alone (the callback is installed per call; plants' calls take turns under a lock)."""
     import threading
 
     def trajectory(plant: Plant, ticks: int) -> np.ndarray:

@@ -33,25 +33,26 @@ FD_STEP = 2.0**-20
 #: Relative size of the length steps in the linearization of a tendon-state plant (× FD_STEP).
 H_STEP = 2.0**10
 
-#: Held while this module changes MuJoCo's process-wide callbacks: during a ``PassiveForces`` block
-#: and while ``load_model`` compiles (which must run with no Python callback installed). Threads
-#: that step plants with passive forces take turns; plants without them never wait.
+#: Held by every MuJoCo call of a plant (``Plant.physics``), by a ``PassiveForces`` block, and while
+#: ``load_model`` compiles (which must run with no Python callback installed): plants in several
+#: threads take turns. Not only for plants with passive forces: a call that reads MuJoCo's callback
+#: pointer while another thread puts the previous callback back would find the bindings' Python
+#: callback gone ("py_mjcb_passive is null"). Hold it around your own MuJoCo calls in other
+#: threads while plants run.
 CALLBACKS = threading.RLock()
-
-#: What ``Plant.physics`` returns for a plant without passive forces: nothing to install.
-_NOTHING = contextlib.nullcontext()
 
 
 class PassiveForces:
     """A model's passive-force function installed as ``mjcb_passive`` for a ``with`` block only.
 
     MuJoCo calls ``mjcb_passive`` in every ``mj_passive`` (each ``mj_forward``, each RK4 stage of
-    ``mj_step``), for every model in the process. Entering the block (under ``CALLBACKS``) installs
-    a callback that applies ``force`` to ``model`` (any MjData of it) and hands any other model to
-    the callback that was installed before, if any; leaving it, also by an exception, puts that
-    one back. Blocks nest (the same plant's, another plant's). Code outside this module that
-    installs its own Python ``mjcb_passive`` owns that state; while it is installed, compiling a
-    model elsewhere than ``load_model`` fails (MuJoCo calls it before the model has a Python object).
+    ``mj_step``), for every model in the process. ``force`` (``PlantInfo.passive_forces``) applies
+    to ``model`` (any MjData of it) and leaves other models alone. Entering the block (under
+    ``CALLBACKS``) installs it, or, if another callback was installed, one that hands every other
+    model to that one; leaving the block, also by an exception, puts the previous callback back.
+    Blocks nest (the same plant's, another plant's). Code outside this module that installs its own
+    Python ``mjcb_passive`` owns that state; while it is installed, compiling a model elsewhere than
+    ``load_model`` fails (MuJoCo calls it before the model has a Python object).
     """
 
     def __init__(self, model: mujoco.MjModel, force: Callable[[Any, Any], None]) -> None:
@@ -60,20 +61,22 @@ class PassiveForces:
         outer: list[Any] = []  # the callbacks found on entering, innermost last
         self._outer = outer
 
-        def callback(m: mujoco.MjModel, d: mujoco.MjData) -> None:
+        def chained(m: mujoco.MjModel, d: mujoco.MjData) -> None:
             if m is model:
                 force(m, d)
-            elif outer[0] is not None:
+            else:
                 outer[0](m, d)
 
-        self.callback = callback
+        self._chained = chained
 
     def __enter__(self) -> PassiveForces:
         CALLBACKS.acquire()
         try:
             current = mujoco.get_mjcb_passive()
-            if current is not self.callback:
-                mujoco.set_mjcb_passive(self.callback)
+            if current is None:
+                mujoco.set_mjcb_passive(self.force)
+            elif current is not self.force and current is not self._chained:
+                mujoco.set_mjcb_passive(self._chained)
             self._outer.append(current)
         except BaseException:
             CALLBACKS.release()
@@ -83,7 +86,7 @@ class PassiveForces:
     def __exit__(self, *exc: object) -> None:
         try:
             previous = self._outer.pop()
-            if previous is not self.callback:
+            if previous is not self.force and previous is not self._chained:
                 mujoco.set_mjcb_passive(previous)
         finally:
             CALLBACKS.release()
@@ -139,8 +142,9 @@ class Plant:
     def physics(self) -> contextlib.AbstractContextManager[Any]:
         """The context in which MuJoCo calls on this plant's model (any MjData of it) compute all of
         its physics: ``with plant.physics(): mujoco.mj_forward(plant.model, d)``. The plant's own
-        methods use it; outside the block nothing of the plant is installed in MuJoCo."""
-        return _NOTHING if self.passive_forces is None else self.passive_forces
+        methods use it; outside the block nothing of the plant is installed in MuJoCo. It holds
+        ``CALLBACKS``: plants in other threads wait."""
+        return CALLBACKS if self.passive_forces is None else self.passive_forces
 
     def forward(self, data: mujoco.MjData | None = None) -> None:
         """``mj_forward`` on the plant's data (or another MjData of its model), with all its physics."""
@@ -193,13 +197,9 @@ class Plant:
         one sample time (zero-order hold) and advance the physics."""
         self.data.ctrl[self._known] = ctrl
         self.data.ctrl[self._unknown] = 0.0 if disturbance is None else disturbance
-        if self.passive_forces is None:
+        with CALLBACKS if self.passive_forces is None else self.passive_forces:
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
             # mj_step leaves sensordata at the state before its last integration; refresh it.
-            mujoco.mj_forward(self.model, self.data)
-            return
-        with self.passive_forces:
-            mujoco.mj_step(self.model, self.data, nstep=self.substeps)
             mujoco.mj_forward(self.model, self.data)
 
     def linearize(
