@@ -53,6 +53,12 @@ class CampaignResult:
     wall_time: float
     engine: str
     workers: int
+    startup_time: float = 0.0
+    """Wall time to start (or join) the engine."""
+    loop_time: float = 0.0
+    """Wall time from the first run submitted to the last result."""
+    run_time: float = 0.0
+    """The runs' own wall times (measured by the workers), summed."""
 
 
 def run_campaign(
@@ -79,6 +85,7 @@ def run_campaign(
     start = time.perf_counter()
     run_time, finished = 0.0, len(done)
     with open_engine(engine, workers, address) as pool:
+        loop_start = time.perf_counter()
         if on_start is not None:
             on_start(pool.description, pool.workers)
         for spec, outcome in pool.results(execute_run, todo, str(folder), keep_logs):
@@ -112,6 +119,7 @@ def run_campaign(
                     )
                 )
         description, count = pool.description, pool.workers
+        loop_time = time.perf_counter() - loop_start
     states = {c.unit for c in campaign.base.scenario.plant_info.states}
     varying: dict[str, list[Any]] = {}
     for run in runs:
@@ -124,7 +132,18 @@ def run_campaign(
         "cosim.versions": json.dumps(versions()),
     }
     path = assemble(folder, [run.index for run in runs], schema, metadata)
-    return CampaignResult(path, len(runs), failed, len(done), time.perf_counter() - start, description, count)
+    return CampaignResult(
+        path,
+        len(runs),
+        failed,
+        len(done),
+        time.perf_counter() - start,
+        description,
+        count,
+        loop_start - start,
+        loop_time,
+        run_time,
+    )
 
 
 def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:

@@ -86,6 +86,9 @@ class DaskEngine(Engine):
             )
             self.client = self._stack.enter_context(Client(cluster))
             self.description = f"local Dask cluster, {self.workers} worker processes"
+        from cosim.campaign.worker import preload
+
+        self.client.run(preload)  # every worker imports the runner now, not during its first run
 
     def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
         from distributed import as_completed

@@ -93,6 +93,7 @@ class Entry:
     failed: int = 0
     rms: list[float] | None = None
     rejection: list[float] | None = None
+    final: list[float] | None = None
     diagnoses: bool = False
     with_fault: int = 0
     detected: int = 0
@@ -114,6 +115,7 @@ class Entry:
             "rms_post_fault_median": percentile(rms, 50),
             "rms_post_fault_p90": percentile(rms, 90),
             "rms_post_fault_median_ci95": bootstrap_median(rms),
+            "final_error_median": percentile(self.final or [], 50),
             "bias_rejection_median": percentile(rejection, 50),
         }
         detections, isolations = self.detection_delays or [], self.isolation_delays or []
@@ -136,7 +138,7 @@ class Entry:
                 key: None
                 for key in out
                 if key not in ("estimator", "kind", "runs", "failed", "diagnoses")
-                and not key.startswith(("rms_", "bias_"))
+                and not key.startswith(("rms_", "bias_", "final_"))
             }
         return out
 
@@ -170,7 +172,11 @@ def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]
             entry.failed += 1
             continue
         entry.runs += 1
-        for attribute, column in (("rms", "rms_post_fault"), ("rejection", "bias_rejection_ratio")):
+        for attribute, column in (
+            ("rms", "rms_post_fault"),
+            ("rejection", "bias_rejection_ratio"),
+            ("final", "final_error"),
+        ):
             if (value := _number(row.get(column))) is not None:
                 setattr(entry, attribute, (getattr(entry, attribute) or []) + [value])
         if row.get("diagnoses"):

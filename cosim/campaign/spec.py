@@ -43,11 +43,12 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
+import scenarios
 from cosim.errors import ScenarioError
 from cosim.scenario import LoadedScenario, apply, load
 from cosim.scenario.tables import Strict, problem_message, problem_path
 
-BUILTIN_DIR = Path(__file__).resolve().parents[2] / "scenarios" / "campaigns"
+BUILTIN_DIR = Path(scenarios.__file__).resolve().parent / "campaigns"
 #: Columns of the results table that every row has; axis and sample columns must not take these names.
 RESERVED = ("run", "replicate", "seed", "status", "error", "wall_time_s", "estimator", "kind", "log")
 

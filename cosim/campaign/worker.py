@@ -16,6 +16,13 @@ from cosim.campaign.spec import RunSpec
 from cosim.errors import CosimError
 
 
+def preload() -> None:
+    """Import what a run needs, once per worker, before the first run (so that runs cost runs)."""
+    import cosim.analysis.metrics  # noqa: F401
+    import cosim.api  # noqa: F401
+    import cosim.run.runner  # noqa: F401
+
+
 def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
     """Run ``spec`` with its log in ``folder/logs``; returns its part: ``rows`` (one per estimator,
     or one describing the failure) and ``state_unit``."""

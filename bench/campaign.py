@@ -1,0 +1,102 @@
+"""Campaign throughput on the local Dask cluster: runs per hour, the speedup of 2 workers over 1,
+and the engine's overhead per run, measured in one invocation on the same campaign.
+
+Workload: the default scenario (``masses-bias``, 30 s of simulated time, two estimators) on the
+in-process bus, ``--runs`` replicates. The same campaign runs once on a local cluster of one worker
+and once on all workers (default: one per core); each time the loop time is taken from the first
+run submitted to the last result (the cluster's start-up, reported apart, is paid once per
+campaign). Figures:
+
+- ``runs_per_hour``: runs / loop time with all workers, × 3600;
+- ``workers``: the workers of that cluster;
+- ``speedup``: loop time with 1 worker / loop time with all;
+- ``overhead_per_run_s``: (loop time × workers − the runs' own wall times) / runs: what the
+  engine costs per run beyond the run itself (submission, transfer, writing the run's part);
+- ``overhead_fraction``: that over the mean run time;
+- ``startup_s``: time to start the local cluster (all workers);
+- ``identical``: the two tables' metrics columns are equal.
+
+Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from cosim.campaign.coordinator import run_campaign  # noqa: E402
+from cosim.campaign.spec import load_campaign  # noqa: E402
+
+
+def campaign_file(folder: Path, runs: int, duration: float) -> Path:
+    path = folder / "bench.toml"
+    path.write_text(
+        f'name = "bench"\nscenario = "masses-bias"\nseed = 1\nseeds = {runs}\n[set]\nduration = {duration}\n'
+    )
+    return path
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
+    parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
+    parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")
+    args = parser.parse_args()
+    import pyarrow.parquet as pq
+
+    with tempfile.TemporaryDirectory() as folder:
+        campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration))
+        results = {}
+        for workers in (1, args.workers):
+            results[workers] = run_campaign(
+                campaign, Path(folder) / f"w{workers}", engine="dask", workers=workers, keep_logs="none"
+            )
+        one, many = results[1], results[args.workers]
+        tables = [pq.read_table(r.path).drop(["wall_time_s"]) for r in (one, many)]
+        mean_run = many.run_time / many.runs
+        overhead = (many.loop_time * many.workers - many.run_time) / many.runs
+        figures = {
+            "runs_per_hour": round(3600 * many.runs / many.loop_time, 1),
+            "workers": many.workers,
+            "speedup": round(one.loop_time / many.loop_time, 3),
+            "overhead_per_run_s": round(overhead, 4),
+            "overhead_fraction": round(overhead / mean_run, 4),
+            "mean_run_s": round(mean_run, 3),
+            "startup_s": round(many.startup_time, 2),
+            "runs": many.runs,
+            "failed": one.failed + many.failed,
+            "identical": tables[0].equals(tables[1]),
+        }
+    if args.json:
+        print(json.dumps(figures))
+        return 0
+    print(
+        f"campaign of {figures['runs']} default-scenario runs ({args.duration:g} s each), in-process bus, local Dask "
+        "cluster"
+    )
+    rows = [
+        ("runs per hour", f"{figures['runs_per_hour']:.0f}", f"{figures['workers']} workers"),
+        ("speedup", f"{figures['speedup']:.2f}", f"{figures['workers']} workers against 1"),
+        ("mean run", f"{figures['mean_run_s']:.2f} s", "as the workers measure it"),
+        (
+            "overhead per run",
+            f"{figures['overhead_per_run_s'] * 1000:.1f} ms",
+            f"{100 * figures['overhead_fraction']:.1f} % of a run",
+        ),
+        ("cluster start-up", f"{figures['startup_s']:.2f} s", "once per campaign"),
+        ("tables identical", str(figures["identical"]), "1 worker against all, metrics columns"),
+    ]
+    for name, value, note in rows:
+        print(f"{name:<20}{value:>14}   {note}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
