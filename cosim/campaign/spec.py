@@ -184,7 +184,8 @@ class Campaign:
 
     def runs(self) -> list[RunSpec]:
         """Every run of the campaign, in index order."""
-        spec, out = self.spec, []
+        spec = self.spec
+        out: list[RunSpec] = []
         for point in self.grid:
             for replicate in spec.replicates:
                 out.append(self.run(len(out), point, replicate))
