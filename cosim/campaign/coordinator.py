@@ -158,6 +158,8 @@ def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:
                 f"--resume: {folder} holds another campaign (its campaign.toml differs from {campaign.source}); "
                 f"resume it with that file, or choose another --out"
             )
+        for leftover in (folder / "parts").glob("*.tmp"):  # a part being written when the coordinator died
+            leftover.unlink()
         return
     if folder.exists() and any(folder.iterdir()):
         raise CosimError(f"--out {folder}: the folder is not empty and holds no campaign; choose a new or empty folder")

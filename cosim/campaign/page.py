@@ -69,7 +69,7 @@ def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
         fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
         for ax, (group, data) in zip(axes[:, 0], panels):
             names = sorted(data, key=lambda k: float(np.median(data[k])))
-            ax.boxplot([data[k] for k in names], vert=False, whis=(10, 90), showfliers=True)
+            ax.boxplot([data[k] for k in names], orientation="horizontal", whis=(10, 90), showfliers=True)
             ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
             ax.set_xscale("log")
             ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")

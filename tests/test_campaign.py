@@ -1,0 +1,237 @@
+"""Campaigns: files validated like scenarios, runs derived from the file alone, a real local Dask
+cluster giving the same table as one worker and as a killed-and-resumed coordinator, the leaderboard."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from contextlib import redirect_stdout
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from cosim.campaign.coordinator import run_campaign
+from cosim.campaign.leaderboard import bootstrap_median, leaderboard, poisson_rate, wilson
+from cosim.campaign.results import NONDETERMINISTIC
+from cosim.campaign.spec import builtin_names, load_campaign
+from cosim.cli import main
+from cosim.errors import ScenarioError
+
+TINY = """
+name = "tiny"
+scenario = "masses-bias"
+seed = 7
+seeds = 2
+[set]
+duration = 1.5
+"faults[0].start" = 0.5
+"bus.fd" = true
+[[axes]]
+key = "faults[0].value"
+values = [0.2, 0.5]
+name = "bias"
+[[sample]]
+key = "noise[0].std"
+distribution = "loguniform"
+low = 0.0005
+high = 0.005
+"""
+
+
+def write(tmp_path, text, name="campaign.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def metrics_table(path):
+    """The table without its wall-clock column, and without the log paths (which follow --keep-logs)."""
+    table = pq.read_table(path)
+    return table.drop([c for c in (*NONDETERMINISTIC, "log") if c in table.column_names])
+
+
+@pytest.fixture(scope="module")
+def inline_table(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("inline")
+    campaign = load_campaign(write(folder, TINY))
+    result = run_campaign(campaign, folder / "out", engine="inline", keep_logs="all")
+    return result
+
+
+def test_every_builtin_campaign_loads_and_validates_every_grid_point():
+    assert {"masses-bias-sweep", "uio-threshold-sweep", "vessel-thrusters", "vessel-nominal"} <= set(builtin_names())
+    for name in builtin_names():
+        campaign = load_campaign(name)
+        assert campaign.size == len(campaign.runs()) > 0 and campaign.spec.description
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ("seeds = 0", "seeds"),
+        ('[[axes]]\nkey = "faults[0].value"\nvalues = [1, 2]\nlabels = ["a"]', "labels has 1 entries for 2 values"),
+        ('[[sample]]\nkey = "duration"\ndistribution = "gaussian"\nlow = 1\nhigh = 2', "sample[0].distribution"),
+        ('[[sample]]\nkey = "duration"\ndistribution = "uniform"\nlow = 3\nhigh = 2', "low (3.0) must not exceed high"),
+        ('[[axes]]\nkey = "faults[0].value"\nvalues = [[1, 2]]', "faults[0].value: has 2 values for 3 channels"),
+        ('[[axes]]\nkey = "estimators[0].params.poles"\nvalues = ["fast"]', "estimators[0].params.poles: expected"),
+        ('[[axes]]\nkey = "faults[4].value"\nvalues = [1]', "faults has 1 item; faults[4] is beyond its end"),
+        ("bogus = 1", "unknown key 'bogus'"),
+    ],
+)
+def test_bad_campaign_files_get_one_line_errors_naming_the_field(tmp_path, change, message):
+    base = 'name = "bad"\nscenario = "masses-bias"\n'
+    text = base + change + "\n" if not change.startswith("seeds") else base + change
+    with pytest.raises(ScenarioError) as error:
+        load_campaign(write(tmp_path, text))
+    assert message in str(error.value) and "\n" not in str(error.value).strip()
+
+
+def test_runs_are_derived_from_the_file_and_their_index_alone(tmp_path):
+    campaign = load_campaign(write(tmp_path, TINY))
+    runs = campaign.runs()
+    assert [r.index for r in runs] == [0, 1, 2, 3] and [r.replicate for r in runs] == [0, 1, 0, 1]
+    assert [dict(r.columns)["bias"] for r in runs] == [0.2, 0.2, 0.5, 0.5]
+    assert len({r.seed for r in runs}) == 4
+    std = [dict(r.columns)["noise[0].std"] for r in runs]
+    assert all(0.0005 <= s <= 0.005 for s in std) and len(set(std)) == 4
+    again = load_campaign(write(tmp_path, TINY, "again.toml")).runs()
+    assert [(r.seed, r.settings) for r in again] == [(r.seed, r.settings) for r in runs]
+    assert campaign.run(2, (1,), 0) == runs[2]  # one run, built alone, is the same run
+
+
+def test_the_inline_engine_writes_one_row_per_run_and_estimator_with_units(inline_table):
+    table = pq.read_table(inline_table.path)
+    rows = table.to_pylist()
+    assert inline_table.runs == 4 and inline_table.failed == 0 and len(rows) == 8
+    assert {(r["run"], r["estimator"]) for r in rows} == {(i, e) for i in range(4) for e in ("uniform", "kalman")}
+    units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
+    assert units["detection_delay_s"] == "s" and units["false_alarm_rate_per_hour"] == "1/h"
+    assert units["rms_post_fault"] == "mixed units"  # the masses' state has m and m/s
+    assert {r["fault_kind"] for r in rows} == {"bias"} and all(r["status"] == "completed" for r in rows)
+    assert b"cosim.campaign" in table.schema.metadata and b"cosim.versions" in table.schema.metadata
+    assert all(os.path.exists(inline_table.path.parent / r["log"]) for r in rows)  # keep_logs="all"
+
+
+def test_a_failed_run_is_a_row_with_its_error_and_the_campaign_goes_on(tmp_path):
+    text = TINY.replace('"bus.fd" = true', '"bus.fd" = false').replace("values = [0.2, 0.5]", "values = [0.2, 40.0]")
+    result = run_campaign(load_campaign(write(tmp_path, text)), tmp_path / "out", engine="inline")
+    rows = pq.read_table(result.path).to_pylist()
+    failed = [r for r in rows if r["status"] != "completed"]
+    assert result.failed == 2 and {r["run"] for r in failed} == {2, 3}
+    assert all("outside its declared range" in r["error"] and r["fault_kind"] == "bias" for r in failed)
+    assert all(os.path.exists(tmp_path / "out" / r["log"]) for r in failed)  # keep_logs="failed"
+    assert all(r["log"] == "" for r in rows if r["status"] == "completed")
+
+
+def test_a_folder_holding_a_campaign_is_not_overwritten_and_resume_needs_the_same_file(tmp_path, inline_table):
+    campaign = load_campaign(write(tmp_path, TINY))
+    folder = inline_table.path.parent
+    with pytest.raises(ScenarioError.__mro__[1], match="holds a campaign already; add --resume"):
+        run_campaign(campaign, folder, engine="inline")
+    other = load_campaign(write(tmp_path, TINY.replace("seed = 7", "seed = 8"), "other.toml"))
+    with pytest.raises(ScenarioError.__mro__[1], match="holds another campaign"):
+        run_campaign(other, folder, engine="inline", resume=True)
+    again = run_campaign(campaign, folder, engine="inline", resume=True)  # nothing left to run
+    assert again.resumed == 4 and metrics_table(again.path).equals(metrics_table(inline_table.path))
+
+
+@pytest.mark.slow
+def test_a_local_dask_cluster_of_two_workers_gives_the_same_table(tmp_path, inline_table):
+    campaign = load_campaign(write(tmp_path, TINY))
+    two = run_campaign(campaign, tmp_path / "two", engine="dask", workers=2, keep_logs="all")
+    one = run_campaign(campaign, tmp_path / "one", engine="dask", workers=1, keep_logs="all")
+    assert two.workers == 2 and "local Dask cluster" in two.engine
+    assert metrics_table(two.path).equals(metrics_table(inline_table.path))
+    assert metrics_table(one.path).equals(metrics_table(inline_table.path))
+
+
+@pytest.mark.slow
+def test_resume_after_the_coordinator_is_killed_loses_nothing_and_duplicates_nothing(tmp_path, inline_table):
+    path = write(tmp_path, TINY.replace("seeds = 2", "seeds = 6"))
+    folder = tmp_path / "killed"
+    command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2", "-q"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list((folder / "parts").glob("run-*.json"))) < 3:
+        time.sleep(0.2)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    done = len(list((folder / "parts").glob("run-*.json")))
+    assert 3 <= done < 12 and not (folder / "results.parquet").exists()
+    time.sleep(2)  # the cluster's workers go with their coordinator
+    survivors = subprocess.run(["pgrep", "-s", str(process.pid)], capture_output=True, text=True).stdout.split()
+    assert survivors == []
+    resumed = run_campaign(load_campaign(path), folder, engine="dask", workers=2, resume=True)
+    fresh = run_campaign(load_campaign(path), tmp_path / "fresh", engine="inline")
+    assert resumed.resumed == done and resumed.runs == 12
+    table = metrics_table(resumed.path)
+    assert table.num_rows == 24 and sorted(set(table.column("run").to_pylist())) == list(range(12))
+    assert table.equals(metrics_table(fresh.path))
+
+
+def test_intervals_are_the_textbook_ones():
+    low, high = wilson(8, 10)  # Wilson 95 %, 8 of 10: [0.4902, 0.9433]
+    assert math.isclose(low, 0.49016, abs_tol=1e-4) and math.isclose(high, 0.94331, abs_tol=1e-4)
+    assert wilson(0, 0) is None and wilson(0, 5)[0] == 0.0
+    low, high = poisson_rate(2, 1.0)  # Garwood: [0.2422, 7.2247]
+    assert math.isclose(low, 0.24224, abs_tol=1e-4) and math.isclose(high, 7.22467, abs_tol=1e-4)
+    assert poisson_rate(0, 2.0)[0] == 0.0 and math.isclose(poisson_rate(0, 2.0)[1], 3.68888 / 2, abs_tol=1e-4)
+    values = list(np.random.default_rng(3).normal(10.0, 1.0, 200))
+    interval = bootstrap_median(values)
+    assert interval == bootstrap_median(values) and interval[0] < np.median(values) < interval[1]
+    assert interval[1] - interval[0] < 0.5 and bootstrap_median(values[:4]) is None
+
+
+def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_table):
+    board = leaderboard(inline_table.path, ["bias"])
+    assert [g["group"] for g in board["groups"]] == [{"bias": 0.2}, {"bias": 0.5}]
+    for group in board["groups"]:
+        ranking = group["ranking"]
+        assert [s["rank"] for s in ranking] == [1, 2]
+        medians = [s["rms_post_fault_median"] for s in ranking]
+        assert medians == sorted(medians) and all(s["runs"] == 2 for s in ranking)
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["leaderboard", str(inline_table.path), "--json", "--html", str(tmp_path / "board.html")]) == 0
+    assert json.loads(out.getvalue())["groups"][0]["group"] == {"fault_kind": "bias"}
+    page = (tmp_path / "board.html").read_text()
+    assert page.count("data:image/png;base64,") >= 1 and "http" not in page.replace("http-equiv", "")
+
+
+def test_run_takes_settings_from_the_command_line(tmp_path):
+    out = tmp_path / "set.mcap"
+    assert (
+        main(
+            [
+                "run",
+                "masses-bias",
+                "-q",
+                "--interface",
+                "virtual",
+                "--set",
+                "duration=0.5",
+                "--set",
+                "faults[0].value=[0.5, 0, 0]",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    from cosim.log.metadata import LogMetadata
+    from cosim.log.reader import LogReader
+
+    with LogReader(out) as reader:
+        meta = LogMetadata.read(reader.metadata())
+    assert meta.run.ticks == 50 and json.loads(meta.scenario.settings) == [
+        ["duration", 0.5],
+        ["faults[0].value", [0.5, 0, 0]],
+    ]
+    assert main(["run", "masses-bias", "-q", "--set", "faults[0].value=[1, 2]", "--out", str(out)]) == 1
