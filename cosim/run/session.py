@@ -246,15 +246,19 @@ class Session:
 
     def __enter__(self) -> Session:
         stack = self._stack
-        self.interrupts = stack.enter_context(DeferredInterrupts())
-        self.log = stack.enter_context(McapLog(self.out))
-        self.bus = stack.enter_context(open_bus(self.config))
-        self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
-        if self._registration is not None:
-            stack.enter_context(self._registration)
-        self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
-        self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
-        self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
+        try:
+            self.interrupts = stack.enter_context(DeferredInterrupts())
+            self.log = stack.enter_context(McapLog(self.out))
+            self.bus = stack.enter_context(open_bus(self.config))
+            self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
+            if self._registration is not None:
+                stack.enter_context(self._registration)
+            self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
+            self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
+            self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
+        except BaseException:  # undo what was entered (signal handlers, the log, the bus), as __exit__ would
+            stack.close()
+            raise
         return self
 
     def __exit__(self, *exc: object) -> None:
