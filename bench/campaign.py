@@ -16,7 +16,11 @@ campaign). Figures:
 - ``startup_s``: time to start the local cluster (all workers);
 - ``identical``: the two tables' metrics columns are equal.
 
-Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N]
+With ``--memory-runs N`` it also runs a campaign of N runs of 0.05 s (so that the engine, not the
+runs, is what grows) and reports the coordinator's resident memory after the first tenth of the
+runs and at the end (``memory_rss_mb_at_10pct``, ``memory_rss_mb_at_end``, ``memory_runs``).
+
+Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N] [--memory-runs N]
 """
 
 from __future__ import annotations
@@ -42,12 +46,38 @@ def campaign_file(folder: Path, runs: int, duration: float) -> Path:
     return path
 
 
+def rss_mb() -> float:
+    """This process's resident memory now (Linux /proc)."""
+    pages = int(Path("/proc/self/statm").read_text().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
+    """Coordinator memory over a campaign of many tiny runs."""
+    campaign = load_campaign(campaign_file(folder, runs, 0.05))
+    seen: dict[str, float] = {}
+
+    def sample(progress) -> None:
+        if progress.done >= runs // 10 and "at_10pct" not in seen:
+            seen["at_10pct"] = rss_mb()
+
+    run_campaign(campaign, folder / "memory", engine="dask", workers=workers, keep_logs="none", on_progress=sample)
+    return {
+        "memory_runs": runs,
+        "memory_rss_mb_at_10pct": round(seen["at_10pct"], 1),
+        "memory_rss_mb_at_end": round(rss_mb(), 1),
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
     parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")
+    parser.add_argument(
+        "--memory-runs", type=int, default=0, help="also measure the coordinator over this many tiny runs"
+    )
     args = parser.parse_args()
     import pyarrow.parquet as pq
 
@@ -74,6 +104,8 @@ def main() -> int:
             "failed": one.failed + many.failed,
             "identical": tables[0].equals(tables[1]),
         }
+        if args.memory_runs:
+            figures |= memory(Path(folder), args.memory_runs, args.workers)
     if args.json:
         print(json.dumps(figures))
         return 0
@@ -93,6 +125,14 @@ def main() -> int:
         ("cluster start-up", f"{figures['startup_s']:.2f} s", "once per campaign"),
         ("tables identical", str(figures["identical"]), "1 worker against all, metrics columns"),
     ]
+    if args.memory_runs:
+        rows += [
+            (
+                "coordinator memory",
+                f"{figures['memory_rss_mb_at_10pct']:.0f} → {figures['memory_rss_mb_at_end']:.0f} MB",
+                f"after {args.memory_runs // 10} and {args.memory_runs} tiny runs",
+            )
+        ]
     for name, value, note in rows:
         print(f"{name:<20}{value:>14}   {note}")
     return 0
