@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 from collections import Counter, defaultdict
 from contextlib import redirect_stdout
 from pathlib import Path
@@ -178,9 +179,26 @@ def test_truth_faults_and_sent_readings_agree(default_run):
     assert noise.std() == pytest.approx(1e-3, rel=0.05)
 
 
+def log_content(path) -> tuple[list, dict, dict]:
+    """Everything a log holds: its messages (topic, log time, sequence, data), its metadata records
+    and its attachments."""
+    with open(path, "rb") as stream:
+        reader = make_reader(stream)
+        messages = [(c.topic, m.log_time, m.sequence, m.data) for _, c, m in reader.iter_messages()]
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        attachments = {a.name: a.data for a in reader.iter_attachments()}
+    return messages, metadata, attachments
+
+
 @pytest.mark.slow
-def test_same_seed_gives_the_same_log_bytes(tmp_path, default_loaded):
+def test_same_seed_gives_the_same_log_but_for_the_start_time(tmp_path, default_loaded, monkeypatch):
+    """A run's one wall-clock value is its start (cosim.run start_time_ns): two runs of the same seed
+    log the same messages, metadata and attachments but for it, and with the clock pinned, the same
+    bytes."""
     loaded = write_short(tmp_path, default_loaded.text, 6.0)
+    started = time.time_ns()
+    d = run(loaded, tmp_path / "d.mcap", seed=1, interface="virtual", channel="determinism")
+    monkeypatch.setattr("cosim.run.runner.time", types.SimpleNamespace(time_ns=lambda: 1_750_000_000_123_456_789))
     a, b, c = (
         run(loaded, tmp_path / f"{n}.mcap", seed=s, interface="virtual", channel="determinism")
         for n, s in (("a", 1), ("b", 1), ("c", 2))
@@ -188,6 +206,10 @@ def test_same_seed_gives_the_same_log_bytes(tmp_path, default_loaded):
     digest = lambda r: hashlib.sha256(r.path.read_bytes()).hexdigest()  # noqa: E731
     assert digest(a) == digest(b)
     assert digest(a) != digest(c)
+    (ma, meta_a, files_a), (md, meta_d, files_d) = log_content(a.path), log_content(d.path)
+    assert json.loads(meta_a["cosim.run"].pop("start_time_ns")) == 1_750_000_000_123_456_789
+    assert started <= json.loads(meta_d["cosim.run"].pop("start_time_ns")) <= time.time_ns()
+    assert ma == md and meta_a == meta_d and files_a == files_d
     fa, fc = frames_by_tick(a.path), frames_by_tick(c.path)
     assert [f["data"] for f in fa[100] if f["message"] == "SENSOR_x1"] != [
         f["data"] for f in fc[100] if f["message"] == "SENSOR_x1"

@@ -4,7 +4,7 @@ An MCAP metadata record is a flat map of strings; cosim writes these (nested val
 
 - ``cosim.run`` (``RunRecord``): the scenario's name, seed, timing, plant, signal names, each
   estimator (kind, messages, parameters with its design, design model, diagnostics), the controller,
-  the faults and the bus, written before tick 0;
+  the faults, the bus and the wall-clock start, written before tick 0;
 - ``cosim.scenario`` (``ScenarioRecord``): the TOML as given and the validated scenario as JSON;
 - ``cosim.versions``: the versions of Python, cosim and the libraries that shape a log;
 - ``cosim.bus``: where the run's bus was (``cosim.bus.transport.BusConfig``);
@@ -243,6 +243,10 @@ class RunRecord:
     """interface, fd, bitrate, data_bitrate"""
     timing: dict[str, Any] = field(default_factory=dict)
     """mode, speed, node_timeout, join_timeout"""
+    start_time_ns: int | None = None
+    """When the run started (its log was opened), wall clock, UTC, in ns since the Unix epoch; None in
+    logs older than this field. The one wall-clock value of a log: exports stamp frames at this
+    start plus simulated time."""
 
     @property
     def dt_ns(self) -> int | None:
@@ -278,6 +282,7 @@ class RunRecord:
             "faults": json.dumps([f.to_json() for f in self.faults]),
             "bus": json.dumps(self.bus),
             "timing": json.dumps(self.timing),
+            "start_time_ns": json.dumps(self.start_time_ns),
         }
 
     @classmethod
@@ -295,6 +300,7 @@ class RunRecord:
             if isinstance(x, dict) and "label" in x
         ]
         onset_tick = f.json("fault_onset_tick", None)
+        start = f.json("start_time_ns", None)
         return cls(
             scenario=record.get("scenario"),
             source=record.get("source"),
@@ -317,6 +323,7 @@ class RunRecord:
             faults=faults,
             bus=f.json("bus", {}),
             timing=f.json("timing", {}),
+            start_time_ns=start if isinstance(start, int) and not isinstance(start, bool) else None,
         )
 
     def with_only(self, name: str, estimator: EstimatorRecord) -> RunRecord:

@@ -281,8 +281,8 @@ class RunPlan:
             registration=registration,
         )
 
-    def run_record(self) -> RunRecord:
-        """The log's ``cosim.run`` record."""
+    def run_record(self, start_time_ns: int | None = None) -> RunRecord:
+        """The log's ``cosim.run`` record; ``start_time_ns``: the run's wall-clock start (UTC, ns)."""
         s, codec = self.scenario, self.codec
         controller = None
         if s.controller is not None and self.controller is not None:
@@ -329,6 +329,7 @@ class RunPlan:
                 "data_bitrate": s.bus.data_bitrate,
             },
             timing=s.timing.model_dump(),
+            start_time_ns=start_time_ns,
         )
 
     def scenario_record(self) -> ScenarioRecord:

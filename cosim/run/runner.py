@@ -10,6 +10,7 @@ Whatever ends the run, the nodes are stopped and the MCAP log is finished with h
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -100,7 +101,7 @@ class Run:
 
     def _write_metadata(self, session: Session) -> None:
         plan, log = self.plan, session.log
-        log.metadata(RUN, plan.run_record().to_metadata())
+        log.metadata(RUN, plan.run_record(start_time_ns=time.time_ns()).to_metadata())
         log.metadata(SCENARIO, plan.scenario_record().to_metadata())
         log.metadata(VERSIONS, versions())
         info = plan.scenario.plant_info
