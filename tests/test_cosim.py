@@ -79,8 +79,8 @@ def test_the_default_run_is_separate_processes_over_a_host_only_multicast_bus(de
         and bus["hop_limit"] == "0"
     )
     assert json.loads(result["senders"]) == {
-        "uniform": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
-        "kalman": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0},
+        "uniform": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0, "late": 0},
+        "kalman": {"frames": 3001 * 1 + 3000 * 2, "lost": 0, "runner_frames_missed": 0, "late": 0},
     }
     assert registry.active() == []  # the run's registry entry is gone
 

@@ -21,20 +21,24 @@ in-process bus, for unit tests.
 from __future__ import annotations
 
 import errno
+import ipaddress
 import random
 import socket
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 
+from cosim.bus.udp import ForeignDatagram, HostMulticastBus
 from cosim.errors import CosimError
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual")
 RECEIVE_BUFFER = 8 * 1024 * 1024
+#: Frames one ``drain`` hands out at most before its caller gets control back.
+DRAIN_LIMIT = 4096
 _PORTS = (20000, 60000)
 
 
@@ -74,10 +78,16 @@ class BusConfig:
         return cls(**data)
 
 
-def allocate(interface: str, channel: str = "", port: int = 0, fd: bool = False) -> BusConfig:
-    """A bus for one run; empty ``channel`` and zero ``port`` pick fresh ones."""
+def allocate(
+    interface: str, channel: str = "", port: int = 0, fd: bool = False, allow_network: bool = False
+) -> BusConfig:
+    """A bus for one run; empty ``channel`` and zero ``port`` pick fresh ones. A udp_multicast group
+    whose scope reaches beyond this host is refused unless ``allow_network``, and so is a group and
+    port that another co-simulation on this host is using."""
     if interface == "udp_multicast":
-        return _allocate_multicast(channel, port, fd)
+        config = _allocate_multicast(channel, port, fd, allow_network)
+        _refuse_a_busy_bus(config)
+        return config
     if interface == "socketcan":
         channel = channel or "vcan0"
         if not Path("/sys/class/net", channel).exists():
@@ -92,15 +102,59 @@ def allocate(interface: str, channel: str = "", port: int = 0, fd: bool = False)
     raise CosimError(f"bus: unknown interface {interface!r}; use one of {', '.join(INTERFACES)}")
 
 
-def _allocate_multicast(channel: str, port: int, fd: bool) -> BusConfig:
+def group_scope(channel: str) -> str | None:
+    """Why a multicast group's traffic can leave this host (None: it cannot), or an error for a
+    channel that is no multicast group."""
+    try:
+        address = ipaddress.ip_address(channel)
+    except ValueError:
+        raise CosimError(
+            f"bus: channel {channel!r} is not an IP address; a udp_multicast channel is a multicast group, "
+            f"e.g. ff11::c05:1 (or leave it empty for a fresh one)"
+        ) from None
+    if not address.is_multicast:
+        raise CosimError(f"bus: channel {channel} is not a multicast group (IPv6 ff00::/8, IPv4 224.0.0.0/4)")
+    if address.version == 6:
+        scope = int(address.packed[1]) & 0x0F
+        if scope != 1:
+            names = {2: "link-local", 4: "admin-local", 5: "site-local", 8: "organization-local", 14: "global"}
+            return (
+                f"its scope is {names.get(scope, f'scope {scope:x}')} (ff{address.packed[1]:02x}::/16), so its frames "
+                f"go out on the network; an interface-local group (ff11::/16) stays on this host"
+            )
+    return None  # IPv4: sent with TTL 0, which keeps it on this host
+
+
+def _allocate_multicast(channel: str, port: int, fd: bool, allow_network: bool) -> BusConfig:
     rng = random.SystemRandom()
     port = port or _free_port(rng)
     if channel:
+        reason = group_scope(channel)
+        if reason is not None and not allow_network:
+            raise CosimError(
+                f"bus: channel {channel}: {reason}; use it only with --allow-network "
+                f"([bus] allow_network = true), or leave the channel empty for a host-local group"
+            )
         ipv6 = ":" in channel
-        return BusConfig("udp_multicast", channel, port, 1 if ipv6 else 0, fd)
+        hop_limit = (1 if ipv6 else 0) if reason is None else 1
+        return BusConfig("udp_multicast", channel, port, hop_limit, fd)
     if _ipv6_multicast_works():
         return BusConfig("udp_multicast", f"ff11::c05:{rng.getrandbits(16):x}:{rng.getrandbits(16):x}", port, 1, fd)
     return BusConfig("udp_multicast", f"239.255.{rng.randrange(256)}.{rng.randrange(1, 255)}", port, 0, fd)
+
+
+def _refuse_a_busy_bus(config: BusConfig) -> None:
+    """Another co-simulation of this user registered on the same group and port: both would corrupt each other."""
+    from cosim.bus import registry
+
+    for info in registry.active():
+        bus = info.get("bus", {})
+        if bus.get("channel") == config.channel and bus.get("port") == config.port:
+            raise CosimError(
+                f"bus: {config.describe()} is in use by the running co-simulation {info.get('id')} "
+                f"({info.get('scenario')}, pid {info.get('pid')}); give this run another port or channel, or leave "
+                f"them empty for fresh ones"
+            )
 
 
 def _free_port(rng: random.Random) -> int:
@@ -130,10 +184,18 @@ def _ipv6_multicast_works() -> bool:
         return False
 
 
-def open_bus(config: BusConfig) -> can.BusABC:
-    """Open the bus, with a clear error naming the bus if that fails."""
+def open_bus(config: BusConfig, on_foreign: Callable[[ForeignDatagram], None] | None = None) -> can.BusABC:
+    """Open the bus, with a clear error naming the bus if that fails. A udp_multicast bus is this
+    host's own (``cosim.bus.udp.HostMulticastBus``): what arrives that is not a frame of the run goes
+    to ``on_foreign``."""
     try:
-        bus = can.Bus(**config.kwargs())
+        if config.interface == "udp_multicast":
+            assert config.port is not None
+            bus: can.BusABC = HostMulticastBus(
+                config.channel, config.port, config.hop_limit or 0, fd=True, on_foreign=on_foreign
+            )
+        else:
+            bus = can.Bus(**config.kwargs())
     except (can.CanError, OSError, ValueError) as error:
         raise CosimError(f"cannot open the bus {config.describe()}: {error}") from None
     if config.interface == "udp_multicast":
@@ -156,11 +218,16 @@ def _enlarge_receive_buffer(bus: can.BusABC) -> None:
             continue
 
 
-def drain(bus: can.BusABC, timeout: float = 0.0) -> Iterator[can.Message]:
+def drain(bus: can.BusABC, timeout: float = 0.0, limit: int = DRAIN_LIMIT) -> Iterator[can.Message]:
     """The frames waiting on ``bus``: the first waited for up to ``timeout`` seconds, then every one
-    already there, without waiting. Every receive loop of cosim (runner, nodes, clients, monitor)
-    takes its frames through here."""
+    already there, without waiting, but at most ``limit``: a bus that never falls silent (a flood, a
+    chatty program) cannot keep a receive loop from its other duties (deadlines, Ctrl-C, the next
+    tick). Every receive loop of cosim (runner, nodes, clients, monitor) takes its frames through here."""
     frame = bus.recv(timeout)
+    count = 0
     while frame is not None:
         yield frame
+        count += 1
+        if count >= limit:
+            return
         frame = bus.recv(0.0)

@@ -353,11 +353,14 @@ class ScenarioRecord:
 
 @dataclass(frozen=True)
 class SenderCounts:
-    """Frames of one node the runner received, of them lost, and of the runner's frames it missed."""
+    """Frames of one node the runner received, of its data frames those lost (never received) and
+    late (received after the tick they carry was over: realtime), and of the runner's frames it
+    reported missing."""
 
     frames: int = 0
     lost: int = 0
     runner_frames_missed: int = 0
+    late: int = 0
 
 
 @dataclass(frozen=True)
@@ -371,6 +374,9 @@ class ResultRecord:
     deadline_misses: int | None = None
     error: str = ""
     senders: dict[str, SenderCounts] = field(default_factory=dict)
+    foreign: dict[str, int] = field(default_factory=dict)
+    """What arrived that does not belong to the run: ``datagrams`` (not frames of the bus: garbage,
+    another host's) and ``frames`` (frames the run did not send on its own ids), counted."""
 
     def to_metadata(self) -> dict[str, str]:
         return {
@@ -381,6 +387,7 @@ class ResultRecord:
             "deadline_misses": str(self.deadline_misses),
             "error": self.error,
             "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
+            "foreign": json.dumps(self.foreign),
         }
 
     @classmethod
@@ -391,7 +398,7 @@ class ResultRecord:
             if isinstance(counts, dict):
                 try:
                     senders[str(name)] = SenderCounts(
-                        *(int(counts.get(k, 0)) for k in ("frames", "lost", "runner_frames_missed"))
+                        *(int(counts.get(k, 0)) for k in ("frames", "lost", "runner_frames_missed", "late"))
                     )
                 except (TypeError, ValueError):
                     warnings.append(f"{RESULT} metadata field 'senders' has a damaged entry for {name!r}; ignored")
@@ -403,6 +410,7 @@ class ResultRecord:
             f.integer("deadline_misses"),
             record.get("error", ""),
             senders,
+            {str(k): int(v) for k, v in f.json("foreign", {}).items() if isinstance(v, int)},
         )
 
 

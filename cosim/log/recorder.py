@@ -37,7 +37,7 @@ from cosim.log.writer import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
-EVENTS, DEADLINE_MISSES = "/cosim/events", "/cosim/deadline_misses"
+EVENTS, DEADLINE_MISSES, FOREIGN = "/cosim/events", "/cosim/deadline_misses", "/cosim/foreign"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
 _TIME = number("simulated time t_k = k τ", "s")
@@ -196,6 +196,31 @@ class RunRecorder:
                 "Realtime mode: ticks a node did not answer in time",
             ),
         )
+        self._foreign = log.channel(
+            FOREIGN,
+            object_schema(
+                "cosim.Foreign",
+                {
+                    "tick": _TICK,
+                    "t": _TIME,
+                    "kind": {
+                        "type": "string",
+                        "enum": ["datagram", "frame"],
+                        "description": "a datagram that is no frame of the run, or a frame the run did not send",
+                    },
+                    "reason": {"type": "string", "description": "why it does not belong"},
+                    "source": {"type": "string", "description": "where it came from, where known"},
+                    "id": {"type": ["integer", "null"], "description": "arbitration id (frames)"},
+                    "length": {"type": "integer", "description": "bytes received (datagram) or payload bytes (frame)"},
+                    "data": {"type": "string", "description": "the first bytes, hex"},
+                    "count": {
+                        "type": "integer",
+                        "description": "how many such arrived in this tick that this record stands for",
+                    },
+                },
+                "What arrived on the run's bus and does not belong to it: counted, never used",
+            ),
+        )
         self._events = log.channel(
             EVENTS,
             object_schema(
@@ -280,6 +305,35 @@ class RunRecorder:
                 "dropped": [name for name, value in zip(self.sensors, measured) if value != value],
                 "effectiveness": dict(zip(self.actuators, delta.tolist())),
                 "active": list(active),
+            },
+        )
+
+    def foreign(
+        self,
+        tick: int,
+        t: float,
+        t_ns: int,
+        kind: str,
+        reason: str,
+        source: str,
+        length: int,
+        data: bytes,
+        frame_id: int | None = None,
+        count: int = 1,
+    ) -> None:
+        self.log.write(
+            self._foreign,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t,
+                "kind": kind,
+                "reason": reason,
+                "source": source,
+                "id": frame_id,
+                "length": length,
+                "data": data.hex(),
+                "count": count,
             },
         )
 

@@ -5,15 +5,18 @@ Ctrl-C), leaving the ``with`` block finishes the file, so the chunks written so 
 indexes and the summary section are on disk and the file is valid. Files are chunked,
 zstd-compressed and fully indexed (viewers built on the TypeScript reader need message indexes).
 
-Nothing wall-clock goes into the file (attachment times are simulated times), so a deterministic
-run writes a byte-identical log.
+Nothing wall-clock goes into the file but what a caller writes (attachment times are simulated
+times; a run records its start in its metadata), so a deterministic run writes the same log.
+
+A ``LogSink`` (the live view, ``cosim.log.live``) may be handed to a log: every channel it
+registers and every message it writes is teed to the sink as well.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol
 
 import orjson
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -29,10 +32,21 @@ def dumps(payload: Any) -> bytes:
     return orjson.dumps(payload, option=_JSON_OPTIONS)
 
 
-class McapLog:
-    """Writes JSON messages on named topics, each with a JSON Schema, into one MCAP file."""
+class LogSink(Protocol):
+    """Another consumer of what a log writes: its channels, then its messages (simulated time)."""
 
-    def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024) -> None:
+    def channel(self, topic: str, schema: dict[str, Any]) -> Any:
+        """A topic with its JSON Schema; returns the sink's handle for it."""
+
+    def write(self, channel: Any, time_ns: int, payload: Any) -> None:
+        """One message (a JSON-ready object) on a channel the sink returned."""
+
+
+class McapLog:
+    """Writes JSON messages on named topics, each with a JSON Schema, into one MCAP file (and, with
+    ``sink``, to the sink too)."""
+
+    def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024, sink: LogSink | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream: IO[bytes] = open(self.path, "wb")
@@ -44,6 +58,8 @@ class McapLog:
         self._sequence: dict[int, int] = {}
         self.messages = 0
         self.closed = False
+        self._sink = sink
+        self._teed: dict[int, Any] = {}  # channel id -> the sink's channel
 
     def __enter__(self) -> McapLog:
         return self
@@ -64,6 +80,8 @@ class McapLog:
         )
         self._channels[topic] = channel_id
         self._sequence[channel_id] = 0
+        if self._sink is not None:
+            self._teed[channel_id] = self._sink.channel(topic, schema)
         return channel_id
 
     def write(self, channel_id: int, time_ns: int, payload: Any) -> None:
@@ -74,6 +92,8 @@ class McapLog:
             channel_id, log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence
         )
         self.messages += 1
+        if self._sink is not None:
+            self._sink.write(self._teed[channel_id], time_ns, payload)
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         self._writer.add_metadata(name, {key: str(value) for key, value in values.items()})

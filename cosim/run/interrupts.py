@@ -2,21 +2,20 @@
 
 A KeyboardInterrupt raised at an arbitrary bytecode could land inside the MCAP writer while it
 compresses or appends a chunk and leave it inconsistent. While ``DeferredInterrupts`` is active,
-SIGINT (Ctrl-C) and SIGTERM only set a flag; the runner calls ``check()`` between ticks, which
-raises KeyboardInterrupt there. A second signal raises at once, for a run that no longer reaches
-a tick boundary.
+SIGINT (Ctrl-C) and SIGTERM only set a flag; the runner calls ``check()`` between ticks and in
+every wait, which raises KeyboardInterrupt there. A second signal raises at once, for a run that
+no longer reaches a tick boundary, except while the run is ``shielded`` (stopping its nodes and
+writing how it ended): there a second signal only asks it to ``hurry`` (stop the nodes without
+waiting for them), so that every stop leaves a log with its result.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
-from types import FrameType
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
-
-#: What ``signal.signal`` takes and returns: a handler, SIG_DFL or SIG_IGN, or None (not set from Python).
-_Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
 
 
 class Interrupted(KeyboardInterrupt):
@@ -30,7 +29,9 @@ class Interrupted(KeyboardInterrupt):
 class DeferredInterrupts:
     def __init__(self) -> None:
         self.requested: int | None = None
-        self._previous: dict[int, _Handler] = {}
+        self.hurry = False
+        self._shielded = 0
+        self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> DeferredInterrupts:
         if threading.current_thread() is threading.main_thread():
@@ -45,10 +46,22 @@ class DeferredInterrupts:
 
     def _handle(self, signum: int, frame: object) -> None:
         if self.requested is not None:
+            if self._shielded:
+                self.hurry = True
+                return
             raise Interrupted(signum)
         self.requested = signum
 
+    @contextmanager
+    def shielded(self) -> Iterator[None]:
+        """No signal raises inside: the second one sets ``hurry`` instead."""
+        self._shielded += 1
+        try:
+            yield
+        finally:
+            self._shielded -= 1
+
     def check(self) -> None:
-        """Raise KeyboardInterrupt if a signal arrived since the run started."""
-        if self.requested is not None:
+        """Raise KeyboardInterrupt if a signal arrived since the run started (not while shielded)."""
+        if self.requested is not None and not self._shielded:
             raise Interrupted(self.requested)

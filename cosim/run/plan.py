@@ -32,6 +32,7 @@ from cosim.log.metadata import (
     RunRecord,
     ScenarioRecord,
 )
+from cosim.log.writer import LogSink
 from cosim.plant import Plant, build_plant
 from cosim.run import design_cache
 from cosim.run.node import NodeSpec
@@ -260,8 +261,10 @@ class RunPlan:
         s = self.scenario
         return [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if self.controller is not None else [])]
 
-    def session(self, out: Path, bus: BusConfig, registration: Registration | None = None) -> Session:
-        """The session of a run of this plan on ``bus``, logging to ``out``."""
+    def session(
+        self, out: Path, bus: BusConfig, registration: Registration | None = None, sink: LogSink | None = None
+    ) -> Session:
+        """The session of a run of this plan on ``bus``, logging to ``out`` (and to ``sink``)."""
         s = self.scenario
         closed_loop = self.controller is not None
         return Session(
@@ -279,6 +282,7 @@ class RunPlan:
             own_senders=(RUNNER, PLANT) if closed_loop else (RUNNER, PLANT, CONTROLLER),
             commands=closed_loop,
             registration=registration,
+            sink=sink,
         )
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:

@@ -19,6 +19,7 @@ from uuid import uuid4
 from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig, allocate
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
+from cosim.log.writer import LogSink
 from cosim.run.loop import PlantSource, execute, start_participants
 from cosim.run.plan import RunPlan
 from cosim.run.session import Progress, RunResult, Session
@@ -70,10 +71,12 @@ class Run:
         on_progress: Callable[[Progress], None] | None = None,
         progress_every: float = 0.2,
         on_start: Callable[[Run], None] | None = None,
+        sink: LogSink | None = None,
     ) -> RunResult:
-        """Run every tick; the log is complete and valid whatever ends the run."""
+        """Run every tick; the log is complete and valid whatever ends the run. ``sink`` (the live
+        view, ``cosim.log.live``) gets every channel and message the log gets."""
         plan, s = self.plan, self.plan.scenario
-        self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd)
+        self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd, s.bus.allow_network)
         registration = Registration(
             self.run_id,
             {
@@ -87,7 +90,7 @@ class Run:
                 "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
             },
         )
-        with plan.session(self.out, bus, registration) as session:
+        with plan.session(self.out, bus, registration, sink) as session:
             self.session = session
             self._write_metadata(session)
             session.begin_log(f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}", plan.warnings)

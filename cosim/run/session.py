@@ -15,6 +15,7 @@ deterministic, this order is.
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from collections import Counter
@@ -43,15 +44,20 @@ from cosim.bus.codec import (
 )
 from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig, drain, open_bus
+from cosim.bus.udp import ForeignDatagram
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
 from cosim.log.recorder import RunRecorder
-from cosim.log.writer import McapLog
+from cosim.log.writer import LogSink, McapLog
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
 _HEALTH = 0.25  # s: how often it asks its participants whether they are still alive
+_LEFT_GRACE = 1.0  # s: a participant whose stopped heartbeat is this old and that answers no more has left
+_FOREIGN_RECORDS = 64  # foreign arrivals logged one by one per tick; the rest as counts
+_STOP, _STOP_HURRY = 5.0, 0.5  # s: how long a node may take to exit after the stop command (hurried: 2nd Ctrl-C)
+_LAST_FRAMES = 1.0  # s: how long the frames still arriving after the stop command are taken, at most
 
 
 class NodeFailure(CosimError):
@@ -105,40 +111,70 @@ def ending(exc: BaseException) -> tuple[str, str]:
 
 
 class Traffic(can.Listener):
-    """What the runner hears during a run, with the bookkeeping behind loss and lateness.
+    """What the runner hears during a run, with the bookkeeping behind loss, lateness and trust.
 
     Frames are taken as they arrive and logged tick by tick (``flush``). Heartbeats are decoded on
     arrival, since the runner waits for them, and so are the controller node's commands;
     everything else is decoded when logged. The runner's own frames come back on udp_multicast
-    (loopback): they are recognized by id, counted, and not logged twice. A node's heartbeat
-    closing tick j says how many frames it sent for j; frames of it missing at that point are
-    counted as lost, and the nodes report in their heartbeats how many of the runner's frames they
-    found missing.
+    (loopback): each is matched against what the runner sent, and not logged twice; a frame on one
+    of the runner's own ids that it did not send (a forged SYNC or NMT, another co-simulation on the
+    same group and port) is foreign: logged as such, never used. A node's heartbeat closing tick j
+    says how many frames it sent for j; frames of it missing at that point are counted as lost,
+    and the nodes report in their heartbeats how many of the runner's frames they found missing.
     """
 
     def __init__(
-        self, codec: Codec, recorder: RunRecorder, own_senders: tuple[str, ...], commands: bool = False
+        self,
+        codec: Codec,
+        recorder: RunRecorder,
+        own_senders: tuple[str, ...],
+        commands: bool = False,
+        echoes: bool = False,
+        on_foreign: Callable[[can.Message, str], None] | None = None,
     ) -> None:
         self.codec = codec
         self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
         self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
         self.joined: set[str] = set()
-        self.left: set[str] = set()
+        self.left: dict[str, float] = {}  # node -> when its stopped heartbeat arrived (wall clock)
         self.lost: Counter[str] = Counter()  # node -> frames of it the runner did not get
+        self.late: Counter[str] = Counter()  # node -> data frames of it logged after their tick
+        self.data: Counter[str] = Counter()  # node -> data frames received
         self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
         self.received: Counter[str] = Counter()
         self.echoes = 0
+        self.foreign_frames = 0
         self._counts: Counter[tuple[str, int]] = Counter()
         self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
         self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
         self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if commands else set()
         self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
+        self._echoes = echoes
+        self._sent: Counter[tuple[int, bytes]] = Counter()  # the runner's frames whose echo is still due
+        self._sent_ticks: list[list[tuple[int, bytes]]] = []
+        self._on_foreign = on_foreign
+
+    def sent(self, frames: list[can.Message]) -> None:
+        """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""
+        if not self._echoes:
+            return
+        keys = [(frame.arbitration_id, bytes(frame.data)) for frame in frames]
+        self._sent.update(keys)
+        self._sent_ticks.append(keys)
+        if len(self._sent_ticks) > 8:  # an echo later than that was lost on the way: forget it
+            self._sent.subtract(self._sent_ticks.pop(0))
+            self._sent += Counter()  # drop counts at zero or below
 
     def on_message_received(self, msg: can.Message) -> None:
         identifier = None if msg.is_extended_id else msg.arbitration_id
         if identifier in self._own:
-            self.echoes += 1
+            key = (msg.arbitration_id, bytes(msg.data))
+            if self._sent[key] > 0:
+                self._sent[key] -= 1
+                self.echoes += 1
+            else:
+                self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
             return
         decoded = None
         if identifier in self._heartbeats:
@@ -148,8 +184,13 @@ class Traffic(can.Listener):
                 if state == BOOTUP:
                     self.joined.add(sender)
                 elif state == STOPPED:
-                    self.left.add(sender)
+                    self.left[sender] = time.perf_counter()
                 elif state == OPERATIONAL:
+                    if sender in self.left:  # it answers on: that stopped heartbeat was not its own
+                        del self.left[sender]
+                        self._foreign(
+                            msg, f"{sender} answers after a stopped heartbeat in its name: that one was forged"
+                        )
                     self.closed[sender] = decoded.tick
         elif identifier in self._commands:
             decoded = self._decode(msg)
@@ -157,6 +198,11 @@ class Traffic(can.Listener):
                 channel = decoded.spec.channels[0]
                 self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
         self.pending.append((msg, decoded))
+
+    def _foreign(self, frame: can.Message, reason: str) -> None:
+        self.foreign_frames += 1
+        if self._on_foreign is not None:
+            self._on_foreign(frame, reason)
 
     def _decode(self, frame: can.Message) -> Decoded | None:
         try:
@@ -167,6 +213,7 @@ class Traffic(can.Listener):
     def flush(self, tick: int, t: float, t_ns: int) -> None:
         """Account for the frames received during tick k, then log them by arbitration id."""
         taken = []
+        counter_now = tick % self.codec.tick_modulus
         for frame, decoded in self.pending:
             if decoded is None:
                 decoded = self._decode(frame)
@@ -177,6 +224,8 @@ class Traffic(can.Listener):
             self.received[sender] += 1
             if role in (ESTIMATE, CLIENT, COMMAND, CONTROL):
                 self._counts[(sender, decoded.tick)] += 1
+                self.data[sender] += 1
+                self.late[sender] += decoded.tick % self.codec.tick_modulus != counter_now
             elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
                 counter = decoded.tick % self.codec.tick_modulus
                 self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
@@ -185,9 +234,10 @@ class Traffic(can.Listener):
         for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
             self.recorder.frame(tick, t, t_ns, frame, decoded)
 
-    @property
-    def frames_lost(self) -> int:
-        return sum(self.lost.values()) + sum(self.missed_by.values())
+    def missing(self, sender: str, ticks: int) -> int:
+        """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
+        expected = ticks * len(self.codec.data_messages(sender))
+        return max(self.lost[sender], expected - self.data[sender])
 
 
 @dataclass(frozen=True)
@@ -217,7 +267,8 @@ class Session:
     ``own_senders`` are the DBC nodes whose frames the runner itself sends (they come back on a
     multicast bus and are not logged twice); with ``commands`` the controller node's command
     frames are collected for ``commands``. ``registration`` (the run's entry for clients and
-    monitors) is written while the session is open.
+    monitors) is written while the session is open; ``sink`` (the live view) gets everything the
+    log gets.
     """
 
     def __init__(
@@ -231,8 +282,10 @@ class Session:
         own_senders: tuple[str, ...],
         commands: bool = False,
         registration: Registration | None = None,
+        sink: LogSink | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
+        self._sink = sink  # the live view: the log tees every channel and message to it
         self._recorder_args, self._own, self._with_commands = recorder, own_senders, commands
         self._registration = registration
         self.participants: list[Participant] = []
@@ -243,18 +296,29 @@ class Session:
         self.tick_start: float | None = None
         self._marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
         self._stack = ExitStack()
+        self.foreign = {"datagrams": 0, "frames": 0}
+        self._foreign_this_tick = 0  # foreign records written in the current tick (at most _FOREIGN_RECORDS)
+        self._foreign_more: Counter[tuple[str, str]] = Counter()  # (kind, reason) -> not written one by one
+        self._last_foreign: str | None = None  # the latest foreign frame, for the error that follows it
 
     def __enter__(self) -> Session:
         stack = self._stack
         try:
             self.interrupts = stack.enter_context(DeferredInterrupts())
-            self.log = stack.enter_context(McapLog(self.out))
-            self.bus = stack.enter_context(open_bus(self.config))
-            self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="cosim-nodes-")))
+            self.log = stack.enter_context(McapLog(self.out, sink=self._sink))
+            self.bus = stack.enter_context(open_bus(self.config, on_foreign=self._foreign_datagram))
+            self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix=f"cosim-nodes-{os.getpid()}-")))
             if self._registration is not None:
                 stack.enter_context(self._registration)
             self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
-            self.traffic = Traffic(self.codec, self.recorder, self._own, self._with_commands)
+            self.traffic = Traffic(
+                self.codec,
+                self.recorder,
+                self._own,
+                self._with_commands,
+                echoes=self.config.interface == "udp_multicast",
+                on_foreign=self._foreign_frame,
+            )
             self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
         except BaseException:  # undo what was entered (signal handlers, the log, the bus), as __exit__ would
             stack.close()
@@ -279,6 +343,37 @@ class Session:
 
     def event(self, k: int, event: str, detail: str = "", level: str = "info") -> None:
         self.recorder.event(k, *self.time(k), event, detail, level)
+
+    # -- what does not belong -------------------------------------------------------------------
+
+    def _foreign_datagram(self, datagram: ForeignDatagram) -> None:
+        self.foreign["datagrams"] += 1
+        self._record_foreign("datagram", datagram.reason, datagram.source, datagram.length, datagram.data)
+
+    def _foreign_frame(self, frame: can.Message, reason: str) -> None:
+        self.foreign["frames"] += 1
+        spec = self.codec.spec_of(frame)
+        name = spec.name if spec is not None else f"0x{frame.arbitration_id:03X}"
+        self._last_foreign = f"{name} (id 0x{frame.arbitration_id:03X}, data {bytes(frame.data).hex() or '-'})"
+        self._record_foreign("frame", reason, "", len(frame.data), bytes(frame.data), frame.arbitration_id)
+
+    def _record_foreign(
+        self, kind: str, reason: str, source: str, length: int, data: bytes, frame_id: int | None = None
+    ) -> None:
+        """Log it, one record each up to _FOREIGN_RECORDS per tick, then as counts at the tick's end."""
+        k = self._marker[0]
+        if self._foreign_this_tick < _FOREIGN_RECORDS:
+            self._foreign_this_tick += 1
+            self.recorder.foreign(k, *self.time(k), kind, reason, source, length, data[:64], frame_id)
+        else:
+            self._foreign_more[(kind, reason)] += 1
+
+    def _close_foreign(self) -> None:
+        k = self._marker[0]
+        for (kind, reason), count in self._foreign_more.items():
+            self.recorder.foreign(k, *self.time(k), kind, reason, "", 0, b"", None, count)
+        self._foreign_more.clear()
+        self._foreign_this_tick = 0
 
     # -- waiting --------------------------------------------------------------------------------
 
@@ -305,7 +400,23 @@ class Session:
     def _check_health(self) -> None:
         for participant in self.participants:
             if (reason := participant.failure()) is not None:
-                raise NodeFailure(reason)
+                raise NodeFailure(self._after_foreign(reason))
+        now = time.perf_counter()
+        for participant in self.participants:
+            stopped = self.traffic.left.get(participant.name)
+            if participant.lockstep and stopped is not None and now - stopped > _LEFT_GRACE:
+                raise NodeFailure(
+                    f"{participant.kind} {participant.name} left the bus at tick {self._marker[0]} "
+                    f"(stopped heartbeat) and answers no more"
+                )
+
+    def _after_foreign(self, reason: str) -> str:
+        """A failure's report, naming the foreign frame that came before it, if one did."""
+        if self._last_foreign is None:
+            return reason
+        return (
+            f"{reason}\n(a frame the run did not send came before: {self._last_foreign}; see /cosim/foreign in the log)"
+        )
 
     def join(self) -> None:
         """Wait for the participants: every one must join (its boot-up heartbeat) before tick 0."""
@@ -322,8 +433,19 @@ class Session:
             )
 
         self.wait(lambda: expected <= self.traffic.joined, time.perf_counter() + timeout, late)
+        self._refuse_a_second_runner()
         self.traffic.flush(*self._marker)  # the boot-up heartbeats
         self.tick_start = time.perf_counter()
+
+    def _refuse_a_second_runner(self) -> None:
+        """Before tick 0 nothing may arrive on the runner's own ids: if it does, another
+        co-simulation sends on this group and port, and both runs would corrupt each other."""
+        if self.traffic.foreign_frames:
+            raise CosimError(
+                f"another co-simulation sends on {self.config.describe()} (frames on this run's SYNC, sensor or "
+                f"command ids arrive that this run did not send: {self._last_foreign}); give this run another port, or "
+                f"leave port and channel empty for fresh ones"
+            )
 
     def _hung(self, tick: int, name: str | None = None) -> None:
         waiting = [
@@ -333,7 +455,7 @@ class Session:
         ]
         if any(p.name == CONTROLLER for p in waiting):
             waiting = [p for p in waiting if p.name == CONTROLLER]  # the others wait for its commands
-        raise NodeFailure(waiting[0].hung(tick, self.timing.node_timeout))
+        raise NodeFailure(self._after_foreign(waiting[0].hung(tick, self.timing.node_timeout)))
 
     def _deadline(self, k: int) -> float:
         """The wall-clock time by which tick k must be over (realtime)."""
@@ -351,9 +473,11 @@ class Session:
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
+        self.traffic.sent([frame for frame, _ in frames])
         for frame, _ in frames:
             self.bus.send(frame)
         self.traffic.flush(*self._marker)
+        self._close_foreign()
         t, t_ns = self.time(k)
         self._marker = (k, t, t_ns)
         for frame, decoded in frames:
@@ -396,9 +520,6 @@ class Session:
                 time.perf_counter() + self.timing.node_timeout,
                 lambda: self._hung(k),
             )
-        left = self.traffic.left & set(lockstep)
-        if left:
-            raise NodeFailure(f"{', '.join(sorted(left))} left the bus at tick {k} (stopped heartbeat)")
 
     def progress(self, k: int, ticks: int) -> Progress:
         """Where the run is after ``k`` ticks."""
@@ -408,7 +529,12 @@ class Session:
 
     def finish(self, k: int, status: str, error: str, senders: list[str]) -> RunResult:
         """End the run at tick k, however it ends: log what has arrived, stop the nodes (NMT stop),
-        log what they sent until then and how the run ended (``cosim.result``)."""
+        log what they sent until then and how the run ended (``cosim.result``). Signals do not
+        interrupt this; a second one only makes it stop the nodes without waiting for them."""
+        with self.interrupts.shielded():
+            return self._finish(k, status, error, senders)
+
+    def _finish(self, k: int, status: str, error: str, senders: list[str]) -> RunResult:
         loop = time.perf_counter() - self.tick_start if self.tick_start is not None else 0.0
         startup = self.tick_start - self.start if self.tick_start is not None else 0.0
         traffic, codec = self.traffic, self.codec
@@ -417,40 +543,49 @@ class Session:
         traffic.flush(*self._marker)
         t_end, t_end_ns = self.time(k)
         stop = codec.nmt(NMT_STOP)
+        traffic.sent([stop])
         try:
             self.bus.send(stop)
         except can.CanError:
             pass
         self.recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
         for participant in self.participants:
-            if (warning := participant.stop(timeout=5.0)) is not None and status == "completed":
+            warning = participant.stop(timeout=_STOP_HURRY if self.interrupts.hurry else _STOP)
+            if warning is not None and status == "completed":
                 self.warnings.append(warning)
-        late = self.bus.recv(0.1)
-        while late is not None:
-            traffic(late)
-            late = self.bus.recv(0.02)
+        quiet_until, end = time.perf_counter() + 0.1, time.perf_counter() + _LAST_FRAMES
+        while (now := time.perf_counter()) < min(quiet_until, end):  # the last frames, while they come
+            for frame in drain(self.bus, min(0.02, end - now)):
+                traffic(frame)
+                quiet_until = time.perf_counter() + 0.1
         traffic.flush(k, t_end, t_end_ns)
+        self._close_foreign()
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
+        answering = {p.name for p in self.participants if p.lockstep}
         counts = {
-            name: SenderCounts(traffic.received[name], traffic.lost[name], traffic.missed_by.get(name, 0))
+            name: SenderCounts(
+                traffic.received[name],
+                traffic.missing(name, k) if name in answering else traffic.lost[name],
+                traffic.missed_by.get(name, 0),
+                traffic.late[name],
+            )
             for name in senders
         }
+        lost = sum(c.lost + c.runner_frames_missed for c in counts.values())
         self.event(
             k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error"
         )
         self.log.metadata(
             RESULT,
-            ResultRecord(
-                status, k, self.recorder.frames, traffic.frames_lost, self.misses, error, counts
-            ).to_metadata(),
+            ResultRecord(status, k, self.recorder.frames, lost, self.misses, error, counts, self.foreign).to_metadata(),
         )
         self.result = RunResult(
             self.out,
             status,
             k,
             self.recorder.frames,
-            traffic.frames_lost,
+            lost,
             time.perf_counter() - self.start,
             t_end,
             error,

@@ -148,6 +148,8 @@ class BusSpec(Strict):
     interface (default vcan0); virtual: the channel name (default: a fresh one)."""
     port: Annotated[int, Field(ge=0, le=65535)] = 0
     """udp_multicast: the UDP port (default 0: a free port per run)."""
+    allow_network: bool = False
+    """udp_multicast: allow a channel whose frames can leave this host (a link-local or wider group)."""
     fd: bool = False
     bitrate: Annotated[int, Field(gt=0)] = 500_000
     data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
@@ -252,7 +254,14 @@ class Scenario(Strict):
         ``interface``, ``channel``, ``port`` of [bus] and ``mode``, ``speed`` of [timing]
         (None keeps a value)."""
         data = self.model_dump()
-        tables = {"interface": "bus", "channel": "bus", "port": "bus", "mode": "timing", "speed": "timing"}
+        tables = {
+            "interface": "bus",
+            "channel": "bus",
+            "port": "bus",
+            "allow_network": "bus",
+            "mode": "timing",
+            "speed": "timing",
+        }
         for key, value in changes.items():
             if value is None:
                 continue

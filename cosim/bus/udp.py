@@ -1,0 +1,174 @@
+"""The run's UDP multicast bus, kept to this host and hardened against what arrives on its socket.
+
+python-can's ``udp_multicast`` interface binds the wildcard address on the run's port and raises
+on a datagram it cannot unpack. ``HostMulticastBus`` speaks the same wire format (any python-can
+program joins the run with ``interface="udp_multicast"``) but:
+
+- binds the socket to the run's multicast group, not to the wildcard address, so that only
+  datagrams sent to that group reach it: a datagram sent unicast to the host's addresses on the
+  run's port, or to another group on the same port (another run's), never does;
+- accepts datagrams from this host's own addresses only (where the group is one a remote host could
+  reach, as an IPv4 group can): anything sent from another host is foreign;
+- never raises for what it receives: a datagram it cannot unpack (garbage, a truncated or
+  oversized packet) or one from another host is a ``ForeignDatagram``, handed to ``on_foreign`` and
+  counted, and reception goes on.
+
+It is registered as the python-can interface ``cosim_udp`` (``can.Bus(interface="cosim_udp", ...)``).
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+import can
+from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus, UdpMulticastBus
+from can.interfaces.udp_multicast.utils import unpack_message
+
+#: Bytes of a foreign datagram's payload that are kept for the log.
+KEEP_BYTES = 64
+
+
+@dataclass(frozen=True)
+class ForeignDatagram:
+    """Something that arrived on the run's socket and is not a frame of the run's bus."""
+
+    reason: str
+    """``garbage`` (cannot be unpacked as a python-can frame) or ``remote`` (sent from another host)."""
+    source: str
+    length: int
+    data: bytes
+    """The first ``KEEP_BYTES`` bytes."""
+
+
+@cache
+def is_local_address(address: str, scope: int = 0) -> bool:
+    """Whether ``address`` is one of this host's own (a socket can bind it)."""
+    family = socket.AF_INET6 if ":" in address else socket.AF_INET
+    try:
+        with socket.socket(family, socket.SOCK_DGRAM) as probe:
+            probe.bind((address, 0, 0, scope) if family == socket.AF_INET6 else (address, 0))
+        return True
+    except OSError:
+        return False
+
+
+@cache
+def multicast_scope(group: str) -> int:
+    """The interface index through which this host sends to an IPv6 multicast ``group`` by default
+    (what a socket bound to the group must name as its scope). Found by a probe on a spare port."""
+    candidates = [index for index, _ in socket.if_nameindex()]
+    sockets: dict[int, socket.socket] = {}
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as sender:
+            sender.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sender.bind(("::", 0))
+            port = sender.getsockname()[1]  # a port nobody else uses: the probe disturbs no listener
+            request = socket.inet_pton(socket.AF_INET6, group)
+            for index in candidates:
+                candidate = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+                try:
+                    candidate.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                    candidate.bind((group, port, 0, index))
+                    membership = request + struct.pack("@I", index)
+                    candidate.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, membership)
+                    candidate.setblocking(False)
+                    sockets[index] = candidate
+                except OSError:
+                    candidate.close()
+            sender.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, struct.pack("@i", 1))
+            sender.sendto(b"cosim scope probe", (group, port))
+            import select
+
+            ready, _, _ = select.select(list(sockets.values()), [], [], 0.5)
+            for index, candidate in sockets.items():
+                if candidate in ready:
+                    return index
+    except OSError:
+        pass
+    finally:
+        for candidate in sockets.values():
+            candidate.close()
+    return 0
+
+
+class _GroupSocket(GeneralPurposeUdpMulticastBus):
+    """python-can's socket handler, with the socket bound to the group instead of the wildcard address."""
+
+    def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:
+        sock = socket.socket(address_family, socket.SOCK_DGRAM)
+        try:
+            ttl = struct.pack("@I", self.hop_limit)
+            if self.ip_version == 4:
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, ttl)
+            else:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, ttl)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, 35, 1)  # SO_TIMESTAMPNS, as python-can asks for it
+                self.timestamp_nanosecond = True
+            except OSError as error:
+                if error.errno not in (errno.ENOPROTOOPT, errno.EINVAL):
+                    raise
+                self.timestamp_nanosecond = False
+            group = socket.inet_pton(address_family, self.group)
+            if self.ip_version == 4:
+                sock.bind((self.group, self.port))
+                membership = group + struct.pack("@I", socket.INADDR_ANY)
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
+            else:
+                scope = multicast_scope(self.group)
+                sock.bind((self.group, self.port, 0, scope))
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_JOIN_GROUP, group + struct.pack("@I", scope))
+            return sock
+        except OSError as error:
+            sock.close()
+            raise can.CanInitializationError(f"could not open the run's multicast socket: {error}") from error
+
+
+class HostMulticastBus(UdpMulticastBus):
+    """A udp_multicast bus that only this host's traffic on this run's group reaches, and that
+    reports what it cannot parse instead of raising (see the module's documentation)."""
+
+    def __init__(
+        self,
+        channel: str,
+        port: int,
+        hop_limit: int = 1,
+        fd: bool = True,
+        on_foreign: Callable[[ForeignDatagram], None] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(channel, port, hop_limit, fd=fd, **kwargs)
+        self._multicast.shutdown()
+        self._multicast = _GroupSocket(channel, port, hop_limit)
+        self.on_foreign = on_foreign
+        self.foreign = 0
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        result = self._multicast.recv(timeout)
+        if not result:
+            return None, False
+        data, sender, timestamp = result
+        address = str(sender[0])
+        if not is_local_address(address, sender[3] if len(sender) > 3 else 0):
+            return self._foreign("remote", sender, data)
+        try:
+            message = unpack_message(data, replace={"timestamp": timestamp}, check=True)
+        except Exception:  # msgpack and python-can raise several kinds for bad bytes
+            return self._foreign("garbage", sender, data)
+        return message, False
+
+    def _foreign(self, reason: str, sender: Any, data: bytes) -> tuple[None, bool]:
+        self.foreign += 1
+        if self.on_foreign is not None:
+            host, port = str(sender[0]), sender[1] if len(sender) > 1 else ""
+            source = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+            self.on_foreign(ForeignDatagram(reason, source, len(data), bytes(data[:KEEP_BYTES])))
+        return None, False
