@@ -54,6 +54,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         port=args.port,
         mode=args.mode,
         speed=args.speed,
+        allow_network=True if args.allow_network else None,
     )
     s = run.scenario
     console = _console(stderr=True)
@@ -424,6 +425,23 @@ def _render_leaderboard(board: dict, console: Console) -> None:
         console.print(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")
 
 
+def cmd_recover(args: argparse.Namespace) -> int:
+    from cosim.log.recover import recover
+
+    result = recover(args.log, args.out)
+    console = _console(stderr=True)
+    console.print(
+        f"recovered {result.messages} messages on {result.channels} channels, {result.metadata} metadata records and "
+        f"{result.attachments} attachments (to t = {(result.last_time_ns or 0) / 1e9:g} s)"
+    )
+    if result.damage:
+        console.print(f"[yellow]{escape(result.damage)}[/yellow]")
+    for warning in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    print(result.path)
+    return 0
+
+
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
@@ -494,6 +512,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--channel", help="bus channel: multicast group, CAN interface or virtual channel (default: a fresh one)"
     )
     p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
+    p.add_argument(
+        "--allow-network",
+        action="store_true",
+        help="udp_multicast: allow a --channel whose frames leave this host (link-local or wider group)",
+    )
     p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
     p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
     p.add_argument(
@@ -701,6 +724,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
     p.set_defaults(func=cmd_leaderboard)
+
+    p = sub.add_parser(
+        "recover",
+        help="rebuild a log whose writer died (summary, indexes)",
+        description="Rebuild the summary and indexes of a log whose writer died (a runner killed with SIGKILL, a "
+        "full disk): its records are read in order, CRCs checked, up to the first damaged one, and written into a "
+        "complete MCAP file that every reader opens (mcap's make_reader, @mcap/core, Foxglove). A record "
+        "'cosim.recovered' says what was found. Without --out the log is replaced, once the new file is complete.",
+    )
+    p.add_argument("log", metavar="FILE.mcap")
+    p.add_argument("--out", "-o", metavar="FIXED.mcap", help="write the recovered log here instead of replacing FILE")
+    p.set_defaults(func=cmd_recover)
 
     p = sub.add_parser(
         "dbc",

@@ -16,6 +16,7 @@ deterministic, this order is.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import time
 from collections import Counter
@@ -42,7 +43,7 @@ from cosim.bus.codec import (
     Codec,
     Decoded,
 )
-from cosim.bus.registry import Registration
+from cosim.bus.registry import Registration, alive
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.bus.udp import ForeignDatagram
 from cosim.errors import CodecError, CosimError
@@ -58,6 +59,18 @@ _LEFT_GRACE = 1.0  # s: a participant whose stopped heartbeat is this old and th
 _FOREIGN_RECORDS = 64  # foreign arrivals logged one by one per tick; the rest as counts
 _STOP, _STOP_HURRY = 5.0, 0.5  # s: how long a node may take to exit after the stop command (hurried: 2nd Ctrl-C)
 _LAST_FRAMES = 1.0  # s: how long the frames still arriving after the stop command are taken, at most
+
+
+def remove_stale_workdirs() -> None:
+    """Remove the node folders (specs and outputs) of runs whose runner was killed before it could."""
+    for folder in Path(tempfile.gettempdir()).glob("cosim-nodes-*-*"):
+        try:
+            pid = int(folder.name.split("-")[2])
+            if folder.lstat().st_uid != os.getuid() or alive(pid):
+                continue
+            shutil.rmtree(folder, ignore_errors=True)
+        except (ValueError, IndexError, OSError):
+            continue
 
 
 class NodeFailure(CosimError):
@@ -303,6 +316,7 @@ class Session:
 
     def __enter__(self) -> Session:
         stack = self._stack
+        remove_stale_workdirs()
         try:
             self.interrupts = stack.enter_context(DeferredInterrupts())
             self.log = stack.enter_context(McapLog(self.out, sink=self._sink))

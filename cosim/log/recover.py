@@ -1,0 +1,136 @@
+"""Recovering a log whose writer died: its records rewritten into a complete MCAP file.
+
+A runner killed outright (SIGKILL, power loss) leaves an MCAP file without its summary section,
+its message indexes for the last chunks and its footer: streaming readers read it, seeking readers
+(``mcap``'s ``make_reader``, @mcap/core's indexed reader, Foxglove) do not. ``recover`` reads the
+file's records in order, CRCs checked, up to the first damaged or cut one, and writes them with
+the official writer into a new file (chunked, compressed, fully indexed, with its summary), like
+rosbag2's reindex. It adds a ``cosim.recovered`` metadata record saying what it found; the run's
+``cosim.result`` it cannot invent: a recovered log of a killed run has none, and
+``cosim inspect`` says so.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mcap import records
+from mcap.exceptions import EndOfFile
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, IndexType, Writer
+
+from cosim import __version__
+from cosim.errors import LogError
+from cosim.log.reader import READ_ERRORS, LogReader
+
+RECOVERED = "cosim.recovered"
+
+
+@dataclass
+class Recovered:
+    """What ``recover`` wrote: the file and how much of the original it holds."""
+
+    path: Path
+    messages: int = 0
+    channels: int = 0
+    metadata: int = 0
+    attachments: int = 0
+    last_time_ns: int | None = None
+    damage: str = ""
+    """Where reading stopped before the end of the file ("" if it read every record)."""
+    bytes_read: int = 0
+    bytes_total: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+
+def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
+    """Rewrite the readable records of the log at ``path`` into ``out`` (default: the same file,
+    replaced only once the new one is complete)."""
+    source = Path(path)
+    with LogReader(source):  # a clear error for a file that is not MCAP at all
+        pass
+    target = Path(out) if out is not None else source
+    temporary = target.with_name(f".{target.name}.recovering")
+    result = Recovered(target, bytes_total=source.stat().st_size)
+    schemas: dict[int, int] = {}
+    channels: dict[int, int] = {}
+    with open(source, "rb") as stream, open(temporary, "wb") as sink:
+        writer = Writer(sink, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+        library = f"cosim/{__version__} (recovered)"
+        started = False
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if isinstance(record, records.Header):
+                    writer.start(profile=record.profile, library=record.library or library)
+                    started = True
+                    continue
+                if not started:
+                    writer.start(profile="", library=library)
+                    started = True
+                _copy(writer, record, schemas, channels, result)
+                result.bytes_read = stream.tell()
+        except EndOfFile:
+            result.damage = (
+                f"the file ends at byte {result.bytes_total} without its summary and footer (its writer stopped)"
+            )
+        except READ_ERRORS as error:
+            reason = str(error) or type(error).__name__
+            result.damage = f"reading stopped at byte {result.bytes_read} of {result.bytes_total}: {reason}"
+        if not started:
+            writer.start(profile="", library=library)
+        writer.add_metadata(
+            RECOVERED,
+            {
+                "from": str(source),
+                "messages": str(result.messages),
+                "last_time_ns": str(result.last_time_ns),
+                "damage": result.damage or "none: every record was read",
+            },
+        )
+        writer.finish()
+    os.replace(temporary, target)
+    result.channels = len(channels)
+    return result
+
+
+def _copy(writer: Writer, record: object, schemas: dict[int, int], channels: dict[int, int], result: Recovered) -> None:
+    """One record of the original into the new file, ids renumbered as the writer assigns them."""
+    if isinstance(record, records.Schema):
+        if record.id not in schemas:
+            schemas[record.id] = writer.register_schema(record.name, record.encoding, record.data)
+    elif isinstance(record, records.Channel):
+        if record.id not in channels:
+            schema = schemas.get(record.schema_id, 0)
+            channels[record.id] = writer.register_channel(
+                record.topic, record.message_encoding, schema, dict(record.metadata)
+            )
+    elif isinstance(record, records.Message):
+        channel = channels.get(record.channel_id)
+        if channel is None:
+            result.warnings.append(
+                f"a message on channel {record.channel_id}, which the file never declares, was dropped"
+            )
+            return
+        writer.add_message(channel, record.log_time, bytes(record.data), record.publish_time, record.sequence)
+        result.messages += 1
+        result.last_time_ns = (
+            record.log_time if result.last_time_ns is None else max(result.last_time_ns, record.log_time)
+        )
+    elif isinstance(record, records.Metadata):
+        if record.name != RECOVERED:
+            writer.add_metadata(record.name, dict(record.metadata))
+            result.metadata += 1
+    elif isinstance(record, records.Attachment):
+        writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, bytes(record.data))
+        result.attachments += 1
+
+
+def needs_recovery(path: str | Path) -> bool:
+    """Whether seeking readers cannot open the file (it has no readable summary)."""
+    try:
+        with LogReader(path) as reader:
+            return reader.summary() is None
+    except LogError:
+        return False
