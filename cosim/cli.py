@@ -7,6 +7,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -20,16 +21,21 @@ examples:
   cosim run                          run the default scenario (masses-bias)
   cosim run masses-bias --seed 3     a built-in scenario with another seed
   cosim run my.toml --out my.mcap    a scenario file of your own
+  cosim run vessel-nominal --mode realtime --foxglove   watch it in Foxglove (ws://127.0.0.1:8765)
+  cosim run --json -q                a machine-readable summary of the run on standard output
   cosim run masses-bias --set duration=5 --set 'faults[0].value=[0.5, 0, 0]'
-  cosim scenarios                    list the built-in scenarios
+  cosim scenarios [--json]           list the built-in scenarios
   cosim campaign masses-bias-sweep --out runs/sweep   many runs on a local Dask cluster
   cosim leaderboard runs/sweep/results.parquet --html board.html
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
   cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, candump)
+  cosim layout runs/my.mcap --out my-layout.json   a Foxglove layout for the log (or for a scenario)
+  cosim plot runs/my.mcap --format pdf   the figures, for a paper (png, svg or pdf)
   cosim replay runs/my.mcap -e kalman  feed the log's bus traffic to one of its estimators again
   cosim report runs/my.mcap          one self-contained HTML page: scenario, metrics, figures
   cosim monitor                      watch the running co-simulation's signals live
+  cosim replay runs/my.mcap --foxglove   play a log into Foxglove at its pace
 """
 
 
@@ -37,14 +43,82 @@ def _console(stderr: bool = False) -> Console:
     return Console(stderr=stderr, highlight=False, soft_wrap=True)
 
 
+def _check_scenario_name(name: str | None) -> None:
+    """A scenario argument that is neither a file nor a built-in scenario: the error says which
+    built-in names are near it."""
+    import difflib
+
+    from cosim import scenario
+
+    if name is None or Path(name).exists() or name in scenario.builtin_names():
+        return
+    near = difflib.get_close_matches(name, scenario.builtin_names(), n=3, cutoff=0.6)
+    hint = f"did you mean {' or '.join(near)}? " if near else ""
+    kind = "file" if name.endswith(".toml") or "/" in name else "built-in scenario"
+    raise CosimError(f"no {kind} {name!r}: {hint}('cosim scenarios' lists the built-in ones)")
+
+
+def _check_run_options(args: argparse.Namespace, s) -> None:
+    """Options that would do nothing with the scenario as it runs are errors, not ignored."""
+    mode = args.mode or s.timing.mode
+    if args.speed is not None and mode != "realtime":
+        raise CosimError(
+            f"--speed {args.speed:g}: only in realtime mode (add --mode realtime); {s.name} runs in {mode}, "
+            "as fast as its nodes answer"
+        )
+    interface = args.interface or s.bus.interface
+    if args.port is not None and interface != "udp_multicast":
+        raise CosimError(f"--port: only for the udp_multicast interface, not {interface}")
+
+
+def _summary(result, out: Path, error: str = "") -> dict:
+    """``cosim run --json``: the run's summary."""
+    if result is None:
+        return {"path": str(out) if out.exists() else None, "status": "error", "error": error}
+    return {
+        "path": str(result.path),
+        "status": result.status,
+        "ticks": result.ticks,
+        "frames": result.frames,
+        "lost": result.frames_lost,
+        "deadline_misses": result.deadline_misses,
+        "sim_time_s": result.sim_time,
+        "wall_time_s": round(result.wall_time, 3),
+        "realtime_factor": round(result.realtime_factor, 3),
+        "error": result.error or error,
+    }
+
+
+def _print_json(value) -> None:
+    import orjson
+
+    sys.stdout.write(orjson.dumps(value, option=orjson.OPT_INDENT_2).decode() + "\n")
+
+
+def _where_the_log_is(out: Path) -> str:
+    return (
+        f"the log up to that point is in {escape(str(out))}"
+        if out.exists()
+        else f"no log was written ({escape(str(out))} does not exist)"
+    )
+
+
+def _foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None):
+    from cosim.log.live import FoxgloveSink
+
+    return FoxgloveSink(args.foxglove, host=args.foxglove_host, start_ns=start_ns, feature=feature)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from cosim import scenario
     from cosim.run import Run
 
+    _check_scenario_name(args.scenario)
     loaded = scenario.apply(scenario.load(args.scenario), [scenario.parse_setting(text) for text in args.set or []])
     seed = loaded.scenario.seed if args.seed is None else args.seed
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("runs") / f"{loaded.scenario.name}-seed{seed}-{stamp}.mcap"
+    _check_run_options(args, loaded.scenario)
     run = Run(
         loaded,
         out,
@@ -54,7 +128,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         port=args.port,
         mode=args.mode,
         speed=args.speed,
-        allow_network=True if args.allow_network else None,
     )
     s = run.scenario
     console = _console(stderr=True)
@@ -68,8 +141,24 @@ def cmd_run(args: argparse.Namespace) -> int:
     for warning in run.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
 
+    sink = _foxglove_sink(args, "cosim run --foxglove") if args.foxglove is not None else None
+
     def started(run) -> None:
         console.print(f"bus: {run.bus.describe()}   join with: {escape(run.bus.python_can())}")
+        if sink is not None:
+            wait = s.timing.join_timeout
+            console.print(
+                f"Foxglove: open connection {sink.url} (Foxglove WebSocket), or {sink.app_url()}; "
+                f"waiting up to {wait:g} s for it to subscribe"
+                + (
+                    ""
+                    if s.timing.mode == "realtime"
+                    else " (lockstep runs faster than real time: --mode realtime paces it)"
+                )
+            )
+            interrupts = run.session.interrupts
+            if not sink.wait_for_viewer(wait, interrupted=lambda: interrupts.requested is not None):
+                console.print("[yellow]no Foxglove client subscribed; running anyway[/yellow]")
         waiting = [c.name for c in s.clients]
         if waiting:
             console.print(
@@ -78,15 +167,24 @@ def cmd_run(args: argparse.Namespace) -> int:
             )
 
     try:
-        result = run.execute(on_start=started) if args.quiet else _with_progress(run, console, started)
+        result = (
+            run.execute(on_start=started, sink=sink) if args.quiet else _with_progress(run, console, started, sink=sink)
+        )
     except KeyboardInterrupt as interrupt:
         r = getattr(run, "result", None)
         done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
-        console.print(f"[yellow]interrupted{done}[/yellow]; the log up to that point is in {escape(str(out))}")
+        console.print(f"[yellow]interrupted{done}[/yellow]; {_where_the_log_is(out)}")
+        if args.json:
+            _print_json(_summary(r, out))
         return 128 + getattr(interrupt, "signum", signal.SIGINT)
     except CosimError as error:
-        console.print(f"[red]error:[/red] {escape(str(error))}\nthe log up to that point is in {escape(str(out))}")
+        console.print(f"[red]error:[/red] {escape(str(error))}\n{_where_the_log_is(out)}")
+        if args.json:
+            _print_json(_summary(getattr(run, "result", None), out, str(error)))
         return 1
+    finally:
+        if sink is not None:
+            sink.close()
     misses = f", {result.deadline_misses} deadline misses" if s.timing.mode == "realtime" else ""
     console.print(
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "
@@ -99,11 +197,14 @@ def cmd_run(args: argparse.Namespace) -> int:
                 f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
                 f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]"
             )
-    print(out)
+    if args.json:
+        _print_json(_summary(result, out))
+    else:
+        print(out)
     return 0
 
 
-def _with_progress(run, console: Console, started):
+def _with_progress(run, console: Console, started, **execute):
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     columns = (
@@ -120,7 +221,7 @@ def _with_progress(run, console: Console, started):
         def update(p) -> None:
             progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)
 
-        return run.execute(update, on_start=started)
+        return run.execute(update, on_start=started, **execute)
 
 
 def cmd_node(args: argparse.Namespace) -> int:
@@ -153,16 +254,37 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 def cmd_scenarios(args: argparse.Namespace) -> int:
     from cosim import scenario
 
+    listing: list[dict[str, Any]] = []
+    for name in scenario.builtin_names():
+        entry: dict[str, Any]
+        try:
+            s = scenario.load(name).scenario
+            entry = {
+                "name": name,
+                "default": name == scenario.DEFAULT_SCENARIO,
+                "description": s.description,
+                "plant": s.plant.model,
+                "duration_s": s.duration,
+                "sample_time_s": s.sample_time,
+                "estimators": [e.name for e in s.estimators],
+                "bus": "CAN FD" if s.bus.fd else "classic CAN",
+                "error": None,
+            }
+        except CosimError as error:
+            entry = {"name": name, "default": name == scenario.DEFAULT_SCENARIO, "error": str(error)}
+        listing.append(entry)
+    if args.json:
+        _print_json(listing)
+        return 0
     table = Table(box=None, pad_edge=False, show_header=True, header_style="bold")
     table.add_column("name")
     table.add_column("description")
-    for name in scenario.builtin_names():
-        try:
-            description = scenario.load(name).scenario.description
-        except CosimError as error:
-            description = f"[red]invalid: {escape(str(error))}[/red]"
-        marker = " (default)" if name == scenario.DEFAULT_SCENARIO else ""
-        table.add_row(name + marker, description)
+    for entry in listing:
+        marker = " (default)" if entry["default"] else ""
+        description = (
+            entry["description"] if entry["error"] is None else f"[red]invalid: {escape(entry['error'])}[/red]"
+        )
+        table.add_row(entry["name"] + marker, description)
     _console().print(table)
     return 0
 
@@ -185,26 +307,59 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
     log = Path(args.log)
     out = Path(args.out) if args.out else log.with_name(log.stem + "-plots")
-    for path in plot(log, out):
+    for path in plot(log, out, fmt=args.format, dpi=args.dpi):
         print(path)
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from cosim.analysis.export import export
+    from datetime import UTC, datetime
 
-    result = export(args.log, args.to, args.out, dbc=args.dbc)
+    from cosim.analysis.export import FRAME_FORMATS, export, parse_start_time
+
+    start = None if args.start_time is None else parse_start_time(args.start_time)
+    result = export(args.log, args.to, args.out, dbc=args.dbc, start_ns=start)
     console = _console(stderr=True)
     for warning in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
     what = "rows (ticks)" if args.to in ("csv", "parquet") else "frames"
-    console.print(f"wrote {result.count} {what} as {args.to}")
+    stamped = ""
+    if args.to in FRAME_FORMATS and result.start_ns is not None:
+        when = datetime.fromtimestamp(result.start_ns / 1e9, UTC)
+        stamped = f", tick 0 at {when.isoformat(timespec='milliseconds').replace('+00:00', 'Z')}"
+    console.print(f"wrote {result.count} {what} as {args.to}{stamped}")
     print(result.path)
+    return 0
+
+
+def cmd_layout(args: argparse.Namespace) -> int:
+    from cosim.analysis import layout
+
+    target = args.target
+    if target is not None and target.endswith(".mcap"):
+        signals = layout.signals_of_log(target)
+    else:
+        from cosim import scenario
+        from cosim.run.plan import RunPlan
+
+        _check_scenario_name(target)
+        plan = RunPlan.build(scenario.load(target))
+        units = {name: unit for table in plan.units.values() for name, unit in table.items()}
+        signals = layout.RunSignals.of(plan.run_record(), plan.codec, units)
+    default = Path(target).with_suffix(".layout.json") if target and target.endswith(".mcap") else None
+    out = Path(args.out) if args.out else default or Path(f"{signals.scenario}.layout.json")
+    written = layout.write(layout.build(signals), out)
+    _console(stderr=True).print(
+        f"wrote the Foxglove layout of {escape(signals.scenario)}: Foxglove → Layouts → Import from file"
+    )
+    print(written)
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     console = _console(stderr=True)
+    if args.foxglove is not None:
+        return _play_foxglove(args, console)
     if args.live:
         return _play(args, console)
     from cosim.run.replay import Replay, parse_params
@@ -248,6 +403,53 @@ def cmd_replay(args: argparse.Namespace) -> int:
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s"
     )
     print(out)
+    return 0
+
+
+def _play_foxglove(args: argparse.Namespace, console: Console) -> int:
+    from cosim.log.live import log_start_ns, play
+
+    misplaced = [
+        flag
+        for flag, given in (
+            ("--estimator", args.estimator),
+            ("--kind", args.kind),
+            ("--param", args.param),
+            ("--out", args.out),
+            ("--live", args.live),
+            ("--interface", args.interface),
+            ("--channel", args.channel),
+            ("--port", args.port),
+        )
+        if given
+    ]
+    if misplaced:
+        raise CosimError(
+            f"{misplaced[0]}: not with --foxglove, which serves the log's messages to Foxglove as they are"
+        )
+    speed = 1.0 if args.speed is None else args.speed
+    with _foxglove_sink(args, "cosim replay --foxglove", log_start_ns(args.log)) as sink:
+        console.print(
+            f"Foxglove: open connection {sink.url} (Foxglove WebSocket), or {sink.app_url()}; "
+            f"waiting up to {args.wait:g} s for it to subscribe, then playing {escape(args.log)} at "
+            + ("full speed" if speed == 0 else f"{speed:g}x real time")
+        )
+
+        def ready(viewer: bool) -> None:
+            if not viewer:
+                console.print("[yellow]no Foxglove client subscribed; playing anyway[/yellow]")
+
+        started = time.perf_counter()
+        try:
+            count, sim_time, warnings = play(args.log, sink, speed, wait=args.wait, on_ready=ready)
+        except KeyboardInterrupt as interrupt:
+            console.print("[yellow]interrupted[/yellow]")
+            return 128 + getattr(interrupt, "signum", signal.SIGINT)
+    for warning in warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    console.print(
+        f"served {count} messages ({sim_time:g} s of simulated time) in {time.perf_counter() - started:.2f} s"
+    )
     return 0
 
 
@@ -474,6 +676,33 @@ def _seed(text: str) -> int:
     return value
 
 
+def _port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port number") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value}: ports are 0-65535 (0: a free one)")
+    return value
+
+
+def _dpi(text: str) -> int:
+    value = _positive(text)
+    if value > 2400:
+        raise argparse.ArgumentTypeError(f"{value}: at most 2400 dots per inch")
+    return value
+
+
+def _foxglove_options(p: argparse.ArgumentParser, help: str) -> None:
+    p.add_argument("--foxglove", nargs="?", const=8765, type=_port, metavar="PORT", help=help)
+    p.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="--foxglove: the address to serve on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cosim",
@@ -527,6 +756,17 @@ def build_parser() -> argparse.ArgumentParser:
         'bus.fd), VALUE in TOML (5, [0.5, 0, 0], "text", true); repeat for several; validated like the file',
     )
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the run's summary as JSON on standard output (path, status, ticks, frames, lost, "
+        "real-time factor, ...) instead of the log's path",
+    )
+    _foxglove_options(
+        p,
+        "serve the run live over the Foxglove WebSocket protocol on PORT (default 8765; 0: a free "
+        "one) and wait up to [timing] join_timeout for Foxglove to subscribe before tick 0",
+    )
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
@@ -551,6 +791,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_monitor)
 
     p = sub.add_parser("scenarios", help="list the built-in scenarios", description="List the built-in scenarios.")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print a JSON list: name, default, description, plant, duration_s, sample_time_s, estimators, bus, "
+        "error (null unless the file is invalid)",
+    )
     p.set_defaults(func=cmd_scenarios)
 
     p = sub.add_parser(
@@ -565,13 +811,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser(
         "plot",
-        help="draw a log's figures as PNG files",
-        description="Draw the paper-style figures of "
-        "a run log: estimation-error norms per estimator, pseudoinverse weights (s, z or Γ), the fault's "
-        "effect |h_Γ| on each observer's injection, |Γ|, and the bias estimates against the true fault.",
+        help="draw a log's figures (PNG, SVG or PDF)",
+        description="Draw the figures of a run log: the state against every estimate, estimation errors per "
+        "estimator, the injected faults, and what the estimators publish (pseudoinverse weights s, z or Γ, the "
+        "fault's effect |h_Γ|, |Γ|, bias estimates φ̂ against the true fault, residuals, gain estimates, COFD "
+        "residuals, the trajectory of a closed loop). Axes carry units; text is in the figure (nothing clipped).",
     )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="DIR", help="output directory (default: FILE-plots next to the log)")
+    p.add_argument(
+        "--format",
+        choices=("png", "svg", "pdf"),
+        default="png",
+        help="png (default; raster at --dpi), svg or pdf (vector, text as text: for papers)",
+    )
+    p.add_argument("--dpi", type=_dpi, default=150, metavar="N", help="dots per inch of PNG figures (default 150)")
     p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser(
@@ -603,7 +857,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--dbc", metavar="FILE.dbc", help="mf4 only: the DBC to attach, for a log that has none (default: the log's)"
     )
+    p.add_argument(
+        "--start-time",
+        metavar="WHEN",
+        help="blf, mf4, candump: the wall-clock time of tick 0, an ISO 8601 date and time (2025-06-01T12:00:00Z; UTC "
+        "without a zone) or seconds since the Unix epoch; 0: the epoch (t = 0 s) (default: when the run started, "
+        "to the millisecond)",
+    )
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser(
+        "layout",
+        help="write a Foxglove layout for a log or a scenario",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Write a Foxglove layout for a run: estimates against the truth per state, estimation errors "
+        "(a user\nscript), the injected faults, diagnosis flags and residuals, and the trajectory of a planar "
+        "plant. Every message\npath is a topic and field of the run's log. Open the log in Foxglove, then Layouts → "
+        "Import from file.",
+        epilog="examples:\n  cosim layout runs/my.mcap --out my-layout.json\n"
+        "  cosim layout masses-faults-fd --out fd-layout.json   (for the scenario's logs and its live runs)",
+    )
+    p.add_argument(
+        "target",
+        nargs="?",
+        metavar="LOG|SCENARIO",
+        help="a run log (FILE.mcap), or a built-in scenario or TOML file (default: masses-bias)",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        metavar="FILE.json",
+        help="output file (default: FILE.layout.json next to the log, or <scenario>.layout.json)",
+    )
+    p.set_defaults(func=cmd_layout)
 
     p = sub.add_parser(
         "replay",
@@ -617,13 +903,16 @@ def build_parser() -> argparse.ArgumentParser:
         "logged frames bit for bit (its design is taken from the log); --param changes its parameters (and\n"
         "designs it again); --kind makes a new one, designed on the linear model the log records.\n\n"
         "With --live: every frame of the log goes onto a bus at its simulated time over --speed, like canplayer,\n"
-        "for external tools and clients (decode with 'cosim dbc').",
+        "for external tools and clients (decode with 'cosim dbc').\n\n"
+        "With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket protocol, at\n"
+        "its simulated time over --speed, stamped at the run's start plus simulated time.",
         epilog="examples:\n"
         "  cosim replay runs/my.mcap --estimator kalman --out kalman-again.mcap\n"
         "  cosim replay runs/my.mcap --estimator kalman --param measurement_std=0.01 --out kf-0.01.mcap\n"
         "  cosim replay runs/my.mcap --estimator kf2 --kind kalman --param 'x0=[0, 0, 0, 0]'\n"
         "  cosim replay runs/my.mcap --live --speed 0.5\n"
-        "  cosim replay runs/my.mcap --live --interface socketcan --channel vcan0",
+        "  cosim replay runs/my.mcap --live --interface socketcan --channel vcan0\n"
+        "  cosim replay runs/my.mcap --foxglove --speed 2",
     )
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument(
@@ -646,7 +935,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--live", action="store_true", help="play every frame of the log onto a bus in real time instead")
     p.add_argument(
-        "--speed", type=float, metavar="X", help="--live: simulated seconds per wall-clock second (default 1)"
+        "--speed",
+        type=float,
+        metavar="X",
+        help="--live, --foxglove: simulated seconds per wall-clock second (default 1)",
     )
     p.add_argument(
         "--interface", choices=("udp_multicast", "socketcan", "virtual"), help="bus transport (default: udp_multicast)"
@@ -654,6 +946,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--channel", help="bus channel: multicast group or CAN interface (default: a fresh group)")
     p.add_argument("--port", type=int, help="udp_multicast port (default: a free one)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display")
+    _foxglove_options(
+        p,
+        "serve every message of the log over the Foxglove WebSocket protocol on PORT (default 8765; 0: a free one), "
+        "at its simulated time over --speed (0: at once), once Foxglove has subscribed",
+    )
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=60.0,
+        metavar="S",
+        help="--foxglove: how long to wait for Foxglove to subscribe before playing (default 60 s)",
+    )
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser(
@@ -750,12 +1054,30 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _feature(args: argparse.Namespace) -> str:
+    """The command as the user gave it, for messages: ``cosim export --to mf4``."""
+    feature = f"cosim {args.command}"
+    if getattr(args, "to", None):
+        feature += f" --to {args.to}"
+    if getattr(args, "foxglove", None) is not None:
+        feature += " --foxglove"
+    return feature
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
     except CosimError as error:
         _console(stderr=True).print(f"[red]error:[/red] {escape(str(error))}")
+        return 1
+    except ImportError as error:  # a package of an optional extra that is not installed
+        from cosim.extras import missing_extra
+
+        missing = missing_extra(error, _feature(args))
+        if missing is None:
+            raise
+        _console(stderr=True).print(f"[red]error:[/red] {escape(str(missing))}")
         return 1
     except OSError as error:  # the log or DBC cannot be written, a path is a directory, ...
         _console(stderr=True).print(f"[red]error:[/red] {escape(str(error))}")

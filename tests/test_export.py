@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
+import subprocess
 import tracemalloc
 from collections import defaultdict
 from pathlib import Path
@@ -14,22 +16,24 @@ import numpy as np
 import pytest
 
 from cosim.analysis import export as exporting
-from cosim.analysis.export import export, table_columns
+from cosim.analysis.export import export, parse_start_time, table_columns
 from cosim.analysis.metrics import compute_metrics
 from cosim.bus.codec import Codec
 from cosim.cli import main
 from cosim.errors import CosimError
+from cosim.log.metadata import LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FRAMES, RunRecorder
 from cosim.log.writer import McapLog
 from cosim.run import Run
-from cosim.scenario import LoadedScenario, builtin_names, load
+from cosim.scenario import LoadedScenario, apply, builtin_names, load, parse_setting
 
 FORMATS = ("csv", "parquet", "blf", "mf4", "candump")
 
 
-def run_short(name: str, duration: float, out: Path) -> Path:
-    scenario = load(name).scenario.model_copy(update={"duration": duration})
+def run_short(name: str, duration: float, out: Path, *settings: str) -> Path:
+    loaded = apply(load(name), [parse_setting(text) for text in settings]) if settings else load(name)
+    scenario = loaded.scenario.model_copy(update={"duration": duration})
     Run(LoadedScenario(scenario, f"{name} ({duration:g} s)", ""), out, interface="virtual").execute()
     return out
 
@@ -49,6 +53,27 @@ def fd_log(tmp_path_factory) -> Path:
 def logged_frames(log: Path) -> list[tuple[int, dict]]:
     with LogReader(log) as reader:
         return [(t, frame) for _, t, frame in reader.messages([FRAMES])]
+
+
+def logged_start(log: Path) -> float:
+    """When the run started, in s since the epoch, to the millisecond: what frame exports stamp tick 0 with."""
+    with LogReader(log) as reader:
+        start = json.loads(reader.metadata()["cosim.run"]["start_time_ns"])
+    assert 1.7e18 < start < 4e18  # a date of this century, in ns
+    return start // 1_000_000 / 1000
+
+
+def node_names(log: Path) -> dict[str, str]:
+    """Decoded topic name (EST_kalman_0) → the node it belongs to, from the run's metadata (not the DBC,
+    which the exporter reads)."""
+    with LogReader(log) as reader:
+        run = LogMetadata.read(reader.metadata()).run
+    assert run is not None
+    found = {m: name for name, e in run.estimators.items() for m in e.messages}
+    found.update({m: name for name, c in run.clients.items() for m in c["messages"]})
+    if run.controller is not None:
+        found.update(dict.fromkeys(run.controller.status_messages, "controller"))
+    return found
 
 
 def logged_dbc(log: Path) -> str:
@@ -79,8 +104,10 @@ def same(a, b) -> bool:
 
 
 def expected_table(log: Path) -> dict[int, dict[str, object]]:
-    """tick → {column: value} built straight from the log messages (not with the exporter's code)."""
+    """tick → {column: value} built straight from the log messages (not with the exporter's code):
+    a node's signals are named after the node (kalman.xhat_x1), whichever frame carried them."""
     rows: dict[int, dict[str, object]] = defaultdict(dict)
+    nodes = node_names(log)
     with LogReader(log) as reader:
         for topic, t, message in reader.messages():
             if topic.startswith("/truth/"):
@@ -103,7 +130,7 @@ def expected_table(log: Path) -> dict[int, dict[str, object]]:
                 assert message["tick"] == k % 2**16 or message["tick"] == k
                 for key, value in message.items():
                     if key != "tick":
-                        rows[k][f"{topic[5:]}.{key}"] = value
+                        rows[k][f"{nodes.get(topic[5:], topic[5:])}.{key}"] = value
     return rows
 
 
@@ -132,7 +159,8 @@ def test_csv_reads_back_in_pandas_with_every_value_of_the_log(which, request, tm
     frame = pd.read_csv(result.path, keep_default_na=False, na_values=[""])  # pandas >= 3 parses floats exactly
     assert result.count == len(frame) and result.warnings == []
     assert frame.columns[:4].tolist() == ["tick", "t [s]", "state.x1 [m]", "state.x2 [m]"]
-    assert "EST_kalman_0.xhat_x1 [m]" in frame.columns or "EST_kalman.xhat_x1 [m]" in frame.columns
+    assert "kalman.xhat_x1 [m]" in frame.columns and "uniform.xhat_v2 [m/s]" in frame.columns
+    assert not any(c.startswith("EST_") for c in frame.columns)
     check_table(frame.to_dict("records"), log)
 
 
@@ -155,40 +183,58 @@ def test_parquet_reads_back_in_pyarrow_with_units_and_every_value(fd_log, tmp_pa
 
 def test_table_columns_are_named_after_topic_and_field_with_units(classic_log):
     with LogReader(classic_log) as reader:
-        names = [c.name for c in table_columns(reader.schemas())]
+        names = [c.name for c in table_columns(reader.schemas(), reader.attachments()["cosim.dbc"])]
     assert {
         "inputs.commanded.force [N]",
         "faults.noise.x1 [m]",
         "faults.effectiveness.force",
         "faults.active",
         "SENSOR_x1_minus_x2.x1_minus_x2 [m]",
-        "EST_uniform_1.xhat_v2 [m/s]",
+        "uniform.xhat_v2 [m/s]",
         "COMMAND_force.force [N]",
     } <= set(names)
-    assert not any(n.startswith(("SYNC", "HEARTBEAT", "NMT")) for n in names) and len(names) == len(set(names))
+    assert not any(n.startswith(("SYNC", "HEARTBEAT", "NMT", "EST_")) for n in names) and len(names) == len(set(names))
+
+
+def test_an_estimator_has_the_same_columns_on_classic_can_and_can_fd(classic_log, tmp_path):
+    """The default scenario on CAN FD packs each estimator into one frame, on classic CAN into two:
+    the tables have the same columns, and the same estimates (up to the classic scaling)."""
+    fd = run_short("masses-bias", 6.0, tmp_path / "fd.mcap", "bus.fd=true")
+    columns = {}
+    for name, log in (("classic", classic_log), ("fd", fd)):
+        with LogReader(log) as reader:
+            columns[name] = [c.name for c in table_columns(reader.schemas(), reader.attachments()["cosim.dbc"])]
+    assert columns["classic"] == columns["fd"]
+    assert [c for c in columns["fd"] if c.startswith("kalman.")] == [
+        "kalman.xhat_x1 [m]",
+        "kalman.xhat_x2 [m]",
+        "kalman.xhat_v1 [m/s]",
+        "kalman.xhat_v2 [m/s]",
+    ]
 
 
 # -- frame logs -----------------------------------------------------------------------------------
 
 
-def check_frames(read: list[can.Message], log: Path, time_resolution: float) -> None:
+def check_frames(read: list[can.Message], log: Path, time_resolution: float, start: float = 0.0) -> None:
+    """The frames read back are the log's, in order, each at ``start`` plus its simulated time."""
     frames = logged_frames(log)
     assert len(read) == len(frames)
     for message, (t, frame) in zip(read, frames):
         assert message.arbitration_id == frame["id"] and message.is_extended_id == frame["extended"]
         assert message.is_fd == frame["fd"] and message.bitrate_switch == frame["brs"]
         assert bytes(message.data) == bytes.fromhex(frame["data"])
-        assert abs(message.timestamp - t / 1e9) <= time_resolution
+        assert abs(message.timestamp - (start + t / 1e9)) <= time_resolution
 
 
-def check_decoded(decoded: dict[str, list[tuple[float, dict]]], log: Path) -> None:
+def check_decoded(decoded: dict[str, list[tuple[float, dict]]], log: Path, start: float = 0.0) -> None:
     """Values decoded by another library with the log's DBC equal the log's decoded messages."""
     logged = logged_signals(log)
     assert set(decoded) == set(logged)
     for name, entries in logged.items():
         assert len(decoded[name]) == len(entries), name
         for (t, values), (t_read, read) in zip(entries, decoded[name]):
-            assert abs(t_read - t / 1e9) < 1e-6
+            assert abs(t_read - (start + t / 1e9)) < 1e-6
             assert {k: float(v) for k, v in read.items() if k in values} == {k: float(v) for k, v in values.items()}, (
                 name
             )
@@ -198,8 +244,11 @@ def check_decoded(decoded: dict[str, list[tuple[float, dict]]], log: Path) -> No
 def test_blf_reads_back_with_python_can(which, request, tmp_path):
     log = request.getfixturevalue(which)
     result = export(log, "blf", tmp_path / "out.blf")
-    read = list(can.BLFReader(result.path))
-    check_frames(read, log, 1e-9)
+    reader = can.BLFReader(result.path)
+    read = list(reader)
+    # the header holds the start to the millisecond, the frames ns after it (through floats: ~0.3 µs)
+    assert reader.start_timestamp == logged_start(log)
+    check_frames(read, log, 1e-6, logged_start(log))
     assert {m.channel for m in read} == {0}  # BLF channel 1 (python-can counts from 0)
 
 
@@ -209,7 +258,9 @@ def test_candump_reads_back_with_python_can_and_decodes_with_cantools(which, req
 
     log = request.getfixturevalue(which)
     result = export(log, "candump", tmp_path / "out.log")
-    check_frames(list(can.LogReader(result.path)), log, 1e-6)
+    start = logged_start(log)
+    assert result.start_ns == round(start * 1000) * 1_000_000 and result.warnings == []
+    check_frames(list(can.LogReader(result.path)), log, 1e-6, start)
     database = cantools.database.load_string(logged_dbc(log), database_format="dbc")
     decoded: dict[str, list] = defaultdict(list)
     with open(result.path) as stream:
@@ -221,7 +272,37 @@ def test_candump_reads_back_with_python_can_and_decodes_with_cantools(which, req
                 (entry.timestamp.timestamp(), message.decode(entry.data, decode_choices=False))
             )
     assert lines == result.count
-    check_decoded(decoded, log)
+    check_decoded(decoded, log, start)
+
+
+def test_candump_has_the_run_s_date_for_can_utils_and_start_time_overrides_it(classic_log, tmp_path):
+    """can-utils' log2asc writes one header with the run's date (not one per line from 1970);
+    --start-time 0 gives times from the epoch, an ISO date and time its own."""
+    from datetime import UTC, datetime
+
+    result = export(classic_log, "candump", tmp_path / "run.log")
+    start = logged_start(classic_log)
+    first = result.path.read_text().splitlines()[0]
+    assert first.startswith(f"({start:.6f}) can0 ") and first.endswith(" R")
+    epoch = export(classic_log, "candump", tmp_path / "epoch.log", start_ns=0)
+    assert epoch.path.read_text().splitlines()[0].startswith("(0.000000) can0 ")
+    noon = parse_start_time("2025-06-01T12:00:00Z")
+    assert noon == parse_start_time("2025-06-01T14:00:00+02:00") == parse_start_time("1748779200") == 1748779200 * 10**9
+    assert list(can.LogReader(export(classic_log, "candump", tmp_path / "noon.log", start_ns=noon).path))[
+        -1
+    ].timestamp == pytest.approx(1748779200 + 6.0, abs=1e-6)
+    with pytest.raises(CosimError, match="--start-time 'yesterday': give an ISO 8601 date"):
+        parse_start_time("yesterday")
+    with pytest.raises(CosimError, match="--start-time stamps the frame logs"):
+        export(classic_log, "csv", tmp_path / "x.csv", start_ns=0)
+    log2asc = shutil.which("log2asc")
+    if log2asc is None:
+        pytest.skip("can-utils' log2asc is not installed (apt-get install can-utils)")
+    asc = subprocess.run([log2asc, "-I", str(result.path), "can0"], capture_output=True, text=True, check=True).stdout
+    dates = [line for line in asc.splitlines() if line.startswith("date ")]
+    when = datetime.fromtimestamp(start, UTC)
+    assert dates == [f"date {when.strftime('%a %b')} {when.day:2d} {when.strftime('%H:%M:%S %Y')}"]
+    assert len(asc.splitlines()) == 3 + result.count  # date, base, internal events, then a line per frame
 
 
 @pytest.mark.parametrize("which", ["classic_log", "fd_log"])
@@ -232,6 +313,7 @@ def test_mf4_is_a_bus_log_that_asammdf_decodes_with_the_attached_dbc(which, requ
     result = export(log, "mf4", tmp_path / "out.mf4")
     with MDF(result.path) as mdf:
         assert mdf.version == "4.10"
+        assert mdf.start_time.timestamp() == logged_start(log)  # the run's date; timestamps after it
         data, name, _ = mdf.extract_attachment(0)
         assert name.name == "cosim.dbc" and data.decode() == logged_dbc(log)
         ids, lengths, payload, edl, brs = (
@@ -282,9 +364,24 @@ def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, t
     with LogReader(log) as reader:
         frames = sum(1 for _ in reader.messages([FRAMES]))
         ticks = int(reader.metadata()["cosim.result"]["ticks"])
+    start = logged_start(log)
     for fmt in FORMATS:
         result = export(log, fmt, tmp_path / f"out.{fmt}")
         assert result.count == (ticks if fmt in ("csv", "parquet") else frames) and result.warnings == [], fmt
+        if fmt in ("candump", "mf4", "blf"):
+            assert result.start_ns == round(start * 1000) * 1_000_000, fmt  # the run's date
+    assert (tmp_path / "out.candump").read_text().startswith(f"({start:.6f}) ")
+
+    # the same scenario on the other bus (classic CAN for CAN FD, and back): the same table columns
+    fd = load(name).scenario.bus.fd
+    other = run_short(
+        name, 2 * load(name).scenario.sample_time, tmp_path / "other.mcap", f"bus.fd={str(not fd).lower()}"
+    )
+    names = []
+    for path in (log, other):
+        with LogReader(path) as reader:
+            names.append([c.name for c in table_columns(reader.schemas(), reader.attachments()["cosim.dbc"])])
+    assert names[0] == names[1]
 
 
 # -- bad input ------------------------------------------------------------------------------------
@@ -316,7 +413,9 @@ def test_bad_input_gives_one_message_naming_the_fix(classic_log, tmp_path, capsy
         export(foreign, "mf4")
     with pytest.raises(CosimError, match="no cosim.run metadata"):
         export(foreign, "csv")
-    assert export(foreign, "candump", tmp_path / "foreign.log").path.read_text() == "(0.000000) can0 123#ABCD\n"
+    result = export(foreign, "candump", tmp_path / "foreign.log")
+    assert result.path.read_text() == "(0.000000) can0 123#ABCD R\n"
+    assert any("does not record when the run started" in w and "--start-time" in w for w in result.warnings)
     dbc = tmp_path / "bus.dbc"
     dbc.write_text(logged_dbc(classic_log))
     assert export(foreign, "mf4", tmp_path / "foreign.mf4", dbc=dbc).count == 1

@@ -5,22 +5,27 @@ loaded whole):
 
 - **Tidy tables** (``csv``, ``parquet``): one row per tick k, columns ``tick``, ``t [s]``
   (simulated time t_k), then the truth topics and the decoded data messages of the bus, one column
-  per field, named ``<topic>.<field> [unit]`` after the topic's last path component, e.g.
-  ``state.x1 [m]`` (``/truth/state``), ``inputs.effective.force [N]``, ``faults.measured.x2 [m]``,
-  ``SENSOR_x1.x1 [m]``, ``EST_kalman.xhat_v1 [m/s]``. Units come from the log's JSON Schemas.
+  per field, named ``<name>.<field> [unit]`` as ``cosim.analysis.names`` names them, the same on
+  classic CAN and CAN FD: ``state.x1 [m]`` (``/truth/state``), ``inputs.effective.force [N]``,
+  ``faults.measured.x2 [m]``, ``SENSOR_x1.x1 [m]``, ``kalman.xhat_v1 [m/s]`` (from
+  ``/can/EST_kalman_1`` or ``/can/EST_kalman``). Units come from the log's JSON Schemas.
   A cell is empty (null) when the tick has no such value: a frame not sent (dropout), a reading
   not measured. Lists (the active faults, the dropped sensors) are comma-joined text. Decoded
   frames go to the row of the tick they carry (their ``tick`` signal), which is the tick they were
   logged at in lockstep; control messages (NMT, SYNC, heartbeats) are in the frame exports only.
 - **Frame logs** (``blf``, ``mf4``, ``candump``): every frame of ``/can/frames`` in bus order,
-  timestamped with simulated time (the frames of one tick share t_k). BLF is written with
-  python-can's ``BLFWriter`` (channel 1); MF4 is an ASAM MDF 4.10 bus log written in bulk with
-  asammdf: one ``CAN_DataFrame`` channel group in the standard bus-logging layout (``ID``,
-  ``IDE``, ``DLC``, ``DataLength``, ``DataBytes``, ``EDL``, ``BRS``, ...) with a CAN bus
-  acquisition source and the DBC attached, so asammdf's ``extract_bus_logging`` and CANalyzer
-  decode it; its start time is the Unix epoch, since the log has no wall-clock time. ``candump``
-  is the text format of ``candump -L`` (``(t) can0 1A0#0011``, ``##<flags>`` for CAN FD), which
-  ``can.LogReader``, cantools and SavvyCAN read.
+  stamped at the run's wall-clock start plus simulated time (the frames of one tick share t_k),
+  so tools show the date the run happened. The start is the log's ``cosim.run`` ``start_time_ns``
+  to the millisecond (BLF's header holds milliseconds; the three formats then agree to the
+  nanosecond); ``start_ns`` overrides it, 0 gives times from the Unix epoch (t = 0 s at tick 0), and
+  a log that records no start is stamped from the epoch, with a warning. BLF is written with
+  python-can's ``BLFWriter`` (channel 1), candump with its ``CanutilsLogWriter`` (the text of
+  ``candump -L``: ``(t) can0 1A0#0011 R``, ``##<flags>`` for CAN FD, which can-utils' log2asc,
+  ``can.LogReader``, cantools and SavvyCAN read). MF4 is an ASAM MDF 4.10 bus log written in bulk
+  with asammdf's public API: one ``CAN_DataFrame`` channel group in the standard bus-logging
+  layout (``ID``, ``IDE``, ``DLC``, ``DataLength``, ``DataBytes``, ``EDL``, ``BRS``, ...) with a
+  CAN bus acquisition source and the DBC attached, so asammdf's ``extract_bus_logging`` and
+  CANalyzer decode it; its header's start time is the start, its timestamps simulated time.
 
 Output goes to a ``.part`` file renamed into place at the end, so a failed export leaves no
 half-written file under the final name.
@@ -31,15 +36,16 @@ from __future__ import annotations
 import csv
 import json
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from hashlib import md5
 from pathlib import Path
 from typing import Any
 
-from cosim import __version__
+from cosim.analysis import names
 from cosim.errors import CosimError, LogError
+from cosim.extras import require
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
@@ -47,6 +53,7 @@ from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_t
 #: Format → file suffix of its output.
 FORMATS = {"csv": ".csv", "parquet": ".parquet", "blf": ".blf", "mf4": ".mf4", "candump": ".log"}
 TABLE_FORMATS = ("csv", "parquet")
+FRAME_FORMATS = ("blf", "mf4", "candump")
 TRUTH_TOPICS = (STATE, SENSORS, INPUTS, FAULTS)
 #: Decoded topics that are bus control, not signals.
 CONTROL_MESSAGES = re.compile(r"^/can/(NMT|SYNC|HEARTBEAT_.*)$")
@@ -68,6 +75,8 @@ class ExportResult:
     format: str
     count: int
     warnings: list[str] = field(default_factory=list)
+    start_ns: int | None = None
+    """Frame logs: the wall-clock time (ns since the epoch, UTC) their frames are stamped from."""
 
 
 @dataclass(frozen=True)
@@ -87,45 +96,100 @@ def default_output(log: str | Path, fmt: str) -> Path:
     return Path(log).with_suffix(FORMATS[fmt])
 
 
-def export(log: str | Path, fmt: str, out: str | Path | None = None, dbc: str | Path | None = None) -> ExportResult:
+def export(
+    log: str | Path, fmt: str, out: str | Path | None = None, dbc: str | Path | None = None, start_ns: int | None = None
+) -> ExportResult:
     """Export the log ``log`` as ``fmt`` (one of FORMATS) to ``out`` (default: next to the log).
 
-    ``dbc`` (mf4 only) replaces the DBC attached to the log, for logs that lack one."""
+    ``dbc`` (mf4 only) replaces the DBC attached to the log, for logs that lack one. ``start_ns``
+    (frame logs only): the wall-clock time of tick 0 in ns since the Unix epoch (default: the run's
+    start, to the millisecond; 0: the epoch)."""
     if fmt not in FORMATS:
         raise CosimError(f"unknown export format {fmt!r}: choose one of {', '.join(FORMATS)}")
     if dbc is not None and fmt != "mf4":
         raise CosimError(f"--dbc is used by the mf4 export only (it is attached to the file), not by {fmt}")
+    if start_ns is not None and fmt not in FRAME_FORMATS:
+        raise CosimError(
+            f"--start-time stamps the frame logs ({', '.join(FRAME_FORMATS)}); a {fmt} table is in simulated time "
+            "(its 't [s]' column)"
+        )
     out = Path(out) if out is not None else default_output(log, fmt)
     if out.resolve() == Path(log).resolve():
         raise CosimError(f"{out}: the output would overwrite the log; choose another --out")
     with LogReader(log) as reader:
         part = out.with_name(f"{out.name}.part{FORMATS[fmt]}")  # asammdf insists on its suffix
+        warnings: list[str] = []
+        start = None
         try:
             if fmt in TABLE_FORMATS:
-                count, warnings = _export_table(reader, fmt, part)
+                count = _export_table(reader, fmt, part, warnings)
             else:
-                count, warnings = _export_frames(reader, fmt, part, dbc)
+                start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
+                count = _export_frames(reader, fmt, part, dbc, start)
             part.replace(out)
         finally:
             part.unlink(missing_ok=True)
-        return ExportResult(out, fmt, count, reader.warnings + warnings)
+        return ExportResult(out, fmt, count, reader.warnings + warnings, start)
+
+
+def run_start_ns(reader: LogReader, warnings: list[str]) -> int:
+    """The wall-clock start a frame log is stamped from: the run's (``cosim.run`` ``start_time_ns``)
+    to the millisecond, or 0 (the epoch), with a warning, for a log that does not record it."""
+    run = LogMetadata.read(reader.metadata()).run
+    if run is None or run.start_time_ns is None:
+        warnings.append(
+            "the log does not record when the run started (written by an older cosim or another program): "
+            "frames are stamped from the Unix epoch; give the date with --start-time"
+        )
+        return 0
+    return run.start_time_ns - run.start_time_ns % 1_000_000
+
+
+def parse_start_time(text: str) -> int:
+    """``--start-time``: an ISO 8601 date and time (``2025-06-01T12:00:00+02:00``; UTC without a
+    zone) or seconds since the Unix epoch (``0``: the epoch itself) → ns since the epoch."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        try:
+            when = datetime.fromisoformat(text)
+        except ValueError:
+            raise CosimError(
+                f"--start-time {text!r}: give an ISO 8601 date and time (2025-06-01T12:00:00Z, UTC without a zone) "
+                "or seconds since the Unix epoch (0: the epoch)"
+            ) from None
+        if when.tzinfo is None:
+            when = when.replace(tzinfo=UTC)
+        delta = when - datetime(1970, 1, 1, tzinfo=UTC)
+        return (delta.days * 86_400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
+    if not (0 <= seconds < 2**33):
+        raise CosimError(f"--start-time {text}: seconds since the Unix epoch must be >= 0 (and before the year 2242)")
+    return round(seconds * 1e9)
 
 
 # -- tidy tables ----------------------------------------------------------------------------------
 
 
-def table_columns(schemas: dict[str, dict[str, Any]]) -> list[Column]:
-    """The tidy table's columns, from the JSON Schemas of the log's topics: ``tick``, ``t [s]``,
-    the truth topics, then the decoded data messages in channel order."""
+def table_columns(schemas: dict[str, dict[str, Any]], dbc: str | bytes | None = None) -> list[Column]:
+    """The tidy table's columns, from the JSON Schemas of the log's topics and its DBC (which names
+    a node's packed messages after the node, ``cosim.analysis.names``): ``tick``, ``t [s]``, the
+    truth topics, then the decoded data messages in channel order."""
     columns = [
         Column("tick", "", (), "int", "", "tick counter k"),
         Column("t [s]", "", (), "float", "s", "simulated time t_k"),
     ]
+    known = names.prefixes(dbc)
     decoded = [t for t in schemas if t.startswith("/can/") and t != FRAMES and not CONTROL_MESSAGES.match(t)]
     for topic in [t for t in TRUTH_TOPICS if t in schemas] + decoded:
-        prefix = topic.rsplit("/", 1)[-1]
         properties = {k: v for k, v in schemas[topic].get("properties", {}).items() if k not in ("tick", "t")}
-        columns += _flatten(topic, prefix, (), properties)
+        columns += _flatten(topic, names.prefix(topic, known), (), properties)
+    seen: dict[str, Column] = {}
+    for column in columns:
+        if column.name in seen:
+            raise LogError(
+                f"columns {_source(seen[column.name])} and {_source(column)} would both be named {column.name!r}"
+            )
+        seen[column.name] = column
     return columns
 
 
@@ -208,12 +272,12 @@ def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:
     return value
 
 
-def _export_table(reader: LogReader, fmt: str, path: Path) -> tuple[int, list[str]]:
-    columns = table_columns(reader.schemas())
-    warnings: list[str] = []
+def _export_table(reader: LogReader, fmt: str, path: Path, warnings: list[str]) -> int:
+    columns = table_columns(reader.schemas(), reader.attachments().get(DBC_ATTACHMENT))
+    if fmt == "parquet":
+        require("pyarrow", "cosim export --to parquet")
     rows = table_rows(reader, columns, warnings)
-    count = _write_csv(path, columns, rows) if fmt == "csv" else _write_parquet(path, columns, rows, reader)
-    return count, warnings
+    return _write_csv(path, columns, rows) if fmt == "csv" else _write_parquet(path, columns, rows, reader)
 
 
 def _write_csv(path: Path, columns: list[Column], rows: Iterator[list[Any]]) -> int:
@@ -274,16 +338,16 @@ def frames(reader: LogReader) -> Iterator[tuple[int, dict[str, Any]]]:
         yield log_time, frame
 
 
-def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None) -> tuple[int, list[str]]:
+def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None, start_ns: int) -> int:
     if FRAMES not in reader.schemas():
         raise LogError(
             f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
             f"tables of its messages come with --to csv or parquet"
         )
-    writers: dict[str, Callable[..., int]] = {"blf": _write_blf, "candump": _write_candump, "mf4": _write_mf4}
     if fmt == "mf4":
-        return _write_mf4(path, frames(reader), _dbc_text(reader, dbc)), []
-    return writers[fmt](path, frames(reader)), []
+        require("asammdf", "cosim export --to mf4")
+        return _write_mf4(path, frames(reader), _dbc_text(reader, dbc), start_ns)
+    return (_write_blf if fmt == "blf" else _write_candump)(path, frames(reader), start_ns)
 
 
 def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
@@ -303,11 +367,12 @@ def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
     return attached
 
 
-def _can_message(log_time: int, frame: dict[str, Any], timestamp: float | None = None):
+def can_message(time_ns: int, frame: dict[str, Any]):
+    """The python-can message of a ``/can/frames`` record, stamped ``time_ns`` (ns since the epoch)."""
     import can
 
     return can.Message(
-        timestamp=log_time / 1e9 if timestamp is None else timestamp,
+        timestamp=time_ns / 1e9,
         arbitration_id=frame["id"],
         is_extended_id=frame["extended"],
         is_fd=frame["fd"],
@@ -316,33 +381,27 @@ def _can_message(log_time: int, frame: dict[str, Any], timestamp: float | None =
     )
 
 
-def _write_blf(path: Path, source: Iterator[tuple[int, dict[str, Any]]]) -> int:
+def _write_blf(path: Path, source: Iterator[tuple[int, dict[str, Any]]], start_ns: int) -> int:
     import can
 
     count = 0
     with can.BLFWriter(path, channel=1) as writer:
+        # The header's start time is in milliseconds and objects are stamped in ns after it: start
+        # there (a whole millisecond) rather than at the first frame's time truncated.
+        writer.start_timestamp = start_ns / 1e9
         for log_time, frame in source:
-            # BLFWriter truncates (t - t0)·1e9 to whole nanoseconds: half a nanosecond more makes
-            # that the nearest nanosecond, i.e. the log's own log_time
-            writer.on_message_received(_can_message(log_time, frame, (log_time + 0.5) / 1e9))
+            writer.on_message_received(can_message(start_ns + log_time, frame))
             count += 1
     return count
 
 
-def candump_line(log_time: int, frame: dict[str, Any], interface: str = CANDUMP_INTERFACE) -> str:
-    """One line of ``candump -L``: ``(seconds.micros) iface ID#DATA``; CAN FD ``ID##<flags>DATA``
-    (flags: 1 bit rate switch). Ids are 3 hex digits, 8 for extended ones."""
-    seconds, nanos = divmod(log_time, 1_000_000_000)
-    can_id = f"{frame['id']:08X}" if frame["extended"] else f"{frame['id']:03X}"
-    separator = f"##{1 if frame['brs'] else 0:X}" if frame["fd"] else "#"
-    return f"({seconds}.{nanos // 1000:06d}) {interface} {can_id}{separator}{frame['data'].upper()}\n"
+def _write_candump(path: Path, source: Iterator[tuple[int, dict[str, Any]]], start_ns: int) -> int:
+    import can
 
-
-def _write_candump(path: Path, source: Iterator[tuple[int, dict[str, Any]]]) -> int:
     count = 0
-    with open(path, "w") as stream:
+    with can.CanutilsLogWriter(path, channel=CANDUMP_INTERFACE) as writer:
         for log_time, frame in source:
-            stream.write(candump_line(log_time, frame))
+            writer.on_message_received(can_message(start_ns + log_time, frame))
             count += 1
     return count
 
@@ -367,17 +426,19 @@ def mf4_frame_dtype():
     )
 
 
-def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: bytes) -> int:
+def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: bytes, start_ns: int) -> int:
     import numpy as np
-    from asammdf import MDF, Signal
-    from asammdf.blocks.v4_blocks import FileHistory, SourceInformation
-    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, SOURCE_BUS
+    from asammdf import MDF, Signal, Source
 
     dtype = mf4_frame_dtype()
     mdf = MDF(version="4.10")
     mdf.configure(read_fragment_size=MF4_FRAGMENT_BYTES, write_fragment_size=MF4_FRAGMENT_BYTES)
     try:
-        mdf.header.start_time = datetime(1970, 1, 1, tzinfo=UTC)  # simulated time: no wall clock
+        start = datetime.fromtimestamp(start_ns // 1_000_000_000, UTC).replace(
+            microsecond=start_ns % 1_000_000_000 // 1000
+        )
+        mdf.start_time = start  # the frames' timestamps are simulated time after it
+        bus = Source("CAN", "CAN", "cosim run: the CAN bus", Source.SOURCE_BUS, Source.BUS_TYPE_CAN)
         mdf.append(
             Signal(
                 name="CAN_DataFrame",
@@ -386,9 +447,11 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
                 # asammdf's Signal annotates the name as a Path, but hands it to MDF4.attach, whose
                 # file_name is a str or a path; the name stays a str, as the readers look it up.
                 attachment=(dbc, DBC_ATTACHMENT, md5(dbc).digest()),  # type: ignore[arg-type]
-                source=SourceInformation(source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN),
+                source=bus,
             ),
-            comment="cosim run: every frame on the bus, simulated time",
+            acq_name="CAN",
+            acq_source=bus,
+            comment="cosim run: every frame on the bus; timestamps are simulated time after the start time",
         )
         batch: list[tuple] = []  # (t_ns, id, extended, dlc, length, data hex, fd, brs): small, unlike the dicts
         count = 0
@@ -417,14 +480,8 @@ def _write_mf4(path: Path, source: Iterator[tuple[int, dict[str, Any]]], dbc: by
                 flush()
         if batch:
             flush()
-        created = FileHistory()
-        created.comment = (
-            f"<FHcomment><TX>created by cosim export (simulated time)</TX><tool_id>cosim</tool_id>"
-            f"<tool_vendor>cosim</tool_vendor><tool_version>{__version__}</tool_version></FHcomment>"
-        )
-        mdf.file_history.append(created)
-        for entry in mdf.file_history:  # asammdf stamps history entries with the wall clock: not reproducible
-            entry.abs_time = 0
+        for entry in mdf.file_history:  # asammdf stamps its history with the wall clock: the run's start instead
+            entry.abs_time = start_ns
         mdf.save(path, overwrite=True, compression=2, add_history_block=False)
     finally:
         mdf.close()

@@ -1,27 +1,38 @@
-"""Paper-style figures of a run log: estimation-error norms, pseudoinverse weights, |h_Γ|, |Γ|, φ̂.
+"""Paper-style figures of a run log: estimates against the truth, errors, faults, and what each estimator publishes.
 
-``cosim plot FILE.mcap [--out DIR]`` writes PNG files (matplotlib, no display needed):
+``cosim plot FILE.mcap [--out DIR] [--format png|svg|pdf] [--dpi N]`` writes one file per figure
+(matplotlib, no display needed; vector formats keep their text as text). Every axis says its
+quantity and unit (from the log's JSON Schemas), every legend names its curves after the
+estimators and signals (``cosim.analysis.names``), and figures are saved with their whole
+bounding box, so nothing is clipped. Colours are the estimators', the same in every figure.
 
-- ``error.png``: |x − x̂| of every estimator against time (linear and logarithmic), the top panels
-  of TAC 2024 Figs. 3–5 and CDC 2016 Figs. 1, 6;
-- ``weights.png``: the selector state s and optimizer state z (TAC 2024), or the weights Γ
+- ``estimates``: every state against each estimator's estimate x̂ (TAC 2024 Figs. 3–5 show the
+  errors; these are what the errors are made of);
+- ``error``: |x − x̂| of every estimator against time (linear and logarithmic), the top panels
+  of TAC 2024 Figs. 3–5 and CDC 2016 Figs. 1, 6; the norm mixes the states' units when they
+  differ, which ``state_errors`` does not;
+- ``state_errors``: x̂_i − x_i per state, in its unit, per estimator;
+- ``faults``: what the faults injected: the deviation added to each sensor, the frames dropped,
+  the effectiveness δ of each actuator, with every fault's window shaded;
+- ``weights``: the selector state s and optimizer state z (TAC 2024), or the weights Γ
   (CDC 2016), per estimator that has them (Figs. 3–5 bottom; CDC Figs. 3, 8);
-- ``bias_effect.png``: |h_Γ|, the part of each observer's output injection due to the true fault
+- ``bias_effect``: |h_Γ|, the part of each observer's output injection due to the true fault
   (h_Γ = Z_Γ φ in CDC 2016 Figs. 4, 9; R(s)⁻¹Γ(φ)s of TAC 2024 eq. (20)), from the logged
   weights and the logged fault;
-- ``gamma_norm.png``: |Γ| (CDC 2016 Figs. 5, 10), when a run has continuous-time observers;
-- ``bias_estimate.png``: φ̂ against the true fault, for estimators that estimate it (TAC eq. (7)).
-- ``residual.png``: the residual r = y − C x̂ per output (linear) and |r| (logarithmic), for
+- ``gamma_norm``: |Γ| (CDC 2016 Figs. 5, 10), when a run has continuous-time observers;
+- ``bias_estimate``: φ̂ against the true fault, for estimators that estimate it (TAC eq. (7));
+- ``residual``: the residual r = y − C x̂ per output (linear) and |r| (logarithmic), for
   estimators that publish ``r_<sensor>`` diagnostics (the unknown input observer, course notes
-  eq. (10)), with every fault's window shaded and its onset marked.
-- ``gain_estimate.png``: the estimated sensor effectiveness γ̂ of the reconciliation schemes
+  eq. (10)), with every fault's window shaded and its onset marked;
+- ``gain_estimate``: the estimated sensor effectiveness γ̂ of the reconciliation schemes
   (IJC 2018 eq. (53), Figs. 6–7) against the true gain of the scenario's gain faults;
-- ``virtual_output.png``: the reconciled virtual output ẑ = H_z ŷ of every scheme against the
-  true z = H_z y (IJC 2018 eq. (6), Fig. 9), and |ẑ − z|.
-- ``cofd_residuals.png``: each COFD observer's residual components |r^(h)_i| over their thresholds
-  (Cristofaro & Johansen, Figs. 2–4), with fault onsets and the diagnosis node's isolations;
-- ``trajectory.png``: in a closed-loop run, the true state against time (Figs. 5–6: x_G(t),
-  y_G(t)), with fault onsets and the controller's reconfiguration.
+- ``virtual_output``: the reconciled virtual output ẑ = H_z ŷ of every scheme against the
+  true z = H_z y (IJC 2018 eq. (6), Fig. 9), and |ẑ − z|;
+- ``cofd_residuals``: each COFD observer's residual components |r^(h)_i| over their thresholds
+  (Cristofaro & Johansen, Figs. 2–4), each named by the thruster (input column) whose fault
+  drives it, with fault onsets and the diagnosis node's isolations;
+- ``trajectory``: in a closed-loop run, the true state against time (Figs. 5–6: x_G(t),
+  y_G(t)), with fault onsets and, if it happened, the controller's reconfiguration.
 
 Estimators are rebuilt from the log's metadata (kind, parameters, design model) to evaluate h_Γ.
 """
@@ -32,12 +43,15 @@ from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 import estimators
+from cosim.analysis import names
 from cosim.bus.codec import estimate_signal
 from cosim.errors import LogError
+from cosim.extras import require
 from cosim.log.metadata import EstimatorRecord, LogMetadata, ScenarioRecord
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, SENSORS, STATE, carried_tick, message_topic
@@ -82,6 +96,29 @@ class RunSeries:
     """The controller node's status signals per tick (closed-loop runs)."""
     reconfigured: list[str] = field(default_factory=list)
     """The controller's status signals that say it has reconfigured."""
+    units: dict[str, str] = field(default_factory=dict)
+    """The unit of every state, sensor and actuator (from the log's JSON Schemas; "" where none)."""
+    actuators: list[str] = field(default_factory=list)
+    effectiveness: dict[int, np.ndarray] = field(default_factory=dict)
+    """The actuator effectiveness δ per tick (1: healthy)."""
+    dropped: dict[int, list[str]] = field(default_factory=dict)
+    """The sensors whose frame was not sent, per tick (only ticks with some)."""
+
+    def unit(self, name: str) -> str:
+        """`` [unit]`` of a state, sensor or actuator, or "" if it has none."""
+        unit = self.units.get(name, "")
+        return f" [{unit}]" if unit else ""
+
+    def norm_unit(self) -> str:
+        """The unit of |x − x̂|: the states' common unit, or what it mixes."""
+        return self.norm_unit_of(self.states)
+
+    def norm_unit_of(self, names: list[str]) -> str:
+        """`` [unit]`` of a norm over ``names``: their common unit, or `` (mixes m, m/s)``."""
+        units = list(dict.fromkeys(self.units.get(s, "") for s in names))
+        if len(units) == 1:
+            return f" [{units[0]}]" if units[0] else ""
+        return f" (mixes {', '.join(u or '1' for u in units)})"
 
     def ticks(self, name: str) -> np.ndarray:
         have = self.estimators[name].values
@@ -90,14 +127,20 @@ class RunSeries:
             dtype=int,
         )
 
-    def error(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+    def estimate(self, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t, x̂, x) of one estimator at the ticks with a complete estimate and truth."""
         ks = self.ticks(name)
         values = self.estimators[name].values
         x_hat = np.array([[values[k][estimate_signal(s)] for s in self.states] for k in ks]).reshape(
             len(ks), len(self.states)
         )
         x = np.array([self.truth[k] for k in ks]).reshape(len(ks), len(self.states))
-        return ks * self.sample_time, np.linalg.norm(x - x_hat, axis=1)
+        return ks * self.sample_time, x_hat, x
+
+    def error(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """(t, |x − x̂|) of one estimator."""
+        t, x_hat, x = self.estimate(name)
+        return t, np.linalg.norm(x - x_hat, axis=1)
 
     def diagnostic(self, name: str, kind: DiagnosticKind) -> tuple[np.ndarray, np.ndarray] | None:
         """One estimator's diagnostics of ``kind`` that have a sensor as target, one column per
@@ -133,6 +176,10 @@ def load(path: str | Path) -> RunSeries:
         truth: dict[int, np.ndarray] = {}
         fault: dict[int, np.ndarray] = {}
         sensor_truth: dict[int, np.ndarray] = {}
+        effectiveness: dict[int, np.ndarray] = {}
+        dropped: dict[int, list[str]] = {}
+        units = names.units(reader.schemas())
+        actuators = run.actuators
         for topic, log_time, msg in reader.messages([STATE, FAULTS, SENSORS, *owner, *status]):
             if topic == STATE:
                 truth[msg["tick"]] = np.array([msg[s] for s in states])
@@ -144,6 +191,10 @@ def load(path: str | Path) -> RunSeries:
                 )
             elif topic == FAULTS:
                 fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
+                delta = msg.get("effectiveness") or {}
+                effectiveness[msg["tick"]] = np.array([delta.get(a, 1.0) for a in actuators], dtype=float)
+                if msg.get("dropped"):
+                    dropped[msg["tick"]] = list(msg["dropped"])
             else:
                 ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update(
                     {k: v for k, v in msg.items() if k != "tick"}
@@ -163,6 +214,10 @@ def load(path: str | Path) -> RunSeries:
         resolved=given.resolved,
         control=dict(control),
         reconfigured=reconfigured,
+        units=units,
+        actuators=list(actuators),
+        effectiveness=effectiveness,
+        dropped=dropped,
     )
 
 
@@ -218,244 +273,425 @@ def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] |
     return np.array(ks) * series.sample_time, np.array(out)
 
 
-def plot(path: str | Path, out: str | Path) -> list[Path]:
-    """Write the figures of one log into ``out``; returns the files written."""
+#: Figure formats and what matplotlib writes into them that would change from one run to the next.
+FORMATS = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}
+WIDTH = 9.0  # inches: a full-width figure
+STYLE: Any = {  # matplotlib rc parameters (typed as its literal keys)
+    "svg.fonttype": "none",  # text stays text
+    "pdf.fonttype": 42,
+    "axes.titlesize": 10,
+    "axes.labelsize": 9,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+    "legend.fontsize": 7.5,
+    "figure.titlesize": 11,
+}
+
+
+def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) -> list[Path]:
+    """Write the figures of one log into ``out`` as ``fmt`` (png, svg, pdf); returns the files written."""
+    if fmt not in FORMATS:
+        raise LogError(f"unknown figure format {fmt!r}: choose png, svg or pdf")
+    require("matplotlib", "cosim plot")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series = load(path)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-    title = series.scenario
+    with plt.rc_context(STYLE):
+        series = load(path)
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        written: list[Path] = []
+        title = series.scenario
+        color = {name: f"C{i % 10}" for i, name in enumerate(series.estimators)}
+        end = max(series.truth, default=0) * series.sample_time
 
-    def save(fig, name: str) -> None:
-        fig.tight_layout()
-        target = out / name
-        fig.savefig(target, dpi=110)
-        plt.close(fig)
-        written.append(target)
+        def figure(rows: int, columns: int = 1, height: float = 2.2, **kw):
+            return plt.subplots(
+                rows, columns, figsize=(WIDTH, max(2.8, height * rows + 0.6)), squeeze=False, layout="constrained", **kw
+            )
 
-    fig, (linear, log) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True)
-    for name in series.estimators:
-        t, err = series.error(name)
-        if t.size:
-            linear.plot(t, err, label=name, lw=1)
-            log.semilogy(t, np.maximum(err, 1e-16), label=name, lw=1)
-    linear.set_ylabel("|x − x̂|")
-    log.set_ylabel("|x − x̂| (log)")
-    log.set_xlabel("time [s]")
-    linear.set_title(f"{title}: estimation error")
-    linear.legend(fontsize=8)
-    for ax in (linear, log):
-        ax.grid(alpha=0.3)
-    save(fig, "error.png")
+        def save(fig, name: str, heading: str) -> None:
+            fig.suptitle(f"{title}: {heading}")
+            target = out / f"{name}.{fmt}"
+            fig.savefig(target, dpi=dpi, bbox_inches="tight", pad_inches=0.08, metadata=FORMATS[fmt])
+            plt.close(fig)
+            written.append(target)
 
-    reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
-    weighted = [
-        (name, kind, data)
-        for name in series.estimators
-        for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
-        for data in [series.diagnostic(name, kind)]
-        if data is not None
-    ]
-    if weighted:
-        fig, axes = plt.subplots(len(weighted), 1, figsize=(9, 2.4 * len(weighted)), sharex=True, squeeze=False)
-        labels = {
-            DiagnosticKind.SELECTOR: "selector s",
-            DiagnosticKind.OPTIMIZER: "optimizer z",
-            DiagnosticKind.WEIGHT: "weights Γ",
-        }
-        for ax, (name, kind, (t, w)) in zip(axes[:, 0], weighted):
-            for i, sensor in enumerate(series.sensors):
-                ax.plot(t, w[:, i], label=sensor, lw=1)
-            ax.set_ylabel(f"{name}\n{labels[kind]}", fontsize=8)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, loc="right")
-        axes[0, 0].set_title(f"{title}: pseudoinverse weights")
-        axes[-1, 0].set_xlabel("time [s]")
-        save(fig, "weights.png")
-
-    def curves(named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool) -> None:
-        """One panel of one curve per estimator against time."""
-        fig, ax = plt.subplots(figsize=(9, 3.3))
-        for label, (t, v) in named.items():
-            (ax.semilogy if log else ax.plot)(t, np.maximum(v, 1e-16) if log else v, label=label, lw=1)
-        ax.set_ylabel(ylabel)
-        ax.set_xlabel("time [s]")
-        ax.set_title(f"{title}: {what}")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        save(fig, name)
-
-    effects = {name: e for name in series.estimators for e in [bias_effect(series, name)] if e is not None}
-    if effects:
-        curves(effects, "|h_Γ|", "fault effect on the output injection", "bias_effect.png", log=True)
-    norms = {
-        name: (t, np.linalg.norm(w, axis=1))
-        for name in series.estimators
-        for v in [series.diagnostic(name, DiagnosticKind.WEIGHT)]
-        if v is not None
-        for t, w in [v]
-    }
-    if norms:
-        curves(norms, "|Γ|", "norm of the weights", "gamma_norm.png", log=False)
-
-    bias = {
-        name: v
-        for name in series.estimators
-        for v in [series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE)]
-        if v is not None
-    }
-    if bias:
-        fig, axes = plt.subplots(
-            len(series.sensors), 1, figsize=(9, 2.2 * len(series.sensors)), sharex=True, squeeze=False
-        )
-        ks = np.array(sorted(series.fault))
-        for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
-            for name, (t, v) in bias.items():
-                ax.plot(t, v[:, i], label=f"{name} φ̂", lw=1)
-            ax.plot(ks * series.sample_time, [series.fault[k][i] for k in ks], "k--", lw=1, label="true fault")
-            ax.set_ylabel(sensor, fontsize=8)
-            ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=7)
-        axes[0, 0].set_title(f"{title}: bias estimate φ̂ against the true fault")
-        axes[-1, 0].set_xlabel("time [s]")
-        save(fig, "bias_estimate.png")
-
-    residuals = {
-        name: v
-        for name in series.estimators
-        for v in [series.diagnostic(name, DiagnosticKind.RESIDUAL)]
-        if v is not None
-    }
-    if residuals:
-        fig, axes = plt.subplots(
-            2 * len(residuals), 1, figsize=(9, 2.6 * 2 * len(residuals)), sharex=True, squeeze=False
-        )
-        end = max(t[-1] for t, _ in residuals.values())
-        for i, (name, (t, r)) in enumerate(residuals.items()):
-            linear, log = axes[2 * i, 0], axes[2 * i + 1, 0]
-            for j, sensor in enumerate(series.sensors):
-                linear.plot(t, r[:, j], label=f"r_{sensor}", lw=1)
-            log.semilogy(t, np.maximum(np.linalg.norm(r, axis=1), 1e-16), "k", lw=1, label="|r|")
-            linear.set_ylabel(f"{name}\nr = y − C x̂", fontsize=8)
-            log.set_ylabel(f"{name}\n|r| (log)", fontsize=8)
-            for ax in (linear, log):
-                for number, f in enumerate(series.faults):
-                    color = f"C{(number + len(series.sensors)) % 10}"
-                    ax.axvspan(f["start"], end if f.get("end") is None else f["end"], color=color, alpha=0.08, lw=0)
-                    ax.axvline(f["start"], color=color, ls="--", lw=1, label=f"{f['label']} ({f['kind']}) onset")
-                ax.grid(alpha=0.3)
-                ax.legend(fontsize=7, loc="best")
-        axes[0, 0].set_title(f"{title}: residual r = y − C x̂ (faults shaded from onset)")
-        axes[-1, 0].set_xlabel("time [s]")
-        save(fig, "residual.png")
-
-    gains = {
-        name: v
-        for name in reconciliators
-        for v in [series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)]
-        if v is not None
-    }
-    if gains:
-        fig, axes = plt.subplots(
-            len(series.sensors), 1, figsize=(9, 2.1 * len(series.sensors)), sharex=True, squeeze=False
-        )
-        t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
-        truth = true_gains(series, t_all)
-        for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
-            for name, (t, g) in gains.items():
-                ax.plot(t, g[:, i], label=f"{name} γ̂", lw=1)
-            ax.plot(t_all, truth[:, i], "k--", lw=1, label="true γ")
-            ax.set_ylabel(sensor, fontsize=8)
-            ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=7, ncol=3)
-        axes[0, 0].set_title(f"{title}: sensor effectiveness γ̂ against the true gain")
-        axes[-1, 0].set_xlabel("time [s]")
-        save(fig, "gain_estimate.png")
-
-    outputs = {name: v for name in sorted(reconciliators) for v in [virtual_output(series, name)] if v is not None}
-    if outputs:
-        fig, (values, errors) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-        t, _, z = next(iter(outputs.values()))
-        values.plot(t, z, "k", lw=1.6, label="true z = H_z y")
-        for name, (t, zhat, z) in outputs.items():
-            values.plot(t, zhat, lw=1, label=f"{name} ẑ")
-            errors.semilogy(t, np.maximum(np.abs(zhat - z), 1e-12), lw=1, label=name)
-        values.set_ylabel("virtual output")
-        errors.set_ylabel("|ẑ − z| (log)")
-        errors.set_xlabel("time [s]")
-        values.set_title(f"{title}: reconciled virtual output")
-        for ax in (values, errors):
+        def faults_shaded(ax, label: bool = False) -> None:
+            """Every fault's window shaded, its onset dotted."""
             for f in series.faults:
-                ax.axvline(f["start"], color="0.5", ls=":", lw=1)
+                stop = end if f.get("end") is None else f["end"]
+                ax.axvspan(f["start"], stop, color="0.5", alpha=0.06, lw=0)
+                ax.axvline(
+                    f["start"], color="0.35", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None
+                )
+
+        def finish(ax, ylabel: str, legend: bool = True, **legend_kw) -> None:
+            ax.set_ylabel(ylabel)
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, ncol=2)
-        save(fig, "virtual_output.png")
+            if legend and ax.get_legend_handles_labels()[0]:
+                ax.legend(**{"loc": "best", "framealpha": 0.85, **legend_kw})
 
-    def events(ax, isolations: Sequence[tuple[float, str]] = ()) -> None:
-        """Fault onsets (dotted), isolations and the reconfiguration (dashed)."""
-        for f in series.faults:
-            ax.axvline(f["start"], color="0.4", ls=":", lw=1)
-        for t, label in isolations:
-            ax.axvline(t, color="C3", ls="--", lw=1)
-            ax.annotate(label, (t, 1), xycoords=("data", "axes fraction"), fontsize=7, color="C3", va="top", ha="left")
-        if series.reconfigured and (k := first_tick(series.control, series.reconfigured[0])) is not None:
-            ax.axvline(k * series.sample_time, color="C2", ls="--", lw=1.2)
+        def state_grid(names: list[str]):
+            columns = 2 if len(names) > 3 else 1
+            rows = -(-len(names) // columns)
+            fig, axes = figure(rows, columns, height=2.0, sharex=True)
+            cells = list(axes.T.ravel())
+            for ax in cells[len(names) :]:
+                ax.set_visible(False)
+            for ax in axes[-1]:
+                ax.set_xlabel("time t [s]")
+            if len(names) % columns:  # the column with one fewer panel gets its time axis labelled too
+                cells[len(names) - 1].set_xlabel("time t [s]")
+                cells[len(names) - 1].tick_params(labelbottom=True)
+            return fig, cells
 
-    # Diagnosis nodes whose residual components have thresholds (COFD): one panel per observer.
-    diagnosers = {name: e for name, e in series.estimators.items() if e.signals(DiagnosticKind.THRESHOLD)}
-    for name, e in diagnosers.items():
-        bounded = {residual: threshold for threshold, residual in e.signals(DiagnosticKind.THRESHOLD).items()}
-        ks = np.array(sorted(k for k, v in e.values.items() if all(t in v for t in bounded.values())), dtype=int)
-        if ks.size == 0:
-            continue
-        first = e.values[ks[0]]
-        observers: dict[str, list[str]] = {}  # observer → its residual components in use (threshold > 0)
-        for residual, observer in e.signals(DiagnosticKind.RESIDUAL).items():
-            if residual in bounded and first.get(bounded[residual], 0.0) > 0:
-                observers.setdefault(observer, []).append(residual)
-        if not observers:
-            continue
-        t = ks * series.sample_time
-        flags = e.signals(DiagnosticKind.ISOLATION)
-        raised = ["+".join(target for flag, target in flags.items() if e.values[k].get(flag, 0.0) > 0.5) for k in ks]
-        isolations = [(t[i], label) for i, label in enumerate(raised) if label and (i == 0 or label != raised[i - 1])]
-        fig, axes = plt.subplots(len(observers), 1, figsize=(9, 2.3 * len(observers)), sharex=True, squeeze=False)
-        for ax, (observer, components) in zip(axes[:, 0], observers.items()):
-            for residual in components:
-                ratio = np.array([abs(e.values[k][residual]) / e.values[k][bounded[residual]] for k in ks])
-                ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=residual)
-            ax.axhline(1.0, color="k", lw=0.8)
-            ax.set_ylabel(f"{observer}\n|r_i| / threshold", fontsize=8)
-            events(ax, isolations)
-            ax.grid(alpha=0.3)
-            ax.legend(fontsize=7, loc="upper left", ncol=3)
-        axes[0, 0].set_title(
-            f"{title}: {name}, COFD residual components over their thresholds (faults dotted, isolations red)"
-        )
-        axes[-1, 0].set_xlabel("time [s]")
-        save(fig, "cofd_residuals.png" if len(diagnosers) == 1 else f"cofd_residuals_{name}.png")
+        def label(name: str) -> str:
+            return f"{name} ({series.estimators[name].kind})"
 
-    if series.control:
+        def figure_legend(fig, cells) -> None:
+            """One legend for the whole figure, under its panels: each curve name once."""
+            found: dict[str, object] = {}
+            for ax in cells:
+                for handle, text in zip(*ax.get_legend_handles_labels()):
+                    found.setdefault(text, handle)
+            if found:
+                fig.legend(list(found.values()), list(found), loc="outside lower center", ncol=min(4, len(found)))
+
+        # -- the state against every estimate ---------------------------------------------------------
         ks = np.array(sorted(series.truth), dtype=int)
-        x = np.array([series.truth[k] for k in ks])
-        columns = 2 if len(series.states) > 3 else 1
-        rows = -(-len(series.states) // columns)
-        fig, axes = plt.subplots(rows, columns, figsize=(9, 2.1 * rows), sharex=True, squeeze=False)
-        for i, (ax, state) in enumerate(zip(axes.T.ravel(), series.states)):
-            ax.plot(ks * series.sample_time, x[:, i], "k", lw=1)
-            ax.set_ylabel(state, fontsize=8)
-            events(ax)
-            ax.grid(alpha=0.3)
-        for ax in axes[-1]:
-            ax.set_xlabel("time [s]")
-        fig.suptitle(f"{title}: true state (faults dotted, reconfiguration green)", fontsize=10)
-        save(fig, "trajectory.png")
-    return written
+        x = np.array([series.truth[k] for k in ks]).reshape(len(ks), len(series.states))
+        estimated = {name: series.estimate(name) for name in series.estimators}
+        estimated = {name: v for name, v in estimated.items() if v[0].size}
+        if ks.size and estimated:
+            fig, cells = state_grid(series.states)
+            for i, (ax, state) in enumerate(zip(cells, series.states)):
+                ax.plot(ks * series.sample_time, x[:, i], color="k", lw=1.8, label="true state x")
+                for name, (t, xhat, _) in estimated.items():
+                    ax.plot(t, xhat[:, i], color=color[name], lw=1, label=f"{label(name)}: x̂")
+                faults_shaded(ax, label=True)
+                finish(ax, f"{state}{series.unit(state)}", legend=False)
+            figure_legend(fig, cells)
+            save(fig, "estimates", "true state and every estimate x̂")
+
+            fig, cells = state_grid(series.states)
+            for i, (ax, state) in enumerate(zip(cells, series.states)):
+                for name, (t, xhat, xt) in estimated.items():
+                    ax.plot(t, xhat[:, i] - xt[:, i], color=color[name], lw=1, label=label(name))
+                ax.axhline(0, color="k", lw=0.6)
+                faults_shaded(ax, label=True)
+                finish(ax, f"x̂ − x of {state}{series.unit(state)}", legend=False)
+            figure_legend(fig, cells)
+            save(fig, "state_errors", "estimation error per state, x̂ − x")
+
+        # -- the norm of the error ----------------------------------------------------------------------
+        fig, axes = figure(2, height=2.6, sharex=True)
+        linear, log = axes[0, 0], axes[1, 0]
+        for name in series.estimators:
+            t, err = series.error(name)
+            if t.size:
+                linear.plot(t, err, color=color[name], label=label(name), lw=1)
+                log.semilogy(t, np.maximum(err, 1e-16), color=color[name], label=label(name), lw=1)
+        for ax in (linear, log):
+            faults_shaded(ax, label=ax is linear)
+        finish(linear, f"|x − x̂|{series.norm_unit()}")
+        finish(log, "|x − x̂| (log scale)", legend=False)
+        log.set_xlabel("time t [s]")
+        save(fig, "error", "estimation error norm |x − x̂| over the whole state")
+
+        # -- the injected faults ------------------------------------------------------------------------
+        fault_panels = _fault_panels(series)
+        if fault_panels:
+            ratios = [0.25 + 0.2 * len(curves) if events_only else 1.0 for _, curves, events_only in fault_panels]
+            fig, axes = figure(
+                len(fault_panels), height=2.1 * sum(ratios) / len(ratios), sharex=True, height_ratios=ratios
+            )
+            for ax, (ylabel, curves, events_only) in zip(axes[:, 0], fault_panels):
+                if events_only:  # one row of marks per sensor, at the ticks its frame was not sent
+                    for row, (times, _) in enumerate(curves.values()):
+                        ax.plot(times, np.full(len(times), row), "|", ms=8, mew=0.8, color=f"C{row}")
+                    ax.set_yticks(range(len(curves)), list(curves))
+                    ax.set_ylim(-0.7, len(curves) - 0.3)
+                    faults_shaded(ax)
+                    finish(ax, ylabel, legend=False)
+                    continue
+                for curve_label, (times, v) in curves.items():
+                    ax.plot(times, v, lw=1, label=curve_label)
+                faults_shaded(ax)
+                finish(ax, ylabel, ncol=min(3, len(curves)))
+            top = axes[0, 0]
+            for f in series.faults:
+                top.annotate(
+                    f" {f['label']} ({f['kind']})",
+                    (f["start"], 1),
+                    xycoords=("data", "axes fraction"),
+                    rotation=90,
+                    va="top",
+                    ha="right",
+                    fontsize=6.5,
+                    color="0.3",
+                )
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(fig, "faults", "what the faults injected (/truth/faults), each from its onset")
+
+        reconciliators = {name for name in series.estimators if virtual_output(series, name) is not None}
+        weighted = [
+            (name, kind, data)
+            for name in series.estimators
+            for kind in (DiagnosticKind.SELECTOR, DiagnosticKind.OPTIMIZER, DiagnosticKind.WEIGHT)
+            for data in [series.diagnostic(name, kind)]
+            if data is not None
+        ]
+        if weighted:
+            fig, axes = figure(len(weighted), height=2.2, sharex=True)
+            labels = {
+                DiagnosticKind.SELECTOR: "selector s",
+                DiagnosticKind.OPTIMIZER: "optimizer z",
+                DiagnosticKind.WEIGHT: "weights Γ",
+            }
+            for ax, (name, kind, (t, w)) in zip(axes[:, 0], weighted):
+                for i, sensor in enumerate(series.sensors):
+                    ax.plot(t, w[:, i], label=f"sensor {sensor}", lw=1)
+                finish(ax, f"{name}: {labels[kind]} [1]", loc="center right")
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(fig, "weights", "pseudoinverse weights per sensor")
+
+        def one_panel(
+            named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool
+        ) -> None:
+            """One panel of one curve per estimator against time."""
+            fig, axes = figure(1, height=3.0)
+            ax = axes[0, 0]
+            for est, (t, v) in named.items():
+                (ax.semilogy if log else ax.plot)(
+                    t, np.maximum(v, 1e-16) if log else v, color=color[est], label=label(est), lw=1
+                )
+            ax.set_xlabel("time t [s]")
+            faults_shaded(ax)
+            finish(ax, ylabel)
+            save(fig, name, what)
+
+        effects = {name: e for name in series.estimators for e in [bias_effect(series, name)] if e is not None}
+        if effects:
+            units = set(series.units.get(s, "") for s in series.sensors)
+            unit = f" [{units.pop()}]" if len(units) == 1 and "" not in units else ""
+            one_panel(
+                effects,
+                f"|h_Γ|{unit} (log scale)",
+                "the fault's effect on the output injection, |h_Γ|",
+                "bias_effect",
+                log=True,
+            )
+        norms = {
+            name: (t, np.linalg.norm(w, axis=1))
+            for name in series.estimators
+            for v in [series.diagnostic(name, DiagnosticKind.WEIGHT)]
+            if v is not None
+            for t, w in [v]
+        }
+        if norms:
+            one_panel(norms, "|Γ| [1]", "norm of the pseudoinverse weights Γ", "gamma_norm", log=False)
+
+        bias = {
+            name: v
+            for name in series.estimators
+            for v in [series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE)]
+            if v is not None
+        }
+        if bias:
+            fig, axes = figure(len(series.sensors), height=2.0, sharex=True)
+            fk = np.array(sorted(series.fault))
+            for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
+                for name, (t, v) in bias.items():
+                    ax.plot(t, v[:, i], color=color[name], label=f"{name} φ̂", lw=1)
+                ax.plot(fk * series.sample_time, [series.fault[k][i] for k in fk], "k--", lw=1, label="true fault φ")
+                finish(ax, f"φ on {sensor}{series.unit(sensor)}", legend=i == 0)
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(fig, "bias_estimate", "bias estimates φ̂ against the true sensor fault")
+
+        residuals = {
+            name: v
+            for name in series.estimators
+            for v in [series.diagnostic(name, DiagnosticKind.RESIDUAL)]
+            if v is not None
+        }
+        if residuals:
+            fig, axes = figure(2 * len(residuals), height=2.2, sharex=True)
+            for i, (name, (t, r)) in enumerate(residuals.items()):
+                linear, log = axes[2 * i, 0], axes[2 * i + 1, 0]
+                for j, sensor in enumerate(series.sensors):
+                    linear.plot(t, r[:, j], label=f"r on {sensor}{series.unit(sensor)}", lw=1)
+                log.semilogy(t, np.maximum(np.linalg.norm(r, axis=1), 1e-16), "k", lw=1, label="|r|")
+                for ax in (linear, log):
+                    faults_shaded(ax, label=ax is log)
+                finish(linear, f"{name}: r = y − C x̂", ncol=min(3, len(series.sensors)))
+                finish(log, f"{name}: |r|{series.norm_unit_of(series.sensors)} (log)")
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(fig, "residual", "residual r = y − C x̂ per output and its norm; faults shaded")
+
+        gains = {
+            name: v
+            for name in reconciliators
+            for v in [series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)]
+            if v is not None
+        }
+        if gains:
+            fig, axes = figure(len(series.sensors), height=1.9, sharex=True)
+            t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
+            truth = true_gains(series, t_all)
+            for i, (ax, sensor) in enumerate(zip(axes[:, 0], series.sensors)):
+                for name, (t, g) in sorted(gains.items()):
+                    ax.plot(t, g[:, i], color=color[name], label=f"{name} γ̂", lw=1)
+                ax.plot(t_all, truth[:, i], "k--", lw=1, label="true γ")
+                finish(ax, f"γ of {sensor} [1]", legend=i == 0, ncol=3)
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(fig, "gain_estimate", "sensor effectiveness γ̂ against the true gain")
+
+        outputs = {name: v for name in sorted(reconciliators) for v in [virtual_output(series, name)] if v is not None}
+        if outputs:
+            fig, axes = figure(2, height=2.8, sharex=True)
+            values, errors = axes[0, 0], axes[1, 0]
+            t, _, z = next(iter(outputs.values()))
+            values.plot(t, z, "k", lw=1.6, label="true z = H_z y")
+            for name, (t, zhat, z) in outputs.items():
+                values.plot(t, zhat, color=color[name], lw=1, label=f"{name} ẑ")
+                errors.semilogy(t, np.maximum(np.abs(zhat - z), 1e-12), color=color[name], lw=1, label=name)
+            for ax in (values, errors):
+                faults_shaded(ax)
+            finish(values, "virtual output z", ncol=2)
+            finish(errors, "|ẑ − z| (log scale)", ncol=2)
+            errors.set_xlabel("time t [s]")
+            save(fig, "virtual_output", "reconciled virtual output ẑ against the true z")
+
+        reconfigured_at = None
+        if series.reconfigured and (k := first_tick(series.control, series.reconfigured[0])) is not None:
+            reconfigured_at = k * series.sample_time
+
+        def events(ax, isolations: Sequence[tuple[float, str]] = (), label: bool = False) -> None:
+            """Fault onsets (dotted), isolations (red, named) and the reconfiguration (green, dashed)."""
+            for f in series.faults:
+                ax.axvline(
+                    f["start"], color="0.4", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None
+                )
+            for t, what in isolations:
+                ax.axvline(t, color="C3", ls="--", lw=1, label=f"isolated {what} at {t:g} s" if label else None)
+            if reconfigured_at is not None:
+                ax.axvline(
+                    reconfigured_at,
+                    color="C2",
+                    ls="--",
+                    lw=1.2,
+                    label=f"reconfigured at {reconfigured_at:g} s" if label else None,
+                )
+
+        # Diagnosis nodes whose residual components have thresholds (COFD): one panel per observer.
+        diagnosers = {name: e for name, e in series.estimators.items() if e.signals(DiagnosticKind.THRESHOLD)}
+        for name, e in diagnosers.items():
+            bounded = {residual: threshold for threshold, residual in e.signals(DiagnosticKind.THRESHOLD).items()}
+            dk = np.array(sorted(k for k, v in e.values.items() if all(t in v for t in bounded.values())), dtype=int)
+            if dk.size == 0:
+                continue
+            first = e.values[dk[0]]
+            observers: dict[str, list[str]] = {}  # observer → its residual components in use (threshold > 0)
+            for residual, observer in e.signals(DiagnosticKind.RESIDUAL).items():
+                if residual in bounded and first.get(bounded[residual], 0.0) > 0:
+                    observers.setdefault(observer, []).append(residual)
+            if not observers:
+                continue
+            directions = cofd_directions(series, name)
+            t = dk * series.sample_time
+            flags = e.signals(DiagnosticKind.ISOLATION)
+            raised = [
+                "+".join(target for flag, target in flags.items() if e.values[k].get(flag, 0.0) > 0.5) for k in dk
+            ]
+            isolations = [(t[i], what) for i, what in enumerate(raised) if what and (i == 0 or what != raised[i - 1])]
+            fig, axes = figure(len(observers), height=2.2, sharex=True)
+            for number, (ax, (observer, components)) in enumerate(zip(axes[:, 0], observers.items())):
+                for residual in components:
+                    ratio = np.array([abs(e.values[dk_][residual]) / e.values[dk_][bounded[residual]] for dk_ in dk])
+                    ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=directions.get(residual, residual))
+                ax.axhline(1.0, color="k", lw=0.8, label="threshold" if number == 0 else None)
+                events(ax, isolations, label=number == 0)
+                finish(ax, f"{observer}: |r_i| / threshold", loc="upper left", ncol=2)
+            axes[-1, 0].set_xlabel("time t [s]")
+            save(
+                fig,
+                "cofd_residuals" if len(diagnosers) == 1 else f"cofd_residuals_{name}",
+                f"{name}, COFD residual components over their thresholds",
+            )
+
+        if series.control:
+            fig, cells = state_grid(series.states)
+            for i, (ax, state) in enumerate(zip(cells, series.states)):
+                ax.plot(ks * series.sample_time, x[:, i], "k", lw=1, label="true state")
+                events(ax, label=True)
+                finish(ax, f"{state}{series.unit(state)}", legend=False)
+            figure_legend(fig, cells)
+            happened = "faults dotted" + (", reconfiguration dashed" if reconfigured_at is not None else "")
+            save(fig, "trajectory", f"true state of the closed loop ({happened})")
+        return written
+
+
+def _fault_panels(series: RunSeries) -> list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]], bool]]:
+    """The panels of the faults figure: (y label, curves, drawn as steps)."""
+    panels: list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]], bool]] = []
+    fk = np.array(sorted(series.fault), dtype=int)
+    t = fk * series.sample_time
+    if fk.size:
+        values = np.array([series.fault[k] for k in fk])
+        hit = [i for i in range(len(series.sensors)) if np.any(values[:, i] != 0)]
+        by_unit: dict[str, list[int]] = {}
+        for i in hit:
+            by_unit.setdefault(series.units.get(series.sensors[i], ""), []).append(i)
+        for unit, columns in by_unit.items():
+            curves = {f"faults.fault.{series.sensors[i]}": (t, values[:, i]) for i in columns}
+            panels.append((f"added to sensor{f' [{unit}]' if unit else ''}", curves, False))
+    if series.dropped:
+        curves = {}
+        for sensor in series.sensors:
+            dropped = np.array([sensor in series.dropped.get(k, ()) for k in fk])
+            if dropped.any():
+                curves[sensor] = (t[dropped], np.zeros(int(dropped.sum())))
+        if curves:
+            panels.append(("frames not sent", curves, True))
+    ek = np.array(sorted(series.effectiveness), dtype=int)
+    if ek.size and series.actuators:
+        delta = np.array([series.effectiveness[k] for k in ek])
+        changed = [j for j, _ in enumerate(series.actuators) if np.any(delta[:, j] != 1.0)]
+        if changed:
+            curves = {f"δ of {series.actuators[j]}": (ek * series.sample_time, delta[:, j]) for j in changed}
+            panels.append(("actuator effectiveness δ [1]", curves, False))
+    return panels
+
+
+def cofd_directions(series: RunSeries, name: str) -> dict[str, str]:
+    """What drives each COFD residual component r<h>_<i>: the i-th input column of observer h's
+    multi-index (its thruster input, or cluster), as a legend label; {} if it cannot be told."""
+    e = series.estimators[name]
+    try:
+        params = estimators.ESTIMATORS[e.kind].check_params(e.params)
+        family = params.family
+        if family is None:
+            from estimators.cofd import SHIP_CLUSTER_FAMILY, SHIP_FAMILY
+
+            family = SHIP_CLUSTER_FAMILY if getattr(params, "zeta", None) else SHIP_FAMILY
+    except Exception:  # another kind, or parameters this version reads differently: plain names
+        return {}
+    cluster = bool(getattr(params, "zeta", None))
+    found = {}
+    for h, columns in enumerate(family, 1):
+        for i, column in enumerate(columns, 1):
+            j = int(column) - 1
+            if cluster:
+                what = f"cluster {j + 1}"
+            elif 0 <= j < len(series.actuators):
+                what = f"input {series.actuators[j]}"
+            else:
+                what = f"column {j + 1}"
+            found[f"r{h}_{i}"] = f"r{h}_{i}: along {what}"
+    return found
 
 
 def first_tick(values: dict[int, dict[str, float]], name: str) -> int | None:

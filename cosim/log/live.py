@@ -108,7 +108,9 @@ class FoxgloveSink:
 
     # -- the viewer ------------------------------------------------------------------------------
 
-    def wait_for_viewer(self, timeout: float, settle: float = 0.5, interrupted: Callable[[], bool] | None = None) -> bool:
+    def wait_for_viewer(
+        self, timeout: float, settle: float = 0.5, interrupted: Callable[[], bool] | None = None
+    ) -> bool:
         """Wait up to ``timeout`` seconds for a client to subscribe to a channel, then ``settle``
         seconds more for the rest of its subscriptions; True if one did."""
         deadline = time.monotonic() + timeout

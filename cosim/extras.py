@@ -1,0 +1,57 @@
+"""The optional extras: which heavy packages a feature needs, and the one-line error when one is missing.
+
+``pip install .`` (or ``cosim``) installs what a run needs; each heavy feature is an extra of
+pyproject.toml: ``lmi`` (cvxpy, Clarabel: the LMI designs of IJC 2018), ``export`` (pyarrow,
+asammdf: Parquet and MF4 exports, campaign tables), ``plot`` (matplotlib: figures), ``live``
+(foxglove-sdk: the Foxglove WebSocket server); ``all`` is every one of them.
+
+``require`` imports a package of an extra or raises ``MissingExtra`` naming the extra;
+``missing_extra`` turns an ImportError raised deeper down (a lazy import in an estimator's design,
+say) into the same error, which the command line prints as its one line.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+from cosim.errors import CosimError
+
+#: Extra → the top-level modules of its packages.
+EXTRAS: dict[str, tuple[str, ...]] = {
+    "lmi": ("cvxpy", "clarabel"),
+    "export": ("pyarrow", "asammdf"),
+    "plot": ("matplotlib",),
+    "live": ("foxglove",),
+}
+#: Top-level module → its extra.
+MODULE_EXTRA = {module: extra for extra, modules in EXTRAS.items() for module in modules}
+
+
+class MissingExtra(CosimError):
+    """A feature needs a package of an extra that is not installed."""
+
+    def __init__(self, feature: str, extra: str, module: str) -> None:
+        super().__init__(
+            f"{feature} needs the '{extra}' extra ({module} is not installed): pip install 'cosim[{extra}]'"
+        )
+        self.feature, self.extra, self.module = feature, extra, module
+
+
+def missing_extra(error: ImportError, feature: str) -> MissingExtra | None:
+    """The MissingExtra for ``error`` if it is the import of an extra's package failing, else None."""
+    top = (error.name or "").split(".")[0]
+    extra = MODULE_EXTRA.get(top)
+    return None if extra is None else MissingExtra(feature, extra, top)
+
+
+def require(module: str, feature: str) -> ModuleType:
+    """Import ``module`` (a package of an extra, or one of its submodules) for ``feature``, e.g.
+    ``require("pyarrow.parquet", "cosim export --to parquet")``; MissingExtra if it is not installed."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        missing = missing_extra(error, feature)
+        if missing is None:
+            raise
+        raise missing from None
