@@ -1,7 +1,9 @@
 """cosim report: one self-contained HTML page, rendered in a real headless browser.
 
-The browser test needs Debian's Chromium (``apt-get install -y chromium``) and the Python package
-``playwright`` (in the ``test`` extra), which drives it; it fails, never skips, when either is missing.
+The browser tests need Debian's Chromium (``apt-get install -y chromium``) and the Python package
+``playwright`` (in the ``test`` extra), which drives it; they fail, never skip, when either is missing.
+The page of every built-in scenario is measured at a laptop's and a phone's width: nothing wider
+than the screen, names as the log writes them, units on the numbers that have one.
 """
 
 from __future__ import annotations
@@ -13,10 +15,12 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
+from markupsafe import escape
 from mcap.writer import Writer
 
 from cosim import scenario
 from cosim.analysis import report as report_module
+from cosim.analysis.metrics import compute_metrics
 from cosim.analysis.plot import plot
 from cosim.analysis.report import report
 from cosim.cli import main
@@ -35,7 +39,7 @@ FLAGS = [
     "--disable-sync",
 ]
 SCREENS = {
-    "laptop": {"viewport": {"width": 1366, "height": 768}},
+    "laptop": {"viewport": {"width": 1280, "height": 800}},
     "phone": {
         "viewport": {"width": 390, "height": 844},
         "device_scale_factor": 3,
@@ -68,10 +72,12 @@ def test_the_page_is_self_contained_with_every_figure_inlined(log, page, tmp_pat
     assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in text
     assert not re.search(r"""(src|href)\s*=\s*["'](?!data:|#)|url\(|@import""", text)  # nothing to fetch
     images = re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
-    assert len(images) == len(plot(log, tmp_path)) == 4
+    drawn = {path.stem for path in plot(log, tmp_path)}
+    assert len(images) == len(drawn) and {"estimates", "state_errors", "error", "faults", "weights"} <= drawn
     assert all(base64.b64decode(data).startswith(b"\x89PNG\r\n\x1a\n") for data in images)
-    for name in ("tac2024-s1-constant", "adaptive", "uniform", "rms pre fault"):
+    for name in ("tac2024-s1-constant", "adaptive", "uniform", "RMS before fault", "/can/EST_adaptive_0"):
         assert name in text
+    assert all(str(escape(report_module.CAPTIONS[stem])) in text for stem in drawn)  # each says what it shows
 
 
 def test_every_metric_of_the_dict_gets_a_cell(log, tmp_path, monkeypatch):
@@ -83,11 +89,15 @@ def test_every_metric_of_the_dict_gets_a_cell(log, tmp_path, monkeypatch):
         "warnings": ["careful"],
     }
     monkeypatch.setattr(report_module, "metrics", lambda path: values)
-    monkeypatch.setattr(report_module, "_figures", lambda path: ([], ""))
+    monkeypatch.setattr(report_module, "_figures", lambda path: ([], "", None))
+    values["novel"] = {"x": {"delay_s": 1.5, "per_hour": 2}}
+    values["novel_scalar_s"] = 0.25
     text = report(log, tmp_path / "r.html").read_text()
-    assert "brand new metric" in text and "0.1235" in text
-    assert "estimators · per_fault" in text and "a · f1" in text and ">2.5<" in text
-    assert "bus · by_id" in text and ">7<" in text and "careful" in text
+    assert "0.1235" in text and "careful" in text and ">25.00 %<" in text  # the load, in percent
+    assert ">7<" in text  # frames of 0x080
+    assert ">brand_new_metric<" in text and "a · per_fault" in text and ">f1<" in text and ">2.5<" in text
+    assert ">novel<" in text and ">delay_s<" in text and ">1.5 s<" in text  # unknown metrics, names as they are
+    assert ">novel_scalar_s<" in text and ">0.25 s<" in text
 
 
 def test_a_log_of_another_program_gives_a_page_that_says_what_is_missing(tmp_path):
@@ -100,7 +110,7 @@ def test_a_log_of_another_program_gives_a_page_that_says_what_is_missing(tmp_pat
         writer.add_message(channel, log_time=0, data=b"{}", publish_time=0)
         writer.finish()
     text = report(foreign, tmp_path / "foreign.html").read_text()
-    assert "no <code>cosim.run</code> metadata" in text and "no figures" in text
+    assert "no <code>cosim.run</code> metadata" in text and "no figures" in text and "/other" in text
 
 
 def test_a_missing_log_is_one_error_line(tmp_path, capsys):
@@ -118,47 +128,136 @@ def _playwright():
     return sync_playwright
 
 
+MEASURE = """async () => {
+    const images = [...document.images];
+    await Promise.all(images.map(image => image.decode()));
+    const width = window.innerWidth;
+    const wide = [...document.querySelectorAll("main *")]
+        .filter(e => e.getClientRects().length && e.getBoundingClientRect().right > width + 0.5)
+        .map(e => e.tagName + " " + (e.textContent || "").slice(0, 40));
+    const cells = [...document.querySelectorAll("table")].map(table => {
+        const heads = [...table.querySelectorAll("thead th")].map(th => th.textContent);
+        return [...table.querySelectorAll("tbody tr")].map(tr =>
+            [...tr.children].map((cell, i) => [heads[i] || "", cell.textContent]));
+    });
+    return {
+        images: images.map(image => ({natural: image.naturalWidth, shown: image.getBoundingClientRect().width})),
+        scrollWidth: document.documentElement.scrollWidth, width,
+        fontSize: parseFloat(getComputedStyle(document.body).fontSize),
+        tables: document.querySelectorAll("table").length, wide, cells,
+        text: document.body.textContent,
+    };
+}"""
+
+#: Columns whose numbers are times (s after the start or the onset).
+SECONDS = {
+    "starts",
+    "ends",
+    "first active",
+    "cleared",
+    "peak after onset",
+    "recovery time",
+    "detection delay",
+    "isolation delay",
+}
+
+
+def check_page(tab, page: Path, screen: str, metrics: dict) -> list[str]:
+    """Load the page in ``tab``; returns what is wrong with it at this screen's width."""
+    problems: list[str] = []
+    requests: list[str] = []
+    tab.on(
+        "console", lambda m: problems.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None
+    )
+    tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+    tab.on("request", lambda r: requests.append(r.url))
+    tab.goto(page.as_uri(), wait_until="load")
+    layout = tab.evaluate(MEASURE)
+    width = SCREENS[screen]["viewport"]["width"]
+    if [url for url in requests if not url.startswith("data:")] != [page.as_uri()]:
+        problems.append(f"fetched more than the page: {requests}")
+    if layout["width"] != width or layout["scrollWidth"] > width:
+        problems.append(f"the page is {layout['scrollWidth']} px wide on a {width} px screen")
+    if layout["wide"]:
+        problems.append(f"elements past the right edge: {layout['wide'][:5]}")
+    if not layout["images"] or not all(0 < i["shown"] <= width and i["natural"] > 0 for i in layout["images"]):
+        problems.append(f"figures missing or wider than the screen: {layout['images']}")
+    if layout["fontSize"] < 14:
+        problems.append(f"font size {layout['fontSize']} px")
+    for table in layout["cells"]:
+        for row in table:
+            for head, cell in row:
+                if head in SECONDS and re.fullmatch(r"-?[\d.e+-]+", cell):
+                    problems.append(f"{head} {cell!r}: a time without its unit")
+                if head in ("bus load", "bus load, worst-case bit stuffing") and not cell.endswith("%"):
+                    problems.append(f"{head} {cell!r}: not a percentage")
+    for topic in metrics["channels"]:
+        if topic not in layout["text"]:
+            problems.append(f"topic {topic} is not shown as it is")
+    if re.search(r"/can/\S+ \S+ \d", layout["text"]) or "EST " in layout["text"]:
+        problems.append("a name with its underscores turned into spaces")
+    return problems
+
+
+def _browser(p):
+    return p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS, headless=True)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("screen", SCREENS)
-def test_the_page_renders_in_a_real_browser_on_a_laptop_and_a_phone(page, tmp_path, screen):
+def test_the_page_renders_in_a_real_browser_on_a_laptop_and_a_phone(page, log, tmp_path, screen):
     sync_playwright = _playwright()
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS, headless=True)
+        browser = _browser(p)
         try:
-            context = browser.new_context(**SCREENS[screen])
-            tab = context.new_page()
-            problems, requests = [], []
-            tab.on(
-                "console",
-                lambda m: problems.append(f"console {m.type}: {m.text}") if m.type in ("error", "warning") else None,
-            )
-            tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
-            tab.on("requestfailed", lambda r: problems.append(f"request failed: {r.url[:80]}"))
-            tab.on("request", lambda r: requests.append(r.url))
-            tab.goto(page.as_uri(), wait_until="load")
-            layout = tab.evaluate("""async () => {
-                const images = [...document.images];
-                await Promise.all(images.map(image => image.decode()));
-                return {
-                    images: images.map(image => ({
-                        natural: image.naturalWidth, shown: image.getBoundingClientRect().width,
-                    })),
-                    scrollWidth: document.documentElement.scrollWidth, width: window.innerWidth,
-                    fontSize: parseFloat(getComputedStyle(document.body).fontSize),
-                    tables: document.querySelectorAll("table").length,
-                };
-            }""")
+            tab = browser.new_context(**SCREENS[screen]).new_page()
+            problems = check_page(tab, page, screen, compute_metrics(log))
+            layout = tab.evaluate(MEASURE)
             shot = tmp_path / f"{screen}.png"
             tab.screenshot(path=str(shot), full_page=True)
         finally:
             browser.close()
     assert problems == []
-    assert [url for url in requests if not url.startswith("data:")] == [page.as_uri()]  # the page, nothing else
-    assert len(layout["images"]) == 4 and all(i["natural"] > 0 for i in layout["images"])  # decoded
+    assert layout["tables"] >= 5
     width = SCREENS[screen]["viewport"]["width"]
-    assert layout["width"] == width and layout["scrollWidth"] <= width  # no sideways scrolling of the page
-    assert all(0 < i["shown"] <= width for i in layout["images"])  # figures fit the screen
-    assert layout["fontSize"] >= 14 and layout["tables"] >= 5
     pixels = matplotlib.image.imread(shot)
     assert pixels.shape[1] == width * SCREENS[screen].get("device_scale_factor", 1)
     assert pixels.shape[0] > 3 * pixels.shape[1] and np.std(pixels) > 0.05  # a long page with content, not blank
+
+
+@pytest.fixture(scope="module")
+def every_page(tmp_path_factory) -> dict[str, tuple[Path, dict]]:
+    """The report of a short run of every built-in scenario, with its metrics."""
+    folder = tmp_path_factory.mktemp("pages")
+    pages = {}
+    for name in scenario.builtin_names():
+        loaded = scenario.load(name)
+        duration = 3.0 if name == "three-tank-reconciliation" else 1.0
+        short = LoadedScenario(
+            loaded.scenario.with_overrides(duration=duration), f"{name} ({duration:g} s)", loaded.text
+        )
+        result = run(short, folder / f"{name}.mcap", interface="virtual")
+        assert result.status == "completed", name
+        pages[name] = (report(result.path, folder / f"{name}.html"), compute_metrics(result.path))
+    return pages
+
+
+@pytest.mark.slow
+def test_the_page_of_every_builtin_scenario_fits_a_laptop_and_a_phone(every_page):
+    sync_playwright = _playwright()
+    found = {}
+    with sync_playwright() as p:
+        browser = _browser(p)
+        try:
+            for screen in SCREENS:
+                context = browser.new_context(**SCREENS[screen])
+                for name, (page, metrics) in every_page.items():
+                    tab = context.new_page()
+                    problems = check_page(tab, page, screen, metrics)
+                    if problems:
+                        found[f"{name} on a {screen}"] = problems
+                    tab.close()
+                context.close()
+        finally:
+            browser.close()
+    assert found == {}
