@@ -1,5 +1,5 @@
 """The logs open in MCAP viewers: two independent MCAP implementations read every message the
-official Python reader reads, and the shipped Foxglove layout plots topics and fields a real log has.
+official Python reader reads (the layouts Foxglove opens them with are tested in tests/test_foxglove.py).
 
 - pybag (PyPI ``pybag-sdk``, MIT, its own MCAP parser: no code shared with ``mcap``), in the test
   extra: always runs.
@@ -30,7 +30,6 @@ from cosim.scenario import LoadedScenario, load
 from tests.conftest import ROOT
 
 TS_DIR = ROOT / "tests" / "mcap_ts"
-LAYOUT = ROOT / "docs" / "foxglove-layout.json"
 
 
 def run_short(name: str, duration: float, out: Path) -> Path:
@@ -170,37 +169,3 @@ def test_the_typescript_reader_of_foxglove_reads_what_the_official_reader_reads(
     )
     seen.pop("profile")
     assert seen == read_with_mcap(log)
-
-
-# -- the Foxglove layout ---------------------------------------------------------------------------
-
-
-def layout_paths(layout: dict) -> list[str]:
-    return [p["value"] for panel in layout["configById"].values() for p in panel.get("paths", [])]
-
-
-def panels_in_tree(node) -> list[str]:
-    if isinstance(node, str):
-        return [node]
-    return panels_in_tree(node["first"]) + panels_in_tree(node["second"])
-
-
-def test_the_foxglove_layout_plots_estimates_against_truth_from_fields_a_real_log_has(tmp_path):
-    layout = json.loads(LAYOUT.read_text())
-    assert sorted(panels_in_tree(layout["layout"])) == sorted(layout["configById"])
-    assert all(key.startswith("Plot!") for key in layout["configById"])
-    paths = layout_paths(layout)
-    assert any(p.startswith("/truth/state.") for p in paths) and any(p.startswith("/can/EST_") for p in paths)
-    log = run_short("masses-bias", 0.2, tmp_path / "default.mcap")  # the layout is for the default scenario
-    fields: dict[str, dict] = {}
-    with open(log, "rb") as stream:
-        for _, channel, message in make_reader(stream).iter_messages():
-            fields.setdefault(channel.topic, json.loads(message.data))
-    for value in paths:
-        topic, _, field = value.partition(".")
-        assert topic in fields, f"{value}: no topic {topic} in a log of the default scenario"
-        node = fields[topic]
-        for key in field.split("."):
-            assert isinstance(node, dict) and key in node, f"{value}: no field {field} in {topic}"
-            node = node[key]
-        assert isinstance(node, (int, float)), f"{value} is not a number to plot"

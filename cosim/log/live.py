@@ -8,7 +8,9 @@ registers, with the same JSON Schema, and publishes every message the log writes
 ``speed`` (``cosim replay LOG --foxglove``).
 
 Messages are stamped at ``start_ns`` plus their simulated time: the run's wall-clock start, so
-Foxglove's clock shows the time of day the run happened. Each sink has a foxglove ``Context`` of
+Foxglove's clock shows the time of day the run happened. What the log writes before a viewer has
+subscribed (the run's start event, say) is held and published once one has (``wait_for_viewer``),
+so a viewer the run waited for misses nothing. Each sink has a foxglove ``Context`` of
 its own, so two servers in one process do not mix their channels. The server keeps up to
 ``BACKLOG`` messages per client; a client slower than the run loses the oldest (the log loses
 nothing).
@@ -75,6 +77,9 @@ class FoxgloveSink:
         self.host = host
         self.port = self.server.port
         self._channels: list[Any] = []
+        # What the log writes before a viewer has subscribed (the run's start event, warnings) is
+        # held and published once one has, so that a viewer that was waited for misses nothing.
+        self._held: list[tuple[Any, int, Any]] | None = []
 
     @property
     def url(self) -> str:
@@ -103,8 +108,18 @@ class FoxgloveSink:
 
     def write(self, channel: Any, time_ns: int, payload: Any) -> None:
         """Publish one message at the run's start plus its simulated time ``time_ns``."""
+        if self._held is not None:
+            if not self._subscribed.is_set():
+                self._held.append((channel, time_ns, payload))
+                return
+            self._release()
         if channel.has_sinks():
             channel.log(dumps(payload), log_time=self.start_ns + time_ns)
+
+    def _release(self) -> None:
+        held, self._held = self._held or [], None
+        for channel, time_ns, payload in held:
+            self.write(channel, time_ns, payload)
 
     # -- the viewer ------------------------------------------------------------------------------
 
@@ -116,12 +131,17 @@ class FoxgloveSink:
         deadline = time.monotonic() + timeout
         while not self._subscribed.wait(min(0.1, max(0.0, deadline - time.monotonic()))):
             if time.monotonic() >= deadline or (interrupted is not None and interrupted()):
+                self._release()
                 return False
         time.sleep(settle)
+        self._release()
         return True
 
-    def close(self) -> None:
-        """Stop serving: close the channels (clients see them go) and the server."""
+    def close(self, linger: float = 0.5) -> None:
+        """Stop serving: after ``linger`` seconds for subscribed clients to take what the server
+        still holds for them, close the channels (clients see them go) and the server."""
+        if self.subscriptions and linger > 0:
+            time.sleep(linger)
         for channel in self._channels:
             channel.close()
         self._channels.clear()
