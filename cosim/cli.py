@@ -232,10 +232,10 @@ def cmd_node(args: argparse.Namespace) -> int:
         if spec.name != args.estimator:
             raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
     else:
-        from cosim.bus import registry
+        from cosim.bus.monitor import find_run
         from cosim.run.node import NodeSpec
 
-        info = registry.find(args.run)
+        info = find_run(args.run, f"cosim node {args.estimator}")
         if args.estimator not in info.get("nodes", {}):
             raise CosimError(
                 f"the running co-simulation ({info['scenario']}) expects no external node {args.estimator!r}; "
@@ -647,6 +647,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 def cmd_dbc(args: argparse.Namespace) -> int:
     from cosim import scenario
 
+    _check_scenario_name(args.scenario)
     text = scenario.load(args.scenario).scenario.codec().dbc
     if args.out:
         Path(args.out).write_text(text)

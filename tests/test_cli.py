@@ -79,3 +79,86 @@ def test_bad_output_paths_and_seeds_are_one_line_errors(tmp_path):
         result = run_cli(*args)
         assert result.returncode == 1 and "Traceback" not in result.stderr, args
         assert result.stderr.strip().splitlines()[-1].startswith("error: "), args
+
+
+# -- no surprises ---------------------------------------------------------------------------------
+
+
+def test_scenarios_json_lists_every_builtin_scenario(capsys):
+    from cosim.scenario import builtin_names
+
+    assert main(["scenarios", "--json"]) == 0
+    listing = json.loads(capsys.readouterr().out)
+    assert [s["name"] for s in listing] == builtin_names()
+    default = next(s for s in listing if s["default"])
+    assert default["name"] == "masses-bias" and default["estimators"] == ["uniform", "kalman"]
+    assert all(s["error"] is None and s["duration_s"] > 0 and s["bus"] in ("CAN FD", "classic CAN") for s in listing)
+
+
+def test_a_misspelt_scenario_gets_the_near_names(capsys):
+    assert main(["run", "masses-bais"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert err.startswith("error: no built-in scenario 'masses-bais': did you mean masses-bias")
+    assert err.strip().endswith("? ('cosim scenarios' lists the built-in ones)")
+    assert main(["dbc", "vessel-falt-T1"]) == 1
+    assert "did you mean vessel-fault-T1" in capsys.readouterr().err
+
+
+def test_options_that_would_do_nothing_are_errors(capsys):
+    assert main(["run", "--speed", "2", "--interface", "virtual"]) == 1
+    err = capsys.readouterr().err
+    assert "--speed 2: only in realtime mode (add --mode realtime); masses-bias runs in lockstep" in err
+    assert main(["run", "--interface", "virtual", "--port", "4000"]) == 1
+    assert "--port: only for the udp_multicast interface, not virtual" in capsys.readouterr().err
+
+
+def test_run_json_prints_the_summary(tmp_path, capsys):
+    out = tmp_path / "r.mcap"
+    assert main(["run", "--interface", "virtual", "--set", "duration=0.5", "-q", "--json", "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["path"] == str(out) and summary["status"] == "completed" and summary["ticks"] == 50
+    assert summary["frames"] > 500 and summary["lost"] == 0 and summary["realtime_factor"] > 0
+    assert set(summary) >= {"path", "status", "ticks", "frames", "lost", "realtime_factor", "wall_time_s", "error"}
+
+
+def test_a_run_whose_bus_cannot_open_does_not_claim_a_log(tmp_path, capsys):
+    out = tmp_path / "never.mcap"
+    code = main(["run", "--interface", "socketcan", "--channel", "cosimnone0", "-q", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and "error:" in err and "Traceback" not in err
+    if not out.exists():
+        assert f"no log was written ({out} does not exist)" in err and "the log up to that point" not in err
+
+
+def test_a_missing_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch):
+    from cosim.extras import MissingExtra, missing_extra
+
+    out = tmp_path / "r.mcap"
+    assert main(["run", "--interface", "virtual", "--set", "duration=0.2", "-q", "--out", str(out)]) == 0
+    capsys.readouterr()
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # as if the export extra were not installed
+    assert main(["export", str(out), "--to", "parquet"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: cosim export --to parquet needs the 'export' extra (pyarrow is not installed): "
+        "pip install 'cosim[export]'"
+    )
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    assert main(["plot", str(out)]) == 1
+    assert "cosim plot needs the 'plot' extra (matplotlib is not installed)" in capsys.readouterr().err
+    error = missing_extra(
+        ModuleNotFoundError("No module named 'cvxpy'", name="cvxpy"), "cosim run three-tank-reconciliation"
+    )
+    assert isinstance(error, MissingExtra) and "needs the 'lmi' extra" in str(error)
+    assert missing_extra(ModuleNotFoundError("x", name="somethingelse"), "cosim run") is None
+
+
+def test_monitor_with_two_runs_names_the_option_that_chooses(tmp_path, capsys, monkeypatch):
+    from cosim.bus.registry import Registration
+
+    monkeypatch.setenv("COSIM_RUNTIME_DIR", str(tmp_path))
+    info = {"scenario": "masses-bias", "bus": {"interface": "virtual", "channel": "x"}}
+    with Registration("aaaa11112222", info), Registration("bbbb33334444", info):
+        assert main(["monitor"]) == 1
+    err = capsys.readouterr().err
+    assert "2 co-simulations are running" in err and "choose one with --run ID (e.g. cosim monitor --run" in err

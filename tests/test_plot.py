@@ -37,3 +37,63 @@ def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
     ]
     written = {path.name: path for path in plot(log, tmp_path / "figs")}
     assert "residual.png" in written and written["residual.png"].stat().st_size > 10_000
+
+
+def test_figures_come_as_png_svg_or_pdf_with_units_named_legends_and_nothing_cut(tmp_path: Path, capsys):
+    import matplotlib.image
+    import numpy as np
+
+    from cosim.scenario import LoadedScenario
+
+    log = tmp_path / "run.mcap"
+    scenario = load("masses-bias").scenario.model_copy(update={"duration": 6.0})
+    Run(LoadedScenario(scenario, "masses-bias (6 s)", ""), log, interface="virtual").execute()
+    for fmt in ("svg", "pdf"):
+        assert main(["plot", str(log), "--out", str(tmp_path / fmt), "--format", fmt]) == 0
+    written = {Path(line).name for line in capsys.readouterr().out.split()}
+    names = ("estimates", "state_errors", "error", "faults", "bias_effect")
+    assert written == {f"{n}.{fmt}" for n in names for fmt in ("svg", "pdf")}
+    assert all((tmp_path / "pdf" / f"{n}.pdf").read_bytes().startswith(b"%PDF") for n in names)
+    svg = (tmp_path / "svg" / "estimates.svg").read_text()  # text stays text: readable, searchable
+    for label in (
+        "x1 [m]",
+        "v2 [m/s]",
+        "time t [s]",
+        "uniform (pseudoinverse): x̂",
+        "kalman (kalman): x̂",
+        "true state x",
+    ):
+        assert label in svg, label
+    assert "|x − x̂| (mixes m, m/s)" in (tmp_path / "svg" / "error.svg").read_text()
+    assert "faults.fault.x1_minus_x2" in (tmp_path / "svg" / "faults.svg").read_text()
+    assert "CreationDate" not in (tmp_path / "pdf" / "error.pdf").read_bytes().decode("latin-1")  # reproducible
+
+    widths = {}
+    for dpi in (100, 200):
+        assert main(["plot", str(log), "--out", str(tmp_path / f"png{dpi}"), "--dpi", str(dpi)]) == 0
+        pixels = matplotlib.image.imread(tmp_path / f"png{dpi}" / "estimates.png")
+        widths[dpi] = pixels.shape[1]
+        edge = np.concatenate(
+            [
+                pixels[:3].reshape(-1, 4),
+                pixels[-3:].reshape(-1, 4),
+                pixels[:, :3].reshape(-1, 4),
+                pixels[:, -3:].reshape(-1, 4),
+            ]
+        )
+        assert np.all(edge[:, :3] > 0.99)  # a white margin all round: nothing drawn is cut at the edge
+    assert abs(widths[200] / widths[100] - 2) < 0.02
+
+
+def test_a_closed_loop_without_reconfiguration_does_not_promise_one(tmp_path: Path):
+    from cosim.analysis.plot import plot
+    from cosim.scenario import LoadedScenario
+
+    log = tmp_path / "vessel.mcap"
+    scenario = load("vessel-nominal").scenario.model_copy(update={"duration": 3.0})
+    Run(LoadedScenario(scenario, "vessel-nominal (3 s)", ""), log, interface="virtual").execute()
+    written = {p.name: p for p in plot(log, tmp_path / "figs", fmt="svg")}
+    trajectory = written["trajectory.svg"].read_text()
+    assert "reconfigur" not in trajectory and "fault" not in trajectory  # it has neither
+    for label in ("x [m]", "psi [rad]", "y_dot [m/s]", "r [rad/s]"):
+        assert label in trajectory, label

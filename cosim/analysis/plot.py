@@ -629,8 +629,11 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
                 events(ax, label=True)
                 finish(ax, f"{state}{series.unit(state)}", legend=False)
             figure_legend(fig, cells)
-            happened = "faults dotted" + (", reconfiguration dashed" if reconfigured_at is not None else "")
-            save(fig, "trajectory", f"true state of the closed loop ({happened})")
+            marks = [
+                *(["fault onsets dotted"] if series.faults else []),
+                *(["reconfiguration dashed"] if reconfigured_at is not None else []),
+            ]
+            save(fig, "trajectory", "true state of the closed loop" + (f" ({', '.join(marks)})" if marks else ""))
         return written
 
 

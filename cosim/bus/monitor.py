@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -12,6 +13,7 @@ from rich.text import Text
 from cosim.bus import registry
 from cosim.bus.client import Client
 from cosim.bus.codec import Decoded
+from cosim.errors import CosimError
 
 
 def _table(latest: dict[str, Decoded], header: str) -> Group:
@@ -31,9 +33,24 @@ def _table(latest: dict[str, Decoded], header: str) -> Group:
     return Group(Text(header), table)
 
 
+def find_run(run: str | None, command: str) -> dict[str, Any]:
+    """The running co-simulation ``run`` (an id or its start) names, or the only one; when several
+    run and none is named, the error lists them and says how to choose: ``<command> --run ID``."""
+    runs = registry.active()
+    if run is None and len(runs) > 1:
+        listing = "; ".join(
+            f"{info['id']} ({info['scenario']}, {info['bus']['interface']} {info['bus']['channel']})" for info in runs
+        )
+        raise CosimError(
+            f"{len(runs)} co-simulations are running: {listing}; choose one with --run ID "
+            f"(e.g. {command} --run {runs[-1]['id']}; the start of an id is enough)"
+        )
+    return registry.find(run)
+
+
 def monitor(run: str | None, console: Console) -> int:
     """Attach to the running co-simulation and show its frames until it stops (or Ctrl-C)."""
-    info = registry.find(run)
+    info = find_run(run, "cosim monitor")
     header = f"{info['scenario']} (run {info['id']}) on {info['bus']['interface']} {info['bus']['channel']}"
     latest: dict[str, Decoded] = {}
     frames, started, shown = 0, time.monotonic(), 0.0
