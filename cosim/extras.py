@@ -26,6 +26,8 @@ EXTRAS: dict[str, tuple[str, ...]] = {
 }
 #: Top-level module → its extra.
 MODULE_EXTRA = {module: extra for extra, modules in EXTRAS.items() for module in modules}
+#: Top-level module → the package that installs it, where the names differ.
+PACKAGE = {"foxglove": "foxglove-sdk"}
 
 
 class MissingExtra(CosimError):
@@ -33,7 +35,8 @@ class MissingExtra(CosimError):
 
     def __init__(self, feature: str, extra: str, module: str) -> None:
         super().__init__(
-            f"{feature} needs the '{extra}' extra ({module} is not installed): pip install 'cosim[{extra}]'"
+            f"{feature} needs the '{extra}' extra ({PACKAGE.get(module, module)} is not installed): "
+            f"pip install 'cosim[{extra}]'"
         )
         self.feature, self.extra, self.module = feature, extra, module
 
