@@ -24,7 +24,7 @@ only until the tick is complete (or ``WINDOW`` ticks old), then scored and dropp
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,7 @@ from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
 from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
 from cosim.log.reader import LogReader
-from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE, carried_tick
+from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, STATE, carried_tick
 from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
@@ -99,6 +99,8 @@ class _Run:
         self.lost_by_sender = (
             {name: c.lost + c.runner_frames_missed for name, c in result.senders.items()} if result else {}
         )
+        self.late_by_sender = {name: c.late for name, c in result.senders.items()} if result else {}
+        self.result_ticks = result.ticks if result else None
         self.known = records.run is not None
         if records.run is None:
             self.warnings.append(
@@ -180,6 +182,9 @@ class _Scorer:
         self.bus = _BusScore(run)
         self.lost_events = 0
         self.misses: dict[str, int] = defaultdict(int)
+        self.foreign: Counter[str] = Counter()  # kind -> arrivals that do not belong (from /cosim/foreign)
+        self.foreign_reasons: Counter[str] = Counter()
+        self.foreign_ids: Counter[str] = Counter()
         self.broken: set[str] = set()
         self.first_ns: int | None = None
         self.last_ns: int | None = None
@@ -199,6 +204,12 @@ class _Scorer:
                     self.lost_events += int(msg.get("count", 1))
             elif topic == DEADLINE_MISSES:
                 self.misses[str(msg["node"])] += 1
+            elif topic == FOREIGN:
+                count = int(msg.get("count", 1))
+                self.foreign[str(msg["kind"])] += count
+                self.foreign_reasons[str(msg["reason"])] += count
+                if msg.get("kind") == "frame" and isinstance(msg.get("id"), int):
+                    self.foreign_ids[f"0x{msg['id']:03X}"] += count
             elif self.expected_parts and self.run.dt_ns:
                 self._part(topic, log_time, msg, self.run.dt_ns)
         except (KeyError, TypeError, ValueError) as error:
@@ -486,7 +497,7 @@ class _BusScore:
         if self.sample_time:
             self.peak = max(self.peak, self.tick_busy / self.sample_time)
 
-    def report(self, run: _Run, ticks: int, lost: int, misses: dict[str, int]) -> dict[str, Any]:
+    def report(self, run: _Run, ticks: int, lost: int, misses: dict[str, int], scorer: _Scorer) -> dict[str, Any]:
         span = ticks * self.sample_time if self.sample_time else 0.0
         known = bool(self.bitrate) and span > 0
         deadline = run.deadline_misses if run.deadline_misses is not None else sum(misses.values())
@@ -501,8 +512,15 @@ class _BusScore:
             "peak_tick_load": self.peak if known else None,
             "lost": lost,
             "lost_by_sender": run.lost_by_sender,
+            "late_by_sender": run.late_by_sender,
             "deadline_misses": deadline,
             "deadline_misses_by_node": dict(sorted(misses.items())),
+            "foreign": {
+                "datagrams": scorer.foreign["datagram"],
+                "frames": scorer.foreign["frame"],
+                "by_reason": dict(sorted(scorer.foreign_reasons.items())),
+            },
+            "foreign_frames": dict(sorted(scorer.foreign_ids.items())),
         }
 
 
@@ -514,6 +532,8 @@ def _report(
 ) -> dict[str, Any]:
     dt = run.sample_time
     ticks = scorer.ticks if run.known else channels.get(STATE, 0)
+    if run.result_ticks is not None:  # the ticks the run completed (a stopped run logs the truth of one more)
+        ticks = min(ticks, run.result_ticks) if ticks else run.result_ticks
 
     def seconds(k):
         return None if k is None or dt is None else round(k * dt, 9)
@@ -598,7 +618,7 @@ def _report(
         "estimators": estimators,
         "baseline": run.baseline,
         "diagnosis": diagnosis,
-        "bus": scorer.bus.report(run, ticks, lost, scorer.misses) if run.known else None,
+        "bus": scorer.bus.report(run, ticks, lost, scorer.misses, scorer) if run.known else None,
         "missing": missing,
         "warnings": warnings,
     }

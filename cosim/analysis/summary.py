@@ -125,3 +125,16 @@ def render(report: dict[str, Any], console: Console) -> None:
         for frame_id, entry in bus["by_id"].items():
             ids.add_row(frame_id, escape(str(entry["message"])), str(entry["frames"]), str(entry["bits"]))
         console.print(ids)
+        troubled = {name for name, n in {**bus.get("lost_by_sender", {}), **bus.get("late_by_sender", {})}.items() if n}
+        for name in sorted(troubled):
+            console.print(
+                f"[yellow]{escape(name)}: {bus['lost_by_sender'].get(name, 0)} frames lost, "
+                f"{bus['late_by_sender'].get(name, 0)} late[/yellow]"
+            )
+        foreign = bus.get("foreign", {})
+        if foreign.get("datagrams") or foreign.get("frames"):
+            reasons = "; ".join(f"{count} {escape(reason)}" for reason, count in foreign.get("by_reason", {}).items())
+            console.print(
+                f"[yellow]foreign: {foreign['datagrams']} datagrams and {foreign['frames']} frames that do not "
+                f"belong to the run arrived (counted, never used): {reasons}[/yellow]"
+            )

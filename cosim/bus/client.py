@@ -92,6 +92,8 @@ class TickAssembler:
         self.sample_time = sample_time
         self.pending: TickFrames | None = None
         self.lost = 0
+        self.last_sync: int | None = None  # the tick of the last SYNC taken: ticks only go forward
+        self.distrusted = 0  # SYNC frames ignored because they would take the run back
         self.upstream = dict(upstream or {})
         self._heard: dict[str, dict[int, _Heard]] = {node: {} for node in self.upstream}
 
@@ -101,6 +103,10 @@ class TickAssembler:
         if sender in self.upstream:
             self._hear(decoded)
         elif role == SYNC:
+            if self.last_sync is not None and decoded.tick <= self.last_sync:
+                self.distrusted += 1  # an old or repeated tick: not the runner's next SYNC
+                return done
+            self.last_sync = decoded.tick
             if self.pending is not None:
                 self.lost += self.pending.expected - self.pending.received
                 done.append(self._close(self.pending))
@@ -200,6 +206,7 @@ class Client:
         self._owns_bus = owns_bus
         self._published = 0
         self._joined = False
+        self._announced = 0.0
         # Only these frames concern a participant; telling them by id spares decoding the rest
         # (other nodes' frames, and our own frames that come back on udp_multicast).
         self._wanted = {
@@ -221,10 +228,20 @@ class Client:
         return client
 
     def join(self) -> None:
-        """Announce this node (its boot-up heartbeat); the runner waits for it before tick 0."""
+        """Announce this node (its boot-up heartbeat); the runner waits for it before tick 0. Until
+        the first tick arrives, ``announce`` repeats it: a boot-up lost in a burst on the bus
+        costs a second, not the run."""
         if self._node is not None and not self._joined:
             self.bus.send(self.codec.heartbeat(self._node, BOOTUP))
             self._joined = True
+            self._announced = time.monotonic()
+
+    def announce(self, every: float = 0.5) -> None:
+        """Repeat the boot-up heartbeat every ``every`` seconds until the run's first SYNC arrives."""
+        if self._node is not None and self._joined and self.assembler.last_sync is None and not self.stopped:
+            if time.monotonic() - self._announced >= every:
+                self.bus.send(self.codec.heartbeat(self._node, BOOTUP))
+                self._announced = time.monotonic()
 
     def close(self) -> None:
         """Leave the bus (a stopped heartbeat, then the bus is closed if the client opened it)."""
@@ -266,6 +283,7 @@ class Client:
         returns. ``timeout``: give up after that many seconds without a tick."""
         last = time.monotonic()
         while not self.stopped:
+            self.announce()
             for frame in drain(self.bus, _WAIT):
                 for tick in self.feed(frame):
                     last = time.monotonic()

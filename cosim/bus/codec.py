@@ -441,11 +441,17 @@ class Codec:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)
 
     def decode(self, frame: can.Message) -> Decoded | None:
-        """The decoded frame, or None for a frame this database does not describe."""
+        """The decoded frame, or None for a frame this database does not describe; a CodecError for a
+        frame on one of its ids that is not one of its frames (another length, bits cantools refuses)."""
         spec = self.spec_of(frame)
         if spec is None:
             return None
         message = self._messages[spec.name]
+        if len(frame.data) != message.length:  # a frame of another length is no frame of this message
+            raise CodecError(
+                f"frame 0x{frame.arbitration_id:03X} ({spec.name}) has {len(frame.data)} data bytes; the message has "
+                f"{message.length}"
+            )
         try:
             # decode_simple is what decode calls for a message that is not a container (none here);
             # cantools types its values as any signal value, but without decode_choices they are numbers.

@@ -95,6 +95,11 @@ class McapLog:
         if self._sink is not None:
             self._sink.write(self._teed[channel_id], time_ns, payload)
 
+    def flush(self) -> None:
+        """Finish the chunk in progress and put everything written so far in the file: a writer
+        killed outright afterwards loses nothing before this (``cosim recover`` rebuilds the rest)."""
+        self._writer.flush()
+
     def metadata(self, name: str, values: dict[str, str]) -> None:
         self._writer.add_metadata(name, {key: str(value) for key, value in values.items()})
 

@@ -195,6 +195,7 @@ def serve(spec: NodeSpec) -> int:
         node.client.join()
         while not node.client.stopped:
             node.service(timeout=0.5)
+            node.client.announce()
             if os.getppid() != parent:  # the runner died without stopping us
                 return 3
         return 0

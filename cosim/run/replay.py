@@ -135,7 +135,16 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 class LogSource:
     """Ticks of a log: the frames the runner put on the bus, as logged, and the truth, copied."""
 
-    def __init__(self, reader: LogReader, log_codec: Codec, codec: Codec, ticks: int, out: McapLog, path: Path) -> None:
+    def __init__(
+        self,
+        reader: LogReader,
+        log_codec: Codec,
+        codec: Codec,
+        ticks: int,
+        out: McapLog,
+        path: Path,
+        closed_loop: bool = False,
+    ) -> None:
         self.reader, self.codec, self.ticks, self.path = reader, codec, ticks, path
         self._ticks = logged_ticks(reader, log_codec)
         self._truth = {
@@ -143,13 +152,49 @@ class LogSource:
         }  # registered, with their schemas, by the recorder
         self._out = out
         self._logged: LoggedTick | None = None
+        self.closed_loop = closed_loop
 
     def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         logged = self._logged = next(self._ticks, None)
         if logged is None or logged.tick != k:
-            damage = "; ".join(self.reader.warnings) or "the log is damaged"
-            raise CosimError(f"{self.path}: tick {k} is missing from the log ({damage}); the replay stops there")
-        return [(frame, self.codec.decode(frame)) for frame in logged.frames]
+            damage = "; ".join(self.reader.warnings) or "the log holds no more ticks"
+            raise CosimError(f"{self.path}: the log ends at tick {k} ({damage}); the replay stops there")
+        decoded = [(frame, self.codec.decode(frame)) for frame in logged.frames]
+        self._check_complete(k, decoded)
+        return decoded
+
+    def _check_complete(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
+        """A tick the log holds only in part (cut, or a damaged chunk skipped) would leave the node
+        waiting for frames that never come: it ends the replay, saying so."""
+        sync = next((d for _, d in frames if d is not None and d.spec.role == SYNC), None)
+        runner = sum(
+            1
+            for _, d in frames
+            if d is not None and (d.spec.role == SENSOR or (d.spec.role == COMMAND and not self.closed_loop))
+        )
+        announced = None if sync is None else int(sync.values["frames"])
+        problem = None
+        if announced is None:
+            problem = "it has no SYNC frame"
+        elif runner != announced:
+            problem = f"its SYNC announces {announced} frames and the log holds {runner}"
+        elif self.closed_loop:
+            beat = next(
+                (d for _, d in frames if d is not None and d.spec.role == HEARTBEAT and d.spec.sender == CONTROLLER),
+                None,
+            )
+            sent = sum(
+                1
+                for _, d in frames
+                if d is not None and d.spec.sender == CONTROLLER and d.spec.role in (COMMAND, CONTROL)
+            )
+            if beat is None:
+                problem = "the controller's heartbeat closing it is missing"
+            elif int(beat.values["frames"]) != sent:
+                problem = f"the controller announced {int(beat.values['frames'])} frames and the log holds {sent}"
+        if problem is not None:
+            damage = "; ".join(self.reader.warnings) or "the log is cut or damaged there"
+            raise CosimError(f"{self.path}: the log ends at tick {k}: {problem} ({damage}); the replay stops before it")
 
     def advance(self, k: int, session: Session) -> None:
         assert self._logged is not None
@@ -185,6 +230,11 @@ class Replay:
             raw, self.attachments = reader.metadata(), reader.attachments()
             self.ticks = _sync_count(reader)
         self.meta = LogMetadata.read(raw)
+        recorded = (
+            self.meta.result.ticks if self.meta.result is not None else (self.meta.run.ticks if self.meta.run else None)
+        )
+        if recorded is not None and recorded > self.ticks:  # the log lacks ticks its run made: replayed up to there
+            self.ticks = recorded
         run, scenario_record = self.meta.run, self.meta.scenario
         if run is None or scenario_record is None or DBC_ATTACHMENT not in self.attachments:
             raise LogError(
@@ -295,7 +345,7 @@ class Replay:
             self.session = session
             self._write_metadata(session)
             session.begin_log(f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}", plan.warnings)
-            source = LogSource(reader, self.log_codec, plan.codec, self.ticks, session.log, self.log)
+            source = LogSource(reader, self.log_codec, plan.codec, self.ticks, session.log, self.log, self.closed_loop)
 
             def start() -> None:
                 start_participants(plan, session, self.node_spec)

@@ -18,6 +18,7 @@ from uuid import uuid4
 
 from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig, allocate
+from cosim.errors import CodecError, ScenarioError
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
 from cosim.log.writer import LogSink
 from cosim.run.loop import PlantSource, execute, start_participants
@@ -36,6 +37,10 @@ class Run:
 
     def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None, **overrides: Any) -> None:
         self.plan = RunPlan.build(loaded, seed, **overrides)
+        try:  # the first tick's frames, before any process starts: a value outside its bus range is the scenario's
+            PlantSource(self.plan).frames(0)
+        except CodecError as error:
+            raise ScenarioError(f"{loaded.source}: {error}") from None
         self.loaded, self.out = loaded, Path(out)
         self.run_id = uuid4().hex[:12]
         self.bus: BusConfig | None = None

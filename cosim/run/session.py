@@ -58,6 +58,8 @@ _HEALTH = 0.25  # s: how often it asks its participants whether they are still a
 _LEFT_GRACE = 1.0  # s: a participant whose stopped heartbeat is this old and that answers no more has left
 _FOREIGN_RECORDS = 64  # foreign arrivals logged one by one per tick; the rest as counts
 _STOP, _STOP_HURRY = 5.0, 0.5  # s: how long a node may take to exit after the stop command (hurried: 2nd Ctrl-C)
+_FLUSH_SIMULATED, _FLUSH_TICKS = 1.0, 50  # chunks put on disk every 1 s of simulated time and 50 ticks, at least
+_PENDING = 20_000  # frames held unlogged at most, whatever floods the bus
 _LAST_FRAMES = 1.0  # s: how long the frames still arriving after the stop command are taken, at most
 
 
@@ -167,6 +169,8 @@ class Traffic(can.Listener):
         self._sent: Counter[tuple[int, bytes]] = Counter()  # the runner's frames whose echo is still due
         self._sent_ticks: list[list[tuple[int, bytes]]] = []
         self._on_foreign = on_foreign
+        self.current = 0  # the tick whose frames the runner sent last
+        self._distrusted: set[int] = set()  # pending frames found foreign on arrival: logged raw, never counted
 
     def sent(self, frames: list[can.Message]) -> None:
         """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""
@@ -198,6 +202,10 @@ class Traffic(can.Listener):
                     self.joined.add(sender)
                 elif state == STOPPED:
                     self.left[sender] = time.perf_counter()
+                elif state == OPERATIONAL and decoded.tick > self.current:
+                    self._foreign(msg, f"a heartbeat of {sender} closing tick {decoded.tick}, which has not started")
+                    self._distrusted.add(id(msg))
+                    decoded = None
                 elif state == OPERATIONAL:
                     if sender in self.left:  # it answers on: that stopped heartbeat was not its own
                         del self.left[sender]
@@ -228,10 +236,17 @@ class Traffic(can.Listener):
         taken = []
         counter_now = tick % self.codec.tick_modulus
         for frame, decoded in self.pending:
+            if id(frame) in self._distrusted:
+                taken.append((frame, None))
+                continue
             if decoded is None:
                 decoded = self._decode(frame)
             taken.append((frame, decoded))
             if decoded is None:
+                unknown = self.codec.spec_of(frame) is None
+                self._foreign(
+                    frame, "an id outside the run's database" if unknown else "cannot be decoded (its length or bits)"
+                )
                 continue
             sender, role = decoded.spec.sender, decoded.spec.role
             self.received[sender] += 1
@@ -244,6 +259,7 @@ class Traffic(can.Listener):
                 self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
                 self.missed_by[sender] = int(decoded.values["lost"])
         self.pending.clear()
+        self._distrusted.clear()
         for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
             self.recorder.frame(tick, t, t_ns, frame, decoded)
 
@@ -313,6 +329,7 @@ class Session:
         self._foreign_this_tick = 0  # foreign records written in the current tick (at most _FOREIGN_RECORDS)
         self._foreign_more: Counter[tuple[str, str]] = Counter()  # (kind, reason) -> not written one by one
         self._last_foreign: str | None = None  # the latest foreign frame, for the error that follows it
+        self._flushed = 0  # the tick at which the log last put its chunk on disk
 
     def __enter__(self) -> Session:
         stack = self._stack
@@ -405,6 +422,8 @@ class Session:
                 return
             for frame in drain(self.bus, min(_POLL, deadline - now)):
                 self.traffic(frame)
+            if len(self.traffic.pending) > _PENDING:  # a flood: log what came so far, keep memory bounded
+                self.traffic.flush(*self._marker)
             if time.perf_counter() - last_check > _HEALTH:
                 last_check = time.perf_counter()
                 self._check_health()
@@ -487,12 +506,16 @@ class Session:
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
+        self.traffic.current = k
         self.traffic.sent([frame for frame, _ in frames])
         for frame, _ in frames:
             self.bus.send(frame)
         self.traffic.flush(*self._marker)
         self._close_foreign()
         t, t_ns = self.time(k)
+        if k - self._flushed >= _FLUSH_TICKS and t - self.time(self._flushed)[0] >= _FLUSH_SIMULATED:
+            self._flushed = k  # on disk whatever kills the runner later; at ticks, not wall time: deterministic
+            self.log.flush()
         self._marker = (k, t, t_ns)
         for frame, decoded in frames:
             self.recorder.frame(k, t, t_ns, frame, decoded)

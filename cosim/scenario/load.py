@@ -28,6 +28,10 @@ from estimators.controller import CONTROLLERS
 
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent
 DEFAULT_SCENARIO = "masses-bias"
+#: Limits that keep every derived quantity finite and exact (ticks, t_k in nanoseconds).
+MIN_SAMPLE_TIME = 1e-6
+MAX_TICKS = 1e9
+MAX_NESTING = 32
 
 
 @dataclass(frozen=True)
@@ -74,6 +78,11 @@ def parse(text: str, source: str = "<scenario>") -> Scenario:
 
 def validate(data: dict[str, Any], source: str) -> Scenario:
     """Validate scenario data (a file's TOML, parsed); raises one ScenarioError listing every problem."""
+    if (deep := _too_deep(data)) is not None:
+        raise ScenarioError(
+            f"{source}: {deep}: nested more than {MAX_NESTING} tables or lists deep; a scenario needs "
+            f"far fewer (flatten the sum of waveforms)"
+        )
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as error:
@@ -83,6 +92,22 @@ def validate(data: dict[str, Any], source: str) -> Scenario:
     if problems:
         raise ScenarioError(_report(source, problems))
     return scenario
+
+
+def _too_deep(data: Any, path: str = "", depth: int = 0) -> str | None:
+    """The path of a value nested deeper than MAX_NESTING (None if none is): checked before
+    pydantic, whose validation would recurse that deep."""
+    if depth > MAX_NESTING:
+        return path or "(top level)"
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    for key, value in items:
+        if isinstance(value, (dict, list)):
+            found = _too_deep(
+                value, f"{path}[{key}]" if isinstance(key, int) else f"{path}.{key}" if path else str(key), depth + 1
+            )
+            if found is not None:
+                return found
+    return None
 
 
 def _report(source: str, problems: list[str]) -> str:
@@ -113,6 +138,17 @@ def check(s: Scenario) -> list[str]:
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 problems.append(f"{field}: {info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
 
+    if s.sample_time < MIN_SAMPLE_TIME:
+        problems.append(
+            f"sample_time: {s.sample_time:g} s is below {MIN_SAMPLE_TIME:g} s, the shortest tick the runner keeps"
+        )
+        return problems
+    if s.duration / s.sample_time > MAX_TICKS:
+        problems.append(
+            f"duration: {s.duration:g} s at sample_time {s.sample_time:g} s makes {s.duration / s.sample_time:.3g} "
+            f"ticks; at most {MAX_TICKS:g} (a shorter duration, or a longer sample time)"
+        )
+        return problems
     if s.sample_time > s.duration:
         problems.append(f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s")
     elif abs(s.duration / s.sample_time - round(s.duration / s.sample_time)) > 1e-9 * s.duration / s.sample_time:

@@ -116,6 +116,11 @@ def apply(loaded: LoadedScenario, settings: Mapping[str, Any] | Iterable[tuple[s
     data = tomllib.loads(loaded.text)
     for key, value in items:
         set_path(data, key, value)
-    given = ", ".join(f"{key}={value!r}" for key, value in items)
+    given = ", ".join(f"{key}={_short(value)}" for key, value in items)
     scenario = validate(data, f"{loaded.source} with --set {given}")
     return replace(loaded, scenario=scenario, settings=(*loaded.settings, *items))
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"

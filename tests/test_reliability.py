@@ -1,0 +1,410 @@
+"""Nothing on the wire crashes, hangs or silently corrupts a run; every stop leaves a log any reader opens.
+
+Each test here is one of the failures issue 17 found, tried again: a fuzzer throwing datagrams at
+a running co-simulation, unicast and foreign traffic, a transmitter that never stops, a second run
+on the same bus, channels that leave the host, forged control frames, losses in realtime, double
+Ctrl-C, SIGKILL and recovery, damaged logs under replay, scenario values at the limits, the run
+registry's privacy, and a chaos test killing and stopping participants at random ticks.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import socket
+import stat
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import can
+import pytest
+from mcap.reader import make_reader
+
+from cosim import scenario
+from cosim.analysis.metrics import compute_metrics
+from cosim.bus import registry
+from cosim.bus.transport import allocate, open_bus
+from cosim.errors import CosimError, ScenarioError
+from cosim.log.recover import recover
+from cosim.run import Replay, Run, run
+from tests.frame_digests import log_digest
+from tests.snippets import short_scenario
+
+pytestmark = pytest.mark.slow  # every test here runs node processes
+
+
+@pytest.fixture(autouse=True)
+def private_registry(tmp_path, monkeypatch):
+    monkeypatch.setenv("COSIM_RUNTIME_DIR", str(tmp_path / "registry"))
+
+
+def loaded(tmp_path, duration: float, name: str = "masses-bias", **settings):
+    text = short_scenario(scenario.load(name).text, duration)
+    path = tmp_path / f"{name}-{duration:g}.toml"
+    path.write_text(text)
+    base = scenario.load(path)
+    return scenario.apply(base, settings) if settings else base
+
+
+def sender(config):
+    """A raw socket sending to the run's group and port, as any program on the host could."""
+    family = socket.AF_INET6 if ":" in config.channel else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    if family == socket.AF_INET6:
+        sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, (1).to_bytes(4, "little"))
+    else:
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, (0).to_bytes(4, "little"))
+    return sock
+
+
+def fuzz_datagrams(count: int, seed: int = 5) -> list[tuple[str, bytes]]:
+    """Random bytes, truncated and oversized python-can packets, frames with unknown ids and
+    malformed control frames, each labelled with what the runner must count it as."""
+    from can.interfaces.udp_multicast.utils import pack_message
+
+    rng = random.Random(seed)
+    good = pack_message(can.Message(arbitration_id=0x100, data=bytes(8), is_extended_id=False))
+    made = []
+    for i in range(count):
+        kind = i % 5
+        if kind == 0:
+            made.append(("datagram", rng.randbytes(rng.randrange(0, 200))))
+        elif kind == 1:
+            made.append(("datagram", good[: rng.randrange(1, len(good) - 1)]))
+        elif kind == 2:
+            made.append(("datagram", good + rng.randbytes(5000)))  # longer than a receive buffer: truncated
+        elif kind == 3:  # a frame on an id outside the run's database
+            extended = rng.random() < 0.3
+            frame = can.Message(
+                arbitration_id=0x1FFFFFF if extended else rng.choice([0x7F0, 0x5FF]),
+                data=rng.randbytes(rng.randrange(9)),
+                is_extended_id=extended,
+            )
+            made.append(("frame", pack_message(frame)))
+        else:  # a malformed SYNC or NMT (the runner's own ids, wrong lengths)
+            frame = can.Message(
+                arbitration_id=rng.choice([0x000, 0x080]),
+                data=rng.randbytes(rng.choice([1, 3, 7])),
+                is_extended_id=False,
+            )
+            made.append(("frame", pack_message(frame)))
+    return made
+
+
+def test_ten_thousand_foreign_datagrams_change_no_estimate_and_every_one_is_counted(tmp_path):
+    clean = run(loaded(tmp_path, 10.0), tmp_path / "clean.mcap")
+    target = Run(loaded(tmp_path, 10.0), tmp_path / "fuzzed.mcap")
+    datagrams = fuzz_datagrams(10_000)
+    done = threading.Event()
+
+    def fuzz() -> None:
+        sock = sender(target.bus)
+        for _, data in datagrams:
+            sock.sendto(data, (target.bus.channel, target.bus.port))
+            time.sleep(0.0001)
+        done.set()
+
+    started = []
+
+    def progress(p) -> None:
+        if not started and p.tick >= 10:
+            started.append(threading.Thread(target=fuzz))
+            started[0].start()
+
+    result = target.execute(progress, progress_every=0.0)
+    started[0].join()
+    assert done.is_set() and result.status == "completed" and result.frames_lost == 0
+    assert log_digest(result.path) == log_digest(clean.path)  # the estimators' frames are the clean run's
+    bus = compute_metrics(result.path)["bus"]
+    # every one is counted: as a datagram that is no frame, or as a frame the run did not send (a few random
+    # byte strings happen to unpack as python-can frames: an empty msgpack map is a frame of id 0)
+    assert bus["foreign"]["datagrams"] + bus["foreign"]["frames"] == len(datagrams)
+    assert bus["foreign"]["frames"] >= sum(kind == "frame" for kind, _ in datagrams)
+
+
+def test_unicast_and_other_groups_on_the_port_never_reach_the_run():
+    config = allocate("udp_multicast")
+    other = allocate("udp_multicast", port=config.port)  # another group, the same port
+    with open_bus(config) as bus, open_bus(other) as neighbour:
+        unicast = socket.socket(socket.AF_INET6 if ":" in config.channel else socket.AF_INET, socket.SOCK_DGRAM)
+        unicast.sendto(b"hello", ("::1" if ":" in config.channel else "127.0.0.1", config.port))
+        neighbour.send(can.Message(arbitration_id=0x100, data=bytes(2), is_extended_id=False))
+        assert bus.recv(0.3) is None and bus.foreign == 0
+
+
+@pytest.mark.parametrize("pause", [0.0005, 0.0])
+def test_a_run_ends_while_another_program_transmits_without_pause(tmp_path, pause):
+    """2000 frames/s of another program's: the run completes; a flood as fast as a process can send:
+    the run still ends, in bounded time, with its log and result."""
+    target = Run(loaded(tmp_path, 2.0), tmp_path / "chatty.mcap")
+    stop = threading.Event()
+
+    def chatter() -> None:
+        with can.Bus(**target.bus.kwargs()) as bus:
+            while not stop.is_set():
+                bus.send(can.Message(arbitration_id=0x7F0, data=bytes(8), is_extended_id=False))
+                if pause:
+                    time.sleep(pause)
+
+    threads = [threading.Thread(target=chatter)]
+    started = time.perf_counter()
+    try:
+        result = target.execute(on_start=lambda r: threads[0].start())
+    except CosimError:
+        result = target.result
+    finally:
+        stop.set()
+        threads[0].join()
+    elapsed = time.perf_counter() - started
+    assert result is not None and elapsed < 90
+    metrics = compute_metrics(result.path)
+    assert metrics["status"] == result.status and metrics["bus"]["foreign"]["frames"] > 0
+    if pause:
+        assert result.status == "completed"
+
+
+def test_a_second_run_on_the_same_group_and_port_is_refused_before_tick_0(tmp_path):
+    first = Run(loaded(tmp_path, 20.0), tmp_path / "first.mcap")
+    errors = []
+
+    def second(r) -> None:
+        if errors:
+            return
+        try:
+            Run(loaded(tmp_path, 1.0), tmp_path / "second.mcap", channel=r.bus.channel, port=r.bus.port).execute()
+            errors.append(None)
+        except CosimError as error:
+            errors.append(str(error))
+        raise KeyboardInterrupt  # enough: stop the first run
+
+    with pytest.raises(KeyboardInterrupt):
+        first.execute(on_progress=lambda p: second(first) if p.tick > 5 else None, progress_every=0.0)
+    assert errors and errors[0] is not None and "is in use by the running co-simulation" in errors[0]
+    assert not (tmp_path / "second.mcap").exists()  # refused before its log was even opened
+
+
+@pytest.mark.parametrize("channel", ["ff02::1:c05", "ff0e::c05:1"])
+def test_a_channel_that_leaves_the_host_needs_allow_network(tmp_path, channel):
+    with pytest.raises(CosimError, match="go out on the network.*--allow-network"):
+        Run(loaded(tmp_path, 1.0), tmp_path / "x.mcap", channel=channel).execute()
+    assert allocate("udp_multicast", channel, allow_network=True).hop_limit == 1
+
+
+def test_a_forged_stopped_heartbeat_and_a_future_heartbeat_change_nothing(tmp_path):
+    clean = run(loaded(tmp_path, 3.0), tmp_path / "clean.mcap")
+    target = Run(loaded(tmp_path, 3.0), tmp_path / "forged.mcap")
+    sent = []
+
+    def forge(p) -> None:
+        if p.tick > 20 and not sent:
+            with can.Bus(**target.bus.kwargs()) as bus:
+                codec = target.codec
+                bus.send(codec.heartbeat("kalman", 4))  # STOPPED, in kalman's name
+                bus.send(codec.heartbeat("uniform", 5, tick=10**6, frames=2))  # closes a tick far ahead
+            sent.append(True)
+
+    result = target.execute(forge, progress_every=0.0)
+    assert result.status == "completed"
+    assert log_digest(result.path) == log_digest(clean.path)
+    foreign = compute_metrics(result.path)["bus"]["foreign"]
+    assert foreign["frames"] >= 2 and any("has not started" in reason for reason in foreign["by_reason"])
+
+
+def test_a_forged_nmt_stop_ends_the_run_and_the_error_names_the_frame(tmp_path):
+    target = Run(loaded(tmp_path, 10.0), tmp_path / "stopped.mcap")
+
+    def forge(p) -> None:
+        if p.tick == 50:
+            with can.Bus(**target.bus.kwargs()) as bus:
+                bus.send(target.codec.nmt(2))
+
+    with pytest.raises(CosimError) as error:
+        target.execute(forge, progress_every=0.0)
+    assert "a frame the run did not send came before: NMT" in str(error.value)
+    assert compute_metrics(target.out)["status"] == "error"
+
+
+def test_realtime_losses_are_counted_per_sender(tmp_path):
+    """At 50× real time the nodes cannot keep up: whatever estimate is missing from the log is lost or late."""
+    result = Run(loaded(tmp_path, 10.0), tmp_path / "fast.mcap", mode="realtime", speed=50).execute()
+    metrics = compute_metrics(result.path)
+    bus = metrics["bus"]
+    for name, estimator in metrics["estimators"].items():
+        missing_ticks = result.ticks - estimator["ticks_scored"]
+        if missing_ticks > 0:  # two frames per tick (EST_<name>_0 and _1): each missing tick is frames lost or late
+            assert bus["lost_by_sender"][name] + bus["late_by_sender"][name] >= missing_ticks, (name, bus)
+    assert bus["lost"] == result.frames_lost == sum(bus["lost_by_sender"].values())
+
+
+def _cosim(*args, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs
+    )
+
+
+def test_a_double_ctrl_c_still_writes_the_result(tmp_path):
+    for attempt in range(3):
+        out = tmp_path / f"double-{attempt}.mcap"
+        process = _cosim("run", "--out", str(out), "-q")
+        time.sleep(3.0 + attempt * 0.3)
+        process.send_signal(signal.SIGINT)
+        time.sleep(0.05 * attempt)
+        process.send_signal(signal.SIGINT)
+        process.wait(60)
+        metrics = compute_metrics(out)
+        assert metrics["status"] == "interrupted" and "cosim.result" not in " ".join(metrics["missing"])
+
+
+def test_sigkill_then_recover_gives_a_log_every_reader_opens(tmp_path):
+    out = tmp_path / "killed.mcap"
+    process = _cosim("run", "--out", str(out), "-q", start_new_session=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 200_000):  # ticks on disk
+        time.sleep(0.1)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    with pytest.raises(Exception), open(out, "rb") as stream:  # noqa: B017 (the official reader refuses it)
+        list(make_reader(stream).iter_messages())
+    assert compute_metrics(out)["ticks"] > 0  # cosim inspect reads it as far as it goes
+    recovered = recover(out, tmp_path / "fixed.mcap")
+    assert recovered.messages > 1000 and "without its summary" in recovered.damage
+    with open(recovered.path, "rb") as stream:
+        reader = make_reader(stream)
+        assert (
+            sum(1 for _ in reader.iter_messages())
+            == recovered.messages
+            == reader.get_summary().statistics.message_count
+        )
+    time.sleep(2.0)  # the nodes notice their runner is gone
+    assert (
+        subprocess.run(
+            ["pgrep", "-f", f"cosim.cli node.*{process.pid}|cosim-nodes-{process.pid}"], capture_output=True
+        ).returncode
+        == 1
+    )
+    # the next run removes the killed run's node folder and registry entry
+    run(loaded(tmp_path, 0.5), tmp_path / "next.mcap", interface="virtual")
+    import tempfile
+
+    assert not list(Path(tempfile.gettempdir()).glob(f"cosim-nodes-{process.pid}-*")) and registry.active() == []
+
+
+def test_replay_of_a_cut_log_says_where_it_ends(tmp_path):
+    original = run(loaded(tmp_path, 3.0), tmp_path / "original.mcap", interface="virtual").path
+    data = original.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    started = time.perf_counter()
+    with pytest.raises(CosimError, match=r"the log ends at tick \d+"):
+        Replay(cut, tmp_path / "replay.mcap", "kalman", interface="virtual").execute()
+    assert time.perf_counter() - started < 10.0  # not a node timeout
+    assert compute_metrics(tmp_path / "replay.mcap")["status"] == "error"  # and its log says so
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [
+        ({"duration": 1e308}, "at most 1e+09"),
+        ({"sample_time": 5e-324}, "below 1e-06 s"),
+        ({"plant.initial_state.x1": 40.0}, "SENSOR_x1.x1 at tick 0 = 40"),
+        ({"faults[0].value": 50.0, "faults[0].start": 0.0}, "outside its declared range"),
+    ],
+)
+def test_scenario_values_at_the_limits_are_errors_before_any_process_starts(tmp_path, settings, message):
+    with pytest.raises(ScenarioError, match=message.replace("(", r"\(").replace("+", r"\+")):
+        Run(scenario.apply(scenario.load("masses-bias"), settings), tmp_path / "x.mcap")
+
+
+def test_a_deeply_nested_waveform_is_one_line_not_a_traceback():
+    nested: object = 1.0
+    for _ in range(200):
+        nested = {"kind": "sum", "terms": [nested]}
+    with pytest.raises(ScenarioError, match="nested more than 32"):
+        scenario.apply(scenario.load("masses-bias"), {"inputs[0].signal": nested})
+
+
+def test_the_run_registry_is_private_to_its_user(tmp_path):
+    result = []
+    Run(loaded(tmp_path, 0.3), tmp_path / "r.mcap").execute(
+        on_start=lambda r: result.append([(p, stat.S_IMODE(p.stat().st_mode)) for p in registry.directory().iterdir()])
+    )
+    folder_mode = stat.S_IMODE(registry.directory().stat().st_mode)
+    assert folder_mode == 0o700 and all(mode == 0o600 for _, mode in result[0])
+    planted = registry.directory() / "planted.json"
+    planted.write_text(json.dumps({"id": "x", "pid": os.getpid()}))
+    os.chown(planted, 12345, 12345)  # as if another user had written it
+    assert all(info["id"] != "x" for info in registry.active())
+
+
+def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_path):
+    """Kill or stop a random participant (a node, the runner, a client) at a random moment, 50 times:
+    every log opens with cosim inspect and, recovered, with the official reader; the culprit is named;
+    no process and no node folder is left."""
+    rng = random.Random(17)
+    examples = Path(__file__).resolve().parent.parent / "examples"
+    quick = ["--set", "duration=8", "--set", "timing.node_timeout=2"]
+    tally: dict[str, int] = {}
+    for trial in range(50):
+        victim = rng.choice(["node-kill", "node-stop", "runner-kill", "client-kill"])
+        out = tmp_path / f"chaos-{trial}.mcap"
+        if victim == "client-kill":
+            process = _cosim(
+                "run",
+                str(examples / "least-squares-client.toml"),
+                "--out",
+                str(out),
+                "-q",
+                *quick,
+                start_new_session=True,
+            )
+            deadline = time.monotonic() + 30
+            while not registry.active() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            client = subprocess.Popen(
+                [sys.executable, str(examples / "least_squares_client.py")],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            time.sleep(rng.uniform(1.0, 3.0))
+            client.kill()
+            client.wait()
+            _, stderr = process.communicate(timeout=60)
+            if process.returncode == 0:  # the run was over before the client was
+                continue
+            assert "client lsq" in stderr, stderr
+        else:
+            process = _cosim("run", "--out", str(out), "-q", *quick, start_new_session=True)
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 30_000):  # ticking
+                time.sleep(0.05)
+            time.sleep(rng.uniform(0.0, 1.5))
+            if victim == "runner-kill":
+                os.kill(process.pid, signal.SIGKILL)
+                process.wait()
+            else:
+                nodes = subprocess.run(
+                    ["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True, text=True
+                ).stdout.split()
+                if not nodes:  # the run was over already
+                    process.wait(60)
+                    continue
+                os.kill(int(rng.choice(nodes)), signal.SIGKILL if victim == "node-kill" else signal.SIGSTOP)
+                _, stderr = process.communicate(timeout=90)
+                if process.returncode == 0:  # it stopped a node that had finished its last tick
+                    continue
+                assert "node " in stderr and ("exited with status" in stderr or "did not answer tick" in stderr), stderr
+        tally[victim] = tally.get(victim, 0) + 1
+        assert compute_metrics(out)["channels"]  # cosim inspect opens it
+        fixed = recover(out, tmp_path / f"chaos-{trial}-fixed.mcap")
+        with open(fixed.path, "rb") as stream:
+            assert sum(1 for _ in make_reader(stream).iter_messages()) == fixed.messages > 0
+        if victim == "runner-kill":
+            time.sleep(1.5)  # its nodes notice their runner is gone
+        assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
+    assert sum(tally.values()) >= 40, tally
+    print(f"chaos: {tally}")
