@@ -128,6 +128,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         port=args.port,
         mode=args.mode,
         speed=args.speed,
+        allow_network=True if args.allow_network else None,
     )
     s = run.scenario
     console = _console(stderr=True)
