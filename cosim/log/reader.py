@@ -17,9 +17,11 @@ from typing import Any
 import orjson
 import zstandard
 from mcap import records
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.summary import Summary
 from mcap.well_known import SchemaEncoding
 
@@ -147,7 +149,8 @@ class LogReader:
             self._stream.seek(index.chunk_start_offset)
             data = self._stream.read(index.chunk_length)
             try:
-                inner = _chunk_messages(data, index.chunk_length)
+                inner, offsets = _chunk_messages(data, index.chunk_length)
+                damage = _index_damage(index, self._stream.read(index.message_index_length), offsets)
             except READ_ERRORS as error:
                 self.warnings.append(
                     "a damaged chunk was skipped: bytes "
@@ -155,6 +158,13 @@ class LogReader:
                     f"t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s ({error})"
                 )
                 continue
+            if damage is not None:
+                self.warnings.append(
+                    f"the chunk at bytes {index.chunk_start_offset}-{index.chunk_start_offset + index.chunk_length} "
+                    f"(t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s) is intact but "
+                    f"{damage}: "
+                    f"readers that seek by them may miss or misplace messages ('cosim recover' rewrites them)"
+                )
             for message in inner:
                 if wanted is None or message.channel_id in wanted:
                     yield channels.get(message.channel_id, ""), message
@@ -179,17 +189,49 @@ class LogReader:
                 raise
 
 
-def _chunk_messages(data: bytes, length: int) -> list[records.Message]:
-    """The messages of one chunk record (its bytes as the chunk index locates them)."""
+def _chunk_messages(data: bytes, length: int) -> tuple[list[records.Message], dict[int, tuple[int, int]]]:
+    """The messages of one chunk record (its bytes as the chunk index locates them), CRC checked,
+    and where each sits in the chunk's uncompressed records: offset -> (channel id, log time)."""
     if len(data) != length:
         raise EndOfFile(f"the file ends {length - len(data)} bytes into this chunk")
-    buffer = io.BytesIO(data)
-    messages = []
+    stream = ReadDataStream(io.BytesIO(data))
+    if stream.read1() != Opcode.CHUNK:
+        raise McapError("the chunk index points at a record that is not a chunk")
+    stream.read8()
+    inner, size = get_chunk_data_stream(records.Chunk.read(stream), validate_crc=True)
+    messages, offsets = [], {}
+    while inner.count < size:
+        offset = inner.count
+        opcode, record_length = inner.read1(), inner.read8()
+        if opcode == Opcode.MESSAGE:
+            message = records.Message.read(inner, record_length)
+            messages.append(message)
+            offsets[offset] = (message.channel_id, message.log_time)
+        else:
+            inner.read(record_length)
+    return messages, offsets
+
+
+def _index_damage(index: records.ChunkIndex, data: bytes, offsets: dict[int, tuple[int, int]]) -> str | None:
+    """What is wrong with a chunk's message indexes (``data``: their bytes after the chunk), or None.
+
+    The format gives them no CRC: each entry is checked against the message it points at."""
+    stream = ReadDataStream(io.BytesIO(data))
+    entries = bad = 0
     try:
-        for record in StreamReader(buffer, skip_magic=True, validate_crcs=True).records:
-            if isinstance(record, records.Message):
-                messages.append(record)
-    except EndOfFile:
-        if buffer.tell() != length:  # a record ended early: damage, not the end of the chunk
-            raise
-    return messages
+        while stream.count < len(data):
+            opcode, record_length = stream.read1(), stream.read8()
+            if opcode != Opcode.MESSAGE_INDEX:
+                stream.read(record_length)
+                continue
+            found = records.MessageIndex.read(stream)
+            for log_time, offset in found.records:
+                entries += 1
+                bad += offsets.get(offset) != (found.channel_id, log_time)
+    except (McapError, struct.error, EOFError, ValueError) as error:
+        return f"its message indexes cannot be read ({error or type(error).__name__})"
+    if entries != len(offsets):
+        return f"its message indexes list {entries} messages, the chunk holds {len(offsets)}"
+    if bad:
+        return f"{bad} of its {entries} message index entries do not point at their message"
+    return None
