@@ -347,7 +347,7 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
     no process and no node folder is left."""
     rng = random.Random(17)
     examples = Path(__file__).resolve().parent.parent / "examples"
-    quick = ["--set", "duration=8", "--set", "timing.node_timeout=2"]
+    quick = ["--set", "duration=8", "--set", "timing.node_timeout=2", "--set", "timing.join_timeout=10"]
     tally: dict[str, int] = {}
     for trial in range(50):
         victim = rng.choice(["node-kill", "node-stop", "runner-kill", "client-kill"])

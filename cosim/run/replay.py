@@ -230,11 +230,11 @@ class Replay:
             raw, self.attachments = reader.metadata(), reader.attachments()
             self.ticks = _sync_count(reader)
         self.meta = LogMetadata.read(raw)
-        recorded = (
+        made = (
             self.meta.result.ticks if self.meta.result is not None else (self.meta.run.ticks if self.meta.run else None)
         )
-        if recorded is not None and recorded > self.ticks:  # the log lacks ticks its run made: replayed up to there
-            self.ticks = recorded
+        if made is not None and made > self.ticks:  # the log lacks ticks its run made: replayed up to there
+            self.ticks = made
         run, scenario_record = self.meta.run, self.meta.scenario
         if run is None or scenario_record is None or DBC_ATTACHMENT not in self.attachments:
             raise LogError(

@@ -179,7 +179,7 @@ class Traffic(can.Listener):
         keys = [(frame.arbitration_id, bytes(frame.data)) for frame in frames]
         self._sent.update(keys)
         self._sent_ticks.append(keys)
-        if len(self._sent_ticks) > 8:  # an echo later than that was lost on the way: forget it
+        if len(self._sent_ticks) > 256:  # an echo later than that was lost on the way: forget it
             self._sent.subtract(self._sent_ticks.pop(0))
             self._sent += Counter()  # drop counts at zero or below
 
@@ -233,7 +233,7 @@ class Traffic(can.Listener):
 
     def flush(self, tick: int, t: float, t_ns: int) -> None:
         """Account for the frames received during tick k, then log them by arbitration id."""
-        taken = []
+        taken: list[tuple[can.Message, Decoded | None]] = []
         counter_now = tick % self.codec.tick_modulus
         for frame, decoded in self.pending:
             if id(frame) in self._distrusted:
