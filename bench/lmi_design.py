@@ -32,12 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from estimators.lmi import (
-    SensorFaultModel,
-    lft_uio_design,
-    lpv_uio_design,
-    max_spectral_radius,
-)
+from estimators.lmi import SensorFaultModel, lft_uio_design, lpv_uio_design, max_spectral_radius
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
 PAPER_SECONDS = {"lpv": 9 * 3600.0, "lft": 6 * 60.0}

@@ -17,11 +17,7 @@ from estimators.controller import CONTROLLERS, PidController
 from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
 from estimators.pseudoinverse import PseudoinverseObserver
-from estimators.reconciliation import (
-    LftUioReconciliator,
-    LpvUioReconciliator,
-    NoReconciliation,
-)
+from estimators.reconciliation import LftUioReconciliator, LpvUioReconciliator, NoReconciliation
 from estimators.uio import UnknownInputObserver
 
 ESTIMATORS: dict[str, type[Estimator]] = {

@@ -28,14 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.base import (
-    Diagnostic,
-    DiagnosticKind,
-    Estimate,
-    Estimator,
-    ParameterError,
-    initial_state,
-)
+from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError, initial_state
 from estimators.design import (
     AssumptionError,
     assumption2_factorization,

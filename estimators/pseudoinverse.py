@@ -21,11 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
-from estimators.design import (
-    observer_gain,
-    output_factorization,
-    weighted_pseudoinverse,
-)
+from estimators.design import observer_gain, output_factorization, weighted_pseudoinverse
 from estimators.model import LinearModel
 
 

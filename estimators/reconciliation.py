@@ -508,22 +508,25 @@ def decide_gains(
         if statistic <= 1.0:
             return GainDecision(gamma, "consistent", statistic, excitation, N)
         reference = gamma
-    if since is not None and since < window.min_window:
+    since = 1 if since is None else since
+    if since < window.min_window:
         return GainDecision(gamma, "pending", statistic, excitation, N)
     previous, beta_lower, beta_upper = 1.0 / reference, 1.0 / upper, 1.0 / lower
     accepted = gain_hypotheses(full, alpha, beta_lower, beta_upper, previous, N)
-    for L in range(window.min_window, N):
+    for L in range(window.min_window, N if since < N else window.min_window):
         split = window_system(window, y, u, change=N - L, before=previous)
         accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
     if accepted:
         fewest = min(len(h.free) for h in accepted)
         accepted = [h for h in accepted if len(h.free) == fewest]
-        best = max(accepted, key=lambda h: h.p_value)
+        # The change before the window if that explains it (m fewer unknowns), else the likeliest split.
+        before = [h for h in accepted if h.samples == N]
+        best = max(before or accepted, key=lambda h: h.p_value)
         if len({h.kind for h in accepted}) > 1 or best.standard_error > se_tol:
             return GainDecision(gamma, "ambiguous", statistic, excitation, N)
         return GainDecision(1.0 / best.beta, "identified", statistic, excitation, best.samples)
     found, explained = None, False
-    for L in range(window.min_window, min(N - 1, N if since is None else since) + 1):
+    for L in range(window.min_window, min(N - 1, since) + 1):
         sub = window_system(window, y[N - L :], u[N - L :])
         hypotheses = gain_hypotheses(sub, alpha, beta_lower, beta_upper, previous, L)
         if not hypotheses:
@@ -814,6 +817,7 @@ class UioReconciliator(_Reconciliator):
         """γ̂ from the window through the model (``window_gains``), within Γ. A window that does not
         excite the gains (σ ratio below ``pe_tol``) or that no single γ explains (relative residual
         above ``fit_tol``) keeps the previous estimate."""
+        assert self.model_window is not None
         ys, us = (np.array([getattr(sample, field) for sample in self.history]) for field in ("measured", "u"))
         gamma, sv, self.fit = window_gains(self.model_window, ys, us, self.lower, self.upper)
         self.pe = self._excitation(sv, self.model.p)
@@ -824,8 +828,6 @@ class UioReconciliator(_Reconciliator):
         assert self.gain_test is not None
         window = list(self.history)[-self.params.window :]
         ys, us = (np.array([getattr(sample, field) for sample in window]) for field in ("measured", "u"))
-        if self.reference is not None and self.episode >= self.params.window:
-            self.reference = None  # the change is older than the window: test γ̂ as it is
         self.decision = decide_gains(
             self.gain_test,
             ys,
@@ -841,6 +843,8 @@ class UioReconciliator(_Reconciliator):
         if self.reference is None and self.decision.verdict != "consistent":
             self.reference, self.episode = self.gamma, 0  # an episode begins: the gains before the change
         self.episode += 1
+        if self.episode >= self.params.window:
+            self.reference = None  # the change is older than the window: γ̂ is tested as it is from now
         self.pe = self.decision.excitation if self.decision.excitation >= 1.0 else 0.0
         self.fit = self.decision.statistic
         return self.decision
@@ -908,8 +912,8 @@ class LpvUioReconciliator(UioReconciliator):
                 raise ParameterError("G", f"precomputed G and Y must be {l * nx}×{nx} and {l * nx}×{self.model.p}")
             self.G_vertices, self.Y_vertices, self.design = G.reshape(l, nx, nx), Y.reshape(l, nx, self.model.p), None
         else:
-            self.design: LpvDesign | None = self._solve(lpv_uio_design)
-            self.G_vertices, self.Y_vertices = self.design.G, self.design.Y
+            design: LpvDesign = self._solve(lpv_uio_design)
+            self.design, self.G_vertices, self.Y_vertices = design, design.G, design.Y
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         rho = box_coordinates(gamma, self.lower, self.upper)
@@ -935,8 +939,8 @@ class LftUioReconciliator(UioReconciliator):
         else:
             if self.params.multiplier not in ("scalar", "diagonal"):
                 raise ParameterError("multiplier", f'{self.params.multiplier!r}: use "scalar" (eq. (42)) or "diagonal"')
-            self.design: LftDesign | None = self._solve(lft_uio_design, multiplier=self.params.multiplier)
-            self.L = self.design.L
+            design: LftDesign = self._solve(lft_uio_design, multiplier=self.params.multiplier)
+            self.design, self.L = design, design.L
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         return self.L

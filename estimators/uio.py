@@ -56,14 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from estimators.base import (
-    Diagnostic,
-    DiagnosticKind,
-    Estimate,
-    Estimator,
-    ParameterError,
-    initial_state,
-)
+from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError, initial_state
 from estimators.design import AssumptionError, check_spectrum, observer_gain
 from estimators.model import LinearModel
 

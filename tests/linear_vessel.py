@@ -11,14 +11,7 @@ import numpy as np
 
 from estimators import LinearModel
 from estimators.design import zoh_discretize
-from mjcf.vessel import (
-    INPUTS,
-    PAPER_D,
-    PAPER_M,
-    disturbance_matrix,
-    paper_model,
-    thruster_matrix,
-)
+from mjcf.vessel import INPUTS, PAPER_D, PAPER_M, disturbance_matrix, paper_model, thruster_matrix
 
 A, B_TAU, W, C = paper_model()
 G = thruster_matrix()

@@ -175,9 +175,7 @@ def test_a_closed_loop_run_over_processes_matches_the_in_process_bus_and_regulat
 
 @pytest.mark.parametrize(
     "extra, message",
-    [
-        ('[[inputs]]\nactuator = "force"\nsignal = 1.0\n', "inputs: the controller commands every actuator"),
-    ],
+    [('[[inputs]]\nactuator = "force"\nsignal = 1.0\n', "inputs: the controller commands every actuator")],
 )
 def test_inputs_and_a_controller_exclude_each_other(tmp_path, extra, message):
     with pytest.raises(ScenarioError, match=message):

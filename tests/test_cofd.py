@@ -33,20 +33,7 @@ from estimators.cofd import (
     uniform_subrank,
     unisolable,
 )
-from tests.linear_vessel import (
-    X0,
-    A,
-    C,
-    D,
-    E,
-    G,
-    M,
-    W,
-    disturbance,
-    exponential_faults,
-    model,
-    simulate,
-)
+from tests.linear_vessel import X0, A, C, D, E, G, M, W, disturbance, exponential_faults, model, simulate
 
 TAU = 0.1
 F = np.diag(SHIP_F)

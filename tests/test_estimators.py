@@ -10,13 +10,7 @@ import scipy.linalg
 
 import estimators
 from estimators import LinearModel, ParameterError
-from estimators.design import (
-    is_schur,
-    observer_gain,
-    output_factorization,
-    weighted_pseudoinverse,
-    zoh_discretize,
-)
+from estimators.design import is_schur, observer_gain, output_factorization, weighted_pseudoinverse, zoh_discretize
 from estimators.kalman import KalmanFilter
 from estimators.pseudoinverse import PseudoinverseObserver
 from mjcf import masses

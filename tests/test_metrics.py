@@ -16,13 +16,7 @@ from mcap.writer import Writer
 
 from cosim import scenario
 from cosim.analysis.metrics import BAND_FACTOR, compute_metrics
-from cosim.bus.timing import (
-    TAIL_BITS,
-    crc15,
-    frame_bits,
-    frame_bits_worst_case,
-    stuff_bits,
-)
+from cosim.bus.timing import TAIL_BITS, crc15, frame_bits, frame_bits_worst_case, stuff_bits
 from cosim.errors import LogError
 from cosim.log.reader import LogReader
 from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FRAMES, STATE

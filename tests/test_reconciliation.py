@@ -415,7 +415,10 @@ def test_with_the_model_window_the_gains_and_the_virtual_output_converge(kind, l
     else:  # a cheap scheduled gain: the LFT gain at every vertex (any gain the LMIs certify would do)
         params |= {"G": np.tile(np.eye(4), (16, 1)).tolist(), "Y": np.tile(lft_design.L, (16, 1)).tolist()}
     est = estimators.create(kind, paper_model(), params)
-    gamma_of_t = lambda k: np.where(np.array([k >= 100, k >= 300, False, False]), [0.6, 0.75, 1, 1], 1.0)
+
+    def gamma_of_t(k):
+        return np.where(np.array([k >= 100, k >= 300, False, False]), [0.6, 0.75, 1, 1], 1.0)
+
     rows = simulate(est, 700, gamma_of_t, lambda k: 2.0 * (k >= 50))
     gammas = np.array([[r[3][f"gamma_y{i}"] for i in (1, 2, 3, 4)] for r in rows])
     np.testing.assert_allclose(gammas[160:300, 0], 0.6, atol=1e-6)
