@@ -499,10 +499,11 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_campaign(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from cosim.campaign.coordinator import run_campaign
+    from cosim.campaign.coordinator import require_extras, run_campaign
     from cosim.campaign.spec import load_campaign
 
     campaign = load_campaign(args.file)
+    require_extras(args.engine)
     console = _console(stderr=True)
     spec = campaign.spec
     console.print(

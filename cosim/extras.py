@@ -2,7 +2,8 @@
 
 ``pip install .`` (or ``cosim``) installs what a run needs; each heavy feature is an extra of
 pyproject.toml: ``lmi`` (cvxpy, Clarabel: the LMI designs of IJC 2018), ``export`` (pyarrow,
-asammdf: Parquet and MF4 exports, campaign tables), ``plot`` (matplotlib: figures), ``live``
+asammdf: Parquet and MF4 exports), ``campaign`` (distributed, pyarrow: the campaign engine and its
+results table), ``plot`` (matplotlib: figures), ``live``
 (foxglove-sdk: the Foxglove WebSocket server); ``all`` is every one of them.
 
 ``require`` imports a package of an extra or raises ``MissingExtra`` naming the extra;
@@ -21,11 +22,12 @@ from cosim.errors import CosimError
 EXTRAS: dict[str, tuple[str, ...]] = {
     "lmi": ("cvxpy", "clarabel"),
     "export": ("pyarrow", "asammdf"),
+    "campaign": ("distributed", "pyarrow"),
     "plot": ("matplotlib",),
     "live": ("foxglove",),
 }
-#: Top-level module → its extra.
-MODULE_EXTRA = {module: extra for extra, modules in EXTRAS.items() for module in modules}
+#: Top-level module → the first extra that brings it (a feature needing it from another extra names that one).
+MODULE_EXTRA = {module: extra for extra, modules in reversed(EXTRAS.items()) for module in modules}
 #: Top-level module → the package that installs it, where the names differ.
 PACKAGE = {"foxglove": "foxglove-sdk"}
 
@@ -41,20 +43,23 @@ class MissingExtra(CosimError):
         self.feature, self.extra, self.module = feature, extra, module
 
 
-def missing_extra(error: ImportError, feature: str) -> MissingExtra | None:
-    """The MissingExtra for ``error`` if it is the import of an extra's package failing, else None."""
+def missing_extra(error: ImportError, feature: str, extra: str | None = None) -> MissingExtra | None:
+    """The MissingExtra for ``error`` if it is the import of an extra's package failing, else None;
+    ``extra`` names the feature's extra where several bring the package."""
     top = (error.name or "").split(".")[0]
-    extra = MODULE_EXTRA.get(top)
-    return None if extra is None else MissingExtra(feature, extra, top)
+    if top not in MODULE_EXTRA:
+        return None
+    return MissingExtra(feature, extra if extra and top in EXTRAS[extra] else MODULE_EXTRA[top], top)
 
 
-def require(module: str, feature: str) -> ModuleType:
+def require(module: str, feature: str, extra: str | None = None) -> ModuleType:
     """Import ``module`` (a package of an extra, or one of its submodules) for ``feature``, e.g.
-    ``require("pyarrow.parquet", "cosim export --to parquet")``; MissingExtra if it is not installed."""
+    ``require("pyarrow.parquet", "cosim export --to parquet")``; MissingExtra if it is not installed
+    (naming ``extra`` where several extras bring the package)."""
     try:
         return importlib.import_module(module)
     except ImportError as error:
-        missing = missing_extra(error, feature)
+        missing = missing_extra(error, feature, extra)
         if missing is None:
             raise
         raise missing from None

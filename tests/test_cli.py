@@ -143,6 +143,15 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch):
         "error: cosim export --to parquet needs the 'export' extra (pyarrow is not installed): "
         "pip install 'cosim[export]'"
     )
+    campaign = tmp_path / "campaign"
+    assert main(["campaign", "masses-bias-sweep", "--out", str(campaign), "--engine", "inline", "-q"]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: cosim campaign needs the 'campaign' extra (pyarrow is not installed): pip install 'cosim[campaign]'"
+    )
+    assert not (campaign / "runs").exists()  # refused before any run
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    assert main(["campaign", "masses-bias-sweep", "--out", str(campaign), "--engine", "dask", "-q"]) == 1
+    assert "needs the 'campaign' extra" in capsys.readouterr().err
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     assert main(["plot", str(out)]) == 1
     assert "cosim plot needs the 'plot' extra (matplotlib is not installed)" in capsys.readouterr().err

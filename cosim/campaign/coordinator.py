@@ -21,6 +21,7 @@ from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
 from cosim.campaign.spec import Campaign
 from cosim.campaign.worker import execute_run
 from cosim.errors import CosimError
+from cosim.extras import require
 from cosim.log.metadata import versions
 
 KEEP_LOGS = ("all", "failed", "none")
@@ -61,6 +62,13 @@ class CampaignResult:
     """The runs' own wall times (measured by the workers), summed."""
 
 
+def require_extras(engine: str) -> None:
+    """MissingExtra now, before any run, if the table's writer (or the engine) is not installed."""
+    require("pyarrow.parquet", "cosim campaign", "campaign")
+    if engine == "dask":
+        require("distributed", "cosim campaign", "campaign")
+
+
 def run_campaign(
     campaign: Campaign,
     out: str | Path,
@@ -76,6 +84,7 @@ def run_campaign(
     """Run every run of ``campaign`` (those without a part, with ``resume``) and write the table."""
     if keep_logs not in KEEP_LOGS:
         raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
+    require_extras(engine)
     folder = Path(out).resolve()
     _prepare(folder, campaign, resume)
     runs = campaign.runs()

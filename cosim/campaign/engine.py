@@ -21,6 +21,7 @@ from contextlib import AbstractContextManager, ExitStack
 from typing import Any
 
 from cosim.errors import CosimError
+from cosim.extras import require
 
 ENGINES = ("dask", "inline")
 #: Runs submitted ahead of the completed ones, per worker.
@@ -58,10 +59,8 @@ class DaskEngine(Engine):
     (default: one per core), started and stopped here, or the one at ``address``."""
 
     def __init__(self, workers: int | None = None, address: str | None = None) -> None:
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError:
-            raise CosimError("the campaign engine needs Dask distributed: pip install 'cosim[campaign]'") from None
+        distributed = require("distributed", "cosim campaign --engine dask", "campaign")
+        Client, LocalCluster = distributed.Client, distributed.LocalCluster
         self._stack = ExitStack()
         if address:
             try:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import CosimError
+from cosim.extras import require
 
 Z95 = 1.959963984540054
 BOOTSTRAP = 2000
@@ -35,9 +36,8 @@ BOOTSTRAP = 2000
 
 def read_table(path: str | Path) -> tuple[dict[str, list[Any]], dict[str, str], dict[str, str]]:
     """The columns of a results table, the unit of each column, and the table's metadata."""
+    pq = require("pyarrow.parquet", "cosim leaderboard", "campaign")
     try:
-        import pyarrow.parquet as pq
-
         table = pq.read_table(path)
     except FileNotFoundError:
         raise CosimError(f"{path}: no such file (a campaign writes DIR/results.parquet)") from None
