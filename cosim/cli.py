@@ -357,6 +357,20 @@ def cmd_layout(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse(args: argparse.Namespace, flags: tuple[str, ...], why: str) -> None:
+    """CosimError naming the first of ``flags`` the user gave, an option that would do nothing here."""
+    for flag in flags:
+        value = getattr(args, flag.removeprefix("--").replace("-", "_"))
+        if value is not None and value is not False and value != [] and value != "":
+            raise CosimError(f"{flag}: {why}")
+
+
+def _interrupted(console: Console, interrupt: KeyboardInterrupt, where: str = "") -> int:
+    """Ctrl-C (or SIGTERM, raised as KeyboardInterrupt with its signum): said, and the shell's exit code."""
+    console.print(f"[yellow]interrupted[/yellow]{where}")
+    return 128 + getattr(interrupt, "signum", signal.SIGINT)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     console = _console(stderr=True)
     if args.foxglove is not None:
@@ -365,11 +379,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _play(args, console)
     from cosim.run.replay import Replay, parse_params
 
-    misplaced = [flag for flag, given in (("--speed", args.speed is not None),) if given]
-    if misplaced:
-        raise CosimError(
-            f"{misplaced[0]}: only with --live (an estimator replay runs in lockstep, as fast as the node answers)"
-        )
+    _refuse(args, ("--speed",), "only with --live (an estimator replay runs in lockstep, as fast as the node answers)")
     if not args.estimator:
         raise CosimError("replay needs --estimator NAME (one of the run's, or a new one with --kind), or --live")
     log = Path(args.log)
@@ -395,8 +405,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     try:
         result = replay.execute(on_start=started) if args.quiet else _with_progress(replay, console, started)
     except KeyboardInterrupt as interrupt:
-        console.print(f"[yellow]interrupted[/yellow]; the replay up to that point is in {escape(str(out))}")
-        return 128 + getattr(interrupt, "signum", signal.SIGINT)
+        return _interrupted(console, interrupt, f"; the replay up to that point is in {escape(str(out))}")
     except CosimError as error:
         console.print(f"[red]error:[/red] {escape(str(error))}\nthe replay up to that point is in {escape(str(out))}")
         return 1
@@ -410,24 +419,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def _play_foxglove(args: argparse.Namespace, console: Console) -> int:
     from cosim.log.live import log_start_ns, play
 
-    misplaced = [
-        flag
-        for flag, given in (
-            ("--estimator", args.estimator),
-            ("--kind", args.kind),
-            ("--param", args.param),
-            ("--out", args.out),
-            ("--live", args.live),
-            ("--interface", args.interface),
-            ("--channel", args.channel),
-            ("--port", args.port),
-        )
-        if given
-    ]
-    if misplaced:
-        raise CosimError(
-            f"{misplaced[0]}: not with --foxglove, which serves the log's messages to Foxglove as they are"
-        )
+    _refuse(
+        args,
+        ("--estimator", "--kind", "--param", "--out", "--live", "--interface", "--channel", "--port"),
+        "not with --foxglove, which serves the log's messages to Foxglove as they are",
+    )
     speed = 1.0 if args.speed is None else args.speed
     with _foxglove_sink(args, "cosim replay --foxglove", log_start_ns(args.log)) as sink:
         console.print(
@@ -444,8 +440,7 @@ def _play_foxglove(args: argparse.Namespace, console: Console) -> int:
         try:
             count, sim_time, warnings = play(args.log, sink, speed, wait=args.wait, on_ready=ready)
         except KeyboardInterrupt as interrupt:
-            console.print("[yellow]interrupted[/yellow]")
-            return 128 + getattr(interrupt, "signum", signal.SIGINT)
+            return _interrupted(console, interrupt)
     for warning in warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
     console.print(
@@ -457,18 +452,11 @@ def _play_foxglove(args: argparse.Namespace, console: Console) -> int:
 def _play(args: argparse.Namespace, console: Console) -> int:
     from cosim.run.replay import play
 
-    misplaced = [
-        flag
-        for flag, given in (
-            ("--estimator", args.estimator),
-            ("--kind", args.kind),
-            ("--param", args.param),
-            ("--out", args.out),
-        )
-        if given
-    ]
-    if misplaced:
-        raise CosimError(f"{misplaced[0]}: not with --live, which plays the log's frames onto a bus as they are")
+    _refuse(
+        args,
+        ("--estimator", "--kind", "--param", "--out"),
+        "not with --live, which plays the log's frames onto a bus as they are",
+    )
     speed = 1.0 if args.speed is None else args.speed
 
     def started(bus) -> None:
@@ -480,8 +468,7 @@ def _play(args: argparse.Namespace, console: Console) -> int:
     try:
         result = play(args.log, args.interface or "udp_multicast", args.channel or "", args.port or 0, speed, started)
     except KeyboardInterrupt as interrupt:
-        console.print("[yellow]interrupted[/yellow]")
-        return 128 + getattr(interrupt, "signum", signal.SIGINT)
+        return _interrupted(console, interrupt)
     for warning in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
     console.print(f"sent {result.frames} frames ({result.sim_time:g} s of simulated time) in {result.wall_time:.2f} s")
