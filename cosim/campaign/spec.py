@@ -46,6 +46,8 @@ from pydantic import Field, ValidationError, model_validator
 import scenarios
 from cosim.errors import ScenarioError
 from cosim.scenario import LoadedScenario, apply, load
+from cosim.scenario.load import builtin_names as scenario_files
+from cosim.scenario.load import read_toml_file
 from cosim.scenario.tables import Strict, problem_message, problem_path
 
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent / "campaigns"
@@ -224,26 +226,15 @@ def _cell(value: Any) -> Any:
 
 
 def builtin_names() -> list[str]:
-    return sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+    return scenario_files(BUILTIN_DIR)
 
 
 def load_campaign(name_or_path: str | Path) -> Campaign:
     """A built-in campaign by name, or a campaign file; every grid point is validated against the
     base scenario before anything runs (one error naming the field, like a scenario's)."""
-    target = str(name_or_path)
-    path = Path(target)
-    if path.suffix != ".toml" and (BUILTIN_DIR / f"{target}.toml").exists():
-        path, source = BUILTIN_DIR / f"{target}.toml", f"builtin:{target}"
-    elif path.exists():
-        source = str(path)
-    else:
-        known = ", ".join(builtin_names())
-        raise ScenarioError(f"no campaign {target!r}: not a file and not a built-in campaign (built-in: {known})")
+    text, source, path = read_toml_file(str(name_or_path), BUILTIN_DIR, "campaign")
     try:
-        text = path.read_text(encoding="utf-8")
         data = tomllib.loads(text)
-    except (OSError, UnicodeDecodeError) as error:
-        raise ScenarioError(f"{source}: cannot read the campaign ({error})") from None
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: invalid TOML: {error}") from None
     try:

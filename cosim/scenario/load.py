@@ -45,25 +45,32 @@ class LoadedScenario:
     settings: tuple[tuple[str, Any], ...] = ()
 
 
-def builtin_names() -> list[str]:
-    return sorted(path.stem for path in BUILTIN_DIR.glob("*.toml"))
+def builtin_names(folder: Path = BUILTIN_DIR) -> list[str]:
+    return sorted(path.stem for path in folder.glob("*.toml"))
+
+
+def read_toml_file(target: str, folder: Path, what: str) -> tuple[str, str, Path]:
+    """The text of ``target``, a built-in ``what`` (a file of ``folder``) by name or a TOML path, its
+    source (``builtin:NAME`` or the path) and its path; one ScenarioError naming the built-in ones
+    otherwise."""
+    path = Path(target)
+    if path.suffix != ".toml" and (folder / f"{target}.toml").exists():
+        path, source = folder / f"{target}.toml", f"builtin:{target}"
+    elif path.exists():
+        source = str(path)
+    else:
+        known = ", ".join(builtin_names(folder))
+        raise ScenarioError(f"no {what} {target!r}: not a file and not a built-in {what} (built-in: {known})")
+    try:
+        return path.read_text(encoding="utf-8"), source, path
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{source}: cannot read the {what} ({error})") from None
 
 
 def load(name_or_path: str | Path | None = None) -> LoadedScenario:
     """Load a scenario by built-in name or TOML path (default: the default scenario)."""
     target = DEFAULT_SCENARIO if name_or_path is None else str(name_or_path)
-    path = Path(target)
-    if path.suffix != ".toml" and (BUILTIN_DIR / f"{target}.toml").exists():
-        path, source = BUILTIN_DIR / f"{target}.toml", f"builtin:{target}"
-    elif path.exists():
-        source = str(path)
-    else:
-        known = ", ".join(builtin_names())
-        raise ScenarioError(f"no scenario {target!r}: not a file and not a built-in scenario (built-in: {known})")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
-        raise ScenarioError(f"{source}: cannot read the scenario ({error})") from None
+    text, source, _ = read_toml_file(target, BUILTIN_DIR, "scenario")
     return LoadedScenario(scenario=parse(text, source), source=source, text=text)
 
 
@@ -287,12 +294,32 @@ def check(s: Scenario) -> list[str]:
 
 
 def _check_bus(s: Scenario) -> list[str]:
-    """The bus signals with their overrides must make a valid CAN database."""
+    """The bus signals with their overrides must make a valid CAN database; arbitrated timing needs
+    lockstep (its schedule is computed from every answer of a tick), and the traffic it carries
+    ids of its own."""
     try:
-        s.codec()
+        codec = s.codec()
     except (ScenarioError, CodecError) as error:
         return [str(error)]
-    return []
+    problems = []
+    if s.bus.timing == "arbitrated" and s.timing.mode != "lockstep":
+        problems.append(
+            'bus.timing: "arbitrated" needs [timing] mode = "lockstep" (the wire is scheduled from every '
+            'answer of a tick); use mode = "lockstep" or timing = "ideal"'
+        )
+    if s.bus.traffic and s.bus.timing != "arbitrated":
+        problems.append('bus.traffic: periodic traffic needs [bus] timing = "arbitrated" (an ideal bus takes no time)')
+    taken = {spec.frame_id: spec.name for spec in codec.specs.values()}
+    for i, traffic in enumerate(s.bus.traffic):
+        if traffic.id in taken:
+            problems.append(
+                f"bus.traffic[{i}].id: 0x{traffic.id:03X} is {taken[traffic.id]}'s id in this run's database; "
+                "give the traffic an id no message uses"
+            )
+        if not s.bus.fd and traffic.length > 8:
+            problems.append(f"bus.traffic[{i}].length: {traffic.length} bytes needs fd = true (classic CAN: 8 at most)")
+        taken[traffic.id] = f"bus.traffic[{i}]"
+    return problems
 
 
 def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tuple[str, ...]) -> None:
