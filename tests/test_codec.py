@@ -129,8 +129,12 @@ def test_unknown_and_malformed_frames():
     c = codec(False)
     assert c.decode(can.Message(arbitration_id=0x7FF, data=b"\x00", is_extended_id=False)) is None
     assert c.decode(can.Message(arbitration_id=0x100, data=b"\x00" * 5, is_extended_id=True)) is None
-    with pytest.raises(CodecError, match=r"frame 0x100 \(SENSOR_x1\) cannot be decoded"):
+    # A frame of another length than its message's is not its frame (a short one would decode as
+    # zeros from cantools, a long one with trailing bytes ignored).
+    with pytest.raises(CodecError, match=r"frame 0x100 \(SENSOR_x1\) has 1 data bytes; the message has 5"):
         c.decode(can.Message(arbitration_id=0x100, data=b"\x00", is_extended_id=False))
+    with pytest.raises(CodecError, match=r"has 8 data bytes; the message has 5"):
+        c.decode(can.Message(arbitration_id=0x100, data=b"\x00" * 8, is_extended_id=False))
 
 
 def test_id_blocks_and_sync_counts_are_bounded():
