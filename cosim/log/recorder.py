@@ -17,6 +17,10 @@ Topics (``log_time`` is simulated time in ns; every message also carries ``tick`
   of the active faults).
 - ``/cosim/events``: runner events (start, stop, warnings, errors).
 - ``/cosim/deadline_misses``: in realtime mode, each tick a node did not answer by its deadline.
+- ``/cosim/wire``: with ``[bus] timing = "arbitrated"`` only, each frame's passage on the simulated
+  wire, logged at its delivery: ``id``, ``message``, ``sender``, ``queued``, ``start``,
+  ``delivered`` (s), ``latency`` (s), ``late`` (delivered after its deadline), ``bits`` and
+  ``dropped`` (why it never went out, or null).
 
 Metadata records: ``cosim.run`` (scenario name, seed, timing, plant, names, estimators and their
 messages, fault onset, bus), ``cosim.scenario`` (the TOML as given and the validated scenario
@@ -38,6 +42,7 @@ from cosim.log.writer import McapLog, number, object_schema
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
 EVENTS, DEADLINE_MISSES, FOREIGN = "/cosim/events", "/cosim/deadline_misses", "/cosim/foreign"
+WIRE = "/cosim/wire"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
 _TIME = number("simulated time t_k = k τ", "s")
@@ -81,6 +86,7 @@ class RunRecorder:
         self.states, self.sensors, self.actuators = states, sensors, actuators
         self.disturbances = disturbances
         self.frames = 0
+        self._wire: int | None = None
         self._frames = log.channel(
             FRAMES,
             object_schema(
@@ -237,7 +243,10 @@ class RunRecorder:
             ),
         )
 
-    def frame(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
+    def frame(
+        self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None, sender: str = "unknown"
+    ) -> None:
+        """One frame on the bus; ``sender``: who sent a frame outside the DBC, where the run knows it."""
         spec = decoded.spec if decoded is not None else None
         self.log.write(
             self._frames,
@@ -253,7 +262,7 @@ class RunRecorder:
                 "dlc": len2dlc(len(frame.data)),
                 "length": len(frame.data),
                 "data": bytes(frame.data).hex(),
-                "sender": spec.sender if spec else "unknown",
+                "sender": spec.sender if spec else sender,
                 "message": spec.name if spec else None,
             },
         )
@@ -334,6 +343,61 @@ class RunRecorder:
                 "length": length,
                 "data": data.hex(),
                 "count": count,
+            },
+        )
+
+    def wire(
+        self,
+        tick: int,
+        t_ns: int,
+        frame_id: int,
+        message: str | None,
+        sender: str,
+        times_ns: tuple[int, int, int],
+        late: bool,
+        bits: int,
+        dropped: str | None,
+    ) -> None:
+        """A frame's passage on the simulated wire: (queued, start, delivered) in ns."""
+        if self._wire is None:  # created with the first passage: a log of an ideal bus has no such topic
+            self._wire = self.log.channel(
+                WIRE,
+                object_schema(
+                    "cosim.WirePassage",
+                    {
+                        "tick": _TICK,
+                        "t": _TIME,
+                        "id": {"type": "integer", "description": "arbitration id"},
+                        "message": {"type": ["string", "null"], "description": "DBC message name"},
+                        "sender": {"type": "string", "description": "the node that queued it"},
+                        "queued": number("when its sender queued it", "s"),
+                        "start": number("its start of frame on the wire", "s"),
+                        "delivered": number("when its last bit was on the wire", "s"),
+                        "latency": number("delivered − queued", "s"),
+                        "late": {"type": "boolean", "description": "delivered after its deadline"},
+                        "bits": {"type": "integer", "description": "its length on the wire, stuff bits included"},
+                        "dropped": {"type": ["string", "null"], "description": "why it never went out"},
+                    },
+                    "A frame's passage on the simulated wire (arbitrated timing)",
+                ),
+            )
+        queued, start, delivered = times_ns
+        self.log.write(
+            self._wire,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t_ns / 1e9,
+                "id": frame_id,
+                "message": message,
+                "sender": sender,
+                "queued": queued / 1e9,
+                "start": start / 1e9,
+                "delivered": delivered / 1e9,
+                "latency": (delivered - queued) / 1e9,
+                "late": late,
+                "bits": bits,
+                "dropped": dropped,
             },
         )
 

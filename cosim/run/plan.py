@@ -35,6 +35,7 @@ from cosim.log.metadata import (
 from cosim.log.writer import LogSink
 from cosim.plant import Plant, build_plant
 from cosim.run import design_cache
+from cosim.run.arbitration import Arbitration, build_traffic
 from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
@@ -283,6 +284,11 @@ class RunPlan:
             commands=closed_loop,
             registration=registration,
             sink=sink,
+            arbitration=(
+                Arbitration(self.codec, s.bus.bitrate, s.bus.data_bitrate, s.dt_ns, build_traffic(s))
+                if s.bus.timing == "arbitrated"
+                else None
+            ),
         )
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:
@@ -331,6 +337,18 @@ class RunPlan:
                 "fd": s.bus.fd,
                 "bitrate": s.bus.bitrate,
                 "data_bitrate": s.bus.data_bitrate,
+                # only off the default, so that the log of an ideal bus is what it always was
+                **({"timing": s.bus.timing} if s.bus.timing != "ideal" else {}),
+                **(
+                    {
+                        "traffic": [
+                            t.model_dump(exclude={"end"}) | {"end": t.end if math.isfinite(t.end) else None}
+                            for t in s.bus.traffic
+                        ]
+                    }
+                    if s.bus.traffic
+                    else {}
+                ),
             },
             timing=s.timing.model_dump(),
             start_time_ns=start_time_ns,

@@ -46,10 +46,12 @@ from cosim.bus.codec import (
 from cosim.bus.registry import Registration, alive
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.bus.udp import ForeignDatagram
+from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog
+from cosim.run.arbitration import Arbitration
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
 
@@ -171,6 +173,8 @@ class Traffic(can.Listener):
         self._on_foreign = on_foreign
         self.current = 0  # the tick whose frames the runner sent last
         self._distrusted: set[int] = set()  # pending frames found foreign on arrival: logged raw, never counted
+        #: Where ``flush`` puts a tick's frames: the log, or, on an arbitrated bus, the wire (which logs them).
+        self.deliver: Callable[[int, float, int, can.Message, Decoded | None], None] = recorder.frame
 
     def sent(self, frames: list[can.Message]) -> None:
         """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""
@@ -261,7 +265,7 @@ class Traffic(can.Listener):
         self.pending.clear()
         self._distrusted.clear()
         for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
-            self.recorder.frame(tick, t, t_ns, frame, decoded)
+            self.deliver(tick, t, t_ns, frame, decoded)
 
     def missing(self, sender: str, ticks: int) -> int:
         """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
@@ -312,8 +316,10 @@ class Session:
         commands: bool = False,
         registration: Registration | None = None,
         sink: LogSink | None = None,
+        arbitration: Arbitration | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
+        self.arbitration = arbitration  # arbitrated timing: the simulated wire decides what arrives when
         self._sink = sink  # the live view: the log tees every channel and message to it
         self._recorder_args, self._own, self._with_commands = recorder, own_senders, commands
         self._registration = registration
@@ -468,6 +474,8 @@ class Session:
         self.wait(lambda: expected <= self.traffic.joined, time.perf_counter() + timeout, late)
         self._refuse_a_second_runner()
         self.traffic.flush(*self._marker)  # the boot-up heartbeats
+        if self.arbitration is not None:  # from tick 0 on, what the runner hears goes over the wire
+            self.traffic.deliver = self.arbitration.answer
         self.tick_start = time.perf_counter()
 
     def _refuse_a_second_runner(self) -> None:
@@ -506,6 +514,9 @@ class Session:
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
+        if self.arbitration is not None:
+            self._send_arbitrated(k, frames)
+            return
         self.traffic.current = k
         self.traffic.sent([frame for frame, _ in frames])
         for frame, _ in frames:
@@ -519,6 +530,46 @@ class Session:
         self._marker = (k, t, t_ns)
         for frame, decoded in frames:
             self.recorder.frame(k, t, t_ns, frame, decoded)
+
+    def _send_arbitrated(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
+        """As ``send``, through the wire: the previous tick's answers join it first, then the wire
+        says which of these frames arrive in this tick (``cosim.run.arbitration``)."""
+        assert self.arbitration is not None
+        self.traffic.current = k
+        self.traffic.flush(*self._marker)
+        self._close_foreign()
+        step = self.arbitration.tick(k, frames)
+        self.traffic.sent([frame for frame, _ in step.send])
+        for frame, _ in step.send:
+            self.bus.send(frame)
+        t, t_ns = self.time(k)
+        if k - self._flushed >= _FLUSH_TICKS and t - self.time(self._flushed)[0] >= _FLUSH_SIMULATED:
+            self._flushed = k
+            self.log.flush()
+        self._marker = (k, t, t_ns)
+        self._log_passages(step.passed)
+
+    def _log_passages(self, passed: list[Transmission]) -> None:
+        """Frames through the wire, at their delivery (the tick is the one it falls in), and every
+        passage on /cosim/wire."""
+        dt_ns = self.time(1)[1]
+        for p in passed:
+            message, decoded = p.frame.payload
+            tick = p.delivered_ns // dt_ns
+            if p.dropped is None:
+                self.recorder.frame(tick, p.delivered_ns / 1e9, p.delivered_ns, message, decoded, p.frame.sender)
+            bits = sum(bits_of(p.frame))
+            self.recorder.wire(
+                tick,
+                p.delivered_ns,
+                p.frame.frame_id,
+                decoded.spec.name if decoded is not None else None,
+                p.frame.sender,
+                (p.frame.queued_ns, p.start_ns, p.delivered_ns),
+                p.late,
+                bits,
+                p.dropped,
+            )
 
     def commands(self, k: int, actuators: tuple[str, ...], held: np.ndarray) -> np.ndarray:
         """The controller node's commands of tick k: waited for (lockstep), or until the tick's
@@ -596,6 +647,8 @@ class Session:
                 traffic(frame)
                 quiet_until = time.perf_counter() + 0.1
         traffic.flush(k, t_end, t_end_ns)
+        if self.arbitration is not None:
+            self._log_passages(self.arbitration.finish())
         self._close_foreign()
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")

@@ -5,6 +5,7 @@ database)."""
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from typing import Annotated, Any, Literal
 
@@ -16,7 +17,7 @@ from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
 from cosim.plant import statespace
 from cosim.scenario.faults import FaultSpec, NoiseSpec
-from cosim.scenario.tables import Identifier, Positive, Strict, problem_message, problem_path
+from cosim.scenario.tables import Identifier, NonNegative, Positive, Strict, problem_message, problem_path
 from cosim.scenario.waveforms import WaveformSpec
 from estimators import ESTIMATORS
 from estimators.controller import CONTROLLERS
@@ -141,6 +142,20 @@ class ChannelOverride(Strict):
     resolution: Positive | None = None
 
 
+class TrafficSpec(Strict):
+    """A node outside the estimation loop that keeps the bus busy: one frame of ``length`` bytes on
+    ``id`` every ``period`` seconds from ``start`` to ``end`` (payloads drawn from the run's seed).
+    Its frames occupy the simulated wire (``timing = "arbitrated"``) and the log; they are not put
+    on the run's python-can channel, where nobody would read them."""
+
+    name: Identifier
+    id: Annotated[int, Field(ge=0, le=0x7FF)]
+    period: Positive
+    length: Annotated[int, Field(ge=0, le=64)] = 8
+    start: NonNegative = 0.0
+    end: Annotated[float, Field(allow_inf_nan=True)] = math.inf
+
+
 class BusSpec(Strict):
     interface: Literal["udp_multicast", "socketcan", "virtual"] = "udp_multicast"
     channel: str = ""
@@ -156,6 +171,11 @@ class BusSpec(Strict):
     sensors: dict[str, ChannelOverride] = {}
     actuators: dict[str, ChannelOverride] = {}
     states: dict[str, ChannelOverride] = {}
+    timing: Literal["ideal", "arbitrated"] = "ideal"
+    """ideal: every frame of a tick arrives at once; arbitrated: frames go one at a time at the bit
+    rate, lowest id first, and arrive at their last bit, late if after the next tick (docs/bus.md)."""
+    traffic: list[TrafficSpec] = []
+    """Periodic frames of other nodes that load the bus (arbitrated timing only)."""
 
 
 class TimingSpec(Strict):

@@ -1,0 +1,198 @@
+"""Arbitrated timing (``[bus] timing = "arbitrated"``): what the run's receivers get, and when.
+
+The run's python-can channel carries frames instantly; the simulated wire (``cosim.bus.wire``)
+says when each would have arrived on a real bus. ``Arbitration`` joins the two, tick by tick, in
+lockstep (it needs every answer of a tick before it can schedule the next):
+
+1. at t_k the runner queues SYNC(k) and its data frames of tick k; the nodes' answers to tick
+   k − 1 were queued at q_{k−1}, the moment those nodes had their inputs (below); the periodic
+   traffic of ``[[bus.traffic]]`` is queued at its own times;
+2. the wire is planned up to t_{k+1}: the runner's data frames delivered by then are tick k's
+   inputs; SYNC(k) announces how many (its own length depends on that number through its stuff
+   bits, so the count is found by iterating to a fixed point) and they go on the channel now;
+   the others stay queued: they go on the channel when the wire delivers them, late (receivers
+   ignore a frame of an earlier tick), or never, when the next tick's frame of the same id
+   replaces them first;
+3. q_k, when the receivers have tick k's inputs, is the delivery of SYNC(k) or of the last input
+   delivered, whichever is later (t_{k+1} when SYNC(k) itself is not through by then); the wire
+   is committed up to q_k (what follows depends on the answers, which are not known yet) and every
+   committed frame is logged at its delivery time, with its passage on ``/cosim/wire``.
+
+SYNC, NMT and heartbeats are the co-simulation's protocol: they take their time on the wire like
+any frame, but the channel carries them as today, so lockstep never waits for a frame the wire
+holds. The controller node's commands are applied in the tick they answer (their latency is
+logged); the nodes read each other's frames on the channel without the wire's delay.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+from cosim.bus.codec import HEARTBEAT, NMT, RUNNER, SYNC, Codec, Decoded
+from cosim.bus.wire import Transmission, Wire, WireFrame
+
+#: Spawn key of the periodic traffic's payload streams (the faults and disturbances use others).
+_TRAFFIC = 0xB5
+
+Frame = tuple[can.Message, Decoded | None]
+
+
+@dataclass(frozen=True)
+class Periodic:
+    """One ``[[bus.traffic]]`` node: a frame of ``length`` bytes on ``frame_id`` every ``period_ns``."""
+
+    name: str
+    frame_id: int
+    period_ns: int
+    length: int
+    start_ns: int
+    end_ns: int
+    fd: bool
+    rng: np.random.Generator = field(compare=False)
+
+    def frames(self, begin_ns: int, end_ns: int) -> list[can.Message]:
+        """Its frames queued in [begin_ns, end_ns), stamped with their queue time (``timestamp``, s)."""
+        first = max(self.start_ns, begin_ns)
+        n = -(-(first - self.start_ns) // self.period_ns)
+        out = []
+        while (t := self.start_ns + n * self.period_ns) < min(end_ns, self.end_ns):
+            data = self.rng.integers(0, 256, self.length, dtype=np.uint8).tobytes()
+            out.append(can.Message(arbitration_id=self.frame_id, is_extended_id=False, data=data, is_fd=self.fd))
+            out[-1].timestamp = t / 1e9
+            n += 1
+        return out
+
+
+@dataclass
+class Step:
+    """What one tick of arbitration gives the session: frames to put on the channel now (in order)
+    and the wire's committed passages, to log."""
+
+    send: list[Frame]
+    passed: list[Transmission]
+
+
+class Arbitration:
+    """The run's wire, fed tick by tick (see the module's docstring)."""
+
+    def __init__(
+        self, codec: Codec, bitrate: int, data_bitrate: int, dt_ns: int, traffic: list[Periodic] | None = None
+    ) -> None:
+        self.codec = codec
+        self.wire = Wire(bitrate, data_bitrate)
+        self.dt_ns = dt_ns
+        self.traffic = traffic or []
+        self._answers: list[Frame] = []
+        self._on_channel: set[int] = set()  # runner frames already on the channel, by id()
+        self._inputs_ns = 0  # q_{k−1}: when the receivers had the previous tick's inputs
+        self._protocol = {spec.frame_id for spec in codec.specs.values() if spec.role in (SYNC, NMT, HEARTBEAT)}
+
+    def answer(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
+        """A frame the runner heard (through ``Traffic.flush``, in canonical order): onto the wire
+        at the next tick, as queued when its sender had its inputs."""
+        self._answers.append((frame, decoded))
+
+    def _wire_frame(self, frame: Frame, queued_ns: int, deadline_ns: int, sender: str) -> WireFrame:
+        message, decoded = frame
+        sender = decoded.spec.sender if decoded is not None else sender
+        return WireFrame(
+            message.arbitration_id,
+            message.is_extended_id,
+            message.is_fd,
+            message.bitrate_switch,
+            bytes(message.data),
+            sender,
+            queued_ns,
+            deadline_ns,
+            frame,
+        )
+
+    def tick(self, k: int, frames: list[Frame]) -> Step:
+        """Tick k's frames of the runner (SYNC(k) first): schedule them, commit the wire up to q_k."""
+        t_ns, deadline = k * self.dt_ns, (k + 1) * self.dt_ns
+        wire = self.wire
+        for answer in self._answers:  # the answers to tick k − 1, due by t_k
+            wire.offer(self._wire_frame(answer, self._inputs_ns, t_ns, "unknown"))
+        self._answers = []
+        for source in self.traffic:
+            for message in source.frames(t_ns, deadline):
+                queued = round(message.timestamp * 1e9)
+                wire.offer(self._wire_frame((message, None), queued, queued + source.period_ns, source.name))
+        data = frames[1:]
+        sync, inputs, planned = self._plan(k, data, t_ns, deadline)
+        for frame in [sync, *data]:
+            wire.offer(self._wire_frame(frame, t_ns, deadline, RUNNER))
+        sync_at = next((p.delivered_ns for p in planned if p.frame.payload is sync and p.dropped is None), None)
+        if sync_at is None or sync_at > deadline:
+            self._inputs_ns = deadline
+        else:
+            self._inputs_ns = max([sync_at, *(p.delivered_ns for p in planned if id(p.frame.payload) in inputs)])
+        passed = wire.run(min(self._inputs_ns, deadline))
+        now = [frame for frame in data if id(frame) in inputs]
+        self._on_channel.update(inputs)
+        late = []
+        for p in passed:
+            payload = p.frame.payload
+            if p.dropped is None and p.frame.sender == RUNNER and payload[1] is not None:
+                if payload[1].spec.role not in (SYNC, NMT) and id(payload) not in self._on_channel:
+                    late.append(payload)
+            self._on_channel.discard(id(payload))
+        return Step([sync, *now, *late], passed)
+
+    def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
+        """SYNC(k) announcing the data frames through by the deadline, those frames (by id()) and
+        the planned passages."""
+        count, seen = len(data), []
+        while True:
+            message = self.codec.sync(k, count)
+            sync: Frame = (message, self.codec.decode(message))
+            trial = _copy(self.wire)
+            for frame in [sync, *data]:
+                trial.offer(self._wire_frame(frame, t_ns, deadline, RUNNER))
+            planned = trial.run(deadline)
+            through = {id(p.frame.payload) for p in planned if p.dropped is None and p.delivered_ns <= deadline}
+            inputs = [id(f) for f in data if id(f) in through]
+            seen.append(count)
+            if len(inputs) == count or len(seen) > 4:
+                # no fixed point (SYNC's stuff bits tip one frame over the deadline and back): the
+                # smaller count is announced and the frames past it are held back as late
+                return sync, set(inputs[:count]), planned
+            count = min(count, len(inputs)) if len(inputs) in seen else len(inputs)
+
+    def finish(self) -> list[Transmission]:
+        """The end of the run: the answers heard last and everything still queued go out."""
+        for answer in self._answers:
+            self.wire.offer(self._wire_frame(answer, self._inputs_ns, self._inputs_ns + self.dt_ns, "unknown"))
+        self._answers = []
+        return self.wire.drain()
+
+
+def _copy(wire: Wire) -> Wire:
+    trial = Wire(wire.bitrate, wire.data_bitrate)
+    trial.idle_ns, trial.queue, trial._seq = wire.idle_ns, list(wire.queue), wire._seq
+    return trial
+
+
+def build_traffic(scenario: object) -> list[Periodic]:
+    """The scenario's ``[[bus.traffic]]`` nodes, their payloads drawn from its seed."""
+    s = scenario
+    out = []
+    for i, spec in enumerate(s.bus.traffic):  # type: ignore[attr-defined]
+        end_ns = 2**62 if spec.end == float("inf") else round(spec.end * 1e9)
+        rng = np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_TRAFFIC, i)))  # type: ignore[attr-defined]
+        out.append(
+            Periodic(
+                spec.name,
+                spec.id,
+                round(spec.period * 1e9),
+                spec.length,
+                round(spec.start * 1e9),
+                end_ns,
+                bool(s.bus.fd),  # type: ignore[attr-defined]
+                rng,
+            )
+        )
+    return out
