@@ -161,6 +161,7 @@ class Traffic(can.Listener):
         self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
         self.received: Counter[str] = Counter()
         self.echoes = 0
+        self.repeated_bootups = 0
         self.foreign_frames = 0
         self._counts: Counter[tuple[str, int]] = Counter()
         self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
@@ -202,6 +203,11 @@ class Traffic(can.Listener):
             decoded = self._decode(msg)
             if decoded is not None:
                 sender, state = decoded.spec.sender, decoded.values["state"]
+                if state == BOOTUP and sender in self.joined:
+                    # A node repeats its boot-up until tick 0 (Client.announce); how often depends on
+                    # how long the others take to start, so the repeats are counted, not logged.
+                    self.repeated_bootups += 1
+                    return
                 if state == BOOTUP:
                     self.joined.add(sender)
                 elif state == STOPPED:
