@@ -845,7 +845,9 @@ class UioReconciliator(_Reconciliator):
         self.episode += 1
         if self.episode >= self.params.window:
             self.reference = None  # the change is older than the window: γ̂ is tested as it is from now
-        self.pe = self.decision.excitation if self.decision.excitation >= 1.0 else 0.0
+        # se_tol over the largest standard error: ≥ 1 when the window resolves every gain; published
+        # up to 2, the channel's declared range (a well-excited window reads 2, not its exact margin).
+        self.pe = min(self.decision.excitation, 2.0) if self.decision.excitation >= 1.0 else 0.0
         self.fit = self.decision.statistic
         return self.decision
 
