@@ -15,7 +15,8 @@ e_k = |x_k − x̂_k| (Euclidean norm over the whole state) and τ the sample ti
   false alarms (alarm episodes starting with no fault active), their rate per fault-free hour, and
   missed detections.
 - bus: frames and bits per id, load against the configured bit rates (exact bit stuffing,
-  ``cosim.bus.timing``), lost frames and deadline misses.
+  ``cosim.bus.timing``), overall and per second, lost frames and deadline misses; on an arbitrated
+  bus (``/cosim/wire``) per-id latency (min, median, max), late and replaced frames.
 
 Memory is bounded whatever the log's length: the truth and estimate messages of a tick are held
 only until the tick is complete (or ``WINDOW`` ticks old), then scored and dropped.
@@ -33,13 +34,15 @@ from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
 from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
 from cosim.log.reader import LogReader
-from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, STATE, carried_tick
+from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, STATE, WIRE, carried_tick
 from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
 WINDOW = 1000
 #: The pre-fault band is this many times the largest settled pre-fault error.
 BAND_FACTOR = 2.0
+#: Bus load over time is reported per window of this much simulated time.
+LOAD_WINDOW_NS = 1_000_000_000
 
 
 def compute_metrics(path: str | Path) -> dict[str, Any]:
@@ -198,7 +201,9 @@ class _Scorer:
             return
         try:
             if topic == FRAMES:
-                self.bus.frame(msg)
+                self.bus.frame(msg, log_time)
+            elif topic == WIRE:
+                self.bus.passage(msg)
             elif topic == EVENTS:
                 if msg.get("event") == "frames_lost":
                     self.lost_events += int(msg.get("count", 1))
@@ -472,11 +477,27 @@ class _BusScore:
         self.busy = self.busy_worst = 0.0
         self.frames = 0
         self.tick, self.tick_busy, self.peak = None, 0.0, 0.0
+        self.windows: defaultdict[int, float] = defaultdict(float)  # second of simulated time -> busy seconds in it
+        self.latency: dict[int, list[float]] = defaultdict(list)  # id -> latencies on the wire (arbitrated)
+        self.late: Counter[int] = Counter()
+        self.dropped: Counter[int] = Counter()
+        self.offered: defaultdict[int, float] = defaultdict(float)  # second -> seconds of wire the frames queued in it need
 
     def _time(self, bits: tuple[int, int]) -> float:
         return bits[0] / self.bitrate + bits[1] / self.data_bitrate if self.bitrate else 0.0
 
-    def frame(self, msg: dict[str, Any]) -> None:
+    def passage(self, msg: dict[str, Any]) -> None:
+        """A frame's passage on the simulated wire (/cosim/wire)."""
+        frame_id = int(msg["id"])
+        if self.bitrate:  # what the senders asked of the wire, carried or not (nominal bit rate)
+            self.offered[int(float(msg["queued"]) * 1e9) // LOAD_WINDOW_NS] += int(msg["bits"]) / self.bitrate
+        if msg.get("dropped"):
+            self.dropped[frame_id] += 1
+            return
+        self.latency[frame_id].append(float(msg["latency"]))
+        self.late[frame_id] += bool(msg["late"])
+
+    def frame(self, msg: dict[str, Any], log_time: int = 0) -> None:
         data = bytes.fromhex(msg["data"])
         fd, brs, extended = bool(msg["fd"]), bool(msg["brs"]), bool(msg["extended"])
         bits = frame_bits(int(msg["id"]), extended, fd, brs, int(msg["dlc"]), data)
@@ -487,6 +508,7 @@ class _BusScore:
         self.frames += 1
         busy = self._time(bits)
         self.busy += busy
+        self.windows[log_time // LOAD_WINDOW_NS] += busy
         self.busy_worst += self._time(worst)
         if msg.get("tick") != self.tick:
             self.finish()
@@ -521,7 +543,44 @@ class _BusScore:
                 "by_reason": dict(sorted(scorer.foreign_reasons.items())),
             },
             "foreign_frames": dict(sorted(scorer.foreign_ids.items())),
+            "load_over_time": self._load_over_time(span) if known else None,
+            "latency": self._latency(),
         }
+
+    def _load_over_time(self, span: float) -> dict[str, Any]:
+        """Load per second of simulated time (the last window only as long as the run)."""
+        window = LOAD_WINDOW_NS / 1e9
+        count = max(1, math.ceil(span / window - 1e-9))
+        loads, offered = [], []
+        for i in range(count):
+            length = min(window, span - i * window) if span > i * window else window
+            loads.append(round(self.windows.get(i, 0.0) / length, 6))
+            offered.append(round(self.offered.get(i, 0.0) / length, 6))
+        out: dict[str, Any] = {"window_s": window, "load": loads, "peak": max(loads)}
+        if self.offered:  # arbitrated: the load asked for, which may pass 100 % where the carried load cannot
+            out |= {"offered": offered, "offered_peak": max(offered)}
+        return out
+
+    def _latency(self) -> dict[str, Any] | None:
+        """Per id on an arbitrated bus: latency from queueing to delivery (min, median, max, s),
+        frames delivered after their deadline, frames replaced before they went out."""
+        ids = sorted(self.latency.keys() | self.dropped.keys())
+        if not ids:
+            return None
+        out = {}
+        for i in ids:
+            values = sorted(self.latency.get(i, []))
+            n = len(values)
+            median = None if not n else (values[n // 2] if n % 2 else (values[n // 2 - 1] + values[n // 2]) / 2)
+            out[f"0x{i:03X}"] = {
+                "frames": n,
+                "min": values[0] if n else None,
+                "median": median,
+                "max": values[-1] if n else None,
+                "late": self.late.get(i, 0),
+                "dropped": self.dropped.get(i, 0),
+            }
+        return out
 
 
 # -- the report ---------------------------------------------------------------------------------
