@@ -235,36 +235,30 @@ def check(s: Scenario) -> list[str]:
         for j, signal in enumerate(client.signals):
             if not signal.minimum < signal.maximum:
                 problems.append(f"clients[{i}].signals[{j}]: minimum must be below maximum")
-    for i, estimator in enumerate(s.estimators):
-        if estimator.kind not in ESTIMATORS:
-            close = difflib.get_close_matches(estimator.kind, list(ESTIMATORS), n=1)
+
+    def kind_problem(where: str, kind: str, params: dict, registry: dict, what: str) -> str | None:
+        """The problem with a participant's kind (with the near one) or its params, if any."""
+        if kind not in registry:
+            close = difflib.get_close_matches(kind, list(registry), n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
-            problems.append(
-                f"estimators[{i}].kind: unknown estimator {estimator.kind!r}{hint}; "
-                f"known: {', '.join(sorted(ESTIMATORS))}"
-            )
-        else:
-            try:
-                ESTIMATORS[estimator.kind].check_params(estimator.params)
-            except ParameterError as error:
-                problems.append(f"estimators[{i}].params.{error}")
+            return f"{where}.kind: unknown {what} {kind!r}{hint}; known: {', '.join(sorted(registry))}"
+        try:
+            registry[kind].check_params(params)
+        except ParameterError as error:
+            return f"{where}.params.{error}"
+        return None
+
+    for i, estimator in enumerate(s.estimators):
+        if problem := kind_problem(f"estimators[{i}]", estimator.kind, estimator.params, ESTIMATORS, "estimator"):
+            problems.append(problem)
         if estimator_names.count(estimator.name) > 1:
             problems.append(f"estimators[{i}].name: {estimator.name!r} is used by two estimators")
     for name in estimator_names:
         if name == "controller":
             problems.append("estimators: the name 'controller' is the controller node's; choose another name")
     if (c := s.controller) is not None:
-        if c.kind not in CONTROLLERS:
-            close = difflib.get_close_matches(c.kind, list(CONTROLLERS), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            problems.append(
-                f"controller.kind: unknown controller {c.kind!r}{hint}; known: {', '.join(sorted(CONTROLLERS))}"
-            )
-        else:
-            try:
-                CONTROLLERS[c.kind].check_params(c.params)
-            except ParameterError as error:
-                problems.append(f"controller.params.{error}")
+        if problem := kind_problem("controller", c.kind, c.params, CONTROLLERS, "controller"):
+            problems.append(problem)
         diagnosis = next((e for e in s.estimators if e.name == c.diagnosis), None)
         if c.diagnosis and diagnosis is None:
             problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
