@@ -104,8 +104,8 @@ def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
     spec = node_spec(fd, f"node-test-{fd}")
     c = Codec.from_dbc(spec.dbc)
     with (
-        can.Bus(interface="virtual", channel=spec.bus.channel) as runner,
-        can.Bus(interface="virtual", channel=spec.bus.channel) as bus,
+        can.Bus(interface="cosim_virtual", channel=spec.bus.channel) as runner,
+        can.Bus(interface="cosim_virtual", channel=spec.bus.channel) as bus,
     ):
         node = EstimatorNode(spec, bus)
         node.client.join()
@@ -131,8 +131,8 @@ def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
 def test_a_client_publishes_its_declared_messages_and_heartbeats():
     c = codec()
     with (
-        can.Bus(interface="virtual", channel="client-test") as runner,
-        can.Bus(interface="virtual", channel="client-test") as bus,
+        can.Bus(interface="cosim_virtual", channel="client-test") as runner,
+        can.Bus(interface="cosim_virtual", channel="client-test") as bus,
     ):
         client = Client("avg", c, bus)
         assert client.declared and client.lockstep
@@ -161,7 +161,7 @@ def test_a_client_publishes_its_declared_messages_and_heartbeats():
 
 def test_an_undeclared_client_only_listens():
     c = codec()
-    with can.Bus(interface="virtual", channel="passive") as bus:
+    with can.Bus(interface="cosim_virtual", channel="passive") as bus:
         client = Client("watcher", c, bus)
         assert not client.declared and not client.lockstep
         client.join()  # no heartbeat: the runner does not wait for it
@@ -171,7 +171,7 @@ def test_an_undeclared_client_only_listens():
 
 def test_frames_outside_the_database_are_ignored():
     c = codec()
-    with can.Bus(interface="virtual", channel="foreign") as bus:
+    with can.Bus(interface="cosim_virtual", channel="foreign") as bus:
         client = Client(None, c, bus)
         assert client.feed(can.Message(arbitration_id=0x7E0, data=b"\x01", is_extended_id=False)) == []
         assert client.feed(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False)) == []  # too short

@@ -14,8 +14,9 @@ timestamps replace the sender's (the log uses simulated time, never frame timest
 receiver whose socket buffer overflows during a burst loses frames (buffers are enlarged here,
 lockstep keeps bursts to one tick, and losses are counted per sender).
 
-``socketcan`` uses a (virtual) kernel CAN interface such as ``vcan0``; ``virtual`` is python-can's
-in-process bus, for unit tests.
+``socketcan`` uses a (virtual) kernel CAN interface such as ``vcan0``; ``virtual`` is cosim's
+in-process bus (``cosim.bus.inprocess``, the python-can interface ``cosim_virtual``), for in-process
+runs, tests and campaigns.
 """
 
 from __future__ import annotations
@@ -32,10 +33,13 @@ from typing import Any
 
 import can
 
+from cosim.bus.inprocess import InProcessBus
 from cosim.bus.udp import ForeignDatagram, HostMulticastBus
 from cosim.errors import CosimError
 
 INTERFACES = ("udp_multicast", "socketcan", "virtual")
+#: The python-can interface of a ``virtual`` run's bus: cosim's in-process bus, without copies.
+VIRTUAL_INTERFACE = "cosim_virtual"
 RECEIVE_BUFFER = 8 * 1024 * 1024
 #: Frames one ``drain`` hands out at most before its caller gets control back.
 DRAIN_LIMIT = 4096
@@ -59,6 +63,8 @@ class BusConfig:
             kwargs |= {"port": self.port, "hop_limit": self.hop_limit, "fd": True}
         elif self.interface == "socketcan":
             kwargs["fd"] = self.fd
+        elif self.interface == "virtual":
+            kwargs["interface"] = VIRTUAL_INTERFACE
         return kwargs
 
     def describe(self) -> str:
@@ -194,6 +200,8 @@ def open_bus(config: BusConfig, on_foreign: Callable[[ForeignDatagram], None] | 
             bus: can.BusABC = HostMulticastBus(
                 config.channel, config.port, config.hop_limit or 0, fd=True, on_foreign=on_foreign
             )
+        elif config.interface == "virtual":
+            bus = InProcessBus(config.channel)
         else:
             bus = can.Bus(**config.kwargs())
     except (can.CanError, OSError, ValueError) as error:

@@ -11,8 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import can
-
+from cosim.bus.transport import open_bus
 from cosim.run.node import ControllerNode, EstimatorNode, NodeSpec
 from estimators import Estimator
 from estimators.controller import Controller
@@ -107,7 +106,7 @@ class LocalNode(Participant):
 
     def __init__(self, spec: NodeSpec, estimator: Estimator) -> None:
         self.name = spec.name
-        self.bus = can.Bus(interface="virtual", channel=spec.bus.channel)
+        self.bus = open_bus(spec.bus)
         self.node = EstimatorNode(spec, self.bus, estimator)
         self.node.client.join()
 
@@ -127,7 +126,7 @@ class LocalController(LocalNode):
 
     def __init__(self, spec: NodeSpec, controller: Controller) -> None:
         self.name = spec.name
-        self.bus = can.Bus(interface="virtual", channel=spec.bus.channel)
+        self.bus = open_bus(spec.bus)
         self.node = ControllerNode(spec, self.bus, controller)
         self.node.client.join()
 
