@@ -40,7 +40,7 @@ Estimators are rebuilt from the log's metadata (kind, parameters, design model) 
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -155,6 +155,11 @@ class RunSeries:
         if ks.size == 0:
             return None
         return ks * self.sample_time, np.array([[values[k][key] for key in keys] for k in ks])
+
+    def diagnostics(self, kind: DiagnosticKind, names: Iterable[str] | None = None) -> dict:
+        """``diagnostic(name, kind)`` of every estimator (or of ``names``) that publishes it."""
+        found = {name: self.diagnostic(name, kind) for name in (self.estimators if names is None else names)}
+        return {name: v for name, v in found.items() if v is not None}
 
 
 def load(path: str | Path) -> RunSeries:
@@ -484,22 +489,12 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
                 "bias_effect",
                 log=True,
             )
-        norms = {
-            name: (t, np.linalg.norm(w, axis=1))
-            for name in series.estimators
-            for v in [series.diagnostic(name, DiagnosticKind.WEIGHT)]
-            if v is not None
-            for t, w in [v]
-        }
+        weights = series.diagnostics(DiagnosticKind.WEIGHT)
+        norms = {name: (t, np.linalg.norm(w, axis=1)) for name, (t, w) in weights.items()}
         if norms:
             one_panel(norms, "|Γ| [1]", "norm of the pseudoinverse weights Γ", "gamma_norm", log=False)
 
-        bias = {
-            name: v
-            for name in series.estimators
-            for v in [series.diagnostic(name, DiagnosticKind.BIAS_ESTIMATE)]
-            if v is not None
-        }
+        bias = series.diagnostics(DiagnosticKind.BIAS_ESTIMATE)
         if bias:
             fig, axes = figure(len(series.sensors), height=2.0, sharex=True)
             fk = np.array(sorted(series.fault))
@@ -511,12 +506,7 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
             axes[-1, 0].set_xlabel("time t [s]")
             save(fig, "bias_estimate", "bias estimates φ̂ against the true sensor fault")
 
-        residuals = {
-            name: v
-            for name in series.estimators
-            for v in [series.diagnostic(name, DiagnosticKind.RESIDUAL)]
-            if v is not None
-        }
+        residuals = series.diagnostics(DiagnosticKind.RESIDUAL)
         if residuals:
             fig, axes = figure(2 * len(residuals), height=2.2, sharex=True)
             for i, (name, (t, r)) in enumerate(residuals.items()):
@@ -531,12 +521,7 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
             axes[-1, 0].set_xlabel("time t [s]")
             save(fig, "residual", "residual r = y − C x̂ per output and its norm; faults shaded")
 
-        gains = {
-            name: v
-            for name in reconciliators
-            for v in [series.diagnostic(name, DiagnosticKind.GAIN_ESTIMATE)]
-            if v is not None
-        }
+        gains = series.diagnostics(DiagnosticKind.GAIN_ESTIMATE, reconciliators)
         if gains:
             fig, axes = figure(len(series.sensors), height=1.9, sharex=True)
             t_all = np.array(sorted(series.sensor_truth)) * series.sample_time
