@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 from contextlib import redirect_stdout
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -235,3 +236,13 @@ def test_run_takes_settings_from_the_command_line(tmp_path):
         ["faults[0].value", [0.5, 0, 0]],
     ]
     assert main(["run", "masses-bias", "-q", "--set", "faults[0].value=[1, 2]", "--out", str(out)]) == 1
+
+
+def test_docs_define_every_column_of_the_table():
+    from cosim.campaign.results import COLUMNS
+
+    docs = (Path(__file__).resolve().parent.parent / "docs" / "campaigns.md").read_text(encoding="utf-8")
+    rows = [[cell.strip() for cell in line.split("|")[1:-1]] for line in docs.splitlines() if line.startswith("| `")]
+    defined = {row[0].strip("`"): row[1:3] for row in rows}
+    for name, (kind, unit, _) in COLUMNS.items():
+        assert defined.get(name) == [kind, "state" if unit == "state" else unit], f"docs/campaigns.md: {name}"
