@@ -85,6 +85,13 @@ def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
     )
 
 
+@pytest.mark.slow
+def test_campaign_benchmark_reports_runs_per_hour_speedup_and_overhead():
+    figures = bench("campaign.py", "--runs", "4", "--duration", "0.5", "--memory-runs", "20")
+    assert figures["workers"] >= 1 and figures["runs_per_hour"] > 0 and figures["speedup"] > 0
+    assert figures["overhead_per_run_s"] >= 0 and figures["identical"] is True, figures
+
+
 def test_vessel_fdi_figures_isolate_every_fault_on_the_linear_model():
     figures = bench("vessel_fdi.py")
     assert figures["zeta"] == pytest.approx([2.485, 5.524, 1.013], abs=1e-3)

@@ -79,12 +79,14 @@ class DaskEngine(Engine):
                     n_workers=self.workers,
                     threads_per_worker=1,
                     processes=True,
-                    dashboard_address=None,
+                    dashboard_address=":0",  # a free port: 8787 may be another cluster's
                     silence_logs=40,  # logging.ERROR: a worker's chatter would scroll the progress display away
                 )
             )
             self.client = self._stack.enter_context(Client(cluster))
-            self.description = f"local Dask cluster, {self.workers} worker processes"
+            self.description = (
+                f"local Dask cluster, {self.workers} worker processes (dashboard: {cluster.dashboard_link})"
+            )
         from cosim.campaign.worker import preload
 
         self.client.run(preload)  # every worker imports the runner now, not during its first run
