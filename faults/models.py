@@ -266,3 +266,174 @@ class ActuatorOffset(ActuatorFault):
         if self.active(t):
             offset[list(self.channels)] = self.amplitude(t - self.start) * self._value
         return offset
+
+
+# -- bus faults -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FrameFate:
+    """What a bus fault does to one frame: ``lost``, ``delay`` (s) before it is queued, ``errors``:
+    transmission attempts destroyed (each an error frame; CAN retransmits unless ``single_shot``)."""
+
+    lost: bool = False
+    delay: float = 0.0
+    errors: int = 0
+    single_shot: bool = False
+
+
+@dataclass
+class BusFault(Fault):
+    """A fault of the bus rather than of a signal: it acts on frames of some ``messages`` (DBC
+    names), on a node's transmissions, or adds frames of an intruder. Bus faults are decided frame
+    by frame by the runner (``cosim.run.busfaults``), from their own random stream."""
+
+    messages: tuple[str, ...] = ()
+
+    def targets(self) -> list[str]:
+        """What it acts on, by name, for the log."""
+        return list(self.messages)
+
+    def fate(self, message: str, t: float) -> FrameFate:
+        """What becomes of a frame of ``message`` queued at t (called only while active)."""
+        return FrameFate()
+
+    def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
+        """Frames an intruder sends at t: (message, signal values), encoded by the runner."""
+        return []
+
+    def observe(self, message: str, values: tuple[float, ...], t: float) -> None:
+        """A genuine frame an intruder could record."""
+
+
+@dataclass
+class FrameLoss(BusFault):
+    """Frames of ``messages`` lost: each independently with ``probability`` (``burst_length`` 1), or
+    in bursts: a burst starts at a frame with ``probability`` and goes on for a geometric number of
+    frames of mean ``burst_length`` (a two-state Gilbert model)."""
+
+    probability: float = 0.0
+    burst_length: float = 1.0
+    kind = "frame_loss"
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self._left: dict[str, int] = {}
+
+    def fate(self, message: str, t: float) -> FrameFate:
+        left = self._left.get(message, 0)
+        if left > 0:
+            self._left[message] = left - 1
+            return FrameFate(lost=True)
+        if self._rng.random() < self.probability:
+            self._left[message] = int(self._rng.geometric(1.0 / self.burst_length)) - 1
+            return FrameFate(lost=True)
+        return FrameFate()
+
+
+@dataclass
+class FrameDelay(BusFault):
+    """Frames of ``messages`` held back ``delay`` ± ``jitter`` seconds (uniform, never negative)
+    before they are queued: a gateway's store-and-forward, a slow transmit task."""
+
+    delay: float = 0.0
+    jitter: float = 0.0
+    kind = "frame_delay"
+
+    def fate(self, message: str, t: float) -> FrameFate:
+        return FrameFate(delay=max(0.0, self.delay + self.jitter * self._rng.uniform(-1.0, 1.0)))
+
+
+@dataclass
+class FrameCorruption(BusFault):
+    """Bit errors on frames of ``messages``: each transmission attempt is destroyed with
+    ``probability`` (receivers discard it, an error frame follows, the transmitter's error counter
+    rises by 8); CAN retransmits it, unless ``retransmit`` is false (single-shot mode)."""
+
+    probability: float = 0.0
+    retransmit: bool = True
+    kind = "frame_corruption"
+
+    def fate(self, message: str, t: float) -> FrameFate:
+        errors = 0
+        while errors < 64 and self._rng.random() < self.probability:
+            errors += 1
+            if not self.retransmit:
+                break
+        return FrameFate(errors=errors, single_shot=not self.retransmit)
+
+
+@dataclass
+class BusOff(BusFault):
+    """Every transmission of ``node`` is destroyed (a shorted transceiver, CANstress disturbing
+    all its frames): its transmit error counter passes 255 after 32 attempts and it goes bus-off;
+    with ``recover`` it rejoins after 128 × 11 recessive bits, and goes bus-off again while the
+    fault lasts."""
+
+    node: str = "plant"
+    recover: bool = False
+    kind = "bus_off"
+
+    def targets(self) -> list[str]:
+        return [self.node]
+
+    def fate(self, message: str, t: float) -> FrameFate:
+        return FrameFate(errors=64)
+
+
+@dataclass
+class BabblingNode(BusFault):
+    """A node flooding ``frame_id`` (a high priority one) every ``period`` seconds with ``length``
+    random bytes: on an arbitrated bus, what loses arbitration to it starves."""
+
+    frame_id: int = 0x001
+    period: float = 0.0
+    length: int = 8
+    kind = "babbling_node"
+
+    def targets(self) -> list[str]:
+        return [f"0x{self.frame_id:03X}"]
+
+
+@dataclass
+class Spoofing(BusFault):
+    """An intruder sends ``message`` with the signal ``value`` every tick, right after the genuine
+    frame, so that receivers keeping the latest value take it."""
+
+    message: str = ""
+    value: tuple[float, ...] = ()
+    kind = "spoofing"
+
+    def targets(self) -> list[str]:
+        return [self.message]
+
+    def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
+        return [(self.message, tuple(self.value))]
+
+
+@dataclass
+class Replay(BusFault):
+    """An intruder records ``message`` and, while active, resends what it recorded ``lag`` seconds
+    earlier, right after the genuine frame. Unauthenticated frames protect nothing, so it writes
+    the current tick counter into them; an authenticated frame it can only resend as it was."""
+
+    message: str = ""
+    lag: float = 1.0
+    kind = "replay"
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self._heard: list[tuple[float, tuple[float, ...]]] = []
+
+    def targets(self) -> list[str]:
+        return [self.message]
+
+    def observe(self, message: str, values: tuple[float, ...], t: float) -> None:
+        if message == self.message:
+            self._heard.append((t, values))
+            while self._heard and self._heard[0][0] < t - self.lag - 1.0:
+                self._heard.pop(0)
+
+    def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
+        old = [values for when, values in self._heard if when <= t - self.lag + 1e-12]
+        return [(self.message, old[-1])] if old else []

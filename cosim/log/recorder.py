@@ -15,6 +15,9 @@ Topics (``log_time`` is simulated time in ns; every message also carries ``tick`
   sensor), ``measured`` (what went on the bus; null where the frame was not sent), ``dropped``
   (sensors whose frame was not sent), ``effectiveness`` (δ per actuator) and ``active`` (labels
   of the active faults).
+- ``/truth/bus_faults``: with bus faults only, what each did to a frame: ``label``, ``kind``,
+  ``message``, ``event`` (lost, delayed, corrupted, bus_off, recovered, injected), ``errors``
+  (error frames, or the TEC at bus-off), ``delay`` (s).
 - ``/cosim/events``: runner events (start, stop, warnings, errors).
 - ``/cosim/deadline_misses``: in realtime mode, each tick a node did not answer by its deadline.
 - ``/cosim/wire``: with ``[bus] timing = "arbitrated"`` only, each frame's passage on the simulated
@@ -43,6 +46,7 @@ FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
 EVENTS, DEADLINE_MISSES, FOREIGN = "/cosim/events", "/cosim/deadline_misses", "/cosim/foreign"
 WIRE = "/cosim/wire"
+BUS_FAULTS = "/truth/bus_faults"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
 _TIME = number("simulated time t_k = k τ", "s")
@@ -87,6 +91,7 @@ class RunRecorder:
         self.disturbances = disturbances
         self.frames = 0
         self._wire: int | None = None
+        self._bus_faults: int | None = None
         self._frames = log.channel(
             FRAMES,
             object_schema(
@@ -345,6 +350,31 @@ class RunRecorder:
                 "count": count,
             },
         )
+
+    def bus_fault(self, tick: int, t: float, t_ns: int, event: dict[str, Any]) -> None:
+        """What a bus fault did (``cosim.run.busfaults.BusEvent``'s fields)."""
+        if self._bus_faults is None:  # created with the first event: a run without bus faults has no such topic
+            self._bus_faults = self.log.channel(
+                BUS_FAULTS,
+                object_schema(
+                    "cosim.BusFaultEvent",
+                    {
+                        "tick": _TICK,
+                        "t": _TIME,
+                        "label": {"type": "string", "description": "the fault's label"},
+                        "kind": {"type": "string", "description": "the fault's kind"},
+                        "message": {"type": "string", "description": "the message (or node) it hit"},
+                        "event": {
+                            "type": "string",
+                            "enum": ["lost", "delayed", "corrupted", "bus_off", "recovered", "injected"],
+                        },
+                        "errors": {"type": "integer", "description": "error frames (corrupted), TEC (bus_off)"},
+                        "delay": number("how long the frame was held back", "s"),
+                    },
+                    "What a bus fault did to a frame",
+                ),
+            )
+        self.log.write(self._bus_faults, t_ns, {"tick": tick, "t": t, **event})
 
     def wire(
         self,

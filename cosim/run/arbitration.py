@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from cosim.bus.codec import HEARTBEAT, NMT, RUNNER, SYNC, Codec, Decoded
+import faults as fm
+from cosim.bus.codec import RUNNER, Codec, Decoded
 from cosim.bus.wire import Transmission, Wire, WireFrame
 
 #: Spawn key of the periodic traffic's payload streams (the faults and disturbances use others).
@@ -86,9 +87,11 @@ class Arbitration:
         self.dt_ns = dt_ns
         self.traffic = traffic or []
         self._answers: list[Frame] = []
+        self._delays: dict[int, int] = {}
+        self._senders: dict[int, str] = {}
         self._on_channel: set[int] = set()  # runner frames already on the channel, by id()
+        self._runner: set[int] = set()  # the runner's data frames still on the wire, by id()
         self._inputs_ns = 0  # q_{k−1}: when the receivers had the previous tick's inputs
-        self._protocol = {spec.frame_id for spec in codec.specs.values() if spec.role in (SYNC, NMT, HEARTBEAT)}
 
     def answer(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
         """A frame the runner heard (through ``Traffic.flush``, in canonical order): onto the wire
@@ -110,8 +113,23 @@ class Arbitration:
             frame,
         )
 
-    def tick(self, k: int, frames: list[Frame]) -> Step:
-        """Tick k's frames of the runner (SYNC(k) first): schedule them, commit the wire up to q_k."""
+    def _runner_frame(self, frame: Frame, t_ns: int, deadline: int) -> WireFrame:
+        wire_frame = self._wire_frame(frame, t_ns + self._delays.get(id(frame), 0), deadline, RUNNER)
+        if id(frame) in self._senders:
+            wire_frame.sender = self._senders[id(frame)]
+        return wire_frame
+
+    def tick(
+        self,
+        k: int,
+        frames: list[Frame],
+        delays_ns: dict[int, int] | None = None,
+        senders: dict[int, str] | None = None,
+    ) -> Step:
+        """Tick k's frames of the runner (SYNC(k) first): schedule them, commit the wire up to q_k.
+        ``delays_ns``: frames queued that much after t_k; ``senders``: frames of another sender
+        than their id's owner (an intruder), both by ``id()`` of the frame."""
+        self._delays, self._senders = delays_ns or {}, senders or {}
         t_ns, deadline = k * self.dt_ns, (k + 1) * self.dt_ns
         wire = self.wire
         for answer in self._answers:  # the answers to tick k − 1, due by t_k
@@ -124,7 +142,7 @@ class Arbitration:
         data = frames[1:]
         sync, inputs, planned = self._plan(k, data, t_ns, deadline)
         for frame in [sync, *data]:
-            wire.offer(self._wire_frame(frame, t_ns, deadline, RUNNER))
+            wire.offer(self._runner_frame(frame, t_ns, deadline))
         sync_at = next((p.delivered_ns for p in planned if p.frame.payload is sync and p.dropped is None), None)
         if sync_at is None or sync_at > deadline:
             self._inputs_ns = deadline
@@ -133,13 +151,14 @@ class Arbitration:
         passed = wire.run(min(self._inputs_ns, deadline))
         now = [frame for frame in data if id(frame) in inputs]
         self._on_channel.update(inputs)
+        self._runner.update(id(frame) for frame in data)
         late = []
         for p in passed:
             payload = p.frame.payload
-            if p.dropped is None and p.frame.sender == RUNNER and payload[1] is not None:
-                if payload[1].spec.role not in (SYNC, NMT) and id(payload) not in self._on_channel:
-                    late.append(payload)
+            if p.dropped is None and id(payload) in self._runner and id(payload) not in self._on_channel:
+                late.append(payload)  # a runner frame the wire delivers after its tick: on the channel now
             self._on_channel.discard(id(payload))
+            self._runner.discard(id(payload))
         return Step([sync, *now, *late], passed)
 
     def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
@@ -151,7 +170,7 @@ class Arbitration:
             sync: Frame = (message, self.codec.decode(message))
             trial = _copy(self.wire)
             for frame in [sync, *data]:
-                trial.offer(self._wire_frame(frame, t_ns, deadline, RUNNER))
+                trial.offer(self._runner_frame(frame, t_ns, deadline))
             planned = trial.run(deadline)
             through = {id(p.frame.payload) for p in planned if p.dropped is None and p.delivered_ns <= deadline}
             inputs = [id(f) for f in data if id(f) in through]
@@ -176,10 +195,23 @@ def _copy(wire: Wire) -> Wire:
     return trial
 
 
-def build_traffic(scenario: object) -> list[Periodic]:
-    """The scenario's ``[[bus.traffic]]`` nodes, their payloads drawn from its seed."""
+def build_traffic(scenario: object, babblers: list[fm.BabblingNode] | None = None) -> list[Periodic]:
+    """The scenario's ``[[bus.traffic]]`` nodes and babbling-node faults, payloads drawn from its seed."""
     s = scenario
     out = []
+    for j, babbler in enumerate(babblers or []):
+        out.append(
+            Periodic(
+                babbler.label,
+                babbler.frame_id,
+                max(1, round(babbler.period * 1e9)),
+                babbler.length,
+                round(babbler.start * 1e9),
+                2**62 if babbler.end == float("inf") else round(babbler.end * 1e9),
+                bool(s.bus.fd),  # type: ignore[attr-defined]
+                np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_TRAFFIC, 0x100 + j))),  # type: ignore[attr-defined]
+            )
+        )
     for i, spec in enumerate(s.bus.traffic):  # type: ignore[attr-defined]
         end_ns = 2**62 if spec.end == float("inf") else round(spec.end * 1e9)
         rng = np.random.default_rng(np.random.SeedSequence(s.seed, spawn_key=(_TRAFFIC, i)))  # type: ignore[attr-defined]

@@ -133,7 +133,7 @@ class PlantSource:
             noise=outcome.noise,
             fault=outcome.fault,
             measured=np.where(outcome.sent, outcome.measured, np.nan),
-            active=outcome.active,
+            active=outcome.active if session.bus_faults is None else (*outcome.active, *session.bus_faults.active(t)),
             u_cmd=self.u_cmd,
             u_eff=u_eff,
             delta=delta,

@@ -36,9 +36,11 @@ from cosim.log.writer import LogSink
 from cosim.plant import Plant, build_plant
 from cosim.run import design_cache
 from cosim.run.arbitration import Arbitration, build_traffic
+from cosim.run.busfaults import BusFaultStage
 from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
+from cosim.scenario.faults import build_bus_faults
 from estimators import Diagnostic, Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
 from estimators.design import fault_rejectable
@@ -123,7 +125,7 @@ def fault_record(fault: fm.Fault, s: Scenario) -> FaultRecord:
         fault.kind,
         fault.start,
         fault.end if np.isfinite(fault.end) else None,
-        [signals[c] for c in fault.channels],
+        fault.targets() if isinstance(fault, fm.BusFault) else [signals[c] for c in fault.channels],
     )
 
 
@@ -198,7 +200,8 @@ class RunPlan:
             continuous = None
         built = build_estimators(s, model, loaded.source, continuous)
         injector = build_faults(s)
-        onset = injector.first_onset
+        bus_faults = build_bus_faults(s)
+        onset = min([f for f in [injector.first_onset, *(b.start for b in bus_faults)] if f is not None], default=None)
         sensors, actuators, states = s.channels()
         return cls(
             loaded,
@@ -210,7 +213,7 @@ class RunPlan:
             build_controller(s, model, loaded.source, continuous),
             s.codec(),
             tuple(design_warnings(s, built)),
-            tuple(fault_record(f, s) for f in injector.faults),
+            tuple(fault_record(f, s) for f in [*injector.faults, *bus_faults]),
             None if onset is None else first_tick_at(s, onset),
             {
                 "states": {c.name: c.unit for c in states},
@@ -268,6 +271,7 @@ class RunPlan:
         """The session of a run of this plan on ``bus``, logging to ``out`` (and to ``sink``)."""
         s = self.scenario
         closed_loop = self.controller is not None
+        bus_faults = build_bus_faults(s)
         return Session(
             out,
             bus,
@@ -285,8 +289,19 @@ class RunPlan:
             registration=registration,
             sink=sink,
             arbitration=(
-                Arbitration(self.codec, s.bus.bitrate, s.bus.data_bitrate, s.dt_ns, build_traffic(s))
+                Arbitration(
+                    self.codec,
+                    s.bus.bitrate,
+                    s.bus.data_bitrate,
+                    s.dt_ns,
+                    build_traffic(s, [f for f in bus_faults if isinstance(f, fm.BabblingNode)]),
+                )
                 if s.bus.timing == "arbitrated"
+                else None
+            ),
+            bus_faults=(
+                BusFaultStage(self.codec, bus_faults, s.seed, s.dt_ns, s.bus.bitrate, s.bus.timing == "arbitrated")
+                if bus_faults
                 else None
             ),
         )

@@ -52,6 +52,7 @@ from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog
 from cosim.run.arbitration import Arbitration
+from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
 
@@ -323,9 +324,11 @@ class Session:
         registration: Registration | None = None,
         sink: LogSink | None = None,
         arbitration: Arbitration | None = None,
+        bus_faults: BusFaultStage | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
         self.arbitration = arbitration  # arbitrated timing: the simulated wire decides what arrives when
+        self.bus_faults = bus_faults  # what the scenario's bus faults do to the runner's frames, and intruders
         self._sink = sink  # the live view: the log tees every channel and message to it
         self._recorder_args, self._own, self._with_commands = recorder, own_senders, commands
         self._registration = registration
@@ -520,8 +523,10 @@ class Session:
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
+        applied = self._bus_faults(k, frames)
+        frames = applied.frames if applied is not None else frames
         if self.arbitration is not None:
-            self._send_arbitrated(k, frames)
+            self._send_arbitrated(k, frames, applied)
             return
         self.traffic.current = k
         self.traffic.sent([frame for frame, _ in frames])
@@ -534,17 +539,37 @@ class Session:
             self._flushed = k  # on disk whatever kills the runner later; at ticks, not wall time: deterministic
             self.log.flush()
         self._marker = (k, t, t_ns)
-        for frame, decoded in frames:
-            self.recorder.frame(k, t, t_ns, frame, decoded)
+        for item in frames:
+            self.recorder.frame(k, t, t_ns, *item)
+            if applied is not None and id(item) in applied.intruders:
+                self._intruder(item[0], applied.intruders[id(item)])
 
-    def _send_arbitrated(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
+    def _bus_faults(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> Applied | None:
+        """Tick k's frames through the bus faults; what they did goes to /truth/bus_faults."""
+        if self.bus_faults is None:
+            return None
+        applied = self.bus_faults.apply(k, frames)
+        t, t_ns = self.time(k)
+        for event in applied.events:
+            self.recorder.bus_fault(k, t, t_ns, vars(event))
+        return applied
+
+    def _intruder(self, frame: can.Message, label: str) -> None:
+        """An intruder's frame: foreign, whatever its id (the run knows it did not come from the id's owner)."""
+        self._foreign_frame(frame, f"sent by an intruder (fault {label}), not by the owner of its id")
+
+    def _send_arbitrated(
+        self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None
+    ) -> None:
         """As ``send``, through the wire: the previous tick's answers join it first, then the wire
         says which of these frames arrive in this tick (``cosim.run.arbitration``)."""
         assert self.arbitration is not None
         self.traffic.current = k
         self.traffic.flush(*self._marker)
         self._close_foreign()
-        step = self.arbitration.tick(k, frames)
+        step = self.arbitration.tick(
+            k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
+        )
         self.traffic.sent([frame for frame, _ in step.send])
         for frame, _ in step.send:
             self.bus.send(frame)
@@ -564,6 +589,8 @@ class Session:
             tick = p.delivered_ns // dt_ns
             if p.dropped is None:
                 self.recorder.frame(tick, p.delivered_ns / 1e9, p.delivered_ns, message, decoded, p.frame.sender)
+                if self.bus_faults is not None and p.frame.sender in self.bus_faults.intruder_labels:
+                    self._intruder(message, p.frame.sender)
             bits = sum(bits_of(p.frame))
             self.recorder.wire(
                 tick,

@@ -157,6 +157,113 @@ class ActuatorOffsetSpec(OnActuators):
         return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
 
 
+class OnBus(Windowed):
+    """A bus fault (``faults.models.BusFault``): it acts on frames, not on signal values."""
+
+    acts_on = "bus"
+
+    @property
+    def targets(self) -> list[str] | None:
+        return None
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {}
+
+
+class OnMessages(OnBus):
+    messages: Annotated[list[str], Field(min_length=1)]
+    """The DBC messages it hits, by name (the runner's: SENSOR_*, and COMMAND_* in open loop)."""
+
+    @property
+    def targets(self) -> list[str] | None:
+        return list(self.messages)
+
+
+class FrameLossSpec(OnMessages):
+    kind: Literal["frame_loss"]
+    probability: Probability
+    burst_length: Annotated[float, Field(ge=1.0)] = 1.0
+    """Mean frames per burst; 1: every frame lost independently."""
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"messages": tuple(self.messages), "probability": self.probability, "burst_length": self.burst_length}
+
+
+class FrameDelaySpec(OnMessages):
+    kind: Literal["frame_delay"]
+    delay: NonNegative
+    jitter: NonNegative = 0.0
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"messages": tuple(self.messages), "delay": self.delay, "jitter": self.jitter}
+
+
+class FrameCorruptionSpec(OnMessages):
+    kind: Literal["frame_corruption"]
+    probability: Probability
+    retransmit: bool = True
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"messages": tuple(self.messages), "probability": self.probability, "retransmit": self.retransmit}
+
+
+class BusOffSpec(OnBus):
+    kind: Literal["bus_off"]
+    node: Literal["plant", "controller"] = "plant"
+    """The node whose transmissions fail: ``plant`` (the sensors) or ``controller`` (open-loop commands)."""
+    recover: bool = False
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [self.node]
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"node": self.node, "recover": self.recover}
+
+
+class BabblingNodeSpec(OnBus):
+    kind: Literal["babbling_node"]
+    id: Annotated[int, Field(ge=0, le=0x7FF)] = 0x001
+    period: Annotated[float, Field(gt=0.0)] = 0.0001
+    length: Annotated[int, Field(ge=0, le=8)] = 8
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [f"0x{self.id:03X}"]
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"frame_id": self.id, "period": self.period, "length": self.length}
+
+
+class SpoofingSpec(OnBus):
+    kind: Literal["spoofing"]
+    message: str
+    value: Vector
+    """The values it sends, one per signal of the message besides ``tick``."""
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [self.message]
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"message": self.message, "value": tuple(self.value)}
+
+
+class ReplaySpec(OnBus):
+    kind: Literal["replay"]
+    message: str
+    lag: Annotated[float, Field(gt=0.0)] = 1.0
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [self.message]
+
+    def bus_parameters(self) -> dict[str, Any]:
+        return {"message": self.message, "lag": self.lag}
+
+
+BUS_FAULTS = ("frame_loss", "frame_delay", "frame_corruption", "bus_off", "babbling_node", "spoofing", "replay")
+
 NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
 FaultSpec = Annotated[
     BiasSpec
@@ -168,13 +275,24 @@ FaultSpec = Annotated[
     | DropoutSpec
     | OutliersSpec
     | ActuatorEffectivenessSpec
-    | ActuatorOffsetSpec,
+    | ActuatorOffsetSpec
+    | FrameLossSpec
+    | FrameDelaySpec
+    | FrameCorruptionSpec
+    | BusOffSpec
+    | BabblingNodeSpec
+    | SpoofingSpec
+    | ReplaySpec,
     Discriminator("kind"),
 ]
 
 
-def build_fault(spec: FaultSpec, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
-    """The fault model of one table, on the transmitted ``sensors`` or the ``actuators``."""
+def build_fault(spec: FaultSpec | OnBus, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
+    """The fault model of one table, on the transmitted ``sensors`` or the ``actuators`` (or, for a
+    bus fault, on frames)."""
+    if isinstance(spec, OnBus):
+        kind: str = getattr(spec, "kind")  # noqa: B009 (every concrete table has one)
+        return fm.FAULT_MODELS[kind](channels=(), start=spec.start, end=spec.end, label=label, **spec.bus_parameters())
     signals = list(actuators if spec.acts_on == "actuators" else sensors)
     names = spec.targets if spec.targets is not None else signals
     channels = tuple(signals.index(name) for name in names)
@@ -192,7 +310,20 @@ def build_faults(scenario: Any) -> fm.FaultInjector:
         if not isinstance(model, fm.SensorFault):  # noise tables are sensor models (NoiseSpec)
             raise TypeError(f"noise model {label} is a {type(model).__name__}, not a sensor fault")
         noise.append(model)
-    built = [build_fault(spec, label, sensors, actuators) for spec, label in zip(scenario.faults, fault_labels)]
+    built = [
+        build_fault(spec, label, sensors, actuators)
+        for spec, label in zip(scenario.faults, fault_labels)
+        if not isinstance(spec, OnBus)  # the runner's (cosim.run.busfaults)
+    ]
     sensor_faults = [f for f in built if isinstance(f, fm.SensorFault)]
     actuator_faults = [f for f in built if isinstance(f, fm.ActuatorFault)]
     return fm.FaultInjector(noise, sensor_faults, actuator_faults, scenario.seed)
+
+
+def build_bus_faults(scenario: Any) -> list[fm.BusFault]:
+    """The scenario's bus faults, which the runner applies to frames (``cosim.run.busfaults``)."""
+    _, labels = scenario.fault_labels()
+    built = [
+        build_fault(spec, label, (), ()) for spec, label in zip(scenario.faults, labels) if isinstance(spec, OnBus)
+    ]
+    return [model for model in built if isinstance(model, fm.BusFault)]

@@ -19,8 +19,10 @@ import numpy as np
 from pydantic import ValidationError
 
 import scenarios
+from cosim.bus.codec import CONTROLLER, PLANT
 from cosim.errors import CodecError, ScenarioError
 from cosim.plant import statespace
+from cosim.scenario.faults import OnBus
 from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import problem_message, problem_path
 from estimators import ESTIMATORS, ParameterError
@@ -200,6 +202,9 @@ def check(s: Scenario) -> list[str]:
     for group, entries in (("noise", s.noise), ("faults", s.faults)):
         for i, fault in enumerate(entries):
             field = f"{group}[{i}]"
+            if isinstance(fault, OnBus):
+                problems += _check_bus_fault(s, field, fault)
+                continue
             names, what = (
                 (actuator_names, "actuator") if fault.acts_on == "actuators" else (transmitted, "transmitted sensor")
             )
@@ -284,6 +289,38 @@ def check(s: Scenario) -> list[str]:
             )
     if not problems:
         problems += _check_bus(s)
+    return problems
+
+
+def _check_bus_fault(s: Scenario, field: str, fault: OnBus) -> list[str]:
+    """A bus fault acts on frames the runner sends: the sensors' and, in open loop, the commands'."""
+    try:
+        codec = s.codec()
+    except (ScenarioError, CodecError):
+        return []  # reported by _check_bus
+    senders = (PLANT,) if s.controller is not None else (PLANT, CONTROLLER)
+    runner = {spec.name: spec for spec in codec.specs.values() if spec.sender in senders and spec.channels}
+    known = ", ".join(runner)
+    problems = []
+    names = list(getattr(fault, "messages", None) or []) + ([fault.message] if hasattr(fault, "message") else [])
+    key = "messages" if hasattr(fault, "messages") else "message"
+    for name in names:
+        if name not in runner:
+            close = difflib.get_close_matches(name, list(runner), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            problems.append(
+                f"{field}.{key}: {name!r} is not a message the runner sends{hint}; bus faults act on {known}"
+            )
+    value = getattr(fault, "value", None)
+    if value is not None and len(names) == 1 and names[0] in runner:
+        signals = len(runner[names[0]].channels)
+        if len(value) != signals:
+            problems.append(f"{field}.value: {names[0]} carries {signals} signal(s); give {signals} value(s)")
+    kind = getattr(fault, "kind", "")
+    if kind == "babbling_node" and s.bus.timing != "arbitrated":
+        problems.append(f'{field}: a babbling node needs [bus] timing = "arbitrated" (an ideal bus takes no time)')
+    if kind == "bus_off" and getattr(fault, "node", "") == CONTROLLER and s.controller is not None:
+        problems.append(f"{field}.node: the controller is a node process in closed loop; bus_off acts on the plant")
     return problems
 
 

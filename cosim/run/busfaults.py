@@ -1,0 +1,203 @@
+"""Bus faults in the runner: what becomes of its frames on the way to the receivers, and the
+frames of intruders.
+
+The runner sends the plant's sensor frames (and the open-loop commands), so it is where a bus
+fault can act on what the estimators receive, as CANstress acts on a real bus: each tick, every
+data frame of a targeted message meets the active bus faults (``faults.models.BusFault``), each
+drawing from its own seeded stream:
+
+- ``frame_loss``: the frame never arrives; ``frame_delay``: it is queued ``delay`` ± ``jitter``
+  later (on an ideal bus it arrives in the tick that delay reaches, late when that is a later
+  one; on an arbitrated bus the wire decides);
+- ``frame_corruption`` and ``bus_off``: transmission attempts are destroyed, each an error frame
+  (counted) and 8 more on the transmitter's error counter (TEC; a success takes 1 off); CAN
+  retransmits, and a node whose TEC passes 255 is bus-off: it sends nothing until it recovers
+  after 128 × 11 recessive bits (``recover``), or for the rest of the run;
+- ``spoofing`` and ``replay``: an intruder's frame of the message follows the genuine one (the
+  runner encodes it for the current tick: nothing protects the counter of an unauthenticated
+  frame); ``babbling_node``: periodic frames on the wire (arbitrated timing).
+
+SYNC(k) announces the frames the receivers get in tick k, intruders' included (a receiver keeps
+the latest value of a message, as a CAN mailbox does). What each fault did goes to
+``/truth/bus_faults``; intruders' frames are foreign frames (``/cosim/foreign``).
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+
+import faults as fm
+from cosim.bus.codec import SYNC, Codec, Decoded
+
+Frame = tuple[can.Message, Decoded | None]
+_BUS = 3  # spawn key group of the bus faults' random streams (noise 0, sensor faults 1, actuators 2)
+_BUS_OFF_TEC = 255
+_RECOVERY_BITS = 128 * 11
+
+
+@dataclass(frozen=True)
+class BusEvent:
+    """One thing a bus fault did, for ``/truth/bus_faults``."""
+
+    label: str
+    kind: str
+    message: str
+    event: str  # lost, delayed, corrupted, bus_off, recovered, injected
+    errors: int = 0
+    delay: float = 0.0
+
+
+@dataclass
+class Applied:
+    """A tick's frames after the bus faults: to send (SYNC first, re-announced), the wire delay of
+    each delayed frame and the intruder of each injected one (both by ``id()`` of the frame)."""
+
+    frames: list[Frame]
+    delays_ns: dict[int, int] = field(default_factory=dict)
+    intruders: dict[int, str] = field(default_factory=dict)
+    events: list[BusEvent] = field(default_factory=list)
+
+
+class BusFaultStage:
+    """The scenario's bus faults between the runner and the receivers."""
+
+    def __init__(
+        self, codec: Codec, models: list[fm.BusFault], seed: int, dt_ns: int, bitrate: int, arbitrated: bool
+    ) -> None:
+        self.codec, self.models, self.dt_ns, self.arbitrated = codec, models, dt_ns, arbitrated
+        for model in models:
+            model.reset(
+                np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_BUS, zlib.crc32(model.label.encode()))))
+            )
+        self.recovery_ns = round(_RECOVERY_BITS * 1e9 / bitrate)
+        self.tec: dict[str, int] = {}
+        self.off_until: dict[str, float] = {}  # node -> when it may rejoin (ns; inf: never)
+        self.error_frames = 0
+        self._held: list[tuple[int, Frame]] = []  # ideal bus: (tick it arrives in, frame) of delayed frames
+        self.intruder_labels = {m.label for m in models if isinstance(m, (fm.Spoofing, fm.Replay, fm.BabblingNode))}
+
+    def active(self, t: float) -> list[str]:
+        """Labels of the bus faults active at t (for /truth/faults)."""
+        return [m.label for m in self.models if m.active(t)]
+
+    def apply(self, k: int, frames: list[Frame]) -> Applied:
+        t_ns = k * self.dt_ns
+        t = t_ns / 1e9
+        out = Applied([])
+        sent: list[Frame] = []
+        for frame in frames[1:]:
+            message, decoded = frame
+            if decoded is None:
+                sent.append(frame)
+                continue
+            name, sender = decoded.spec.name, decoded.spec.sender
+            if self._off(sender, t_ns, out):
+                out.events.append(BusEvent("", "bus_off", name, "lost"))
+                continue
+            lost, delay, errors, single_shot, culprit = False, 0.0, 0, False, None
+            for model in self.models:
+                if not model.active(t):
+                    continue
+                hit = (
+                    model.node == sender
+                    if isinstance(model, fm.BusOff)
+                    else name in model.messages and not isinstance(model, (fm.Spoofing, fm.Replay, fm.BabblingNode))
+                )
+                if not hit:
+                    continue
+                fate = model.fate(name, t)
+                if fate.lost:
+                    out.events.append(BusEvent(model.label, model.kind, name, "lost"))
+                    lost = True
+                if fate.delay:
+                    out.events.append(BusEvent(model.label, model.kind, name, "delayed", delay=fate.delay))
+                delay += fate.delay
+                if fate.errors:
+                    culprit = culprit or model
+                errors += fate.errors
+                single_shot |= fate.single_shot
+            if errors and self._errors(sender, name, errors, single_shot, culprit, t_ns, out):
+                continue
+            if lost:
+                continue
+            if not errors:
+                self.tec[sender] = max(0, self.tec.get(sender, 0) - 1)
+            for model in self.models:
+                model.observe(name, tuple(decoded.values[s] for s in decoded.spec.signals), t)
+            if delay > 0:
+                delay_ns = round(delay * 1e9)
+                if self.arbitrated:
+                    out.delays_ns[id(frame)] = delay_ns
+                else:
+                    arrives = (t_ns + delay_ns) // self.dt_ns
+                    if arrives > k:
+                        self._held.append((arrives, frame))
+                        continue
+            sent.append(frame)
+            self._inject(k, t, name, sent, out)
+        self._inject(k, t, None, sent, out)  # intruders whose genuine frame did not come
+        late = [frame for arrives, frame in self._held if arrives <= k]
+        self._held = [(arrives, frame) for arrives, frame in self._held if arrives > k]
+        sync, _ = frames[0]
+        if frames[0][1] is not None and frames[0][1].spec.role == SYNC:
+            sync = self.codec.sync(k, len(sent))
+        out.frames = [(sync, self.codec.decode(sync)), *sent, *late]
+        return out
+
+    def _off(self, sender: str, t_ns: int, out: Applied) -> bool:
+        """Whether ``sender`` is bus-off at t (after a recovery its counters start again at 0)."""
+        until = self.off_until.get(sender)
+        if until is None:
+            return False
+        if t_ns >= until:
+            del self.off_until[sender]
+            self.tec[sender] = 0
+            out.events.append(BusEvent("", "bus_off", sender, "recovered"))
+            return False
+        return True
+
+    def _errors(
+        self,
+        sender: str,
+        name: str,
+        errors: int,
+        single_shot: bool,
+        culprit: fm.BusFault | None,
+        t_ns: int,
+        out: Applied,
+    ) -> bool:
+        """Destroyed attempts of one frame; True if it never gets through (bus-off or single shot)."""
+        tec = self.tec.get(sender, 0)
+        attempts = min(errors, (_BUS_OFF_TEC - tec) // 8 + 1)  # the attempt that passes 255 is the last
+        self.error_frames += attempts
+        self.tec[sender] = tec + 8 * attempts
+        label, kind = (culprit.label, culprit.kind) if culprit is not None else ("", "")
+        out.events.append(BusEvent(label, kind, name, "corrupted", errors=attempts))
+        if self.tec[sender] > _BUS_OFF_TEC:
+            recover = not isinstance(culprit, fm.BusOff) or culprit.recover
+            self.off_until[sender] = t_ns + self.recovery_ns if recover else math.inf
+            out.events.append(BusEvent(label, "bus_off", sender, "bus_off", errors=self.tec[sender]))
+            return True
+        if single_shot:
+            return True
+        self.tec[sender] = max(0, self.tec[sender] - 1)
+        return False
+
+    def _inject(self, k: int, t: float, name: str | None, sent: list[Frame], out: Applied) -> None:
+        """Intruders' frames of ``name``, right after the genuine one (None: those not sent yet)."""
+        done = set(out.intruders.values())
+        for model in self.models:
+            if not isinstance(model, (fm.Spoofing, fm.Replay)) or not model.active(t) or model.label in done:
+                continue
+            if name is not None and model.message != name:
+                continue
+            for message, values in model.inject(t):
+                frame = self.codec.encode_decoded(message, k, values)
+                sent.append(frame)
+                out.intruders[id(frame)] = model.label
+                out.events.append(BusEvent(model.label, model.kind, message, "injected"))
