@@ -535,7 +535,7 @@ def _bus(values: dict[str, Any]) -> list[Table]:
                 [text(key), number(value, _unit_of_key(key)) if isinstance(value, (int, float)) else text(value)]
             )
     for key, value in bus.items():
-        if key not in known and isinstance(value, dict) and key != "by_id":
+        if key not in known and isinstance(value, dict) and key not in ("by_id", "foreign_frames", "latency"):
             rows.append([text(key), text(value)])
     tables = [
         Table(
@@ -557,6 +557,44 @@ def _bus(values: dict[str, Any]) -> list[Table]:
                     for i, e in by_id.items()
                 ],
                 id="by-id",
+                folded=True,
+            )
+        )
+    foreign = bus.get("foreign_frames") or {}
+    if foreign:  # never folded: frames on the run's ids that their owner did not send are news
+        tables.append(
+            Table(
+                "Frames nobody in the run sent",
+                ["id", "message", "foreign frames"],
+                [[text(i), text(by_id.get(i, {}).get("message")), number(n)] for i, n in foreign.items()],
+                "Frames on an id whose owner did not send them (an intruder, a program that joined the bus): "
+                "counted and logged on /cosim/foreign, never used by the runner.",
+                id="foreign",
+            )
+        )
+    latency = bus.get("latency") or {}
+    if latency:
+        tables.append(
+            Table(
+                "Latency on the arbitrated bus",
+                ["id", "message", "frames", "min", "median", "max", "late", "replaced"],
+                [
+                    [
+                        text(i),
+                        text(by_id.get(i, {}).get("message")),
+                        number(e.get("frames")),
+                        *(
+                            number(e.get(key) * 1e3 if e.get(key) is not None else None, "ms")
+                            for key in ("min", "median", "max")
+                        ),
+                        number(e.get("late")),
+                        number(e.get("dropped")),
+                    ]
+                    for i, e in latency.items()
+                ],
+                "From queueing to the frame's last bit (docs/bus.md); late: delivered after its deadline; replaced: "
+                "overwritten by its sender's next frame of the id before it won arbitration.",
+                id="latency",
                 folded=True,
             )
         )
