@@ -10,6 +10,7 @@ from cosim.analysis.plot import bias_effect, load
 from cosim.run import Run
 from cosim.scenario import load as load_scenario
 from estimators.base import DiagnosticKind
+from tests.doc_figures import check, reproduction_figures, undocumented
 
 pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
 
@@ -80,6 +81,16 @@ def test_cdc2016_ex2(logs):
     s = logs("cdc2016-ex2")
     for name in ("L1_k1", "L2_k1"):
         _, gamma = s.diagnostic(name, DiagnosticKind.WEIGHT)
-        assert abs(gamma[-1][1]) < 0.02, name  # γ₂ → 0 (Fig. 8)
-        assert final_error(s, name, 10.0) < 0.05, name
+        # γ₂ → 0 (Fig. 8), to what the ±0.05 noise leaves (0.0050 measured for both gains); the
+        # error back to the noise level (0.0030 and 0.0092 over the last 10 s).
+        assert abs(gamma[-1][1]) < 0.01, name
+        assert final_error(s, name, 10.0) < 0.015, name
     assert final_error(s, "L1_k0", 10.0) > 1 and final_error(s, "L2_k0", 10.0) > 1
+
+
+@pytest.mark.parametrize("name", ["cdc2016-ex1", "cdc2016-ex2"])
+def test_the_documented_figures_are_what_a_run_gives(logs, name):
+    """docs/tac2024.md's figures (``python -m tests.doc_figures``) within half a unit of their last
+    printed digit plus 2 %, and each printed in the document."""
+    assert check(name, reproduction_figures(logs(name))) == []
+    assert undocumented(name) == []
