@@ -226,7 +226,18 @@ def _with_progress(run, console: Console, started, **execute):
 
 
 def cmd_node(args: argparse.Namespace) -> int:
-    from cosim.run.node import load_spec, serve
+    # A node never reads or writes MF4 files, but python-can's first import loads its MF4 support,
+    # asammdf with pandas, where the export extra is installed: a second of every node's start-up.
+    # Kept out of that import, python-can leaves MF4 out (as where asammdf is not installed);
+    # asammdf itself stays importable afterwards (cosim's MF4 export uses it directly).
+    hidden = "asammdf" not in sys.modules and "can" not in sys.modules
+    if hidden:
+        sys.modules["asammdf"] = None  # type: ignore[assignment]
+    try:
+        from cosim.run.node import load_spec, serve
+    finally:
+        if hidden and sys.modules.get("asammdf", False) is None:
+            del sys.modules["asammdf"]
 
     if args.spec:
         spec = load_spec(args.spec)
@@ -566,51 +577,69 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     if args.json:
         sys.stdout.write(orjson.dumps(board, option=orjson.OPT_INDENT_2).decode() + "\n")
         return 0
-    _render_leaderboard(board, _console())
+    _render_leaderboard(board, _console(), markdown=args.markdown)
     return 0
 
 
-def _render_leaderboard(board: dict, console: Console) -> None:
+def _leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]]:
+    """The headers and rows of one group of a leaderboard, as text."""
+
     def num(value) -> str:
         return "-" if value is None else f"{value:.4g}"
 
     def pct(value) -> str:
         return "-" if value is None else f"{100 * value:.1f} %"
 
+    diagnosis = any(s["diagnoses"] for s in group["ranking"])
+    headers = ["#", "estimator", "kind", "runs", f"RMS p50 [{unit}]" if unit else "RMS p50", "p90", "rejection"]
+    if diagnosis:
+        headers += ["detected", "missed", "false alarms/h", "delay p50 [s]", "isolation p50 [s]", "isolated right"]
+    rows = []
+    for s in group["ranking"]:
+        cells = [
+            str(s["rank"]),
+            s["estimator"],
+            s["kind"],
+            f"{s['runs']}" + (f" +{s['failed']}!" if s["failed"] else ""),
+            num(s["rms_post_fault_median"]),
+            num(s["rms_post_fault_p90"]),
+            num(s["bias_rejection_median"]),
+        ]
+        if diagnosis:
+            cells += [
+                pct(s["detection_rate"]),
+                str(s["missed_detections"] if s["missed_detections"] is not None else "-"),
+                num(s["false_alarms_per_hour"]),
+                num(s["detection_delay_median_s"]),
+                num(s["isolation_delay_median_s"]),
+                pct(s["isolation_accuracy"]),
+            ]
+        rows.append(cells)
+    return headers, rows
+
+
+def _render_leaderboard(board: dict, console: Console, markdown: bool = False) -> None:
     unit = board["units"].get("rms_post_fault") or ""
-    console.print(
-        f"[bold]{escape(str(board.get('campaign') or board['table']))}[/bold]: {board['runs']} runs, "
-        f"{board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
-    )
+    name = str(board.get("campaign") or board["table"])
+    summary = f"{board['runs']} runs, {board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
+    if markdown:  # for documents: plain GitHub tables, one per group
+        lines = [f"**{name}**: {summary}", ""]
+        for group in board["groups"]:
+            headers, rows = _leaderboard_rows(group, unit)
+            lines += [", ".join(f"{k} = {v}" for k, v in group["group"].items()), ""]
+            lines += ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+            lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
+        sys.stdout.write("\n".join(lines))
+        return
+    console.print(f"[bold]{escape(name)}[/bold]: {summary}")
     for group in board["groups"]:
         title = ", ".join(f"{k} = {v}" for k, v in group["group"].items())
         table = Table(title=escape(title), title_justify="left", box=None, header_style="bold")
-        diagnosis = any(s["diagnoses"] for s in group["ranking"])
-        headers = ["#", "estimator", "kind", "runs", f"RMS p50 [{unit}]", "p90", "rejection"]
-        if diagnosis:
-            headers += ["detected", "missed", "false alarms/h", "delay p50 [s]", "isolation p50 [s]", "isolated right"]
+        headers, rows = _leaderboard_rows(group, unit)
         for i, header in enumerate(headers):
             table.add_column(header, justify="left" if 0 < i < 3 else "right")
-        for s in group["ranking"]:
-            cells = [
-                str(s["rank"]),
-                escape(s["estimator"]),
-                escape(s["kind"]),
-                f"{s['runs']}" + (f" +{s['failed']}!" if s["failed"] else ""),
-                num(s["rms_post_fault_median"]),
-                num(s["rms_post_fault_p90"]),
-                num(s["bias_rejection_median"]),
-            ]
-            if diagnosis:
-                cells += [
-                    pct(s["detection_rate"]),
-                    str(s["missed_detections"] if s["missed_detections"] is not None else "-"),
-                    num(s["false_alarms_per_hour"]),
-                    num(s["detection_delay_median_s"]),
-                    num(s["isolation_delay_median_s"]),
-                    pct(s["isolation_accuracy"]),
-                ]
-            table.add_row(*cells)
+        for row in rows:
+            table.add_row(*map(escape, row))
         console.print(table)
     if board["outliers"]:
         console.print(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")
@@ -1017,6 +1046,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
+    p.add_argument("--markdown", action="store_true", help="print the tables as Markdown (for documents)")
     p.set_defaults(func=cmd_leaderboard)
 
     p = sub.add_parser(

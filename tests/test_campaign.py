@@ -204,6 +204,12 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
     assert json.loads(out.getvalue())["groups"][0]["group"] == {"fault_kind": "bias"}
     page = (tmp_path / "board.html").read_text()
     assert page.count("data:image/png;base64,") >= 1 and "http" not in page.replace("http-equiv", "")
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["leaderboard", str(inline_table.path), "--by", "bias", "--markdown"]) == 0
+    tables = [line for line in out.getvalue().splitlines() if line.startswith("| 1 |") or line.startswith("| 2 |")]
+    ranked = [s["estimator"] for g in board["groups"] for s in g["ranking"]]
+    assert [line.split(" | ")[1] for line in tables] == ranked
 
 
 def test_run_takes_settings_from_the_command_line(tmp_path):
