@@ -71,7 +71,9 @@ def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
             names = sorted(data, key=lambda k: float(np.median(data[k])))
             ax.boxplot([data[k] for k in names], orientation="horizontal", whis=(10, 90), showfliers=True)
             ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
-            ax.set_xscale("log")
+            values = [v for k in names for v in data[k]]
+            if max(values) > 10 * min(values):  # errors over decades: log scale; within one, plain numbers
+                ax.set_xscale("log")
             ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")
             ax.grid(alpha=0.3, axis="x")
         unit = units.get("rms_post_fault", "")
@@ -81,7 +83,8 @@ def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
             {
                 "data": _png(fig),
                 "caption": "Distribution of the RMS estimation error after the fault onset, per estimator and group "
-                "(box: quartiles, whiskers: 10th and 90th percentiles, log scale); best median first.",
+                "(box: quartiles, whiskers: 10th and 90th percentiles; log scale where they span more than a decade); "
+                "best median first.",
             }
         )
         plt.close(fig)
