@@ -169,3 +169,30 @@ def test_the_typescript_reader_of_foxglove_reads_what_the_official_reader_reads(
     )
     seen.pop("profile")
     assert seen == read_with_mcap(log)
+
+
+def test_the_log_writer_writes_the_bytes_of_the_official_writer(tmp_path, monkeypatch):
+    """McapLog's short path for messages (cosim.log.writer._Writer) changes no byte of the file."""
+    from mcap.writer import Writer
+
+    from cosim.log import writer as writer_module
+
+    def write(path: Path) -> bytes:
+        with writer_module.McapLog(path, chunk_size=4096) as log:  # many chunks
+            assert getattr(log._writer, "_fast", True)  # ours takes the short path (the official has none)
+            a = log.channel("/a", {"title": "a", "type": "object"})
+            b = log.channel("/b", {"title": "b", "type": "object"})
+            log.metadata("m", {"k": "v"})
+            for k in range(3000):
+                log.write(a, 10 * k, {"tick": k, "x": k / 7})
+                if k % 3 == 0:
+                    log.write(b, 10 * k - 5 if k else 0, {"tick": k, "y": [k, -k]})  # out of order in time
+                if k == 1500:
+                    log.flush()
+                    log.attach("file.txt", "text/plain", b"hello", 10 * k)
+        return path.read_bytes()
+
+    ours = write(tmp_path / "ours.mcap")
+    monkeypatch.setattr(writer_module, "_Writer", Writer)
+    official = write(tmp_path / "official.mcap")
+    assert ours == official

@@ -41,7 +41,7 @@ from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 import can
 import cantools
@@ -51,6 +51,7 @@ from cantools.database.can.formats.dbc.dbc_attribute_definition import DbcAttrib
 from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.conversion import BaseConversion
 
+from cosim.bus.packing import Packer
 from cosim.bus.signals import Channel
 from cosim.errors import CodecError
 
@@ -346,14 +347,20 @@ class Codec:
         self.specs: dict[str, MessageSpec] = {spec.name: spec for spec in specs}
         self._by_id: dict[int, MessageSpec] = {spec.frame_id: spec for spec in specs}
         self._messages: dict[str, Message] = {m.name: m for m in database.messages}
-        # cantools' own scaled <-> raw conversions, to know a value as a frame carries it
-        self._conversions = {
-            spec.name: [
-                (signal, self._messages[spec.name].get_signal_by_name(signal).conversion) for signal in spec.signals
-            ]
-            for spec in specs
-            if spec.channels
-        }
+        # Each message compiled once into a packer (cosim.bus.packing) from cantools' message: the
+        # tick counter first, then the spec's signals, in the order encode takes their values.
+        self._packers: dict[str, Packer] = {}
+        for spec in specs:
+            message = self._messages[spec.name]
+            has_tick = any(signal.name == "tick" for signal in message.signals) and "tick" not in spec.signals
+            self._packers[spec.name] = Packer(message, ("tick", *spec.signals) if has_tick else spec.signals)
+        # id -> (spec, packer, where the tick counter is among the packer's values, the other signals)
+        self._unpacking: dict[int, tuple[MessageSpec, Packer, int | None, tuple[str, ...]]] = {}
+        for spec in specs:
+            names = self._packers[spec.name].names
+            at = names.index("tick") if "tick" in names else None
+            others = tuple(name for name in names if name != "tick")
+            self._unpacking[spec.frame_id] = (spec, self._packers[spec.name], at, others)
         self.tick_modulus = 2**FD_TICK_BITS if fd else 2**CLASSIC_TICK_BITS
         self.node_ids: dict[str, int] = {
             spec.sender: spec.frame_id - HEARTBEAT_BASE for spec in specs if spec.role == HEARTBEAT
@@ -392,8 +399,8 @@ class Codec:
     # -- frames ---------------------------------------------------------------------------------
 
     def _classic(self, name: str, values: dict[str, int]) -> can.Message:
-        spec = self.specs[name]
-        data = self._messages[name].encode(values, strict=False)
+        spec, packer = self.specs[name], self._packers[name]
+        data = packer.encode([values[signal] for signal in packer.names])
         return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False)
 
     def sync(self, tick: int, frames: int) -> can.Message:
@@ -419,47 +426,40 @@ class Codec:
         quantized in classic CAN), without decoding it again."""
         spec = self.specs[name]
         counter = tick % self.tick_modulus
-        payload: dict[str, float] = {"tick": counter}
-        for channel, signal_name, value in zip(spec.channels, spec.signals, values, strict=True):
+        payload = [counter]
+        for channel, value in zip(spec.channels, values, strict=True):
             if not (channel.minimum <= value <= channel.maximum):  # also rejects NaN
-                raise CodecError(_range_message(spec, signal_name, channel, value, tick))
-            payload[signal_name] = float(value)
-        message = self._messages[name]
-        data = message.encode(payload, strict=False)
+                signal = spec.signals[len(payload) - 1]
+                raise CodecError(_range_message(spec, signal, channel, value, tick))
+            payload.append(float(value))
+        data, carried = self._packers[name].encode_carried(payload)
         frame = can.Message(
             arbitration_id=spec.frame_id, data=data, is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd
         )
-        # cantools types raw_to_scaled as any signal value (a choice's name among them); without
-        # decode_choices it is the number raw * scale + offset.
-        carried = {
-            signal: cast(float, conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(payload[signal]), False))
-            for signal, conversion in self._conversions[name]
-        }
-        return frame, Decoded(spec, counter, carried)
+        return frame, Decoded(spec, counter, dict(zip(spec.signals, carried[1:])))
 
     def spec_of(self, frame: can.Message) -> MessageSpec | None:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)
 
     def decode(self, frame: can.Message) -> Decoded | None:
         """The decoded frame, or None for a frame this database does not describe; a CodecError for a
-        frame on one of its ids that is not one of its frames (another length, bits cantools refuses)."""
-        spec = self.spec_of(frame)
-        if spec is None:
+        frame on one of its ids that is not one of its frames (another length)."""
+        found = None if frame.is_extended_id else self._unpacking.get(frame.arbitration_id)
+        if found is None:
             return None
-        message = self._messages[spec.name]
-        if len(frame.data) != message.length:  # a frame of another length is no frame of this message
+        spec, packer, at, others = found
+        data = frame.data
+        if len(data) != packer.length:  # a frame of another length is no frame of this message
             raise CodecError(
-                f"frame 0x{frame.arbitration_id:03X} ({spec.name}) has {len(frame.data)} data bytes; the message has "
-                f"{message.length}"
+                f"frame 0x{frame.arbitration_id:03X} ({spec.name}) has {len(data)} data bytes; the message has "
+                f"{packer.length}"
             )
-        try:
-            # decode_simple is what decode calls for a message that is not a container (none here);
-            # cantools types its values as any signal value, but without decode_choices they are numbers.
-            values = cast(dict[str, float], message.decode_simple(bytes(frame.data), decode_choices=False))
-        except Exception as error:  # cantools raises several types for short or malformed data
-            raise CodecError(f"frame 0x{frame.arbitration_id:03X} ({spec.name}) cannot be decoded: {error}") from None
-        tick = int(values.pop("tick", 0))
-        return Decoded(spec, tick, values)
+        values = packer.unpack(data)
+        if at == 0:  # every data frame, SYNC
+            return Decoded(spec, int(values[0]), dict(zip(others, values[1:])))
+        if at is None:  # NMT
+            return Decoded(spec, 0, dict(zip(others, values)))
+        return Decoded(spec, int(values[at]), dict(zip(others, values[:at] + values[at + 1 :])))
 
 
 def _range_message(spec: MessageSpec, signal: str, channel: Channel, value: float, tick: int) -> str:

@@ -10,15 +10,25 @@ times; a run records its start in its metadata), so a deterministic run writes t
 
 A ``LogSink`` (the live view, ``cosim.log.live``) may be handed to a log: every channel it
 registers and every message it writes is teed to the sink as well.
+
+Messages take a shorter path into the chunk than the official writer's ``add_message`` (which builds
+a ``Message`` record object and writes it field by field into a seekable buffer, about 20 Python
+calls a message): ``_Writer`` packs the record's header in one ``struct`` call and appends it with
+the data, and keeps the chunk's message index and the statistics as the official writer does. The
+file is byte for byte the one the official writer writes (``tests/test_mcap_readers.py`` compares
+them); everything else (chunks, compression, indexes, summary) is the official writer's own code.
 """
 
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 from typing import IO, Any, Protocol
 
 import orjson
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 
@@ -42,6 +52,60 @@ class LogSink(Protocol):
         """One message (a JSON-ready object) on a channel the sink returned."""
 
 
+#: A Message record's opcode, length, channel id, sequence, log time and publish time (MCAP spec).
+_MESSAGE_HEADER = struct.Struct("<BQHIQQ")
+_MESSAGE_FIELDS = _MESSAGE_HEADER.size - 9  # the record's length counts what follows opcode and length
+
+
+class _Writer(Writer):
+    """The official MCAP writer, with a shorter path for a message into the chunk (same bytes)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # The writer's state a message updates (name-mangled attributes of mcap's Writer); where an
+        # mcap release lays it out otherwise, messages take the official add_message.
+        self._fast = all(
+            hasattr(self, name) for name in ("_Writer__chunk_builder", "_Writer__statistics", "_Writer__chunk_size")
+        )
+        if self._fast:
+            self._chunk = self._Writer__chunk_builder  # type: ignore[attr-defined]
+            self._statistics = self._Writer__statistics  # type: ignore[attr-defined]
+            self._chunk_size = self._Writer__chunk_size  # type: ignore[attr-defined]
+            self._fast = self._chunk is not None and hasattr(self._chunk, "record_writer")
+
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0) -> None:
+        if not self._fast:
+            super().add_message(channel_id, log_time, data, publish_time, sequence)
+            return
+        statistics, chunk = self._statistics, self._chunk
+        # the statistics and the chunk's time range and message index, as Writer and ChunkBuilder keep them
+        if statistics.message_count == 0 or log_time < statistics.message_start_time:
+            statistics.message_start_time = log_time
+        if log_time > statistics.message_end_time:
+            statistics.message_end_time = log_time
+        statistics.channel_message_counts[channel_id] += 1
+        statistics.message_count += 1
+        if chunk.num_messages == 0 or log_time < chunk.message_start_time:
+            chunk.message_start_time = log_time
+        if log_time > chunk.message_end_time:
+            chunk.message_end_time = log_time
+        records = chunk.record_writer
+        offset = records.count
+        index = chunk.message_indices.get(channel_id)
+        if index is None:
+            index = chunk.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+        index.records.append((log_time, offset))
+        chunk.num_messages += 1
+        records.write(
+            _MESSAGE_HEADER.pack(
+                Opcode.MESSAGE, _MESSAGE_FIELDS + len(data), channel_id, sequence, log_time, publish_time
+            )
+            + data
+        )
+        if offset + _MESSAGE_HEADER.size + len(data) > self._chunk_size:
+            self._Writer__finalize_chunk()  # type: ignore[attr-defined]
+
+
 class McapLog:
     """Writes JSON messages on named topics, each with a JSON Schema, into one MCAP file (and, with
     ``sink``, to the sink too)."""
@@ -50,7 +114,7 @@ class McapLog:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream: IO[bytes] = open(self.path, "wb")
-        self._writer = Writer(
+        self._writer = _Writer(
             self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL
         )
         self._writer.start(profile="", library=f"cosim/{__version__}")
