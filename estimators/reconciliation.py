@@ -883,7 +883,8 @@ class UioReconciliator(_Reconciliator):
             Diagnostic(
                 "pe",
                 "",
-                "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); 0: not met)",
+                "persistence of excitation σ_min/σ_max of the window's regressor (condition (55); gain test: se_tol"
+                " over the largest standard error of a gain, up to 2); 0: not met",
                 2.0,
                 1e-9,
                 DiagnosticKind.EXCITATION,
@@ -891,7 +892,8 @@ class UioReconciliator(_Reconciliator):
             Diagnostic(
                 "fit",
                 "",
-                "relative residual of the window's equations for γ̂ ((53), or the model window)",
+                "relative residual of the window's equations for γ̂ ((53), or the model window; gain test: the χ²"
+                " statistic of γ̂ over its threshold, ≤ 1: accepted)",
                 1e3,
                 1e-6,
                 DiagnosticKind.FIT,
