@@ -2,15 +2,37 @@
 
 from __future__ import annotations
 
-#: A short masses scenario (three sensors, no estimator), the base that tests add tables to.
-MASSES = """
-name = "t"
-duration = 1.0
+
+def masses(name: str = "t", duration: float = 1.0, *, forced: bool = False, bus: str = "", kalman: bool = False) -> str:
+    """A short masses scenario (three sensors, 10 ms ticks), the base that tests add tables to:
+    ``forced`` drives the force with a 0.5 Hz sine, ``bus`` is the body of its [bus] table,
+    ``kalman`` adds a Kalman filter."""
+    text = f"""
+name = "{name}"
+duration = {duration}
 sample_time = 0.01
 [plant]
 model = "masses"
 sensors = ["x1", "x2", "x1_minus_x2"]
 """
+    if forced:
+        text += """[[inputs]]
+actuator = "force"
+signal = { kind = "sine", amplitude = 1.0, frequency = 0.5 }
+"""
+    if bus:
+        text += f"[bus]\n{bus.strip()}\n"
+    if kalman:
+        text += """[[estimators]]
+name = "kalman"
+kind = "kalman"
+params = { measurement_std = 1e-3, process_std = 1e-4 }
+"""
+    return text
+
+
+#: The masses scenario without inputs or estimators (``masses()``).
+MASSES = masses()
 
 _PID = """
 name = "{name}"

@@ -13,6 +13,7 @@ from cosim.analysis.metrics import compute_metrics
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
 from cosim.run import run
+from tests.snippets import masses
 
 FAULTS = """
 [[faults]]
@@ -62,28 +63,8 @@ start = 2.5
 
 def _scenario(tmp_path, faults=FAULTS, timing="ideal"):
     path = tmp_path / "bf.toml"
-    path.write_text(
-        f"""
-name = "bf"
-duration = 3.0
-sample_time = 0.01
-[plant]
-model = "masses"
-sensors = ["x1", "x2", "x1_minus_x2"]
-[[inputs]]
-actuator = "force"
-signal = {{ kind = "sine", amplitude = 1.0, frequency = 0.5 }}
-{faults}
-[bus]
-interface = "virtual"
-bitrate = 125000
-timing = "{timing}"
-[[estimators]]
-name = "kalman"
-kind = "kalman"
-params = {{ measurement_std = 1e-3, process_std = 1e-4 }}
-"""
-    )
+    bus = f'interface = "virtual"\nbitrate = 125000\ntiming = "{timing}"'
+    path.write_text(masses("bf", 3.0, forced=True, bus=bus, kalman=True) + faults)
     return scenario.load(str(path))
 
 

@@ -12,6 +12,7 @@ from cosim.bus.wire import Wire, WireFrame
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
 from cosim.run import run
+from tests.snippets import masses
 
 BIT_NS = 8000  # 125 kbit/s
 
@@ -93,27 +94,9 @@ def test_a_newer_frame_of_an_id_replaces_the_waiting_one():
 
 
 def _tiny(tmp_path, **bus):
-    text = f"""
-name = "tiny"
-duration = 0.2
-sample_time = 0.01
-[plant]
-model = "masses"
-sensors = ["x1", "x2", "x1_minus_x2"]
-[[inputs]]
-actuator = "force"
-signal = {{ kind = "sine", amplitude = 1.0, frequency = 0.5 }}
-[bus]
-interface = "virtual"
-bitrate = 125000
-{chr(10).join(f"{k} = {v}" for k, v in bus.items())}
-[[estimators]]
-name = "kalman"
-kind = "kalman"
-params = {{ measurement_std = 1e-3, process_std = 1e-4 }}
-"""
+    settings = 'interface = "virtual"\nbitrate = 125000\n' + "\n".join(f"{k} = {v}" for k, v in bus.items())
     path = tmp_path / "tiny.toml"
-    path.write_text(text)
+    path.write_text(masses("tiny", 0.2, forced=True, bus=settings, kalman=True))
     return scenario.load(str(path))
 
 
