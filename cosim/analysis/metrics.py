@@ -34,7 +34,7 @@ from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
 from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
 from cosim.log.reader import LogReader
-from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, STATE, WIRE, carried_tick
+from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, SECURITY, STATE, WIRE, carried_tick
 from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
@@ -188,6 +188,7 @@ class _Scorer:
         self.foreign: Counter[str] = Counter()  # kind -> arrivals that do not belong (from /cosim/foreign)
         self.foreign_reasons: Counter[str] = Counter()
         self.foreign_ids: Counter[str] = Counter()
+        self.rejected: dict[str, Counter[str]] = defaultdict(Counter)  # id -> reason -> SecOC rejections
         self.broken: set[str] = set()
         self.first_ns: int | None = None
         self.last_ns: int | None = None
@@ -209,6 +210,8 @@ class _Scorer:
                     self.lost_events += int(msg.get("count", 1))
             elif topic == DEADLINE_MISSES:
                 self.misses[str(msg["node"])] += 1
+            elif topic == SECURITY:
+                self.rejected[f"0x{int(msg['id']):03X}"][str(msg["reason"])] += 1
             elif topic == FOREIGN:
                 count = int(msg.get("count", 1))
                 self.foreign[str(msg["kind"])] += count
@@ -481,7 +484,9 @@ class _BusScore:
         self.latency: dict[int, list[float]] = defaultdict(list)  # id -> latencies on the wire (arbitrated)
         self.late: Counter[int] = Counter()
         self.dropped: Counter[int] = Counter()
-        self.offered: defaultdict[int, float] = defaultdict(float)  # second -> seconds of wire the frames queued in it need
+        self.offered: defaultdict[int, float] = defaultdict(
+            float
+        )  # second -> seconds of wire the frames queued in it need
 
     def _time(self, bits: tuple[int, int]) -> float:
         return bits[0] / self.bitrate + bits[1] / self.data_bitrate if self.bitrate else 0.0
@@ -543,6 +548,12 @@ class _BusScore:
                 "by_reason": dict(sorted(scorer.foreign_reasons.items())),
             },
             "foreign_frames": dict(sorted(scorer.foreign_ids.items())),
+            # only where SecOC dropped frames (/cosim/security)
+            **(
+                {"secoc_rejected": {i: dict(sorted(r.items())) for i, r in sorted(scorer.rejected.items())}}
+                if scorer.rejected
+                else {}
+            ),
             "load_over_time": self._load_over_time(span) if known else None,
             "latency": self._latency(),
         }

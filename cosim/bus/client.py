@@ -44,6 +44,7 @@ from cosim.bus.codec import (
     Codec,
     Decoded,
 )
+from cosim.bus.secoc import Rejection, SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CodecError, CosimError
 
@@ -178,6 +179,8 @@ class Client:
     ``name`` is the node's name in the DBC (an estimator or a declared client); a participant that
     has messages there publishes them and, if ``lockstep``, closes every tick with a heartbeat.
     ``bus`` is an open python-can bus; the client does not close it unless it opened it itself.
+    ``secoc`` (on a bus with ``authentication = "secoc"``): the keys it signs its frames with and
+    verifies the frames it takes with; what fails is dropped and kept in ``rejections``.
     """
 
     def __init__(
@@ -190,8 +193,11 @@ class Client:
         sample_time: float | None = None,
         owns_bus: bool = False,
         upstream: dict[str, int] | None = None,
+        secoc: SecOC | None = None,
     ) -> None:
         self.name = name
+        self.secoc = secoc
+        self.rejections: list[Rejection] = []
         self.codec = codec
         self.bus = bus
         #: The node this client is on the bus: its name, where the DBC declares it; else None.
@@ -270,6 +276,11 @@ class Client:
             return []  # not decodable: someone else's frame with a clashing id
         if decoded is None or decoded.spec.sender == self.name:  # unknown id, or our own frame back
             return []
+        if self.secoc is not None:
+            rejection = self.secoc.verify(frame, self.assembler.last_sync or 0)
+            if rejection is not None:  # dropped before it counts: SYNC announces genuine frames only
+                self.rejections.append(rejection)
+                return []
         if decoded.spec.role == NMT:
             node = int(decoded.values["node"])
             ours = self._node is not None and node == self.codec.node_ids[self._node]
@@ -327,7 +338,10 @@ class Client:
             missing = [s for s in spec.signals if s not in values]
             if missing:
                 raise CosimError(f"publish: no value for {', '.join(missing)} (message {spec.name})")
-            self.bus.send(self.codec.encode(spec.name, k, [values[s] for s in spec.signals]))
+            frame = self.codec.encode(spec.name, k, [values[s] for s in spec.signals])
+            if self.secoc is not None:
+                self.secoc.sign(frame, k)
+            self.bus.send(frame)
             self._published += 1
 
     def done(self, tick: TickFrames | int) -> None:

@@ -52,6 +52,7 @@ from cantools.database.can.formats.dbc.dbc_specifics import DbcSpecifics
 from cantools.database.conversion import BaseConversion
 
 from cosim.bus.packing import Packer
+from cosim.bus.secoc import strip as strip_secoc
 from cosim.bus.signals import Channel
 from cosim.errors import CodecError
 
@@ -241,6 +242,10 @@ class Codec:
     ``controller`` node, which has a heartbeat and a CONTROL_STATUS message.
     """
 
+    secoc_trailers: Mapping[int, int] = {}
+    """Secured ids (``cosim.bus.secoc``) and the byte where their trailer starts; empty: no SecOC."""
+    _secured_dbc: str | None = None
+
     def __init__(
         self,
         sensors: Sequence[Channel],
@@ -332,10 +337,14 @@ class Codec:
             database = load_dbc(text)
         except Exception as error:  # cantools raises several parse error types
             raise CodecError(f"the DBC cannot be parsed: {error}") from None
+        # The SecOC trailer is no signal of the codec: taken out, the secured frames keep their length.
+        trailers = strip_secoc(database)
         fd = any(m.is_fd for m in database.messages) or _bus_type(database) == "CAN FD"
         specs = [_spec_from_message(m) for m in database.messages]
         codec = cls.__new__(cls)
         codec._setup(database, specs, fd)
+        if trailers:
+            codec.secoc_trailers, codec._secured_dbc = trailers, text
         return codec
 
     def _setup(self, database: Database, specs: list[MessageSpec], fd: bool) -> None:
@@ -370,8 +379,8 @@ class Codec:
 
     @property
     def dbc(self) -> str:
-        """The database as DBC text (CAN FD frames are marked with VFrameFormat)."""
-        return self.database.as_dbc_string()
+        """The database as DBC text (CAN FD frames are marked with VFrameFormat; a secured one as it was read)."""
+        return self._secured_dbc if self._secured_dbc is not None else self.database.as_dbc_string()
 
     def messages(self, role: str | None = None, sender: str | None = None) -> list[MessageSpec]:
         """Message specs, optionally only those of one role or sender, in id order."""

@@ -40,12 +40,14 @@ import numpy as np
 from can.util import len2dlc
 
 from cosim.bus.codec import CLASSIC_TICK_BITS, CLIENT, COMMAND, ESTIMATE, NMT, SENSOR, Codec, Decoded
+from cosim.bus.secoc import REASONS
 from cosim.log.writer import McapLog, number, object_schema
 
 FRAMES = "/can/frames"
 STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/inputs", "/truth/faults"
 EVENTS, DEADLINE_MISSES, FOREIGN = "/cosim/events", "/cosim/deadline_misses", "/cosim/foreign"
 WIRE = "/cosim/wire"
+SECURITY = "/cosim/security"
 BUS_FAULTS = "/truth/bus_faults"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
@@ -91,6 +93,7 @@ class RunRecorder:
         self.disturbances = disturbances
         self.frames = 0
         self._wire: int | None = None
+        self._security: int | None = None
         self._bus_faults: int | None = None
         self._frames = log.channel(
             FRAMES,
@@ -439,4 +442,47 @@ class RunRecorder:
     ) -> None:
         self.log.write(
             self._events, t_ns, {"tick": tick, "t": t, "level": level, "event": event, "detail": detail, "count": count}
+        )
+
+    def security(
+        self, tick: int, t: float, t_ns: int, frame_id: int, message: str | None, sender: str, reason: str, fv: int
+    ) -> None:
+        """A frame a receiver dropped because it failed SecOC verification (``cosim.bus.secoc``)."""
+        if self._security is None:  # created with the first rejection: a log without one has no such topic
+            self._security = self.log.channel(
+                SECURITY,
+                object_schema(
+                    "cosim.SecurityRejection",
+                    {
+                        "tick": _TICK,
+                        "t": _TIME,
+                        "id": {"type": "integer", "description": "arbitration id"},
+                        "message": {"type": ["string", "null"], "description": "DBC message name"},
+                        "sender": {
+                            "type": "string",
+                            "description": "the sender it claims to come from (the id's owner)",
+                        },
+                        "reason": {
+                            "type": "string",
+                            "enum": list(REASONS),
+                            "description": "bad_mac: the MAC does not match; replayed: freshness not newer than the "
+                            "last accepted; stale: older than the acceptance window",
+                        },
+                        "freshness": {"type": "integer", "description": "the full freshness value as rebuilt"},
+                    },
+                    "A frame dropped by SecOC verification",
+                ),
+            )
+        self.log.write(
+            self._security,
+            t_ns,
+            {
+                "tick": tick,
+                "t": t,
+                "id": frame_id,
+                "message": message,
+                "sender": sender,
+                "reason": reason,
+                "freshness": fv,
+            },
         )

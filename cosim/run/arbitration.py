@@ -80,9 +80,18 @@ class Arbitration:
     """The run's wire, fed tick by tick (see the module's docstring)."""
 
     def __init__(
-        self, codec: Codec, bitrate: int, data_bitrate: int, dt_ns: int, traffic: list[Periodic] | None = None
+        self,
+        codec: Codec,
+        bitrate: int,
+        data_bitrate: int,
+        dt_ns: int,
+        traffic: list[Periodic] | None = None,
+        authenticated: bool = False,
     ) -> None:
         self.codec = codec
+        # With SecOC, SYNC announces the genuine frames only: an intruder's frame is dropped by every
+        # receiver, and one counted would leave the receivers waiting for a frame they never take.
+        self.authenticated = authenticated
         self.wire = Wire(bitrate, data_bitrate)
         self.dt_ns = dt_ns
         self.traffic = traffic or []
@@ -164,7 +173,8 @@ class Arbitration:
     def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
         """SYNC(k) announcing the data frames through by the deadline, those frames (by id()) and
         the planned passages."""
-        count, seen = len(data), []
+        counted = [f for f in data if id(f) not in self._senders] if self.authenticated else data
+        count, seen = len(counted), []
         while True:
             message = self.codec.sync(k, count)
             sync: Frame = (message, self.codec.decode(message))
@@ -173,12 +183,13 @@ class Arbitration:
                 trial.offer(self._runner_frame(frame, t_ns, deadline))
             planned = trial.run(deadline)
             through = {id(p.frame.payload) for p in planned if p.dropped is None and p.delivered_ns <= deadline}
-            inputs = [id(f) for f in data if id(f) in through]
+            inputs = [id(f) for f in counted if id(f) in through]
             seen.append(count)
             if len(inputs) == count or len(seen) > 4:
                 # no fixed point (SYNC's stuff bits tip one frame over the deadline and back): the
                 # smaller count is announced and the frames past it are held back as late
-                return sync, set(inputs[:count]), planned
+                uncounted = {id(f) for f in data if id(f) in through} - {id(f) for f in counted}
+                return sync, set(inputs[:count]) | uncounted, planned
             count = min(count, len(inputs)) if len(inputs) in seen else len(inputs)
 
     def finish(self) -> list[Transmission]:

@@ -15,10 +15,13 @@ drawing from its own seeded stream:
   after 128 × 11 recessive bits (``recover``), or for the rest of the run;
 - ``spoofing`` and ``replay``: an intruder's frame of the message follows the genuine one (the
   runner encodes it for the current tick: nothing protects the counter of an unauthenticated
-  frame); ``babbling_node``: periodic frames on the wire (arbitrated timing).
+  frame); ``babbling_node``: periodic frames on the wire (arbitrated timing). With SecOC the
+  spoofer has no key (its trailer is zeros) and the replaying intruder resends the secured frame
+  it recorded byte for byte: it cannot sign another.
 
 SYNC(k) announces the frames the receivers get in tick k, intruders' included (a receiver keeps
-the latest value of a message, as a CAN mailbox does). What each fault did goes to
+the latest value of a message, as a CAN mailbox does); with SecOC only the genuine ones, since
+every receiver drops the intruders'. What each fault did goes to
 ``/truth/bus_faults``; intruders' frames are foreign frames (``/cosim/foreign``).
 """
 
@@ -67,9 +70,18 @@ class BusFaultStage:
     """The scenario's bus faults between the runner and the receivers."""
 
     def __init__(
-        self, codec: Codec, models: list[fm.BusFault], seed: int, dt_ns: int, bitrate: int, arbitrated: bool
+        self,
+        codec: Codec,
+        models: list[fm.BusFault],
+        seed: int,
+        dt_ns: int,
+        bitrate: int,
+        arbitrated: bool,
+        authenticated: bool = False,
     ) -> None:
         self.codec, self.models, self.dt_ns, self.arbitrated = codec, models, dt_ns, arbitrated
+        self.authenticated = authenticated
+        self._recorded: dict[str, list[tuple[float, bytes]]] = {}  # SecOC: message -> (t, data) a replayer heard
         for model in models:
             model.reset(
                 np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(_BUS, zlib.crc32(model.label.encode()))))
@@ -129,6 +141,11 @@ class BusFaultStage:
                 self.tec[sender] = max(0, self.tec.get(sender, 0) - 1)
             for model in self.models:
                 model.observe(name, tuple(decoded.values[s] for s in decoded.spec.signals), t)
+                if self.authenticated and isinstance(model, fm.Replay) and model.message == name:
+                    heard = self._recorded.setdefault(name, [])
+                    heard.append((t, bytes(message.data)))
+                    while heard[0][0] < t - model.lag - 1.0:
+                        heard.pop(0)
             if delay > 0:
                 delay_ns = round(delay * 1e9)
                 if self.arbitrated:
@@ -145,7 +162,8 @@ class BusFaultStage:
         self._held = [(arrives, frame) for arrives, frame in self._held if arrives > k]
         sync, _ = frames[0]
         if frames[0][1] is not None and frames[0][1].spec.role == SYNC:
-            sync = self.codec.sync(k, len(sent))
+            injected = sum(id(frame) in out.intruders for frame in sent) if self.authenticated else 0
+            sync = self.codec.sync(k, len(sent) - injected)
         out.frames = [(sync, self.codec.decode(sync)), *sent, *late]
         return out
 
@@ -197,7 +215,23 @@ class BusFaultStage:
             if name is not None and model.message != name:
                 continue
             for message, values in model.inject(t):
-                frame = self.codec.encode_decoded(message, k, values)
+                if self.authenticated and isinstance(model, fm.Replay):
+                    frame = self._recorded_frame(message, t - model.lag)
+                    if frame is None:
+                        continue
+                else:
+                    frame = self.codec.encode_decoded(message, k, values)
                 sent.append(frame)
                 out.intruders[id(frame)] = model.label
                 out.events.append(BusEvent(model.label, model.kind, message, "injected"))
+
+    def _recorded_frame(self, message: str, until: float) -> Frame | None:
+        """The secured frame of ``message`` a replaying intruder recorded last by ``until``, as it was."""
+        old = [data for when, data in self._recorded.get(message, []) if when <= until + 1e-12]
+        if not old:
+            return None
+        spec = self.codec.specs[message]
+        frame = can.Message(
+            arbitration_id=spec.frame_id, data=old[-1], is_extended_id=False, is_fd=True, bitrate_switch=True
+        )
+        return frame, self.codec.decode(frame)

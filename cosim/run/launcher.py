@@ -7,6 +7,7 @@ status and last output; one that hangs; a client that went away) and how to stop
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -47,7 +48,10 @@ class ProcessNode(Participant):
         self.name = spec.name
         self.kind = kind
         spec_path = workdir / f"{spec.name}.json"
-        spec_path.write_text(spec.to_json())
+        # Private to the user (the run's folder is too): with SecOC the spec holds the node's keys,
+        # and the node deletes it once read.
+        with os.fdopen(os.open(spec_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "w") as file:
+            file.write(spec.to_json())
         self.output = workdir / f"{spec.name}.log"
         with open(self.output, "wb") as output:
             # A session of its own: Ctrl-C in the terminal reaches the runner only, which stops the

@@ -27,6 +27,7 @@ import numpy as np
 import estimators
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import COMMAND, CONTROLLER, Codec, estimated_state
+from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
 from estimators import Estimator, LinearModel, ParameterError
@@ -48,6 +49,16 @@ class NodeSpec:
     """Nodes whose frames this one needs, with the lag in ticks (``cosim.bus.client.TickAssembler``)."""
     diagnosis: str = ""
     """The controller's diagnosis node (upstream with lag 1), whose report it reads."""
+    keys: dict[str, str] = field(default_factory=dict, repr=False)
+    """SecOC (``cosim.bus.secoc``): AES keys (hex) by sender, its own and those of the senders it
+    hears; secret: the spec file is private to the run and deleted once the node has read it."""
+
+    def secoc(self, codec: Codec) -> SecOC | None:
+        """The node's SecOC on a secured bus (None otherwise); a CosimError if its keys are missing."""
+        secoc = SecOC.from_codec(codec, {sender: bytes.fromhex(key) for sender, key in self.keys.items()})
+        if secoc is not None and self.name not in self.keys:
+            raise CosimError(f"node {self.name}: the bus is authenticated (SecOC) and its spec holds no key of it")
+        return secoc
 
     def to_json(self) -> str:
         return json.dumps(
@@ -61,6 +72,7 @@ class NodeSpec:
                 "sample_time": self.sample_time,
                 "upstream": self.upstream,
                 "diagnosis": self.diagnosis,
+                **({"keys": self.keys} if self.keys else {}),
             }
         )
 
@@ -78,6 +90,7 @@ class NodeSpec:
             data["sample_time"],
             data.get("upstream", {}),
             data.get("diagnosis", ""),
+            data.get("keys", {}),
         )
 
 
@@ -125,7 +138,14 @@ class EstimatorNode(_Node):
             except ParameterError as error:
                 raise CosimError(f"estimator {spec.name}: params.{error}") from None
         self.estimator = estimator
-        self.client = Client(spec.name, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
+        self.client = Client(
+            spec.name,
+            self.codec,
+            bus,
+            sample_time=spec.sample_time,
+            upstream=spec.upstream,
+            secoc=spec.secoc(self.codec),
+        )
         model = estimator.model
         signals = [signal for message in self.client.messages for signal in message.signals]
         states = {signal: estimated_state(signal) for signal in signals}
@@ -163,7 +183,14 @@ class ControllerNode(_Node):
             except ParameterError as error:
                 raise CosimError(f"controller: params.{error}") from None
         self.controller = controller
-        self.client = Client(CONTROLLER, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream)
+        self.client = Client(
+            CONTROLLER,
+            self.codec,
+            bus,
+            sample_time=spec.sample_time,
+            upstream=spec.upstream,
+            secoc=spec.secoc(self.codec),
+        )
         self._inputs = {
             channel.name: signal
             for message in self.client.messages
@@ -208,6 +235,10 @@ def serve(spec: NodeSpec) -> int:
 
 def load_spec(path: str | Path) -> NodeSpec:
     try:
-        return NodeSpec.from_json(Path(path).read_text())
+        text = Path(path).read_text()
+        spec = NodeSpec.from_json(text)
+        if spec.keys:  # it holds the run's keys: the runner wrote it for this node alone
+            Path(path).unlink(missing_ok=True)
+        return spec
     except (OSError, ValueError, KeyError) as error:
         raise CosimError(f"{path}: not a readable node spec ({error})") from None

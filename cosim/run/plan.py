@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ import estimators
 import faults as fm
 from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
 from cosim.bus.registry import Registration
+from cosim.bus.secoc import SecOC, derive_key, run_secret
 from cosim.bus.transport import BusConfig
 from cosim.errors import ModelError, ScenarioError
 from cosim.log.metadata import (
@@ -169,6 +170,8 @@ class RunPlan:
     faults: tuple[FaultRecord, ...]
     onset_tick: int | None
     units: dict[str, dict[str, str]]
+    secret: bytes | None = field(default=None, repr=False)
+    """The run secret of SecOC (``[bus] authentication = "secoc"``): random per plan, never logged."""
 
     @classmethod
     def build(cls, loaded: LoadedScenario, seed: int | None = None, **overrides: Any) -> RunPlan:
@@ -221,6 +224,7 @@ class RunPlan:
                 "actuators": {c.name: c.unit for c in actuators},
                 "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
             },
+            run_secret() if s.bus.authentication == "secoc" else None,
         )
 
     @property
@@ -245,6 +249,7 @@ class RunPlan:
                 s.sample_time,
                 {diagnosis: 1} if diagnosis else {},
                 diagnosis,
+                self.keys(CONTROLLER, [PLANT, *([diagnosis] if diagnosis else [])]),
             )
         spec = next(e for e in s.estimators if e.name == name)
         estimator = self.estimators[name]
@@ -257,7 +262,21 @@ class RunPlan:
             bus,
             s.sample_time,
             {CONTROLLER: 0} if s.controller is not None else {},
+            keys=self.keys(name, [PLANT, CONTROLLER]),
         )
+
+    def keys(self, node: str, hears: list[str]) -> dict[str, str]:
+        """A node's SecOC keys (hex): its own, to sign, and those of the senders it hears, to verify."""
+        if self.secret is None:
+            return {}
+        return {sender: derive_key(self.secret, sender).hex() for sender in [node, *hears]}
+
+    def secoc(self) -> SecOC | None:
+        """The runner's SecOC: every sender's key (it signs the plant's frames and verifies everyone's)."""
+        if self.secret is None:
+            return None
+        senders = {spec.sender for spec in self.codec.specs.values()}
+        return SecOC.from_codec(self.codec, {sender: derive_key(self.secret, sender) for sender in senders})
 
     @property
     def senders(self) -> list[str]:
@@ -295,15 +314,25 @@ class RunPlan:
                     s.bus.data_bitrate,
                     s.dt_ns,
                     build_traffic(s, [f for f in bus_faults if isinstance(f, fm.BabblingNode)]),
+                    authenticated=self.secret is not None,
                 )
                 if s.bus.timing == "arbitrated"
                 else None
             ),
             bus_faults=(
-                BusFaultStage(self.codec, bus_faults, s.seed, s.dt_ns, s.bus.bitrate, s.bus.timing == "arbitrated")
+                BusFaultStage(
+                    self.codec,
+                    bus_faults,
+                    s.seed,
+                    s.dt_ns,
+                    s.bus.bitrate,
+                    s.bus.timing == "arbitrated",
+                    authenticated=self.secret is not None,
+                )
                 if bus_faults
                 else None
             ),
+            secoc=self.secoc(),
         )
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:

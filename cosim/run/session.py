@@ -44,6 +44,7 @@ from cosim.bus.codec import (
     Decoded,
 )
 from cosim.bus.registry import Registration, alive
+from cosim.bus.secoc import Rejection, SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
@@ -149,8 +150,14 @@ class Traffic(can.Listener):
         commands: bool = False,
         echoes: bool = False,
         on_foreign: Callable[[can.Message, str], None] | None = None,
+        secoc: SecOC | None = None,
+        on_rejected: Callable[[can.Message, Rejection], None] | None = None,
     ) -> None:
         self.codec = codec
+        # SecOC: every node's frame is verified on arrival (the runner's own, at sending); a rejected
+        # one is logged as it came, never used or counted as its sender's
+        self.secoc, self._on_rejected = secoc, on_rejected
+        self.rejected = 0
         self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
         self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
@@ -198,6 +205,11 @@ class Traffic(can.Listener):
                 self.echoes += 1
             else:
                 self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
+                self.verify(msg)
+            return
+        if self.verify(msg):
+            self._distrusted.add(id(msg))
+            self.pending.append((msg, None))
             return
         decoded = None
         if identifier in self._heartbeats:
@@ -230,6 +242,18 @@ class Traffic(can.Listener):
                 channel = decoded.spec.channels[0]
                 self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
         self.pending.append((msg, decoded))
+
+    def verify(self, frame: can.Message) -> bool:
+        """Whether SecOC drops this frame (reported); frames of unsecured ids pass."""
+        if self.secoc is None:
+            return False
+        rejection = self.secoc.verify(frame, self.current)
+        if rejection is None:
+            return False
+        self.rejected += 1
+        if self._on_rejected is not None:
+            self._on_rejected(frame, rejection)
+        return True
 
     def _foreign(self, frame: can.Message, reason: str) -> None:
         self.foreign_frames += 1
@@ -325,8 +349,10 @@ class Session:
         sink: LogSink | None = None,
         arbitration: Arbitration | None = None,
         bus_faults: BusFaultStage | None = None,
+        secoc: SecOC | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
+        self.secoc = secoc  # authentication = "secoc": the runner signs its frames and verifies everyone's
         self.arbitration = arbitration  # arbitrated timing: the simulated wire decides what arrives when
         self.bus_faults = bus_faults  # what the scenario's bus faults do to the runner's frames, and intruders
         self._sink = sink  # the live view: the log tees every channel and message to it
@@ -364,6 +390,8 @@ class Session:
                 self._with_commands,
                 echoes=self.config.interface == "udp_multicast",
                 on_foreign=self._foreign_frame,
+                secoc=self.secoc,
+                on_rejected=self._rejected,
             )
             self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
         except BaseException:  # undo what was entered (signal handlers, the log, the bus), as __exit__ would
@@ -523,8 +551,15 @@ class Session:
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
         """Put the runner's frames of tick k on the bus; while the nodes work on them, log what the
         previous tick brought and these frames."""
+        if self.secoc is not None:  # signed by their sender, before anything on the bus touches them
+            for frame, _ in frames:
+                self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
+        if self.secoc is not None:  # the runner hears these too: intruders' frames fail
+            self.traffic.current = k
+            for frame, _ in frames:
+                self.traffic.verify(frame)
         if self.arbitration is not None:
             self._send_arbitrated(k, frames, applied)
             return
@@ -553,6 +588,20 @@ class Session:
         for event in applied.events:
             self.recorder.bus_fault(k, t, t_ns, vars(event))
         return applied
+
+    def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
+        """A frame SecOC dropped, on /cosim/security at the tick the runner is in."""
+        k = self.traffic.current
+        spec = self.codec.spec_of(frame)
+        self.recorder.security(
+            k,
+            *self.time(k),
+            rejection.frame_id,
+            spec.name if spec is not None else None,
+            rejection.sender,
+            rejection.reason,
+            rejection.freshness,
+        )
 
     def _intruder(self, frame: can.Message, label: str) -> None:
         """An intruder's frame: foreign, whatever its id (the run knows it did not come from the id's owner)."""

@@ -338,6 +338,8 @@ def _check_bus(s: Scenario) -> list[str]:
             'bus.timing: "arbitrated" needs [timing] mode = "lockstep" (the wire is scheduled from every '
             'answer of a tick); use mode = "lockstep" or timing = "ideal"'
         )
+    if s.bus.authentication == "secoc":
+        problems += _check_secoc(s)
     if s.bus.traffic and s.bus.timing != "arbitrated":
         problems.append('bus.traffic: periodic traffic needs [bus] timing = "arbitrated" (an ideal bus takes no time)')
     taken = {spec.frame_id: spec.name for spec in codec.specs.values()}
@@ -351,6 +353,25 @@ def _check_bus(s: Scenario) -> list[str]:
             problems.append(f"bus.traffic[{i}].length: {traffic.length} bytes needs fd = true (classic CAN: 8 at most)")
         taken[traffic.id] = f"bus.traffic[{i}]"
     return problems
+
+
+def _check_secoc(s: Scenario) -> list[str]:
+    """SecOC needs CAN FD (room for the trailer) and nodes the runner gives their keys to."""
+    if not s.bus.fd:
+        return [
+            'bus.authentication: "secoc" needs CAN FD (the 4-byte trailer does not fit classic frames); '
+            'set [bus] fd = true or authentication = "none"'
+        ]
+    external = [f"estimators.{e.name}" for e in s.estimators if e.external]
+    external += ["controller"] if s.controller is not None and s.controller.external else []
+    external += [f"clients.{c.name}" for c in s.clients]
+    if external:
+        return [
+            f'bus.authentication: "secoc" gives each node its keys in the spec the runner starts it with; '
+            f"{external[0]} is started by hand and would have none: run it as a node of the runner, or "
+            'authentication = "none"'
+        ]
+    return []
 
 
 def _lengths(problems: list[str], field: str, spec: Any, channels: int, keys: tuple[str, ...]) -> None:

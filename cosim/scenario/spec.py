@@ -13,6 +13,7 @@ from pydantic import Field, ValidationError, model_validator
 
 import mjcf
 from cosim.bus.codec import Codec
+from cosim.bus.secoc import secure_dbc
 from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
 from cosim.plant import statespace
@@ -176,6 +177,9 @@ class BusSpec(Strict):
     rate, lowest id first, and arrive at their last bit, late if after the next tick (docs/bus.md)."""
     traffic: list[TrafficSpec] = []
     """Periodic frames of other nodes that load the bus (arbitrated timing only)."""
+    authentication: Literal["none", "secoc"] = "none"
+    """secoc (CAN FD): every data frame carries a freshness value and a truncated AES-CMAC of its
+    sender, and receivers drop what fails (docs/bus.md)."""
 
 
 class TimingSpec(Strict):
@@ -311,7 +315,7 @@ class Scenario(Strict):
     def codec(self) -> Codec:
         """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
         sensors, actuators, states = self.channels()
-        return Codec(
+        codec = Codec(
             sensors,
             actuators,
             {e.name: states for e in self.estimators},
@@ -323,6 +327,9 @@ class Scenario(Strict):
             data_bitrate=self.bus.data_bitrate,
             cycle_time=self.sample_time,
         )
+        if self.bus.authentication == "secoc" and self.bus.fd:  # classic CAN: refused by the scenario checks
+            return Codec.from_dbc(secure_dbc(codec.dbc))
+        return codec
 
     def diagnostic_channels(self) -> dict[str, list[Channel]]:
         """Each estimator's diagnostics as bus signals ([bus.states] overrides apply to them too)."""
