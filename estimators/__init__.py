@@ -8,33 +8,33 @@ from __future__ import annotations
 
 from typing import Any
 
-from estimators.adaptive import AdaptivePseudoinverseObserver, InjectionObserver
-from estimators.allocation import ThrustAllocationController
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
-from estimators.cofd import COFDDiagnosis
-from estimators.continuous import ContinuousAdaptiveObserver
+from estimators.base import Diagnostic, Estimate, Estimator, ParameterError, Registry
 from estimators.controller import CONTROLLERS, PidController
-from estimators.kalman import KalmanFilter
 from estimators.model import LinearModel
-from estimators.pseudoinverse import PseudoinverseObserver
-from estimators.reconciliation import LftUioReconciliator, LpvUioReconciliator, NoReconciliation
-from estimators.uio import UnknownInputObserver
 
-ESTIMATORS: dict[str, type[Estimator]] = {
-    cls.kind: cls
-    for cls in (
-        PseudoinverseObserver,
-        AdaptivePseudoinverseObserver,
-        InjectionObserver,
-        ContinuousAdaptiveObserver,
-        KalmanFilter,
-        UnknownInputObserver,
-        LpvUioReconciliator,
-        LftUioReconciliator,
-        NoReconciliation,
-        COFDDiagnosis,
-    )
-}
+#: Estimator kinds; each kind's module is imported when the kind is first looked up.
+ESTIMATORS: Registry = Registry(
+    {
+        "pseudoinverse": "estimators.pseudoinverse:PseudoinverseObserver",
+        "adaptive": "estimators.adaptive:AdaptivePseudoinverseObserver",
+        "injection": "estimators.adaptive:InjectionObserver",
+        "adaptive-ct": "estimators.continuous:ContinuousAdaptiveObserver",
+        "kalman": "estimators.kalman:KalmanFilter",
+        "uio": "estimators.uio:UnknownInputObserver",
+        "lpv-uio-sr": "estimators.reconciliation:LpvUioReconciliator",
+        "lft-uio-sr": "estimators.reconciliation:LftUioReconciliator",
+        "no-reconciliation": "estimators.reconciliation:NoReconciliation",
+        "cofd": "estimators.cofd:COFDDiagnosis",
+    }
+)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "ThrustAllocationController":  # imported on first use (SciPy's optimizer)
+        from estimators.allocation import ThrustAllocationController
+
+        return ThrustAllocationController
+    raise AttributeError(f"module 'estimators' has no attribute {name!r}")
 
 
 def create(
@@ -44,10 +44,10 @@ def create(
     time); unknown kinds and bad parameters raise ParameterError naming the culprit."""
     if kind not in ESTIMATORS:
         raise ParameterError("kind", f"unknown estimator {kind!r} (known: {', '.join(sorted(ESTIMATORS))})")
-    return ESTIMATORS[kind].from_params(model, params, sample_time)
+    cls: type[Estimator] = ESTIMATORS[kind]
+    return cls.from_params(model, params, sample_time)
 
 
-# Importing the controller kinds registers them in CONTROLLERS.
 __all__ = [
     "CONTROLLERS",
     "ESTIMATORS",

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError
+from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError, Registry
 from estimators.model import LinearModel
 
 
@@ -157,7 +157,10 @@ class PidController(Controller):
         return Command(self.u.copy(), diagnostics)
 
 
-CONTROLLERS: dict[str, type[Controller]] = {cls.kind: cls for cls in (PidController,)}
+#: Controller kinds; the others' modules are imported when their kind is first looked up.
+CONTROLLERS: Registry = Registry(
+    {"thrust-allocation": "estimators.allocation:ThrustAllocationController"}, {PidController.kind: PidController}
+)
 
 
 def register(cls: type[Controller]) -> type[Controller]:

@@ -10,7 +10,6 @@ import warnings
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.linalg
 
 
 def output_factorization(C: np.ndarray, tol: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
@@ -269,5 +268,7 @@ def zoh_discretize(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray,
     block = np.zeros((n + m, n + m))
     block[:n, :n] = A
     block[:n, n:] = B
+    import scipy.linalg  # here: a node that never discretizes does not pay for importing it
+
     E = scipy.linalg.expm(block * dt)
     return E[:n, :n], E[:n, n:]

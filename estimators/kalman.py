@@ -52,19 +52,27 @@ class KalmanFilter(Estimator):
             raise ParameterError("measurement_std", "must be positive (R must be invertible)")
         self.P = _diagonal(params.initial_std, model.n, "initial_std", model.states)
         self.x_hat = initial_state(model, params.x0)
+        self._identity = np.eye(model.n)
+        self._At = model.A.T
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         A, B, C, D = self.model.A, self.model.B, self.model.C, self.model.D
-        rows = ~np.isnan(dy)
         x, P = self.x_hat, self.P
-        if rows.any():
-            Ck, Rk = C[rows], self.R[np.ix_(rows, rows)]
-            innovation = dy[rows] - Ck @ x - D[rows] @ du
-            S = Ck @ P @ Ck.T + Rk
-            K = np.linalg.solve(S, Ck @ P).T  # P Cᵀ S⁻¹ (S and P symmetric)
-            x = x + K @ innovation
-            I_KC = np.eye(self.model.n) - K @ Ck
-            P = I_KC @ P @ I_KC.T + K @ Rk @ K.T
+        missing = np.isnan(dy)
+        if not missing.any():  # every reading arrived: the whole C and R (the same numbers as below, no copies)
+            x, P = self._update(x, P, C, self.R, dy - C @ x - D @ du)
+        elif not missing.all():
+            rows = ~missing
+            x, P = self._update(x, P, C[rows], self.R[np.ix_(rows, rows)], dy[rows] - C[rows] @ x - D[rows] @ du)
         self.x_hat = A @ x + B @ du
-        self.P = A @ P @ A.T + self.Q
+        self.P = A @ P @ self._At + self.Q
         return Estimate(x)
+
+    def _update(
+        self, x: np.ndarray, P: np.ndarray, Ck: np.ndarray, Rk: np.ndarray, innovation: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        CkP = Ck @ P
+        S = CkP @ Ck.T + Rk
+        K = np.linalg.solve(S, CkP).T  # P Cᵀ S⁻¹ (S and P symmetric)
+        I_KC = self._identity - K @ Ck
+        return x + K @ innovation, I_KC @ P @ I_KC.T + K @ Rk @ K.T

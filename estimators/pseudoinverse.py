@@ -17,6 +17,7 @@ keep R(s) invertible; otherwise the tick is an open-loop prediction.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -35,6 +36,9 @@ class PseudoinverseParams:
     """Initial estimate x̂_0 (absolute); None starts at the operating point."""
     min_det: float = 1e-9
     """|det R(s)| below which a tick's weights are deemed singular (the set S_ε of eq. (15))."""
+    gain: tuple[tuple[float, ...], ...] | None = None
+    """The observer gain L (n × q rows) placing ``poles``, where it is known: the runner hands its
+    design to the node processes this way. None: placed from ``poles``."""
 
 
 class PseudoinverseObserver(Estimator):
@@ -63,12 +67,22 @@ class PseudoinverseObserver(Estimator):
             raise ParameterError(
                 "poles", f"{list(params.poles)}: every pole must lie inside the unit circle, so that A − L H is Schur"
             )
-        try:
-            self.L = observer_gain(model.A, self.H, params.poles)
-        except ValueError as error:
-            raise ParameterError("poles", str(error)) from None
+        if params.gain is not None:
+            self.L = np.array(params.gain, dtype=float)
+            if self.L.shape != (model.n, q):
+                raise ParameterError("gain", f"expected L of shape ({model.n}, {q}), got {self.L.shape}")
+        else:
+            try:
+                # contiguous, as the gain a node is handed (the placement returns a strided view, and
+                # numpy's products may round differently in the last bit for another layout)
+                self.L = np.ascontiguousarray(observer_gain(model.A, self.H, params.poles))
+            except ValueError as error:
+                raise ParameterError("poles", str(error)) from None
         self.Pi = weighted_pseudoinverse(self.Y, self.weights)
         self.x_hat = initial_state(model, params.x0)
+
+    def node_params(self) -> dict[str, Any]:
+        return {**self.design_params(), "gain": self.L.tolist()}
 
     def _allocation(self, available: np.ndarray) -> np.ndarray | None:
         """Π(s) for this tick: missing readings get weight 0; None if R(s) becomes singular."""

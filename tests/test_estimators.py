@@ -161,7 +161,7 @@ def test_kalman_skips_missing_rows():
         (
             "pseudoinverse",
             {"pole": [0.5]},
-            r"pole: unknown parameter of pseudoinverse \(known: min_det, poles, weights, x0\)",
+            r"pole: unknown parameter of pseudoinverse \(known: gain, min_det, poles, weights, x0\)",
         ),
         ("pseudoinverse", {"weights": [1, 1]}, r"weights: expected 3 weights \(one per output: x1, x2, x1_minus_x2\)"),
         ("pseudoinverse", {"poles": [0.5, 0.6]}, r"poles: need 4 poles"),

@@ -189,3 +189,21 @@ def test_a_model_computes_the_same_bits_in_a_node_as_in_the_runner():
     for _ in range(100):
         u, x = rng.normal(size=2) * 40, rng.normal(size=3)
         assert (model.B @ u).tolist() == (shipped.B @ u).tolist() and (model.A @ x).tolist() == (shipped.A @ x).tolist()
+
+
+def test_a_node_built_from_its_spec_steps_bit_for_bit_as_the_runner_s_estimator():
+    """The node's spec carries the runner's design (node_params: e.g. the placed gain, so that the
+    node does not import scipy.signal to place it again); the node's estimator is the same to the bit."""
+    from cosim import scenario
+    from cosim.run.plan import RunPlan
+    from estimators import create
+
+    plan = RunPlan.build(scenario.load("masses-bias"))
+    rng = np.random.default_rng(0)
+    for name, runner_side in plan.estimators.items():
+        spec = NodeSpec.from_json(plan.node_spec(name, BusConfig("virtual", "x")).to_json())
+        node_side = create(spec.kind, spec.model, spec.params, spec.sample_time)
+        for _ in range(50):
+            y, u = rng.normal(size=spec.model.p), rng.normal(size=spec.model.m)
+            a, b = runner_side.step(y, u), node_side.step(y, u)
+            assert np.array_equal(a.x, b.x, equal_nan=True) and repr(a.diagnostics) == repr(b.diagnostics), name

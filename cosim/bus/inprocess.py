@@ -55,8 +55,11 @@ class InProcessBus(BusABC):
                     bus._ready.notify()
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
-        if self._filters is None and self._queue:  # the common case: no filters, a frame waiting
-            return self._queue.popleft()
+        if self._filters is None:  # the common cases: no filters, a frame waiting or none to wait for
+            if self._queue:
+                return self._queue.popleft()
+            if timeout is not None and timeout <= 0:
+                return None
         return super().recv(timeout)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
