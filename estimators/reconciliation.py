@@ -160,11 +160,12 @@ def _complement(Z: np.ndarray) -> np.ndarray:
     return U[:, rank:].T
 
 
-def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: int) -> ModelWindow:
-    """The window of ``ModelWindow`` for x⁺ = A x + B u + E v, y = Δ(γ) C x + F b.
-
-    Shapes: A (n, n), B (n, n_u), E (n, n_v), C (m, n); N ≥ 2 samples.
-    """
+def _stacked_window(
+    A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The N samples' equations of x⁺ = A x + B u + E v, y = C x + b, stacked: sample k reads
+    0 = Z_k [b; x_0; v_0 … v_{N-2}] + y_k − Σ_{i<k} C A^{k-1-i} B u_i, with ``forced[k, :, i]`` =
+    C A^{k-1-i} B. Shapes: Z (N, m, m + n + (N−1) n_v), forced (N, m, N−1, n_u)."""
     n, m, nv, nu = A.shape[0], C.shape[0], E.shape[1], B.shape[1]
     powers = [np.eye(n)]
     for _ in range(N - 1):
@@ -178,6 +179,16 @@ def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: 
             CA = C @ powers[k - 1 - i]
             Z[k, :, m + n + i * nv : m + n + (i + 1) * nv] = -CA @ E
             forced[k, :, i, :] = CA @ B
+    return Z, forced
+
+
+def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: int) -> ModelWindow:
+    """The window of ``ModelWindow`` for x⁺ = A x + B u + E v, y = Δ(γ) C x + F b.
+
+    Shapes: A (n, n), B (n, n_u), E (n, n_v), C (m, n); N ≥ 2 samples.
+    """
+    m = C.shape[0]
+    Z, forced = _stacked_window(A, B, E, C, N)
     weight = 1.0 / np.linalg.norm(C, axis=1)
     Z = (Z * weight[None, :, None]).reshape(N * m, -1)
     forced *= weight[None, :, None, None]
@@ -266,19 +277,8 @@ def gain_test_window(
 
     Shapes: A (n, n), B (n, n_u), E (n, n_v), C (m, n), noise_std (m,); 2 ≤ min_window ≤ N.
     """
-    n, m, nv, nu = A.shape[0], C.shape[0], E.shape[1], B.shape[1]
-    powers = [np.eye(n)]
-    for _ in range(N - 1):
-        powers.append(A @ powers[-1])
-    Z = np.zeros((N, m, m + n + (N - 1) * nv))
-    forced = np.zeros((N, m, N - 1, nu))
-    for k in range(N):
-        Z[k, :, :m] = -np.eye(m)
-        Z[k, :, m : m + n] = -C @ powers[k]
-        for i in range(k):
-            CA = C @ powers[k - 1 - i]
-            Z[k, :, m + n + i * nv : m + n + (i + 1) * nv] = -CA @ E
-            forced[k, :, i, :] = CA @ B
+    n, m, nv = A.shape[0], C.shape[0], E.shape[1]
+    Z, forced = _stacked_window(A, B, E, C, N)
     weight = 1.0 / np.asarray(noise_std, dtype=float)
     Z *= weight[None, :, None]
     forced *= weight[None, :, None, None]
