@@ -19,7 +19,6 @@ import json
 import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,21 +26,12 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.common import best_of  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.codec import signal_bits  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
 from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.run import Run  # noqa: E402
-
-
-def best_of(repeat: int, fn) -> float:
-    """The fastest of ``repeat`` timings of fn() in seconds (least disturbed by other load)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def workload(run: Run, n: int):

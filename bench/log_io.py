@@ -23,7 +23,6 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import orjson
@@ -32,6 +31,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.common import best_of  # noqa: E402
 from cosim import __version__, scenario  # noqa: E402
 from cosim.analysis.export import FORMATS, export  # noqa: E402
 from cosim.analysis.summary import summarize  # noqa: E402
@@ -41,16 +41,6 @@ from cosim.log.writer import McapLog, dumps  # noqa: E402
 from cosim.run import Run  # noqa: E402
 
 CHUNK_SIZE = 512 * 1024  # McapLog's default
-
-
-def best_of(repeat: int, fn) -> float:
-    """The fastest of ``repeat`` timings of fn() in seconds (least disturbed by other load)."""
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
 
 
 def record_log(folder: Path, seconds: float) -> Path:
