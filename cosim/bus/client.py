@@ -24,6 +24,7 @@ The built-in estimator nodes are clients too (``cosim/node.py``): the protocol i
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
@@ -44,7 +45,7 @@ from cosim.bus.codec import (
     Codec,
     Decoded,
 )
-from cosim.bus.secoc import Rejection, SecOC
+from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CodecError, CosimError
 
@@ -180,7 +181,8 @@ class Client:
     has messages there publishes them and, if ``lockstep``, closes every tick with a heartbeat.
     ``bus`` is an open python-can bus; the client does not close it unless it opened it itself.
     ``secoc`` (on a bus with ``authentication = "secoc"``): the keys it signs its frames with and
-    verifies the frames it takes with; what fails is dropped and kept in ``rejections``.
+    verifies the frames it takes with; what fails is dropped and counted in ``rejections``
+    ((id, reason) → frames).
     """
 
     def __init__(
@@ -197,7 +199,7 @@ class Client:
     ) -> None:
         self.name = name
         self.secoc = secoc
-        self.rejections: list[Rejection] = []
+        self.rejections: Counter[tuple[int, str]] = Counter()
         self.codec = codec
         self.bus = bus
         #: The node this client is on the bus: its name, where the DBC declares it; else None.
@@ -279,7 +281,7 @@ class Client:
         if self.secoc is not None:
             rejection = self.secoc.verify(frame, self.assembler.last_sync or 0)
             if rejection is not None:  # dropped before it counts: SYNC announces genuine frames only
-                self.rejections.append(rejection)
+                self.rejections[(rejection.frame_id, rejection.reason)] += 1
                 return []
         if decoded.spec.role == NMT:
             node = int(decoded.values["node"])
