@@ -256,7 +256,7 @@ class RunPlan:
         return NodeSpec(
             name,
             spec.kind,
-            {**spec.params, **estimator.design_params()},
+            {**spec.params, **estimator.node_params()},
             estimator.model,
             self.codec.dbc,
             bus,
