@@ -214,3 +214,16 @@ def test_a_node_drops_and_counts_what_fails():
     assert client.rejections == {(0x100, BAD_MAC): 1}
     assert client.feed(genuine[0]) == [] and client.rejections[(0x100, REPLAYED)] == 1
     bus.shutdown()
+
+
+def test_a_replay_of_a_secured_run_leaves_out_what_its_receivers_dropped(tmp_path):
+    from cosim.run.replay import Replay
+
+    out = tmp_path / "secured.mcap"
+    assert run(_loaded(**{"bus.authentication": "secoc", "duration": 7.0}), out, 0, interface="virtual").status == (
+        "completed"
+    )
+    again = tmp_path / "again.mcap"
+    result = Replay(out, again, "kalman", interface="virtual").execute()
+    assert result.status == "completed", result.error
+    assert np.array_equal(_estimates(again)["/can/EST_kalman"], _estimates(out)["/can/EST_kalman"])

@@ -445,7 +445,16 @@ class RunRecorder:
         )
 
     def security(
-        self, tick: int, t: float, t_ns: int, frame_id: int, message: str | None, sender: str, reason: str, fv: int
+        self,
+        tick: int,
+        t: float,
+        t_ns: int,
+        frame_id: int,
+        message: str | None,
+        sender: str,
+        reason: str,
+        fv: int,
+        data: bytes,
     ) -> None:
         """A frame a receiver dropped because it failed SecOC verification (``cosim.bus.secoc``)."""
         if self._security is None:  # created with the first rejection: a log without one has no such topic
@@ -469,6 +478,7 @@ class RunRecorder:
                             "last accepted; stale: older than the acceptance window",
                         },
                         "freshness": {"type": "integer", "description": "the full freshness value as rebuilt"},
+                        "data": {"type": "string", "description": "its payload (hex): a replay skips this frame"},
                     },
                     "A frame dropped by SecOC verification",
                 ),
@@ -484,5 +494,6 @@ class RunRecorder:
                 "sender": sender,
                 "reason": reason,
                 "freshness": fv,
+                "data": data.hex(),
             },
         )

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 import tomllib
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -32,6 +33,7 @@ import can
 
 import estimators
 from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
+from cosim.bus.secoc import run_secret
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
 from cosim.log.metadata import (
@@ -46,7 +48,7 @@ from cosim.log.metadata import (
     versions,
 )
 from cosim.log.reader import LogReader
-from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE
+from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SECURITY, SENSORS, STATE
 from cosim.log.writer import McapLog
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.loop import execute, start_participants
@@ -86,8 +88,17 @@ def frame_of(record: dict[str, Any]) -> can.Message:
 def logged_ticks(reader: LogReader, codec: Codec) -> Iterator[LoggedTick]:
     """The ticks of a log in order, streamed: memory holds one tick whatever the log's length."""
     current: LoggedTick | None = None
-    for topic, time_ns, message in reader.messages([FRAMES, *TRUTH]):
+    # SecOC: frames the run's receivers dropped are not replayed (a replay signs what it sends with
+    # keys of its own); their rejection is logged before them, with their payload
+    dropped: Counter[tuple[int, str]] = Counter()
+    for topic, time_ns, message in reader.messages([FRAMES, SECURITY, *TRUTH]):
         k = message["tick"]
+        if topic == SECURITY:
+            dropped[(message["id"], message.get("data", ""))] += 1
+            continue
+        if topic == FRAMES and dropped[(message["id"], message["data"])] > 0:
+            dropped[(message["id"], message["data"])] -= 1
+            continue
         if topic == FRAMES and not _replayed(frame_of(message), codec):
             continue  # the estimators' answers, boot-up heartbeats, the final NMT stop, foreign frames
         if current is None or k > current.tick:
@@ -320,6 +331,7 @@ class Replay:
             tuple(run.faults),
             run.fault_onset_tick,
             _units(scenario),
+            run_secret() if scenario.bus.authentication == "secoc" else None,
         )
         self.bus: BusConfig | None = None
         self.session: Session | None = None

@@ -601,6 +601,7 @@ class Session:
             rejection.sender,
             rejection.reason,
             rejection.freshness,
+            bytes(frame.data),
         )
 
     def _intruder(self, frame: can.Message, label: str) -> None:
