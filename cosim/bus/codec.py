@@ -428,24 +428,31 @@ class Codec:
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
         """The frame of message ``name`` for tick k carrying ``values`` (one per signal, in order)."""
-        return self.encode_decoded(name, tick, values)[0]
+        spec = self.specs[name]
+        return self._frame(spec, self._packers[name].encode(self._payload(spec, tick, values)))
 
     def encode_decoded(self, name: str, tick: int, values: Sequence[float]) -> tuple[can.Message, Decoded]:
         """The frame, and what a receiver decodes from it (the values as the frame carries them,
         quantized in classic CAN), without decoding it again."""
         spec = self.specs[name]
-        counter = tick % self.tick_modulus
-        payload = [counter]
+        payload = self._payload(spec, tick, values)
+        data, carried = self._packers[name].encode_carried(payload)
+        return self._frame(spec, data), Decoded(spec, int(payload[0]), dict(zip(spec.signals, carried[1:])))
+
+    def _payload(self, spec: MessageSpec, tick: int, values: Sequence[float]) -> list[float]:
+        """The tick counter and the values, each checked against its channel's range."""
+        payload: list[float] = [tick % self.tick_modulus]
         for channel, value in zip(spec.channels, values, strict=True):
             if not (channel.minimum <= value <= channel.maximum):  # also rejects NaN
                 signal = spec.signals[len(payload) - 1]
                 raise CodecError(_range_message(spec, signal, channel, value, tick))
             payload.append(float(value))
-        data, carried = self._packers[name].encode_carried(payload)
-        frame = can.Message(
+        return payload
+
+    def _frame(self, spec: MessageSpec, data: bytes) -> can.Message:
+        return can.Message(
             arbitration_id=spec.frame_id, data=data, is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd
         )
-        return frame, Decoded(spec, counter, dict(zip(spec.signals, carried[1:])))
 
     def spec_of(self, frame: can.Message) -> MessageSpec | None:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)
