@@ -34,7 +34,19 @@ from cosim.bus.codec import estimate_signal
 from cosim.bus.timing import frame_bits, frame_bits_worst_case
 from cosim.log.metadata import EstimatorRecord, LogMetadata, RunRecord
 from cosim.log.reader import LogReader
-from cosim.log.recorder import DEADLINE_MISSES, EVENTS, FAULTS, FOREIGN, FRAMES, SECURITY, STATE, WIRE, carried_tick
+from cosim.log.recorder import (
+    DEADLINE_MISSES,
+    EVENTS,
+    FAULTS,
+    FOREIGN,
+    FRAMES,
+    IDS,
+    IDS_CHECKS,
+    SECURITY,
+    STATE,
+    WIRE,
+    carried_tick,
+)
 from estimators.base import DiagnosticKind
 
 #: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
@@ -148,6 +160,7 @@ class _Tick:
     x: dict[str, Any] | None = None
     active: list[str] | None = None
     estimates: dict[str, dict[str, Any]] = field(default_factory=lambda: defaultdict(dict))
+    ids: dict[str, Any] | None = None  # the intrusion detector's verdict (/cosim/ids)
     parts: int = 0
 
 
@@ -165,6 +178,11 @@ class _Scorer:
         self.warnings: list[str] = []
         self.owner = run.topic_owner()
         self.expected_parts = (2 + len(self.owner)) if run.states else 0
+        # The intrusion detector, scored as a diagnosis: its alarm ("any" check) and each check's own
+        self.ids: dict[str, _DiagnosisScore] = {}
+        if run.bus.get("intrusion_detector"):
+            self.ids = {check: _DiagnosisScore(run, None, check) for check in ("any", *IDS_CHECKS)}
+            self.expected_parts += 1 if self.expected_parts else 0
         self.pending: dict[int, _Tick] = {}
         self.next_tick = 0
         self.newest = -1
@@ -234,6 +252,9 @@ class _Scorer:
         elif topic == FAULTS:
             k = int(msg["tick"])
             self._tick(k).active = list(msg["active"])
+        elif topic == IDS and self.ids:
+            k = int(msg["tick"])
+            self._tick(k).ids = msg
         elif topic in self.owner:
             k = carried_tick(log_time // dt_ns, msg["tick"])
             if k < self.next_tick:
@@ -302,11 +323,19 @@ class _Scorer:
                 if name not in self.diagnosis:
                     self.diagnosis[name] = _DiagnosisScore(self.run, name, alarm)
                 self.diagnosis[name].add(k, estimate, active, self.segment)
+        if tick.ids is not None:
+            verdict = {"any": float(bool(tick.ids["alarm"]))} | {c: float(tick.ids[c] > 0) for c in IDS_CHECKS}
+            for score in self.ids.values():
+                score.add(k, verdict, active, self.segment)
 
     def _close_segment(self) -> None:
         if self.segment is None:
             return
-        scores: list[_EstimationScore | _DiagnosisScore] = [*self.estimators.values(), *self.diagnosis.values()]
+        scores: list[_EstimationScore | _DiagnosisScore] = [
+            *self.estimators.values(),
+            *self.diagnosis.values(),
+            *self.ids.values(),
+        ]
         for score in scores:
             score.close(self.segment)
         self.segment = None
@@ -375,16 +404,17 @@ class _EstimationScore:
 class _DiagnosisScore:
     """Detection and isolation by one estimator that publishes an alarm (and isolation flags)."""
 
-    def __init__(self, run: _Run, name: str, alarm: str) -> None:
+    def __init__(self, run: _Run, name: str | None, alarm: str) -> None:
         self.run = run
-        record = run.estimators[name]
+        record = run.estimators[name] if name is not None else None  # None: the intrusion detector, no flags
         self.alarm = alarm
         #: flag (what it isolates, e.g. a thruster T1) → its signal; and what the flag names as faulty
-        self.signals = {
-            target or signal: signal for signal, target in sorted(record.signals_of(DiagnosticKind.ISOLATION).items())
-        }
+        isolation = record.signals_of(DiagnosticKind.ISOLATION) if record is not None else {}
+        self.signals = {target or signal: signal for signal, target in sorted(isolation.items())}
         self.flags = sorted(self.signals)
-        self.targets = {flag: record.isolates.get(signal, []) for flag, signal in self.signals.items()}
+        self.targets = (
+            {flag: record.isolates.get(signal, []) for flag, signal in self.signals.items()} if record else {}
+        )
         self.alarm_prev = False
         self.scored = 0
         self.fault_free_ticks = 0
@@ -460,6 +490,22 @@ class _DiagnosisScore:
                 "isolated": state["decision"],
                 "isolation_correct": correct if self.flags else None,
             }
+
+
+def _verdict(verdict: _DiagnosisScore, dt: float) -> dict[str, Any]:
+    """A diagnosis's scores: false alarms (per hour of fault-free time), and per fault detection
+    (delay, missed) and isolation (docs/metrics.md); the intrusion detector's too."""
+    hours = verdict.fault_free_ticks * dt / 3600 if dt else 0.0
+    return {
+        "isolation_flags": verdict.targets,
+        "ticks_scored": verdict.scored,
+        "alarm_time_s": round(verdict.alarm_ticks * dt, 9),
+        "fault_free_time_s": round(verdict.fault_free_ticks * dt, 9),
+        "false_alarms": verdict.false_alarms,
+        "false_alarm_rate_per_hour": verdict.false_alarms / hours if hours else None,
+        "missed_detections": sum(not verdict.faults[label]["detected"] for label in verdict.faults),
+        "faults": verdict.faults,
+    }
 
 
 # -- the bus ------------------------------------------------------------------------------------
@@ -548,6 +594,12 @@ class _BusScore:
                 "by_reason": dict(sorted(scorer.foreign_reasons.items())),
             },
             "foreign_frames": dict(sorted(scorer.foreign_ids.items())),
+            # only where the run had the intrusion detector (/cosim/ids)
+            **(
+                {"intrusion_detection": {c: _verdict(v, self.sample_time) for c, v in scorer.ids.items()}}
+                if scorer.ids and self.sample_time
+                else {}
+            ),
             # only where SecOC dropped frames (/cosim/security)
             **(
                 {"secoc_rejected": {i: dict(sorted(r.items())) for i, r in sorted(scorer.rejected.items())}}
@@ -626,19 +678,9 @@ def _report(
     diagnosis = {}
     for name, verdict in scorer.diagnosis.items():
         assert dt is not None, "diagnosis is scored at ticks, and ticks are scored only with a sample time"
-        hours = verdict.fault_free_ticks * dt / 3600 if dt else 0.0
-        occurred = [label for label in verdict.faults]
-        diagnosis[name] = {
-            "kind": run.estimators[name].kind if name in run.estimators else None,
-            "isolation_flags": verdict.targets,
-            "ticks_scored": verdict.scored,
-            "alarm_time_s": round(verdict.alarm_ticks * dt, 9),
-            "fault_free_time_s": round(verdict.fault_free_ticks * dt, 9),
-            "false_alarms": verdict.false_alarms,
-            "false_alarm_rate_per_hour": verdict.false_alarms / hours if hours else None,
-            "missed_detections": sum(not verdict.faults[label]["detected"] for label in occurred),
-            "faults": verdict.faults,
-        }
+        diagnosis[name] = {"kind": run.estimators[name].kind if name in run.estimators else None} | _verdict(
+            verdict, dt
+        )
     faults = {
         label: {**info, "onset": seconds(scorer.onsets.get(label)), "cleared": seconds(scorer.ends.get(label))}
         for label, info in run.faults.items()

@@ -48,6 +48,9 @@ STATE, SENSORS, INPUTS, FAULTS = "/truth/state", "/truth/sensors", "/truth/input
 EVENTS, DEADLINE_MISSES, FOREIGN = "/cosim/events", "/cosim/deadline_misses", "/cosim/foreign"
 WIRE = "/cosim/wire"
 SECURITY = "/cosim/security"
+IDS = "/cosim/ids"
+#: The key-less intrusion detector's checks (``cosim.run.detector``), as its verdicts on IDS name them.
+IDS_CHECKS = ("period", "sequence", "range", "unknown")
 BUS_FAULTS = "/truth/bus_faults"
 
 _TICK = {"type": "integer", "description": "tick counter k of the runner"}
@@ -94,6 +97,7 @@ class RunRecorder:
         self.frames = 0
         self._wire: int | None = None
         self._security: int | None = None
+        self._ids: int | None = None
         self._bus_faults: int | None = None
         self._frames = log.channel(
             FRAMES,
@@ -497,3 +501,25 @@ class RunRecorder:
                 "data": data.hex(),
             },
         )
+
+    def ids(self, tick: int, t: float, t_ns: int, checks: dict[str, int], ids: list[int]) -> None:
+        """The intrusion detector's verdict on one tick (``cosim.run.detector``)."""
+        if self._ids is None:  # created with the first verdict: a run without the detector has no such topic
+            self._ids = self.log.channel(
+                IDS,
+                object_schema(
+                    "cosim.IntrusionVerdict",
+                    {
+                        "tick": _TICK,
+                        "t": _TIME,
+                        "alarm": {"type": "boolean", "description": "any check raised in this tick"},
+                        **{
+                            check: {"type": "integer", "description": f"ids the {check} check raised on"}
+                            for check in IDS_CHECKS
+                        },
+                        "ids": {"type": "array", "items": {"type": "integer"}, "description": "those ids"},
+                    },
+                    "The key-less intrusion detector's verdict on a tick: period, sequence, range, unknown sender",
+                ),
+            )
+        self.log.write(self._ids, t_ns, {"tick": tick, "t": t, "alarm": any(checks.values()), **checks, "ids": ids})

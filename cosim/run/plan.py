@@ -38,6 +38,7 @@ from cosim.plant import Plant, build_plant
 from cosim.run import design_cache
 from cosim.run.arbitration import Arbitration, build_traffic
 from cosim.run.busfaults import BusFaultStage
+from cosim.run.detector import IntrusionDetector
 from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
@@ -333,6 +334,7 @@ class RunPlan:
                 else None
             ),
             secoc=self.secoc(),
+            detector=IntrusionDetector(self.codec, s.dt_ns) if s.bus.intrusion_detector else None,
         )
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:
@@ -383,6 +385,8 @@ class RunPlan:
                 "data_bitrate": s.bus.data_bitrate,
                 # only off the default, so that the log of an ideal bus is what it always was
                 **({"timing": s.bus.timing} if s.bus.timing != "ideal" else {}),
+                **({"authentication": s.bus.authentication} if s.bus.authentication != "none" else {}),
+                **({"intrusion_detector": True} if s.bus.intrusion_detector else {}),
                 **(
                     {
                         "traffic": [

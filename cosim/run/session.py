@@ -54,6 +54,7 @@ from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog
 from cosim.run.arbitration import Arbitration
 from cosim.run.busfaults import Applied, BusFaultStage
+from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
 
@@ -350,8 +351,10 @@ class Session:
         arbitration: Arbitration | None = None,
         bus_faults: BusFaultStage | None = None,
         secoc: SecOC | None = None,
+        detector: IntrusionDetector | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
+        self.detector = detector  # the key-less intrusion detector: every frame logged, and the foreign ones
         self.secoc = secoc  # authentication = "secoc": the runner signs its frames and verifies everyone's
         self.arbitration = arbitration  # arbitrated timing: the simulated wire decides what arrives when
         self.bus_faults = bus_faults  # what the scenario's bus faults do to the runner's frames, and intruders
@@ -389,10 +392,11 @@ class Session:
                 self._own,
                 self._with_commands,
                 echoes=self.config.interface == "udp_multicast",
-                on_foreign=self._foreign_frame,
+                on_foreign=self._foreign_heard,
                 secoc=self.secoc,
                 on_rejected=self._rejected,
             )
+            self.traffic.deliver = self._log_frame
             self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
         except BaseException:  # undo what was entered (signal handlers, the log, the bus), as __exit__ would
             stack.close()
@@ -575,9 +579,10 @@ class Session:
             self.log.flush()
         self._marker = (k, t, t_ns)
         for item in frames:
-            self.recorder.frame(k, t, t_ns, *item)
+            self._log_frame(k, t, t_ns, *item)
             if applied is not None and id(item) in applied.intruders:
                 self._intruder(item[0], applied.intruders[id(item)])
+        self._verdicts(k)
 
     def _bus_faults(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> Applied | None:
         """Tick k's frames through the bus faults; what they did goes to /truth/bus_faults."""
@@ -588,6 +593,24 @@ class Session:
         for event in applied.events:
             self.recorder.bus_fault(k, t, t_ns, vars(event))
         return applied
+
+    def _log_frame(
+        self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None, sender: str | None = None
+    ) -> None:
+        """A frame into the log, at its arrival; the intrusion detector sees it there."""
+        if sender is None:
+            self.recorder.frame(tick, t, t_ns, frame, decoded)
+        else:
+            self.recorder.frame(tick, t, t_ns, frame, decoded, sender)
+        if self.detector is not None:
+            self.detector.frame(tick, t_ns, frame, decoded)
+
+    def _foreign_heard(self, frame: can.Message, reason: str) -> None:
+        """A frame the runner heard that nobody in the run sent (not a fault's intruder, which the
+        detector must find by itself)."""
+        if self.detector is not None:
+            self.detector.foreign(self.traffic.current, frame)
+        self._foreign_frame(frame, reason)
 
     def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
         """A frame SecOC dropped, on /cosim/security at the tick the runner is in."""
@@ -629,6 +652,12 @@ class Session:
             self.log.flush()
         self._marker = (k, t, t_ns)
         self._log_passages(step.passed)
+        self._verdicts(k)
+
+    def _verdicts(self, k: int) -> None:
+        """The detector's verdicts on the ticks before k: every frame of theirs is in the log."""
+        if self.detector is not None:
+            self.detector.publish(self.recorder, k, self.timing.sample_time)
 
     def _log_passages(self, passed: list[Transmission]) -> None:
         """Frames through the wire, at their delivery (the tick is the one it falls in), and every
@@ -638,7 +667,7 @@ class Session:
             message, decoded = p.frame.payload
             tick = p.delivered_ns // dt_ns
             if p.dropped is None:
-                self.recorder.frame(tick, p.delivered_ns / 1e9, p.delivered_ns, message, decoded, p.frame.sender)
+                self._log_frame(tick, p.delivered_ns / 1e9, p.delivered_ns, message, decoded, p.frame.sender)
                 if self.bus_faults is not None and p.frame.sender in self.bus_faults.intruder_labels:
                     self._intruder(message, p.frame.sender)
             bits = sum(bits_of(p.frame))
@@ -732,6 +761,7 @@ class Session:
         traffic.flush(k, t_end, t_end_ns)
         if self.arbitration is not None:
             self._log_passages(self.arbitration.finish())
+        self._verdicts(k)
         self._close_foreign()
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")

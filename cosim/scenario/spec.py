@@ -180,6 +180,9 @@ class BusSpec(Strict):
     authentication: Literal["none", "secoc"] = "none"
     """secoc (CAN FD): every data frame carries a freshness value and a truncated AES-CMAC of its
     sender, and receivers drop what fails (docs/bus.md)."""
+    intrusion_detector: bool = False
+    """A key-less intrusion detector in the runner: per-id period and sequence checks, DBC ranges,
+    unknown senders; its verdicts on /cosim/ids, scored like a diagnosis (docs/bus.md)."""
 
 
 class TimingSpec(Strict):
