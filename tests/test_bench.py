@@ -41,9 +41,29 @@ def test_codec_log_benchmark_reports_ratios_against_its_baselines():
 def test_cosim_throughput_benchmark_reports_its_figures():
     figures = bench("cosim_throughput.py", "--frames", "3000", "--repeat", "1")
     assert figures["raw_lost_frames"] == 0 and figures["lost_frames"] == 0
-    for key in ("raw_frames_per_s", "pipeline_frames_per_s", "ratio", "realtime_factor"):
+    for key in (
+        "raw_frames_per_s",
+        "pipeline_frames_per_s",
+        "ratio",
+        "realtime_factor",
+        "node_startup_s",
+        "inprocess_realtime_factor",
+        "inprocess_run_realtime_factor",
+    ):
         assert figures[key] > 0, key
     assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
+    assert set(figures["node_startup"]) == {"uniform", "kalman"} and figures["inprocess_lost_frames"] == 0
+
+
+def test_tick_budget_reports_the_runner_and_each_node_per_phase():
+    figures = bench("tick_budget.py", "--duration", "1", "--repeat", "1", "--udp-frames", "1000")
+    budget = figures["us_per_tick"]
+    assert set(budget) == {"runner", "node uniform", "node kalman"}
+    assert {"mcap write", "mj_step", "encode", "decode", "bus send", "loop"} <= set(budget["runner"])
+    assert {"step", "encode", "decode"} <= set(budget["node kalman"])
+    total = sum(sum(phases.values()) for phases in budget.values())
+    assert abs(total - figures["loop_us_per_tick"]) < 1e-6 * total  # the phases add up to the tick loop
+    assert figures["udp_send_us_per_frame"] > 0 and figures["udp_recv_us_per_frame"] > 0
 
 
 def test_estimator_step_benchmark_times_every_kind_against_kalman():
@@ -56,8 +76,12 @@ def test_estimator_step_benchmark_times_every_kind_against_kalman():
         "adaptive-ct",
         "lft-uio-sr_eq53",
         "lft-uio-sr_model",
+        "numpy_kalman",
+        "kalman_over_numpy_kalman",
+        "adaptive-ct_over_kalman",
     } <= set(figures)
     assert all(v > 0 for v in figures.values())
+    assert abs(figures["kalman_over_numpy_kalman"] - figures["kalman"] / figures["numpy_kalman"]) < 0.01
 
 
 def test_lmi_design_benchmark_reports_its_figures():
