@@ -12,8 +12,8 @@ import pytest
 from cosim import scenario
 from cosim.analysis.metrics import compute_metrics
 from cosim.bus.codec import Codec
-from cosim.bus.secoc import BAD_MAC, REPLAYED, STALE, TRAILER, WINDOW, SecOC, derive_key
-from cosim.errors import ScenarioError
+from cosim.bus.secoc import BAD_MAC, REPLAYED, SECRET_ENV, STALE, TRAILER, WINDOW, SecOC, derive_key
+from cosim.errors import CosimError, ScenarioError
 from cosim.log.reader import LogReader
 from cosim.log.recorder import SECURITY
 from cosim.run import run
@@ -227,3 +227,23 @@ def test_a_replay_of_a_secured_run_leaves_out_what_its_receivers_dropped(tmp_pat
     result = Replay(out, again, "kalman", interface="virtual").execute()
     assert result.status == "completed", result.error
     assert np.array_equal(_estimates(again)["/can/EST_kalman"], _estimates(out)["/can/EST_kalman"])
+
+
+def test_a_fixed_run_secret_repeats_a_secured_run_bit_for_bit(tmp_path, monkeypatch):
+    """Without COSIM_SECOC_SECRET two runs of a seed differ in their trailers only; with it, in nothing."""
+    from tests.frame_digests import log_digest
+
+    loaded = _loaded(**{"bus.authentication": "secoc", "duration": 0.5})
+    digests = []
+    for i, secret in enumerate(["", "", "ab" * 32, "ab" * 32]):
+        monkeypatch.setenv(SECRET_ENV, secret)
+        out = tmp_path / f"run{i}.mcap"
+        assert run(loaded, out, 0, interface="virtual").status == "completed"
+        digests.append(log_digest(out))
+    assert digests[0] != digests[1] and digests[2] == digests[3]
+    assert [_estimates(tmp_path / f"run{i}.mcap")["/can/EST_kalman"].tolist() for i in (0, 2)] == [
+        _estimates(tmp_path / f"run{i}.mcap")["/can/EST_kalman"].tolist() for i in (1, 3)
+    ]
+    monkeypatch.setenv(SECRET_ENV, "abc")
+    with pytest.raises(CosimError, match="COSIM_SECOC_SECRET must be 64 hex digits"):
+        RunPlan.build(loaded)

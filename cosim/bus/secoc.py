@@ -39,6 +39,8 @@ import can
 import cantools
 from cantools.database.can import Database, Signal
 
+from cosim.errors import CosimError
+
 FV_SIGNAL, MAC_SIGNAL = "secoc_fv", "secoc_mac"
 SIGNALS = (FV_SIGNAL, MAC_SIGNAL)
 FV_BYTES, MAC_BYTES = 1, 3
@@ -108,7 +110,7 @@ def run_secret() -> bytes:
     except ValueError:
         secret = b""
     if len(secret) != 32:
-        raise ValueError(f"{SECRET_ENV} must be 64 hex digits (32 bytes), or unset for a random run secret")
+        raise CosimError(f"{SECRET_ENV} must be 64 hex digits (32 bytes), or unset for a random run secret")
     return secret
 
 
