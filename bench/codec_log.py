@@ -1,7 +1,7 @@
 """Throughput of the CAN codec and of the MCAP logger, and the run time of the default scenario.
 
 Each figure comes with a baseline measured in the same run on the same data:
-- codec: frames/s encoded and decoded through the generated DBC (cantools, with our range checks)
+- codec: frames/s encoded and decoded through the generated DBC (compiled from cantools into packers, with our range checks)
   against ``struct`` packing and unpacking the same bit layout by hand (the ceiling for Python);
 - logger: frames/s through the run recorder (the ``/can/frames`` record and the decoded
   ``/can/<Message>`` record, JSON, zstd, indexed) against the bare ``mcap`` writer appending the same
@@ -174,7 +174,7 @@ def main() -> None:
         print(json.dumps(figures))
         return
     rows = [
-        ("codec: encode + decode (DBC, cantools)", figures["codec_frames_per_s"], "frames/s"),
+        ("codec: encode + decode (DBC, compiled packers)", figures["codec_frames_per_s"], "frames/s"),
         ("  baseline: same layout packed by hand", figures["codec_baseline_frames_per_s"], "frames/s"),
         ("  ratio", figures["codec_ratio"], ""),
         ("logger: /can/frames + decoded record", figures["logger_frames_per_s"], "frames/s"),
