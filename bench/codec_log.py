@@ -1,8 +1,9 @@
 """Throughput of the CAN codec and of the MCAP logger, and the run time of the default scenario.
 
 Each figure comes with a baseline measured in the same run on the same data:
-- codec: frames/s encoded and decoded through the generated DBC (compiled from cantools into packers, with our range checks)
-  against ``struct`` packing and unpacking the same bit layout by hand (the ceiling for Python);
+- codec: frames/s encoded and decoded through the generated DBC (compiled from cantools into
+  packers, with our range checks) against ``struct`` packing and unpacking the same bit layout by
+  hand (the ceiling for Python);
 - logger: frames/s through the run recorder (the ``/can/frames`` record and the decoded
   ``/can/<Message>`` record, JSON, zstd, indexed) against the bare ``mcap`` writer appending the same
   number of pre-serialized records of the same size;
