@@ -34,12 +34,16 @@ import hmac
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import can
 import cantools
 from cantools.database.can import Database, Signal
 
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:  # the codec imports this module (to take the trailer out of a secured DBC)
+    from cosim.bus.codec import Codec
 
 FV_SIGNAL, MAC_SIGNAL = "secoc_fv", "secoc_mac"
 SIGNALS = (FV_SIGNAL, MAC_SIGNAL)
@@ -148,13 +152,11 @@ class SecOC:
         self._last: dict[int, int] = {}  # id -> full FV of the last frame accepted
 
     @classmethod
-    def from_codec(cls, codec: object, keys: Mapping[str, bytes]) -> SecOC | None:
+    def from_codec(cls, codec: Codec, keys: Mapping[str, bytes]) -> SecOC | None:
         """The participant's SecOC for a codec from a secured DBC (None: the DBC is not secured)."""
-        trailers: dict[int, int] = getattr(codec, "secoc_trailers", {})
-        if not trailers:
+        if not codec.secoc_trailers:
             return None
-        specs = getattr(codec, "specs", {})
-        return cls(keys, trailers, {spec.frame_id: spec.sender for spec in specs.values()})
+        return cls(keys, codec.secoc_trailers, {spec.frame_id: spec.sender for spec in codec.specs.values()})
 
     def _mac(self, sender: str, frame_id: int, pdu: bytes | bytearray, freshness: int) -> bytes:
         cmac = self._cmacs[sender].copy()
