@@ -137,7 +137,8 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch):
     out = tmp_path / "r.mcap"
     assert main(["run", "--interface", "virtual", "--set", "duration=0.2", "-q", "--out", str(out)]) == 0
     capsys.readouterr()
-    monkeypatch.setitem(sys.modules, "pyarrow", None)  # as if the export extra were not installed
+    for module in ("pyarrow", "pyarrow.parquet"):  # as if the export extra were not installed (even if imported)
+        monkeypatch.setitem(sys.modules, module, None)
     assert main(["export", str(out), "--to", "parquet"]) == 1
     assert capsys.readouterr().err.strip() == (
         "error: cosim export --to parquet needs the 'export' extra (pyarrow is not installed): "

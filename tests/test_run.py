@@ -346,7 +346,10 @@ def test_a_cut_log_gives_a_partial_result_with_a_warning(default_run, tmp_path):
 
 def test_a_corrupted_chunk_is_skipped_with_a_warning(default_run, tmp_path):
     data = bytearray(default_run.path.read_bytes())
-    middle = len(data) // 3
+    with open(default_run.path, "rb") as stream:  # a chunk a third of the way in, not its message index
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    chunk = chunks[len(chunks) // 3]
+    middle = chunk.chunk_start_offset + chunk.chunk_length // 2
     data[middle : middle + 32] = bytes(b ^ 0xFF for b in data[middle : middle + 32])
     flipped = tmp_path / "flipped.mcap"
     flipped.write_bytes(bytes(data))
