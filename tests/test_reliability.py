@@ -250,8 +250,11 @@ def _cosim(*args, **kwargs) -> subprocess.Popen:
 def test_a_double_ctrl_c_still_writes_the_result(tmp_path):
     for attempt in range(3):
         out = tmp_path / f"double-{attempt}.mcap"
-        process = _cosim("run", "--out", str(out), "-q")
-        time.sleep(3.0 + attempt * 0.3)
+        process = _cosim("run", "--out", str(out), "-q", "--set", "duration=600")  # still ticking when stopped
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and (not out.exists() or out.stat().st_size < 30_000):  # ticking
+            time.sleep(0.05)
+        time.sleep(0.3 * attempt)
         process.send_signal(signal.SIGINT)
         time.sleep(0.05 * attempt)
         process.send_signal(signal.SIGINT)
@@ -347,7 +350,8 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
     no process and no node folder is left."""
     rng = random.Random(17)
     examples = Path(__file__).resolve().parent.parent / "examples"
-    quick = ["--set", "duration=6", "--set", "timing.node_timeout=2", "--set", "timing.join_timeout=10"]
+    # long enough that the kill, at most a second after the run starts ticking, lands before it ends
+    quick = ["--set", "duration=60", "--set", "timing.node_timeout=2", "--set", "timing.join_timeout=10"]
     tally: dict[str, int] = {}
     for trial in range(70):
         if sum(tally.values()) >= 50:
@@ -409,4 +413,4 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
             time.sleep(1.5)  # its nodes notice their runner is gone
         assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
     assert sum(tally.values()) >= 50, tally
-    print(f"chaos: {tally}")
+    print(f"chaos: {tally} in {trial + 1} trials")
