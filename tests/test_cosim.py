@@ -152,11 +152,13 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
             "-f",
             str(capture),
         ],
-        stdout=subprocess.PIPE,
+        stdout=(console := open(tmp_path / "logger.out", "w")),  # a file: a full pipe would block the logger
         stderr=subprocess.STDOUT,
         text=True,
     )
-    time.sleep(2.0)  # the logger joins the group
+    deadline = time.monotonic() + 60  # until the logger has joined the group (importing can takes a while)
+    while time.monotonic() < deadline and "Connected to" not in (tmp_path / "logger.out").read_text():
+        time.sleep(0.05)
     try:
         proc = cli(
             "run",
@@ -175,7 +177,12 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
         time.sleep(0.5)
     finally:
         logger.send_signal(signal.SIGINT)
-        logger.communicate(timeout=30)
+        try:
+            logger.wait(timeout=30)
+        finally:
+            logger.kill()
+            console.close()
+    assert logger.returncode is not None, (tmp_path / "logger.out").read_text()
     captured = list(can.LogReader(str(capture)))
     dbc = subprocess.run(
         [sys.executable, "-m", "cosim.cli", "dbc", str(tmp_path / "short.toml")],
