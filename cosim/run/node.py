@@ -98,6 +98,8 @@ class _Node(ABC):
     """A participant answering each tick on a bus through its ``client``: ``answer`` publishes its
     frames for the tick and closes it with the heartbeat."""
 
+    spec: NodeSpec
+    codec: Codec
     client: Client
     ticks: int
     """Ticks answered so far."""
@@ -105,6 +107,15 @@ class _Node(ABC):
     @abstractmethod
     def answer(self, tick: TickFrames) -> None:
         """Publish this node's frames for a complete tick, then close it."""
+
+    def _join(self, spec: NodeSpec, bus: can.BusABC, name: str) -> None:
+        """Read the spec's database and put a client named ``name`` on ``bus``."""
+        self.spec = spec
+        self.codec = Codec.from_dbc(spec.dbc)
+        self.client = Client(
+            name, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream, secoc=spec.secoc(self.codec)
+        )
+        self.ticks = 0
 
     def _publish(self, tick: TickFrames, values: dict[str, float]) -> None:
         self.client.publish(tick, values)
@@ -130,29 +141,19 @@ class EstimatorNode(_Node):
     """
 
     def __init__(self, spec: NodeSpec, bus: can.BusABC, estimator: Estimator | None = None) -> None:
-        self.spec = spec
-        self.codec = Codec.from_dbc(spec.dbc)
         if estimator is None:
             try:
                 estimator = estimators.create(spec.kind, spec.model, spec.params, spec.sample_time)
             except ParameterError as error:
                 raise CosimError(f"estimator {spec.name}: params.{error}") from None
         self.estimator = estimator
-        self.client = Client(
-            spec.name,
-            self.codec,
-            bus,
-            sample_time=spec.sample_time,
-            upstream=spec.upstream,
-            secoc=spec.secoc(self.codec),
-        )
+        self._join(spec, bus, spec.name)
         model = estimator.model
         signals = [signal for message in self.client.messages for signal in message.signals]
         states = {signal: estimated_state(signal) for signal in signals}
         self._states = [(signal, model.states.index(state)) for signal, state in states.items() if state is not None]
         self._diagnostics = [signal for signal, state in states.items() if state is None]
         self._u = np.zeros(model.m)
-        self.ticks = 0
 
     def answer(self, tick: TickFrames) -> None:
         model = self.estimator.model
@@ -175,22 +176,13 @@ class ControllerNode(_Node):
     """
 
     def __init__(self, spec: NodeSpec, bus: can.BusABC, controller: controllers.Controller | None = None) -> None:
-        self.spec = spec
-        self.codec = Codec.from_dbc(spec.dbc)
         if controller is None:
             try:
                 controller = controllers.create(spec.kind, spec.model, spec.params, spec.sample_time)
             except ParameterError as error:
                 raise CosimError(f"controller: params.{error}") from None
         self.controller = controller
-        self.client = Client(
-            CONTROLLER,
-            self.codec,
-            bus,
-            sample_time=spec.sample_time,
-            upstream=spec.upstream,
-            secoc=spec.secoc(self.codec),
-        )
+        self._join(spec, bus, CONTROLLER)
         self._inputs = {
             channel.name: signal
             for message in self.client.messages
@@ -200,7 +192,6 @@ class ControllerNode(_Node):
         self._diagnostics = [
             signal for message in self.client.messages if message.role != COMMAND for signal in message.signals
         ]
-        self.ticks = 0
 
     def answer(self, tick: TickFrames) -> None:
         model = self.controller.model
