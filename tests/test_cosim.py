@@ -155,6 +155,9 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
         stdout=(console := open(tmp_path / "logger.out", "w")),  # a file: a full pipe would block the logger
         stderr=subprocess.STDOUT,
         text=True,
+        # Ctrl-C stops can.logger, unless SIGINT is ignored: a shell starts background jobs that way,
+        # and Python keeps an ignored SIGINT ignored in the children.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 60  # until the logger has joined the group (importing can takes a while)
     while time.monotonic() < deadline and "Connected to" not in (tmp_path / "logger.out").read_text():
