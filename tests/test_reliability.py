@@ -97,8 +97,9 @@ def fuzz_datagrams(count: int, seed: int = 5) -> list[tuple[str, bytes]]:
 
 
 def test_ten_thousand_foreign_datagrams_change_no_estimate_and_every_one_is_counted(tmp_path):
-    clean = run(loaded(tmp_path, 10.0), tmp_path / "clean.mcap")
-    target = Run(loaded(tmp_path, 10.0), tmp_path / "fuzzed.mcap")
+    # 6000 ticks: the fuzzing (1-3 s) must end while the run still ticks, however fast the tick is
+    clean = run(loaded(tmp_path, 60.0), tmp_path / "clean.mcap")
+    target = Run(loaded(tmp_path, 60.0), tmp_path / "fuzzed.mcap")
     datagrams = fuzz_datagrams(10_000)
     done = threading.Event()
 
@@ -109,16 +110,20 @@ def test_ten_thousand_foreign_datagrams_change_no_estimate_and_every_one_is_coun
             time.sleep(0.0001)
         done.set()
 
-    started = []
+    started: list[threading.Thread] = []
+    finished_at: list[int] = []
 
     def progress(p) -> None:
         if not started and p.tick >= 10:
             started.append(threading.Thread(target=fuzz))
             started[0].start()
+        if done.is_set() and not finished_at:
+            finished_at.append(p.tick)
 
     result = target.execute(progress, progress_every=0.0)
     started[0].join()
-    assert done.is_set() and result.status == "completed" and result.frames_lost == 0
+    assert finished_at, "the run ended before the fuzzing did: what came after it was not counted"
+    assert result.status == "completed" and result.frames_lost == 0
     assert log_digest(result.path) == log_digest(clean.path)  # the estimators' frames are the clean run's
     bus = compute_metrics(result.path)["bus"]
     # every one is counted: as a datagram that is no frame, or as a frame the run did not send (a few random
