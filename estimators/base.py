@@ -101,17 +101,17 @@ class ParameterError(ValueError):
         self.parameter = parameter
 
 
-class Configurable:
+class Configurable(ABC):
     """Something built from a plain parameter dict (parsed TOML): a ``kind`` and a ``Params``
     dataclass whose fields are the parameters, each converted to its declared type."""
 
     kind: ClassVar[str]
     Params: ClassVar[type]
 
+    @abstractmethod
     def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
         """The constructor every kind has, which ``from_params`` calls: the model, the checked
         ``Params`` and the sample time."""
-        raise NotImplementedError(f"{type(self).__name__} must define __init__(model, params, sample_time)")
 
     @classmethod
     def check_params(cls, params: dict[str, Any] | None = None) -> Any:

@@ -16,6 +16,7 @@ with its run, and a worker that dies is reported as that run's failure.
 from __future__ import annotations
 
 import os
+from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, ExitStack
 from typing import Any
@@ -34,8 +35,9 @@ class Engine(AbstractContextManager["Engine"]):
     workers = 1
     description = ""
 
+    @abstractmethod
     def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
-        raise NotImplementedError
+        """(item, result) as each finishes, in any order; a result is an exception if it raised."""
 
     def __exit__(self, *exc: object) -> None:
         return None
