@@ -29,23 +29,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import estimators  # noqa: E402
 from estimators import LinearModel  # noqa: E402
 from estimators.design import zoh_discretize  # noqa: E402
-from mjcf import masses, three_tank  # noqa: E402
+from mjcf import three_tank  # noqa: E402
+from tests.linear_masses import masses_model  # noqa: E402
 
 SENSORS = ("x1", "x2", "x1_minus_x2")
-
-
-def masses_model(sensors) -> LinearModel:
-    A, B = zoh_discretize(*masses.continuous_model(), 0.01)
-    return LinearModel(
-        A,
-        B,
-        masses.output_matrix(sensors),
-        np.zeros((len(sensors), 1)),
-        0.01,
-        ("x1", "x2", "v1", "v2"),
-        ("force",),
-        tuple(sensors),
-    )
 
 
 def cdc_model() -> LinearModel:

@@ -30,23 +30,10 @@ from estimators.design import (
     zoh_discretize,
 )
 from mjcf import masses
+from tests.linear_masses import masses_model
 
 P3 = ("x1", "x2", "x1_minus_x2")
 P4 = ("x1", "x2", "x1_minus_x2", "x2_minus_x1")
-
-
-def masses_model(sensors=P3) -> LinearModel:
-    A, B = zoh_discretize(*masses.continuous_model(), 0.01)
-    return LinearModel(
-        A,
-        B,
-        masses.output_matrix(sensors),
-        np.zeros((len(sensors), 1)),
-        0.01,
-        ("x1", "x2", "v1", "v2"),
-        ("force",),
-        tuple(sensors),
-    )
 
 
 def simulate(model, phi_of_k, ests, ticks, x0=(0.2, -0.1, 0.0, 0.0)):

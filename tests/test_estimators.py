@@ -9,20 +9,15 @@ import pytest
 import scipy.linalg
 
 import estimators
-from estimators import LinearModel, ParameterError
-from estimators.design import is_schur, observer_gain, output_factorization, weighted_pseudoinverse, zoh_discretize
+from estimators import ParameterError
+from estimators.design import is_schur, observer_gain, output_factorization, weighted_pseudoinverse
 from estimators.kalman import KalmanFilter
 from estimators.pseudoinverse import PseudoinverseObserver
 from mjcf import masses
+from tests.linear_masses import masses_model
 
 SENSORS = ("x1", "x2", "x1_minus_x2")
 POLES = (0.75, 0.8, 0.85, 0.9)
-
-
-def masses_model(sensors=SENSORS) -> LinearModel:
-    A, B = zoh_discretize(*masses.continuous_model(), 0.01)
-    C = masses.output_matrix(sensors)
-    return LinearModel(A, B, C, np.zeros((len(sensors), 1)), 0.01, ("x1", "x2", "v1", "v2"), ("force",), tuple(sensors))
 
 
 def test_factorization_reproduces_example_1():
