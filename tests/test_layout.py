@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from tests import sizes
+
 ROOT = Path(__file__).resolve().parent.parent
 BELOW = {
     "base": set(),
@@ -107,3 +109,11 @@ def test_the_rule_catches_an_import_against_it(tmp_path):
     bad.write_text("from cosim.run.runner import Run\nimport cosim.run.session\n")
     found = [room(target) for _, target in imports(bad, "cosim.analysis.bad")]
     assert found == ["run", "run"] and not {"run"} <= BELOW["analysis"]
+
+
+def test_rooms_a_newcomer_reads_in_one_sitting():
+    """At most a few functions over 60 lines and files over 600 lines in the product
+    (``python -m tests.sizes`` lists them)."""
+    files, functions = sizes.long_files(), sizes.long_functions()
+    assert len(files) <= sizes.MAX_LONG_FILES, [f"{s.where} ({s.lines})" for s in files]
+    assert len(functions) <= sizes.MAX_LONG_FUNCTIONS, [f"{s.where} ({s.lines})" for s in functions]

@@ -1,0 +1,67 @@
+"""The size of the product's rooms: functions over 60 lines and files over 600 lines.
+
+A room a newcomer can read in one sitting is a file of a few hundred lines whose functions fit on
+a screen. ``python -m tests.sizes`` prints the offenders, longest first; ``tests/test_layout.py``
+holds the product to at most ``MAX_LONG_FUNCTIONS`` and ``MAX_LONG_FILES`` of them.
+
+Lines are counted as they stand in the file (docstrings and comments included): what a reader
+scrolls through. A function's lines are those of its ``def`` statement to its last line, nested
+functions included.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PRODUCT = ("cosim", "estimators", "faults", "mjcf")
+LONG_FUNCTION = 60
+LONG_FILE = 600
+MAX_LONG_FUNCTIONS = 5
+MAX_LONG_FILES = 2
+
+
+@dataclass(frozen=True)
+class Size:
+    where: str
+    lines: int
+
+
+def product_files(root: Path = ROOT) -> list[Path]:
+    return sorted(path for package in PRODUCT for path in (root / package).rglob("*.py"))
+
+
+def long_files(root: Path = ROOT) -> list[Size]:
+    sizes = [Size(str(p.relative_to(root)), len(p.read_text().splitlines())) for p in product_files(root)]
+    return sorted((s for s in sizes if s.lines > LONG_FILE), key=lambda s: -s.lines)
+
+
+def long_functions(root: Path = ROOT) -> list[Size]:
+    found = []
+    for path in product_files(root):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno is not None:
+                start = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+                lines = node.end_lineno - start + 1
+                if lines > LONG_FUNCTION:
+                    found.append(Size(f"{path.relative_to(root)}:{node.lineno} {node.name}", lines))
+    return sorted(found, key=lambda s: -s.lines)
+
+
+def main() -> int:
+    for title, sizes, limit in (
+        (f"files over {LONG_FILE} lines", long_files(), MAX_LONG_FILES),
+        (f"functions over {LONG_FUNCTION} lines", long_functions(), MAX_LONG_FUNCTIONS),
+    ):
+        print(f"{title}: {len(sizes)} (at most {limit})")
+        for size in sizes:
+            print(f"  {size.lines:5d}  {size.where}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
