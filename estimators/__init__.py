@@ -1,19 +1,23 @@
 """State estimators and controllers: pure algorithms on linear models (numpy/scipy only, no I/O).
 
-Registries keyed by kind: ``create(kind, model, params)`` builds an estimator from a plain
-parameter dict; ``CONTROLLERS`` (``estimators.controller``) holds the controller kinds.
+``ESTIMATORS`` and ``CONTROLLERS`` (``estimators.controller``) are the kinds by name (``kinds``:
+built in, a module path, or a plugin's entry point); ``create(kind, model, params)`` builds an
+estimator from a plain parameter dict.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError, Registry
+from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
 from estimators.controller import CONTROLLERS, PidController
 from estimators.model import LinearModel
+from kinds import KindError, Kinds
 
-#: Estimator kinds; each kind's module is imported when the kind is first looked up.
-ESTIMATORS: Registry = Registry(
+#: Estimator kinds; each built-in kind's module is imported when the kind is first looked up.
+ESTIMATORS: Kinds[type[Estimator]] = Kinds(
+    "estimator",
+    "cosim.estimators",
     {
         "pseudoinverse": "estimators.pseudoinverse:PseudoinverseObserver",
         "adaptive": "estimators.adaptive:AdaptivePseudoinverseObserver",
@@ -25,7 +29,8 @@ ESTIMATORS: Registry = Registry(
         "lft-uio-sr": "estimators.reconciliation:LftUioReconciliator",
         "no-reconciliation": "estimators.reconciliation:NoReconciliation",
         "cofd": "estimators.cofd:COFDDiagnosis",
-    }
+    },
+    Estimator,
 )
 
 
@@ -42,9 +47,10 @@ def create(
 ) -> Estimator:
     """The estimator of the given kind for ``model`` (continuous-time kinds also need the sample
     time); unknown kinds and bad parameters raise ParameterError naming the culprit."""
-    if kind not in ESTIMATORS:
-        raise ParameterError("kind", f"unknown estimator {kind!r} (known: {', '.join(sorted(ESTIMATORS))})")
-    cls: type[Estimator] = ESTIMATORS[kind]
+    try:
+        cls = ESTIMATORS[kind]
+    except KindError as error:
+        raise ParameterError("kind", str(error)) from None
     return cls.from_params(model, params, sample_time)
 
 

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.optimize
 
 from estimators.base import Diagnostic, DiagnosticKind, ParameterError
-from estimators.controller import Command, Controller, register
+from estimators.controller import Command, Controller
 from estimators.model import LinearModel
 
 
@@ -407,7 +407,6 @@ def whole(value: float, parameter: str) -> int:
     return int(value)
 
 
-@register
 class ThrustAllocationController(Controller):
     """``VesselController`` as the run's controller node (kind ``thrust-allocation``), designed on
     the plant's continuous-time linearization about a heading ψ̄ = 0, eq. (23):

@@ -6,12 +6,10 @@ from a LinearModel and parameters, and fed one tick at a time.
 
 from __future__ import annotations
 
-import importlib
 import math
 import types
 import typing
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from enum import StrEnum
 from typing import Any, ClassVar
@@ -277,50 +275,3 @@ def _describe(option: Any) -> str:
             return "a list of names"
         return "a matrix (a list of rows of numbers)" if typing.get_origin(inner) is tuple else "a list of numbers"
     return {float: "a number", int: "an integer", bool: "true or false", str: "a string"}.get(option, str(option))
-
-
-class Registry(dict[str, Any]):
-    """Kinds by name, each class imported when it is first looked up: a node process that runs a
-    Kalman filter does not import the LMI designs, the thrust allocation's optimizer and the rest
-    (SciPy's modules cost a node seconds of start-up). ``lazy`` maps kind -> ``module:Class``; a
-    dict whose lookups, membership, iteration and length see the lazy kinds as present."""
-
-    def __init__(self, lazy: Mapping[str, str], loaded: Mapping[str, Any] | None = None) -> None:
-        super().__init__(loaded or {})
-        self._lazy = dict(lazy)
-        self._order = [*dict.keys(self), *(kind for kind in lazy if not dict.__contains__(self, kind))]
-
-    def __getitem__(self, kind: str) -> Any:
-        if not dict.__contains__(self, kind):
-            module, name = self._lazy[kind].split(":")  # KeyError for an unknown kind, as a dict
-            cls = getattr(importlib.import_module(module), name)
-            if cls.kind != kind:
-                raise RuntimeError(f"registry: {self._lazy[kind]} is kind {cls.kind!r}, not {kind!r}")
-            dict.__setitem__(self, kind, cls)
-        return dict.__getitem__(self, kind)
-
-    def __setitem__(self, kind: str, cls: Any) -> None:
-        if kind not in self._order:
-            self._order.append(kind)
-        dict.__setitem__(self, kind, cls)
-
-    def get(self, kind: str, default: Any = None) -> Any:
-        return self[kind] if kind in self else default
-
-    def __contains__(self, kind: object) -> bool:
-        return kind in self._lazy or dict.__contains__(self, kind)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(list(self._order))
-
-    def __len__(self) -> int:
-        return len(self._order)
-
-    def keys(self) -> Any:
-        return list(self)
-
-    def items(self) -> Any:
-        return [(kind, self[kind]) for kind in self]
-
-    def values(self) -> Any:
-        return [self[kind] for kind in self]

@@ -17,8 +17,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError, Registry
+from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError
 from estimators.model import LinearModel
+from kinds import KindError, Kinds
 
 
 @dataclass(frozen=True)
@@ -157,22 +158,21 @@ class PidController(Controller):
         return Command(self.u.copy(), diagnostics)
 
 
-#: Controller kinds; the others' modules are imported when their kind is first looked up.
-CONTROLLERS: Registry = Registry(
-    {"thrust-allocation": "estimators.allocation:ThrustAllocationController"}, {PidController.kind: PidController}
+#: Controller kinds; each built-in kind's module is imported when the kind is first looked up.
+CONTROLLERS: Kinds[type[Controller]] = Kinds(
+    "controller",
+    "cosim.controllers",
+    {PidController.kind: PidController, "thrust-allocation": "estimators.allocation:ThrustAllocationController"},
+    Controller,
 )
-
-
-def register(cls: type[Controller]) -> type[Controller]:
-    """Add a controller kind to the registry (a class decorator)."""
-    CONTROLLERS[cls.kind] = cls
-    return cls
 
 
 def create(
     kind: str, model: LinearModel, params: dict[str, Any] | None = None, sample_time: float | None = None
 ) -> Controller:
     """The controller of the given kind; unknown kinds and bad parameters raise ParameterError."""
-    if kind not in CONTROLLERS:
-        raise ParameterError("kind", f"unknown controller {kind!r} (known: {', '.join(sorted(CONTROLLERS))})")
-    return CONTROLLERS[kind].from_params(model, params, sample_time)
+    try:
+        cls = CONTROLLERS[kind]
+    except KindError as error:
+        raise ParameterError("kind", str(error)) from None
+    return cls.from_params(model, params, sample_time)

@@ -17,33 +17,52 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
 
 import numpy as np
 
 from faults.waveforms import Constant, Waveform
+from kinds import Kinds
 
-#: Every fault model by kind: a model class registers itself when it is defined with a ``kind``.
-FAULT_MODELS: dict[str, type[Fault]] = {}
+
+def per_channel(what: str, default: Any = ()) -> Any:
+    """A parameter with one value per channel (a scalar stands for all), kept as an array in
+    ``_vectors``; ``what`` names it in messages."""
+    return field(default=default, metadata={"per_channel": what})
+
+
+def profiles(what: str) -> Any:
+    """A parameter with one waveform per channel; ``what`` names it in messages."""
+    return field(default=(), metadata={"profiles": what})
 
 
 @dataclass
 class Fault(ABC):
-    """A fault acting on some channels of a signal vector during [start, end)."""
+    """A fault acting on some channels of a signal vector during [start, end).
+
+    A model is a dataclass whose fields after these are its parameters, with a ``kind``; a
+    parameter declared with ``per_channel`` or ``profiles`` is checked to have one value per
+    channel."""
 
     channels: tuple[int, ...]
     start: float = 0.0
     end: float = math.inf
     label: str = ""
     _rng: np.random.Generator = field(default=None, init=False, repr=False, compare=False)  # type: ignore[assignment]
+    _vectors: dict[str, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
 
-    kind = "fault"
+    kind: ClassVar[str]
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        if "kind" in cls.__dict__:  # a concrete model: registered under its kind
-            FAULT_MODELS[cls.kind] = cls
+    def __post_init__(self) -> None:
+        for parameter in fields(self):
+            value, what = getattr(self, parameter.name), parameter.metadata
+            if "per_channel" in what and value is not None:
+                self._vectors[parameter.name] = _vector(value, self.channels, what["per_channel"])
+            if "profiles" in what and len(value) != len(self.channels):
+                raise ValueError(
+                    f"{what['profiles']}: expected {len(self.channels)} profiles (one per channel), got {len(value)}"
+                )
 
     def reset(self, rng: np.random.Generator) -> None:
         """Prepare for a new run with this fault's own random generator."""
@@ -89,41 +108,31 @@ class Bias(SensorFault):
     """Additive bias φ(t) = g(t − start) · value: constant (g ≡ 1) or of constant direction and
     time-varying amplitude, φ_k = g_k φ̄ (TAC 2024, eq. (35))."""
 
-    value: tuple[float, ...] = ()
+    value: tuple[float, ...] = per_channel("bias value")
     amplitude: Waveform = Constant(1.0)
     kind = "bias"
 
-    def __post_init__(self) -> None:
-        self._value = _vector(self.value, self.channels, "bias value")
-
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
-        return y + self.amplitude(elapsed) * self._value
+        return y + self.amplitude(elapsed) * self._vectors["value"]
 
 
 @dataclass
 class Drift(SensorFault):
     """Additive ramp (drift) φ(t) = rate · (t − start)."""
 
-    rate: tuple[float, ...] = ()
+    rate: tuple[float, ...] = per_channel("drift rate")
     kind = "drift"
 
-    def __post_init__(self) -> None:
-        self._rate = _vector(self.rate, self.channels, "drift rate")
-
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
-        return y + self._rate * elapsed
+        return y + self._vectors["rate"] * elapsed
 
 
 @dataclass
 class Gain(SensorFault):
     """Loss of effectiveness y_i ← γ_i(t − start) · y_i (IJC 2018, eq. (2)–(4))."""
 
-    gain: tuple[Waveform, ...] = ()
+    gain: tuple[Waveform, ...] = profiles("gain")
     kind = "gain"
-
-    def __post_init__(self) -> None:
-        if len(self.gain) != len(self.channels):
-            raise ValueError(f"gain: expected {len(self.channels)} profiles (one per channel), got {len(self.gain)}")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         return y * np.array([g(elapsed) for g in self.gain])
@@ -133,40 +142,34 @@ class Gain(SensorFault):
 class GaussianNoise(SensorFault):
     """Additive white Gaussian noise with standard deviation ``std`` per channel."""
 
-    std: tuple[float, ...] = ()
+    std: tuple[float, ...] = per_channel("noise std")
     kind = "gaussian_noise"
 
-    def __post_init__(self) -> None:
-        self._std = _vector(self.std, self.channels, "noise std")
-
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
-        return y + self._std * self._rng.standard_normal(len(self.channels))
+        return y + self._vectors["std"] * self._rng.standard_normal(len(self.channels))
 
 
 @dataclass
 class UniformNoise(SensorFault):
     """Additive noise uniform on [−bound, bound] per channel."""
 
-    bound: tuple[float, ...] = ()
+    bound: tuple[float, ...] = per_channel("noise bound")
     kind = "uniform_noise"
 
-    def __post_init__(self) -> None:
-        self._bound = _vector(self.bound, self.channels, "noise bound")
-
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
-        return y + self._bound * self._rng.uniform(-1.0, 1.0, len(self.channels))
+        return y + self._vectors["bound"] * self._rng.uniform(-1.0, 1.0, len(self.channels))
 
 
 @dataclass
 class StuckAt(SensorFault):
     """The reading freezes: at ``value`` if given, else at the reading at onset."""
 
-    value: tuple[float, ...] | None = None
+    value: tuple[float, ...] | None = per_channel("stuck value", None)
     kind = "stuck"
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
-        self._held = None if self.value is None else _vector(self.value, self.channels, "stuck value")
+        self._held = self._vectors.get("value")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         if self._held is None:
@@ -182,6 +185,7 @@ class Dropout(SensorFault):
     kind = "dropout"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not 0.0 <= self.probability <= 1.0:
             raise ValueError("dropout probability must be in [0, 1]")
 
@@ -200,18 +204,18 @@ class Outliers(SensorFault):
     """Spikes: each tick, with ``probability`` per channel, add ±magnitude (random sign)."""
 
     probability: float = 0.0
-    magnitude: tuple[float, ...] = ()
+    magnitude: tuple[float, ...] = per_channel("outlier magnitude")
     kind = "outliers"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not 0.0 <= self.probability <= 1.0:
             raise ValueError("outlier probability must be in [0, 1]")
-        self._magnitude = _vector(self.magnitude, self.channels, "outlier magnitude")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         hit = self._rng.random(len(self.channels)) < self.probability
         sign = np.where(self._rng.random(len(self.channels)) < 0.5, -1.0, 1.0)
-        return y + hit * sign * self._magnitude
+        return y + hit * sign * self._vectors["magnitude"]
 
 
 class ActuatorFault(Fault):
@@ -231,15 +235,8 @@ class ActuatorFault(Fault):
 class ActuatorEffectiveness(ActuatorFault):
     """Actuator loss of effectiveness u_eff,i = δ_i(t − start) · u_i (Cristofaro & Johansen, eq. (1))."""
 
-    effectiveness: tuple[Waveform, ...] = ()
+    effectiveness: tuple[Waveform, ...] = profiles("effectiveness")
     kind = "actuator_effectiveness"
-
-    def __post_init__(self) -> None:
-        if len(self.effectiveness) != len(self.channels):
-            raise ValueError(
-                f"effectiveness: expected {len(self.channels)} profiles (one per actuator), got "
-                f"{len(self.effectiveness)}"
-            )
 
     def factors(self, t: float, n: int) -> np.ndarray:
         delta = np.ones(n)
@@ -254,17 +251,14 @@ class ActuatorOffset(ActuatorFault):
     (course notes on the UIO, eq. (11)); constant (g ≡ 1) or of constant direction and varying
     amplitude, like ``Bias`` on the sensors."""
 
-    value: tuple[float, ...] = ()
-    amplitude: Waveform = field(default_factory=lambda: Constant(1.0))
+    value: tuple[float, ...] = per_channel("actuator offset value")
+    amplitude: Waveform = Constant(1.0)
     kind = "actuator_offset"
-
-    def __post_init__(self) -> None:
-        self._value = _vector(self.value, self.channels, "actuator offset value")
 
     def offsets(self, t: float, n: int) -> np.ndarray:
         offset = np.zeros(n)
         if self.active(t):
-            offset[list(self.channels)] = self.amplitude(t - self.start) * self._value
+            offset[list(self.channels)] = self.amplitude(t - self.start) * self._vectors["value"]
         return offset
 
 
@@ -437,3 +431,39 @@ class Replay(BusFault):
     def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
         old = [values for when, values in self._heard if when <= t - self.lag + 1e-12]
         return [(self.message, old[-1])] if old else []
+
+
+#: The fault models by kind (``kinds``): built in, a module path, or a plugin's entry point.
+FAULT_MODELS: Kinds[type[Fault]] = Kinds(
+    "fault",
+    "cosim.faults",
+    {
+        model.kind: model
+        for model in (
+            Bias,
+            Drift,
+            Gain,
+            GaussianNoise,
+            UniformNoise,
+            StuckAt,
+            Dropout,
+            Outliers,
+            ActuatorEffectiveness,
+            ActuatorOffset,
+            FrameLoss,
+            FrameDelay,
+            FrameCorruption,
+            BusOff,
+            BabblingNode,
+            Spoofing,
+            Replay,
+        )
+    },
+    Fault,
+    params=None,
+    check=lambda model: (
+        []
+        if issubclass(model, (SensorFault, ActuatorFault, BusFault))
+        else ["not a SensorFault, ActuatorFault or BusFault subclass"]
+    ),
+)

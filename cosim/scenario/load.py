@@ -27,6 +27,8 @@ from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import problem_message, problem_path
 from estimators import ESTIMATORS, ParameterError
 from estimators.controller import CONTROLLERS
+from kinds import KindError, Kinds
+from mjcf import PlantInfo
 
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent
 DEFAULT_SCENARIO = "masses-bias"
@@ -127,7 +129,6 @@ def _report(source: str, problems: list[str]) -> str:
 
 def check(s: Scenario) -> list[str]:
     """The problems that need the plant's names and the scenario as a whole."""
-    problems: list[str] = []
     if s.plant.state_space is not None and s.plant.model != statespace.NAME:
         return [f'plant.state_space: only used with plant.model = "{statespace.NAME}" (got {s.plant.model!r})']
     try:
@@ -136,159 +137,250 @@ def check(s: Scenario) -> list[str]:
         alternative = f", or {statespace.NAME!r} with a [plant.state_space] table"
         alternative = "" if s.plant.model == statespace.NAME else alternative
         return [f"plant.model: {error.args[0]}{alternative}"]
-    sensor_names = [c.name for c in info.sensors]
-    actuator_names = [c.name for c in info.actuators]
-    state_names = [c.name for c in info.states]
+    if ticks := _tick_limits(s):
+        return ticks
+    names = _Names(info, s)
+    kinds = _Participants(s)
+    problems = [
+        *_duration(s),
+        *_plant_signals(s, names),
+        *_inputs(s, names),
+        *_disturbances(s, names),
+        *_faults(s, names),
+        *_labels(s),
+        *_bus_overrides(s, names, kinds),
+        *_clients(s),
+        *kinds.problems,
+        *_controller(s, kinds),
+    ]
+    return problems or _check_bus(s)
 
-    def unknown(field: str, names: list[str], known: list[str], what: str) -> None:
+
+@dataclass(frozen=True)
+class _Names:
+    """The plant's names a scenario may refer to, and how to say that one is not among them."""
+
+    info: PlantInfo
+    scenario: Scenario
+
+    def unknown(self, field: str, names: list[str], known: list[str], what: str) -> list[str]:
+        problems = []
         for name in names:
             if name not in known:
                 close = difflib.get_close_matches(name, known, n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
-                problems.append(f"{field}: {info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
-
-    if s.sample_time < MIN_SAMPLE_TIME:
-        problems.append(
-            f"sample_time: {s.sample_time:g} s is below {MIN_SAMPLE_TIME:g} s, the shortest tick the runner keeps"
-        )
+                problems.append(f"{field}: {self.info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
         return problems
+
+    @property
+    def sensors(self) -> list[str]:
+        return [c.name for c in self.info.sensors]
+
+    @property
+    def transmitted(self) -> list[str]:
+        return list(self.scenario.sensors)
+
+    @property
+    def actuators(self) -> list[str]:
+        return [c.name for c in self.info.actuators]
+
+    @property
+    def states(self) -> list[str]:
+        return [c.name for c in self.info.states]
+
+    @property
+    def disturbances(self) -> list[str]:
+        return [c.name for c in self.info.disturbances]
+
+
+class _Participants:
+    """The scenario's estimator and controller kinds, resolved once (None: a kind that does not
+    resolve), with the problems of their kinds, parameters and names."""
+
+    def __init__(self, s: Scenario) -> None:
+        self.problems: list[str] = []
+        self.estimators: list[Any] = []
+        names = [e.name for e in s.estimators] + [c.name for c in s.clients]
+        for i, e in enumerate(s.estimators):
+            self.estimators.append(self._resolve(f"estimators[{i}]", e.kind, e.params, ESTIMATORS))
+            if names.count(e.name) > 1:
+                self.problems.append(f"estimators[{i}].name: {e.name!r} is used by two estimators")
+        for name in names:
+            if name == "controller":
+                self.problems.append("estimators: the name 'controller' is the controller node's; choose another name")
+        c = s.controller
+        self.controller = None if c is None else self._resolve("controller", c.kind, c.params, CONTROLLERS)
+
+    def _resolve(self, where: str, kind: str, params: dict[str, Any], registry: Kinds[Any]) -> Any:
+        """The class of a participant's kind, or None, noting the problem with it or its params."""
+        try:
+            cls = registry[kind]
+        except KindError as error:
+            self.problems.append(f"{where}.kind: {error}")
+            return None
+        try:
+            cls.check_params(params)
+        except ParameterError as error:
+            self.problems.append(f"{where}.params.{error}")
+        return cls
+
+    def published(self, s: Scenario, index: int) -> list[str]:
+        """The names of the diagnostics the scenario's estimator ``index`` publishes (none if its
+        kind does not resolve)."""
+        if self.estimators[index] is None:
+            return []
+        return [d.name for d in s.estimator_diagnostics(s.estimators[index].kind)]
+
+
+def _tick_limits(s: Scenario) -> list[str]:
+    """A sample time or a number of ticks the runner cannot keep exact (nothing else is checked then)."""
+    if s.sample_time < MIN_SAMPLE_TIME:
+        return [f"sample_time: {s.sample_time:g} s is below {MIN_SAMPLE_TIME:g} s, the shortest tick the runner keeps"]
     if s.duration / s.sample_time > MAX_TICKS:
-        problems.append(
+        return [
             f"duration: {s.duration:g} s at sample_time {s.sample_time:g} s makes {s.duration / s.sample_time:.3g} "
             f"ticks; at most {MAX_TICKS:g} (a shorter duration, or a longer sample time)"
-        )
-        return problems
+        ]
+    return []
+
+
+def _duration(s: Scenario) -> list[str]:
     if s.sample_time > s.duration:
-        problems.append(f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s")
-    elif abs(s.duration / s.sample_time - round(s.duration / s.sample_time)) > 1e-9 * s.duration / s.sample_time:
-        n = s.duration / s.sample_time
+        return [f"sample_time: {s.sample_time} s is longer than the duration {s.duration} s"]
+    n = s.duration / s.sample_time
+    if abs(n - round(n)) > 1e-9 * n:
         below, above = math.floor(n) * s.sample_time, math.ceil(n) * s.sample_time
-        problems.append(
+        return [
             f"duration: {s.duration} s is not a whole number of sample times ({s.sample_time} s); use {below:g} or "
             f"{above:g}"
-        )
+        ]
+    return []
+
+
+def _plant_signals(s: Scenario, names: _Names) -> list[str]:
+    problems = []
     if s.plant.sensors is not None:
-        unknown("plant.sensors", s.plant.sensors, sensor_names, "sensor")
+        problems += names.unknown("plant.sensors", s.plant.sensors, names.sensors, "sensor")
         if len(set(s.plant.sensors)) != len(s.plant.sensors):
             problems.append("plant.sensors: a sensor is listed twice")
-    unknown("plant.initial_state", list(s.plant.initial_state), state_names, "state")
-    transmitted = list(s.sensors)
-    seen_inputs: set[str] = set()
+    return problems + names.unknown("plant.initial_state", list(s.plant.initial_state), names.states, "state")
+
+
+def _inputs(s: Scenario, names: _Names) -> list[str]:
+    problems: list[str] = []
+    seen: set[str] = set()
     for i, spec in enumerate(s.inputs):
-        unknown(f"inputs[{i}].actuator", [spec.actuator], actuator_names, "actuator")
-        if spec.actuator in seen_inputs:
+        problems += names.unknown(f"inputs[{i}].actuator", [spec.actuator], names.actuators, "actuator")
+        if spec.actuator in seen:
             problems.append(f"inputs[{i}].actuator: {spec.actuator!r} already has an input signal")
-        seen_inputs.add(spec.actuator)
-    disturbance_names = [c.name for c in info.disturbances]
-    seen_inputs.clear()
+        seen.add(spec.actuator)
+    return problems
+
+
+def _disturbances(s: Scenario, names: _Names) -> list[str]:
+    problems: list[str] = []
+    seen: set[str] = set()
+    models = names.info.disturbance_models
     for i, disturbance in enumerate(s.disturbances):
-        if disturbance.model:
-            models = sorted(info.disturbance_models)
-            if disturbance.model not in models:
-                problems.append(
-                    f"disturbances[{i}].model: {info.name} has no disturbance model {disturbance.model!r}"
-                    f"{'; it has: ' + ', '.join(models) if models else ''}"
-                )
-            else:
-                try:
-                    info.disturbance_models[disturbance.model](np.random.default_rng(0), **disturbance.params)
-                except (TypeError, ValueError) as error:
-                    problems.append(f"disturbances[{i}].params: {error}")
-            continue
-        unknown(f"disturbances[{i}].input", [disturbance.input], disturbance_names, "disturbance input")
-        if disturbance.input in seen_inputs:
-            problems.append(f"disturbances[{i}].input: {disturbance.input!r} already has a signal")
-        seen_inputs.add(disturbance.input)
+        if disturbance.model and disturbance.model not in models:
+            problems.append(
+                f"disturbances[{i}].model: {names.info.name} has no disturbance model {disturbance.model!r}"
+                f"{'; it has: ' + ', '.join(sorted(models)) if models else ''}"
+            )
+        elif disturbance.model:
+            try:
+                models[disturbance.model](np.random.default_rng(0), **disturbance.params)
+            except (TypeError, ValueError) as error:
+                problems.append(f"disturbances[{i}].params: {error}")
+        else:
+            field = f"disturbances[{i}].input"
+            problems += names.unknown(field, [disturbance.input], names.disturbances, "disturbance input")
+            if disturbance.input in seen:
+                problems.append(f"{field}: {disturbance.input!r} already has a signal")
+            seen.add(disturbance.input)
+    return problems
+
+
+def _faults(s: Scenario, names: _Names) -> list[str]:
+    problems: list[str] = []
     for group, entries in (("noise", s.noise), ("faults", s.faults)):
         for i, fault in enumerate(entries):
             field = f"{group}[{i}]"
             if isinstance(fault, OnBus):
                 problems += _check_bus_fault(s, field, fault)
                 continue
-            names, what = (
-                (actuator_names, "actuator") if fault.acts_on == "actuators" else (transmitted, "transmitted sensor")
+            known, what = (
+                (names.actuators, "actuator")
+                if fault.acts_on == "actuators"
+                else (names.transmitted, "transmitted sensor")
             )
-            channels = fault.targets if fault.targets is not None else names
-            unknown(f"{field}.{fault.acts_on}", channels, names, what)
+            channels = fault.targets if fault.targets is not None else known
+            problems += names.unknown(f"{field}.{fault.acts_on}", channels, known, what)
             _lengths(problems, field, fault, len(channels), fault.per_channel)
             for key in ("std", "bound", "magnitude"):
                 if any(v < 0 for v in getattr(fault, key, None) or []):
                     problems.append(f"{field}.{key}: must be non-negative")
+    return problems
+
+
+def _labels(s: Scenario) -> list[str]:
     noise_labels, fault_labels = s.fault_labels()
     labels = noise_labels + fault_labels
-    for label in sorted({label for label in labels if labels.count(label) > 1}):
-        problems.append(f"faults: two noise models or faults are labelled {label!r}; give them distinct names")
-    diagnostic_names = sorted(
-        {
-            d.name
-            for e in s.estimators
-            if e.kind in ESTIMATORS
-            for d in ESTIMATORS[e.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
-        }
-    )
+    return [
+        f"faults: two noise models or faults are labelled {label!r}; give them distinct names"
+        for label in sorted({label for label in labels if labels.count(label) > 1})
+    ]
+
+
+def _bus_overrides(s: Scenario, names: _Names, kinds: _Participants) -> list[str]:
+    diagnostics = sorted({name for i in range(len(s.estimators)) for name in kinds.published(s, i)})
+    problems = []
     for table, known, what in (
-        ("sensors", transmitted, "transmitted sensor"),
-        ("actuators", actuator_names, "actuator"),
-        ("states", state_names + diagnostic_names, "state or estimator diagnostic"),
+        ("sensors", names.transmitted, "transmitted sensor"),
+        ("actuators", names.actuators, "actuator"),
+        ("states", names.states + diagnostics, "state or estimator diagnostic"),
     ):
-        overrides = getattr(s.bus, table)
-        unknown(f"bus.{table}", list(overrides), known, what)
-    estimator_names = [e.name for e in s.estimators] + [c.name for c in s.clients]
+        problems += names.unknown(f"bus.{table}", list(getattr(s.bus, table)), known, what)
+    return problems
+
+
+def _clients(s: Scenario) -> list[str]:
+    problems = []
+    names = [e.name for e in s.estimators] + [c.name for c in s.clients]
     for i, client in enumerate(s.clients):
-        if estimator_names.count(client.name) > 1:
+        if names.count(client.name) > 1:
             problems.append(f"clients[{i}].name: {client.name!r} is also the name of an estimator or another client")
         for j, signal in enumerate(client.signals):
             if not signal.minimum < signal.maximum:
                 problems.append(f"clients[{i}].signals[{j}]: minimum must be below maximum")
+    return problems
 
-    def kind_problem(where: str, kind: str, params: dict, registry: dict, what: str) -> str | None:
-        """The problem with a participant's kind (with the near one) or its params, if any."""
-        if kind not in registry:
-            close = difflib.get_close_matches(kind, list(registry), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            return f"{where}.kind: unknown {what} {kind!r}{hint}; known: {', '.join(sorted(registry))}"
-        try:
-            registry[kind].check_params(params)
-        except ParameterError as error:
-            return f"{where}.params.{error}"
-        return None
 
-    for i, estimator in enumerate(s.estimators):
-        if problem := kind_problem(f"estimators[{i}]", estimator.kind, estimator.params, ESTIMATORS, "estimator"):
-            problems.append(problem)
-        if estimator_names.count(estimator.name) > 1:
-            problems.append(f"estimators[{i}].name: {estimator.name!r} is used by two estimators")
-    for name in estimator_names:
-        if name == "controller":
-            problems.append("estimators: the name 'controller' is the controller node's; choose another name")
-    if (c := s.controller) is not None:
-        if problem := kind_problem("controller", c.kind, c.params, CONTROLLERS, "controller"):
-            problems.append(problem)
-        diagnosis = next((e for e in s.estimators if e.name == c.diagnosis), None)
-        if c.diagnosis and diagnosis is None:
-            problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
-        reports = CONTROLLERS[c.kind].reports if c.kind in CONTROLLERS else ()
-        if reports and not c.diagnosis:
+def _controller(s: Scenario, kinds: _Participants) -> list[str]:
+    """A controller that reads a diagnosis node's reports needs one that publishes them; one that
+    commands the actuators leaves no room for open-loop inputs."""
+    c = s.controller
+    if c is None:
+        return []
+    problems = []
+    diagnosis = next((i for i, e in enumerate(s.estimators) if e.name == c.diagnosis), None)
+    if c.diagnosis and diagnosis is None:
+        problems.append(f"controller.diagnosis: {c.diagnosis!r} is not an estimator of this scenario")
+    reports = kinds.controller.reports if kinds.controller is not None else ()
+    if reports and not c.diagnosis:
+        problems.append(
+            f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the "
+            "estimators"
+        )
+    elif reports and diagnosis is not None and kinds.estimators[diagnosis] is not None:
+        missing = [name for name in reports if name not in kinds.published(s, diagnosis)]
+        if missing:
             problems.append(
-                f"controller.diagnosis: {c.kind} reads {', '.join(reports)} from a diagnosis node; name one of the "
-                "estimators"
+                f"controller.diagnosis: {c.diagnosis!r} ({s.estimators[diagnosis].kind}) does not publish "
+                f"{', '.join(missing)}, which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)"
             )
-        elif reports and diagnosis is not None and diagnosis.kind in ESTIMATORS:
-            published = {
-                d.name for d in ESTIMATORS[diagnosis.kind].diagnostic_channels(tuple(state_names), tuple(transmitted))
-            }
-            missing = [name for name in reports if name not in published]
-            if missing:
-                problems.append(
-                    f"controller.diagnosis: {c.diagnosis!r} ({diagnosis.kind}) does not publish {', '.join(missing)}, "
-                    f"which {c.kind} reads; choose a diagnosis estimator that does (e.g. kind cofd)"
-                )
-        if s.inputs:
-            problems.append(
-                "inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)"
-            )
-    if not problems:
-        problems += _check_bus(s)
+    if s.inputs:
+        problems.append("inputs: the controller commands every actuator; remove [[inputs]] (or the [controller] table)")
     return problems
 
 

@@ -20,7 +20,7 @@ from cosim.plant import statespace
 from cosim.scenario.faults import FaultSpec, NoiseSpec
 from cosim.scenario.tables import Identifier, NonNegative, Positive, Strict, problem_message, problem_path
 from cosim.scenario.waveforms import WaveformSpec
-from estimators import ESTIMATORS
+from estimators import ESTIMATORS, Diagnostic
 from estimators.controller import CONTROLLERS
 
 
@@ -334,29 +334,28 @@ class Scenario(Strict):
             return Codec.from_dbc(secure_dbc(codec.dbc))
         return codec
 
+    def estimator_diagnostics(self, kind: str) -> list[Diagnostic]:
+        """The diagnostics an estimator of ``kind`` publishes in this scenario (a KindError if the
+        kind does not resolve)."""
+        return ESTIMATORS[kind].diagnostic_channels(self.states, self.sensors)
+
+    def controller_diagnostics(self, kind: str) -> list[Diagnostic]:
+        """The diagnostics a controller of ``kind`` publishes in this scenario."""
+        return CONTROLLERS[kind].diagnostic_channels(self.actuators, self.sensors)
+
     def diagnostic_channels(self) -> dict[str, list[Channel]]:
         """Each estimator's diagnostics as bus signals ([bus.states] overrides apply to them too)."""
-        states = tuple(c.name for c in self.plant_info.states)
-        return {
-            e.name: [
-                _override(
-                    Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states"
-                )
-                for d in ESTIMATORS[e.kind].diagnostic_channels(states, self.sensors)
-            ]
-            for e in self.estimators
-        }
+        return {e.name: self._bus_signals(self.estimator_diagnostics(e.kind)) for e in self.estimators}
 
     def controller_channels(self) -> list[Channel] | None:
         """The controller node's diagnostics as bus signals, or None for open-loop inputs."""
         if self.controller is None:
             return None
-        return [
-            _override(
-                Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution), self.bus.states, "states"
-            )
-            for d in CONTROLLERS[self.controller.kind].diagnostic_channels(self.actuators, self.sensors)
-        ]
+        return self._bus_signals(self.controller_diagnostics(self.controller.kind))
+
+    def _bus_signals(self, diagnostics: list[Diagnostic]) -> list[Channel]:
+        signals = (Channel(d.name, d.unit, d.description, -d.bound, d.bound, d.resolution) for d in diagnostics)
+        return [_override(signal, self.bus.states, "states") for signal in signals]
 
     def client_channels(self) -> dict[str, list[Channel]]:
         return {c.name: [signal.channel() for signal in c.signals] for c in self.clients}
@@ -386,6 +385,10 @@ class Scenario(Strict):
             if self.plant.sensors is not None
             else tuple(s.name for s in self.plant_info.sensors)
         )
+
+    @property
+    def states(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.plant_info.states)
 
     @property
     def actuators(self) -> tuple[str, ...]:
