@@ -19,7 +19,6 @@ one it was looked up by), and remembers where it came from (``Origin``). Every p
 
 from __future__ import annotations
 
-import dataclasses
 import difflib
 import functools
 import importlib
@@ -104,9 +103,8 @@ class Kinds(Mapping[str, T]):
         return True
 
     def __iter__(self) -> Iterator[str]:
-        """The built-in names, then the installed entry points', then the module paths resolved."""
-        names = dict.fromkeys([*self._builtin, *_entry_points(self.group), *self._resolved])
-        return iter(names)
+        """The built-in names, then the installed entry points' (a module path is not listed)."""
+        return iter(dict.fromkeys([*self._builtin, *_entry_points(self.group)]))
 
     def __len__(self) -> int:
         return sum(1 for _ in self)
@@ -144,10 +142,9 @@ class Kinds(Mapping[str, T]):
         """What it is: a subclass (an instance) of the group's base."""
         base = f"{self.base.__module__}.{self.base.__qualname__}"
         if self._instance:
-            return [] if isinstance(found, self.base) else [f"{found!r} is not a {base}"]
-        return (
-            [] if isinstance(found, type) and issubclass(found, self.base) else [f"{found!r} is not a {base} subclass"]
-        )
+            return [] if isinstance(found, self.base) else [f"{found!r} is not an instance of {base}"]
+        is_subclass = isinstance(found, type) and issubclass(found, self.base)
+        return [] if is_subclass else [f"{found!r} is not a subclass of {base}"]
 
     def _members(self, found: Any) -> list[str]:
         """What a class kind lacks: an implementation of an abstract method, parameters as a dataclass."""
@@ -157,7 +154,7 @@ class Kinds(Mapping[str, T]):
         if missing := sorted(getattr(found, "__abstractmethods__", ())):
             problems.append(f"missing {', '.join(missing)}")
         parameters = found if self._params is None else getattr(found, self._params, None)
-        if not (isinstance(parameters, type) and dataclasses.is_dataclass(parameters)):
+        if not (isinstance(parameters, type) and "__dataclass_fields__" in vars(parameters)):  # itself decorated
             problems.append(f"{self._params} is not a dataclass" if self._params else "not a dataclass")
         return problems
 
