@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from estimators.base import Diagnostic, Estimate, Estimator, ParameterError
+from estimators.base import Estimate, Estimator, ParameterError
 from estimators.controller import CONTROLLERS, PidController
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 from kinds import KindError, Kinds
 
@@ -60,6 +61,7 @@ __all__ = [
     "PidController",
     "ThrustAllocationController",
     "Diagnostic",
+    "DiagnosticKind",
     "Estimate",
     "Estimator",
     "LinearModel",

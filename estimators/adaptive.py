@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError, initial_state
+from estimators.base import Estimate, Estimator, ParameterError, initial_state
 from estimators.design import (
     AssumptionError,
     assumption2_factorization,
@@ -37,6 +37,7 @@ from estimators.design import (
     output_factorization,
     weighted_pseudoinverse,
 )
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 
 # -- the bias estimator (Section III) ----------------------------------------------------------
@@ -181,18 +182,12 @@ def scale_and_filter(phi_hat: np.ndarray, filtered: np.ndarray, tau: float, eps_
 # -- estimators ---------------------------------------------------------------------------------
 
 
-def _vector_diagnostics(
-    prefix: str, names: tuple[str, ...], what: str, kind: DiagnosticKind, bound: float, resolution: float
-) -> list[Diagnostic]:
-    return [Diagnostic(f"{prefix}_{name}", "", f"{what} ({name})", bound, resolution, kind, name) for name in names]
-
-
-def _phihat(outputs: tuple[str, ...]) -> list[Diagnostic]:
-    return _vector_diagnostics("phihat", outputs, "estimated bias φ̂, eq. (7c)", DiagnosticKind.BIAS_ESTIMATE, 1e6, 1e-6)
-
-
-def _injection(states: tuple[str, ...]) -> list[Diagnostic]:
-    return _vector_diagnostics("inj", states, "output injection added to x̂⁺", DiagnosticKind.INJECTION, 1e6, 1e-6)
+PHI_HAT = Diagnostic("phihat_{}", "", "estimated bias φ̂, eq. (7c) ({})", 1e6, 1e-6, DiagnosticKind.BIAS_ESTIMATE)
+OPTIMIZER = Diagnostic("z_{}", "", "optimizer state z, eq. (16) ({})", 1.0, 1e-6, DiagnosticKind.OPTIMIZER)
+SELECTOR = Diagnostic("s_{}", "", "selector state s, eq. (17) ({})", 1.0, 1e-6, DiagnosticKind.SELECTOR)
+LOGIC = Diagnostic("h", "", "selector logic h: 1 while z is refused, eq. (52)", 1.0, 1.0, DiagnosticKind.LOGIC)
+INJECTION = Diagnostic("inj_{}", "", "output injection added to x̂⁺ ({})", 1e6, 1e-6, DiagnosticKind.INJECTION)
+"""The diagnostics of the observers here: φ̂, z and s per output, h, the injection per state."""
 
 
 def _gain(model: LinearModel, H: np.ndarray, poles: tuple[float, ...], name: str) -> np.ndarray:
@@ -283,11 +278,11 @@ class AdaptivePseudoinverseObserver(Estimator):
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [
-            *_phihat(outputs),
-            *_vector_diagnostics("z", outputs, "optimizer state z, eq. (16)", DiagnosticKind.OPTIMIZER, 1.0, 1e-6),
-            *_vector_diagnostics("s", outputs, "selector state s, eq. (17)", DiagnosticKind.SELECTOR, 1.0, 1e-6),
-            Diagnostic("h", "", "selector logic h: 1 while z is refused, eq. (52)", 1.0, 1.0, DiagnosticKind.LOGIC),
-            *_injection(states),
+            *PHI_HAT.over(outputs),
+            *OPTIMIZER.over(outputs),
+            *SELECTOR.over(outputs),
+            LOGIC,
+            *INJECTION.over(states),
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
@@ -314,20 +309,18 @@ class AdaptivePseudoinverseObserver(Estimator):
                 self.z = optimizer_step(z, phi_hat, self.Y)  # (16), (37e)
             self.s, self.h = select(s, z, self.Y, self.params.epsilon)  # (17) / (52)
             self.bias.update(y, du)  # (7a)
-        diagnostics = self._named("phihat", self.Sigma.T @ self.phi_hat)
-        diagnostics |= self._named("z", z) | self._named("s", s) | {"h": float(h)}
-        diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
+        outputs = self.model.outputs
+        diagnostics = PHI_HAT.values(outputs, self.Sigma.T @ self.phi_hat)
+        diagnostics |= OPTIMIZER.values(outputs, z) | SELECTOR.values(outputs, s) | {LOGIC.name: float(h)}
+        diagnostics |= INJECTION.values(self.model.states, injected)
         return Estimate(x_k.copy(), diagnostics)
-
-    def _named(self, prefix: str, values: np.ndarray) -> dict[str, float]:
-        return {f"{prefix}_{name}": float(v) for name, v in zip(self.model.outputs, values)}
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """The bias's effect on the injection, Π(s)(Σφ − h Σφ̂) (R(s)⁻¹Γ(φ)s of eq. (19)–(20), (54))."""
-        s = np.array([diagnostics[f"s_{o}"] for o in self.model.outputs])
+        s = SELECTOR.read(diagnostics, self.model.outputs)
         residual = self.Sigma @ phi
-        if self.params.injection and diagnostics.get("h"):
-            residual = residual - self.Sigma @ np.array([diagnostics[f"phihat_{o}"] for o in self.model.outputs])
+        if self.params.injection and diagnostics.get(LOGIC.name):
+            residual = residual - self.Sigma @ PHI_HAT.read(diagnostics, self.model.outputs)
         return weighted_pseudoinverse(self.Y, s) @ residual
 
 
@@ -367,7 +360,7 @@ class InjectionObserver(Estimator):
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [*_phihat(outputs), *_injection(states)]
+        return [*PHI_HAT.over(outputs), *INJECTION.over(states)]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         A, B = self.model.A, self.model.B
@@ -383,11 +376,10 @@ class InjectionObserver(Estimator):
             injected = self.L @ (self.bias.P_Y @ (dy - self.phi_used) - self.H @ x_k)
             self.x_hat = A @ x_k + B @ du + injected  # (56)
             self.bias.update(dy, du)
-        diagnostics = {f"phihat_{o}": float(v) for o, v in zip(self.model.outputs, self.phi_used)}
-        diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
+        diagnostics = PHI_HAT.values(self.model.outputs, self.phi_used) | INJECTION.values(self.model.states, injected)
         return Estimate(x_k.copy(), diagnostics)
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """Y†(φ − φ̂): what the bias leaves in the injection of (56)."""
-        phi_hat = np.array([diagnostics[f"phihat_{o}"] for o in self.model.outputs])
+        phi_hat = PHI_HAT.read(diagnostics, self.model.outputs)
         return self.bias.P_Y @ (phi - phi_hat)

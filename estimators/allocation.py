@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.optimize
 
-from estimators.base import Diagnostic, DiagnosticKind, ParameterError
+from estimators.base import ParameterError
 from estimators.controller import Command, Controller
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 
 
@@ -238,6 +239,36 @@ def _wrap(angle: float) -> float:
     return float((angle + np.pi) % (2 * np.pi) - np.pi)
 
 
+MAX_THRUSTERS = 5
+"""Thrusters a fault report names: the bits of ``FAULT_MASK``."""
+FAULT_MASK = Diagnostic(
+    "fault_mask",
+    "",
+    "isolated thrusters, bit j − 1 for Tj (latched)",
+    2.0**MAX_THRUSTERS,
+    1.0,
+    DiagnosticKind.FAULT_MASK,
+)
+"""The report the thrust allocation reads from its diagnosis node (``cofd`` publishes it)."""
+
+#: What ``VesselController.step`` reports each tick, in this order.
+VESSEL_DIAGNOSTICS = (
+    Diagnostic("tau_x", "N", "commanded surge force τ_c", 1e8, 1.0, DiagnosticKind.EFFORT),
+    Diagnostic("tau_y", "N", "commanded sway force τ_c", 1e8, 1.0, DiagnosticKind.EFFORT),
+    Diagnostic("tau_n", "N m", "commanded yaw moment τ_c", 1e10, 1.0, DiagnosticKind.EFFORT),
+    Diagnostic("a_psi", "N m", "heading PID output a_ψ", 1e10, 1.0, DiagnosticKind.EFFORT),
+    Diagnostic("heading_error", "rad", "ψ − ψ_ref", 4.0, 1e-6, DiagnosticKind.CONTROL_ERROR),
+    Diagnostic("tau_error", "N", "|G u − τ_c| (unmet effect)", 1e8, 1.0, DiagnosticKind.CONTROL_ERROR),
+    Diagnostic("cluster", "", "1 while the cluster constraints (24) hold", 1.0, 1.0, DiagnosticKind.CONSTRAINT),
+    Diagnostic(
+        "reconfigured", "", "1 once the allocation left thrusters out (5)", 1.0, 1.0, DiagnosticKind.RECONFIGURATION
+    ),
+    Diagnostic(
+        "active_mask", "", "thrusters left out of the allocation (bit j: T(j+1))", 255.0, 1.0, DiagnosticKind.FAULT_MASK
+    ),
+)
+
+
 class VesselController:
     """The nominal law of Sec. 4 with fault-tolerant allocation, in discrete time.
 
@@ -315,21 +346,6 @@ class VesselController:
         self.active_mask = 0
         self.y_last = np.zeros(6)
 
-    @staticmethod
-    def diagnostic_names() -> list[str]:
-        """The keys of the diagnostics ``step`` returns."""
-        return [
-            "tau_x",
-            "tau_y",
-            "tau_n",
-            "a_psi",
-            "heading_error",
-            "tau_error",
-            "cluster",
-            "reconfigured",
-            "active_mask",
-        ]
-
     def step(self, y: np.ndarray, t: float, fault_mask: int = 0) -> tuple[np.ndarray, dict[str, float]]:
         """u_k (shape (m,)) from y_k = [x, y, ψ, u, v, r] (NaN: a reading that did not arrive, the
         last one is used), the time t_k and the latest fault report (bit j: thruster j + 1)."""
@@ -373,18 +389,8 @@ class VesselController:
         tau_error = float(np.linalg.norm(self.G @ u - tau))
         if tau_error <= 1e-6 * np.linalg.norm(tau):  # anti-windup: integrate only while τ_c is met
             self.heading_integral, self.speed_integral = heading_integral, speed_integral
-        diagnostics = {
-            "tau_x": tau[0],
-            "tau_y": tau[1],
-            "tau_n": tau[2],
-            "a_psi": a_psi,
-            "heading_error": error,
-            "tau_error": tau_error,
-            "cluster": float(clustered),
-            "reconfigured": float(self.active_mask != 0),
-            "active_mask": float(self.active_mask),
-        }
-        return u, {name: float(value) for name, value in diagnostics.items()}
+        values = (*tau, a_psi, error, tau_error, clustered, self.active_mask != 0, self.active_mask)
+        return u, {d.name: float(value) for d, value in zip(VESSEL_DIAGNOSTICS, values)}
 
 
 def input_groups(groups, m: int, parameter: str = "groups") -> list[tuple[int, ...]]:
@@ -419,7 +425,7 @@ class ThrustAllocationController(Controller):
 
     kind = "thrust-allocation"
     continuous = True
-    reports = ("fault_mask",)
+    reports = (FAULT_MASK.name,)
     Params = VesselControllerParams
     OUTPUTS = ("x", "y", "psi", "u", "v", "r")
 
@@ -439,43 +445,8 @@ class ThrustAllocationController(Controller):
 
     @classmethod
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        force, moment = ("N", 1e8, 1.0), ("N m", 1e10, 1.0)
-        units = {
-            "tau_x": force,
-            "tau_y": force,
-            "tau_n": moment,
-            "a_psi": moment,
-            "tau_error": force,
-            "heading_error": ("rad", 4.0, 1e-6),
-            "cluster": ("", 1.0, 1.0),
-            "reconfigured": ("", 1.0, 1.0),
-            "active_mask": ("", 255.0, 1.0),
-        }
-        text = {
-            "tau_x": "commanded surge force τ_c",
-            "tau_y": "commanded sway force τ_c",
-            "tau_n": "commanded yaw moment τ_c",
-            "a_psi": "heading PID output a_ψ",
-            "heading_error": "ψ − ψ_ref",
-            "tau_error": "|G u − τ_c| (unmet effect)",
-            "cluster": "1 while the cluster constraints (24) hold",
-            "reconfigured": "1 once the allocation left thrusters out (5)",
-            "active_mask": "thrusters left out of the allocation (bit j: T(j+1))",
-        }
-        kinds = {
-            "heading_error": DiagnosticKind.CONTROL_ERROR,
-            "tau_error": DiagnosticKind.CONTROL_ERROR,
-            "cluster": DiagnosticKind.CONSTRAINT,
-            "reconfigured": DiagnosticKind.RECONFIGURATION,
-            "active_mask": DiagnosticKind.FAULT_MASK,
-        }
-        return [
-            Diagnostic(
-                name, units[name][0], text[name], units[name][1], units[name][2], kinds.get(name, DiagnosticKind.EFFORT)
-            )
-            for name in VesselController.diagnostic_names()
-        ]
+        return list(VESSEL_DIAGNOSTICS)
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
-        u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get("fault_mask", 0)))
+        u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get(FAULT_MASK.name, 0)))
         return Command(u, diagnostics)

@@ -11,11 +11,11 @@ import types
 import typing
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
-from enum import StrEnum
 from typing import Any, ClassVar
 
 import numpy as np
 
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 
 
@@ -26,69 +26,6 @@ class Estimate:
 
     x: np.ndarray
     diagnostics: dict[str, float] = field(default_factory=dict)
-
-
-class DiagnosticKind(StrEnum):
-    """What a diagnostic is: plots and metrics find the signals they need by kind, never by name."""
-
-    BIAS_ESTIMATE = "bias_estimate"
-    """φ̂ of an output (TAC 2024 eq. (7c)); target: the output."""
-    SELECTOR = "selector"
-    """the selector state s (TAC 2024 eq. (17)); target: the output."""
-    OPTIMIZER = "optimizer"
-    """the optimizer state z (TAC 2024 eq. (16)); target: the output."""
-    WEIGHT = "weight"
-    """a pseudoinverse weight Γ (CDC 2016 eq. (7)); target: the output."""
-    INJECTION = "injection"
-    """the output injection's component; target: the state."""
-    LOGIC = "logic"
-    """a switching variable (the selector logic h)."""
-    RESIDUAL = "residual"
-    """a residual component; target: the output (UIO) or the observer whose residual it is (COFD)."""
-    RESIDUAL_NORM = "residual_norm"
-    THRESHOLD = "threshold"
-    """the threshold of a residual component; target: that residual's signal."""
-    ALARM = "alarm"
-    """1 while a fault is detected."""
-    ISOLATION = "isolation"
-    """1 once the fault is isolated to the target (a thruster, a sensor, ...)."""
-    FAULT_MASK = "fault_mask"
-    """the isolated targets as bits."""
-    CONSTRAINT = "constraint"
-    """1 while a structural constraint holds."""
-    GAIN_ESTIMATE = "gain_estimate"
-    """an estimated sensor effectiveness γ̂ (IJC 2018 eq. (53)); target: the sensor."""
-    BIAS = "bias"
-    """an estimated sensor bias b̂."""
-    VIRTUAL_OUTPUT = "virtual_output"
-    """the reconciled virtual output ẑ (IJC 2018 eq. (6))."""
-    EXCITATION = "excitation"
-    FIT = "fit"
-    CONTROL_ERROR = "control_error"
-    """a controller's tracking error; target: the output."""
-    EFFORT = "effort"
-    """a commanded generalized force."""
-    RECONFIGURATION = "reconfiguration"
-    """1 once a controller reconfigured."""
-    OTHER = "other"
-
-
-@dataclass(frozen=True)
-class Diagnostic:
-    """A scalar an estimator publishes beside x̂ each tick (for example a pseudoinverse weight).
-
-    ``bound`` and ``resolution`` size its classic-CAN signal: values in [−bound, bound] in steps
-    of ``resolution`` (CAN FD carries float64). ``kind`` says what it is and ``target`` what it
-    refers to (an output, a state, a thruster, another signal), for the tools that read it back.
-    """
-
-    name: str
-    unit: str
-    description: str
-    bound: float
-    resolution: float
-    kind: DiagnosticKind = DiagnosticKind.OTHER
-    target: str = ""
 
 
 class ParameterError(ValueError):

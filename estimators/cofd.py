@@ -36,9 +36,10 @@ import numpy as np
 import scipy.integrate
 import scipy.linalg
 
-from estimators.allocation import AllocationError, cluster_matrix, input_groups, whole
-from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
+from estimators.allocation import FAULT_MASK, MAX_THRUSTERS, AllocationError, cluster_matrix, input_groups, whole
+from estimators.base import Estimate, Estimator, ParameterError
 from estimators.design import AssumptionError
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 from estimators.uio import UIODesign, discretize
 
@@ -93,26 +94,19 @@ def uniform_subrank(W: np.ndarray) -> int:
 
 
 @dataclass(frozen=True)
-class COFDObserver:
-    """One COFD unknown input observer O_h: ż = F z + R W u + K y, x̂ = z + H y."""
+class COFDObserver(UIODesign):
+    """One COFD unknown input observer O_h: ż = F z + R W u + K y, x̂ = z + H y, the UIO (2) with
+    T = R (so ``estimators.uio.discretize`` integrates it)."""
 
     J: tuple[int, ...]
     """The columns of W (0-based, in order) assigned the output directions e_1 … e_ℓ, eq. (13)."""
     S_hat: np.ndarray
     """Ŝ = [S_1 … S_ℓ] (n, ℓ), eq. (13)."""
-    H: np.ndarray
-    R: np.ndarray
-    F: np.ndarray
-    K1: np.ndarray
-    K2: np.ndarray
 
     @property
-    def K(self) -> np.ndarray:
-        return self.K1 + self.K2
-
-    def as_uio(self) -> UIODesign:
-        """The same observer as a UIODesign (T = R), for ``estimators.uio.discretize``."""
-        return UIODesign(self.H, self.R, self.F, self.K1, self.K2)
+    def R(self) -> np.ndarray:
+        """R = I − H C, eq. (6)."""
+        return self.T
 
 
 def cofd_observer(
@@ -140,42 +134,57 @@ def cofd_observer(
     Raises DesignError naming the argument to change.
     """
     A, W, C, F = (np.asarray(X, dtype=float) for X in (A, W, C, F))
-    n = A.shape[0]
-    p = C.shape[0]
+    n, p = A.shape[0], C.shape[0]
     J = tuple(int(j) for j in J)
+    _check_shapes(A, W, C, F, J)
+    S = output_directions(C) if S is None else np.asarray(S, dtype=float)
+    if S.shape != (n, p) or not np.allclose(C @ S, np.eye(p), atol=1e-9):
+        raise DesignError("S", "S must satisfy C S = I (eq. (10))")
+    S_hat = S[:, : len(J)]
+    H = _direction_gain(W[:, list(J)], C, S_hat, J, H_star)
+    R = np.eye(n) - H @ C  # eq. (6)
+    _check_observer_matrix(F, S_hat, J)
+    K1 = _injection_gain(R @ A, C, F)
+    return COFDObserver(H=H, T=R, F=F, K1=K1, K2=F @ H, J=J, S_hat=S_hat)
+
+
+def _check_shapes(A: np.ndarray, W: np.ndarray, C: np.ndarray, F: np.ndarray, J: tuple[int, ...]) -> None:
+    n, p = A.shape[0], C.shape[0]
     if A.shape != (n, n) or W.shape[0] != n or C.shape[1] != n:
         raise DesignError("model", f"inconsistent shapes A {A.shape}, W {W.shape}, C {C.shape}")
     if F.shape != (n, n):
         raise DesignError("F", f"expected an ({n}, {n}) observer matrix, got {F.shape}")
     if not J or len(set(J)) != len(J) or not all(0 <= j < W.shape[1] for j in J):
         raise DesignError("family", f"multi-index {[j + 1 for j in J]} must list distinct columns 1…{W.shape[1]} of W")
-    ell = len(J)
-    if ell > p:
+    if len(J) > p:
         raise DesignError(
-            "family", f"multi-index {[j + 1 for j in J]} has {ell} columns but there are only p = {p} output directions"
+            "family",
+            f"multi-index {[j + 1 for j in J]} has {len(J)} columns but there are only p = {p} output directions",
         )
-    S = output_directions(C) if S is None else np.asarray(S, dtype=float)
-    if S.shape != (n, p) or not np.allclose(C @ S, np.eye(p), atol=1e-9):
-        raise DesignError("S", "S must satisfy C S = I (eq. (10))")
-    S_hat = S[:, :ell]
-    WJ = W[:, list(J)]
+
+
+def _direction_gain(
+    WJ: np.ndarray, C: np.ndarray, S_hat: np.ndarray, J: tuple[int, ...], H_star: np.ndarray | None
+) -> np.ndarray:
+    """H of eq. (15), which makes R W_J = Ŝ, after Theorem 3.1's condition 1."""
+    ell, p = len(J), C.shape[0]
     CWJ = C @ WJ
     if _rank(WJ) != ell or _rank(CWJ) != ell:
         raise DesignError(
             "family",
-            (
-                f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem "
-                "3.1 "
-                f"(condition 1) needs both = {ell}: these inputs' faults cannot be given independent output "
-                "directions. "
-                "Choose columns of W that are linearly independent (and stay so through C)"
-            ),
+            f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem "
+            f"3.1 (condition 1) needs both = {ell}: these inputs' faults cannot be given independent output "
+            "directions. Choose columns of W that are linearly independent (and stay so through C)",
         )
     CWJ_left = _left_inverse(CWJ)
     H = (WJ - S_hat) @ CWJ_left  # eq. (15)
     if H_star is not None:
         H = H + np.asarray(H_star, dtype=float) @ (np.eye(p) - CWJ @ CWJ_left)
-    R = np.eye(n) - H @ C  # eq. (6)
+    return H
+
+
+def _check_observer_matrix(F: np.ndarray, S_hat: np.ndarray, J: tuple[int, ...]) -> None:
+    """Theorem 3.1's condition 2 (F Hurwitz) and condition (14) (each S_j an eigenvector of F)."""
     eig = np.linalg.eigvals(F)
     if np.max(eig.real) >= 0:
         raise DesignError(
@@ -183,30 +192,29 @@ def cofd_observer(
             f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real "
             "part negative",
         )
-    for j in range(ell):
+    for j in range(len(J)):
         s = S_hat[:, j]
         lam = s @ F @ s / (s @ s)
         if np.linalg.norm(F @ s - lam * s) > 1e-9 * max(1.0, np.abs(F).max()) * np.linalg.norm(s):
             raise DesignError(
                 "F",
-                (
-                    f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} "
-                    "would not keep "
-                    f"the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {ell} (with C = I: F "
-                    f"diagonal in its first {ell} rows and columns)"
-                ),
+                f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} would "
+                f"not keep the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {len(J)} (with "
+                f"C = I: F diagonal in its first {len(J)} rows and columns)",
             )
-    C_right = C.T @ np.linalg.inv(C @ C.T)
-    K1 = (R @ A - F) @ C_right
-    if not np.allclose(R @ A - K1 @ C, F, atol=1e-9 * max(1.0, np.abs(R @ A).max(), np.abs(F).max())):
+
+
+def _injection_gain(RA: np.ndarray, C: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """K1 = (R A − F) C⁺, the solution of F = R A − K1 C (7) when there is one; it is then of the
+    form (17)."""
+    K1 = (RA - F) @ (C.T @ np.linalg.inv(C @ C.T))
+    if not np.allclose(RA - K1 @ C, F, atol=1e-9 * max(1.0, np.abs(RA).max(), np.abs(F).max())):
         raise DesignError(
             "F",
-            (
-                "F = R A − K1 C (eq. (7)) has no solution K1: R A − F must vanish on the kernel of C. "
-                "Choose F from the reachable ones, R A − K1 C for some K1 (eq. (17))"
-            ),
+            "F = R A − K1 C (eq. (7)) has no solution K1: R A − F must vanish on the kernel of C. "
+            "Choose F from the reachable ones, R A − K1 C for some K1 (eq. (17))",
         )
-    return COFDObserver(J, S_hat, H, R, F, K1, F @ H)
+    return K1
 
 
 def cofd_family(
@@ -336,8 +344,42 @@ SHIP_FAMILY = ((1, 2, 3), (3, 4, 1), (5, 6, 1), (7, 8, 1))
 SHIP_CLUSTER_FAMILY = ((1, 2, 3), (1, 4, 5), (2, 3, 4), (2, 3, 5))
 SHIP_F = (-1.0, -1.0, -2.0, -5.0, -6.0, -7.0)
 SHIP_PAIRS = ((1, 3), (1, 4), (2, 3), (2, 5), (3, 4))
-MAX_OBSERVERS, MAX_COMPONENTS, MAX_GROUPS = 4, 3, 5
-"""The diagnostics declared on the bus: r<h>_<i> for h ≤ 4, i ≤ 3 and isolated_T<j> for j ≤ 5."""
+MAX_OBSERVERS, MAX_COMPONENTS = 4, 3
+"""The residual components declared on the bus: r<h>_<i> for h ≤ 4, i ≤ 3 (and thrusters T1 … T5:
+``estimators.allocation.MAX_THRUSTERS``, the bits of ``FAULT_MASK``)."""
+COMPONENTS = tuple((h, i) for h in range(1, MAX_OBSERVERS + 1) for i in range(1, MAX_COMPONENTS + 1))
+THRUSTERS = tuple(range(1, MAX_THRUSTERS + 1))
+
+RESIDUAL = Diagnostic(
+    "r{0}_{1}",
+    "",
+    "residual r^({0}) = C e^({0}) along e_{1} (Sec. 3.2)",
+    1e9,
+    1e-3,
+    DiagnosticKind.RESIDUAL,
+    "observer {0}",
+)
+THRESHOLD = Diagnostic(
+    "thr{0}_{1}",
+    "",
+    "threshold of r{0}_{1}: margin × its bound under |b| ≤ ε",
+    1e9,
+    1e-3,
+    DiagnosticKind.THRESHOLD,
+    "r{0}_{1}",
+)
+ALARM = Diagnostic("alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0, DiagnosticKind.ALARM)
+ISOLATED = Diagnostic(
+    "isolated_T{}", "", "1 once thruster T{} is isolated as faulty (latched)", 1.0, 1.0, DiagnosticKind.ISOLATION, "T{}"
+)
+CONSTRAINTS_MET = Diagnostic(
+    "constraints_met",
+    "",
+    "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)",
+    1.0,
+    1.0,
+    DiagnosticKind.CONSTRAINT,
+)
 
 
 @dataclass(frozen=True)
@@ -379,165 +421,85 @@ class COFDDiagnosis(Estimator):
 
     def __init__(self, model: LinearModel, params: COFDParams, sample_time: float | None = None) -> None:
         super().__init__(model, params, sample_time)
-        n, m = model.n, model.m
-        self.groups = input_groups(params.groups, m)
-        if len(self.groups) > MAX_GROUPS:
+        self.groups = input_groups(params.groups, model.m)
+        if len(self.groups) > MAX_THRUSTERS:
             raise ParameterError(
-                "groups", f"at most {MAX_GROUPS} thrusters have diagnostics on the bus, got {len(self.groups)}"
+                "groups", f"at most {MAX_THRUSTERS} thrusters have diagnostics on the bus, got {len(self.groups)}"
             )
-        if len(params.F) != n or max(params.F) >= 0:
-            raise ParameterError(
-                "F", f"give the {n} diagonal entries of F, all negative (F Hurwitz, Theorem 3.1), got {list(params.F)}"
-            )
-        if params.margin < 1:
-            raise ParameterError(
-                "margin",
-                f"must be at least 1 (a smaller one lets the worst-case disturbance raise alarms), got {params.margin}",
-            )
-        if not params.disturbance_bound >= 0 or params.persistence < 0:
-            raise ParameterError(
-                "disturbance_bound" if not params.disturbance_bound >= 0 else "persistence", "must be at least 0"
-            )
-        E = model.E if params.E is None else np.array(params.E, dtype=float)
-        if E.ndim != 2 or E.shape[0] != n or E.shape[1] == 0:
-            raise ParameterError(
-                "E", f"need the unknown input's direction, a matrix with {n} rows: the model has none, give params.E"
-            )
+        _check_params(params, model.n)
+        E = _disturbance_direction(model, params.E)
         cluster = params.zeta is not None
-        columns = len(self.groups) if cluster else m
-        given = params.family or (SHIP_CLUSTER_FAMILY if cluster else SHIP_FAMILY)
-        family = [tuple(whole(j, "family") - 1 for j in J) for J in given]
-        if len(family) > MAX_OBSERVERS or any(len(J) > MAX_COMPONENTS for J in family):
-            raise ParameterError(
-                "family",
-                f"at most {MAX_OBSERVERS} observers of at most {MAX_COMPONENTS} columns have diagnostics on the bus",
-            )
-        if any(not 0 <= j < columns for J in family for j in J):
-            raise ParameterError(
-                "family",
-                f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got "
-                f"{[[j + 1 for j in J] for J in family]}",
-            )
+        family = _family(params, len(self.groups) if cluster else model.m)
+        W, self.N = model.B, None
         try:
-            W = model.B
-            if params.zeta is not None:  # cluster
-                W_star = cluster_directions(W, self.groups, params.zeta)
-                self.N = cluster_matrix(self.groups, params.zeta, m)
-            self.observers = cofd_family(model.A, W_star if cluster else W, model.C, family, np.diag(params.F))
+            if params.zeta is not None:  # the cluster family (26) on W* = W N
+                W = cluster_directions(model.B, self.groups, params.zeta)
+                self.N = cluster_matrix(self.groups, params.zeta, model.m)
+            self.observers = cofd_family(model.A, W, model.C, family, np.diag(params.F))
         except DesignError as error:
             raise ParameterError(error.parameter, f"{error} (Cristofaro & Johansen, Sec. 3)") from None
         effect_groups = [(j,) for j in range(len(self.groups))] if cluster else self.groups
-        self.signatures = fault_signatures(self.observers, model.C, W_star if cluster else W, effect_groups)
-        pairs = params.pairs if params.pairs is not None else (SHIP_PAIRS if cluster else ())
-        self.hypotheses = [(j,) for j in range(len(self.groups))] + [
-            tuple(sorted(whole(t, "pairs") - 1 for t in pair)) for pair in pairs
-        ]
-        if any(not 0 <= t < len(self.groups) for H in self.hypotheses for t in H):
-            raise ParameterError("pairs", f"thruster numbers run 1…{len(self.groups)}")
-        clashes = unisolable(self.signatures, self.hypotheses)
-        if clashes:
-            H, other = clashes[0]
-            raise ParameterError(
-                "family" if not cluster else "pairs",
-                (
-                    f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component "
-                    "it moves can also be "
-                    f"moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that separate them, drop "
-                    "the hypothesis from "
-                    "pairs, or use the cluster family (zeta) for common-mode faults"
-                ),
-            )
-        self.ell = max(len(J) for J in family)
-        self.thresholds = np.array(
-            [
-                params.margin * residual_bounds(o, model.C, E, params.disturbance_bound)[: self.ell]
-                for o in self.observers
-            ]
+        self.signatures = fault_signatures(self.observers, model.C, W, effect_groups)
+        self.hypotheses = self._isolable_hypotheses(
+            params.pairs if params.pairs is not None else SHIP_PAIRS if cluster else ()
         )
-        self.discrete = [discretize(o.as_uio(), W, self.sample_time) for o in self.observers]
+        self.ell = max(len(J) for J in family)
+        bounds = [residual_bounds(o, model.C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
+        self.thresholds = np.array([params.margin * bound for bound in bounds])
+        self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
-        if self.x_init is not None and self.x_init.shape != (n,):
-            raise ParameterError("x0", f"expected {n} values, got {self.x_init.size}")
+        if self.x_init is not None and self.x_init.shape != (model.n,):
+            raise ParameterError("x0", f"expected {model.n} values, got {self.x_init.size}")
         self._measured = np.linalg.pinv(model.C)
         self.z: list[np.ndarray] | None = None
         self.y_prev = np.zeros(model.p)
-        self.u_prev = np.zeros(m)
+        self.u_prev = np.zeros(model.m)
         self.candidate: tuple[int, ...] | None = None
         self.candidate_since = 0.0
         self.t = 0.0
         self.isolated = np.zeros(len(self.groups), dtype=bool)
 
+    def _isolable_hypotheses(self, pairs) -> list[tuple[int, ...]]:
+        """The single faults and the given double ones (thruster numbers), 0-based, each of which
+        the family can tell from every other (Sec. 3.2)."""
+        hypotheses = [(j,) for j in range(len(self.groups))] + [
+            tuple(sorted(whole(t, "pairs") - 1 for t in pair)) for pair in pairs
+        ]
+        if any(not 0 <= t < len(self.groups) for H in hypotheses for t in H):
+            raise ParameterError("pairs", f"thruster numbers run 1…{len(self.groups)}")
+        clashes = unisolable(self.signatures, hypotheses)
+        if clashes:
+            H, other = clashes[0]
+            raise ParameterError(
+                "family" if self.params.zeta is None else "pairs",
+                f"a fault on {_names(H)} cannot be isolated from one on {_names(other)}: every residual component "
+                f"it moves can also be moved by {_names(other)} (isolation, Sec. 3.2). Choose multi-indices that "
+                "separate them, drop the hypothesis from pairs, or use the cluster family (zeta) for common-mode "
+                "faults",
+            )
+        return hypotheses
+
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        pairs = [(h, i) for h in range(1, MAX_OBSERVERS + 1) for i in range(1, MAX_COMPONENTS + 1)]
         return [
-            *(
-                Diagnostic(
-                    f"r{h}_{i}",
-                    "",
-                    f"residual r^({h}) = C e^({h}) along e_{i} (Sec. 3.2)",
-                    1e9,
-                    1e-3,
-                    DiagnosticKind.RESIDUAL,
-                    f"observer {h}",
-                )
-                for h, i in pairs
-            ),
-            *(
-                Diagnostic(
-                    f"thr{h}_{i}",
-                    "",
-                    f"threshold of r{h}_{i}: margin × its bound under |b| ≤ ε",
-                    1e9,
-                    1e-3,
-                    DiagnosticKind.THRESHOLD,
-                    f"r{h}_{i}",
-                )
-                for h, i in pairs
-            ),
-            Diagnostic(
-                "alarm", "", "1 while some residual component exceeds its threshold", 1.0, 1.0, DiagnosticKind.ALARM
-            ),
-            *(
-                Diagnostic(
-                    f"isolated_T{j}",
-                    "",
-                    f"1 once thruster T{j} is isolated as faulty (latched)",
-                    1.0,
-                    1.0,
-                    DiagnosticKind.ISOLATION,
-                    f"T{j}",
-                )
-                for j in range(1, MAX_GROUPS + 1)
-            ),
-            Diagnostic(
-                "fault_mask",
-                "",
-                "isolated thrusters, bit j − 1 for Tj (latched)",
-                2.0**MAX_GROUPS,
-                1.0,
-                DiagnosticKind.FAULT_MASK,
-            ),
-            Diagnostic(
-                "constraints_met",
-                "",
-                "1 when the commands obey the cluster constraints (24) (always 1 for the single-fault family)",
-                1.0,
-                1.0,
-                DiagnosticKind.CONSTRAINT,
-            ),
+            *RESIDUAL.over(COMPONENTS),
+            *THRESHOLD.over(COMPONENTS),
+            ALARM,
+            *ISOLATED.over(THRUSTERS),
+            FAULT_MASK,
+            CONSTRAINTS_MET,
         ]
 
     def _constraints_met(self, u: np.ndarray) -> bool:
         """u ∈ span N (eq. (24)) to 0.1 % of |u|∞: the commands arrive quantized over the bus."""
-        if self.params.zeta is None:
+        if self.N is None:
             return True
         projection = self.N @ np.linalg.lstsq(self.N, u, rcond=None)[0]
         return bool(np.abs(u - projection).max() <= 1e-3 * max(np.abs(u).max(), 1e-9))
 
     def isolation_targets(self) -> dict[str, list[str]]:
         """isolated_T<j> names the inputs of thruster j (the columns of B in its group)."""
-        return {f"isolated_T{j + 1}": [self.model.inputs[c] for c in group] for j, group in enumerate(self.groups)}
+        return {ISOLATED.named(j + 1): [self.model.inputs[c] for c in group] for j, group in enumerate(self.groups)}
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         model = self.model
@@ -561,21 +523,65 @@ class COFDDiagnosis(Estimator):
         if found is not None and self.t - self.candidate_since >= self.params.persistence - 1e-9:
             self.isolated[list(found)] = True
         self.y_prev, self.u_prev = y, du
-        diagnostics = {}
-        for h in range(MAX_OBSERVERS):
-            for i in range(MAX_COMPONENTS):
-                inside = h < len(self.observers) and i < self.ell
-                diagnostics[f"r{h + 1}_{i + 1}"] = float(residuals[h, i]) if inside else 0.0
-                diagnostics[f"thr{h + 1}_{i + 1}"] = float(self.thresholds[h, i]) if inside else 0.0
-        diagnostics["alarm"] = float(fired.any())
-        for j in range(MAX_GROUPS):
-            diagnostics[f"isolated_T{j + 1}"] = float(j < len(self.isolated) and self.isolated[j])
-        diagnostics["fault_mask"] = float(sum(1 << j for j in np.flatnonzero(self.isolated)))
-        diagnostics["constraints_met"] = float(constraints_met)
+        shown = np.zeros((2, MAX_OBSERVERS, MAX_COMPONENTS))  # the components beyond the family's: 0
+        shown[:, : len(self.observers), : self.ell] = residuals, self.thresholds
+        isolated = np.zeros(MAX_THRUSTERS)
+        isolated[: len(self.isolated)] = self.isolated
+        diagnostics = RESIDUAL.values(COMPONENTS, shown[0].ravel()) | THRESHOLD.values(COMPONENTS, shown[1].ravel())
+        diagnostics[ALARM.name] = float(fired.any())
+        diagnostics |= ISOLATED.values(THRUSTERS, isolated)
+        diagnostics[FAULT_MASK.name] = float(sum(1 << j for j in np.flatnonzero(self.isolated)))
+        diagnostics[CONSTRAINTS_MET.name] = float(constraints_met)
         # The observers are residual generators: their states carry R-scaled fault and disturbance
         # effects (tens of metres for a 100 N current), so the state this node publishes is the
         # measured one, C⁺ y (C = I for the ship).
         return Estimate(self._measured @ y, diagnostics)
+
+
+def _check_params(params: COFDParams, n: int) -> None:
+    if len(params.F) != n or max(params.F) >= 0:
+        raise ParameterError(
+            "F", f"give the {n} diagonal entries of F, all negative (F Hurwitz, Theorem 3.1), got {list(params.F)}"
+        )
+    if params.margin < 1:
+        raise ParameterError(
+            "margin",
+            f"must be at least 1 (a smaller one lets the worst-case disturbance raise alarms), got {params.margin}",
+        )
+    if not params.disturbance_bound >= 0 or params.persistence < 0:
+        raise ParameterError(
+            "disturbance_bound" if not params.disturbance_bound >= 0 else "persistence", "must be at least 0"
+        )
+
+
+def _disturbance_direction(model: LinearModel, given: tuple[tuple[float, ...], ...] | None) -> np.ndarray:
+    """E of the unknown input b: the given one, or the model's."""
+    E = model.E if given is None else np.array(given, dtype=float)
+    if E.ndim != 2 or E.shape[0] != model.n or E.shape[1] == 0:
+        raise ParameterError(
+            "E", f"need the unknown input's direction, a matrix with {model.n} rows: the model has none, give params.E"
+        )
+    return E
+
+
+def _family(params: COFDParams, columns: int) -> list[tuple[int, ...]]:
+    """The multi-indices J_h, 0-based: the given ones or the paper's, each of columns of W (or,
+    with ``zeta``, of W*, one per thruster)."""
+    cluster = params.zeta is not None
+    given = params.family or (SHIP_CLUSTER_FAMILY if cluster else SHIP_FAMILY)
+    family = [tuple(whole(j, "family") - 1 for j in J) for J in given]
+    if len(family) > MAX_OBSERVERS or any(len(J) > MAX_COMPONENTS for J in family):
+        raise ParameterError(
+            "family",
+            f"at most {MAX_OBSERVERS} observers of at most {MAX_COMPONENTS} columns have diagnostics on the bus",
+        )
+    if any(not 0 <= j < columns for J in family for j in J):
+        raise ParameterError(
+            "family",
+            f"multi-indices number the {'thrusters 1…' if cluster else 'inputs 1…'}{columns}, got "
+            f"{[[j + 1 for j in J] for J in family]}",
+        )
+    return family
 
 
 def _names(hypothesis) -> str:

@@ -17,7 +17,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import Configurable, Diagnostic, DiagnosticKind, ParameterError
+from estimators.base import Configurable, ParameterError
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 from kinds import KindError, Kinds
 
@@ -77,6 +78,9 @@ def _per_loop(value: tuple[float, ...], loops: int, parameter: str) -> np.ndarra
     return np.broadcast_to(np.asarray(value, dtype=float), (loops,)).copy()
 
 
+CONTROL_ERROR = Diagnostic("e_{}", "", "control error r - y of the loop on {}", 1e6, 1e-6, DiagnosticKind.CONTROL_ERROR)
+
+
 class PidController(Controller):
     """Decentralized discrete PID loops, loop i driving input ``inputs[i]`` from output ``outputs[i]``:
 
@@ -117,25 +121,13 @@ class PidController(Controller):
         )
         if np.any(self.lower >= self.upper):
             raise ParameterError("lower", "every lower limit must be below its upper limit")
-        self._published = [d.name for d in self.diagnostic_channels(model.inputs, model.outputs)]
         self.integral = np.zeros(loops)
         self.previous: np.ndarray | None = None
         self.u = model.u_op.copy()
 
     @classmethod
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [
-            Diagnostic(
-                f"e_{name}",
-                "",
-                f"control error r - y of the loop on {name}",
-                1e6,
-                1e-6,
-                DiagnosticKind.CONTROL_ERROR,
-                name,
-            )
-            for name in outputs
-        ]
+        return CONTROL_ERROR.over(outputs)
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         y = np.asarray(y, dtype=float)[self._y]
@@ -153,8 +145,8 @@ class PidController(Controller):
         )
         self.u[self._u] = np.where(ok, command, self.u[self._u])
         self.previous = np.where(ok, y, previous)
-        diagnostics = dict.fromkeys(self._published, 0.0)  # outputs without a loop have no error
-        diagnostics |= {f"e_{name}": float(e) if np.isfinite(e) else 0.0 for name, e in zip(self.params.outputs, error)}
+        diagnostics = CONTROL_ERROR.values(self.model.outputs, np.zeros(self.model.p))
+        diagnostics |= CONTROL_ERROR.values(self.params.outputs, np.where(np.isfinite(error), error, 0.0))
         return Command(self.u.copy(), diagnostics)
 
 

@@ -56,8 +56,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError, initial_state
+from estimators.base import Estimate, Estimator, ParameterError, initial_state
 from estimators.design import AssumptionError, check_spectrum, observer_gain
+from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
 
 
@@ -248,6 +249,12 @@ class UIOParams:
     """Time [s] from which the alarm may be raised; None: 5/|Re λ| for F's slowest eigenvalue λ."""
 
 
+RESIDUAL = Diagnostic("r_{}", "", "residual r = y − C x̂ ({}), eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL)
+RESIDUAL_NORM = Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL_NORM)
+ALARM = Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0, DiagnosticKind.ALARM)
+"""The UIO's diagnostics: the residual per output, its norm, the alarm."""
+
+
 class UnknownInputObserver(Estimator):
     """Observer (2) with the design (8), integrated exactly between samples; publishes the
     residual r = y − C x̂ (10) per output and its norm."""
@@ -304,14 +311,7 @@ class UnknownInputObserver(Estimator):
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
-        return [
-            *(
-                Diagnostic(f"r_{o}", "", f"residual r = y − C x̂ ({o}), eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL, o)
-                for o in outputs
-            ),
-            Diagnostic("residual_norm", "", "|r| = |y − C x̂|, eq. (10)", 1e3, 1e-6, DiagnosticKind.RESIDUAL_NORM),
-            Diagnostic("alarm", "", "1: |r| > threshold (from arm_time on), else 0", 1.0, 1.0, DiagnosticKind.ALARM),
-        ]
+        return [*RESIDUAL.over(outputs), RESIDUAL_NORM, ALARM]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         model, d = self.model, self.design
@@ -324,10 +324,10 @@ class UnknownInputObserver(Estimator):
         x_hat = z + d.H @ y  # eq. (2)
         r = y - model.C @ x_hat  # eq. (10)
         self.z, self.y_prev, self.u_prev = z, y, du
-        diagnostics = {f"r_{o}": float(v) for o, v in zip(model.outputs, r)}
-        diagnostics["residual_norm"] = norm = float(np.linalg.norm(r))
+        diagnostics = RESIDUAL.values(model.outputs, r)
+        diagnostics[RESIDUAL_NORM.name] = norm = float(np.linalg.norm(r))
         armed = self.ticks * self.sample_time >= self.arm_time - 1e-9 * self.sample_time
-        diagnostics["alarm"] = float(armed and norm > self.params.threshold)
+        diagnostics[ALARM.name] = float(armed and norm > self.params.threshold)
         self.ticks += 1
         return Estimate(x_hat, diagnostics)
 

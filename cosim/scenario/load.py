@@ -172,6 +172,16 @@ class _Names:
                 problems.append(f"{field}: {self.info.name} has no {what} {name!r}{hint}; it has: {', '.join(known)}")
         return problems
 
+    def driven_once(self, driven: list[tuple[str, str]], known: list[str], what: str, signal: str) -> list[str]:
+        """Each (field, name) a known signal, and none given two."""
+        problems, seen = [], set()
+        for field, name in driven:
+            problems += self.unknown(field, [name], known, what)
+            if name in seen:
+                problems.append(f"{field}: {name!r} already has {signal}")
+            seen.add(name)
+        return problems
+
     @property
     def sensors(self) -> list[str]:
         return [c.name for c in self.info.sensors]
@@ -267,19 +277,12 @@ def _plant_signals(s: Scenario, names: _Names) -> list[str]:
 
 
 def _inputs(s: Scenario, names: _Names) -> list[str]:
-    problems: list[str] = []
-    seen: set[str] = set()
-    for i, spec in enumerate(s.inputs):
-        problems += names.unknown(f"inputs[{i}].actuator", [spec.actuator], names.actuators, "actuator")
-        if spec.actuator in seen:
-            problems.append(f"inputs[{i}].actuator: {spec.actuator!r} already has an input signal")
-        seen.add(spec.actuator)
-    return problems
+    driven = [(f"inputs[{i}].actuator", spec.actuator) for i, spec in enumerate(s.inputs)]
+    return names.driven_once(driven, names.actuators, "actuator", "an input signal")
 
 
 def _disturbances(s: Scenario, names: _Names) -> list[str]:
     problems: list[str] = []
-    seen: set[str] = set()
     models = names.info.disturbance_models
     for i, disturbance in enumerate(s.disturbances):
         if disturbance.model and disturbance.model not in models:
@@ -292,13 +295,8 @@ def _disturbances(s: Scenario, names: _Names) -> list[str]:
                 models[disturbance.model](np.random.default_rng(0), **disturbance.params)
             except (TypeError, ValueError) as error:
                 problems.append(f"disturbances[{i}].params: {error}")
-        else:
-            field = f"disturbances[{i}].input"
-            problems += names.unknown(field, [disturbance.input], names.disturbances, "disturbance input")
-            if disturbance.input in seen:
-                problems.append(f"{field}: {disturbance.input!r} already has a signal")
-            seen.add(disturbance.input)
-    return problems
+    driven = [(f"disturbances[{i}].input", d.input) for i, d in enumerate(s.disturbances) if not d.model]
+    return problems + names.driven_once(driven, names.disturbances, "disturbance input", "a signal")
 
 
 def _faults(s: Scenario, names: _Names) -> list[str]:
