@@ -37,13 +37,18 @@ def profiles(what: str) -> Any:
     return field(default=(), metadata={"profiles": what})
 
 
+def probability(what: str) -> Any:
+    """A parameter in [0, 1]; ``what`` names it in messages."""
+    return field(default=0.0, metadata={"probability": what})
+
+
 @dataclass
 class Fault(ABC):
     """A fault acting on some channels of a signal vector during [start, end).
 
     A model is a dataclass whose fields after these are its parameters, with a ``kind``; a
     parameter declared with ``per_channel`` or ``profiles`` is checked to have one value per
-    channel."""
+    channel, one declared with ``probability`` to lie in [0, 1]."""
 
     channels: tuple[int, ...]
     start: float = 0.0
@@ -63,6 +68,8 @@ class Fault(ABC):
                 raise ValueError(
                     f"{what['profiles']}: expected {len(self.channels)} profiles (one per channel), got {len(value)}"
                 )
+            if "probability" in what and not 0.0 <= value <= 1.0:
+                raise ValueError(f"{what['probability']} must be in [0, 1]")
 
     def reset(self, rng: np.random.Generator) -> None:
         """Prepare for a new run with this fault's own random generator."""
@@ -181,13 +188,8 @@ class StuckAt(SensorFault):
 class Dropout(SensorFault):
     """Intermittent loss: each tick, each channel's frame is not sent with ``probability``."""
 
-    probability: float = 0.0
+    probability: float = probability("dropout probability")
     kind = "dropout"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not 0.0 <= self.probability <= 1.0:
-            raise ValueError("dropout probability must be in [0, 1]")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         return y
@@ -203,14 +205,9 @@ class Dropout(SensorFault):
 class Outliers(SensorFault):
     """Spikes: each tick, with ``probability`` per channel, add ±magnitude (random sign)."""
 
-    probability: float = 0.0
+    probability: float = probability("outlier probability")
     magnitude: tuple[float, ...] = per_channel("outlier magnitude")
     kind = "outliers"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not 0.0 <= self.probability <= 1.0:
-            raise ValueError("outlier probability must be in [0, 1]")
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         hit = self._rng.random(len(self.channels)) < self.probability

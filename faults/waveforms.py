@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 class Waveform(ABC):
@@ -33,30 +33,39 @@ class Constant(Waveform):
 
 
 @dataclass(frozen=True)
-class Sine(Waveform):
-    """w(t) = offset + amplitude · sin(2π · frequency · t + phase); frequency in Hz, phase in rad."""
+class Periodic(Waveform):
+    """w(t) = offset + amplitude · p(t), p a profile of period 1 / ``frequency`` (Hz) in [−1, 1]."""
 
     amplitude: float
     frequency: float
-    phase: float = 0.0
-    offset: float = 0.0
+    offset: float = field(default=0.0, kw_only=True)
 
     def __call__(self, t: float) -> float:
-        return self.offset + self.amplitude * math.sin(2.0 * math.pi * self.frequency * t + self.phase)
+        return self.offset + self.amplitude * self.profile(t)
+
+    @abstractmethod
+    def profile(self, t: float) -> float:
+        """p(t)."""
 
 
 @dataclass(frozen=True)
-class Square(Waveform):
-    """w(t) = offset ± amplitude: +amplitude for the first ``duty`` fraction of each period."""
+class Sine(Periodic):
+    """p(t) = sin(2π · frequency · t + phase), phase in rad."""
 
-    amplitude: float
-    frequency: float
+    phase: float = 0.0
+
+    def profile(self, t: float) -> float:
+        return math.sin(2.0 * math.pi * self.frequency * t + self.phase)
+
+
+@dataclass(frozen=True)
+class Square(Periodic):
+    """p(t) = ±1: +1 for the first ``duty`` fraction of each period."""
+
     duty: float = 0.5
-    offset: float = 0.0
 
-    def __call__(self, t: float) -> float:
-        phase = (t * self.frequency) % 1.0
-        return self.offset + (self.amplitude if phase < self.duty else -self.amplitude)
+    def profile(self, t: float) -> float:
+        return 1.0 if (t * self.frequency) % 1.0 < self.duty else -1.0
 
 
 @dataclass(frozen=True)

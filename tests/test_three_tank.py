@@ -171,33 +171,28 @@ def test_set_state_puts_the_flows_at_torricelli(plant):
     np.testing.assert_allclose(plant._tendons @ plant.data.qvel, tt.level_rates(h, 40.0, 20.0, 0.05), rtol=1e-7)
 
 
+def _levels(plant: Plant, start: dict[str, float], pumps: list[float], leak: float, ticks: int) -> np.ndarray:
+    """The levels tick after tick from ``start``, with constant pump flows and unknown input v."""
+    plant.reset(start)
+    levels = []
+    for _ in range(ticks):
+        plant.step(np.array(pumps), np.array([leak]))
+        levels.append(plant.state())
+    return np.array(levels)
+
+
 def test_levels_stay_between_empty_and_full():
     plant = Plant(INFO, 0.1)
     # Tank 2 drains (through the drain and into tank 3) and, with no inflow, stays empty.
-    plant.reset({"h1": 0.0, "h2": 5.0, "h3": 0.0})
-    levels = []
-    for _ in range(2000):
-        plant.step(np.array([0.0, 0.0]), np.array([0.0]))
-        levels.append(plant.state())
-    levels = np.array(levels)
+    levels = _levels(plant, {"h1": 0.0, "h2": 5.0, "h3": 0.0}, [0.0, 0.0], 0.0, 2000)
     assert levels.min() > -1e-4 and np.abs(levels[-1]).max() < 1e-3
     # Pumping at full flow into a full tank 1: its level holds at h_max (the surplus goes on
     # through the pipes, as in a closed tank; see three_tank.xml), and so do the others in turn.
-    plant.reset({"h1": 61.0, "h2": 40.0, "h3": 55.0})
-    levels = []
-    for _ in range(3000):
-        plant.step(np.array([100.0, 100.0]), np.array([0.0]))
-        levels.append(plant.state())
-    levels = np.array(levels)
+    levels = _levels(plant, {"h1": 61.0, "h2": 40.0, "h3": 55.0}, [100.0, 100.0], 0.0, 3000)
     assert levels.max() < tt.H_MAX + 0.01
     np.testing.assert_allclose(levels[-1], tt.H_MAX, atol=0.01)
     # A leak from empty tanks cannot take them below empty.
-    plant.reset({"h1": 2.0, "h2": 1.0, "h3": 1.5})
-    levels = []
-    for _ in range(100):
-        plant.step(np.array([0.0, 0.0]), np.array([-0.1]))
-        levels.append(plant.state())
-    assert np.array(levels).min() > -0.05
+    assert _levels(plant, {"h1": 2.0, "h2": 1.0, "h3": 1.5}, [0.0, 0.0], -0.1, 100).min() > -0.05
 
 
 def test_the_operating_inflows_hold_the_operating_levels(plant):

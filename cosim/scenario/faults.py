@@ -42,14 +42,34 @@ class Windowed(Strict):
     per_channel: ClassVar[tuple[str, ...]] = ()
     """The keys that hold one value per channel (checked against the number of channels)."""
 
+    model_names: ClassVar[dict[str, str]] = {}
+    """Keys whose model parameter has another name (key -> parameter)."""
+
     @property
     def targets(self) -> list[str] | None:
         """The signals it acts on, by name; None: all of them."""
         return getattr(self, self.acts_on)
 
     def parameters(self, channels: int) -> dict[str, Any]:
-        """The fault model's keyword arguments besides its channels, window and label."""
-        return {}
+        """The fault model's keyword arguments besides its channels, window and label: the table's
+        other keys, a waveform built, a list as a tuple, a per-channel one widened to ``channels``."""
+        parameters = {}
+        for key in type(self).model_fields.keys() - _NOT_PARAMETERS:
+            value = _model_value(getattr(self, key))
+            if key in self.per_channel and value is not None:
+                value = _widen(value, channels)
+            parameters[self.model_names.get(key, key)] = value
+        return parameters
+
+
+_NOT_PARAMETERS = {"kind", "name", "start", "end", "sensors", "actuators"}
+
+
+def _model_value(value: Any) -> Any:
+    """A table's value as a fault model takes it (the only tables in a fault's are waveforms)."""
+    if isinstance(value, list):
+        return tuple(_model_value(item) for item in value)
+    return build_waveform(value) if isinstance(value, Strict) else value
 
 
 class OnSensors(Windowed):
@@ -69,17 +89,11 @@ class BiasSpec(OnSensors):
     amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
     per_channel = ("value",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
-
 
 class DriftSpec(OnSensors):
     kind: Literal["drift"]
     rate: Vector
     per_channel = ("rate",)
-
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"rate": _widen(self.rate, channels)}
 
 
 class GainSpec(OnSensors):
@@ -87,17 +101,11 @@ class GainSpec(OnSensors):
     gain: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
     per_channel = ("gain",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"gain": _widen(tuple(build_waveform(g) for g in self.gain), channels)}
-
 
 class GaussianNoiseSpec(OnSensors):
     kind: Literal["gaussian_noise"]
     std: Annotated[Vector, Field(min_length=1)]
     per_channel = ("std",)
-
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"std": _widen(self.std, channels)}
 
 
 class UniformNoiseSpec(OnSensors):
@@ -105,25 +113,16 @@ class UniformNoiseSpec(OnSensors):
     bound: Annotated[Vector, Field(min_length=1)]
     per_channel = ("bound",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"bound": _widen(self.bound, channels)}
-
 
 class StuckSpec(OnSensors):
     kind: Literal["stuck"]
     value: Vector | None = None
     per_channel = ("value",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"value": None if self.value is None else _widen(self.value, channels)}
-
 
 class DropoutSpec(OnSensors):
     kind: Literal["dropout"]
     probability: Probability
-
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"probability": self.probability}
 
 
 class OutliersSpec(OnSensors):
@@ -132,17 +131,11 @@ class OutliersSpec(OnSensors):
     magnitude: Vector
     per_channel = ("magnitude",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"probability": self.probability, "magnitude": _widen(self.magnitude, channels)}
-
 
 class ActuatorEffectivenessSpec(OnActuators):
     kind: Literal["actuator_effectiveness"]
     effectiveness: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
     per_channel = ("effectiveness",)
-
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"effectiveness": _widen(tuple(build_waveform(w) for w in self.effectiveness), channels)}
 
 
 class ActuatorOffsetSpec(OnActuators):
@@ -153,9 +146,6 @@ class ActuatorOffsetSpec(OnActuators):
     amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
     per_channel = ("value",)
 
-    def parameters(self, channels: int) -> dict[str, Any]:
-        return {"value": _widen(self.value, channels), "amplitude": build_waveform(self.amplitude)}
-
 
 class OnBus(Windowed):
     """A bus fault (``faults.models.BusFault``): it acts on frames, not on signal values."""
@@ -165,9 +155,6 @@ class OnBus(Windowed):
     @property
     def targets(self) -> list[str] | None:
         return None
-
-    def bus_parameters(self) -> dict[str, Any]:
-        return {}
 
 
 class OnMessages(OnBus):
@@ -185,26 +172,17 @@ class FrameLossSpec(OnMessages):
     burst_length: Annotated[float, Field(ge=1.0)] = 1.0
     """Mean frames per burst; 1: every frame lost independently."""
 
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"messages": tuple(self.messages), "probability": self.probability, "burst_length": self.burst_length}
-
 
 class FrameDelaySpec(OnMessages):
     kind: Literal["frame_delay"]
     delay: NonNegative
     jitter: NonNegative = 0.0
 
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"messages": tuple(self.messages), "delay": self.delay, "jitter": self.jitter}
-
 
 class FrameCorruptionSpec(OnMessages):
     kind: Literal["frame_corruption"]
     probability: Probability
     retransmit: bool = True
-
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"messages": tuple(self.messages), "probability": self.probability, "retransmit": self.retransmit}
 
 
 class BusOffSpec(OnBus):
@@ -217,52 +195,38 @@ class BusOffSpec(OnBus):
     def targets(self) -> list[str] | None:
         return [self.node]
 
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"node": self.node, "recover": self.recover}
-
 
 class BabblingNodeSpec(OnBus):
     kind: Literal["babbling_node"]
     id: Annotated[int, Field(ge=0, le=0x7FF)] = 0x001
     period: Annotated[float, Field(gt=0.0)] = 0.0001
     length: Annotated[int, Field(ge=0, le=8)] = 8
+    model_names = {"id": "frame_id"}
 
     @property
     def targets(self) -> list[str] | None:
         return [f"0x{self.id:03X}"]
 
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"frame_id": self.id, "period": self.period, "length": self.length}
 
-
-class SpoofingSpec(OnBus):
-    kind: Literal["spoofing"]
+class OnMessage(OnBus):
     message: str
+    """The DBC message an intruder sends, by name."""
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [self.message]
+
+
+class SpoofingSpec(OnMessage):
+    kind: Literal["spoofing"]
     value: Vector
     """The values it sends, one per signal of the message besides ``tick``."""
 
-    @property
-    def targets(self) -> list[str] | None:
-        return [self.message]
 
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"message": self.message, "value": tuple(self.value)}
-
-
-class ReplaySpec(OnBus):
+class ReplaySpec(OnMessage):
     kind: Literal["replay"]
-    message: str
     lag: Annotated[float, Field(gt=0.0)] = 1.0
 
-    @property
-    def targets(self) -> list[str] | None:
-        return [self.message]
-
-    def bus_parameters(self) -> dict[str, Any]:
-        return {"message": self.message, "lag": self.lag}
-
-
-BUS_FAULTS = ("frame_loss", "frame_delay", "frame_corruption", "bus_off", "babbling_node", "spoofing", "replay")
 
 NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
 FaultSpec = Annotated[
@@ -290,13 +254,11 @@ FaultSpec = Annotated[
 def build_fault(spec: FaultSpec | OnBus, label: str, sensors: Sequence[str], actuators: Sequence[str]) -> fm.Fault:
     """The fault model of one table, on the transmitted ``sensors`` or the ``actuators`` (or, for a
     bus fault, on frames)."""
-    if isinstance(spec, OnBus):
-        kind: str = getattr(spec, "kind")  # noqa: B009 (every concrete table has one)
-        return fm.FAULT_MODELS[kind](channels=(), start=spec.start, end=spec.end, label=label, **spec.bus_parameters())
-    signals = list(actuators if spec.acts_on == "actuators" else sensors)
-    names = spec.targets if spec.targets is not None else signals
-    channels = tuple(signals.index(name) for name in names)
-    model = fm.FAULT_MODELS[spec.kind]
+    channels: tuple[int, ...] = ()
+    if not isinstance(spec, OnBus):
+        signals = list(actuators if spec.acts_on == "actuators" else sensors)
+        channels = tuple(signals.index(name) for name in (spec.targets if spec.targets is not None else signals))
+    model = fm.FAULT_MODELS[getattr(spec, "kind")]  # noqa: B009 (every concrete table has one)
     return model(channels=channels, start=spec.start, end=spec.end, label=label, **spec.parameters(len(channels)))
 
 
