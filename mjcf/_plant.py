@@ -30,6 +30,7 @@ class Parameter:
 class PlantInfo:
     """Everything the testbed needs to know about a plant besides its physics.
 
+    ``model_file`` is the MJCF file, in ``mjcf/`` or, for a plant of one's own, an absolute path.
     ``states`` name the components of the MuJoCo state [qpos, qvel, act] in that order, or, with
     ``state_tendons``, the lengths of those tendons.
     ``sensors`` and ``actuators`` name MuJoCo sensors and actuators of the model (same names).

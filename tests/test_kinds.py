@@ -211,12 +211,13 @@ def test_an_installed_entry_point_resolves_and_names_its_distribution(installed)
 
 @pytest.mark.slow
 def test_a_run_s_node_processes_resolve_the_plugin_s_kinds_too(installed, tmp_path):
-    """End to end: the scenario names one estimator by entry point and one by module path; the
-    runner designs them and each node process (PYTHONPATH inherited) resolves its own again."""
+    """End to end: the scenario names its plant by module path (an MJCF file of its own), one
+    estimator by entry point and one by module path; the runner designs them and each node process
+    (PYTHONPATH inherited) resolves its own again."""
     from cosim.analysis.metrics import compute_metrics
     from cosim.run import run
 
-    text = MASSES.replace("duration = 1.0", "duration = 0.5") + (
+    text = MASSES.replace("duration = 1.0", "duration = 0.5").replace('"masses"', f'"{installed}:MY_MASSES"') + (
         '[[estimators]]\nname = "by_entry_point"\nkind = "measured-state"\n'
         f'[[estimators]]\nname = "by_path"\nkind = "{installed}:MeasuredState"\n'
     )
