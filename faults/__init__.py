@@ -35,6 +35,7 @@ from faults.models import (
     Spoofing,
     StuckAt,
     UniformNoise,
+    per_channel_parameters,
 )
 from faults.waveforms import Constant, Exponential, Ramp, Sine, Square, Sum, Waveform
 
@@ -148,4 +149,5 @@ __all__ = [
     "Sum",
     "UniformNoise",
     "Waveform",
+    "per_channel_parameters",
 ]

@@ -39,9 +39,6 @@ class Windowed(Strict):
 
     acts_on: ClassVar[str] = "sensors"
     """Which plant signals it acts on: "sensors" or "actuators"."""
-    per_channel: ClassVar[tuple[str, ...]] = ()
-    """The keys that hold one value per channel (checked against the number of channels)."""
-
     model_names: ClassVar[dict[str, str]] = {}
     """Keys whose model parameter has another name (key -> parameter)."""
 
@@ -49,6 +46,13 @@ class Windowed(Strict):
     def targets(self) -> list[str] | None:
         """The signals it acts on, by name; None: all of them."""
         return getattr(self, self.acts_on)
+
+    @property
+    def per_channel(self) -> tuple[str, ...]:
+        """The keys that hold one value per channel: the model's per-channel parameters."""
+        keys = {parameter: key for key, parameter in self.model_names.items()}
+        model = fm.FAULT_MODELS[getattr(self, "kind")]  # noqa: B009 (every concrete table has one)
+        return tuple(keys.get(name, name) for name in fm.per_channel_parameters(model))
 
     def parameters(self, channels: int) -> dict[str, Any]:
         """The fault model's keyword arguments besides its channels, window and label: the table's
@@ -87,37 +91,31 @@ class BiasSpec(OnSensors):
     kind: Literal["bias"]
     value: Vector
     amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
-    per_channel = ("value",)
 
 
 class DriftSpec(OnSensors):
     kind: Literal["drift"]
     rate: Vector
-    per_channel = ("rate",)
 
 
 class GainSpec(OnSensors):
     kind: Literal["gain"]
     gain: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
-    per_channel = ("gain",)
 
 
 class GaussianNoiseSpec(OnSensors):
     kind: Literal["gaussian_noise"]
     std: Annotated[Vector, Field(min_length=1)]
-    per_channel = ("std",)
 
 
 class UniformNoiseSpec(OnSensors):
     kind: Literal["uniform_noise"]
     bound: Annotated[Vector, Field(min_length=1)]
-    per_channel = ("bound",)
 
 
 class StuckSpec(OnSensors):
     kind: Literal["stuck"]
     value: Vector | None = None
-    per_channel = ("value",)
 
 
 class DropoutSpec(OnSensors):
@@ -129,13 +127,11 @@ class OutliersSpec(OnSensors):
     kind: Literal["outliers"]
     probability: Probability
     magnitude: Vector
-    per_channel = ("magnitude",)
 
 
 class ActuatorEffectivenessSpec(OnActuators):
     kind: Literal["actuator_effectiveness"]
     effectiveness: Annotated[list[WaveformSpec], BeforeValidator(as_list)]
-    per_channel = ("effectiveness",)
 
 
 class ActuatorOffsetSpec(OnActuators):
@@ -144,7 +140,6 @@ class ActuatorOffsetSpec(OnActuators):
     kind: Literal["actuator_offset"]
     value: Vector
     amplitude: WaveformSpec = ConstantSpec(kind="constant", value=1.0)
-    per_channel = ("value",)
 
 
 class OnBus(Windowed):
