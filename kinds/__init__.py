@@ -78,17 +78,25 @@ class Kinds(Mapping[str, T]):
         self.what, self.group, self.base, self.key = what, group, base, key
         self._builtin = dict(builtin)
         self._params, self._instance, self._check = params, instance, check
-        self._resolved: dict[str, tuple[T, Origin]] = {}
+        self._resolved: dict[str, T] = {}
 
     def __getitem__(self, name: str) -> T:
         if name not in self._resolved:
             self._resolved[name] = self._resolve(name)
-        return self._resolved[name][0]
+        return self._resolved[name]
 
     def origin(self, name: str) -> Origin:
-        """Where the kind ``name`` comes from (resolving it first)."""
-        self[name]
-        return self._resolved[name][1]
+        """Where the kind ``name`` comes from, without importing it (a KindError if unknown)."""
+        if name in self._builtin:
+            entry = self._builtin[name]
+            return Origin("built-in", entry if isinstance(entry, str) else _reference(entry))
+        if ":" in name:
+            return Origin("module path", name)
+        point = _entry_points(self.group).get(name)
+        if point is None:
+            raise KindError(self._unknown(name))
+        dist = f"{point.dist.name} {point.dist.version}" if point.dist is not None else "an unnamed distribution"
+        return Origin("entry point", f"{point.module}:{point.attr}", dist)
 
     def __contains__(self, name: object) -> bool:
         """A built-in name without importing it; any other name if it resolves."""
@@ -109,32 +117,24 @@ class Kinds(Mapping[str, T]):
     def __len__(self) -> int:
         return sum(1 for _ in self)
 
-    def _resolve(self, name: str) -> tuple[T, Origin]:
-        if name in self._builtin:
-            entry = self._builtin[name]
-            if isinstance(entry, str):
-                origin = Origin("built-in", entry)
-                found = _attribute(entry)  # a built-in that does not import is a bug: its traceback
-            else:
-                found, origin = entry, Origin("built-in", f"{entry.__module__}:{getattr(entry, '__qualname__', name)}")
-        elif ":" in name:
-            origin = Origin("module path", name)
-            found = self._load(name, lambda: _attribute(name))
-        elif (point := _entry_points(self.group).get(name)) is not None:
-            dist = f"{point.dist.name} {point.dist.version}" if point.dist is not None else "an unnamed distribution"
-            origin = Origin("entry point", point.value, dist)
-            found = self._load(name, point.load)
+    def _resolve(self, name: str) -> T:
+        origin = self.origin(name)
+        entry = self._builtin.get(name)
+        if entry is not None and not isinstance(entry, str):
+            found = entry
+        elif origin.source == "built-in":
+            found = _attribute(origin.target)  # a built-in that does not import is a bug: its traceback
         else:
-            raise KindError(self._unknown(name))
+            found = self._load(name, origin.target)
         problems = self._is_a(found) or [*self._naming(name, found, origin), *self._members(found)]
         if problems:
             raise KindError(f"{self.what} {name!r} ({origin}): {'; '.join(problems)}")
-        return found, origin
+        return found
 
-    def _load(self, name: str, load: Callable[[], Any]) -> Any:
+    def _load(self, name: str, target: str) -> Any:
         """Import a plugin; whatever goes wrong in its module is one line, not its traceback."""
         try:
-            return load()
+            return _attribute(target)
         except Exception as error:  # noqa: BLE001 (anything a plugin's module raises on import)
             raise KindError(f"{self.what} {name!r}: cannot import it ({type(error).__name__}: {error})") from None
 
@@ -175,6 +175,11 @@ class Kinds(Mapping[str, T]):
             f"unknown {self.what} {name!r}{hint}; known {self.what}s: {', '.join(known)} "
             "(or a module path, package.module:Name)"
         )
+
+
+def _reference(found: Any) -> str:
+    """The ``module:attribute`` of a class or function."""
+    return f"{found.__module__}:{found.__qualname__}"
 
 
 def _attribute(reference: str) -> Any:

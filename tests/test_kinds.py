@@ -167,6 +167,7 @@ def test_a_kind_is_imported_on_first_lookup_and_the_entry_points_only_for_a_name
         before = [m for m in watched if m in sys.modules]
         assert "kalman" in estimators.ESTIMATORS and "vessel" in mjcf.PLANTS
         estimators.ESTIMATORS["kalman"], CONTROLLERS["pid"], faults.FAULT_MODELS["bias"], mjcf.PLANTS["masses"]
+        assert str(estimators.ESTIMATORS.origin("uio")) == "built-in (estimators.uio:UnknownInputObserver)"
         after = [m for m in watched if m in sys.modules]
         read = kinds._entry_points.cache_info().currsize
         "nothing-like-it" in estimators.ESTIMATORS, "nor-this" in estimators.ESTIMATORS
