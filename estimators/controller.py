@@ -79,6 +79,7 @@ def _per_loop(value: tuple[float, ...], loops: int, parameter: str) -> np.ndarra
 
 
 CONTROL_ERROR = Diagnostic("e_{}", "", "control error r - y of the loop on {}", 1e6, 1e-6, DiagnosticKind.CONTROL_ERROR)
+"""The PID's diagnostics: the control error of each output (0 for an output without a loop)."""
 
 
 class PidController(Controller):

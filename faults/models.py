@@ -37,14 +37,14 @@ def profiles(what: str) -> Any:
     return field(default=(), metadata={"profiles": what})
 
 
-def per_channel_parameters(model: type[Fault]) -> tuple[str, ...]:
-    """The parameters of a fault model that hold one value per channel."""
-    return tuple(f.name for f in fields(model) if {"per_channel", "profiles"} & f.metadata.keys())
-
-
 def probability(what: str) -> Any:
     """A parameter in [0, 1]; ``what`` names it in messages."""
     return field(default=0.0, metadata={"probability": what})
+
+
+def per_channel_parameters(model: type[Fault]) -> tuple[str, ...]:
+    """The parameters of a fault model that hold one value per channel."""
+    return tuple(f.name for f in fields(model) if {"per_channel", "profiles"} & f.metadata.keys())
 
 
 @dataclass
