@@ -10,20 +10,21 @@ from scipy.optimize import lsq_linear
 
 import estimators
 from estimators.base import ParameterError
+from estimators.lft_design import lft_uio_design, sensor_fault_lft
 from estimators.lmi import (
     DesignError,
     SensorFaultModel,
     box_coordinates,
     box_vertices,
-    lft_uio_design,
-    lpv_uio_design,
     max_spectral_radius,
-    sensor_fault_lft,
     uio_matrices,
 )
+from estimators.lpv_design import lpv_uio_design
 from estimators.model import LinearModel
-from estimators.reconciliation import _Sample, model_window, window_gains
+from estimators.model_window import model_window, window_gains
+from estimators.reconciliation import _Sample
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
+from tests.test_lmi import SMALL
 
 # IJC 2018, eq. (59), as printed
 A, B, C, E = PAPER_A, PAPER_B, PAPER_C, PAPER_E
@@ -162,13 +163,7 @@ def test_lpv_design_on_a_small_plant_certifies_the_scheduled_observer():
     """Theorem 1 on a 2-state plant with 3 sensors (8 vertices): every LMI holds at the solution and,
     with the parameter switching arbitrarily between ticks, the Lyapunov decrease (29) holds for
     V = eᵀP(ρ̂)e with the scheduled gain L(ρ̂) = G(ρ̂)⁻¹Y(ρ̂)."""
-    model = SensorFaultModel(
-        np.array([[0.95, 0.05], [0.0, 0.9]]),
-        np.eye(2),
-        np.array([[1.0], [0.5]]),
-        np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]),
-        np.ones((3, 1)),
-    )
+    model = SMALL
     low, high = np.full(3, 0.5), np.ones(3)
     design = lpv_uio_design(model, low, high)
     assert design.min_eigenvalue > 0 and design.P.shape == (8, 3, 3)
