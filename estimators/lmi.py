@@ -36,6 +36,7 @@ random points of Γ.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass
 
@@ -95,21 +96,21 @@ class SensorFaultModel:
     def q(self) -> int:
         return self.F.shape[1]
 
-    @property
+    @functools.cached_property
     def Abar(self) -> np.ndarray:
         """Ā = blkdiag(A, I_q), eq. (8)."""
         n, q = self.n, self.q
         return np.block([[self.A, np.zeros((n, q))], [np.zeros((q, n)), np.eye(q)]])
 
-    @property
+    @functools.cached_property
     def Bbar(self) -> np.ndarray:
         return np.vstack([self.B, np.zeros((self.q, self.B.shape[1]))])
 
-    @property
+    @functools.cached_property
     def Ebar(self) -> np.ndarray:
         return np.vstack([self.E, np.zeros((self.q, self.E.shape[1]))])
 
-    @property
+    @functools.cached_property
     def Fbar(self) -> np.ndarray:
         """F̄ = [0; I_q]: how the bias increment Δb enters the augmented state."""
         return np.vstack([np.zeros((self.n, self.q)), np.eye(self.q)])
@@ -118,7 +119,12 @@ class SensorFaultModel:
         """C̄_γ = [Δ(γ) C_y, F], eq. (8), shape (m, n + q)."""
         return np.hstack([np.asarray(gamma, dtype=float)[:, None] * self.C, self.F])
 
-    @property
+    @functools.cached_property
+    def Ebar_G_pinv(self) -> np.ndarray:
+        """Ē G⁺ (G⁺ = (GᵀG)⁻¹Gᵀ), the constant factor of Q in eq. (60)."""
+        return self.Ebar @ np.linalg.pinv(self.G)
+
+    @functools.cached_property
     def G(self) -> np.ndarray:
         """G = C_y E, so that C̄_γ Ē = Δ(γ) G (Sec. 4)."""
         return self.C @ self.E
@@ -137,7 +143,7 @@ def uio_matrices(model: SensorFaultModel, gamma: np.ndarray, *, form: str = "pin
         CE = Cbar @ Ebar
         Q = Ebar @ np.linalg.pinv(CE)
     elif form == "lft":
-        Q = Ebar @ np.linalg.pinv(model.G) / gamma[None, :]
+        Q = model.Ebar_G_pinv / gamma[None, :]
     else:
         raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
     T = np.eye(model.n + model.q) - Q @ Cbar
@@ -179,8 +185,15 @@ def box_coordinates(gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> 
     box, ordered as ``box_vertices``. Σ ρ_i = 1, ρ ≥ 0 and Σ ρ_i γ_i = γ; so any map affine in
     each γ_j, like C̄_γ, equals Σ ρ_i C̄_γi exactly (the embedding (15))."""
     lam = np.clip((np.asarray(gamma, dtype=float) - lower) / (np.asarray(upper) - lower), 0.0, 1.0)
-    bits = box_vertices(np.zeros(lam.size), np.ones(lam.size))
-    return np.prod(np.where(bits == 1, lam, 1.0 - lam), axis=1)
+    return np.prod(np.where(_corner_bits(lam.size), lam, 1.0 - lam), axis=1)
+
+
+@functools.lru_cache(maxsize=8)
+def _corner_bits(m: int) -> np.ndarray:
+    """Which corner of the m-dimensional unit box has coordinate 1 where, ordered as ``box_vertices``."""
+    bits = box_vertices(np.zeros(m), np.ones(m)) == 1
+    bits.flags.writeable = False
+    return bits
 
 
 # -- checks ------------------------------------------------------------------------------------

@@ -26,9 +26,8 @@ virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and tha
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections import deque
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +38,7 @@ from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, uio_m
 from estimators.lpv_design import LpvDesign, lpv_uio_design
 from estimators.model import LinearModel
 from estimators.model_window import model_window, window_gains
+from estimators.sample_window import Sample, SampleWindow
 
 Matrix = tuple[tuple[float, ...], ...]
 
@@ -112,19 +112,6 @@ def _vector(value: tuple[float, ...] | None, size: int, name: str, default: floa
     if array.shape != (size,):
         raise ParameterError(name, f"expected {size} values (one per sensor), got {array.size}")
     return array
-
-
-class _Sample(NamedTuple):
-    """One tick in the parameter estimator's window."""
-
-    y: np.ndarray
-    """The readings the UIO used (a missing one replaced by its prediction)."""
-    x_p: np.ndarray
-    b: np.ndarray
-    measured: np.ndarray
-    """The readings as received (NaN where one did not arrive)."""
-    u: np.ndarray
-    """The known inputs and the affine term's 1, [u; 1], held from this tick to the next."""
 
 
 class _Reconciliator(Estimator):
@@ -220,6 +207,8 @@ class UioReconciliator(_Reconciliator):
         if x0.shape != (n,):
             raise ParameterError("x0", f"expected {n} values ({', '.join(model.states)}), got {x0.size}")
         self.x_bar0 = np.concatenate([x0 - self.x_s, np.zeros(self.aug.q)])
+        self.gamma_names = [f"gamma_{name}" for name in model.outputs]
+        self.bias_names = self._bias_names(self.aug.q)
         self.model_window = (
             model_window(model.A, self.aug.B, model.E, model.C, params.window)
             if params.gain_estimator == "model"
@@ -269,7 +258,10 @@ class UioReconciliator(_Reconciliator):
         self.x_hat: np.ndarray | None = None
         self.previous: tuple[np.ndarray, np.ndarray] | None = None  # (y, u) of the previous tick
         # The gain test keeps one sample more: the UIO's state before a sub-window of N samples.
-        self.history: deque[_Sample] = deque(maxlen=self.params.window + (self.gain_test is not None))
+        n, m, q = self.model.n, self.model.p, self.aug.q
+        sizes = Sample(m, n, q, m, self.aug.B.shape[1])
+        self.history = SampleWindow(self.params.window + (self.gain_test is not None), sizes)
+        self.uio_gamma = b""  # the γ̂ of ``uio``, as bytes
         self.pe = 0.0
         self.fit = 0.0
         self.decision: GainDecision | None = None
@@ -310,30 +302,36 @@ class UioReconciliator(_Reconciliator):
         assert self.x_hat is not None
         x_p, b = self.x_hat[:n], self.x_hat[n:]
         z = float(self.Hz @ (self.model.C @ x_p))  # eq. (6)
-        diagnostics = {f"gamma_{name}": float(g) for name, g in zip(self.model.outputs, self.gamma)}
-        diagnostics |= {name: float(v) for name, v in zip(self._bias_names(self.aug.q), b)}
+        diagnostics = dict(zip(self.gamma_names, self.gamma.tolist())) | dict(zip(self.bias_names, b.tolist()))
         diagnostics |= {"zhat": z, "pe": self.pe, "fit": min(self.fit, 999.0)}
         return Estimate(x_p + self.x_s, diagnostics)
 
-    def _observe(self, y: np.ndarray, u_bar: np.ndarray, gamma: np.ndarray, coast: bool = False) -> _Sample:
+    def _observe(self, y: np.ndarray, u_bar: np.ndarray, gamma: np.ndarray, coast: bool = False) -> Sample:
         """One step of the UIO (10) with T, Q and L at ``gamma`` (Algorithm 1 step 5, Algorithm 2
         step 4): x̂(t) = T x̄(t) + L (y(t−1) − C̄ x̂(t−1)) + Q y(t), x̄(t) = Ā x̂(t−1) + B̄ u(t−1).
         A reading that did not arrive is replaced by its prediction C̄ x̄(t); with ``coast`` all
         are, and x̂(t) is the model's prediction x̄(t) (eq. (11): T + Q C̄ = I)."""
-        Q, T = uio_matrices(self.aug, gamma, form=self.form)
-        Cbar = self.aug.Cbar(gamma)
+        Q, T, Cbar, L = self._uio(gamma)
         if self.x_hat is None or self.previous is None:  # t = 0: the UIO's own reconstruction from y(0) about x̂₀
             prior = self.x_bar0
             x_next = T @ prior
         else:
             y_prev, u_prev = self.previous
             prior = self.Abar @ self.x_hat + self.Bbar @ u_prev
-            x_next = T @ prior + self.gain(gamma) @ (y_prev - Cbar @ self.x_hat)  # eq. (10)
+            x_next = T @ prior + L @ (y_prev - Cbar @ self.x_hat)  # eq. (10)
         used = np.where(np.isnan(y) | coast, Cbar @ prior, y)
         self.x_hat = x_next + Q @ used
         self.previous = (used, u_bar)
         n = self.model.n
-        return _Sample(used, self.x_hat[:n].copy(), self.x_hat[n:].copy(), y, u_bar)
+        return Sample(used, self.x_hat[:n], self.x_hat[n:], y, u_bar)
+
+    def _uio(self, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Q, T (eq. (11)–(14)), C̄ and L at γ̂, computed again only when γ̂ changes."""
+        key = gamma.tobytes()
+        if key != self.uio_gamma:
+            Q, T = uio_matrices(self.aug, gamma, form=self.form)
+            self.uio_matrices, self.uio_gamma = (Q, T, self.aug.Cbar(gamma), self.gain(gamma)), key
+        return self.uio_matrices
 
     def _tested_step(self, y: np.ndarray, u_bar: np.ndarray) -> None:
         """One tick with ``gain_estimator = "test"``. The gain test runs first, on the window up to
@@ -343,7 +341,7 @@ class UioReconciliator(_Reconciliator):
         since the data reject its sensor model (``_observe`` with ``coast``); they are used by the
         replay once the gains are identified. After N ticks without identification the window no
         longer holds the change, and the UIO goes on with γ̂ as it is."""
-        self.history.append(_Sample(y, np.zeros(self.model.n), np.zeros(self.aug.q), y, u_bar))
+        self.history.append(Sample(y, np.zeros(self.model.n), np.zeros(self.aug.q), y, u_bar))
         if len(self.history) < self.params.window:
             self.history[-1] = self._observe(y, u_bar, self.gamma)
             return
@@ -372,7 +370,7 @@ class UioReconciliator(_Reconciliator):
         clipping its unconstrained minimizer. A sensor whose regressor column is zero (rank φ < m,
         condition (54)) keeps its previous estimate.
         """
-        ys, xs, bs = (np.array([getattr(sample, field) for sample in self.history]) for field in ("y", "x_p", "b"))
+        ys, xs, bs = (self.history.field(name) for name in ("y", "x_p", "b"))
         s = xs @ self.model.C.T  # (N, m)
         r = ys - bs @ self.F.T
         energy = np.sum(s * s, axis=0)
@@ -392,7 +390,7 @@ class UioReconciliator(_Reconciliator):
         excite the gains (σ ratio below ``pe_tol``) or that no single γ explains (relative residual
         above ``fit_tol``) keeps the previous estimate."""
         assert self.model_window is not None
-        ys, us = (np.array([getattr(sample, field) for sample in self.history]) for field in ("measured", "u"))
+        ys, us = self.history.field("measured"), self.history.field("u")
         gamma, sv, self.fit = window_gains(self.model_window, ys, us, self.lower, self.upper)
         self.pe = self._excitation(sv, self.model.p)
         return gamma if self.pe > 0.0 and self.fit <= self.params.fit_tol else self.gamma
@@ -400,8 +398,8 @@ class UioReconciliator(_Reconciliator):
     def _test_gamma(self) -> GainDecision:
         """The χ² test of the last N samples (``decide_gains``): γ̂ is kept unless they reject it."""
         assert self.gain_test is not None
-        window = list(self.history)[-self.params.window :]
-        ys, us = (np.array([getattr(sample, field) for sample in window]) for field in ("measured", "u"))
+        N = self.params.window
+        ys, us = self.history.field("measured", N), self.history.field("u", N)
         self.decision = decide_gains(
             self.gain_test,
             ys,
@@ -495,7 +493,9 @@ class LpvUioReconciliator(UioReconciliator):
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         rho = box_coordinates(gamma, self.lower, self.upper)
-        return np.linalg.solve(np.tensordot(rho, self.G_vertices, axes=1), np.tensordot(rho, self.Y_vertices, axes=1))
+        l, nx, m = self.Y_vertices.shape
+        G = (rho @ self.G_vertices.reshape(l, nx * nx)).reshape(nx, nx)  # Σ ρ_i G_i
+        return np.linalg.solve(G, (rho @ self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
 
     def design_params(self) -> dict[str, Any]:
         l, nx = self.G_vertices.shape[:2]
