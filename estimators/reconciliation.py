@@ -259,7 +259,7 @@ class UioReconciliator(_Reconciliator):
         self.previous: tuple[np.ndarray, np.ndarray] | None = None  # (y, u) of the previous tick
         # The gain test keeps one sample more: the UIO's state before a sub-window of N samples.
         n, m, q = self.model.n, self.model.p, self.aug.q
-        sizes = Sample(m, n, q, m, self.aug.B.shape[1])
+        sizes = (m, n, q, m, self.aug.B.shape[1])  # y, x_p, b, measured, u of a Sample
         self.history = SampleWindow(self.params.window + (self.gain_test is not None), sizes)
         self.uio_gamma = b""  # the γ̂ of ``uio``, as bytes
         self.pe = 0.0

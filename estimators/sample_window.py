@@ -31,8 +31,8 @@ class SampleWindow:
     """The last ``capacity`` samples, oldest first: appended one by one (the oldest drops out), read
     field by field as arrays (``field``), and rewritten in place (the gain test's replay)."""
 
-    def __init__(self, capacity: int, sizes: Sample) -> None:
-        """``sizes``: the length of each field of a sample."""
+    def __init__(self, capacity: int, sizes: tuple[int, int, int, int, int]) -> None:
+        """``sizes``: the length of each field of a ``Sample``, in its order."""
         self.capacity = capacity
         self.arrays = Sample(*(np.zeros((2 * capacity, size)) for size in sizes))
         self.start = 0
