@@ -136,19 +136,19 @@ def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """
     gamma = Y.T * phi  # Γ(φ); S = ΓᵀΓ is never formed, which keeps |Γ z|² accurate near zero
     gz = gamma @ z
-    Sz = gamma.T @ gz
-    zSz = gz @ gz
+    zSz = float(gz @ gz)
     S_diag = np.einsum("ij,ij->j", gamma, gamma)
     if zSz <= 1e-28 * max(S_diag.sum(), np.finfo(float).tiny):
         return z
     best_i, best_cost, best_zeta = -1, np.inf, 0.0
-    for i in range(z.size):
-        beta0, beta1, beta2 = Sz[i] - z[i] * zSz, S_diag[i] - zSz, z[i] * S_diag[i] - Sz[i]
+    # the p candidates in Python floats: the same IEEE arithmetic, without numpy's per-scalar cost
+    for i, (zi, Szi, Sii) in enumerate(zip(z.tolist(), (gamma.T @ gz).tolist(), S_diag.tolist())):
+        beta0, beta1, beta2 = Szi - zi * zSz, Sii - zSz, zi * Sii - Szi
         zeta = line_search_step(beta0, beta1, beta2)
         if np.isinf(zeta):
-            cost = S_diag[i]
+            cost = Sii
         else:
-            cost = (zSz + 2 * zeta * Sz[i] + zeta * zeta * S_diag[i]) / (1 + 2 * zeta * z[i] + zeta * zeta)
+            cost = (zSz + 2 * zeta * Szi + zeta * zeta * Sii) / (1 + 2 * zeta * zi + zeta * zeta)
         if cost < best_cost:
             best_i, best_cost, best_zeta = i, cost, zeta
     if np.isinf(best_zeta):
@@ -279,6 +279,8 @@ class AdaptivePseudoinverseObserver(Estimator):
         self.h = 0
         self.phi_filtered = np.zeros(p)
         self.phi_hat = np.zeros(p)
+        self.names = {prefix: [f"{prefix}_{o}" for o in model.outputs] for prefix in ("phihat", "z", "s")}
+        self.names["inj"] = [f"inj_{name}" for name in model.states]
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
@@ -314,13 +316,11 @@ class AdaptivePseudoinverseObserver(Estimator):
                 self.z = optimizer_step(z, phi_hat, self.Y)  # (16), (37e)
             self.s, self.h = select(s, z, self.Y, self.params.epsilon)  # (17) / (52)
             self.bias.update(y, du)  # (7a)
-        diagnostics = self._named("phihat", self.Sigma.T @ self.phi_hat)
-        diagnostics |= self._named("z", z) | self._named("s", s) | {"h": float(h)}
-        diagnostics |= {f"inj_{name}": float(v) for name, v in zip(self.model.states, injected)}
+        names = self.names
+        diagnostics = dict(zip(names["phihat"], (self.Sigma.T @ self.phi_hat).tolist()))
+        diagnostics |= dict(zip(names["z"], z.tolist())) | dict(zip(names["s"], s.tolist())) | {"h": float(h)}
+        diagnostics |= dict(zip(names["inj"], injected.tolist()))
         return Estimate(x_k.copy(), diagnostics)
-
-    def _named(self, prefix: str, values: np.ndarray) -> dict[str, float]:
-        return {f"{prefix}_{name}": float(v) for name, v in zip(self.model.outputs, values)}
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """The bias's effect on the injection, Π(s)(Σφ − h Σφ̂) (R(s)⁻¹Γ(φ)s of eq. (19)–(20), (54))."""
