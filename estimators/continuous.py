@@ -335,7 +335,8 @@ def integrate(
         step, error = _SOLUTION_AND_ERROR @ stages
         w_new = w + step
         ratio = float(np.max(np.abs(error) / (atol + rtol * np.maximum(size, np.abs(w_new)))))
-        factor = min(5.0, max(0.2, 0.9 * ratio**-0.25)) if ratio > 0 else 5.0
+        # the next step: at most 5 times longer; a fifth as long if the error is not finite (NaN included)
+        factor = 5.0 if ratio == 0 else min(5.0, max(0.2, 0.9 * ratio**-0.25))
         if ratio <= 1.0:
             t, w = t + h, w_new
             np.maximum(size, np.abs(w), out=size)
