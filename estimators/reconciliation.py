@@ -374,10 +374,13 @@ class UioReconciliator(_Reconciliator):
         s = xs @ self.model.C.T  # (N, m)
         r = ys - bs @ self.F.T
         energy = np.sum(s * s, axis=0)
-        gamma = self.gamma.copy()
         identified = energy > 0.0
-        gamma[identified] = np.sum(r * s, axis=0)[identified] / energy[identified]
-        gamma = np.clip(gamma, self.lower, self.upper)
+        if identified.all():
+            gamma = np.sum(r * s, axis=0) / energy
+        else:
+            gamma = self.gamma.copy()
+            gamma[identified] = np.sum(r * s, axis=0)[identified] / energy[identified]
+        gamma = np.minimum(np.maximum(gamma, self.lower), self.upper)  # clipped to Γ
         size = np.linalg.norm(r)
         self.fit = float(np.linalg.norm(r - gamma * s) / size) if size > 0 else 0.0
         # Condition (55): rank X̂_p = n, as the ratio of extreme singular values.
