@@ -7,9 +7,10 @@ Workload: the coupled masses of TAC 2024 (Table I, τ = 0.01 s) with the sensors
 (p = 3; ``--p4`` adds x2 − x1) and the constant bias [1, −1.5, 0.5], after the adaptation has
 settled; the continuous-time observer of CDC 2016 runs on its own 3-state example with the fault
 of Example 1 and output noise, at its scenarios' sample time 0.02 s; the IJC 2018 reconciliators run
-on the paper's three-tank model (58)-(59) (T = 1 s) with a bias and the gain faults of its scenario,
-LFT-UIO-SR with the paper's gain estimator (53) and with the model window (N = 50). Each figure is
-the best of ``--repeat`` timings of ``--steps`` consecutive steps.
+on the paper's three-tank model (58)-(59) (T = 1 s) with a bias and the gain faults of its scenario:
+LFT-UIO-SR with the paper's gain estimator (53), with the model window (N = 50) and with the gain
+test, LPV-UIO-SR with (53) (its Theorem 1 design, about 8 s, is solved once), and no reconciliation.
+Each figure is the best of ``--repeat`` timings of ``--steps`` consecutive steps.
 
 Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R]
 """
@@ -169,6 +170,20 @@ def main() -> int:
         yst,
         ust,
     )
+    cases["lft-uio-sr_test"] = (
+        lambda: estimators.create(
+            "lft-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, "L": L, "gain_estimator": "test", "noise_std": 0.01}
+        ),
+        yst,
+        ust,
+    )
+    GY = estimators.create("lpv-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5}).design_params()  # Theorem 1
+    cases["lpv-uio-sr_eq53"] = (
+        lambda: estimators.create("lpv-uio-sr", tank, {"Hz": hz, "design_gamma_min": 0.5, **GY}),
+        yst,
+        ust,
+    )
+    cases["no-reconciliation"] = (lambda: estimators.create("no-reconciliation", tank, {"Hz": hz}), yst, ust)
     warmup = args.steps // 3
     figures = dict.fromkeys(cases, np.inf)
     for _ in range(args.repeat):  # round by round: a load that comes and goes slows every estimator alike

@@ -32,7 +32,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from estimators.lmi import SensorFaultModel, lft_uio_design, lpv_uio_design, max_spectral_radius
+from estimators.lft_design import lft_uio_design  # noqa: E402
+from estimators.lmi import SensorFaultModel, max_spectral_radius  # noqa: E402
+from estimators.lpv_design import lpv_uio_design  # noqa: E402
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
 PAPER_SECONDS = {"lpv": 9 * 3600.0, "lft": 6 * 60.0}

@@ -137,19 +137,19 @@ def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
     """
     gamma = Y.T * phi  # Γ(φ); S = ΓᵀΓ is never formed, which keeps |Γ z|² accurate near zero
     gz = gamma @ z
-    Sz = gamma.T @ gz
-    zSz = gz @ gz
+    zSz = float(gz @ gz)
     S_diag = np.einsum("ij,ij->j", gamma, gamma)
     if zSz <= 1e-28 * max(S_diag.sum(), np.finfo(float).tiny):
         return z
     best_i, best_cost, best_zeta = -1, np.inf, 0.0
-    for i in range(z.size):
-        beta0, beta1, beta2 = Sz[i] - z[i] * zSz, S_diag[i] - zSz, z[i] * S_diag[i] - Sz[i]
+    # the p candidates in Python floats: the same IEEE arithmetic, without numpy's per-scalar cost
+    for i, (zi, Szi, Sii) in enumerate(zip(z.tolist(), (gamma.T @ gz).tolist(), S_diag.tolist())):
+        beta0, beta1, beta2 = Szi - zi * zSz, Sii - zSz, zi * Sii - Szi
         zeta = line_search_step(beta0, beta1, beta2)
         if np.isinf(zeta):
-            cost = S_diag[i]
+            cost = Sii
         else:
-            cost = (zSz + 2 * zeta * Sz[i] + zeta * zeta * S_diag[i]) / (1 + 2 * zeta * z[i] + zeta * zeta)
+            cost = (zSz + 2 * zeta * Szi + zeta * zeta * Sii) / (1 + 2 * zeta * zi + zeta * zeta)
         if cost < best_cost:
             best_i, best_cost, best_zeta = i, cost, zeta
     if np.isinf(best_zeta):

@@ -8,11 +8,11 @@ For ẋ = A x + B u, y = C x + φ with C = Y H, rk C = q < p:
     ∇_Γ|Z_Γ y − ẑ|²ᵀ = 2 diag(y − Y Z_Γ y) Y (Yᵀ G_Γ Y)⁻¹ (Z_Γ y − ẑ)           (8)
 
 The estimator sees y only at the sample instants; it holds y (and u) between ticks and integrates
-(6)–(7) with an L-stable Rosenbrock 2(3) pair under error control (``rtol``, ``atol``): once a
-fault is present the adaptation (7) is stiff (its rate grows with κ and with the fault), which
-would hold an explicit method to steps far below the sample time. The paper gives Y and H
-explicitly (not orthonormal); they are parameters here, since the weights Γ it converges to depend
-on that choice.
+(6)–(7) (``ObserverODE``, with its Jacobian in closed form) by an L-stable fourth-order Rosenbrock
+method under error control (``integrate``): once a fault is present the adaptation (7) is stiff
+(its rate grows with κ and with the fault), which would hold an explicit method to steps far below
+the sample time. The paper gives Y and H explicitly (not orthonormal); they are parameters here,
+since the weights Γ it converges to depend on that choice.
 """
 
 from __future__ import annotations
@@ -62,6 +62,94 @@ def vector_field(
     grad = 2.0 * (y - Y @ Zy) * (Y @ (R_inv @ innovation))
     dgamma = -kappa_phi * abs(np.linalg.det(R)) * grad + kappa_gamma * (1.0 - gamma @ gamma) * gamma
     return dx, dgamma
+
+
+def _inverse_and_det(R: np.ndarray) -> tuple[np.ndarray, float]:
+    """R⁻¹ and det R; in closed form for the 1×1 and 2×2 matrices of the usual q ≤ 2 (a LAPACK call
+    costs more than the whole formula there)."""
+    if R.shape == (2, 2):
+        (a, b), (c, d) = R.tolist()
+        det = a * d - b * c
+        return np.array([[d, -b], [-c, a]]) / det, det
+    if R.shape == (1, 1):
+        return 1.0 / R, float(R[0, 0])
+    return np.linalg.inv(R), float(np.linalg.det(R))
+
+
+class ObserverODE:
+    """dw/dt = f(w) of eq. (6)–(7) for w = [x̂; Γ], with the sample's y and u held (``hold``), and its
+    Jacobian ∂f/∂w in closed form (``linearized``).
+
+    With e = Z_Γ y − H x̂, r = y − Y Z_Γ y, s = Y R⁻¹ e, R = Yᵀ G_Γ Y, P = Y R⁻¹ Yᵀ and g = 2 r∘s the
+    gradient (8): R Z_Γ y = Yᵀ G_Γ y gives ∂(Z_Γ y)/∂Γ = R⁻¹ Yᵀ diag(r), so
+
+        ∂ẋ̂/∂x̂ = A − L H,  ∂ẋ̂/∂Γ = L R⁻¹ Yᵀ diag(r),  ∂g/∂x̂ = −2 diag(r) Y R⁻¹ H,
+        ∂g/∂Γ = 2 (diag(r) Y R⁻² Yᵀ diag(r) − diag(s) P diag(r) − diag(r) P diag(s)),
+        ∂|det R|/∂Γ_j = |det R| P_jj,  ∂(κ_Γ (1 − |Γ|²) Γ)/∂Γ = κ_Γ ((1 − |Γ|²) I − 2 Γ Γᵀ).
+
+    R = Σ_j Γ_j Y_jᵀ Y_j (Y_j the rows of Y) is linear in Γ: its entries are ``K`` Γ.
+    """
+
+    def __init__(
+        self,
+        A: np.ndarray,
+        B: np.ndarray,
+        H: np.ndarray,
+        L: np.ndarray,
+        Y: np.ndarray,
+        kappa_phi: float,
+        kappa_gamma: float,
+    ) -> None:
+        p, q = Y.shape
+        self.n, self.q = A.shape[0], q
+        self.B, self.H, self.L, self.Y = B, H, L, Y
+        self.A_LH = A - L @ H
+        self.kappa_phi, self.kappa_gamma = kappa_phi, kappa_gamma
+        self.K = np.einsum("ja,jb->abj", Y, Y).reshape(q * q, p)
+        self.identity = np.eye(p)
+
+    def hold(self, y: np.ndarray, u: np.ndarray) -> None:
+        """The readings and inputs held until the next sample."""
+        self.y, self.Bu = y, self.B @ u
+        self.Ty = self.Y.T * y  # Yᵀ G_Γ y = (Yᵀ diag(y)) Γ
+
+    def __call__(self, w: np.ndarray) -> np.ndarray:
+        n, y, Y = self.n, self.y, self.Y
+        x, gamma = w[:n], w[n:]
+        R_inv, det = _inverse_and_det((self.K @ gamma).reshape(self.q, self.q))
+        Zy = R_inv @ (self.Ty @ gamma)
+        out = np.empty(w.size)
+        out[:n] = self.A_LH @ x + self.L @ Zy + self.Bu
+        gradient = (y - Y @ Zy) * (Y @ (R_inv @ (Zy - self.H @ x)))  # half of (8)
+        out[n:] = (-2.0 * self.kappa_phi * abs(det)) * gradient + (self.kappa_gamma * (1.0 - gamma @ gamma)) * gamma
+        return out
+
+    def linearized(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """f(w) and ∂f/∂w."""
+        n, y, Y, kappa_gamma = self.n, self.y, self.Y, self.kappa_gamma
+        x, gamma = w[:n], w[n:]
+        R_inv, det = _inverse_and_det((self.K @ gamma).reshape(self.q, self.q))
+        rate = self.kappa_phi * abs(det)
+        Zy = R_inv @ (self.Ty @ gamma)
+        YR = Y @ R_inv
+        r = y - Y @ Zy
+        s = YR @ (Zy - self.H @ x)
+        P = YR @ Y.T
+        g = 2.0 * r * s
+        norm = gamma @ gamma
+        f = np.empty(w.size)
+        f[:n] = self.A_LH @ x + self.L @ Zy + self.Bu
+        f[n:] = -rate * g + (kappa_gamma * (1.0 - norm)) * gamma
+        rPs = r[:, None] * P * s
+        dg = 2.0 * (r[:, None] * (YR @ YR.T) * r - rPs - rPs.T)
+        J = np.empty((w.size, w.size))
+        J[:n, :n] = self.A_LH
+        J[:n, n:] = (self.L @ YR.T) * r
+        J[n:, :n] = (2.0 * rate) * (r[:, None] * (YR @ self.H))
+        J[n:, n:] = -rate * (dg + np.outer(g, np.diag(P))) + kappa_gamma * (
+            (1.0 - norm) * self.identity - 2.0 * np.outer(gamma, gamma)
+        )
+        return f, J
 
 
 @dataclass(frozen=True)
@@ -143,7 +231,12 @@ class ContinuousAdaptiveObserver(Estimator):
             raise ParameterError("gamma0", f"expected {p} weights")
         self._check_det(self.gamma, "gamma0")
         self.x_hat = initial_state(model, params.x0)
+        self.ode = ObserverODE(model.A, model.B, self.H, self.L, self.Y, self.kappa_phi, self.kappa_gamma)
+        self.open_loop = ObserverODE(model.A, model.B, self.H, np.zeros_like(self.L), self.Y, 0.0, 0.0)
         self.h = self.sample_time  # the step size carries over from sample to sample
+        self.size = np.abs(np.concatenate([self.x_hat, self.gamma]))  # the largest |x̂_i|, |Γ_j| so far
+        self.gamma_names = [f"gamma_{o}" for o in model.outputs]
+        self.injection_names = [f"inj_{s}" for s in model.states]
 
     def _check_det(self, gamma: np.ndarray, where: str) -> None:
         if abs(np.linalg.det((self.Y.T * gamma) @ self.Y)) < self.params.min_det:
@@ -173,33 +266,19 @@ class ContinuousAdaptiveObserver(Estimator):
         ]
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
-        x_k, gamma_k = self.x_hat.copy(), self.gamma.copy()
-        if np.isnan(dy).any():
-            # a missing reading: integrate the observer open loop, weights frozen
-            injected = np.zeros(self.model.n)
-            self._integrate(np.nan_to_num(dy), du, adapt=False)
-        else:
-            injected = self.L @ (pseudoinverse(self.Y, gamma_k) @ dy - self.H @ x_k)
-            self._integrate(dy, du, adapt=True)
-        diagnostics = {f"gamma_{o}": float(g) for o, g in zip(self.model.outputs, gamma_k)}
-        diagnostics |= {f"inj_{s}": float(v) for s, v in zip(self.model.states, injected)}
-        return Estimate(x_k, diagnostics)
-
-    def _integrate(self, y: np.ndarray, u: np.ndarray, adapt: bool) -> None:
-        A, H, Y, n = self.model.A, self.H, self.Y, self.model.n
-        L = self.L if adapt else np.zeros_like(self.L)
-        kp, kg = (self.kappa_phi, self.kappa_gamma) if adapt else (0.0, 0.0)
-        Bu = self.model.B @ u
-
-        def f(w: np.ndarray) -> np.ndarray:
-            return np.concatenate(vector_field(w[:n], w[n:], y, Bu, A, H, L, Y, kp, kg))
-
-        w = integrate(
-            f, np.concatenate([self.x_hat, self.gamma]), self.sample_time, self, self.params.rtol, self.params.atol
-        )
+        n, x_k, gamma_k, p = self.model.n, self.x_hat, self.gamma, self.params
+        missing = np.isnan(dy).any()  # then integrate the observer open loop, weights frozen
+        ode = self.open_loop if missing else self.ode
+        ode.hold(np.nan_to_num(dy), du)
+        w = np.concatenate([x_k, gamma_k])
+        f, J = ode.linearized(w)
+        injected = np.zeros(n) if missing else f[:n] - self.model.A @ x_k - ode.Bu  # L (Z_Γ y − H x̂) of (6)
+        w, self.h = integrate(ode, w, (f, J), self.sample_time, self.h, p.rtol, p.atol, self.size)
         self.x_hat = w[:n]
-        if abs(np.linalg.det((Y.T * w[n:]) @ Y)) >= self.params.min_det:
+        if abs(np.linalg.det((self.Y.T * w[n:]) @ self.Y)) >= p.min_det:
             self.gamma = w[n:]  # else hold Γ: Z_Γ would be undefined (the reset of Remark 1 is not attempted)
+        diagnostics = dict(zip(self.gamma_names, gamma_k.tolist())) | dict(zip(self.injection_names, injected.tolist()))
+        return Estimate(x_k, diagnostics)
 
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """h_Γ = Z_Γ φ (Sec. IV), the part of the injection due to the fault."""
@@ -207,47 +286,63 @@ class ContinuousAdaptiveObserver(Estimator):
         return pseudoinverse(self.Y, gamma) @ phi
 
 
-_D = 1.0 / (2.0 + np.sqrt(2.0))
-_E32 = 6.0 + np.sqrt(2.0)
+# ROS4 in the transformed form of Hairer & Wanner, Solving Ordinary Differential Equations II,
+# Sec. IV.7, with the L-stable parameters of its Table 7.2 (γ = 0.57282): four stages, three
+# evaluations of f and one of ∂f/∂w per step, an embedded third-order solution for the error.
+_GAMMA = 0.57282
+_A21, _A31, _A32 = 2.0, 1.867943637803922, 0.2344449711399156
+_C21, _C31, _C32 = -7.137615036412310, 2.580708087951457, 0.6515950076447975
+_C41, _C42, _C43 = -2.137148994382534, -0.3214669691237626, -0.6949742501781779
+_SOLUTION_AND_ERROR = np.array(
+    [
+        [2.255570073418735, 0.2870493262186792, 0.4353179431840180, 1.093502252409163],
+        [-0.2815431932141155, -0.07276199124938920, -0.1082196201495311, -1.093502252409163],
+    ]
+)
 
 
-def integrate(f, w: np.ndarray, span: float, stepper, rtol: float, atol: float) -> np.ndarray:
-    """w(t + span) for the autonomous dw/dt = f(w) by the L-stable Rosenbrock 2(3) pair of
-    Shampine & Reichelt (MATLAB's ode23s), with step-size control.
+def integrate(
+    ode: ObserverODE,
+    w: np.ndarray,
+    linearized: tuple[np.ndarray, np.ndarray],
+    span: float,
+    h: float,
+    rtol: float,
+    atol: float,
+    size: np.ndarray,
+) -> tuple[np.ndarray, float]:
+    """w(t + span) for the autonomous dw/dt = f(w) of ``ode``, given f(w) and ∂f/∂w (``linearized``),
+    and the step to try next, from a first step h, by the Rosenbrock method above with step-size control.
 
-    W = I − h d J with d = 1/(2 + √2) and J = ∂f/∂w (forward differences, once per call);
-    k₁ = W⁻¹ f(w), k₂ = W⁻¹(f(w + h k₁/2) − k₁) + k₁, w⁺ = w + h k₂,
-    k₃ = W⁻¹(f(w⁺) − e₃₂(k₂ − f(w + h k₁/2)) − 2(k₁ − f(w))), error h (k₁ − 2k₂ + k₃)/6.
-    A step is kept when max |error_i| / (atol + rtol max(|w_i|, |w⁺_i|)) ≤ 1. ``stepper.h`` is the
-    first step tried and keeps the last good one, so a smooth stretch costs one step per sample.
+    Each step solves (I/(γh) − J) U_i = f(w + Σ_{j<i} a_ij U_j) + Σ_{j<i} (c_ij/h) U_j, i = 1 … 4, with
+    J = ∂f/∂w at w (a₄ⱼ = a₃ⱼ), and takes w + Σ m_i U_i; Σ e_i U_i, its difference from the embedded
+    third-order solution, estimates its error. A step is kept when every |error_i| ≤ atol + rtol s_i,
+    s_i the largest |w_i| so far (``size``, updated in place): relative to the size each component has
+    had, not to its current value, which crosses zero.
     """
-    n = w.size
-    f0 = f(w)
-    J = np.empty((n, n))
-    for j in range(n):
-        delta = 1.5e-8 * max(1.0, abs(w[j]))
-        shifted = w.copy()
-        shifted[j] += delta
-        J[:, j] = (f(shifted) - f0) / delta
-    t, h = 0.0, min(stepper.h, span)
-    identity = np.eye(n)
+    t = 0.0
+    f, J = linearized
+    identity = np.eye(w.size)
+    stages = np.empty((4, w.size))
     while True:
         h = min(h, span - t)
-        W_inv = np.linalg.inv(identity - h * _D * J)
-        k1 = W_inv @ f0
-        f1 = f(w + 0.5 * h * k1)
-        k2 = W_inv @ (f1 - k1) + k1
-        w_new = w + h * k2
-        f2 = f(w_new)
-        k3 = W_inv @ (f2 - _E32 * (k2 - f1) - 2.0 * (k1 - f0))
-        error = h / 6.0 * (k1 - 2.0 * k2 + k3)
-        ratio = np.max(np.abs(error) / (atol + rtol * np.maximum(np.abs(w), np.abs(w_new))))
+        solve = np.linalg.inv(identity / (_GAMMA * h) - J)
+        U1 = stages[0] = solve @ f
+        U2 = stages[1] = solve @ (ode(w + _A21 * U1) + (_C21 / h) * U1)
+        f3 = ode(w + _A31 * U1 + _A32 * U2)
+        U3 = stages[2] = solve @ (f3 + (_C31 / h) * U1 + (_C32 / h) * U2)
+        stages[3] = solve @ (f3 + (_C41 / h) * U1 + (_C42 / h) * U2 + (_C43 / h) * U3)
+        step, error = _SOLUTION_AND_ERROR @ stages
+        w_new = w + step
+        ratio = float(np.max(np.abs(error) / (atol + rtol * np.maximum(size, np.abs(w_new)))))
+        # the next step: at most 5 times longer; a fifth as long if the error is not finite (NaN included)
+        factor = 5.0 if ratio == 0 else min(5.0, max(0.2, 0.9 * ratio**-0.25))
         if ratio <= 1.0:
-            t, w, f0 = t + h, w_new, f2
+            t, w = t + h, w_new
+            np.maximum(size, np.abs(w), out=size)
             if t >= span * (1 - 1e-12):
-                stepper.h = max(h, stepper.h if h >= span - t + h - 1e-15 else h)
-                return w
-            stepper.h = h
-        h *= min(5.0, max(0.2, 0.8 * ratio ** (-1.0 / 3.0))) if ratio > 0 else 5.0
+                return w, h * factor
+            f, J = ode.linearized(w)
+        h *= factor
         if h < 1e-12 * span:
             raise FloatingPointError("the observer's ODE cannot be integrated to the requested tolerance")

@@ -5,6 +5,7 @@ metrics find the signals they need."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from enum import StrEnum
@@ -98,12 +99,19 @@ class Diagnostic:
         ]
 
     def values(self, keys: Iterable[Any], numbers: Iterable[Any]) -> dict[str, float]:
-        """The pattern's diagnostics for these keys, with these values, as a step publishes them."""
-        return {self.named(key): float(number) for key, number in zip(keys, numbers)}
+        """The pattern's diagnostics for these keys, with these values, as a step publishes them
+        (the names are formatted once per pattern and keys: this runs every tick)."""
+        floats = numbers.tolist() if isinstance(numbers, np.ndarray) else [float(n) for n in numbers]
+        return dict(zip(_names(self.name, tuple(keys)), floats))
 
     def read(self, diagnostics: Mapping[str, float], keys: Iterable[Any]) -> np.ndarray:
         """The values of the pattern's diagnostics for these keys, out of a step's diagnostics."""
         return np.array([diagnostics[self.named(key)] for key in keys])
+
+
+@functools.lru_cache(maxsize=1024)
+def _names(pattern: str, keys: tuple[Any, ...]) -> tuple[str, ...]:
+    return tuple(pattern.format(*_items(key)) for key in keys)
 
 
 def _items(key: Any) -> tuple[Any, ...]:

@@ -1,4 +1,4 @@
-"""Theorem 1 of IJC 2018 (estimators.lmi): the direct conic assembly for Clarabel against the LMIs
+"""Theorem 1 of IJC 2018 (estimators.lpv_design): the direct conic assembly for Clarabel against the LMIs
 (19)–(20) as printed and against the cvxpy reference."""
 
 from __future__ import annotations
@@ -6,20 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.lmi import (
-    MARGIN,
-    DesignError,
-    SensorFaultModel,
-    box_vertices,
-    lpv_uio_design,
-    max_spectral_radius,
-    theorem1_conic_data,
-    theorem1_lmis,
-    uio_matrices,
-)
+from estimators.lmi import MARGIN, DesignError, SensorFaultModel, box_vertices, max_spectral_radius, uio_matrices
+from estimators.lpv_design import lpv_uio_design, theorem1_conic_data, theorem1_lmis
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
 
-# A 2-state plant with 3 sensors: 8 vertices, 64 + 224 LMIs (19)–(20) of size 10.
+# A 2-state plant with 3 sensors: 8 vertices, 64 + 224 LMIs (19)–(20) of size 10 (also tests/test_reconciliation.py).
 SMALL = SensorFaultModel(
     np.array([[0.95, 0.05], [0.0, 0.9]]),
     np.eye(2),

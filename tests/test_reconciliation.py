@@ -10,20 +10,21 @@ from scipy.optimize import lsq_linear
 
 import estimators
 from estimators.base import ParameterError
+from estimators.lft_design import lft_uio_design, sensor_fault_lft
 from estimators.lmi import (
     DesignError,
     SensorFaultModel,
     box_coordinates,
     box_vertices,
-    lft_uio_design,
-    lpv_uio_design,
     max_spectral_radius,
-    sensor_fault_lft,
     uio_matrices,
 )
+from estimators.lpv_design import lpv_uio_design
 from estimators.model import LinearModel
-from estimators.reconciliation import _Sample, model_window, window_gains
+from estimators.model_window import model_window, window_gains
+from estimators.sample_window import Sample
 from mjcf.three_tank import PAPER_A, PAPER_B, PAPER_C, PAPER_E
+from tests.test_lmi import SMALL
 
 # IJC 2018, eq. (59), as printed
 A, B, C, E = PAPER_A, PAPER_B, PAPER_C, PAPER_E
@@ -162,13 +163,7 @@ def test_lpv_design_on_a_small_plant_certifies_the_scheduled_observer():
     """Theorem 1 on a 2-state plant with 3 sensors (8 vertices): every LMI holds at the solution and,
     with the parameter switching arbitrarily between ticks, the Lyapunov decrease (29) holds for
     V = eᵀP(ρ̂)e with the scheduled gain L(ρ̂) = G(ρ̂)⁻¹Y(ρ̂)."""
-    model = SensorFaultModel(
-        np.array([[0.95, 0.05], [0.0, 0.9]]),
-        np.eye(2),
-        np.array([[1.0], [0.5]]),
-        np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]),
-        np.ones((3, 1)),
-    )
+    model = SMALL
     low, high = np.full(3, 0.5), np.ones(3)
     design = lpv_uio_design(model, low, high)
     assert design.min_eigenvalue > 0 and design.P.shape == (8, 3, 3)
@@ -195,7 +190,9 @@ def test_parameter_estimator_solves_the_qp_53():
     for _ in range(10):
         est.history.clear()
         for _ in range(20):
-            est.history.append(_Sample(rng.normal(size=4) * 3, rng.normal(size=3), rng.normal(size=1), None, None))
+            est.history.append(
+                Sample(rng.normal(size=4) * 3, rng.normal(size=3), rng.normal(size=1), np.zeros(4), np.zeros(3))
+            )
         gamma = est._estimate_gamma()
         ys, xs, bs = (np.array(c) for c in list(zip(*est.history))[:3])
         phi = np.vstack([np.diag(C @ x) for x in xs])
@@ -376,10 +373,10 @@ def test_a_window_across_a_fault_onset_does_not_fit_and_keeps_the_estimate():
     assert window_gains(window, mixed, us, np.full(4, 0.5), np.ones(4))[2] > 0.1
     est = estimators.create("lft-uio-sr", paper_model(), {"Hz": HZ, "design_gamma_min": 0.5, "gain_estimator": "model"})
     est.gamma = np.array([0.9, 1.0, 1.0, 1.0])
-    est.history.extend(_Sample(y, None, None, y, np.append(u, 1.0)) for y, u in zip(mixed, us))
+    est.history.extend(Sample(y, np.zeros(3), np.zeros(1), y, np.append(u, 1.0)) for y, u in zip(mixed, us))
     assert np.array_equal(est._estimate_gamma_on_the_model(), [0.9, 1.0, 1.0, 1.0]) and est.fit > 0.1
     est.history.clear()
-    est.history.extend(_Sample(y, None, None, y, np.append(u, 1.0)) for y, u in zip(after, us))
+    est.history.extend(Sample(y, np.zeros(3), np.zeros(1), y, np.append(u, 1.0)) for y, u in zip(after, us))
     np.testing.assert_allclose(est._estimate_gamma_on_the_model(), TRUE_GAINS, rtol=1e-8)
 
 

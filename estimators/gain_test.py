@@ -1,0 +1,348 @@
+"""The gain test (ours: γ̂ changes only on evidence; docs/three-tank.md, "The gain test"): the
+model window's consistency equations (50), whitened by the readings' noise, as a χ² test of the
+current gains and of the hypotheses of what changed, over the last N samples.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import scipy.optimize
+import scipy.special
+
+from estimators.model_window import stacked_window
+
+
+@dataclass(frozen=True)
+class GainTestWindow:
+    """The consistency equations (50) of the last L samples, L = ``min_window`` … N, linked by the
+    plant model (1) as in ``ModelWindow``, but whitened by the readings' noise level; built once by
+    ``gain_test_window``, used every tick by ``window_system``.
+
+    With white measurement noise n_j(k) ~ N(0, σ_j²) added before the gain, y = Δ(γ)(C_y x_p + n) + F b
+    (the testbed adds noise first, then the faults), sensor j's equation
+
+        β_j y_j(k) − d_j − C_y⁽ʲ⁾ x_p(k) = n_j(k),    β_j = 1/γ_j, d_j = β_j F⁽ʲ⁾ b,
+
+    divided by σ_j, has a unit normal error. Projecting off the nuisance unknowns θ = (d, x_p(0),
+    v(0 … L−2)) leaves the residual P⊥ D (Y β − r) = P⊥ e at the true β, e ~ N(0, I): its squared
+    norm is χ² with L m − rank(Z_L) degrees of freedom, whatever the state, the inputs, the unknown
+    input and the bias. The sub-window of the last L samples is the top-left block of the N-sample
+    window (the model is time-invariant), so one Z serves every L.
+    """
+
+    weight: np.ndarray
+    """D = 1/σ_j per sensor, shape (m,)."""
+    nuisance: np.ndarray
+    """Z over N samples, whitened, shape (N, m, m + n + (N − 1) n_v)."""
+    columns: tuple[int, ...]
+    """Per L = min_window … N: the columns of Z that the last L samples involve, m + n + (L − 1) n_v."""
+    bases: tuple[np.ndarray, ...]
+    """Per L = min_window … N: an orthonormal basis of range(Z_L), shape (L m, rank Z_L)."""
+    forced: np.ndarray
+    """Σ_{i<k} C_y A^(k−1−i) B by sample and input, whitened, shape (N, m, N − 1, n_u)."""
+    min_window: int
+    """The shortest sub-window that may identify the gains after a change."""
+
+    @property
+    def window(self) -> int:
+        return int(self.forced.shape[0])
+
+
+def gain_test_window(
+    A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, noise_std: np.ndarray, N: int, min_window: int
+) -> GainTestWindow:
+    """The ``GainTestWindow`` of x⁺ = A x + B u + E v, y = Δ(γ)(C x + n) + F b, n_j ~ N(0, σ_j²).
+
+    Shapes: A (n, n), B (n, n_u), E (n, n_v), C (m, n), noise_std (m,); 2 ≤ min_window ≤ N.
+    """
+    n, m, nv = A.shape[0], C.shape[0], E.shape[1]
+    Z, forced = stacked_window(A, B, E, C, N)
+    weight = 1.0 / np.asarray(noise_std, dtype=float)
+    Z *= weight[None, :, None]
+    forced *= weight[None, :, None, None]
+    columns = tuple(m + n + (L - 1) * nv for L in range(min_window, N + 1))
+    bases = tuple(
+        _range_basis(Z[:L, :, :c].reshape(L * m, c)) for L, c in zip(range(min_window, N + 1), columns, strict=True)
+    )
+    return GainTestWindow(weight, Z, columns, bases, forced, min_window)
+
+
+def _range_basis(Z: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of range(Z), as columns."""
+    U, sv, _ = np.linalg.svd(Z, full_matrices=False)
+    rank = int(np.sum(sv > sv[0] * 1e-10)) if sv.size and sv[0] > 0 else 0
+    return U[:, :rank]
+
+
+class WindowSystem(NamedTuple):
+    """A window's whitened equations with the nuisance unknowns projected out, in the reduced form
+    of least squares: T(β) = ‖factor β − rotated‖² + rest, χ²(dof) at the true β."""
+
+    factor: np.ndarray
+    """R of the QR factorization of the projected regressor P⊥ D Y, shape (m, m)."""
+    rotated: np.ndarray
+    """Qᵀ P⊥ D r, shape (m,): the projected target in the regressor's column space."""
+    rest: float
+    """The part of ‖P⊥ D r‖² no β can explain."""
+    dof: int
+    """Equations less the rank of the nuisance columns: the residual's degrees of freedom at the
+    true β."""
+
+
+def window_system(
+    window: GainTestWindow, y: np.ndarray, u: np.ndarray, change: int | None = None, before: np.ndarray | None = None
+) -> WindowSystem:
+    """The system of the last L = len(y) samples, min_window ≤ L ≤ N: readings y (L, m), NaN where
+    one did not arrive (its equation is dropped), and inputs u (L, n_u), u(k) held from k to k + 1.
+
+    With ``change`` = c (0 < c < L), the gains change at sample c: samples k < c have the known
+    β = ``before`` (their terms move to the target), and the regressor holds only samples k ≥ c.
+    Each sensor's offset d_j may jump at c as well (a bias step, or d_j = β_j F⁽ʲ⁾ b with a new
+    β_j): m more nuisance columns, projected out with the others."""
+    L, m = y.shape
+    index = L - window.min_window
+    kept = ~np.isnan(y).ravel()
+    rows = np.arange(L * m)
+    Y = np.zeros((L * m, m))
+    Y[rows, np.tile(np.arange(m), L)] = (np.where(np.isnan(y), 0.0, y) * window.weight).ravel()
+    r = np.einsum("kjil,il->kj", window.forced[:L, :, : L - 1], u[:-1]).ravel()
+    if change is not None:
+        assert before is not None and 0 < change < L
+        after = np.repeat(np.arange(L), m) >= change
+        r = r - np.where(after, 0.0, Y @ before)
+        Y[~after] = 0.0
+    if kept.all():
+        Q = window.bases[index]
+    else:  # the range of the nuisance columns within the equations that are left
+        Q = _range_basis(window.nuisance[:L, :, : window.columns[index]].reshape(L * m, -1)[kept])
+        Y, r, rows = Y[kept], r[kept], rows[kept]
+    Y = Y - Q @ (Q.T @ Y)
+    r = r - Q @ (Q.T @ r)
+    dof = len(r) - Q.shape[1]
+    if change is not None:
+        J = np.zeros((len(r), m))  # the offsets' jumps, whitened
+        jumped = rows // m >= change
+        J[jumped, rows[jumped] % m] = window.weight[rows[jumped] % m]
+        G = _range_basis(J - Q @ (Q.T @ J))
+        Y = Y - G @ (G.T @ Y)
+        r = r - G @ (G.T @ r)
+        dof -= G.shape[1]
+    basis, factor = np.linalg.qr(Y)
+    rotated = basis.T @ r
+    return WindowSystem(factor, rotated, float(max(r @ r - rotated @ rotated, 0.0)), int(dof))
+
+
+@functools.lru_cache(maxsize=1024)
+def _chi2_quantile(alpha: float, dof: int) -> float:
+    """The (1 − α) quantile of χ²(dof): the threshold of a test at level α."""
+    return float(scipy.special.chdtri(dof, alpha))
+
+
+def chi2_statistic(system: WindowSystem, beta: np.ndarray) -> float:
+    """T(β) = ‖P⊥ D (Y β − r)‖², χ²(dof) when β is the true 1/γ."""
+    residual = system.factor @ beta - system.rotated
+    return float(residual @ residual) + system.rest
+
+
+def gain_standard_errors(system: WindowSystem) -> np.ndarray:
+    """The standard error of each β̂_j fitted alone (the others given), 1/‖P⊥ D Y_j‖: how well the
+    window resolves a change of that sensor's gain (γ̂ = 1/β̂ has about the same near γ = 1)."""
+    norms = np.linalg.norm(system.factor, axis=0)
+    return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
+
+
+class GainHypothesis(NamedTuple):
+    """A hypothesis about a window's gains: those in ``free`` changed to unknown values, each of the
+    others is either as before (the previous γ̂) or back to 1."""
+
+    beta: np.ndarray
+    """β̂ = 1/γ̂: fitted for the sensors in ``free``, given for the others."""
+    free: tuple[int, ...]
+    statistic: float
+    """T(β̂)."""
+    p_value: float
+    """P(χ²(dof − |free|) > T(β̂)): the probability of a statistic this large if the hypothesis holds."""
+    standard_error: float
+    """The largest standard error of the fitted β̂ (0 if none is fitted)."""
+    samples: int
+    """The samples after the change the hypothesis places (the window's length if none)."""
+
+    @property
+    def kind(self) -> tuple[tuple[int, ...], tuple[bool, ...]]:
+        """Which gains it fits, and which of the others it puts at 1."""
+        return self.free, tuple(bool(b == 1.0) for j, b in enumerate(self.beta) if j not in self.free)
+
+
+def gain_hypotheses(
+    system: WindowSystem, alpha: float, lower: np.ndarray, upper: np.ndarray, previous: np.ndarray, samples: int
+) -> list[GainHypothesis]:
+    """The hypotheses with the fewest fitted gains that the window does not reject at level α; none
+    if it rejects every one (no constant gains explain it).
+
+    Each sensor's gain is either fitted (least squares; BVLS within [lower, upper] on β), or given:
+    its ``previous`` β, or 1 (healthy). With |S| gains fitted, T(β̂) ~ χ²(dof − |S|) if the
+    hypothesis holds, so a true hypothesis is rejected with probability α: a gain differs from its
+    previous value, or from 1, only if every hypothesis that keeps it is rejected."""
+    R, c = system.factor, system.rotated
+    m = R.shape[1]
+    for size in range(m + 1):
+        dof = system.dof - size
+        threshold = _chi2_quantile(alpha, dof)
+        accepted: list[GainHypothesis] = []
+        for free in itertools.combinations(range(m), size):
+            index = list(free)
+            columns = R[:, index]
+            covariance = np.linalg.pinv(columns.T @ columns) if free else np.zeros((0, 0))
+            error = float(np.sqrt(np.max(np.diag(covariance)))) if free else 0.0
+            recovered = [j for j in range(m) if j not in free and previous[j] != 1.0]
+            for back in itertools.product((False, True), repeat=len(recovered)):
+                beta = np.array(previous, dtype=float)
+                beta[[j for j, b in zip(recovered, back) if b]] = 1.0
+                if free:
+                    beta[index] = 0.0
+                    rhs = c - R @ beta
+                    fitted = covariance @ (columns.T @ rhs)
+                    beta[index] = fitted
+                    if np.any(fitted < lower[index]) or np.any(fitted > upper[index]):
+                        if chi2_statistic(system, beta) > threshold:
+                            continue  # the box can only make the fit worse
+                        if size == 1:
+                            fitted = np.clip(fitted, lower[index], upper[index])
+                        else:
+                            bounds = (lower[index], upper[index])
+                            fitted = scipy.optimize.lsq_linear(columns, rhs, bounds=bounds, method="bvls").x
+                        beta[index] = fitted
+                statistic = chi2_statistic(system, beta)
+                if statistic <= threshold:
+                    p = float(scipy.special.chdtrc(dof, statistic))
+                    accepted.append(GainHypothesis(beta, free, statistic, p, error, samples))
+        if accepted:
+            return accepted
+    return []
+
+
+class GainDecision(NamedTuple):
+    """What the gain test decided at one tick."""
+
+    gamma: np.ndarray
+    """γ̂ after the tick (the previous one unless new gains were identified)."""
+    verdict: str
+    """``consistent``: the window accepts the previous γ̂, which is kept; ``identified``: it rejects
+    it and one hypothesis explains the window, with the change ``samples`` samples ago (``samples``
+    = N: before the window); ``pending``: it rejects it, but first did so fewer than min_window
+    samples ago, too few to tell what changed (γ̂ kept); ``ambiguous``: several hypotheses explain
+    it, or the only one does not resolve its gains to ``se_tol`` (γ̂ kept); ``inconsistent``: none
+    explains it (γ̂ kept)."""
+    statistic: float
+    """T of the previous γ̂ on the window over the (1 − α) quantile of χ²(dof) (≤ 1: accepted)."""
+    excitation: float
+    """se_tol over the largest standard error of a gain on the window (≥ 1: it resolves every gain
+    to se_tol)."""
+    samples: int
+    """The samples since the change the decision places (N: none in the window)."""
+
+
+def decide_gains(
+    window: GainTestWindow,
+    y: np.ndarray,
+    u: np.ndarray,
+    gamma: np.ndarray,
+    alpha: float,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    se_tol: float,
+    reference: np.ndarray | None = None,
+    since: int | None = None,
+) -> GainDecision:
+    """γ̂ changes only on evidence (docs/three-tank.md, "The gain test").
+
+    Without ``reference`` the window of the last N samples first tests the previous γ̂: if T(1/γ̂)
+    is within the (1 − α) quantile of χ²(dof), γ̂ is kept. Otherwise the gains changed, from
+    ``reference`` (the γ̂ before the change; default: the previous γ̂), and the hypotheses are:
+
+    - the change is before the window: constant gains over it (``gain_hypotheses``);
+    - it is at sample c of the window, L = N − c ≥ min_window samples ago: the known gains before c,
+      the hypothesis after it, every offset free to jump at c;
+    - only if none of these is accepted (two changes in the window, e.g. a bias step, then a gain):
+      the last samples alone (``_latest_identification``), at most ``since`` of them (the samples
+      since the window first rejected the gains before the change): none reaches back across it.
+
+    Nothing is identified until the window has rejected the gains before the change for min_window
+    samples (``since``): a change seen in fewer samples is explained as well by hypotheses that place
+    it earlier.
+
+    Among the accepted hypotheses with the fewest fitted gains, the likeliest is taken if they all
+    agree on what changed and it resolves its gains to ``se_tol`` (``_unambiguous``), else ``ambiguous``.
+
+    y (N, m), u (N, n_u) as in ``window_system``; gamma: the previous γ̂; lower, upper: the box Γ."""
+    N = window.window
+    full = window_system(window, y, u)
+    threshold = _chi2_quantile(alpha, full.dof)
+    statistic = chi2_statistic(full, 1.0 / gamma) / threshold
+    excitation = se_tol / float(np.max(gain_standard_errors(full)))
+    if reference is None:
+        if statistic <= 1.0:
+            return GainDecision(gamma, "consistent", statistic, excitation, N)
+        reference = gamma
+    since = 1 if since is None else since
+    if since < window.min_window:
+        return GainDecision(gamma, "pending", statistic, excitation, N)
+    previous, beta_lower, beta_upper = 1.0 / reference, 1.0 / upper, 1.0 / lower
+    accepted = gain_hypotheses(full, alpha, beta_lower, beta_upper, previous, N)
+    for L in range(window.min_window, N if since < N else window.min_window):
+        split = window_system(window, y, u, change=N - L, before=previous)
+        accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
+    if accepted:
+        best = _unambiguous(accepted, N, se_tol)
+        if best is None:
+            return GainDecision(gamma, "ambiguous", statistic, excitation, N)
+        return GainDecision(1.0 / best.beta, "identified", statistic, excitation, best.samples)
+    found, explained = _latest_identification(window, y, u, alpha, beta_lower, beta_upper, previous, since, se_tol)
+    if found is not None:
+        return GainDecision(1.0 / found.beta, "identified", statistic, excitation, found.samples)
+    return GainDecision(gamma, "ambiguous" if explained else "inconsistent", statistic, excitation, N)
+
+
+def _unambiguous(accepted: list[GainHypothesis], N: int, se_tol: float) -> GainHypothesis | None:
+    """Among the accepted hypotheses with the fewest fitted gains, the change before the window if
+    that explains it (m fewer unknowns), else the likeliest split; None if they disagree on which
+    gains changed (and which returned to 1) or it does not resolve its gains to ``se_tol``."""
+    fewest = min(len(h.free) for h in accepted)
+    accepted = [h for h in accepted if len(h.free) == fewest]
+    before = [h for h in accepted if h.samples == N]
+    best = max(before or accepted, key=lambda h: h.p_value)
+    if len({h.kind for h in accepted}) > 1 or best.standard_error > se_tol:
+        return None
+    return best
+
+
+def _latest_identification(
+    window: GainTestWindow,
+    y: np.ndarray,
+    u: np.ndarray,
+    alpha: float,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    previous: np.ndarray,
+    since: int,
+    se_tol: float,
+) -> tuple[GainHypothesis | None, bool]:
+    """The last L samples alone, L = min_window, min_window + 1, … up to the first L that no
+    hypothesis explains, and at most ``since``: the longest that identifies the gains (or None), and
+    whether any was explained. ``lower`` and ``upper`` bound β."""
+    N = window.window
+    found, explained = None, False
+    for L in range(window.min_window, min(N - 1, since) + 1):
+        hypotheses = gain_hypotheses(window_system(window, y[N - L :], u[N - L :]), alpha, lower, upper, previous, L)
+        if not hypotheses:
+            break
+        explained = True
+        best = max(hypotheses, key=lambda h: h.p_value)
+        if len({h.kind for h in hypotheses}) == 1 and best.standard_error <= se_tol:
+            found = best
+    return found, explained

@@ -1,0 +1,117 @@
+"""The model window of the sensor-gain estimator (ours, beside IJC 2018's (50)–(53)): the
+consistency equations (50) of a window of N samples with the plant model (1) as the link between
+samples, solved for the gains by bounded least squares (docs/three-tank.md, "The model window").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.optimize
+
+
+@dataclass(frozen=True)
+class ModelWindow:
+    """The consistency equations (50) over a window of N samples, with the plant model (1) as the
+    link between samples; built once by ``model_window``, used every tick by ``window_gains``.
+
+    Divide (2) by the gains, β_j = 1/γ_j: β_j y_j(k) − β_j F⁽ʲ⁾ b = C_y⁽ʲ⁾ x_p(k). With d_j = β_j F⁽ʲ⁾ b
+    taken as a free offset per sensor, and x_p(k) = A^k x_p(0) + Σ_{i<k} A^(k−1−i) (B u(i) + E v(i))
+    over the window k = 0 … N−1, every sample gives m equations linear in all the unknowns:
+
+        Y(k) β − d − C_y A^k x_p(0) − Σ_{i<k} C_y A^(k−1−i) E v(i) = Σ_{i<k} C_y A^(k−1−i) B u(i),
+
+    with Y(k) = diag(y(k)), each sensor's equations weighted by 1/‖C_y⁽ʲ⁾‖. The nuisance unknowns
+    θ = (d, x_p(0), v(0), …, v(N−2)) enter through a fixed matrix Z, so β is the least-squares
+    solution of W' Y β = W' r, where the columns of W are an orthonormal basis of the complement of
+    range(Z).
+    """
+
+    nuisance: np.ndarray
+    """Z, shape (N m, m + n + (N − 1) n_v): the columns of d, x_p(0) and v(0 … N−2), weighted."""
+    response: np.ndarray
+    """Σ_{i<k} C_y A^(k−1−i) B by sample and input, weighted, shape (N, m, N − 1, n_u)."""
+    weight: np.ndarray
+    """1/‖C_y⁽ʲ⁾‖ per sensor, shape (m,): each sensor's equations in units of the state, so that a
+    sensor scaled up (10·h1) does not outweigh the others in the fit and in its residual."""
+    complement: np.ndarray
+    """W' reshaped (R, N, m): the (weighted) equations that the nuisance unknowns cannot satisfy."""
+    forced: np.ndarray
+    """W' applied to the forced response, (R, N − 1, n_u): contracted with u(0 … N−2) it is W' r."""
+
+
+def _complement(Z: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the orthogonal complement of range(Z), as rows."""
+    U, sv, _ = np.linalg.svd(Z, full_matrices=True)
+    rank = int(np.sum(sv > sv[0] * 1e-10)) if sv.size and sv[0] > 0 else 0
+    return U[:, rank:].T
+
+
+def stacked_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """The N samples' equations of x⁺ = A x + B u + E v, y = C x + b, stacked: sample k reads
+    0 = Z_k [b; x_0; v_0 … v_{N-2}] + y_k − Σ_{i<k} C A^{k-1-i} B u_i, with ``forced[k, :, i]`` =
+    C A^{k-1-i} B. Shapes: Z (N, m, m + n + (N−1) n_v), forced (N, m, N−1, n_u)."""
+    n, m, nv, nu = A.shape[0], C.shape[0], E.shape[1], B.shape[1]
+    powers = [np.eye(n)]
+    for _ in range(N - 1):
+        powers.append(A @ powers[-1])
+    Z = np.zeros((N, m, m + n + (N - 1) * nv))
+    forced = np.zeros((N, m, N - 1, nu))
+    for k in range(N):
+        Z[k, :, :m] = -np.eye(m)
+        Z[k, :, m : m + n] = -C @ powers[k]
+        for i in range(k):
+            CA = C @ powers[k - 1 - i]
+            Z[k, :, m + n + i * nv : m + n + (i + 1) * nv] = -CA @ E
+            forced[k, :, i, :] = CA @ B
+    return Z, forced
+
+
+def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: int) -> ModelWindow:
+    """The window of ``ModelWindow`` for x⁺ = A x + B u + E v, y = Δ(γ) C x + F b.
+
+    Shapes: A (n, n), B (n, n_u), E (n, n_v), C (m, n); N ≥ 2 samples.
+    """
+    m = C.shape[0]
+    Z, forced = stacked_window(A, B, E, C, N)
+    weight = 1.0 / np.linalg.norm(C, axis=1)
+    Z = (Z * weight[None, :, None]).reshape(N * m, -1)
+    forced *= weight[None, :, None, None]
+    W = _complement(Z).reshape(-1, N, m)
+    return ModelWindow(Z, forced, weight, W, np.einsum("rkj,kjil->ril", W, forced))
+
+
+def window_gains(
+    window: ModelWindow, y: np.ndarray, u: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The gains γ ∈ [lower, upper] that best explain a window of readings through the model.
+
+    y (N, m): the readings (NaN where one did not arrive: its equation is dropped); u (N, n_u): the
+    known inputs, u(k) acting from sample k to k + 1. Returns γ; the singular values of the
+    column-normalized regressor W' Y, whose ratio measures how well the window excites the gains;
+    and the relative residual ‖W' (Y β − r)‖ / ‖W' r‖, which is small only if one γ explains the
+    whole window through the model (it is not, e.g., when a fault changes inside the window).
+    The box 1/upper ≤ β ≤ 1/lower is imposed on β = 1/γ, where the problem is linear (BVLS).
+    """
+    missing = np.isnan(y)
+    W, forced = window.complement, window.forced
+    if missing.any():  # the complement of the nuisance columns within the equations that are left
+        kept = ~missing.ravel()
+        basis = _complement(window.nuisance[kept])
+        W = np.zeros((len(basis), kept.size))
+        W[:, kept] = basis
+        W = W.reshape(len(basis), *y.shape)
+        forced = np.einsum("rkj,kjil->ril", W, window.response)
+    y0 = np.where(missing, 0.0, y) * window.weight
+    regressor = np.einsum("rkj,kj->rj", W, y0)  # W' Y
+    target = np.einsum("ril,il->r", forced, u[:-1])  # W' r
+    scale = np.linalg.norm(regressor, axis=0)
+    sv = np.linalg.svd(regressor / np.where(scale > 0, scale, 1.0), compute_uv=False)
+    lo, hi = 1.0 / upper, 1.0 / lower
+    beta = np.linalg.lstsq(regressor, target, rcond=None)[0]
+    if np.any(beta < lo) or np.any(beta > hi):
+        beta = scipy.optimize.lsq_linear(regressor, target, bounds=(lo, hi), method="bvls").x
+    size = np.linalg.norm(target)
+    residual = float(np.linalg.norm(regressor @ beta - target) / size) if size > 0 else np.inf
+    return 1.0 / beta, sv, residual
