@@ -15,6 +15,7 @@ import pytest
 from cosim.bus import inprocess
 from cosim.bus.inprocess import InProcessBus
 from cosim.bus.transport import allocate, open_bus
+from tests.test_bench import bench
 
 
 def frame(identifier: int) -> can.Message:
@@ -163,3 +164,10 @@ def test_a_virtual_run_bus_is_the_in_process_bus_handing_frames_over_as_they_are
         message = frame(5)
         runner.send(message)
         assert node.recv(0.0) is message and program.recv(0.0) is not message
+
+
+def test_the_benchmark_measures_the_three_buses_side_by_side():
+    figures = bench("inprocess_bus.py", "--frames", "2000", "--receivers", "2", "--repeat", "1")
+    assert figures["receivers"] == 2
+    for key in ("virtual_frames_per_s", "cosim_virtual_frames_per_s", "cosim_own_frames_per_s"):
+        assert figures[key] > 0, key
