@@ -201,7 +201,7 @@ def open_bus(config: BusConfig, on_foreign: Callable[[ForeignDatagram], None] | 
                 config.channel, config.port, config.hop_limit or 0, fd=True, on_foreign=on_foreign
             )
         elif config.interface == "virtual":
-            bus = InProcessBus(config.channel)
+            bus = InProcessBus(config.channel, share_frames=True)
         else:
             bus = can.Bus(**config.kwargs())
     except (can.CanError, OSError, ValueError) as error:

@@ -27,6 +27,7 @@ from functools import cache
 from typing import Any
 
 import can
+from can.bus import CanProtocol
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus, UdpMulticastBus
 from can.interfaces.udp_multicast.utils import unpack_message
 
@@ -163,6 +164,8 @@ class HostMulticastBus(UdpMulticastBus):
             message = unpack_message(data, replace={"timestamp": timestamp}, check=True)
         except Exception:  # msgpack and python-can raise several kinds for bad bytes
             return self._foreign("garbage", sender, data)
+        if message.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
+            return None, False  # a classic CAN bus does not see CAN FD frames (as udp_multicast)
         return message, False
 
     def _foreign(self, reason: str, sender: Any, data: bytes) -> tuple[None, bool]:
