@@ -1,5 +1,5 @@
 """Thresholds of the COFD residuals from a declared environment: a constant current the observers
-learn, band-limited waves whose filtered amplitude is computed, and a flat model-error bound.
+learn, band-limited waves whose filtered amplitude is computed, and the design model's error.
 
 Cristofaro & Johansen (shared/papers/003), Sec. 3–4, with b(t) of the vessel's environment model
 (mjcf/vessel.py, ``EnvironmentDisturbance``). Without faults, residual component i of observer
@@ -11,10 +11,12 @@ O_h is the filtered disturbance r_i(t) = ∫₀^t h_i(s) b(t − s) ds with h_i(
 
 |b_c| ≤ ``current`` (constant, direction unknown), Σ a_k ≤ ``wave_force``, Σ n_k ≤ ``wave_moment``,
 ω_k in the band of ``wave_periods``, |β̇_k| ≤ κ = ``swing`` · 2π/``swing_period``, and the design
-model's error d(t), |d(t)|₂ ≤ ``model_error``, entering like b. The current's effect g_i b_c is a
-constant the node learns as the mean m̂_i of r_i over a fault-free window [t₁, t₂]; the waves'
-effect is bounded by the band's gain |H_i(jω)|, H_i(jω) = c_iᵀ(jωI − F)⁻¹ R E, far below ∫|h_i|
-when F filters the band; ``centred_bounds`` bounds |r_i(t) − m̂_i| for t ≥ t₂ over the whole class.
+model's error d(t), |d(t)|₂ ≤ ``model_error`` + ``model_error_ratio`` · |E⁺ẏ(t)|, entering like b.
+The current's effect g_i b_c is a constant the node learns as the mean m̂_i of r_i over a
+fault-free window [t₁, t₂); the waves' effect is bounded by the band's gain |H_i(jω)|,
+H_i(jω) = c_iᵀ(jωI − F)⁻¹ R E, below ∫|h_i| by as much as F filters the band; ``centred_bounds``
+bounds |r_i(t) − m̂_i| for t ≥ t₂ over the whole class, ``InertialAllowance`` the model error's
+part that grows with the accelerations, and ``ResidualTest`` applies them tick by tick.
 """
 
 from __future__ import annotations
@@ -85,8 +87,7 @@ class DeclaredEnvironment:
             value = getattr(self, name)
             if value is not None and not value >= 0:
                 raise ParameterError(name, f"must be at least 0, got {value}")
-        low, high = (tuple(self.wave_periods) + (0.0, 0.0))[:2]
-        if len(self.wave_periods) != 2 or not 2 * sample_time < low <= high:
+        if len(self.wave_periods) != 2 or not 2 * sample_time < self.wave_periods[0] <= self.wave_periods[1]:
             raise ParameterError(
                 "wave_periods",
                 f"give [shortest, longest] (s), longer than two samples ({2 * sample_time:g} s), got "
@@ -94,8 +95,7 @@ class DeclaredEnvironment:
             )
         if not self.swing_period > 0:
             raise ParameterError("swing_period", f"must be positive, got {self.swing_period}")
-        start, end = (tuple(self.learning) + (0.0, 0.0))[:2]
-        if len(self.learning) != 2 or not 0 <= start or not end >= start + sample_time:
+        if len(self.learning) != 2 or not 0 <= self.learning[0] <= self.learning[1] - sample_time:
             raise ParameterError(
                 "learning", f"give [start, end] (s), 0 ≤ start, at least one sample long, got {list(self.learning)}"
             )
@@ -130,9 +130,10 @@ def centred_bounds(
     is the mean of the samples r_i(t_k), t₁ ≤ t_k < t₂ (K samples, τ = ``sample_time``):
 
         A max_ω |H_i,f(jω)|(1 + λ_f(ω)) + N max_ω |H_i,n(jω)|(1 + λ_n(ω))
-            + 2 A κ ∫₀^∞ s |h_i,f(s)| ds + 2 (B + ε_d) ∫_{t₁}^∞ |h_i(s)| ds + 2 ε_d ∫₀^∞ |h_i(s)| ds
+            + 2 A κ ∫₀^∞ s |h_i,f(s)| ds + 2 B ∫_{t₁}^∞ |h_i(s)| ds + 2 ε_d ∫₀^∞ |h_i(s)| ds
 
-    with A, N the wave force and moment sums, B = current + A + N, ε_d the model error, and
+    with A, N the wave force and moment sums, ε_d the model error at rest, B = current +
+    hypot(A, N) + ε_d the bound on |b + d|, and
     λ(ω) ≤ 1 the share of a wave's amplitude left in the window's mean: (1/K + κτ)/sin(ωτ/2)
     for the turning force (summation by parts), 1/(K sin(ωτ/2)) for the moment. The terms are
     the wave's response now and in the mean, the turning direction's departure from a sinusoid
