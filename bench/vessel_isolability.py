@@ -169,7 +169,7 @@ def draw(result: dict, out: Path) -> None:
         ("fade", 1.0, "slowest fade to 0 isolated ≤ 10 s [1/s]", "δ = e^(−rate (t − 20 s)); lower is better"),
     )
     for ax, (kind, scale, label, note) in zip(axes, panels):
-        floor = result["grid"][kind][0] * scale
+        floor = result["grid"][kind][0] * scale if result["grid"][kind] else 0.0  # a grid may lack fades
         ax.axhspan(floor * 1e-3, floor, color="0.92", zorder=0)
         for number, thruster in enumerate(THRUSTERS):
             at = x + 0.06 * (number - 2)  # side by side where thrusters share a value
@@ -232,6 +232,8 @@ def report(result: dict) -> None:
         ("abrupt", 100.0, " %", "smallest abrupt loss isolated within 10 s in every seed"),
         ("fade", 1.0, " /s", "slowest fade to 0 isolated within 10 s in every seed"),
     ):
+        if not result["grid"][kind]:
+            continue
         smallest = result["grid"][kind][0]  # isolated there: the boundary may lie lower
         print(f"\n{title}\n\n| thruster | " + " | ".join(seas) + " |\n|---|" + "---|" * len(seas))
         for thruster in THRUSTERS:

@@ -5,6 +5,9 @@ frame's terms, without which a total loss of T5 in calm water is not. About 1.5 
 
 from __future__ import annotations
 
+import importlib.util
+from pathlib import Path
+
 import pyarrow.parquet as pq
 import pytest
 
@@ -13,6 +16,13 @@ from cosim.analysis.metrics import compute_metrics
 from cosim.campaign.coordinator import run_campaign
 from cosim.campaign.spec import load_campaign
 from cosim.run import run
+
+# bench/ is not a package: the map's script, loaded from its file.
+_SCRIPT = Path(__file__).resolve().parents[1] / "bench" / "vessel_isolability.py"
+_SPEC = importlib.util.spec_from_file_location("vessel_isolability", _SCRIPT)
+assert _SPEC is not None and _SPEC.loader is not None
+vessel_isolability = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(vessel_isolability)
 
 pytestmark = pytest.mark.slow
 
@@ -56,7 +66,7 @@ name = "thruster"
 [[axes]]
 key = "faults[0].effectiveness"
 values = [0.5, 0.0]
-labels = ["50 %", "100 %"]
+labels = ["abrupt 50 %", "abrupt 100 %"]
 name = "loss"
 """
 
@@ -72,6 +82,13 @@ def test_every_half_or_total_loss_is_isolated_within_10_s_in_every_sea_state(tmp
         assert row["false_alarms"] == 0, where
         assert row["isolated"] and row["isolation_correct"], where
         assert row["isolation_delay_s"] <= 10.0, where
+    # The map's script reads such a table (the same one standing in for vessel-nominal's).
+    result = vessel_isolability.figures(result.path, result.path)
+    vessel_isolability.draw(result, tmp_path / "map.png")
+    assert result["abrupt"]["T5"]["297 N"] == 0.5 and result["misses_at_or_above_50"] == []
+    assert all(entry["false_alarms"] == 0 for entry in result["false_alarms"].values())
+    assert 0.3 < result["predicted"]["297 N"]["T5"] < 0.5  # T5's signature meets the threshold at 37 %
+    assert (tmp_path / "map.png").stat().st_size > 10_000
 
 
 def test_without_the_rotating_frame_a_total_loss_of_T5_in_calm_water_is_not_isolated(tmp_path):
