@@ -22,9 +22,10 @@ W* = [W_{1} … W_{q}].
 
 Plain functions: ``output_directions`` (10), ``uniform_subrank`` (12), ``cofd_observer`` (13)–(17)
 with every condition of Theorem 3.1 checked, ``cofd_family``, ``cluster_directions`` (21)–(22),
-``residual_bounds`` (the fault-free bound under |b| ≤ ε), ``fault_signatures`` / ``isolate``
-(the isolation logic). ``COFDDiagnosis`` is the estimator node (kind ``cofd``). docs/vessel-fdi.md
-has the derivations and the choices the paper leaves open.
+``residual_bounds`` (the fault-free bound under |b| ≤ ε; estimators/thresholds.py has the bounds
+for a declared environment), ``fault_signatures`` / ``isolate`` (the isolation logic).
+``COFDDiagnosis`` is the estimator node (kind ``cofd``). docs/vessel-fdi.md has the derivations
+and the choices the paper leaves open.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ from estimators.base import Estimate, Estimator, ParameterError
 from estimators.design import AssumptionError
 from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
+from estimators.rotating_frame import FrameTerms
+from estimators.thresholds import DeclaredEnvironment, residual_test
 from estimators.uio import UIODesign, discretize
 
 
@@ -353,7 +356,7 @@ THRUSTERS = tuple(range(1, MAX_THRUSTERS + 1))
 RESIDUAL = Diagnostic(
     "r{0}_{1}",
     "",
-    "residual r^({0}) = C e^({0}) along e_{1} (Sec. 3.2)",
+    "residual r^({0}) = C e^({0}) along e_{1} (Sec. 3.2), less its learned fault-free mean",
     1e9,
     1e-3,
     DiagnosticKind.RESIDUAL,
@@ -362,7 +365,7 @@ RESIDUAL = Diagnostic(
 THRESHOLD = Diagnostic(
     "thr{0}_{1}",
     "",
-    "threshold of r{0}_{1}: margin × its bound under |b| ≤ ε",
+    "threshold of r{0}_{1}: margin × its fault-free bound (|b| ≤ ε, or the declared environment)",
     1e9,
     1e-3,
     DiagnosticKind.THRESHOLD,
@@ -383,7 +386,7 @@ CONSTRAINTS_MET = Diagnostic(
 
 
 @dataclass(frozen=True)
-class COFDParams:
+class COFDParams(DeclaredEnvironment):
     groups: tuple[tuple[float, ...], ...] = SHIP_GROUPS
     """The inputs (1-based columns of B = W) of each thruster T1, T2, …; bit j − 1 of fault_mask is Tj."""
     family: tuple[tuple[float, ...], ...] | None = None
@@ -406,12 +409,16 @@ class COFDParams:
     """Seconds the same fault must be isolated, tick after tick, before it is reported (latched)."""
     x0: tuple[float, ...] | None = None
     """Initial estimate (absolute); None: C⁺ y(0), so e(0) = 0 when C is injective (C = I)."""
+    rotating_frame: bool = False
+    """The outputs are the vessel's (x, y, ψ, u, v, r): add the body frame's kinematic terms that the
+    linearization at ψ = 0 drops (estimators/rotating_frame.py)."""
 
 
 class COFDDiagnosis(Estimator):
     """Fault detection and isolation with a family of COFD observers (Sec. 3–4), integrated exactly
     between samples like ``uio`` (u held, y linear). Publishes x̂ = C⁺y (the measured state), the residual components
-    r<h>_<i> = e_iᵀ r^(h) and their thresholds thr<h>_<i>, ``alarm`` (some component above its
+    r<h>_<i> = e_iᵀ r^(h) (less their means learned fault-free, with a declared environment:
+    estimators/thresholds.py) and their thresholds thr<h>_<i>, ``alarm`` (some component above its
     threshold), ``isolated_T<j>`` and ``fault_mask`` (latched isolations) and, for the cluster
     family, ``constraints_met`` (the commands obey (24); isolation waits while they do not)."""
 
@@ -446,7 +453,9 @@ class COFDDiagnosis(Estimator):
         self.ell = max(len(J) for J in family)
         bounds = [residual_bounds(o, model.C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
         self.thresholds = np.array([params.margin * bound for bound in bounds])
+        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, self.sample_time)
         self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
+        self.frame = FrameTerms(model, self.observers, self.sample_time) if params.rotating_frame else None
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
         if self.x_init is not None and self.x_init.shape != (model.n,):
             raise ParameterError("x0", f"expected {model.n} values, got {self.x_init.size}")
@@ -509,13 +518,14 @@ class COFDDiagnosis(Estimator):
             self.z = [x0 - o.H @ y for o in self.observers]
         else:
             self.t += self.sample_time
+            frame = self.frame(self.y_prev, y) if self.frame else [0.0] * len(self.z)
             self.z = [
-                Phi @ z + Gu @ self.u_prev + Gy0 @ self.y_prev + Gy1 @ y
-                for z, (Phi, Gu, Gy0, Gy1) in zip(self.z, self.discrete)
+                Phi @ z + Gu @ self.u_prev + Gy0 @ self.y_prev + Gy1 @ y + kinematics
+                for z, (Phi, Gu, Gy0, Gy1), kinematics in zip(self.z, self.discrete, frame)
             ]
         x_hats = [z + o.H @ y for z, o in zip(self.z, self.observers)]
-        residuals = np.array([(y - model.C @ x)[: self.ell] for x in x_hats])
-        fired = np.abs(residuals) > self.thresholds
+        residuals, thresholds = self.test(self.t, np.array([(y - model.C @ x)[: self.ell] for x in x_hats]), y)
+        fired = np.abs(residuals) > thresholds
         constraints_met = self._constraints_met(self.u_prev + model.u_op)  # (24) constrains the absolute inputs
         found = isolate(fired, self.signatures, self.hypotheses) if constraints_met else None
         if found != self.candidate:
@@ -524,7 +534,7 @@ class COFDDiagnosis(Estimator):
             self.isolated[list(found)] = True
         self.y_prev, self.u_prev = y, du
         shown = np.zeros((2, MAX_OBSERVERS, MAX_COMPONENTS))  # the components beyond the family's: 0
-        shown[:, : len(self.observers), : self.ell] = residuals, self.thresholds
+        shown[:, : len(self.observers), : self.ell] = residuals, thresholds
         isolated = np.zeros(MAX_THRUSTERS)
         isolated[: len(self.isolated)] = self.isolated
         diagnostics = RESIDUAL.values(COMPONENTS, shown[0].ravel()) | THRESHOLD.values(COMPONENTS, shown[1].ravel())
