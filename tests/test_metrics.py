@@ -15,7 +15,8 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from cosim import scenario
-from cosim.analysis.metrics import BAND_FACTOR, compute_metrics
+from cosim.analysis.metrics import BAND_FACTOR, DiagnosisMetrics, RunMetrics, compute_metrics, measure
+from cosim.analysis.metrics.values import to_json
 from cosim.bus.timing import TAIL_BITS, crc15, frame_bits, frame_bits_worst_case, stuff_bits
 from cosim.errors import LogError
 from cosim.log.reader import LogReader
@@ -440,6 +441,19 @@ def test_hand_log_bus(hand):
         {"fdi": 2},
     )
     assert hand["frames"] == {"total": 201, "lost": 5}
+
+
+def test_the_metrics_are_a_typed_value_with_one_json_form(hand_log, hand):
+    value = measure(hand_log)
+    assert isinstance(value, RunMetrics) and value.to_json() == hand
+    assert value.estimators["good"].faults["f1"].peak_error == hand["estimators"]["good"]["faults"]["f1"]["peak_error"]
+    assert value.diagnosis["fdi"].faults["f2"].isolated == hand["diagnosis"]["fdi"]["faults"]["f2"]["isolated"]
+    assert value.bus is not None and value.bus.by_id["0x100"].bits == 100 * 141
+    assert RunMetrics.from_json(hand) == value  # the JSON form reads back
+    assert json.dumps(RunMetrics.from_json(json.loads(json.dumps(hand))).to_json()) == json.dumps(hand)
+    # fields left out where None: the bus's intrusion detection and SecOC rejections, a detector's kind
+    assert "intrusion_detection" not in hand["bus"] and "secoc_rejected" not in hand["bus"]
+    assert "kind" not in to_json(DiagnosisMetrics()) and to_json(DiagnosisMetrics(kind="uio"))["kind"] == "uio"
 
 
 def test_the_order_of_messages_within_a_tick_does_not_matter(tmp_path, hand):
