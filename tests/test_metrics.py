@@ -12,7 +12,6 @@ import sys
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
 
 from cosim import scenario
 from cosim.analysis.metrics import BAND_FACTOR, DiagnosisMetrics, RunMetrics, compute_metrics, measure
@@ -25,6 +24,7 @@ from cosim.log.writer import McapLog, object_schema
 from cosim.run import run
 from estimators import ParameterError, create
 from estimators.model import LinearModel
+from tests.other_logs import write_other_log
 
 # -- CAN frame lengths --------------------------------------------------------------------------
 
@@ -675,17 +675,12 @@ def test_the_cli_on_a_cut_log_prints_a_partial_report_without_traceback(long_han
 
 
 def test_a_log_written_by_another_program_says_what_is_missing(tmp_path):
-    path = tmp_path / "other.mcap"
-    with open(path, "wb") as stream:
-        writer = Writer(stream)
-        writer.start()
-        schema = writer.register_schema("x", "jsonschema", b'{"type":"object"}')
-        pose = writer.register_channel("/pose", "json", schema)
-        state = writer.register_channel("/truth/state", "json", schema)
-        for i in range(5):
-            writer.add_message(pose, i * 1_000_000_000, b'{"x": 1}', i)
-            writer.add_message(state, i * 1_000_000_000, b"[1, 2]", i)  # not a cosim truth message
-        writer.finish()
+    messages = [
+        (topic, i * 1_000_000_000, data)
+        for i in range(5)
+        for topic, data in (("/pose", b'{"x": 1}'), ("/truth/state", b"[1, 2]"))  # not a cosim truth message
+    ]
+    path = write_other_log(tmp_path / "other.mcap", messages)
     report = compute_metrics(path)
     assert report["channels"] == {"/pose": 5, "/truth/state": 5} and report["time_span_s"] == 4.0
     assert (

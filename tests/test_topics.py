@@ -14,41 +14,23 @@ from cosim.bus.codec import Codec
 from cosim.log import topics
 from cosim.log.reader import LogReader
 from cosim.log.recorder import RunRecorder
-from cosim.log.topics import (
-    IDS_CHECKS,
-    BusFaultEvent,
-    CanFrame,
-    DeadlineMiss,
-    Event,
-    Foreign,
-    IntrusionVerdict,
-    PlantNames,
-    Record,
-    SecurityRejection,
-    Signals,
-    TruthFaults,
-    TruthInputs,
-    TruthSensors,
-    TruthState,
-    WirePassage,
-)
 from cosim.log.writer import McapLog
 
-RECORDS = [
-    CanFrame,
-    TruthState,
-    TruthSensors,
-    TruthInputs,
-    TruthFaults,
-    DeadlineMiss,
-    Foreign,
-    Event,
-    BusFaultEvent,
-    WirePassage,
-    SecurityRejection,
-    IntrusionVerdict,
+RECORDS: list[type[topics.Record]] = [
+    topics.CanFrame,
+    topics.TruthState,
+    topics.TruthSensors,
+    topics.TruthInputs,
+    topics.TruthFaults,
+    topics.DeadlineMiss,
+    topics.Foreign,
+    topics.Event,
+    topics.BusFaultEvent,
+    topics.WirePassage,
+    topics.SecurityRejection,
+    topics.IntrusionVerdict,
 ]
-PLANT = PlantNames(
+PLANT = topics.PlantNames(
     ("x1", "v1"),
     ("y1", "y2"),
     ("force",),
@@ -182,7 +164,7 @@ def test_each_message_has_its_records_fields_in_order_and_its_schemas(recorded):
         message = written[record.TOPIC]
         properties = list(schemas[record.TOPIC]["properties"])
         assert list(message) == properties, record.TOPIC
-        if record not in (TruthState, TruthSensors):  # their fields are the plant's names
+        if record not in (topics.TruthState, topics.TruthSensors):  # their fields are the plant's names
             assert list(message) == list(topics.field_names(record)), record.TOPIC
         assert schemas[record.TOPIC]["title"] == record.TITLE and schemas[record.TOPIC]["required"] == properties
 
@@ -190,49 +172,51 @@ def test_each_message_has_its_records_fields_in_order_and_its_schemas(recorded):
 def test_records_read_back_what_was_written(recorded):
     messages, _ = recorded
     written = {topic: (time, message) for topic, time, message in messages}
-    frame = CanFrame.read(written["/can/frames"][1])
+    frame = topics.CanFrame.read(written["/can/frames"][1])
     assert (frame.id, frame.message, frame.sender, frame.tick) == (0x100, "SENSOR_x1", "plant", 70_003)
     assert frame.can_message().data == bytes.fromhex(frame.data)
-    signals = Signals.read(written["/can/SENSOR_x1"][1], logged_tick=70_003)
+    signals = topics.Signals.read(written["/can/SENSOR_x1"][1], logged_tick=70_003)
     assert signals.tick == 70_000 and set(signals.values) == {"x1"}
-    state = TruthState.read(written["/truth/state"][1])
+    state = topics.TruthState.read(written["/truth/state"][1])
     assert state.values == {"x1": 1.0, "v1": 2.0} and list(state.vector(["v1", "x1"])) == [2.0, 1.0]
-    assert TruthSensors.read(written["/truth/sensors"][1]).values == {"y1": 1.5, "y2": 2.5}
-    faults = TruthFaults.read(written["/truth/faults"][1])
+    assert topics.TruthSensors.read(written["/truth/sensors"][1]).values == {"y1": 1.5, "y2": 2.5}
+    faults = topics.TruthFaults.read(written["/truth/faults"][1])
     assert faults.active == ["f1"] and faults.dropped == ["y2"] and faults.effectiveness == {"force": 0.5}
-    assert TruthInputs.read(written["/truth/inputs"][1]).effective == {"force": 1.5}
-    assert DeadlineMiss.read(written["/cosim/deadline_misses"][1]).node == "kalman"
-    foreign = Foreign.read(written["/cosim/foreign"][1])
+    assert topics.TruthInputs.read(written["/truth/inputs"][1]).effective == {"force": 1.5}
+    assert topics.DeadlineMiss.read(written["/cosim/deadline_misses"][1]).node == "kalman"
+    foreign = topics.Foreign.read(written["/cosim/foreign"][1])
     assert (foreign.kind, foreign.id, foreign.count, foreign.data) == ("frame", 0x100, 4, "0102")
-    assert BusFaultEvent.read(written["/truth/bus_faults"][1]).errors == 256
-    assert WirePassage.read(written["/cosim/wire"][1]).late is True
-    assert SecurityRejection.read(written["/cosim/security"][1]).freshness == 41
-    verdict = IntrusionVerdict.read(written["/cosim/ids"][1])
+    assert topics.BusFaultEvent.read(written["/truth/bus_faults"][1]).errors == 256
+    assert topics.WirePassage.read(written["/cosim/wire"][1]).late is True
+    assert topics.SecurityRejection.read(written["/cosim/security"][1]).freshness == 41
+    verdict = topics.IntrusionVerdict.read(written["/cosim/ids"][1])
     assert verdict.checks() == {"period": 0, "sequence": 1, "range": 0, "unknown": 2}
-    assert tuple(verdict.checks()) == IDS_CHECKS
+    assert tuple(verdict.checks()) == topics.IDS_CHECKS
 
 
 def test_reading_is_lenient_with_fields_a_log_lacks_or_adds():
-    assert Event.read({"tick": 1, "t": 0.1, "level": "info"}) == Event(tick=1, t=0.1, level="info", event="", count=1)
-    assert Foreign.read({"tick": 1, "t": 0.1, "kind": "datagram", "reason": "r", "source": "s", "new": 1}).count == 1
+    event = topics.Event.read({"tick": 1, "t": 0.1, "level": "info"})
+    assert event == topics.Event(tick=1, t=0.1, level="info", event="", count=1)
+    foreign = {"tick": 1, "t": 0.1, "kind": "datagram", "reason": "r", "source": "s", "length": 3, "data": "", "new": 1}
+    assert topics.Foreign.read(foreign).count == 1
     with pytest.raises(TypeError):
-        Event.read({"tock": 1})
+        topics.Event.read({"tock": 1})
     with pytest.raises(KeyError):
-        TruthState.read({"tock": 1})
+        topics.TruthState.read({"tock": 1})
 
 
 def test_a_message_path_names_a_field_of_its_record():
-    assert topics.path(TruthFaults, "fault", "y1") == "/truth/faults.fault.y1"
+    assert topics.path(topics.TruthFaults, "fault", "y1") == "/truth/faults.fault.y1"
     with pytest.raises(KeyError, match="no field 'faults'"):
-        topics.path(TruthFaults, "faults")
+        topics.path(topics.TruthFaults, "faults")
 
 
 def test_the_truth_schemas_need_the_plants_names():
     with pytest.raises(TypeError, match="needs the run's names"):
-        TruthFaults.schema()
-    schema = TruthFaults.schema(PLANT)
+        topics.TruthFaults.schema()
+    schema = topics.TruthFaults.schema(PLANT)
     assert schema["properties"]["measured"]["properties"]["y1"] == {"type": ["number", "null"], "description": "y1 [m]"}
-    assert json.loads(json.dumps(Event.schema()))["properties"]["level"] == {
+    assert json.loads(json.dumps(topics.Event.schema()))["properties"]["level"] == {
         "type": "string",
         "enum": ["info", "warning", "error"],
     }
@@ -240,5 +224,5 @@ def test_the_truth_schemas_need_the_plants_names():
 
 def test_every_record_is_a_slotted_dataclass_of_this_module():
     for record in RECORDS:
-        assert dataclasses.is_dataclass(record) and issubclass(record, Record)
+        assert dataclasses.is_dataclass(record) and issubclass(record, topics.Record)
         assert all("__slots__" in vars(base) for base in record.__mro__[:-1]), record  # no __dict__ per message

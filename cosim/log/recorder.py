@@ -187,7 +187,7 @@ class RunRecorder:
         dropped: str | None,
     ) -> None:
         """A frame's passage on the simulated wire: (queued, start, delivered) in ns."""
-        payload = WirePassage.payload(tick, t_ns, frame_id, message, sender, times_ns, late, bits, dropped)
+        payload = WirePassage.payload(tick, t_ns, frame_id, message, sender, *times_ns, late, bits, dropped)
         self.log.write(self._channel(WirePassage), t_ns, payload)
 
     def deadline_miss(self, tick: int, t: float, t_ns: int, node: str, count: int) -> None:

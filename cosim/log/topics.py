@@ -40,8 +40,9 @@ record's are ignored. The truth and decoded topics, whose fields are the run's s
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar, Self, TypeVar, dataclass_transform
 
 import can
 import numpy as np
@@ -89,6 +90,11 @@ def per_name(names: tuple[str, ...], units: dict[str, str], description: str, nu
         "description": description,
         "properties": {n: number(n, units.get(n, ""), nullable) for n in names},
     }
+
+
+def by_name(names: tuple[str, ...], values: np.ndarray | None) -> dict[str, Any]:
+    """Values by their names (none for None); NaN becomes null where the message is written."""
+    return dict(zip(names, [] if values is None else values.tolist()))
 
 
 def prop(schema: dict[str, Any] | None = None, default: Any = MISSING, factory: Any = MISSING) -> Any:
@@ -146,6 +152,31 @@ def _fixed(record: type[Record]) -> dict[str, Any]:
     return {f.name: f.metadata["schema"] for f in fields(record)}  # type: ignore[arg-type]
 
 
+R = TypeVar("R", bound=Record)
+
+
+@dataclass_transform(kw_only_default=True, field_specifiers=(prop,))
+def topic(name: str, title: str, description: str) -> Callable[[type[R]], type[R]]:
+    """Make a record class the record of topic ``name``: a slotted dataclass whose fields are the
+    message's (keyword-only: a field without a default can follow one with), its JSON Schema titled
+    ``title`` and described by ``description``."""
+
+    def make(record: type[R]) -> type[R]:
+        made = dataclass(slots=True, kw_only=True)(record)
+        made.TOPIC, made.TITLE, made.DESCRIPTION = name, title, description
+        return made
+
+    return make
+
+
+@dataclass(slots=True, kw_only=True)
+class TickRecord(Record):
+    """A record of one tick: the runner's tick counter k and simulated time t_k, then its own fields."""
+
+    tick: int = prop(TICK)
+    t: float = prop(TIME)
+
+
 def _plant(record: type[Record], plant: PlantNames | None) -> PlantNames:
     if plant is None:
         raise TypeError(f"the schema of {record.TOPIC} needs the run's names (PlantNames)")
@@ -164,14 +195,8 @@ def path(record: type[Record], name: str, *keys: str) -> str:
     return ".".join((record.TOPIC, name, *keys))
 
 
-@dataclass(slots=True, kw_only=True)
-class CanFrame(Record):
-    TOPIC = "/can/frames"
-    TITLE = "cosim.CanFrame"
-    DESCRIPTION = "A frame on the run's CAN bus"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/can/frames", "cosim.CanFrame", "A frame on the run's CAN bus")
+class CanFrame(TickRecord):
     seq: int = prop(integer("position of the frame on the bus in this run"))
     id: int = prop(integer("arbitration id"))
     extended: bool = prop(boolean("29-bit identifier"))
@@ -268,18 +293,13 @@ def carried_tick(logged_tick: int, counter: int) -> int:
     return logged_tick - (logged_tick - int(counter)) % (1 << CLASSIC_TICK_BITS)
 
 
-@dataclass(slots=True)
-class TruthState(Record):
+@topic("/truth/state", "cosim.TruthState", "State of the simulated plant")
+class TruthState(TickRecord):
     """One field per state component (``values`` when read)."""
 
-    TOPIC = "/truth/state"
-    TITLE = "cosim.TruthState"
-    DESCRIPTION = "State of the simulated plant"
     GROUP: ClassVar[str] = "states"
 
-    tick: int
-    t: float
-    values: dict[str, float]
+    values: dict[str, float] = prop(factory=dict)
 
     @classmethod
     def _properties(cls, plant: PlantNames | None) -> dict[str, Any]:
@@ -289,35 +309,26 @@ class TruthState(Record):
 
     @staticmethod
     def payload(tick: int, t: float, names: tuple[str, ...], values: np.ndarray) -> dict[str, Any]:
-        return {"tick": tick, "t": t, **dict(zip(names, values.tolist()))}
+        return {"tick": tick, "t": t, **by_name(names, values)}
 
     @classmethod
     def read(cls, message: dict[str, Any]) -> Self:
         values = {name: value for name, value in message.items() if name not in ("tick", "t")}
-        return cls(message["tick"], message["t"], values)
+        return cls(tick=message["tick"], t=message["t"], values=values)
 
     def vector(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
         return np.array([self.values[name] for name in names])
 
 
+@topic("/truth/sensors", "cosim.TruthSensors", "True (fault-free, noise-free) sensor readings")
 class TruthSensors(TruthState):
     """One field per sensor (``values`` when read)."""
 
-    __slots__ = ()
-    TOPIC = "/truth/sensors"
-    TITLE = "cosim.TruthSensors"
-    DESCRIPTION = "True (fault-free, noise-free) sensor readings"
     GROUP = "sensors"
 
 
-@dataclass(slots=True, kw_only=True)
-class TruthInputs(Record):
-    TOPIC = "/truth/inputs"
-    TITLE = "cosim.TruthInputs"
-    DESCRIPTION = "Actuator inputs and unknown inputs"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/truth/inputs", "cosim.TruthInputs", "Actuator inputs and unknown inputs")
+class TruthInputs(TickRecord):
     commanded: dict[str, float] = prop(factory=dict)
     effective: dict[str, float] = prop(factory=dict)
     disturbance: dict[str, float] = prop(factory=dict)
@@ -343,24 +354,17 @@ class TruthInputs(Record):
         effective: np.ndarray,
         disturbance: np.ndarray | None,
     ) -> dict[str, Any]:
-        actuators = plant.actuators
         return {
             "tick": tick,
             "t": t,
-            "commanded": dict(zip(actuators, commanded.tolist())),
-            "effective": dict(zip(actuators, effective.tolist())),
-            "disturbance": dict(zip(plant.disturbances, [] if disturbance is None else disturbance.tolist())),
+            "commanded": by_name(plant.actuators, commanded),
+            "effective": by_name(plant.actuators, effective),
+            "disturbance": by_name(plant.disturbances, disturbance),
         }
 
 
-@dataclass(slots=True, kw_only=True)
-class TruthFaults(Record):
-    TOPIC = "/truth/faults"
-    TITLE = "cosim.TruthFaults"
-    DESCRIPTION = "Faults and noise applied by the fault layer"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/truth/faults", "cosim.TruthFaults", "Faults and noise applied by the fault layer")
+class TruthFaults(TickRecord):
     noise: dict[str, float] = prop(factory=dict)
     fault: dict[str, float | None] = prop(factory=dict)
     measured: dict[str, float | None] = prop(factory=dict)
@@ -394,70 +398,48 @@ class TruthFaults(Record):
         return {
             "tick": tick,
             "t": t,
-            "noise": dict(zip(sensors, noise.tolist())),
-            "fault": dict(zip(sensors, fault.tolist())),
-            "measured": dict(zip(sensors, measured.tolist())),
+            "noise": by_name(sensors, noise),
+            "fault": by_name(sensors, fault),
+            "measured": by_name(sensors, measured),
             "dropped": [name for name, value in zip(sensors, measured) if value != value],
-            "effectiveness": dict(zip(plant.actuators, delta.tolist())),
+            "effectiveness": by_name(plant.actuators, delta),
             "active": list(active),
         }
 
 
-@dataclass(slots=True, kw_only=True)
-class DeadlineMiss(Record):
-    TOPIC = "/cosim/deadline_misses"
-    TITLE = "cosim.DeadlineMiss"
-    DESCRIPTION = "Realtime mode: ticks a node did not answer in time"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/cosim/deadline_misses", "cosim.DeadlineMiss", "Realtime mode: ticks a node did not answer in time")
+class DeadlineMiss(TickRecord):
     node: str = prop(text("the node whose heartbeat for this tick was not in by its deadline"))
     count: int = prop(integer("deadline misses so far in the run"))
 
 
-@dataclass(slots=True, kw_only=True)
-class Foreign(Record):
-    TOPIC = "/cosim/foreign"
-    TITLE = "cosim.Foreign"
-    DESCRIPTION = "What arrived on the run's bus and does not belong to it: counted, never used"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic(
+    "/cosim/foreign", "cosim.Foreign", "What arrived on the run's bus and does not belong to it: counted, never used"
+)
+class Foreign(TickRecord):
     kind: str = prop(
         text("a datagram that is no frame of the run, or a frame the run did not send", enum=["datagram", "frame"])
     )
     reason: str = prop(text("why it does not belong"))
     source: str = prop(text("where it came from, where known"))
     id: int | None = prop(integer("arbitration id (frames)", nullable=True), default=None)
-    length: int = prop(integer("bytes received (datagram) or payload bytes (frame)"), default=0)
-    data: str = prop(text("the first bytes, hex"), default="")
+    length: int = prop(integer("bytes received (datagram) or payload bytes (frame)"))
+    data: str = prop(text("the first bytes, hex"))
     count: int = prop(integer("how many such arrived in this tick that this record stands for"), default=1)
 
 
-@dataclass(slots=True, kw_only=True)
-class Event(Record):
-    TOPIC = "/cosim/events"
-    TITLE = "cosim.Event"
-    DESCRIPTION = "Runner events"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/cosim/events", "cosim.Event", "Runner events")
+class Event(TickRecord):
     level: str = prop(text(enum=["info", "warning", "error"]), default="info")
     event: str = prop(text(), default="")
     detail: str = prop(text(), default="")
     count: int = prop(integer("how many (frames lost, deadlines missed, ...)"), default=1)
 
 
-@dataclass(slots=True, kw_only=True)
-class BusFaultEvent(Record):
+@topic("/truth/bus_faults", "cosim.BusFaultEvent", "What a bus fault did to a frame")
+class BusFaultEvent(TickRecord):
     """What a bus fault did (the fields of ``cosim.run.busfaults.BusEvent``)."""
 
-    TOPIC = "/truth/bus_faults"
-    TITLE = "cosim.BusFaultEvent"
-    DESCRIPTION = "What a bus fault did to a frame"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
     label: str = prop(text("the fault's label"))
     kind: str = prop(text("the fault's kind"))
     message: str = prop(text("the message (or node) it hit"))
@@ -466,14 +448,8 @@ class BusFaultEvent(Record):
     delay: float = prop(number("how long the frame was held back", "s"), default=0.0)
 
 
-@dataclass(slots=True, kw_only=True)
-class WirePassage(Record):
-    TOPIC = "/cosim/wire"
-    TITLE = "cosim.WirePassage"
-    DESCRIPTION = "A frame's passage on the simulated wire (arbitrated timing)"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/cosim/wire", "cosim.WirePassage", "A frame's passage on the simulated wire (arbitrated timing)")
+class WirePassage(TickRecord):
     id: int = prop(integer("arbitration id"))
     message: str | None = prop(text("DBC message name", nullable=True))
     sender: str = prop(text("the node that queued it"))
@@ -492,37 +468,32 @@ class WirePassage(Record):
         frame_id: int,
         message: str | None,
         sender: str,
-        times_ns: tuple[int, int, int],
+        queued_ns: int,
+        start_ns: int,
+        delivered_ns: int,
         late: bool,
         bits: int,
         dropped: str | None,
     ) -> dict[str, Any]:
-        """A passage at ``t_ns`` (its delivery): ``times_ns`` its (queued, start, delivered)."""
-        queued, start, delivered = times_ns
+        """A passage logged at ``t_ns``, its delivery."""
         return {
             "tick": tick,
             "t": t_ns / 1e9,
             "id": frame_id,
             "message": message,
             "sender": sender,
-            "queued": queued / 1e9,
-            "start": start / 1e9,
-            "delivered": delivered / 1e9,
-            "latency": (delivered - queued) / 1e9,
+            "queued": queued_ns / 1e9,
+            "start": start_ns / 1e9,
+            "delivered": delivered_ns / 1e9,
+            "latency": (delivered_ns - queued_ns) / 1e9,
             "late": late,
             "bits": bits,
             "dropped": dropped,
         }
 
 
-@dataclass(slots=True, kw_only=True)
-class SecurityRejection(Record):
-    TOPIC = "/cosim/security"
-    TITLE = "cosim.SecurityRejection"
-    DESCRIPTION = "A frame dropped by SecOC verification"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic("/cosim/security", "cosim.SecurityRejection", "A frame dropped by SecOC verification")
+class SecurityRejection(TickRecord):
     id: int = prop(integer("arbitration id"))
     message: str | None = prop(text("DBC message name", nullable=True))
     sender: str = prop(text("the sender it claims to come from (the id's owner)"))
@@ -541,14 +512,12 @@ class SecurityRejection(Record):
 IDS_CHECKS = ("period", "sequence", "range", "unknown")
 
 
-@dataclass(slots=True, kw_only=True)
-class IntrusionVerdict(Record):
-    TOPIC = "/cosim/ids"
-    TITLE = "cosim.IntrusionVerdict"
-    DESCRIPTION = "The key-less intrusion detector's verdict on a tick: period, sequence, range, unknown sender"
-
-    tick: int = prop(TICK)
-    t: float = prop(TIME)
+@topic(
+    "/cosim/ids",
+    "cosim.IntrusionVerdict",
+    "The key-less intrusion detector's verdict on a tick: period, sequence, range, unknown sender",
+)
+class IntrusionVerdict(TickRecord):
     alarm: bool = prop(boolean("any check raised in this tick"))
     period: int = prop(integer("ids the period check raised on"))
     sequence: int = prop(integer("ids the sequence check raised on"))

@@ -34,6 +34,11 @@ from cosim.analysis.metrics.values import (
     FaultDiagnosis,
     FaultRecovery,
     FaultSpan,
+    ForeignTraffic,
+    FrameCounts,
+    IdLatency,
+    IdTraffic,
+    LoadOverTime,
     RunMetrics,
 )
 
@@ -45,6 +50,11 @@ __all__ = [
     "FaultDiagnosis",
     "FaultRecovery",
     "FaultSpan",
+    "ForeignTraffic",
+    "FrameCounts",
+    "IdLatency",
+    "IdTraffic",
+    "LoadOverTime",
     "RunMetrics",
     "compute_metrics",
     "measure",
