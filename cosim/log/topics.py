@@ -144,7 +144,16 @@ class Record:
 
     @classmethod
     def _properties(cls, plant: PlantNames | None) -> dict[str, Any]:
-        return _fixed(cls)
+        """Each field's JSON Schema; those of fields whose properties are the run's names, ``_named``'s."""
+        properties = _fixed(cls)
+        if any(schema is None for schema in properties.values()):
+            properties |= cls._named(_plant(cls, plant))
+        return properties
+
+    @classmethod
+    def _named(cls, plant: PlantNames) -> dict[str, Any]:
+        """The schemas of the fields that hold a value per name of the run (a sensor, an actuator)."""
+        return {}
 
 
 def _fixed(record: type[Record]) -> dict[str, Any]:
@@ -334,10 +343,9 @@ class TruthInputs(TickRecord):
     disturbance: dict[str, float] = prop(factory=dict)
 
     @classmethod
-    def _properties(cls, plant: PlantNames | None) -> dict[str, Any]:
-        plant = _plant(cls, plant)
+    def _named(cls, plant: PlantNames) -> dict[str, Any]:
         actuators, units = plant.actuators, plant.unit("actuators")
-        return _fixed(cls) | {
+        return {
             "commanded": per_name(actuators, units, "commanded input per actuator"),
             "effective": per_name(actuators, units, "input acting on the plant after actuator faults"),
             "disturbance": per_name(
@@ -373,10 +381,9 @@ class TruthFaults(TickRecord):
     active: list[str] = prop(array("string", "labels of the active faults"))
 
     @classmethod
-    def _properties(cls, plant: PlantNames | None) -> dict[str, Any]:
-        plant = _plant(cls, plant)
+    def _named(cls, plant: PlantNames) -> dict[str, Any]:
         sensors, units = plant.sensors, plant.unit("sensors")
-        return _fixed(cls) | {
+        return {
             "noise": per_name(sensors, units, "measurement noise added per sensor"),
             "fault": per_name(sensors, units, "deviation added by faults per sensor", nullable=True),
             "measured": per_name(sensors, units, "reading sent on the bus (null: not sent)", nullable=True),
@@ -512,6 +519,11 @@ class SecurityRejection(TickRecord):
 IDS_CHECKS = ("period", "sequence", "range", "unknown")
 
 
+def _check(name: str) -> Any:
+    """A field of the intrusion detector's verdict: how many ids check ``name`` raised on."""
+    return prop(integer(f"ids the {name} check raised on"))
+
+
 @topic(
     "/cosim/ids",
     "cosim.IntrusionVerdict",
@@ -519,10 +531,10 @@ IDS_CHECKS = ("period", "sequence", "range", "unknown")
 )
 class IntrusionVerdict(TickRecord):
     alarm: bool = prop(boolean("any check raised in this tick"))
-    period: int = prop(integer("ids the period check raised on"))
-    sequence: int = prop(integer("ids the sequence check raised on"))
-    range: int = prop(integer("ids the range check raised on"))
-    unknown: int = prop(integer("ids the unknown check raised on"))
+    period: int = _check("period")
+    sequence: int = _check("sequence")
+    range: int = _check("range")
+    unknown: int = _check("unknown")
     ids: list[int] = prop(array("integer", "those ids"))
 
     @staticmethod
