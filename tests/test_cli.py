@@ -9,9 +9,9 @@ import sys
 from contextlib import redirect_stdout
 
 import pytest
-from mcap.writer import Writer
 
 from cosim.cli import main
+from tests.other_logs import write_other_log
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -50,15 +50,7 @@ def test_inspect_of_a_file_that_is_not_mcap(tmp_path):
 
 
 def test_inspect_of_a_log_written_by_another_program(tmp_path):
-    path = tmp_path / "other.mcap"
-    with open(path, "wb") as stream:
-        writer = Writer(stream)
-        writer.start()
-        schema = writer.register_schema("x", "jsonschema", b'{"type":"object"}')
-        channel = writer.register_channel("/pose", "json", schema)
-        for i in range(5):
-            writer.add_message(channel, i, b'{"x": 1}', i)
-        writer.finish()
+    path = write_other_log(tmp_path / "other.mcap", [("/pose", i, b'{"x": 1}') for i in range(5)])
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["inspect", str(path), "--json"]) == 0

@@ -12,10 +12,10 @@ import sys
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
 
 from cosim import scenario
-from cosim.analysis.metrics import BAND_FACTOR, compute_metrics
+from cosim.analysis.metrics import BAND_FACTOR, DiagnosisMetrics, RunMetrics, compute_metrics, measure
+from cosim.analysis.metrics.values import to_json
 from cosim.bus.timing import TAIL_BITS, crc15, frame_bits, frame_bits_worst_case, stuff_bits
 from cosim.errors import LogError
 from cosim.log.reader import LogReader
@@ -24,6 +24,7 @@ from cosim.log.writer import McapLog, object_schema
 from cosim.run import run
 from estimators import ParameterError, create
 from estimators.model import LinearModel
+from tests.other_logs import write_other_log
 
 # -- CAN frame lengths --------------------------------------------------------------------------
 
@@ -442,6 +443,19 @@ def test_hand_log_bus(hand):
     assert hand["frames"] == {"total": 201, "lost": 5}
 
 
+def test_the_metrics_are_a_typed_value_with_one_json_form(hand_log, hand):
+    value = measure(hand_log)
+    assert isinstance(value, RunMetrics) and value.to_json() == hand
+    assert value.estimators["good"].faults["f1"].peak_error == hand["estimators"]["good"]["faults"]["f1"]["peak_error"]
+    assert value.diagnosis["fdi"].faults["f2"].isolated == hand["diagnosis"]["fdi"]["faults"]["f2"]["isolated"]
+    assert value.bus is not None and value.bus.by_id["0x100"].bits == 100 * 141
+    assert RunMetrics.from_json(hand) == value  # the JSON form reads back
+    assert json.dumps(RunMetrics.from_json(json.loads(json.dumps(hand))).to_json()) == json.dumps(hand)
+    # fields left out where None: the bus's intrusion detection and SecOC rejections, a detector's kind
+    assert "intrusion_detection" not in hand["bus"] and "secoc_rejected" not in hand["bus"]
+    assert "kind" not in to_json(DiagnosisMetrics()) and to_json(DiagnosisMetrics(kind="uio"))["kind"] == "uio"
+
+
 def test_the_order_of_messages_within_a_tick_does_not_matter(tmp_path, hand):
     write_hand_log(tmp_path / "shuffled.mcap", order_estimates_first=False)
     shuffled = compute_metrics(tmp_path / "shuffled.mcap")
@@ -661,17 +675,12 @@ def test_the_cli_on_a_cut_log_prints_a_partial_report_without_traceback(long_han
 
 
 def test_a_log_written_by_another_program_says_what_is_missing(tmp_path):
-    path = tmp_path / "other.mcap"
-    with open(path, "wb") as stream:
-        writer = Writer(stream)
-        writer.start()
-        schema = writer.register_schema("x", "jsonschema", b'{"type":"object"}')
-        pose = writer.register_channel("/pose", "json", schema)
-        state = writer.register_channel("/truth/state", "json", schema)
-        for i in range(5):
-            writer.add_message(pose, i * 1_000_000_000, b'{"x": 1}', i)
-            writer.add_message(state, i * 1_000_000_000, b"[1, 2]", i)  # not a cosim truth message
-        writer.finish()
+    messages = [
+        (topic, i * 1_000_000_000, data)
+        for i in range(5)
+        for topic, data in (("/pose", b'{"x": 1}'), ("/truth/state", b"[1, 2]"))  # not a cosim truth message
+    ]
+    path = write_other_log(tmp_path / "other.mcap", messages)
     report = compute_metrics(path)
     assert report["channels"] == {"/pose": 5, "/truth/state": 5} and report["time_span_s"] == 4.0
     assert (

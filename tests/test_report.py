@@ -10,22 +10,23 @@ from __future__ import annotations
 
 import base64
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib.image
 import numpy as np
 import pytest
 from markupsafe import escape
-from mcap.writer import Writer
 
 from cosim import scenario
 from cosim.analysis import report as report_module
-from cosim.analysis.metrics import compute_metrics
+from cosim.analysis.metrics import BusMetrics, EstimationMetrics, IdTraffic, RunMetrics, compute_metrics
 from cosim.analysis.plot import plot
 from cosim.analysis.report import report
 from cosim.cli import main
 from cosim.run import run
 from cosim.scenario import LoadedScenario
+from tests.other_logs import write_other_log
 
 CHROMIUM = Path("/usr/bin/chromium")
 #: Flags that keep Chromium off the (closed) network and out of first-run work.
@@ -80,18 +81,27 @@ def test_the_page_is_self_contained_with_every_figure_inlined(log, page, tmp_pat
     assert all(str(escape(report_module.CAPTIONS[stem])) in text for stem in drawn)  # each says what it shows
 
 
-def test_every_metric_of_the_dict_gets_a_cell(log, tmp_path, monkeypatch):
-    """The tables follow the metrics dict, whatever its keys: scalars, records, nested records."""
-    values = {
-        "status": "completed",
-        "estimators": {"a": {"kind": "k", "brand_new_metric": 0.123456, "per_fault": {"f1": {"delay": 2.5}}}},
-        "bus": {"load": 0.25, "by_id": {"0x080": {"frames": 7}}},
-        "warnings": ["careful"],
-    }
+def test_every_metric_of_the_value_gets_a_cell(log, tmp_path, monkeypatch):
+    """The tables follow the metrics, whatever fields they gain: scalars, records, nested records."""
+
+    @dataclass
+    class Estimation(EstimationMetrics):
+        brand_new_metric: float = 0.123456
+        per_fault: dict = field(default_factory=lambda: {"f1": {"delay": 2.5}})
+
+    @dataclass
+    class Metrics(RunMetrics):
+        novel: dict = field(default_factory=lambda: {"x": {"delay_s": 1.5, "per_hour": 2}})
+        novel_scalar_s: float = 0.25
+
+    values = Metrics(
+        status="completed",
+        estimators={"a": Estimation(kind="k")},
+        bus=BusMetrics(load=0.25, by_id={"0x080": IdTraffic(frames=7)}),
+        warnings=["careful"],
+    )
     monkeypatch.setattr(report_module, "metrics", lambda path: values)
     monkeypatch.setattr(report_module, "_figures", lambda path: ([], "", None))
-    values["novel"] = {"x": {"delay_s": 1.5, "per_hour": 2}}
-    values["novel_scalar_s"] = 0.25
     text = report(log, tmp_path / "r.html").read_text()
     assert "0.1235" in text and "careful" in text and ">25.00 %<" in text  # the load, in percent
     assert ">7<" in text  # frames of 0x080
@@ -101,14 +111,7 @@ def test_every_metric_of_the_dict_gets_a_cell(log, tmp_path, monkeypatch):
 
 
 def test_a_log_of_another_program_gives_a_page_that_says_what_is_missing(tmp_path):
-    foreign = tmp_path / "foreign.mcap"
-    with open(foreign, "wb") as stream:
-        writer = Writer(stream)
-        writer.start()
-        schema = writer.register_schema(name="x", encoding="jsonschema", data=b"{}")
-        channel = writer.register_channel(topic="/other", message_encoding="json", schema_id=schema)
-        writer.add_message(channel, log_time=0, data=b"{}", publish_time=0)
-        writer.finish()
+    foreign = write_other_log(tmp_path / "foreign.mcap", [("/other", 0, b"{}")])
     text = report(foreign, tmp_path / "foreign.html").read_text()
     assert "no <code>cosim.run</code> metadata" in text and "no figures" in text and "/other" in text
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from cosim.campaign.engine import open_engine
 from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
-from cosim.campaign.spec import Campaign
+from cosim.campaign.spec import Campaign, RunSpec
 from cosim.campaign.worker import execute_run
 from cosim.errors import CosimError
 from cosim.extras import require
@@ -89,70 +89,83 @@ def run_campaign(
     _prepare(folder, campaign, resume)
     runs = campaign.runs()
     done = done_runs(folder)
-    todo = [run for run in runs if run.index not in done]
-    failed = sum(_failed(folder, index) for index in done)
-    start = time.perf_counter()
-    run_time, finished = 0.0, len(done)
+    tally = _Tally(len(runs), len(done), sum(_failed(folder, index) for index in done), on_progress)
     with open_engine(engine, workers, address) as pool:
         loop_start = time.perf_counter()
         if on_start is not None:
             on_start(pool.description, pool.workers)
+        todo = [run for run in runs if run.index not in done]
         for spec, outcome in pool.results(execute_run, todo, str(folder), keep_logs):
             if isinstance(outcome, BaseException):  # the worker process died running it
-                outcome = {
-                    "rows": [
-                        {
-                            "run": spec.index,
-                            "replicate": spec.replicate,
-                            "seed": spec.seed,
-                            **dict(spec.columns),
-                            "status": "error",
-                            "error": f"the worker running it died: {outcome}",
-                        }
-                    ]
-                }
+                outcome = _died(spec, outcome)
             write_part(folder, spec.index, outcome)
-            finished += 1
-            failed += any(row.get("status") != "completed" for row in outcome["rows"])
-            run_time += max((row.get("wall_time_s") or 0.0) for row in outcome["rows"])
-            if on_progress is not None:
-                ran = finished - len(done)
-                on_progress(
-                    CampaignProgress(
-                        finished,
-                        failed,
-                        len(runs),
-                        len(done),
-                        time.perf_counter() - start,
-                        run_time / ran if ran else 0.0,
-                    )
-                )
+            tally.add(outcome["rows"])
         description, count = pool.description, pool.workers
         loop_time = time.perf_counter() - loop_start
-    states = {c.unit for c in campaign.base.scenario.plant_info.states}
-    varying: dict[str, list[Any]] = {}
-    for run in runs:
-        for name, value in run.columns:
-            varying.setdefault(name, []).append(value)
-    schema = TableSchema.of(varying, states.pop() if len(states) == 1 else "mixed units")
     metadata = {
         "cosim.campaign": campaign.text,
         "cosim.campaign.name": campaign.spec.name,
         "cosim.versions": json.dumps(versions()),
     }
-    path = assemble(folder, [run.index for run in runs], schema, metadata)
+    path = assemble(folder, [run.index for run in runs], _schema(campaign, runs), metadata)
     return CampaignResult(
         path,
         len(runs),
-        failed,
+        tally.failed,
         len(done),
-        time.perf_counter() - start,
+        time.perf_counter() - tally.start,
         description,
         count,
-        loop_start - start,
+        loop_start - tally.start,
         loop_time,
-        run_time,
+        tally.run_time,
     )
+
+
+class _Tally:
+    """The runs finished so far, told to ``on_progress`` after each."""
+
+    def __init__(
+        self, total: int, skipped: int, failed: int, on_progress: Callable[[CampaignProgress], None] | None
+    ) -> None:
+        self.start = time.perf_counter()
+        self.total, self.skipped, self.finished, self.failed = total, skipped, skipped, failed
+        self.run_time = 0.0
+        self.on_progress = on_progress
+
+    def add(self, rows: list[dict[str, Any]]) -> None:
+        """A run's rows: failed if any row did not complete; its wall time is its longest row's."""
+        self.finished += 1
+        self.failed += any(row.get("status") != "completed" for row in rows)
+        self.run_time += max((row.get("wall_time_s") or 0.0) for row in rows)
+        if self.on_progress is not None:
+            ran = self.finished - self.skipped
+            elapsed = time.perf_counter() - self.start
+            mean = self.run_time / ran if ran else 0.0
+            self.on_progress(CampaignProgress(self.finished, self.failed, self.total, self.skipped, elapsed, mean))
+
+
+def _died(spec: RunSpec, error: BaseException) -> dict[str, Any]:
+    """The part of a run whose worker process died running it."""
+    row = {
+        "run": spec.index,
+        "replicate": spec.replicate,
+        "seed": spec.seed,
+        **dict(spec.columns),
+        "status": "error",
+        "error": f"the worker running it died: {error}",
+    }
+    return {"rows": [row]}
+
+
+def _schema(campaign: Campaign, runs: list[RunSpec]) -> TableSchema:
+    """The table's columns: the axis and sample columns of these runs, the state's unit."""
+    states = {c.unit for c in campaign.base.scenario.plant_info.states}
+    varying: dict[str, list[Any]] = {}
+    for run in runs:
+        for name, value in run.columns:
+            varying.setdefault(name, []).append(value)
+    return TableSchema.of(varying, states.pop() if len(states) == 1 else "mixed units")
 
 
 def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:

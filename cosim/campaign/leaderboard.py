@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from cosim.campaign.results import Row
 from cosim.errors import CosimError
 from cosim.extras import require
 
@@ -34,8 +35,19 @@ Z95 = 1.959963984540054
 BOOTSTRAP = 2000
 
 
-def read_table(path: str | Path) -> tuple[dict[str, list[Any]], dict[str, str], dict[str, str]]:
-    """The columns of a results table, the unit of each column, and the table's metadata."""
+@dataclass
+class ResultsTable:
+    """A results table as read: its rows (every column by name), the unit of each column and the
+    table's metadata."""
+
+    rows: list[dict[str, Any]]
+    columns: list[str]
+    units: dict[str, str]
+    metadata: dict[str, str]
+
+
+def read_table(path: str | Path) -> ResultsTable:
+    """A results table (``cosim campaign``'s ``results.parquet``)."""
     pq = require("pyarrow.parquet", "cosim leaderboard", "campaign")
     try:
         table = pq.read_table(path)
@@ -45,7 +57,7 @@ def read_table(path: str | Path) -> tuple[dict[str, list[Any]], dict[str, str], 
         raise CosimError(f"{path}: not a readable Parquet table ({error})") from None
     units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
     metadata = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
-    return table.to_pydict(), units, metadata
+    return ResultsTable(table.to_pylist(), table.column_names, units, metadata)
 
 
 def percentile(values: list[float], q: float) -> float | None:
@@ -91,22 +103,46 @@ class Entry:
     kind: str
     runs: int = 0
     failed: int = 0
-    rms: list[float] | None = None
-    rejection: list[float] | None = None
-    final: list[float] | None = None
+    rms: list[float] = field(default_factory=list)
+    rejection: list[float] = field(default_factory=list)
+    final: list[float] = field(default_factory=list)
     diagnoses: bool = False
     with_fault: int = 0
     detected: int = 0
     missed: int = 0
     false_alarms: int = 0
     fault_free_h: float = 0.0
-    detection_delays: list[float] | None = None
-    isolation_delays: list[float] | None = None
+    detection_delays: list[float] = field(default_factory=list)
+    isolation_delays: list[float] = field(default_factory=list)
     isolable: int = 0
     isolated_correctly: int = 0
 
+    def add(self, row: Row) -> None:
+        """A row of one of its runs: a failed run is counted, a completed one scored."""
+        if row.status != "completed":
+            self.failed += 1
+            return
+        self.runs += 1
+        for found, value in ((self.rms, row.rms_post_fault), (self.rejection, row.bias_rejection_ratio)):
+            _append(found, value)
+        _append(self.final, row.final_error)
+        if not row.diagnoses:
+            return
+        self.diagnoses = True
+        has_fault = row.fault_kind not in (None, "none")
+        self.with_fault += has_fault
+        self.detected += bool(has_fault and row.detected)
+        self.missed += int(row.missed_detections or 0)
+        self.false_alarms += int(row.false_alarms or 0)
+        self.fault_free_h += (_number(row.fault_free_time_s) or 0.0) / 3600
+        _append(self.detection_delays, row.detection_delay_s)
+        _append(self.isolation_delays, row.isolation_delay_s)
+        if row.isolation_correct is not None:
+            self.isolable += 1
+            self.isolated_correctly += bool(row.isolation_correct)
+
     def scores(self) -> dict[str, Any]:
-        rms, rejection = self.rms or [], self.rejection or []
+        rms, rejection = self.rms, self.rejection
         out: dict[str, Any] = {
             "estimator": self.estimator,
             "kind": self.kind,
@@ -115,10 +151,10 @@ class Entry:
             "rms_post_fault_median": percentile(rms, 50),
             "rms_post_fault_p90": percentile(rms, 90),
             "rms_post_fault_median_ci95": bootstrap_median(rms),
-            "final_error_median": percentile(self.final or [], 50),
+            "final_error_median": percentile(self.final, 50),
             "bias_rejection_median": percentile(rejection, 50),
         }
-        detections, isolations = self.detection_delays or [], self.isolation_delays or []
+        detections, isolations = self.detection_delays, self.isolation_delays
         out["diagnoses"] = self.diagnoses
         out |= {
             "detection_rate": self.detected / self.with_fault if self.with_fault else None,
@@ -151,67 +187,41 @@ def _number(value: Any) -> float | None:
     )
 
 
+def _append(values: list[float], value: Any) -> None:
+    """Add a finite number; anything else is no value."""
+    if (number := _number(value)) is not None:
+        values.append(number)
+
+
 def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]:
     """The ranking of a results table per group (``by`` columns, default the fault kind)."""
-    columns, units, metadata = read_table(path)
+    table = read_table(path)
     by = by or ["fault_kind"]
     for column in by:
-        if column not in columns:
-            raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(columns)})")
-    n = len(columns["run"])
+        if column not in table.columns:
+            raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
     groups: dict[tuple[Any, ...], dict[tuple[str, str], Entry]] = defaultdict(dict)
-    rows = [{name: values[i] for name, values in columns.items()} for i in range(n)]
-    for row in rows:
-        if not row.get("estimator"):  # a run that failed before it had estimators
+    for values in table.rows:
+        row = Row.of(values)
+        if not row.estimator:  # a run that failed before it had estimators
             continue
-        key = tuple(row.get(c) for c in by)
-        entry = groups[key].setdefault(
-            (row["estimator"], row.get("kind") or ""), Entry(row["estimator"], row.get("kind") or "")
-        )
-        if row.get("status") != "completed":
-            entry.failed += 1
-            continue
-        entry.runs += 1
-        for attribute, column in (
-            ("rms", "rms_post_fault"),
-            ("rejection", "bias_rejection_ratio"),
-            ("final", "final_error"),
-        ):
-            if (value := _number(row.get(column))) is not None:
-                setattr(entry, attribute, (getattr(entry, attribute) or []) + [value])
-        if row.get("diagnoses"):
-            entry.diagnoses = True
-            has_fault = row.get("fault_kind") not in (None, "none")
-            entry.with_fault += has_fault
-            entry.detected += bool(has_fault and row.get("detected"))
-            entry.missed += int(row.get("missed_detections") or 0)
-            entry.false_alarms += int(row.get("false_alarms") or 0)
-            entry.fault_free_h += (_number(row.get("fault_free_time_s")) or 0.0) / 3600
-            for attribute, column in (
-                ("detection_delays", "detection_delay_s"),
-                ("isolation_delays", "isolation_delay_s"),
-            ):
-                if (value := _number(row.get(column))) is not None:
-                    setattr(entry, attribute, (getattr(entry, attribute) or []) + [value])
-            if row.get("isolation_correct") is not None:
-                entry.isolable += 1
-                entry.isolated_correctly += bool(row["isolation_correct"])
+        key = (row.estimator, row.kind or "")
+        groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row)
     ranked = []
     for key in sorted(groups, key=lambda k: tuple(str(v) for v in k)):
-        scores = [entry.scores() for entry in groups[key].values()]
-        scores.sort(key=_rank_key)
+        scores = sorted((entry.scores() for entry in groups[key].values()), key=_rank_key)
         for place, score in enumerate(scores, start=1):
             score["rank"] = place
         ranked.append({"group": dict(zip(by, key)), "ranking": scores})
     return {
         "table": str(path),
-        "campaign": metadata.get("cosim.campaign.name"),
+        "campaign": table.metadata.get("cosim.campaign.name"),
         "by": by,
-        "runs": len(set(columns["run"])),
-        "failed_runs": len({r["run"] for r in rows if r.get("status") != "completed"}),
-        "units": {"rms_post_fault": units.get("rms_post_fault", "")},
+        "runs": len({row["run"] for row in table.rows}),
+        "failed_runs": len({row["run"] for row in table.rows if row.get("status") != "completed"}),
+        "units": {"rms_post_fault": table.units.get("rms_post_fault", "")},
         "groups": ranked,
-        "outliers": outliers(rows, by),
+        "outliers": outliers(table.rows, by),
     }
 
 
@@ -228,44 +238,41 @@ def _rank_key(score: dict[str, Any]) -> tuple[float, float, float]:
 
 
 def outliers(rows: list[dict[str, Any]], by: list[str], factor: float = 3.0) -> list[dict[str, Any]]:
-    """Completed runs whose RMS error after onset lies beyond Q3 + factor·IQR of their group and estimator."""
+    """Completed runs whose RMS error after onset lies beyond Q3 + factor·IQR of their group and
+    estimator, worst first; then each failed run once."""
+    typed = [(Row.of(values), tuple(values.get(c) for c in by)) for values in rows]
     errors: dict[tuple[Any, ...], list[float]] = defaultdict(list)
-    for row in rows:
-        if row.get("status") == "completed" and (value := _number(row.get("rms_post_fault"))) is not None:
-            errors[(*(row.get(c) for c in by), row["estimator"])].append(value)
+    for row, group in typed:
+        if row.status == "completed":
+            _append(errors[(*group, row.estimator)], row.rms_post_fault)
     found = []
-    for row in rows:
-        key = (*(row.get(c) for c in by), row.get("estimator"))
-        value = _number(row.get("rms_post_fault"))
-        if row.get("status") != "completed" or value is None or len(errors[key]) < 4:
+    for row, group in typed:
+        found_errors = errors[(*group, row.estimator)]
+        value = _number(row.rms_post_fault)
+        if row.status != "completed" or value is None or len(found_errors) < 4:
             continue
-        q1, q3 = np.percentile(errors[key], [25, 75])
-        if value > q3 + factor * (q3 - q1) and value > q3:
-            found.append(
-                {
-                    "run": row["run"],
-                    "seed": row["seed"],
-                    "estimator": row["estimator"],
-                    "rms_post_fault": value,
-                    "threshold": float(q3 + factor * (q3 - q1)),
-                    "error": "",
-                    "log": row.get("log") or "",
-                    **{c: row.get(c) for c in by},
-                }
-            )
-    failed = [
-        {
-            "run": r["run"],
-            "seed": r["seed"],
-            "estimator": r.get("estimator") or "",
-            "rms_post_fault": None,
-            "threshold": None,
-            "error": r.get("error") or "",
-            "log": r.get("log") or "",
-            **{c: r.get(c) for c in by},
-        }
-        for r in rows
-        if r.get("status") != "completed"
-    ]
-    unique_failed = list({f["run"]: f for f in failed}.values())
-    return sorted(found, key=lambda o: -o["rms_post_fault"]) + unique_failed
+        q1, q3 = np.percentile(found_errors, [25, 75])
+        threshold = float(q3 + factor * (q3 - q1))
+        if value > threshold and value > q3:
+            found.append(_outlier(row, dict(zip(by, group)), value, threshold, ""))
+    failed = {
+        row.run: _outlier(row, dict(zip(by, group)), None, None, row.error or "")
+        for row, group in typed
+        if row.status != "completed"
+    }
+    return sorted(found, key=lambda o: -o["rms_post_fault"]) + list(failed.values())
+
+
+def _outlier(
+    row: Row, group: dict[str, Any], value: float | None, threshold: float | None, error: str
+) -> dict[str, Any]:
+    return {
+        "run": row.run,
+        "seed": row.seed,
+        "estimator": row.estimator or "",
+        "rms_post_fault": value,
+        "threshold": threshold,
+        "error": error,
+        "log": row.log or "",
+        **group,
+    }

@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from cosim import __version__
-from cosim.campaign.leaderboard import read_table
+from cosim.campaign.leaderboard import ResultsTable, read_table
+from cosim.campaign.results import Row
 
 
 def _num(value: Any) -> str:
@@ -48,73 +49,83 @@ def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")
+    found = read_table(table)
+    made = [_errors(board, found), _delays(board)]
+    return [figure for figure in made if figure is not None]
+
+
+def _errors(board: dict[str, Any], table: ResultsTable) -> dict[str, str] | None:
+    """The distribution of the RMS error after onset per estimator, a panel per group."""
     import matplotlib.pyplot as plt
 
-    columns, units, _ = read_table(table)
-    n = len(columns["run"])
-    made = []
-    groups = [g["group"] for g in board["groups"]]
     panels = []
-    for group in groups:
+    for group in (g["group"] for g in board["groups"]):
         by_estimator: dict[str, list[float]] = {}
-        for i in range(n):
-            if columns["status"][i] != "completed" or any(columns[c][i] != v for c, v in group.items()):
+        for values in table.rows:
+            row = Row.of(values)
+            if row.status != "completed" or any(values.get(c) != v for c, v in group.items()):
                 continue
-            value = columns["rms_post_fault"][i]
-            if isinstance(value, float) and math.isfinite(value) and value > 0:
-                by_estimator.setdefault(columns["estimator"][i], []).append(value)
+            error = row.rms_post_fault
+            if isinstance(error, float) and math.isfinite(error) and error > 0:
+                by_estimator.setdefault(str(row.estimator), []).append(error)
         if by_estimator:
             panels.append((group, by_estimator))
-    if panels:
-        fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
-        for ax, (group, data) in zip(axes[:, 0], panels):
-            names = sorted(data, key=lambda k: float(np.median(data[k])))
-            ax.boxplot([data[k] for k in names], orientation="horizontal", whis=(10, 90), showfliers=True)
-            ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
-            values = [v for k in names for v in data[k]]
-            if max(values) > 10 * min(values):  # errors over decades: log scale; within one, plain numbers
-                ax.set_xscale("log")
-            ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")
-            ax.grid(alpha=0.3, axis="x")
-        unit = units.get("rms_post_fault", "")
-        axes[-1, 0].set_xlabel(f"RMS of |x − x̂| after onset [{unit}]" if unit else "RMS of |x − x̂| after onset")
-        fig.tight_layout()
-        made.append(
-            {
-                "data": _png(fig),
-                "caption": "Distribution of the RMS estimation error after the fault onset, per estimator and group "
-                "(box: quartiles, whiskers: 10th and 90th percentiles; log scale where they span more than a decade); "
-                "best median first.",
-            }
-        )
-        plt.close(fig)
+    if not panels:
+        return None
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
+    for ax, (group, data) in zip(axes[:, 0], panels):
+        names = sorted(data, key=lambda k: float(np.median(data[k])))
+        ax.boxplot([data[k] for k in names], orientation="horizontal", whis=(10, 90), showfliers=True)
+        ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+        errors = [v for k in names for v in data[k]]
+        if max(errors) > 10 * min(errors):  # errors over decades: log scale; within one, plain numbers
+            ax.set_xscale("log")
+        ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")
+        ax.grid(alpha=0.3, axis="x")
+    unit = table.units.get("rms_post_fault", "")
+    axes[-1, 0].set_xlabel(f"RMS of |x − x̂| after onset [{unit}]" if unit else "RMS of |x − x̂| after onset")
+    fig.tight_layout()
+    figure = {
+        "data": _png(fig),
+        "caption": "Distribution of the RMS estimation error after the fault onset, per estimator and group "
+        "(box: quartiles, whiskers: 10th and 90th percentiles; log scale where they span more than a decade); "
+        "best median first.",
+    }
+    plt.close(fig)
+    return figure
+
+
+def _delays(board: dict[str, Any]) -> dict[str, str] | None:
+    """The median detection delay (to its 90th percentile) against the false-alarm rate of each
+    diagnosis scheme in each group."""
+    import matplotlib.pyplot as plt
+
     points = [
         (g["group"], s)
         for g in board["groups"]
         for s in g["ranking"]
         if s.get("false_alarms_per_hour") is not None and s.get("detection_delay_median_s") is not None
     ]
-    if points:
-        fig, ax = plt.subplots(figsize=(7, 4.2))
-        for number, (group, score) in enumerate(points):
-            label = f"{score['estimator']} ({', '.join(str(v) for v in group.values())})"
-            x, y = score["false_alarms_per_hour"], score["detection_delay_median_s"]
-            upper = (score.get("detection_delay_p90_s") or y) - y
-            ax.errorbar([x], [y], yerr=[[0.0], [upper]], fmt="o", color=f"C{number % 10}", label=label, capsize=3)
-        ax.set_xlabel("false alarms per fault-free hour")
-        ax.set_ylabel("detection delay [s] (median, to p90)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
-        fig.tight_layout()
-        made.append(
-            {
-                "data": _png(fig),
-                "caption": "Detection delay against false-alarm rate of the diagnosis schemes: "
-                "lower left is better; the bar reaches the 90th percentile of the delay.",
-            }
-        )
-        plt.close(fig)
-    return made
+    if not points:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for number, (group, score) in enumerate(points):
+        label = f"{score['estimator']} ({', '.join(str(v) for v in group.values())})"
+        x, y = score["false_alarms_per_hour"], score["detection_delay_median_s"]
+        upper = (score.get("detection_delay_p90_s") or y) - y
+        ax.errorbar([x], [y], yerr=[[0.0], [upper]], fmt="o", color=f"C{number % 10}", label=label, capsize=3)
+    ax.set_xlabel("false alarms per fault-free hour")
+    ax.set_ylabel("detection delay [s] (median, to p90)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    figure = {
+        "data": _png(fig),
+        "caption": "Detection delay against false-alarm rate of the diagnosis schemes: "
+        "lower left is better; the bar reaches the 90th percentile of the delay.",
+    }
+    plt.close(fig)
+    return figure
 
 
 def write_page(board: dict[str, Any], out: str | Path) -> Path:

@@ -17,43 +17,74 @@ import json
 import math
 import os
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the metrics' modules load the codec and the estimators: not for reading a table
+    from cosim.analysis.metrics import DiagnosisMetrics, RunMetrics
+
+
+def column(kind: str, unit: str, description: str) -> Any:
+    """A column of the table: its type ("int", "float", "bool", "text"), its unit ("state": the
+    unit of the state norm) and what it holds; None where a row has no value."""
+    return field(default=None, metadata={"type": kind, "unit": unit, "description": description})
+
+
+@dataclass
+class Row:
+    """A row of the table, its fixed columns in order (the campaign's axis and sample columns, which
+    follow ``seed``, are the campaign file's)."""
+
+    run: int | None = column("int", "", "run index in the campaign")
+    replicate: int | None = column("int", "", "replicate (from the campaign's seeds)")
+    seed: int | None = column("int", "", "the run's scenario seed (cosim run --seed)")
+    status: str | None = column("text", "", "completed, interrupted or error")
+    error: str | None = column("text", "", "why the run failed (empty if it did not)")
+    wall_time_s: float | None = column("float", "s", "wall-clock time of the run and its metrics")
+    log: str | None = column("text", "", "the run's log, relative to the campaign folder (empty if not kept)")
+    estimator: str | None = column("text", "", "estimator name")
+    kind: str | None = column("text", "", "estimator kind")
+    fault_kind: str | None = column("text", "", "kinds of the run's faults, joined with +; none without faults")
+    fault_onset_s: float | None = column("float", "s", "first fault onset")
+    ticks: int | None = column("int", "", "ticks run")
+    frames_lost: int | None = column("int", "", "frames lost on the bus")
+    rms_pre_fault: float | None = column("float", "state", "RMS of |x − x̂| before the first fault")
+    rms_post_fault: float | None = column("float", "state", "RMS of |x − x̂| from the first fault onset")
+    final_error: float | None = column("float", "state", "|x − x̂| at the last tick")
+    band: float | None = column("float", "state", "pre-fault band: 2 × the largest settled pre-fault error")
+    bias_rejection_ratio: float | None = column("float", "", "post-fault RMS over the uniform-weight baseline's")
+    peak_error: float | None = column("float", "state", "largest |x − x̂| after the first fault's onset")
+    recovery_time_s: float | None = column(
+        "float", "s", "from the first fault's onset until |x − x̂| stays in the band (null: never)"
+    )
+    diagnoses: bool | None = column("bool", "", "the estimator publishes an alarm")
+    false_alarms: int | None = column("int", "", "alarm episodes starting with no fault active")
+    false_alarm_rate_per_hour: float | None = column("float", "1/h", "false alarms per fault-free hour")
+    fault_free_time_s: float | None = column("float", "s", "scored time with no fault active")
+    missed_detections: int | None = column("int", "", "faults with no alarm in their segment")
+    detected: bool | None = column("bool", "", "every fault of the run detected")
+    detection_delay_s: float | None = column("float", "s", "first fault: onset to the first alarm")
+    isolated: bool | None = column("bool", "", "every isolable fault isolated")
+    isolation_delay_s: float | None = column("float", "s", "first fault: onset to its isolation")
+    isolation_correct: bool | None = column("bool", "", "every isolable fault isolated to the right targets")
+
+    @classmethod
+    def of(cls, values: dict[str, Any]) -> Row:
+        """The fixed columns of a row of the table (its other columns left out)."""
+        return cls(**{name: values[name] for name in COLUMNS if name in values})
+
+    def metric_columns(self) -> dict[str, Any]:
+        """Its columns from the run's metrics (those from ``estimator`` on), as a part holds them."""
+        return {name: _finite(getattr(self, name)) for name in COLUMNS if name not in RUN_COLUMNS}
+
 
 #: The fixed columns: name → (type, unit, description). "state" stands for the unit of the state norm.
 COLUMNS: dict[str, tuple[str, str, str]] = {
-    "run": ("int", "", "run index in the campaign"),
-    "replicate": ("int", "", "replicate (from the campaign's seeds)"),
-    "seed": ("int", "", "the run's scenario seed (cosim run --seed)"),
-    "status": ("text", "", "completed, interrupted or error"),
-    "error": ("text", "", "why the run failed (empty if it did not)"),
-    "wall_time_s": ("float", "s", "wall-clock time of the run and its metrics"),
-    "log": ("text", "", "the run's log, relative to the campaign folder (empty if not kept)"),
-    "estimator": ("text", "", "estimator name"),
-    "kind": ("text", "", "estimator kind"),
-    "fault_kind": ("text", "", "kinds of the run's faults, joined with +; none without faults"),
-    "fault_onset_s": ("float", "s", "first fault onset"),
-    "ticks": ("int", "", "ticks run"),
-    "frames_lost": ("int", "", "frames lost on the bus"),
-    "rms_pre_fault": ("float", "state", "RMS of |x − x̂| before the first fault"),
-    "rms_post_fault": ("float", "state", "RMS of |x − x̂| from the first fault onset"),
-    "final_error": ("float", "state", "|x − x̂| at the last tick"),
-    "band": ("float", "state", "pre-fault band: 2 × the largest settled pre-fault error"),
-    "bias_rejection_ratio": ("float", "", "post-fault RMS over the uniform-weight baseline's"),
-    "peak_error": ("float", "state", "largest |x − x̂| after the first fault's onset"),
-    "recovery_time_s": ("float", "s", "from the first fault's onset until |x − x̂| stays in the band (null: never)"),
-    "diagnoses": ("bool", "", "the estimator publishes an alarm"),
-    "false_alarms": ("int", "", "alarm episodes starting with no fault active"),
-    "false_alarm_rate_per_hour": ("float", "1/h", "false alarms per fault-free hour"),
-    "fault_free_time_s": ("float", "s", "scored time with no fault active"),
-    "missed_detections": ("int", "", "faults with no alarm in their segment"),
-    "detected": ("bool", "", "every fault of the run detected"),
-    "detection_delay_s": ("float", "s", "first fault: onset to the first alarm"),
-    "isolated": ("bool", "", "every isolable fault isolated"),
-    "isolation_delay_s": ("float", "s", "first fault: onset to its isolation"),
-    "isolation_correct": ("bool", "", "every isolable fault isolated to the right targets"),
+    f.name: (f.metadata["type"], f.metadata["unit"], f.metadata["description"]) for f in fields(Row)
 }
+#: The columns the worker fills for every run, before its metrics.
+RUN_COLUMNS = ("run", "replicate", "seed", "status", "error", "wall_time_s", "log")
 IDENTITY = ("run", "replicate", "seed")
 #: Columns that vary between identical runs (wall-clock), left out when tables are compared.
 NONDETERMINISTIC = ("wall_time_s",)
@@ -85,57 +116,57 @@ def _finite(value: Any) -> Any:
     return None if isinstance(value, float) and not math.isfinite(value) else value
 
 
-def rows_of(metrics: dict[str, Any]) -> list[dict[str, Any]]:
-    """The metric columns of a run's rows, one per estimator, from ``cosim inspect``'s object."""
-    faults = sorted(
-        metrics.get("faults", {}).items(), key=lambda item: (item[1].get("onset") is None, item[1].get("onset") or 0)
-    )
+def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
+    """The metric columns of a run's rows, one per estimator (and diagnosis scheme that is none)."""
+    from cosim.analysis.metrics import EstimationMetrics, FaultRecovery
+
+    faults = sorted(metrics.faults.items(), key=lambda item: (item[1].onset is None, item[1].onset or 0))
     first = faults[0][0] if faults else None
-    kinds = "+".join(sorted({str(f.get("kind")) for _, f in faults})) or "none"
-    run = {
-        "fault_kind": kinds,
-        "fault_onset_s": metrics.get("fault_onset"),
-        "ticks": metrics.get("ticks"),
-        "frames_lost": metrics.get("frames", {}).get("lost"),
-    }
+    names = [*metrics.estimators, *(n for n in metrics.diagnosis if n not in metrics.estimators)]
     rows = []
-    names = list(metrics.get("estimators", {})) + [
-        n for n in metrics.get("diagnosis", {}) if n not in metrics.get("estimators", {})
-    ]
     for name in names:
-        e = metrics.get("estimators", {}).get(name, {})
-        d = metrics.get("diagnosis", {}).get(name)
-        f = e.get("faults", {}).get(first, {}) if first else {}
-        row = {
-            **run,
-            "estimator": name,
-            "kind": e.get("kind") or (d or {}).get("kind"),
-            "rms_pre_fault": e.get("rms_pre_fault"),
-            "rms_post_fault": e.get("rms_post_fault"),
-            "final_error": e.get("final_error"),
-            "band": e.get("band"),
-            "bias_rejection_ratio": e.get("bias_rejection_ratio"),
-            "peak_error": f.get("peak_error"),
-            "recovery_time_s": f.get("recovery_time"),
-            "diagnoses": d is not None,
-        }
+        e = metrics.estimators.get(name, EstimationMetrics())
+        d = metrics.diagnosis.get(name)
+        f = e.faults.get(first, FaultRecovery()) if first else FaultRecovery()
+        row = Row(
+            fault_kind="+".join(sorted({str(f.kind) for _, f in faults})) or "none",
+            fault_onset_s=metrics.fault_onset,
+            ticks=metrics.ticks,
+            frames_lost=metrics.frames.lost,
+            estimator=name,
+            kind=e.kind or (d.kind if d else None),
+            rms_pre_fault=e.rms_pre_fault,
+            rms_post_fault=e.rms_post_fault,
+            final_error=e.final_error,
+            band=e.band,
+            bias_rejection_ratio=e.bias_rejection_ratio,
+            peak_error=f.peak_error,
+            recovery_time_s=f.recovery_time,
+            diagnoses=d is not None,
+        )
         if d is not None:
-            scored = d.get("faults", {})
-            isolable = [x for x in scored.values() if x.get("isolable")]
-            head = scored.get(first, {}) if first else {}
-            row |= {
-                "false_alarms": d.get("false_alarms"),
-                "false_alarm_rate_per_hour": d.get("false_alarm_rate_per_hour"),
-                "fault_free_time_s": d.get("fault_free_time_s"),
-                "missed_detections": d.get("missed_detections"),
-                "detected": all(x.get("detected") for x in scored.values()) if scored else None,
-                "detection_delay_s": head.get("detection_delay"),
-                "isolated": all(x.get("isolation_delay") is not None for x in isolable) if isolable else None,
-                "isolation_delay_s": head.get("isolation_delay"),
-                "isolation_correct": all(bool(x.get("isolation_correct")) for x in isolable) if isolable else None,
-            }
-        rows.append({key: _finite(value) for key, value in row.items()})
+            _diagnosis_columns(row, d, first)
+        rows.append(row.metric_columns())
     return rows
+
+
+def _diagnosis_columns(row: Row, d: DiagnosisMetrics, first: str | None) -> None:
+    """A diagnosis scheme's columns: its false alarms, and whether it detected and isolated every
+    fault (the first one's delays)."""
+    from cosim.analysis.metrics import FaultDiagnosis
+
+    scored = d.faults
+    isolable = [x for x in scored.values() if x.isolable]
+    head = scored.get(first, FaultDiagnosis()) if first else FaultDiagnosis()
+    row.false_alarms = d.false_alarms
+    row.false_alarm_rate_per_hour = d.false_alarm_rate_per_hour
+    row.fault_free_time_s = d.fault_free_time_s
+    row.missed_detections = d.missed_detections
+    row.detected = all(x.detected for x in scored.values()) if scored else None
+    row.detection_delay_s = head.detection_delay
+    row.isolated = all(x.isolation_delay is not None for x in isolable) if isolable else None
+    row.isolation_delay_s = head.isolation_delay
+    row.isolation_correct = all(bool(x.isolation_correct) for x in isolable) if isolable else None
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
     """Run ``spec`` with its log in ``folder/logs``; returns its part: ``rows`` (one per estimator,
     or one describing the failure) and ``state_unit``."""
     from cosim import api
+    from cosim.analysis.metrics import measure
     from cosim.scenario import LoadedScenario, apply, parse
 
     start = time.perf_counter()
@@ -45,7 +46,7 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
         state_unit = units.pop() if len(units) == 1 else "mixed units"
         result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process)
         status, error = result.status, result.error
-        rows = rows_of(api.metrics(log))
+        rows = rows_of(measure(log))
     except CosimError as failure:
         error = str(failure)
     except Exception as failure:  # a bug, reported in its row: the campaign goes on

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from cosim import __version__
+from cosim.log.topics import decoded_topics
 
 RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = (
     "cosim.run",
@@ -182,6 +183,10 @@ class ControllerRecord:
             "diagnostics": _diagnostics_json(self.diagnostics),
         }
 
+    def status_topics(self) -> list[str]:
+        """The topics that carry its status messages."""
+        return list(decoded_topics({"controller": self.status_messages}))
+
     def signals_of(self, kind: str) -> list[str]:
         """The status signals of one diagnostic kind."""
         return [name for name, d in self.diagnostics.items() if d.kind == kind]
@@ -254,10 +259,8 @@ class RunRecord:
         return round(self.sample_time * 1e9) if self.sample_time else None
 
     def estimate_topics(self) -> dict[str, str]:
-        """Decoded topic of every estimator message → the estimator."""
-        from cosim.log.recorder import message_topic
-
-        return {message_topic(m): name for name, e in self.estimators.items() for m in e.messages}
+        """The topics that carry each estimator's messages → the estimator."""
+        return decoded_topics({name: e.messages for name, e in self.estimators.items()})
 
     def to_metadata(self) -> dict[str, str]:
         return {

@@ -1,0 +1,159 @@
+"""The metrics of one log: read once, in file order, scored (``scorer``), assembled into a
+``RunMetrics`` (``values``)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from cosim.analysis.metrics.facts import RunFacts
+from cosim.analysis.metrics.scorer import Scorer
+from cosim.analysis.metrics.values import (
+    BusMetrics,
+    DiagnosisMetrics,
+    EstimationMetrics,
+    FaultSpan,
+    FrameCounts,
+    RunMetrics,
+)
+from cosim.log.reader import LogReader
+from cosim.log.topics import FAULTS, FRAMES, STATE
+
+
+def measure(path: str | Path) -> RunMetrics:
+    """The metrics of one log (docs/metrics.md). Raises LogError only for a file that is not MCAP at
+    all; damage and missing data become ``warnings`` and ``missing``."""
+    with LogReader(path) as reader:
+        run = _facts(reader.metadata())
+        counts = _counts(reader)
+        scorer = Scorer(run)
+        scanned: dict[str, int] = defaultdict(int)
+        try:
+            for topic, log_time, msg in reader.messages():
+                scanned[topic] += 1
+                scorer.feed(topic, log_time, msg)
+        except (OSError, OverflowError, MemoryError) as error:  # a damaged index points outside the file
+            where = "at its start" if scorer.last_ns is None else f"after t = {scorer.last_ns / 1e9:g} s"
+            scorer.warnings.append(
+                f"reading stopped {where}: the file's summary is damaged ({type(error).__name__}: {error}); "
+                f"the {sum(scanned.values())} messages before were read"
+            )
+        scorer.finish()
+        warnings = reader.warnings + run.warnings + scorer.warnings
+    return _assemble(path, run, scorer, counts or dict(scanned), warnings)
+
+
+def compute_metrics(path: str | Path) -> dict[str, Any]:
+    """The metrics of one log in their JSON form (``cosim inspect --json``'s object)."""
+    return measure(path).to_json()
+
+
+def _facts(meta: dict[str, dict[str, str]]) -> RunFacts:
+    try:
+        return RunFacts(meta)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as error:  # valid JSON, damaged content
+        run = RunFacts({})
+        run.warnings.insert(
+            0, f"the cosim metadata is damaged ({type(error).__name__}: {error}); the log is read as a foreign one"
+        )
+        return run
+
+
+def _counts(reader: LogReader) -> dict[str, int]:
+    """Messages per topic from the summary's statistics ({} without them)."""
+    summary = reader.summary()
+    if summary is None or summary.statistics is None:
+        return {}
+    counts = {
+        summary.channels[cid].topic: n
+        for cid, n in summary.statistics.channel_message_counts.items()
+        if cid in summary.channels
+    }
+    for channel in summary.channels.values():
+        counts.setdefault(channel.topic, 0)
+    return counts
+
+
+def _assemble(
+    path: str | Path, run: RunFacts, scorer: Scorer, channels: dict[str, int], warnings: list[str]
+) -> RunMetrics:
+    dt = run.sample_time
+    ticks = scorer.ticks if run.known else channels.get(STATE, 0)
+    if run.result_ticks is not None:  # the ticks the run completed (a stopped run logs the truth of one more)
+        ticks = min(ticks, run.result_ticks) if ticks else run.result_ticks
+    lost = run.frames_lost if run.frames_lost is not None else scorer.lost_events
+    span = (
+        None
+        if scorer.first_ns is None or scorer.last_ns is None  # set together
+        else round((scorer.last_ns - scorer.first_ns) / 1e9, 9)
+    )
+    return RunMetrics(
+        file=str(path),
+        scenario=run.record.scenario,
+        source=run.record.source,
+        seed=run.seed,
+        status=run.status,
+        sample_time=dt,
+        ticks=ticks,
+        duration_s=round(ticks * dt, 9) if dt else None,
+        time_span_s=span,
+        channels=dict(sorted(channels.items())),
+        frames=FrameCounts(run.frames_total if run.frames_total is not None else channels.get(FRAMES, 0), lost),
+        fault_onset=run.onset,
+        faults=_faults(run, scorer),
+        estimators=_estimators(run, scorer),
+        baseline=run.baseline,
+        diagnosis=_diagnosis(run, scorer),
+        bus=_bus(run, scorer, ticks, lost) if run.known else None,
+        missing=_missing(run, scorer, channels),
+        warnings=warnings,
+    )
+
+
+def _faults(run: RunFacts, scorer: Scorer) -> dict[str, FaultSpan]:
+    """The run's faults with their onset and clearance; a fault active in the truth but absent from
+    the metadata too."""
+    found = {
+        label: replace(span, onset=run.seconds(scorer.onsets.get(label)), cleared=run.seconds(scorer.ends.get(label)))
+        for label, span in run.faults.items()
+    }
+    for label in scorer.onsets.keys() - found.keys():
+        found[label] = FaultSpan(onset=run.seconds(scorer.onsets[label]), cleared=run.seconds(scorer.ends.get(label)))
+    return found
+
+
+def _estimators(run: RunFacts, scorer: Scorer) -> dict[str, EstimationMetrics]:
+    baseline = scorer.estimators.get(run.baseline) if run.baseline else None
+    return {name: score.metrics(run.estimators[name].kind, baseline) for name, score in scorer.estimators.items()}
+
+
+def _diagnosis(run: RunFacts, scorer: Scorer) -> dict[str, DiagnosisMetrics]:
+    dt = run.sample_time
+    if scorer.diagnosis:
+        assert dt is not None, "diagnosis is scored at ticks, and ticks are scored only with a sample time"
+    return {name: verdict.metrics(dt or 0.0, run.estimators[name].kind) for name, verdict in scorer.diagnosis.items()}
+
+
+def _bus(run: RunFacts, scorer: Scorer, ticks: int, lost: int | None) -> BusMetrics:
+    dt = run.sample_time
+    # only where the run had the intrusion detector (/cosim/ids)
+    ids = {check: verdict.metrics(dt) for check, verdict in scorer.ids.items()} if scorer.ids and dt else None
+    return scorer.bus.metrics(ticks, lost, run.deadline_misses, (run.lost_by_sender, run.late_by_sender), ids)
+
+
+def _missing(run: RunFacts, scorer: Scorer, channels: dict[str, int]) -> list[str]:
+    """What the log lacks, and the metrics it costs."""
+    missing = list(run.missing)
+    if run.known:
+        for topic, what in (
+            (STATE, "estimation errors"),
+            (FAULTS, "per-fault onsets, detection and isolation"),
+            (FRAMES, "frames per id and bus load"),
+        ):
+            if not channels.get(topic):
+                missing.append(f"{topic} messages: no {what}")
+        if scorer.bus.frames and not scorer.bus.bitrate:
+            missing.append("the bus bit rate (cosim.run.bus): no bus load")
+    return missing

@@ -1,0 +1,225 @@
+"""A log's messages scored in file order: each read through its topic's record
+(``cosim.log.topics``), ticks assembled from their parts (truth, estimates, the intrusion
+detector's verdict) and scored in tick order, fault onsets cutting the run into segments.
+
+Memory is bounded whatever the log's length: the parts of a tick are held only until the tick is
+complete (or ``WINDOW`` ticks old), then scored and dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from cosim.analysis.metrics.bus import BusScore
+from cosim.analysis.metrics.diagnosis import DiagnosisScore
+from cosim.analysis.metrics.estimation import EstimationScore
+from cosim.analysis.metrics.facts import RunFacts
+from cosim.analysis.metrics.segments import Segment
+from cosim.bus.codec import estimate_signal
+from cosim.log.topics import (
+    FAULTS,
+    IDS,
+    IDS_CHECKS,
+    STATE,
+    CanFrame,
+    DeadlineMiss,
+    Event,
+    Foreign,
+    IntrusionVerdict,
+    SecurityRejection,
+    Signals,
+    TruthFaults,
+    TruthState,
+    WirePassage,
+)
+from estimators.base import DiagnosticKind
+
+#: Ticks a tick waits for its missing parts (truth, estimate frames) before it is scored without them.
+WINDOW = 1000
+
+
+@dataclass
+class Tick:
+    """What the log holds of one tick so far."""
+
+    x: dict[str, Any] | None = None
+    active: list[str] | None = None
+    estimates: dict[str, dict[str, Any]] = field(default_factory=lambda: defaultdict(dict))
+    ids: dict[str, float] | None = None  # the intrusion detector's alarm ("any") and checks, raised or not
+    parts: int = 0
+
+
+class Scorer:
+    """Every score of a run, fed its log's messages in file order."""
+
+    def __init__(self, run: RunFacts) -> None:
+        self.run = run
+        self.warnings: list[str] = []
+        self.owner = run.record.estimate_topics()
+        self.expected_parts = (2 + len(self.owner)) if run.states else 0
+        # The intrusion detector, scored as a diagnosis: its alarm ("any" check) and each check's own
+        self.ids: dict[str, DiagnosisScore] = {}
+        if run.bus.get("intrusion_detector"):
+            self.ids = {check: DiagnosisScore(check, None, run.faults) for check in ("any", *IDS_CHECKS)}
+            self.expected_parts += 1 if self.expected_parts else 0
+        self.pending: dict[int, Tick] = {}
+        self.next_tick = 0
+        self.newest = -1
+        self.ticks = 0
+        self.late = 0
+        self.active: set[str] = set()
+        self.onsets: dict[str, int] = {}
+        self.ends: dict[str, int] = {}
+        self.segment: Segment | None = None
+        self.estimators = {name: EstimationScore(run.onset_tick, run.sample_time) for name in run.estimators}
+        self.diagnosis: dict[str, DiagnosisScore] = {}
+        #: The alarm signal of each estimator that publishes one.
+        self.alarms = {
+            name: next(iter(alarms))
+            for name, e in run.estimators.items()
+            if (alarms := e.signals_of(DiagnosticKind.ALARM))
+        }
+        self.bus = BusScore(run.bus, run.sample_time)
+        self.lost_events = 0
+        self.broken: set[str] = set()
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
+        bus = self.bus
+        self._topics: dict[str, Callable[[dict[str, Any], int], None]] = {
+            CanFrame.TOPIC: lambda m, t: bus.frame(CanFrame.read(m), t),
+            WirePassage.TOPIC: lambda m, t: bus.passage(WirePassage.read(m)),
+            Event.TOPIC: lambda m, t: self._event(Event.read(m)),
+            DeadlineMiss.TOPIC: lambda m, t: bus.deadline_miss(DeadlineMiss.read(m)),
+            SecurityRejection.TOPIC: lambda m, t: bus.rejection(SecurityRejection.read(m)),
+            Foreign.TOPIC: lambda m, t: bus.arrival(Foreign.read(m)),
+        }
+
+    # feeding, in file order
+
+    def feed(self, topic: str, log_time: int, msg: Any) -> None:
+        self.first_ns = log_time if self.first_ns is None else min(self.first_ns, log_time)
+        self.last_ns = log_time if self.last_ns is None else max(self.last_ns, log_time)
+        if topic in self.broken or not isinstance(msg, dict):
+            return
+        try:
+            read = self._topics.get(topic)
+            if read is not None:
+                read(msg, log_time)
+            elif self.expected_parts and self.run.dt_ns:
+                self._part(topic, log_time, msg, self.run.dt_ns)
+        except (KeyError, TypeError, ValueError) as error:
+            self.broken.add(topic)
+            self.warnings.append(
+                f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
+                f"({type(error).__name__}: {error}); the topic is ignored from there on"
+            )
+
+    def _event(self, event: Event) -> None:
+        if event.event == "frames_lost":
+            self.lost_events += int(event.count)
+
+    def _part(self, topic: str, log_time: int, msg: dict[str, Any], dt_ns: int) -> None:
+        if topic == STATE:
+            state = TruthState.read(msg)
+            k = int(state.tick)
+            self._tick(k).x = state.values
+        elif topic == FAULTS:
+            faults = TruthFaults.read(msg)
+            k = int(faults.tick)
+            self._tick(k).active = list(faults.active)
+        elif topic == IDS and self.ids:
+            verdict = IntrusionVerdict.read(msg)
+            k = int(verdict.tick)
+            checks = {check: float(count > 0) for check, count in verdict.checks().items()}
+            self._tick(k).ids = {"any": float(bool(verdict.alarm))} | checks
+        elif topic in self.owner:
+            signals = Signals.read(msg, log_time // dt_ns)
+            k = signals.tick
+            if k < self.next_tick:
+                self.late += 1
+                return
+            self._tick(k).estimates[self.owner[topic]].update(signals.values)
+        else:
+            return
+        tick = self.pending[k]
+        tick.parts += 1
+        self.newest = max(self.newest, k)
+        self._drain(self.newest - WINDOW)
+
+    def _tick(self, k: int) -> Tick:
+        if k not in self.pending:
+            self.pending[k] = Tick()
+        return self.pending[k]
+
+    def _drain(self, force_below: int) -> None:
+        """Score ticks in order: each once complete, or incomplete once older than ``force_below``."""
+        while self.pending:
+            tick = self.pending.get(self.next_tick)
+            if tick is not None and (tick.parts >= self.expected_parts or self.next_tick < force_below):
+                self._score(self.next_tick, self.pending.pop(self.next_tick))
+            elif tick is None and self.next_tick < force_below:
+                pass  # never logged (a skipped chunk): nothing to score
+            else:
+                return
+            self.next_tick += 1
+
+    def finish(self) -> None:
+        for k in sorted(self.pending):
+            self.next_tick = k
+            self._score(k, self.pending.pop(k))
+        self._close_segment()
+        self.bus.finish()
+        if self.late:
+            self.warnings.append(
+                f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored"
+            )
+
+    # scoring, tick by tick in order
+
+    def _score(self, k: int, tick: Tick) -> None:
+        if tick.x is not None:
+            self.ticks = max(self.ticks, k + 1)
+        active = self.active if tick.active is None else set(tick.active)
+        self._segments(k, active)
+        states = self.run.states
+        for name, estimate in tick.estimates.items():
+            x = tick.x
+            if x is not None and all(isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in states):
+                error = math.sqrt(math.fsum((x[s] - estimate[estimate_signal(s)]) ** 2 for s in states))
+                self.estimators[name].add(k, error, self.segment)
+            alarm = self.alarms.get(name)
+            if alarm is not None and isinstance(estimate.get(alarm), (int, float)):
+                if name not in self.diagnosis:
+                    self.diagnosis[name] = DiagnosisScore(alarm, self.run.estimators[name], self.run.faults)
+                self.diagnosis[name].add(k, estimate, active, self.segment)
+        if tick.ids is not None:
+            for score in self.ids.values():
+                score.add(k, tick.ids, active, self.segment)
+
+    def _segments(self, k: int, active: set[str]) -> None:
+        """Onsets and clearances at tick ``k``: a fault that starts opens a new segment."""
+        for label in self.active - active:
+            self.ends.setdefault(label, k)
+        started = [label for label in self.run.faults if label in active and label not in self.active]
+        started += sorted(label for label in active - self.active if label not in self.run.faults)
+        if started:
+            self._close_segment()
+            self.segment = Segment(k, started)
+            for label in started:
+                self.onsets.setdefault(label, k)
+        self.active = active
+
+    def _close_segment(self) -> None:
+        if self.segment is None:
+            return
+        for estimation in self.estimators.values():
+            estimation.close(self.segment)
+        dt = self.run.sample_time
+        assert dt is not None, "segments start at scored ticks, and ticks are scored only with a sample time"
+        for diagnosis in (*self.diagnosis.values(), *self.ids.values()):
+            diagnosis.close(self.segment, dt)
+        self.segment = None
