@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from cosim.kinds import KindError, Kinds
 from estimators.base import Estimate, Estimator, ParameterError
 from estimators.controller import CONTROLLERS, PidController
 from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
-from kinds import KindError, Kinds
 
 #: Estimator kinds; each built-in kind's module is imported when the kind is first looked up.
 ESTIMATORS: Kinds[type[Estimator]] = Kinds(

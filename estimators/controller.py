@@ -17,10 +17,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cosim.kinds import KindError, Kinds
 from estimators.base import Configurable, ParameterError
 from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.model import LinearModel
-from kinds import KindError, Kinds
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cosim.kinds import Kinds
 from faults.waveforms import Constant, Waveform
-from kinds import Kinds
 
 
 def per_channel(what: str, default: Any = ()) -> Any:

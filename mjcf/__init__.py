@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from kinds import Kinds
+from cosim.kinds import Kinds
 from mjcf._plant import Channel, Parameter, PlantInfo
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PRODUCT = ("cosim", "estimators", "faults", "kinds", "mjcf")
+PRODUCT = ("cosim", "estimators", "faults", "mjcf")
 LONG_FUNCTION = 60
 LONG_FILE = 600
 MAX_LONG_FUNCTIONS = 5

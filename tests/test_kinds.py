@@ -16,13 +16,12 @@ import pytest
 
 import estimators
 import faults
-import kinds
 import mjcf
-from cosim import scenario
+from cosim import kinds, scenario
 from cosim.errors import ScenarioError
+from cosim.kinds import KindError, Kinds
 from estimators import Estimator, ParameterError
 from estimators.controller import CONTROLLERS, Controller
-from kinds import KindError, Kinds
 from tests.linear_masses import masses_model
 from tests.snippets import MASSES
 
@@ -159,7 +158,8 @@ def test_a_kind_is_imported_on_first_lookup_and_the_entry_points_only_for_a_name
     code = textwrap.dedent(
         """
         import json, sys
-        import estimators, faults, kinds, mjcf
+        import estimators, faults, mjcf
+        from cosim import kinds
         from estimators.controller import CONTROLLERS
         watched = ["estimators.kalman", "estimators.uio", "estimators.cofd", "estimators.allocation",
                    "estimators.reconciliation", "estimators.adaptive", "mjcf.vessel", "scipy.optimize",

@@ -21,13 +21,13 @@ from pydantic import ValidationError
 import scenarios
 from cosim.bus.codec import CONTROLLER, PLANT
 from cosim.errors import CodecError, ScenarioError
+from cosim.kinds import KindError, Kinds
 from cosim.plant import statespace
 from cosim.scenario.faults import OnBus
 from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import problem_message, problem_path
 from estimators import ESTIMATORS, ParameterError
 from estimators.controller import CONTROLLERS
-from kinds import KindError, Kinds
 from mjcf import PlantInfo
 
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent
