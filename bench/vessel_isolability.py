@@ -50,6 +50,12 @@ def parse_loss(label: str) -> tuple[str, float]:
     raise ValueError(f"loss label {label!r}: expected 'abrupt N %' or 'fade R /s'")
 
 
+def columns(path: Path) -> tuple[dict[str, list], dict[str, str]]:
+    """A campaign's results table as its columns by name, and the table's metadata."""
+    table = read_table(path)
+    return {name: [row[name] for row in table.rows] for name in table.columns}, table.metadata
+
+
 def outcomes(table: dict[str, list]) -> tuple[list[str], dict[tuple[str, str, str, float], list[bool]]]:
     """The sea states in table order, and per (sea state, thruster, kind, size) whether each seed's
     fault was isolated within 10 s."""
@@ -132,7 +138,7 @@ def false_alarms(table: dict[str, list]) -> dict[str, dict[str, float]]:
 
 def figures(isolability: Path, nominal: Path) -> dict:
     """Every number of the map, as one JSON-able object."""
-    table, _, metadata = read_table(isolability)
+    table, metadata = columns(isolability)
     seas, cells = outcomes(table)
     result: dict = {"sea_states": seas, "abrupt": {}, "fade": {}, "misses_at_or_above_50": []}
     for thruster in THRUSTERS:
@@ -149,7 +155,7 @@ def figures(isolability: Path, nominal: Path) -> dict:
     pre = [table["false_alarms"][i] for i in range(len(table["run"])) if table["status"][i] == "completed"]
     result["false_alarms_before_onsets"] = int(sum(pre))
     result["hours_before_onsets"] = sum(table["fault_free_time_s"]) / 3600.0
-    nominal_table, _, _ = read_table(nominal)
+    nominal_table, _ = columns(nominal)
     result["false_alarms"] = false_alarms(nominal_table)
     result["predicted"] = predicted(metadata["cosim.campaign"])
     return result
