@@ -18,6 +18,7 @@ then discretized at the sample time by the exact zero-order hold (``zoh_discreti
 
 from __future__ import annotations
 
+import ctypes
 from typing import Any
 
 import numpy as np
@@ -55,8 +56,8 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
         x0 = states.get(fmu)
         unknowns = [derivatives, named, sensors]
 
-        def outputs() -> np.ndarray:
-            return np.concatenate([a.get(fmu) for a in unknowns])
+        def outputs() -> np.ndarray:  # the derivatives by the model-exchange call that computes them
+            return np.concatenate([state_derivatives(fmu, version, nx), named.get(fmu), sensors.get(fmu)])
 
         y_op, s_op = sensors.get(fmu), named.get(fmu)
         knowns = model.continuous_states + model.actuators + model.disturbances
@@ -70,7 +71,7 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
                 return outputs()
 
             steps = FD_STEP * np.where(np.concatenate([x0, u0]) != 0, np.abs(np.concatenate([x0, u0])), 1.0)
-            discrete = [not _scalar_float(e) for e in knowns]
+            discrete = [e.discrete for e in knowns]
             jacobian = np.zeros((len(outputs()), len(knowns)))
             for j, h in enumerate(steps):
                 if discrete[j]:
@@ -114,18 +115,37 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
     )
 
 
+def state_derivatives(fmu: Any, version: int, nx: int) -> np.ndarray:
+    """ẋ of a model-exchange instance at its current states, inputs and time."""
+    dx = np.zeros(nx)
+    pointer = dx.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+    (fmu.getDerivatives if version == 2 else fmu.getContinuousStateDerivatives)(pointer, nx)
+    return dx
+
+
 def _scalar_float(element: Element) -> bool:
     return not element.variable.shape and element.variable.type in FLOATS
 
 
 def _directional_jacobian(fmu: Any, version: int, unknowns: list[Any], knowns: tuple[Element, ...]) -> np.ndarray:
-    """∂(unknowns)/∂(knowns) column by column from the FMU's directional derivatives (scalars)."""
-    vrs = [e.variable.valueReference for a in unknowns for e in a.elements]
-    columns = []
-    for known in knowns:
+    """∂(unknowns)/∂(knowns) column by column from the FMU's directional derivatives (scalars).
+    An unknown that is itself a known (an output that is a continuous state) has the unit row:
+    FMUs need not answer for it (the Reference FMUs answer 0)."""
+    rows = [e for a in unknowns for e in a.elements]
+    known_at = {id(k.variable): j for j, k in enumerate(knowns)}
+    asked = [i for i, e in enumerate(rows) if id(e.variable) not in known_at]
+    vrs = [rows[i].variable.valueReference for i in asked]
+    jacobian = np.zeros((len(rows), len(knowns)))
+    for i, e in enumerate(rows):
+        if id(e.variable) in known_at:
+            jacobian[i, known_at[id(e.variable)]] = 1.0
+    for j, known in enumerate(knowns):
+        if not vrs:
+            break
+        reference = [known.variable.valueReference]
         if version == 2:
-            column = fmu.getDirectionalDerivative(vrs, [known.variable.valueReference], [1.0])
+            column = fmu.getDirectionalDerivative(vrs, reference, [1.0])
         else:
-            column = fmu.getDirectionalDerivative(vrs, [known.variable.valueReference], [1.0], len(vrs))
-        columns.append(np.asarray(column, dtype=float))
-    return np.array(columns).T if columns else np.zeros((len(vrs), 0))
+            column = fmu.getDirectionalDerivative(vrs, reference, [1.0], len(vrs))
+        jacobian[asked, j] = column
+    return jacobian

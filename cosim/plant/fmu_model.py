@@ -143,7 +143,7 @@ def read(path: str | Path, spec: Any) -> FmuModel:
 
 
 def _read(path: Path, spec: Any) -> FmuModel:
-    md = _description(path)
+    md, root = _description(path)
     interface = _interface(path, md, spec.interface)
     variables = {v.name: v for v in md.modelVariables}
     numeric = [v for v in md.modelVariables if v.type in NUMERIC]
@@ -179,25 +179,25 @@ def _read(path: Path, spec: Any) -> FmuModel:
         elements(continuous),
         elements(d.variable for d in md.derivatives),
         dict(spec.parameters),
-        _provides_directional_derivatives(path, md),
+        _provides_directional_derivatives(md, root),
     )
     _distinct(path, model)
     return model
 
 
-def _description(path: Path) -> Any:
-    """The model description, after the checks that need only the archive: an FMU of a supported
-    FMI version with a binary for this machine."""
+def _description(path: Path) -> tuple[Any, ElementTree.Element]:
+    """FMPy's model description and the XML's root, after the checks that need only the archive:
+    an FMU of a supported FMI version with a binary for this machine."""
     lib = fmpy()
     try:
-        info_version = lib.read_model_description(str(path), validate=False).fmiVersion
-    except (zipfile.BadZipFile, KeyError, OSError) as error:
+        with zipfile.ZipFile(path) as archive:
+            root = ElementTree.fromstring(archive.read("modelDescription.xml"))
+    except (zipfile.BadZipFile, KeyError, OSError, ElementTree.ParseError) as error:
         raise FmuError(f"plant.model: {path} is not an FMU (a zip with a modelDescription.xml): {error}") from None
-    except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions for bad XML)
-        raise FmuError(f"plant.model: {path}: its modelDescription.xml cannot be read: {error}") from None
-    if not str(info_version).startswith(VERSIONS):
+    version = root.get("fmiVersion", "?")
+    if not version.startswith(VERSIONS):
         raise FmuError(
-            f"plant.model: {path.name} is an FMI {info_version} FMU; cosim runs FMI {' and '.join(VERSIONS)} FMUs"
+            f"plant.model: {path.name} is an FMI {version} FMU; cosim runs FMI {' and '.join(VERSIONS)} FMUs"
         )
     platforms = lib.supported_platforms(str(path))
     if lib.platform not in platforms:
@@ -207,19 +207,17 @@ def _description(path: Path) -> Any:
             f"plant.model: {path.name} has binaries for {built}, not for this machine ({lib.platform}){sources}"
         )
     try:
-        return lib.read_model_description(str(path), validate=True)
-    except Exception as error:  # noqa: BLE001
+        return lib.read_model_description(str(path), validate=True), root
+    except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions for an invalid description)
         raise FmuError(f"plant.model: {path.name}: its modelDescription.xml is not valid: {error}") from None
 
 
-def _provides_directional_derivatives(path: Path, md: Any) -> bool:
-    """The model-exchange capability flag, read from the XML (FMPy reads FMI 2's spelling only)."""
+def _provides_directional_derivatives(md: Any, root: ElementTree.Element) -> bool:
+    """The model-exchange capability flag (FMPy reads FMI 2's spelling only, not FMI 3's)."""
     if md.modelExchange is None:
         return False
     if md.fmiVersion.startswith("2"):
         return bool(md.modelExchange.providesDirectionalDerivative)
-    with zipfile.ZipFile(path) as archive:
-        root = ElementTree.fromstring(archive.read("modelDescription.xml"))
     element = root.find("ModelExchange")
     return element is not None and element.get("providesDirectionalDerivatives") == "true"
 
