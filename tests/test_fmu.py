@@ -402,3 +402,33 @@ def test_the_exported_fmu_is_valid_and_reproduces_the_logged_sensor_stream(name,
     assert np.nanmax(np.abs(outputs - measured)) <= TOLERANCE
     reseeded = simulate_export(fmu, log, loaded.scenario, start_values={"seed": 4})
     assert np.nanmax(np.abs(reseeded - measured)) > 1e-4  # another seed, other noise
+
+
+def test_a_campaign_sweeps_an_fmu_parameter(tmp_path):
+    pandas = pytest.importorskip("pandas")
+    campaign = tmp_path / "mu.toml"
+    campaign.write_text(
+        f"""
+name = "vanderpol-mu"
+scenario = "{VANDERPOL_SCENARIO}"
+seeds = 1
+bus = "in-process"
+
+[set]
+duration = 1.0
+
+[[axes]]
+key = "plant.fmu.parameters.mu"
+values = [0.5, 2.0]
+name = "mu"
+"""
+    )
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "campaign", str(campaign), "--out", str(out), "--engine", "inline"],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 0, result.stderr
+    table = pandas.read_parquet(out / "results.parquet")
+    assert sorted(table["mu"]) == [0.5, 2.0] and set(table["status"]) == {"completed"}
