@@ -124,16 +124,34 @@ actuator = "u_3"
 signal = 0.25
 """
 
+STATE_SPACE_DISTURBANCES = """
+[[disturbances]]
+input = "u_1"
+signal = { kind = "sine", amplitude = 2.0, frequency = 1.0 }
+[[disturbances]]
+input = "u_3"
+signal = { kind = "ramp", slope = 0.5 }
+"""
+STATE_SPACE_A = "A = [0, 1, 0, -2, -0.5, 0, 0, 0, -1]"
+
 CASES = [
     *((f"fmi{v}/VanDerPol.fmu", "parameters = { mu = 1.5 }", "", ["x0", "x1"]) for v in (2, 3)),
     *((f"fmi{v}/Dahlquist.fmu", "parameters = { k = 2.0 }", "", ["x"]) for v in (2, 3)),
     *((f"fmi{v}/BouncingBall.fmu", "", "", ["h", "v"]) for v in (2, 3)),
-    ("fmi3/StateSpace.fmu", "parameters = { A = [0, 1, 0, -2, -0.5, 0, 0, 0, -1] }", STATE_SPACE_INPUTS, ["x"]),
+    ("fmi3/StateSpace.fmu", f"parameters = {{ {STATE_SPACE_A} }}", STATE_SPACE_INPUTS, ["x"]),
+    (
+        "fmi3/StateSpace.fmu",
+        f'parameters = {{ {STATE_SPACE_A} }}\ndisturbances = ["u"]',
+        STATE_SPACE_DISTURBANCES,
+        ["x"],
+    ),
 ]
 
 
 @pytest.mark.parametrize("interface", INTERFACES)
-@pytest.mark.parametrize(("name", "table", "inputs", "states"), CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize(
+    ("name", "table", "inputs", "states"), CASES, ids=[*(c[0] for c in CASES[:-1]), "StateSpace-disturbances"]
+)
 def test_the_plant_trajectory_of_a_run_equals_fmpys(name, table, inputs, states, interface, tmp_path):
     fmu, duration, dt = FMUS / name, 2.0, 0.01
     loaded = load_text(scenario_text(fmu, interface, duration=duration, dt=dt, fmu_table=table, extra=inputs), tmp_path)
@@ -144,8 +162,9 @@ def test_the_plant_trajectory_of_a_run_equals_fmpys(name, table, inputs, states,
     assert spec is not None
     kwargs: dict = {"start_values": dict(spec.parameters)}
     if inputs:
-        u = fmu_model.read(fmu, spec).actuators[0].variable
-        kwargs["input"] = staircase([(u.name, tuple(u.shape or ()))], logged["u"], dt)
+        model = fmu_model.read(fmu, spec)
+        u = (model.actuators or model.disturbances)[0].variable
+        kwargs["input"] = staircase([(u.name, tuple(u.shape))], logged["u" if model.actuators else "d"], dt)
     expected = reference(fmu, interface, duration, dt, states, **kwargs)
     # /truth/state holds x_k for k = 0 … N-1, FMPy's result x(t_k) for k = 0 … N.
     assert logged["x"].shape == expected[:-1].shape
