@@ -41,6 +41,46 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
     renamed = model.states != model.continuous_states
     if x is not None and renamed:
         raise ModelError(f"{model.path.name}: linearize at given states only where they are the continuous states")
+    jacobian, v_op, s_op, y_op = _jacobian(plant, x, u)
+    nx, ns = len(model.continuous_states), len(model.states)
+    F, S, Y = jacobian[:nx], jacobian[nx : nx + ns], jacobian[nx + ns :]
+    F_x, F_v, S_x, Y_x, Y_v = F[:, :nx], F[:, nx:], S[:, :nx], Y[:, :nx], Y[:, nx:]
+    if renamed:
+        if ns != nx or np.linalg.matrix_rank(S_x) < nx or np.abs(S[:, nx:]).max(initial=0.0) > 1e-9:
+            raise ModelError(
+                f"{model.path.name}: the states named in [plant.fmu] states ({', '.join(plant.state_names)}) do not "
+                f"determine its {nx} continuous states one to one (independent of the inputs)"
+            )
+        T_inv = np.linalg.inv(S_x)
+        A, BE, C = S_x @ F_x @ T_inv, S_x @ F_v, Y_x @ T_inv
+    else:
+        A, BE, C = F_x, F_v, Y_x
+    if dt is not None:
+        A, BE = zoh_discretize(A, BE, dt)
+    m = len(model.actuators)
+    return LinearModel(
+        A,
+        BE[:, :m],
+        C,
+        Y_v[:, :m],
+        dt,
+        plant.state_names,
+        plant.actuator_names,
+        plant.sensor_names,
+        x_op=s_op,
+        u_op=v_op[:m],
+        y_op=y_op,
+        E=BE[:, m:],
+        disturbances=plant.disturbance_names,
+    )
+
+
+def _jacobian(
+    plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """∂[ẋ; s; y]/∂[x; v] at the point, and there the inputs v, the named states s and the sensors y,
+    from a fresh model-exchange instance."""
+    model = plant.model
     fmu = instantiate(model, plant._unzipped, "model-exchange")
     try:
         initialize(model, fmu, "model-exchange", plant._start, plant.tolerance, plant.duration)
@@ -49,70 +89,33 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
         derivatives, named, sensors = Access(model.derivatives, version), Access(model.states, version), plant._sensors
         if x is not None:
             set_continuous_states(fmu, np.asarray(x, dtype=float))
-        u0 = inputs.get(fmu)
+        v0 = inputs.get(fmu)
         if u is not None:
-            u0[: len(model.actuators)] = u
-            inputs.set(fmu, u0)
-        x0 = states.get(fmu)
-        unknowns = [derivatives, named, sensors]
-
-        def outputs() -> np.ndarray:  # the derivatives by the model-exchange call that computes them
-            return np.concatenate([state_derivatives(fmu, version, nx), named.get(fmu), sensors.get(fmu)])
-
-        y_op, s_op = sensors.get(fmu), named.get(fmu)
+            v0[: len(model.actuators)] = u
+            inputs.set(fmu, v0)
+        x0, s_op, y_op = states.get(fmu), named.get(fmu), sensors.get(fmu)
         knowns = model.continuous_states + model.actuators + model.disturbances
         if model.directional and all(_scalar_float(e) for e in (*knowns, *model.derivatives, *model.states)):
-            jacobian = _directional_jacobian(fmu, version, unknowns, knowns)
-        else:
+            return _directional_jacobian(fmu, version, [derivatives, named, sensors], knowns), v0, s_op, y_op
 
-            def at(dx: np.ndarray, du: np.ndarray) -> np.ndarray:
-                set_continuous_states(fmu, x0 + dx)
-                inputs.set(fmu, u0 + du)
-                return outputs()
+        def at(dx: np.ndarray, dv: np.ndarray) -> np.ndarray:  # ẋ by the call that computes it
+            set_continuous_states(fmu, x0 + dx)
+            inputs.set(fmu, v0 + dv)
+            return np.concatenate([state_derivatives(fmu, version, nx), named.get(fmu), sensors.get(fmu)])
 
-            steps = FD_STEP * np.where(np.concatenate([x0, u0]) != 0, np.abs(np.concatenate([x0, u0])), 1.0)
-            discrete = [e.discrete for e in knowns]
-            jacobian = np.zeros((len(outputs()), len(knowns)))
-            for j, h in enumerate(steps):
-                if discrete[j]:
-                    continue  # an integer or Boolean input has no derivative
-                e = np.zeros(len(knowns))
-                e[j] = h
-                jacobian[:, j] = (at(e[:nx], e[nx:]) - at(-e[:nx], -e[nx:])) / (2.0 * h)
+        point = np.concatenate([x0, v0])
+        steps = FD_STEP * np.where(point != 0, np.abs(point), 1.0)
+        jacobian = np.zeros((nx + len(s_op) + len(y_op), len(knowns)))
+        for j, (h, known) in enumerate(zip(steps, knowns)):
+            if known.discrete:
+                continue  # an integer or Boolean input has no derivative
+            e = np.zeros(len(knowns))
+            e[j] = h
+            jacobian[:, j] = (at(e[:nx], e[nx:]) - at(-e[:nx], -e[nx:])) / (2.0 * h)
+        return jacobian, v0, s_op, y_op
     finally:
         fmu.terminate()
         fmu.freeInstance()
-    ns = len(model.states)
-    F, S, Y = jacobian[:nx], jacobian[nx : nx + ns], jacobian[nx + ns :]
-    F_x, F_u, S_x, Y_x, Y_u = F[:, :nx], F[:, nx:], S[:, :nx], Y[:, :nx], Y[:, nx:]
-    if renamed:
-        if ns != nx or np.linalg.matrix_rank(S_x) < nx or np.abs(S[:, nx:]).max(initial=0.0) > 1e-9:
-            raise ModelError(
-                f"{model.path.name}: the states named in [plant.fmu] states ({', '.join(plant.state_names)}) do not "
-                f"determine its {nx} continuous states one to one (independent of the inputs)"
-            )
-        T_inv = np.linalg.inv(S_x)
-        A, BE, C = S_x @ F_x @ T_inv, S_x @ F_u, Y_x @ T_inv
-    else:
-        A, BE, C = F_x, F_u, Y_x
-    if dt is not None:
-        A, BE = zoh_discretize(A, BE, dt)
-    m = len(model.actuators)
-    return LinearModel(
-        A,
-        BE[:, :m],
-        C,
-        Y_u[:, :m],
-        dt,
-        plant.state_names,
-        plant.actuator_names,
-        plant.sensor_names,
-        x_op=s_op,
-        u_op=u0[:m],
-        y_op=y_op,
-        E=BE[:, m:],
-        disturbances=plant.disturbance_names,
-    )
 
 
 def state_derivatives(fmu: Any, version: int, nx: int) -> np.ndarray:
