@@ -391,7 +391,7 @@ def commanded(log: Path) -> np.ndarray:
 
 def exported_run(loaded: scenario.LoadedScenario, folder: Path, seed: int | None = None) -> tuple[Path, Path]:
     """The scenario run in-process and exported as an FMU: (log, FMU)."""
-    from cosim.plant.fmu_export import export
+    from cosim.run.fmu_export import export
 
     log, fmu = folder / "run.mcap", folder / "plant.fmu"
     assert run(loaded, log, interface="virtual", seed=seed).status == "completed"

@@ -19,18 +19,11 @@ def build_plant(scenario: Any) -> Plant | StateSpacePlant | FmuPlant:
     initial state is set by ``reset``). ModelError if its model is inconsistent."""
     s = scenario
     if is_fmu(s.plant.model):
-        from cosim.plant import fmu_model
         from cosim.plant.fmu import FmuPlant
-        from cosim.scenario.spec import FmuSpec
 
-        spec = s.plant.fmu or FmuSpec()
+        tolerance = None if s.plant.fmu is None else s.plant.fmu.tolerance
         return FmuPlant(
-            fmu_model.read(s.plant.model, spec),
-            s.sample_time,
-            s.duration,
-            s.sensors,
-            design=s.plant.state_space,
-            tolerance=spec.tolerance,
+            s.fmu_model(), s.sample_time, s.duration, s.sensors, design=s.plant.state_space, tolerance=tolerance
         )
     if s.plant.state_space is not None:
         plant: Plant | StateSpacePlant = StateSpacePlant(s.plant.state_space, s.plant_info, s.sample_time, s.sensors)

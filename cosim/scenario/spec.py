@@ -396,12 +396,17 @@ class Scenario(Strict):
     @property
     def plant_info(self) -> mjcf.PlantInfo:
         if fmu_model.is_fmu(self.plant.model):
-            return fmu_model.read(self.plant.model, self.plant.fmu or FmuSpec()).info()
+            return self.fmu_model().info()
         if self.plant.model == statespace.NAME:
             if self.plant.state_space is None:
                 raise KeyError('plant.model "state-space" needs a [plant.state_space] table with A, B and C')
             return statespace.plant_info(self.plant.state_space)
         return mjcf.get(self.plant.model)
+
+    def fmu_model(self) -> fmu_model.FmuModel:
+        """An FMU plant's variables as signals under its [plant.fmu] table (FmuError if it cannot be
+        the plant)."""
+        return fmu_model.read(self.plant.model, self.plant.fmu or FmuSpec())
 
     @property
     def sensors(self) -> tuple[str, ...]:

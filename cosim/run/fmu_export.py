@@ -2,7 +2,7 @@
 packaged as an FMI 3.0 co-simulation FMU.
 
 The FMU is Python-backed (pythonfmu3, the ``fmi`` extra): its binary is pythonfmu3's prebuilt
-library (Linux x86-64, Windows x86-64), which runs ``cosim.plant.fmu_slave`` in the host's Python,
+library (Linux x86-64, Windows x86-64), which runs ``cosim.run.fmu_slave`` in the host's Python,
 so exporting needs no compiler; running it needs a Python with cosim installed. Its resources hold
 the scenario (``scenario.json``: the resolved scenario and the signal names) and, for an FMU plant,
 that FMU. The bus (frames, bus faults, estimators, controller) is not part of it: it is the plant

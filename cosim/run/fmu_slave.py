@@ -85,7 +85,7 @@ class CosimPlant(Fmi3Slave):
         self.source: Any = None
 
     def exit_initialization_mode(self) -> None:
-        from cosim.plant.fmu_export import plant_source
+        from cosim.run.fmu_export import plant_source
 
         self.source = plant_source(self.exported, Path(self.resources), self.seed)
         self._k = 0
