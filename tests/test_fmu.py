@@ -451,3 +451,20 @@ name = "mu"
     assert result.returncode == 0, result.stderr
     table = pandas.read_parquet(out / "results.parquet")
     assert sorted(table["mu"]) == [0.5, 2.0] and set(table["status"]) == {"completed"}
+
+
+def test_cosim_fmu_writes_a_valid_fmu_with_the_seed_given(tmp_path):
+    from fmpy.validation import validate_fmu
+
+    out = tmp_path / "vdp.fmu"
+    result = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "fmu", str(VANDERPOL_SCENARIO), "--out", str(out), "--seed", "5"],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 0 and f"wrote {out}" in result.stderr, result.stderr
+    assert validate_fmu(str(out)) == []
+    description = fmpy.read_model_description(str(out))
+    variables = {v.name: v for v in description.modelVariables}
+    assert variables["seed"].start == "5" and variables["x0"].causality == "output"
+    assert "state.x1" in variables and description.defaultExperiment.stepSize == "0.01"
