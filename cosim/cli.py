@@ -29,6 +29,7 @@ examples:
   cosim leaderboard runs/sweep/results.parquet --html board.html
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
+  cosim fmu masses-bias --out plant.fmu   the scenario's plant with its faults as an FMU
   cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, candump)
   cosim layout runs/my.mcap --out my-layout.json   a Foxglove layout for the log (or for a scenario)
   cosim plot runs/my.mcap --format pdf   the figures, for a paper (png, svg or pdf)
@@ -675,6 +676,18 @@ def cmd_dbc(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fmu(args: argparse.Namespace) -> int:
+    from cosim import scenario
+    from cosim.run.fmu_export import export
+
+    _check_scenario_name(args.scenario)
+    settings = [scenario.parse_setting(text) for text in args.set or []]
+    settings += [("seed", args.seed)] if args.seed is not None else []
+    loaded = scenario.apply(scenario.load(args.scenario), settings)
+    _console(stderr=True).print(f"wrote {export(loaded, Path(args.out))}")
+    return 0
+
+
 def _positive(text: str) -> int:
     try:
         value = int(text)
@@ -1071,6 +1084,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", "-o", metavar="FILE.dbc", help="output file (default: standard output)")
     p.set_defaults(func=cmd_dbc)
+
+    p = sub.add_parser(
+        "fmu",
+        help="export a scenario's plant with its faults as an FMU",
+        description="Package the scenario's plant with its sensor and actuator faults, noise and disturbances "
+        "(seeded) as an FMI 3.0 co-simulation FMU (docs/fmi.md).",
+    )
+    p.add_argument("scenario", metavar="SCENARIO", help="built-in scenario name or TOML path")
+    p.add_argument("--out", "-o", required=True, metavar="FILE.fmu", help="the FMU to write")
+    p.add_argument("--seed", type=int, metavar="N", help="the seed of its noise, faults and disturbances")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="change a scenario field (repeatable)")
+    p.set_defaults(func=cmd_fmu)
     return parser
 
 

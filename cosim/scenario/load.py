@@ -23,6 +23,7 @@ from cosim.bus.codec import CONTROLLER, PLANT
 from cosim.errors import CodecError, ScenarioError
 from cosim.kinds import KindError, Kinds
 from cosim.plant import statespace
+from cosim.plant.fmu_model import FmuError, is_fmu
 from cosim.scenario.faults import OnBus
 from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import problem_message, problem_path
@@ -78,22 +79,34 @@ def load(name_or_path: str | Path | None = None) -> LoadedScenario:
     return LoadedScenario(scenario=parse(text, source), source=source, text=text)
 
 
-def parse(text: str, source: str = "<scenario>") -> Scenario:
-    """Validate scenario TOML text; raises one ScenarioError listing every problem."""
+def folder_of(source: str) -> Path:
+    """The folder that paths in a scenario from ``source`` are relative to: the file's, the
+    built-in scenarios' for ``builtin:NAME``, else the working directory."""
+    if source.startswith("builtin:"):
+        return BUILTIN_DIR
+    path = Path(source)
+    return path.parent if path.is_file() else Path.cwd()
+
+
+def parse(text: str, source: str = "<scenario>", folder: Path | None = None) -> Scenario:
+    """Validate scenario TOML text; raises one ScenarioError listing every problem. Paths in it
+    (an FMU plant's) are relative to ``folder`` (default: ``folder_of(source)``)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: invalid TOML: {error}") from None
-    return validate(data, source)
+    return validate(data, source, folder)
 
 
-def validate(data: dict[str, Any], source: str) -> Scenario:
-    """Validate scenario data (a file's TOML, parsed); raises one ScenarioError listing every problem."""
+def validate(data: dict[str, Any], source: str, folder: Path | None = None) -> Scenario:
+    """Validate scenario data (a file's TOML, parsed); raises one ScenarioError listing every
+    problem. An FMU plant's path becomes absolute, relative to ``folder`` (default: ``folder_of(source)``)."""
     if (deep := _too_deep(data)) is not None:
         raise ScenarioError(
             f"{source}: {deep}: nested more than {MAX_NESTING} tables or lists deep; a scenario needs "
             f"far fewer (flatten the sum of waveforms)"
         )
+    data = _absolute_fmu(data, folder if folder is not None else folder_of(source))
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as error:
@@ -103,6 +116,18 @@ def validate(data: dict[str, Any], source: str) -> Scenario:
     if problems:
         raise ScenarioError(_report(source, problems))
     return scenario
+
+
+def _absolute_fmu(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """The data with an FMU plant's relative path made absolute (the scenario then means the same
+    file wherever it is run from, and its resolved JSON in a log names it)."""
+    plant = data.get("plant")
+    if not isinstance(plant, dict):
+        return data
+    model = plant.get("model")
+    if not isinstance(model, str) or not is_fmu(model) or Path(model).is_absolute():
+        return data
+    return {**data, "plant": {**plant, "model": str((folder / model).resolve())}}
 
 
 def _too_deep(data: Any, path: str = "", depth: int = 0) -> str | None:
@@ -129,10 +154,17 @@ def _report(source: str, problems: list[str]) -> str:
 
 def check(s: Scenario) -> list[str]:
     """The problems that need the plant's names and the scenario as a whole."""
-    if s.plant.state_space is not None and s.plant.model != statespace.NAME:
-        return [f'plant.state_space: only used with plant.model = "{statespace.NAME}" (got {s.plant.model!r})']
+    fmu = is_fmu(s.plant.model)
+    if s.plant.state_space is not None and s.plant.model != statespace.NAME and not fmu:
+        return [
+            f'plant.state_space: only used with plant.model = "{statespace.NAME}" or an FMU (got {s.plant.model!r})'
+        ]
+    if s.plant.fmu is not None and not fmu:
+        return [f'plant.fmu: only used with an FMU plant (plant.model = "….fmu", got {s.plant.model!r})']
     try:
         info = s.plant_info
+    except FmuError as error:
+        return [str(error)]
     except KeyError as error:
         alternative = f", or {statespace.NAME!r} with a [plant.state_space] table"
         alternative = "" if s.plant.model == statespace.NAME else alternative
@@ -144,6 +176,7 @@ def check(s: Scenario) -> list[str]:
     problems = [
         *_duration(s),
         *_plant_signals(s, names),
+        *(_design_model(s, names) if fmu and s.plant.state_space is not None else []),
         *_inputs(s, names),
         *_disturbances(s, names),
         *_faults(s, names),
@@ -274,6 +307,26 @@ def _plant_signals(s: Scenario, names: _Names) -> list[str]:
         if len(set(s.plant.sensors)) != len(s.plant.sensors):
             problems.append("plant.sensors: a sensor is listed twice")
     return problems + names.unknown("plant.initial_state", list(s.plant.initial_state), names.states, "state")
+
+
+def _design_model(s: Scenario, names: _Names) -> list[str]:
+    """An FMU plant's design model names the FMU's states, actuators and disturbances, in order,
+    and outputs that include the transmitted sensors."""
+    spec = s.plant.state_space
+    assert spec is not None
+    problems = [
+        f"plant.state_space.{field}: the design model's {field} must be the FMU's, in order: {', '.join(known) or '[]'}"
+        for field, given, known in (
+            ("states", spec.state_names, names.states),
+            ("inputs", spec.input_names, names.actuators),
+            ("disturbances", spec.disturbance_names, names.disturbances),
+        )
+        if list(given) != list(known)
+    ]
+    missing = [name for name in names.transmitted if name not in spec.output_names]
+    if missing:
+        problems.append(f"plant.state_space.outputs: the design model has no output for {', '.join(missing)}")
+    return problems
 
 
 def _inputs(s: Scenario, names: _Names) -> list[str]:

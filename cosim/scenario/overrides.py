@@ -18,7 +18,7 @@ from dataclasses import replace
 from typing import Any
 
 from cosim.errors import ScenarioError
-from cosim.scenario.load import LoadedScenario, validate
+from cosim.scenario.load import LoadedScenario, folder_of, validate
 
 _PART = re.compile(r"([A-Za-z_][A-Za-z0-9_-]*)((?:\[\d+\])*)")
 _BARE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.:-]*$")
@@ -117,7 +117,7 @@ def apply(loaded: LoadedScenario, settings: Mapping[str, Any] | Iterable[tuple[s
     for key, value in items:
         set_path(data, key, value)
     given = ", ".join(f"{key}={_short(value)}" for key, value in items)
-    scenario = validate(data, f"{loaded.source} with --set {given}")
+    scenario = validate(data, f"{loaded.source} with --set {given}", folder_of(loaded.source))
     return replace(loaded, scenario=scenario, settings=(*loaded.settings, *items))
 
 

@@ -16,7 +16,7 @@ from cosim.bus.codec import Codec
 from cosim.bus.secoc import secure_dbc
 from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
-from cosim.plant import statespace
+from cosim.plant import fmu_model, statespace
 from cosim.scenario.faults import FaultSpec, NoiseSpec
 from cosim.scenario.tables import Identifier, NonNegative, Positive, Strict, problem_message, problem_path
 from cosim.scenario.waveforms import WaveformSpec
@@ -96,10 +96,33 @@ class StateSpaceSpec(Strict):
         return self.disturbances or [f"d{i + 1}" for i in range(len(self.E[0]) if self.E else 0)]
 
 
+class FmuSpec(Strict):
+    """An FMU plant's settings (``plant.model = "plant.fmu"``, docs/fmi.md)."""
+
+    interface: Literal["co-simulation", "model-exchange"] | None = None
+    """Which of the FMU's interfaces runs it; default co-simulation if it has one."""
+    parameters: dict[str, float | bool | list[float]] = {}
+    """Parameter values by variable name (an array parameter as a list, row-major)."""
+    states: list[str] | None = None
+    """Variables (outputs, locals) that are the truth's states; default the continuous states."""
+    disturbances: list[str] = []
+    """Inputs that are unknown inputs driven by [[disturbances]], not actuators on the bus."""
+    tolerance: Positive | None = None
+    """Relative tolerance of the model-exchange solver (and of co-simulation); default the FMU's
+    default experiment's, else 1e-5 for model exchange (FMPy's)."""
+    bound: float = Field(default=1e3, gt=0)
+    """Bus range ±bound of a signal whose variable declares no min/max (classic CAN)."""
+    resolution: float = Field(default=1e-6, gt=0)
+    """Bus resolution of the Float signals (classic CAN)."""
+
+
 class PlantSpec(Strict):
     model: str
-    """A registered MJCF plant (``cosim scenarios`` lists them), or "state-space" with [plant.state_space]."""
+    """A registered MJCF plant (``cosim scenarios`` lists them), "state-space" with
+    [plant.state_space], or an FMU file (``*.fmu``, a path relative to the scenario file)."""
     state_space: StateSpaceSpec | None = None
+    """The plant's matrices (model "state-space"), or an FMU plant's design model."""
+    fmu: FmuSpec | None = None
     sensors: list[str] | None = None
     """Transmitted sensors, in order; default: all the plant declares."""
     initial_state: dict[str, float] = {}
@@ -372,11 +395,18 @@ class Scenario(Strict):
 
     @property
     def plant_info(self) -> mjcf.PlantInfo:
+        if fmu_model.is_fmu(self.plant.model):
+            return self.fmu_model().info()
         if self.plant.model == statespace.NAME:
             if self.plant.state_space is None:
                 raise KeyError('plant.model "state-space" needs a [plant.state_space] table with A, B and C')
             return statespace.plant_info(self.plant.state_space)
         return mjcf.get(self.plant.model)
+
+    def fmu_model(self) -> fmu_model.FmuModel:
+        """An FMU plant's variables as signals under its [plant.fmu] table (FmuError if it cannot be
+        the plant)."""
+        return fmu_model.read(self.plant.model, self.plant.fmu or FmuSpec())
 
     @property
     def sensors(self) -> tuple[str, ...]:

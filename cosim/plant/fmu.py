@@ -1,0 +1,377 @@
+"""A plant given as an FMU (FMI 2.0 or 3.0, co-simulation or model exchange), run through FMPy.
+
+``FmuPlant`` has the interface of the other plants (``cosim.plant.physics.Plant``): ``reset``,
+``state``, ``sensors``, ``step`` (inputs held over the sample time), ``linearize``. Which variables
+are which signals is ``cosim.plant.fmu_model``'s business (docs/fmi.md).
+
+It advances the FMU exactly as FMPy's ``simulate_fmu`` does with ``output_interval`` = the sample
+time and the same inputs, so that a run's plant trajectory is the reference importer's:
+
+- co-simulation: one ``doStep`` from t_k = k τ to t_{k+1} = (k+1) τ, the inputs set at t_k;
+- model exchange: FMPy's CVode solver (BDF, relative tolerance from ``[plant.fmu] tolerance``, the
+  default experiment's or 1e-5, maximum step duration / 50, as ``simulate_fmu`` with that stop
+  time) integrates from output point to output point without restarting; time events, state
+  events (event indicators: BouncingBall's bounce) and step events are handled in event mode and
+  restart it, as does an input that changes at t_k (FMPy's input event: a step in its input table).
+
+The design model of the estimators is the FMU linearized about its start point (its start values
+with the scenario's parameters and initial state, the inputs at their start values): with the
+model-exchange interface, by the FMU's directional derivatives where it provides them (FMI 2
+``providesDirectionalDerivative``, FMI 3 ``providesDirectionalDerivatives``) and central finite
+differences otherwise, then discretized by the exact zero-order hold like the other plants; or the
+``[plant.state_space]`` model the scenario gives (required for an FMU without model exchange).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+import weakref
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from cosim.errors import ModelError
+from cosim.plant.fmu_model import Element, FmuModel, fmpy
+from cosim.plant.statespace import StateSpacePlant
+from estimators.model import LinearModel
+
+#: Relative finite-difference step of the linearization (a power of two: exact perturbations).
+FD_STEP = 2.0**-20
+#: The relative tolerance of FMPy's model-exchange solver when neither the scenario nor the FMU's
+#: default experiment gives one (``fmpy.simulation.simulateME``).
+FMPY_TOLERANCE = 1e-5
+
+
+class Access:
+    """Reads and writes a fixed list of an FMU's scalars (``Element``) as one float array."""
+
+    def __init__(self, elements: Sequence[Element], version: int) -> None:
+        self.elements = tuple(elements)
+        self.version = version
+        variables: dict[int, Any] = {}
+        for e in self.elements:
+            variables.setdefault(id(e.variable), e.variable)
+        self.variables = list(variables.values())
+        # Each variable's values start at offset[variable] in the flat buffer of all their values.
+        self._offset, position = {}, 0
+        for v in self.variables:
+            self._offset[id(v)] = position
+            position += _size(v)
+        self._size = position
+        self._take = np.array([self._offset[id(e.variable)] + e.index for e in self.elements], dtype=int)
+
+    def get(self, fmu: Any) -> np.ndarray:
+        buffer = np.zeros(self._size)
+        for v in self.variables:
+            values = self._getter(fmu, v)([v.valueReference], *self._count(v))
+            buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)] = np.asarray(values, dtype=float)
+        return buffer[self._take]
+
+    def set(self, fmu: Any, values: np.ndarray) -> None:
+        buffer = np.zeros(self._size)
+        buffer[self._take] = values
+        for v in self.variables:
+            chunk = buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)]
+            self._setter(fmu, v)([v.valueReference], [_typed(v, value) for value in chunk])
+
+    def _count(self, v: Any) -> tuple[int, ...]:
+        return (_size(v),) if self.version == 3 else ()
+
+    def _getter(self, fmu: Any, v: Any) -> Callable[..., list[Any]]:
+        return getattr(fmu, "get" + _type_name(v, self.version))
+
+    def _setter(self, fmu: Any, v: Any) -> Callable[..., None]:
+        return getattr(fmu, "set" + _type_name(v, self.version))
+
+
+def _size(variable: Any) -> int:
+    return int(np.prod(variable.shape)) if variable.shape else 1
+
+
+def _type_name(variable: Any, version: int) -> str:
+    if variable.type == "Enumeration":
+        return "Integer" if version == 2 else "Int64"
+    return str(variable.type)
+
+
+def _typed(variable: Any, value: float) -> Any:
+    if variable.type == "Boolean":
+        return bool(value != 0)
+    return float(value) if variable.type in ("Real", "Float32", "Float64") else int(round(value))
+
+
+class _HeldInputs:
+    """The inputs FMPy's CVode solver re-applies while it integrates: ours, held (zero-order hold)."""
+
+    def __init__(self, plant: FmuPlant) -> None:
+        self.plant = plant
+
+    def apply(self, time: float, **_: Any) -> None:
+        if self.plant._inputs.elements:
+            self.plant._inputs.set(self.plant.fmu, self.plant._u)
+
+
+class FmuPlant:
+    """One FMU instance advanced ``sample_time`` seconds per tick, with the ``Plant`` interface.
+
+    ``duration`` is the run's stop time (the model-exchange solver's maximum step is duration/50,
+    as FMPy's); ``design`` an optional ``[plant.state_space]`` design model (a ``StateSpaceSpec``).
+    """
+
+    def __init__(
+        self,
+        model: FmuModel,
+        sample_time: float,
+        duration: float,
+        sensors: Sequence[str] | None = None,
+        *,
+        design: Any = None,
+        tolerance: float | None = None,
+    ) -> None:
+        self.model = model
+        self.info = model.info()
+        self.sample_time, self.duration = float(sample_time), float(duration)
+        experiment = model.description.defaultExperiment
+        self.tolerance = tolerance
+        if tolerance is None and experiment is not None and experiment.tolerance is not None:
+            self.tolerance = float(experiment.tolerance)
+        self.state_names = tuple(e.name for e in model.states)
+        self.actuator_names = tuple(e.name for e in model.actuators)
+        self.disturbance_names = tuple(e.name for e in model.disturbances)
+        by_name = {e.name: e for e in model.sensors}
+        self.sensor_names = tuple(sensors) if sensors is not None else tuple(by_name)
+        version = model.version
+        self._states = Access(model.states, version)
+        self._sensors = Access([by_name[n] for n in self.sensor_names], version)
+        self._inputs = Access(model.actuators + model.disturbances, version)
+        self.design = None if design is None else StateSpacePlant(design, self.info, sample_time, self.sensor_names)
+        self._unzipped = fmpy().extract(str(model.path))
+        self._finalizer = weakref.finalize(self, shutil.rmtree, self._unzipped, True)
+        self.fmu: Any = None
+        self.reset()
+
+    @property
+    def nx(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def time(self) -> float:
+        return self._k * self.sample_time
+
+    def reset(self, initial: dict[str, float] | None = None) -> None:
+        """A fresh instance at the start point: the FMU's start values with the scenario's
+        parameters, the named states' start values overridden by ``initial``, initialized at t = 0."""
+        self.close()
+        self._start = start_values(self.model, initial)
+        self.fmu = instantiate(self.model, self._unzipped, self.model.interface)
+        self._k = 0
+        self._event_time = initialize(
+            self.model, self.fmu, self.model.interface, self._start, self.tolerance, self.duration
+        )
+        self._u = self._inputs.get(self.fmu)
+        self._solver: Any = None
+        if self.model.interface == "model-exchange":
+            self._solver = self._cvode()
+
+    def close(self) -> None:
+        """Free the FMU instance (a later ``reset`` makes a new one)."""
+        if self.fmu is not None:
+            self._solver = None
+            self.fmu.terminate()
+            self.fmu.freeInstance()
+            self.fmu = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 (interpreter shutdown: FMPy's modules may be gone)
+            pass
+
+    def state(self) -> np.ndarray:
+        return self._states.get(self.fmu)
+
+    def set_state(self, x: np.ndarray) -> None:
+        """Set the continuous states (model exchange, states not renamed); FMI co-simulation has no
+        way to set them."""
+        if self._solver is None or self.model.states != self.model.continuous_states:
+            raise ModelError(f"{self.info.name}: only a model-exchange FMU's continuous states can be set")
+        set_continuous_states(self.fmu, x)
+        self._solver.reset(self.time)
+
+    def sensors(self) -> np.ndarray:
+        return self._sensors.get(self.fmu)
+
+    def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
+        """Hold the inputs (actuators ``ctrl``, disturbance inputs ``disturbance``, default 0) from
+        t_k to t_{k+1} and advance the FMU."""
+        d = np.zeros(len(self.disturbance_names)) if disturbance is None else np.asarray(disturbance, dtype=float)
+        u = np.concatenate([np.asarray(ctrl, dtype=float), d])
+        t, t_next = self._k * self.sample_time, (self._k + 1) * self.sample_time
+        if self._solver is None:
+            self._u = u
+            self._inputs.set(self.fmu, u)
+            do_step(self.model, self.fmu, t, t_next - t)
+        else:
+            if not np.array_equal(u, self._u):  # an input event: FMPy's step in its input table
+                self._u = u
+                self._event(t, inputs=True)
+            self._integrate(t, t_next)
+        self._k += 1
+
+    def _cvode(self) -> Any:
+        from fmpy.sundials import CVodeSolver
+
+        md, fmu = self.model.description, self.fmu
+        return CVodeSolver(
+            nx=md.numberOfContinuousStates,
+            nz=md.numberOfEventIndicators,
+            get_x=fmu.getContinuousStates,
+            set_x=fmu.setContinuousStates,
+            get_dx=fmu.getContinuousStateDerivatives if self.model.version == 3 else fmu.getDerivatives,
+            get_z=fmu.getEventIndicators,
+            get_nominals=fmu.getNominalsOfContinuousStates,
+            set_time=fmu.setTime,
+            input=_HeldInputs(self),
+            startTime=0.0,
+            maxStep=self.duration / 50.0,
+            relativeTolerance=FMPY_TOLERANCE if self.tolerance is None else self.tolerance,
+        )
+
+    def _integrate(self, t: float, t_end: float) -> None:
+        """Model exchange from t to the output point t_end, through the events on the way (the
+        loop of ``fmpy.simulation.simulateME``)."""
+        from fmpy.simulation import isclose
+
+        needs_step_event = self.model.description.modelExchange.needsCompletedIntegratorStep
+        while not (t > t_end or isclose(t, t_end)):
+            target, event = t_end, self._event_time
+            if event is not None and target > event and not isclose(target, event):
+                target = event
+            time_event = event is not None and isclose(target, event)
+            state_event, _, t = self._solver.step(t, target)
+            self.fmu.setTime(t)
+            step_event = False
+            if needs_step_event:
+                step_event, terminate = self.fmu.completedIntegratorStep()
+                self._check_terminate(terminate, t)
+            if time_event or state_event or step_event:
+                self._event(t)
+
+    def _event(self, t: float, inputs: bool = False) -> None:
+        """Event mode at t (new inputs set there), the discrete states updated, the solver restarted."""
+        self.fmu.enterEventMode()
+        if inputs:
+            self._inputs.set(self.fmu, self._u)
+        terminate, self._event_time = update_discrete_states(self.model, self.fmu)
+        self._check_terminate(terminate, t)
+        self.fmu.enterContinuousTimeMode()
+        self._solver.reset(t)
+
+    def _check_terminate(self, terminate: bool, t: float) -> None:
+        if terminate:
+            raise ModelError(f"{self.info.name}: the FMU ended the simulation at t = {t:g} s")
+
+    def linearize(
+        self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False, method: str = "zoh"
+    ) -> LinearModel:
+        """The design model: ``[plant.state_space]`` if the scenario gives one, else the FMU
+        linearized at its start point (or at states ``x`` and actuator inputs ``u``), in discrete
+        time at the sample time (exact zero-order hold) or in continuous time."""
+        if self.design is not None:
+            return self.design.linearize(continuous=continuous)
+        if method != "zoh":
+            raise ValueError(f"an FMU plant is linearized by the zero-order hold only, not {method!r}")
+        from cosim.plant.fmu_linear import linearize
+
+        return linearize(self, x, u, None if continuous else self.sample_time)
+
+
+def set_continuous_states(fmu: Any, x: np.ndarray) -> None:
+    """Set a model-exchange instance's continuous states."""
+    values = np.ascontiguousarray(x, dtype=float)
+    fmu.setContinuousStates(values.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), len(values))
+
+
+def start_values(model: FmuModel, initial: dict[str, float] | None) -> dict[str, Any]:
+    """The start values to set, by FMU variable name: the scenario's parameters and the named
+    states' initial values (an element of an array variable changes that element of its start)."""
+    values: dict[str, Any] = dict(model.parameters)
+    by_name = {e.name: e for e in model.states}
+    for name, value in (initial or {}).items():
+        element = by_name[name]
+        v = element.variable
+        if v.initial not in ("exact", "approx") or v.causality == "independent":
+            raise ModelError(
+                f"{model.path.name}: state {name} ({v.name}) has no start value to set (its initial is "
+                f"{v.initial or 'calculated'}); set the parameter that initializes it in [plant.fmu] parameters"
+            )
+        if v.shape:
+            current = values.get(v.name, [float(s) for s in str(v.start).split()])
+            current = list(current)
+            current[element.index] = value
+            values[v.name] = current
+        else:
+            values[v.name] = value
+    return values
+
+
+def instantiate(model: FmuModel, unzipped: str, interface: str) -> Any:
+    """An FMU instance of the given interface (``fmpy.simulation.instantiate_fmu``)."""
+    from fmpy.simulation import instantiate_fmu
+
+    fmi_type = "CoSimulation" if interface == "co-simulation" else "ModelExchange"
+    try:
+        return instantiate_fmu(unzipped, model.description, fmi_type)
+    except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions when a library does not load)
+        raise ModelError(f"{model.path.name}: cannot instantiate its {interface} interface: {error}") from None
+
+
+def initialize(
+    model: FmuModel, fmu: Any, interface: str, start: dict[str, Any], tolerance: float | None, stop_time: float
+) -> float | None:
+    """Initialize an instance at t = 0 as ``fmpy.simulate_fmu`` does (start values before and in
+    initialization mode, the experiment's tolerance and stop time); a model-exchange instance is
+    left in continuous-time mode after the initial event iteration. Returns the next time event."""
+    from fmpy.simulation import apply_start_values, settable_in_initialization_mode, settable_in_instantiated
+
+    md = model.description
+    me = interface == "model-exchange"
+    remaining = apply_start_values(fmu, md, start, settable=settable_in_instantiated)
+    if model.version == 2:
+        fmu.setupExperiment(tolerance=None if me else tolerance, startTime=0.0, stopTime=stop_time)
+        fmu.enterInitializationMode()
+    else:
+        fmu.enterInitializationMode(tolerance=None if me else tolerance, startTime=0.0, stopTime=stop_time)
+    remaining = apply_start_values(fmu, md, remaining, settable=settable_in_initialization_mode)
+    if remaining:
+        raise ModelError(f"{model.path.name}: cannot set {', '.join(remaining)} (not settable before initialization)")
+    fmu.exitInitializationMode()
+    if not me:
+        return None
+    terminate, event_time = update_discrete_states(model, fmu)
+    if terminate:
+        raise ModelError(f"{model.path.name}: the FMU ended the simulation during its initialization")
+    fmu.enterContinuousTimeMode()
+    return event_time
+
+
+def update_discrete_states(model: FmuModel, fmu: Any) -> tuple[bool, float | None]:
+    """The event iteration of model exchange: (terminate, the next time event or None)."""
+    update = fmu.newDiscreteStates if model.version == 2 else fmu.updateDiscreteStates
+    needed, terminate, defined, event_time = True, False, False, 0.0
+    while needed and not terminate:
+        needed, terminate, _, _, defined, event_time = update()
+    return terminate, float(event_time) if defined else None
+
+
+def do_step(model: FmuModel, fmu: Any, t: float, h: float) -> None:
+    """One co-simulation step; an FMU that stops early or ends the simulation is a ModelError."""
+    if model.version == 2:
+        fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+        return
+    _, terminate, early_return, last = fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
+    if terminate or early_return:
+        when = last if early_return else t + h
+        raise ModelError(f"{model.path.name}: the FMU ended the simulation at t = {when:g} s")

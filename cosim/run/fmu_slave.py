@@ -1,0 +1,130 @@
+"""The Python inside an FMU that ``cosim fmu`` exports (pythonfmu3 packages this file).
+
+The FMU's ``resources/scenario.json`` is the scenario (its resolved JSON, ``exported.json``); its
+plant, sensor and actuator faults, noise and disturbances run here as in ``cosim run``, through
+the same ``PlantSource``, so the outputs are the sensor stream a run logs (``measured`` of
+/truth/faults, NaN for a dropped frame) given the same commanded inputs. Its variables:
+
+- inputs: the actuators' commands (start: the operating point's), held over a step;
+- outputs: the transmitted sensors' measured readings, then ``state.<name>``, the plant's states;
+- parameter ``seed`` (fixed): the seed of the noise, the faults and the disturbance models.
+
+A step advances ``communicationStepSize`` / τ ticks (a whole number) of the scenario's sample time
+τ. The host needs a Python with cosim installed (its import path, e.g. FMPy in cosim's virtualenv).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pythonfmu3 import DefaultExperiment, Float64, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Int64
+
+SCENARIO = "scenario.json"
+
+
+class CosimPlant(Fmi3Slave):
+    """A scenario's plant with its faults as an FMI 3.0 co-simulation slave."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        exported = json.loads((Path(self.resources) / SCENARIO).read_text(encoding="utf-8"))
+        self.exported = exported
+        self.modelName = exported["model_identifier"]
+        self.description = exported["description"]
+        self.sample_time = float(exported["sample_time"])
+        self.default_experiment = DefaultExperiment(0.0, exported["duration"], self.sample_time)
+        self.seed = int(exported["seed"])
+        self.u = np.array(exported["u_op"], dtype=float)
+        self.y = np.full(len(exported["sensors"]), np.nan)
+        self.x = np.zeros(len(exported["states"]))
+        self.time = 0.0
+        self.register_variable(
+            Float64("time", causality=Fmi3Causality.independent, variability=Fmi3Variability.continuous)
+        )
+        self.register_variable(
+            Int64(
+                "seed",
+                causality=Fmi3Causality.parameter,
+                variability=Fmi3Variability.fixed,
+                initial=Fmi3Initial.exact,
+                description="seed of the noise, the faults and the disturbance models",
+            )
+        )
+        for i, (name, about) in enumerate(exported["actuators"]):
+            self.register_variable(
+                Float64(name, causality=Fmi3Causality.input, description=about, start=self.u[i], **_element(self.u, i)),
+                nested=False,
+            )
+        for i, (name, about) in enumerate(exported["sensors"]):
+            self.register_variable(
+                Float64(
+                    name,
+                    causality=Fmi3Causality.output,
+                    variability=Fmi3Variability.discrete,
+                    initial=Fmi3Initial.calculated,
+                    description=about,
+                    **_element(self.y, i),
+                ),
+                nested=False,
+            )
+        for i, (name, about) in enumerate(exported["states"]):
+            self.register_variable(
+                Float64(
+                    f"state.{name}",
+                    causality=Fmi3Causality.output,
+                    variability=Fmi3Variability.discrete,
+                    initial=Fmi3Initial.calculated,
+                    description=about,
+                    **_element(self.x, i),
+                ),
+                nested=False,
+            )
+        self.source: Any = None
+
+    def exit_initialization_mode(self) -> None:
+        from cosim.run.fmu_export import plant_source
+
+        self.source = plant_source(self.exported, Path(self.resources), self.seed)
+        self._k = 0
+        self._sense()
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        ticks = round(step_size / self.sample_time)
+        if ticks < 1 or abs(ticks * self.sample_time - step_size) > 1e-9 * max(step_size, 1.0):
+            self.log(f"the step size {step_size:g} s is not a multiple of the sample time {self.sample_time:g} s")
+            return False
+        self._k = round(current_time / self.sample_time)
+        for _ in range(ticks):
+            self._advance()
+        return True
+
+    def _advance(self) -> None:
+        """Tick k's actuation (the actuator faults on the held commands, the disturbances) and the
+        plant's step, then tick k+1's sensing: the order of ``PlantSource``."""
+        source, s = self.source, self.source.scenario
+        t = s.time(self._k)
+        u_eff, _ = source.faults.actuators(self.u.copy(), t)
+        d = np.array([w(t) for w in source.disturbances]) + sum(
+            (b(t) for b in source.environments), np.zeros(len(source.disturbances))
+        )
+        source.plant.step(u_eff, d)
+        self._k += 1
+        self._sense()
+
+    def _sense(self) -> None:
+        source = self.source
+        outcome = source.faults.sensors(source.plant.sensors(), source.scenario.time(self._k))
+        self.y[:] = np.where(outcome.sent, outcome.measured, np.nan)
+        self.x[:] = source.plant.state()
+
+
+def _element(values: np.ndarray, i: int) -> dict[str, Any]:
+    """The getter and setter of one element of an array attribute."""
+
+    def setter(value: float) -> None:
+        values[i] = value
+
+    return {"getter": lambda: float(values[i]), "setter": setter}
