@@ -25,7 +25,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "export": ("pyarrow", "asammdf"),
     "campaign": ("distributed", "pyarrow"),
     "plot": ("matplotlib",),
-    "live": ("foxglove",),
+    "live": ("foxglove", "websockets"),
     "fmi": ("fmpy", "pythonfmu3"),
 }
 #: Top-level module → the first extra that brings it (a feature needing it from another extra names that one).

@@ -25,7 +25,7 @@ from cosim.log.reader import LogReader
 from cosim.run import Run
 from cosim.scenario import LoadedScenario, builtin_names, load
 
-SUBPROTOCOL = "foxglove.sdk.v1"
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")  # today's Foxglove app; Lichtblick and older apps
 
 
 def free_port() -> int:
@@ -37,9 +37,9 @@ def free_port() -> int:
 class Viewer(threading.Thread):
     """A Foxglove WebSocket client: subscribes to every advertised channel, collects the messages."""
 
-    def __init__(self, port: int, timeout: float = 120.0) -> None:
+    def __init__(self, port: int, timeout: float = 120.0, subprotocol: str = SUBPROTOCOLS[0]) -> None:
         super().__init__(daemon=True)
-        self.port, self.timeout = port, timeout
+        self.port, self.timeout, self.subprotocol = port, timeout, subprotocol
         self.channels: dict[int, dict] = {}  # channel id -> its advertisement
         self.messages: dict[str, list[tuple[int, dict]]] = defaultdict(list)  # topic -> (log time, payload)
         self.error: BaseException | None = None
@@ -53,7 +53,8 @@ class Viewer(threading.Thread):
         try:
             while True:  # the server starts when the command has loaded its scenario
                 try:
-                    ws = connect(f"ws://127.0.0.1:{self.port}", subprotocols=[SUBPROTOCOL], open_timeout=2)
+                    ws = connect(f"ws://127.0.0.1:{self.port}", subprotocols=[self.subprotocol], open_timeout=2)
+                    assert ws.subprotocol == self.subprotocol
                     break
                 except OSError:
                     if time.monotonic() > deadline:
@@ -134,18 +135,33 @@ def test_a_live_run_serves_every_topic_to_a_foxglove_client(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_replay_plays_a_log_into_foxglove(tmp_path, capsys):
+@pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
+def test_replay_plays_a_log_into_foxglove(subprotocol, tmp_path, capsys):
     log = tmp_path / "run.mcap"
     scenario = load("masses-faults-fd").scenario.model_copy(update={"duration": 1.0})
     Run(LoadedScenario(scenario, "masses-faults-fd (1 s)", ""), log, interface="virtual").execute()
     with LogReader(log) as reader:
         start = json.loads(reader.metadata()["cosim.run"]["start_time_ns"])
     port = free_port()
-    viewer = Viewer(port)
+    viewer = Viewer(port, subprotocol=subprotocol)
     viewer.start()
     assert main(["replay", str(log), "--foxglove", str(port), "--speed", "0", "--wait", "60"]) == 0
     check_served(viewer, log, start)
     assert "served" in capsys.readouterr().err
+
+
+def test_a_viewer_asking_for_neither_name_of_the_protocol_is_refused():
+    from websockets.exceptions import InvalidHandshake
+    from websockets.sync.client import connect
+
+    from cosim.log.live import FoxgloveSink
+
+    with FoxgloveSink(port=0) as sink:
+        with pytest.raises(InvalidHandshake):
+            connect(sink.url, subprotocols=["foxglove.websocket.v2"], open_timeout=5)
+        with connect(sink.url, subprotocols=["foxglove.websocket.v1"], open_timeout=5) as ws:
+            hello = json.loads(ws.recv(timeout=5))
+        assert hello["op"] == "serverInfo" and sink.app_url().endswith(f"%3A{sink.port}")
 
 
 def test_foxglove_options_that_do_nothing_are_errors(tmp_path, capsys):

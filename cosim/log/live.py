@@ -7,6 +7,12 @@ registers, with the same JSON Schema, and publishes every message the log writes
 ``play`` serves a finished log the same way, message by message at its simulated time over
 ``speed`` (``cosim replay LOG --foxglove``).
 
+Two names for one protocol: foxglove-sdk's server accepts only the subprotocol
+``foxglove.sdk.v1``, while Lichtblick and Foxglove app versions before the SDK speak
+``foxglove.websocket.v1``, the same protocol under its former name. So the SDK's server listens on a
+private loopback port and ``SubprotocolBridge`` serves the address the user asked for, accepting
+either name and relaying every WebSocket message both ways unchanged.
+
 Messages are stamped at ``start_ns`` plus their simulated time: the run's wall-clock start, so
 Foxglove's clock shows the time of day the run happened. What the log writes before a viewer has
 subscribed (the run's start event, say) is held and published once one has (``wait_for_viewer``),
@@ -18,9 +24,11 @@ nothing).
 
 from __future__ import annotations
 
+import asyncio
 import json
 import threading
 import time
+import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -31,6 +39,8 @@ from cosim.log.reader import LogReader
 from cosim.log.writer import dumps
 
 DEFAULT_PORT = 8765
+#: The protocol's names: the SDK's, and the one Lichtblick and older Foxglove apps ask for.
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 #: Messages the server holds per client before it drops the oldest (foxglove-sdk's default is 1024).
 BACKLOG = 1 << 16
 
@@ -47,6 +57,7 @@ class FoxgloveSink:
         feature: str = "--foxglove",
     ) -> None:
         foxglove = require("foxglove", feature)
+        require("websockets", feature)
         from foxglove.websocket import ServerListener
 
         self._foxglove = foxglove
@@ -61,21 +72,21 @@ class FoxgloveSink:
                 subscriptions.add(channel.topic)
                 subscribed.set()
 
+        self.server = foxglove.start_server(
+            name=name,
+            host="127.0.0.1",
+            port=0,
+            context=self.context,
+            server_listener=Listener(),
+            message_backlog_size=BACKLOG,
+        )
         try:
-            self.server = foxglove.start_server(
-                name=name,
-                host=host,
-                port=port,
-                context=self.context,
-                server_listener=Listener(),
-                message_backlog_size=BACKLOG,
-            )
-        except RuntimeError as error:  # the port is taken, say
-            from cosim.errors import CosimError
-
-            raise CosimError(f"--foxglove: cannot serve on {host}:{port}: {error}") from None
+            self.bridge = SubprotocolBridge(host, port, self.server.port)
+        except BaseException:
+            self.server.stop()
+            raise
         self.host = host
-        self.port = self.server.port
+        self.port = self.bridge.port
         self._channels: list[Any] = []
         # What the log writes before a viewer has subscribed (the run's start event, warnings) is
         # held and published once one has, so that a viewer that was waited for misses nothing.
@@ -86,9 +97,9 @@ class FoxgloveSink:
         """The WebSocket address to open in Foxglove."""
         return f"ws://{self.host}:{self.port}"
 
-    def app_url(self) -> str | None:
+    def app_url(self) -> str:
         """The Foxglove web app's link that opens this server."""
-        return self.server.app_url()
+        return "https://app.foxglove.dev?" + urllib.parse.urlencode({"ds": "foxglove-websocket", "ds.url": self.url})
 
     # -- LogSink ---------------------------------------------------------------------------------
 
@@ -145,6 +156,7 @@ class FoxgloveSink:
         for channel in self._channels:
             channel.close()
         self._channels.clear()
+        self.bridge.close()
         self.server.stop()
 
     def __enter__(self) -> FoxgloveSink:
@@ -152,6 +164,66 @@ class FoxgloveSink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class SubprotocolBridge:
+    """A WebSocket server on ``host:port`` (0: a free port) that accepts a viewer speaking either
+    of ``SUBPROTOCOLS`` and relays each message, text or binary, unchanged between it and the
+    foxglove-sdk server on the loopback port ``inner``. It runs its own event loop in a thread."""
+
+    def __init__(self, host: str, port: int, inner: int) -> None:
+        from websockets.asyncio.server import serve
+        from websockets.typing import Subprotocol
+
+        self.inner = inner
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="foxglove-bridge", daemon=True)
+        self._thread.start()
+
+        async def listen() -> Any:
+            names = [Subprotocol(name) for name in SUBPROTOCOLS]
+            return await serve(self._relay, host, port, subprotocols=names, compression=None)
+
+        try:
+            self._server = asyncio.run_coroutine_threadsafe(listen(), self._loop).result()
+        except OSError as error:  # the port is taken, or the host is not this machine's
+            from cosim.errors import CosimError
+
+            self._stop_loop()
+            raise CosimError(f"--foxglove: cannot serve on {host}:{port}: {error.strerror or error}") from None
+        self.port: int = self._server.sockets[0].getsockname()[1]
+
+    async def _relay(self, viewer: Any) -> None:
+        from websockets.asyncio.client import connect
+        from websockets.exceptions import ConnectionClosed
+        from websockets.typing import Subprotocol
+
+        async with connect(
+            f"ws://127.0.0.1:{self.inner}", subprotocols=[Subprotocol(SUBPROTOCOLS[0])], compression=None, max_size=None
+        ) as server:
+
+            async def pipe(source: Any, target: Any) -> None:
+                try:
+                    async for message in source:
+                        await target.send(message)
+                except ConnectionClosed:
+                    pass
+                await target.close()
+
+            await asyncio.gather(pipe(viewer, server), pipe(server, viewer))
+
+    def close(self) -> None:
+        async def shut() -> None:
+            self._server.close()
+            await self._server.wait_closed()
+
+        asyncio.run_coroutine_threadsafe(shut(), self._loop).result(timeout=5)
+        self._stop_loop()
+
+    def _stop_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=5)
+        self._loop.close()
 
 
 def log_start_ns(path: str | Path) -> int | None:
