@@ -156,8 +156,8 @@ class FoxgloveSink:
         for channel in self._channels:
             channel.close()
         self._channels.clear()
+        self.server.stop()  # first: the bridge's relays end with the connections they relay
         self.bridge.close()
-        self.server.stop()
 
     def __enter__(self) -> FoxgloveSink:
         return self
@@ -182,7 +182,7 @@ class SubprotocolBridge:
 
         async def listen() -> Any:
             names = [Subprotocol(name) for name in SUBPROTOCOLS]
-            return await serve(self._relay, host, port, subprotocols=names, compression=None)
+            return await serve(self._relay, host, port, subprotocols=names, compression=None, close_timeout=1)
 
         try:
             self._server = asyncio.run_coroutine_threadsafe(listen(), self._loop).result()
@@ -199,7 +199,11 @@ class SubprotocolBridge:
         from websockets.typing import Subprotocol
 
         async with connect(
-            f"ws://127.0.0.1:{self.inner}", subprotocols=[Subprotocol(SUBPROTOCOLS[0])], compression=None, max_size=None
+            f"ws://127.0.0.1:{self.inner}",
+            subprotocols=[Subprotocol(SUBPROTOCOLS[0])],
+            compression=None,
+            max_size=None,
+            close_timeout=1,
         ) as server:
 
             async def pipe(source: Any, target: Any) -> None:
@@ -212,12 +216,20 @@ class SubprotocolBridge:
 
             await asyncio.gather(pipe(viewer, server), pipe(server, viewer))
 
-    def close(self) -> None:
+    def close(self, timeout: float = 2.0) -> None:
+        """Stop listening and close the viewers' connections (those that do not finish their
+        closing handshake within ``timeout`` seconds are dropped)."""
+
         async def shut() -> None:
             self._server.close()
-            await self._server.wait_closed()
+            try:
+                await asyncio.wait_for(self._server.wait_closed(), timeout)
+            except TimeoutError:
+                pass
+            for task in asyncio.all_tasks() - {asyncio.current_task()}:
+                task.cancel()
 
-        asyncio.run_coroutine_threadsafe(shut(), self._loop).result(timeout=5)
+        asyncio.run_coroutine_threadsafe(shut(), self._loop).result()
         self._stop_loop()
 
     def _stop_loop(self) -> None:
