@@ -34,7 +34,7 @@ from typing import Any
 from cosim.analysis import names
 from cosim.bus.codec import Codec, estimate_signal
 from cosim.errors import LogError
-from cosim.log.metadata import DBC_ATTACHMENT, LogMetadata, RunRecord
+from cosim.log.metadata import LogMetadata, RunRecord, logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, INPUTS, SENSORS, STATE, message_topic
 from estimators.base import DiagnosticKind
@@ -99,14 +99,14 @@ def signals_of_log(path: str | Path) -> RunSignals:
     """What a layout needs, from a log's ``cosim.run`` record, DBC and schemas."""
     with LogReader(path) as reader:
         run = LogMetadata.read(reader.metadata()).run
-        dbc = reader.attachments().get(DBC_ATTACHMENT)
+        if run is None:
+            raise LogError(
+                f"{path}: no cosim.run metadata: not a log of 'cosim run', so there is nothing to lay out (give the "
+                "scenario's name instead)"
+            )
+        dbc = logged_dbc(reader)
         schemas = reader.schemas()
-    if run is None or dbc is None:
-        raise LogError(
-            f"{path}: no cosim.run metadata or no DBC attached: not a log of 'cosim run', so there is nothing to "
-            "lay out (give the scenario's name instead)"
-        )
-    return RunSignals.of(run, Codec.from_dbc(dbc.decode()), names.units(schemas))
+    return RunSignals.of(run, Codec.from_dbc(dbc), names.units(schemas))
 
 
 # -- panels ----------------------------------------------------------------------------------------

@@ -23,9 +23,11 @@ import json
 import math
 import platform
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, overload
 
 from cosim import __version__
+from cosim.errors import LogError
+from cosim.log.reader import LogReader
 from cosim.log.topics import decoded_topics
 
 RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = (
@@ -38,6 +40,30 @@ RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = (
 )
 #: The attachment holding the run's CAN database.
 DBC_ATTACHMENT = "cosim.dbc"
+
+
+@overload
+def logged_dbc(reader: LogReader) -> str: ...
+@overload
+def logged_dbc(reader: LogReader, missing_ok: bool) -> str | None: ...
+
+
+def logged_dbc(reader: LogReader, missing_ok: bool = False) -> str | None:
+    """The run's CAN database, as its log holds it; LogError in one line if it is damaged, or
+    missing (None instead with ``missing_ok``)."""
+    data = reader.attachments().get(DBC_ATTACHMENT)
+    if data is None:
+        damage = [warning for warning in reader.warnings if DBC_ATTACHMENT in warning]
+        if missing_ok and not damage:
+            return None
+        why = damage[-1] if damage else f"it has no {DBC_ATTACHMENT} attachment (a log cosim did not write?)"
+        raise LogError(f"{reader.path}: cannot read the run's CAN database: {why}")
+    try:
+        return data.decode()
+    except UnicodeDecodeError as error:
+        raise LogError(f"{reader.path}: the {DBC_ATTACHMENT} attachment is not a DBC text ({error.reason})") from None
+
+
 _LIBRARIES = ("mujoco", "numpy", "scipy", "python-can", "cantools", "mcap")
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import struct
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -82,9 +83,27 @@ class LogReader:
         }
 
     def attachments(self) -> dict[str, bytes]:
-        return {
+        """The intact attachments by name. One whose CRC does not match its bytes (the mcap reader
+        does not check it) is left out, with a warning naming it."""
+        found = {
             r.name: bytes(r.data) for r in self._indexed_or_scanned(records.Attachment, self._reader.iter_attachments)
         }
+        for name in self._damaged_attachments():
+            found.pop(name, None)
+            self.warnings.append(f"the attachment {name!r} is damaged (its bytes do not match their CRC)")
+        return found
+
+    def _damaged_attachments(self) -> list[str]:
+        """The attachments, as the summary indexes them, whose record's CRC-32 (of the record's
+        body, 0 where the writer computed none) does not match."""
+        damaged = []
+        for index in self._summary.attachment_indexes if self._summary is not None else []:
+            self._stream.seek(index.offset)
+            raw = self._stream.read(index.length)
+            stored = int.from_bytes(raw[-4:], "little") if len(raw) == index.length else None
+            if stored is None or (stored != 0 and stored != zlib.crc32(raw[9:-4])):
+                damaged.append(index.name)
+        return damaged
 
     def schemas(self) -> dict[str, dict[str, Any]]:
         """Topic → its JSON Schema (parsed), in channel order: from the summary, else by a scan.

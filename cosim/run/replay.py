@@ -45,6 +45,7 @@ from cosim.log.metadata import (
     LogMetadata,
     ReplayRecord,
     RunRecord,
+    logged_dbc,
     versions,
 )
 from cosim.log.reader import LogReader
@@ -239,6 +240,7 @@ class Replay:
             raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
         with LogReader(self.log) as reader:
             raw, self.attachments = reader.metadata(), reader.attachments()
+            dbc = logged_dbc(reader, missing_ok=True)
             self.ticks = _sync_count(reader)
         self.meta = LogMetadata.read(raw)
         made = (
@@ -247,7 +249,7 @@ class Replay:
         if made is not None and made > self.ticks:  # the log lacks ticks its run made: replayed up to there
             self.ticks = made
         run, scenario_record = self.meta.run, self.meta.scenario
-        if run is None or scenario_record is None or DBC_ATTACHMENT not in self.attachments:
+        if run is None or scenario_record is None or dbc is None:
             raise LogError(
                 f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run"
             )
@@ -258,7 +260,7 @@ class Replay:
             original = Scenario.from_resolved(scenario_record.resolved)
         except ValueError as error:
             raise LogError(f"{self.log}: its scenario cannot be read by this version of cosim ({error})") from None
-        self.log_codec = Codec.from_dbc(self.attachments[DBC_ATTACHMENT].decode())
+        self.log_codec = Codec.from_dbc(dbc)
         recorded = run.estimators
         overrides = dict(params or {})
         self.name, self.new = estimator, kind is not None
