@@ -118,3 +118,12 @@ def test_rooms_a_newcomer_reads_in_one_sitting():
     files, functions = sizes.long_files(), sizes.long_functions()
     assert len(files) <= sizes.MAX_LONG_FILES, [f"{s.where} ({s.lines})" for s in files]
     assert len(functions) <= sizes.MAX_LONG_FUNCTIONS, [f"{s.where} ({s.lines})" for s in functions]
+
+
+def test_the_codec_and_the_authentication_build_on_the_database_not_on_each_other():
+    """``cosim.bus.dbc`` is the CAN database both use; neither imports the other (not even for types)."""
+    for module, other in (("codec", "secoc"), ("secoc", "codec")):
+        path = ROOT / "cosim" / "bus" / f"{module}.py"
+        found = [target for _, target in imports(path, f"cosim.bus.{module}")]
+        assert not [t for t in found if t.startswith(f"cosim.bus.{other}")], f"{module} imports {other}"
+        assert any(t.startswith("cosim.bus.dbc") for t in found)

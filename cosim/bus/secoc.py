@@ -23,9 +23,9 @@ that id and at most ``WINDOW`` ticks old. What fails is dropped and reported wit
 genuine, newer FV, but older than the window).
 
 The DBC describes the trailer: the two signals are appended to each secured message, whose length
-grows to hold them. ``Codec.from_dbc`` takes them out again (``strip``), so the codec encodes and
-decodes the authentic PDU of a frame of the secured length, and this module fills and checks the
-trailer.
+grows to hold them. ``Codec.from_dbc`` takes them out again (``cosim.bus.dbc.strip_secoc_trailer``),
+so the codec encodes and decodes the authentic PDU of a frame of the secured length, and this
+module fills and checks the trailer.
 """
 
 from __future__ import annotations
@@ -34,19 +34,15 @@ import hmac
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import can
 import cantools
 from cantools.database.can import Database, Signal
 
+from cosim.bus.dbc import SECOC_SIGNALS, DatabaseView, fd_length
 from cosim.errors import CosimError
 
-if TYPE_CHECKING:  # the codec imports this module (to take the trailer out of a secured DBC)
-    from cosim.bus.codec import Codec
-
-FV_SIGNAL, MAC_SIGNAL = "secoc_fv", "secoc_mac"
-SIGNALS = (FV_SIGNAL, MAC_SIGNAL)
+FV_SIGNAL, MAC_SIGNAL = SECOC_SIGNALS
 FV_BYTES, MAC_BYTES = 1, 3
 TRAILER = FV_BYTES + MAC_BYTES
 WINDOW = 8
@@ -55,7 +51,6 @@ BAD_MAC, REPLAYED, STALE = "bad_mac", "replayed", "stale"
 REASONS = (BAD_MAC, REPLAYED, STALE)
 SECRET_ENV = "COSIM_SECOC_SECRET"
 """A fixed run secret (64 hex digits) instead of a random one: a secured run's frames repeat bit for bit."""
-_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 _FV_MODULUS = 2**32
 
 
@@ -72,9 +67,7 @@ def secure_dbc(text: str) -> str:
         if not _secured(message):
             continue
         used = (max(signal.start + signal.length for signal in message.signals) + 7) // 8
-        length = next((n for n in _FD_LENGTHS if n >= used + TRAILER), None)
-        if length is None:  # cannot happen for the codec's frames (at most 60 bytes of signals)
-            raise ValueError(f"{message.name}: {used} bytes leave no room for the SecOC trailer")
+        length = fd_length(used + TRAILER)  # the codec's frames hold at most 60 bytes of signals
         message.signals.append(
             Signal(FV_SIGNAL, 8 * used, 8 * FV_BYTES, comment="SecOC: the 8 least significant bits of the freshness")
         )
@@ -85,23 +78,6 @@ def secure_dbc(text: str) -> str:
         message.refresh()
     database.refresh()
     return database.as_dbc_string()
-
-
-def strip(database: Database) -> dict[int, int]:
-    """Take the trailer's signals out of a secured database's messages (their length stays); the
-    byte where each secured id's trailer starts (empty: the database is not secured)."""
-    trailers: dict[int, int] = {}
-    for message in database.messages:
-        found = [signal for signal in message.signals if signal.name in SIGNALS]
-        if not found:
-            continue
-        trailers[message.frame_id] = min(signal.start for signal in found) // 8
-        for signal in found:
-            message.signals.remove(signal)
-        message.refresh()
-    if trailers:
-        database.refresh()
-    return trailers
 
 
 def run_secret() -> bytes:
@@ -152,7 +128,7 @@ class SecOC:
         self._last: dict[int, int] = {}  # id -> full FV of the last frame accepted
 
     @classmethod
-    def from_codec(cls, codec: Codec, keys: Mapping[str, bytes]) -> SecOC | None:
+    def from_codec(cls, codec: DatabaseView, keys: Mapping[str, bytes]) -> SecOC | None:
         """The participant's SecOC for a codec from a secured DBC (None: the DBC is not secured)."""
         if not codec.secoc_trailers:
             return None
