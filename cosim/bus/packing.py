@@ -97,42 +97,8 @@ def _compile(name: str, fields: tuple[Field, ...], length: int) -> dict[str, Any
     }
     values = [f"v{i}" for i in range(len(fields))]
     unpacked = ", ".join(values) + ("," if len(values) == 1 else "")
-    raw_lines, carried, bits = [], [], []
-    for i, field in enumerate(fields):
-        conversion = field.conversion
-        namespace[f"c{i}"] = conversion
-        v, r = f"v{i}", f"r{i}"
-        if isinstance(conversion, LinearConversion) and not conversion.is_float:
-            namespace[f"s{i}"], namespace[f"o{i}"] = conversion.scale, conversion.offset
-            raw_lines.append(f"    {r} = round(({v} - o{i}) / s{i})")
-            carried.append(f"{r} * s{i} + o{i}")
-        elif isinstance(conversion, IdentityConversion):
-            raw_lines.append(f"    {r} = {v}" if conversion.is_float else f"    {r} = round({v})")
-            carried.append(r)
-        else:  # another kind: cantools' own methods
-            raw_lines.append(f"    {r} = c{i}.numeric_scaled_to_raw({v})")
-            carried.append(f"c{i}.raw_to_scaled({r}, False)")
-        if field.is_float:
-            bits.append(f"(_from(_pack_double({r}), 'little') << {field.start})")
-        else:
-            bits.append(f"((int({r}) & {field.mask}) << {field.start})")
-    word = " | ".join(bits) if bits else "0"
-    decode_lines, results = ["    w = _from(data, 'little')"], []
-    for i, field in enumerate(fields):
-        b = f"b{i}"
-        decode_lines.append(f"    {b} = (w >> {field.start}) & {field.mask}")
-        if field.is_float:
-            decode_lines.append(f"    {b} = _unpack_double({b}.to_bytes(8, 'little'))[0]")
-        elif field.signed:
-            decode_lines.append(f"    if {b} >> {field.length - 1}: {b} -= {1 << field.length}")
-        conversion = field.conversion
-        if isinstance(conversion, LinearConversion):
-            results.append(f"{b} * s{i} + o{i}")
-            namespace[f"s{i}"], namespace[f"o{i}"] = conversion.scale, conversion.offset
-        elif isinstance(conversion, IdentityConversion):
-            results.append(b)
-        else:
-            results.append(f"c{i}.raw_to_scaled({b}, False)")
+    raw_lines, carried, word = _encoder_source(fields, namespace)
+    decode_lines, results = _decoder_source(fields, namespace)
     source = "\n".join(
         [
             "def encode(values):",
@@ -153,3 +119,50 @@ def _compile(name: str, fields: tuple[Field, ...], length: int) -> dict[str, Any
     )
     exec(compile(source, f"<packer {name}>", "exec"), namespace)  # noqa: S102 - our own generated source
     return namespace
+
+
+def _encoder_source(fields: tuple[Field, ...], namespace: dict[str, Any]) -> tuple[list[str], list[str], str]:
+    """The lines that turn each value v_i into its raw value r_i, the expressions of the values as
+    the frame carries them, and the expression of the payload word."""
+    raw_lines, carried, bits = [], [], []
+    for i, field in enumerate(fields):
+        conversion = field.conversion
+        namespace[f"c{i}"] = conversion
+        v, r = f"v{i}", f"r{i}"
+        if isinstance(conversion, LinearConversion) and not conversion.is_float:
+            namespace[f"s{i}"], namespace[f"o{i}"] = conversion.scale, conversion.offset
+            raw_lines.append(f"    {r} = round(({v} - o{i}) / s{i})")
+            carried.append(f"{r} * s{i} + o{i}")
+        elif isinstance(conversion, IdentityConversion):
+            raw_lines.append(f"    {r} = {v}" if conversion.is_float else f"    {r} = round({v})")
+            carried.append(r)
+        else:  # another kind: cantools' own methods
+            raw_lines.append(f"    {r} = c{i}.numeric_scaled_to_raw({v})")
+            carried.append(f"c{i}.raw_to_scaled({r}, False)")
+        if field.is_float:
+            bits.append(f"(_from(_pack_double({r}), 'little') << {field.start})")
+        else:
+            bits.append(f"((int({r}) & {field.mask}) << {field.start})")
+    return raw_lines, carried, " | ".join(bits) if bits else "0"
+
+
+def _decoder_source(fields: tuple[Field, ...], namespace: dict[str, Any]) -> tuple[list[str], list[str]]:
+    """The lines that cut the payload word w into raw values b_i, and the expressions of their
+    physical values."""
+    decode_lines, results = ["    w = _from(data, 'little')"], []
+    for i, field in enumerate(fields):
+        b = f"b{i}"
+        decode_lines.append(f"    {b} = (w >> {field.start}) & {field.mask}")
+        if field.is_float:
+            decode_lines.append(f"    {b} = _unpack_double({b}.to_bytes(8, 'little'))[0]")
+        elif field.signed:
+            decode_lines.append(f"    if {b} >> {field.length - 1}: {b} -= {1 << field.length}")
+        conversion = field.conversion
+        if isinstance(conversion, LinearConversion):
+            results.append(f"{b} * s{i} + o{i}")
+            namespace[f"s{i}"], namespace[f"o{i}"] = conversion.scale, conversion.offset
+        elif isinstance(conversion, IdentityConversion):
+            results.append(b)
+        else:
+            results.append(f"c{i}.raw_to_scaled({b}, False)")
+    return decode_lines, results

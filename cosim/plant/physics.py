@@ -509,19 +509,7 @@ def _linearize_tendon_state(
         jac_h = _central_difference(lambda dh: forces(dh * H_STEP, zv, zu), ns) / H_STEP
         jac_v = _central_difference(lambda dv: forces(zs, dv * vscale, zu), nv) / vscale
         jac_u = _central_difference(lambda du: forces(zs, zv, du), nu)
-        # Positions off the state tendons (null space of T) must not matter, or h is not a state.
-        null = np.linalg.svd(T)[2][ns:].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
-        if null.size:
-
-            def moved(dq: np.ndarray) -> np.ndarray:
-                d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + null @ dq, qvel0, ctrl0
-                mujoco.mj_forward(m, d)
-                return d.qfrc_smooth.copy()
-
-            if (
-                np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(jac_h[:nv]).max()
-            ):  # > FD rounding
-                raise ModelError(f"{plant.info.model_file}: forces depend on coordinates other than the state tendons")
+        _require_tendon_state(plant, d, (qpos0, qvel0, ctrl0), jac_h[:nv])
         f_v = jac_v[:nv]
         if np.linalg.cond(f_v) > 1e12:
             raise ModelError(
@@ -534,16 +522,7 @@ def _linearize_tendon_state(
         D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
         h0 = T @ qpos0
         if dt is not None and method == "step":
-            nstep = substeps(dt, m.opt.timestep, plant.info.model_file)
-
-            def stepped(dh: np.ndarray, du: np.ndarray) -> np.ndarray:
-                d.qpos[:], d.ctrl[:], d.qvel[:], d.time = qpos0 + T_pinv @ dh, ctrl0 + du, qvel0, 0.0
-                d.qvel[:] = quasi_static_velocities(m, d)
-                mujoco.mj_step(m, d, nstep=nstep)
-                return T @ d.qpos
-
-            A = _central_difference(lambda dh: stepped(dh * H_STEP, zu), ns) / H_STEP
-            BE = _central_difference(lambda du: stepped(zs, du), nu)
+            A, BE = _stepped_tendon_model(plant, d, (qpos0, qvel0, ctrl0), dt)
         elif dt is not None:
             A, BE = zoh_discretize(A, BE, dt)
         d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0, qvel0, ctrl0
@@ -566,6 +545,46 @@ def _linearize_tendon_state(
         E=BE[:, plant._unknown],
         disturbances=plant.disturbance_names,
     )
+
+
+def _require_tendon_state(plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], f_h: np.ndarray) -> None:
+    """Positions off the state tendons (the null space of T) must not change the forces, or the
+    tendon lengths h are not a state; ``f_h`` is ∂f/∂h at ``point`` = (qpos, qvel, ctrl)."""
+    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    assert T is not None and T_pinv is not None
+    qpos0, qvel0, ctrl0 = point
+    null = np.linalg.svd(T)[2][T.shape[0] :].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
+    if not null.size:
+        return
+
+    def moved(dq: np.ndarray) -> np.ndarray:
+        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + null @ dq, qvel0, ctrl0
+        mujoco.mj_forward(m, d)
+        return d.qfrc_smooth.copy()
+
+    if np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(f_h).max():  # > FD rounding
+        raise ModelError(f"{plant.info.model_file}: forces depend on coordinates other than the state tendons")
+
+
+def _stepped_tendon_model(
+    plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(A, [B E]) of the simulation itself over dt about ``point`` = (qpos, qvel, ctrl): levels
+    perturbed, velocities quasi-steady, ``mj_step``."""
+    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    assert T is not None and T_pinv is not None
+    qpos0, qvel0, ctrl0 = point
+    nstep = substeps(dt, m.opt.timestep, plant.info.model_file)
+
+    def stepped(dh: np.ndarray, du: np.ndarray) -> np.ndarray:
+        d.qpos[:], d.ctrl[:], d.qvel[:], d.time = qpos0 + T_pinv @ dh, ctrl0 + du, qvel0, 0.0
+        d.qvel[:] = quasi_static_velocities(m, d)
+        mujoco.mj_step(m, d, nstep=nstep)
+        return T @ d.qpos
+
+    zs, zu = np.zeros(T.shape[0]), np.zeros(m.nu)
+    A = _central_difference(lambda dh: stepped(dh * H_STEP, zu), T.shape[0]) / H_STEP
+    return A, _central_difference(lambda du: stepped(zs, du), m.nu)
 
 
 def _central_difference(f, size: int) -> np.ndarray:
