@@ -720,3 +720,32 @@ def test_a_frames_tick_is_its_counter_unwrapped_against_the_tick_it_was_logged_a
     assert carried_tick(70_000, 70_000 % 65_536) == 70_000  # classic CAN: k mod 2^16
     assert carried_tick(70_003, 70_000 % 65_536) == 70_000
     assert carried_tick(70_003, 70_000) == 70_000  # CAN FD: the full k
+
+
+def test_a_diverging_estimate_is_saturated_on_the_bus_and_counted_not_the_runs_end(tmp_path):
+    """A fault large enough to drive the estimates out of their declared bus range (±8 m/s for the
+    masses' velocities): the node sends them at the bound, the run completes, and the metrics count
+    the saturated ticks from the fault's onset, with a warning that says so."""
+    from cosim import api
+
+    path = tmp_path / "big.mcap"
+    loaded = api.load_scenario("masses-bias", {"faults[0].value": 2.0, "duration": 8.0})
+    result = api.run(loaded, path, in_process=True)
+    assert result.status == "completed"
+    measured = api.metrics(path)
+    uniform = measured["estimators"]["uniform"]
+    assert uniform["saturated_ticks"] > 0 and uniform["saturated_from"] >= 5.0  # the fault starts at 5 s
+    assert any("uniform: estimates at their bus range's bound" in w for w in measured["warnings"])
+    with LogReader(path) as reader:  # the frames carry the bound itself
+        signals = [msg for topic, _, msg in reader.messages() if topic.startswith("/can/EST_uniform")]
+    carried = [v for msg in signals for name, v in msg.items() if name.startswith("xhat_")]
+    assert max(abs(v) for v in carried) == pytest.approx(8.0, abs=1e-3)
+
+
+def test_an_estimate_inside_its_range_is_never_counted_as_saturated(tmp_path):
+    from cosim import api
+
+    path = tmp_path / "small.mcap"
+    api.run(api.load_scenario("masses-bias", {"duration": 8.0}), path, in_process=True)
+    estimates = api.metrics(path)["estimators"].values()
+    assert all(e["saturated_ticks"] == 0 and e["saturated_from"] is None for e in estimates)

@@ -329,8 +329,12 @@ class Client:
 
     # -- sending --------------------------------------------------------------------------------
 
-    def publish(self, tick: TickFrames | int, values: Mapping[str, float]) -> None:
-        """Send this node's messages for a tick, with ``values`` by signal name (all of them)."""
+    def publish(self, tick: TickFrames | int, values: Mapping[str, float], *, saturate: bool = False) -> None:
+        """Send this node's messages for a tick, with ``values`` by signal name (all of them).
+
+        A value outside its signal's declared range is a CodecError naming it, or, with
+        ``saturate``, sent at the bound it crossed (±inf included; NaN is still an error): what a
+        real node's signal does, so that a diverging estimate is a result, not the run's end."""
         if not self.declared:
             raise CosimError(
                 f"{self.name!r} has no messages in this run's DBC; declare it in the scenario's [[clients]]"
@@ -340,7 +344,10 @@ class Client:
             missing = [s for s in spec.signals if s not in values]
             if missing:
                 raise CosimError(f"publish: no value for {', '.join(missing)} (message {spec.name})")
-            frame = self.codec.encode(spec.name, k, [values[s] for s in spec.signals])
+            payload = [values[s] for s in spec.signals]
+            if saturate:
+                payload = [min(max(v, c.minimum), c.maximum) if v == v else v for v, c in zip(payload, spec.channels)]
+            frame = self.codec.encode(spec.name, k, payload)
             if self.secoc is not None:
                 self.secoc.sign(frame, k)
             self.bus.send(frame)

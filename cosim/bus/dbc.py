@@ -168,8 +168,11 @@ class DatabaseView(Protocol):
     """What a participant knows of the run's database: its message specs by name, and the secured
     ids with the byte where their SecOC trailer starts (empty: not secured)."""
 
-    specs: Mapping[str, MessageSpec]
-    secoc_trailers: Mapping[int, int]
+    @property
+    def specs(self) -> Mapping[str, MessageSpec]: ...
+
+    @property
+    def secoc_trailers(self) -> Mapping[int, int]: ...
 
 
 def signal_bits(channel: Channel) -> int:

@@ -117,8 +117,8 @@ class _Node(ABC):
         )
         self.ticks = 0
 
-    def _publish(self, tick: TickFrames, values: dict[str, float]) -> None:
-        self.client.publish(tick, values)
+    def _publish(self, tick: TickFrames, values: dict[str, float], saturate: bool = False) -> None:
+        self.client.publish(tick, values, saturate=saturate)
         self.client.done(tick)
         self.ticks += 1
 
@@ -137,7 +137,8 @@ class EstimatorNode(_Node):
     """An estimator answering each tick on a bus: y_k and u_k in, x̂_k and its diagnostics out.
 
     Missing sensor readings reach the estimator as NaN. A command that did not arrive is held at
-    its last value (zero before the first).
+    its last value (zero before the first). An estimate or diagnostic outside its signal's declared
+    range is sent at the bound (saturated), as a real node's signal is; the metrics count those ticks.
     """
 
     def __init__(self, spec: NodeSpec, bus: can.BusABC, estimator: Estimator | None = None) -> None:
@@ -164,7 +165,7 @@ class EstimatorNode(_Node):
         estimate = self.estimator.step(y, self._u.copy())
         values = {signal: float(estimate.x[index]) for signal, index in self._states}
         values |= {signal: estimate.diagnostics[signal] for signal in self._diagnostics}
-        self._publish(tick, values)
+        self._publish(tick, values, saturate=True)
 
 
 class ControllerNode(_Node):

@@ -18,6 +18,9 @@ from cosim.analysis.metrics.values import (
     FrameCounts,
     RunMetrics,
 )
+from cosim.bus.dbc import estimated_state, load_dbc
+from cosim.errors import LogError
+from cosim.log.metadata import logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import FAULTS, FRAMES, STATE
 
@@ -28,7 +31,7 @@ def measure(path: str | Path) -> RunMetrics:
     with LogReader(path) as reader:
         run = _facts(reader.metadata())
         counts = _counts(reader)
-        scorer = Scorer(run)
+        scorer = Scorer(run, _estimate_bounds(reader, run))
         scanned: dict[str, int] = defaultdict(int)
         try:
             for topic, log_time, msg in reader.messages():
@@ -59,6 +62,24 @@ def _facts(meta: dict[str, dict[str, str]]) -> RunFacts:
             0, f"the cosim metadata is damaged ({type(error).__name__}: {error}); the log is read as a foreign one"
         )
         return run
+
+
+def _estimate_bounds(reader: LogReader, run: RunFacts) -> dict[str, dict[str, tuple[float, float]]]:
+    """Each estimator's estimate signals with their bus range shrunk by half a quantum (a decoded
+    value outside it sits at the bound), from the logged DBC; {} without a readable one."""
+    try:
+        text = logged_dbc(reader, missing_ok=True)
+        database = load_dbc(text) if text is not None else None
+    except (LogError, ValueError, LookupError):  # cantools' parse errors derive from these; reported elsewhere
+        return {}
+    bounds: dict[str, dict[str, tuple[float, float]]] = {}
+    for message in database.messages if database is not None else ():
+        sender = message.senders[0] if message.senders else ""
+        for signal in message.signals if sender in run.estimators else ():
+            if estimated_state(signal.name) is not None and signal.minimum is not None and signal.maximum is not None:
+                half = 0.0 if signal.is_float else 0.5 * float(signal.scale)
+                bounds.setdefault(sender, {})[signal.name] = (signal.minimum + half, signal.maximum - half)
+    return bounds
 
 
 def _counts(reader: LogReader) -> dict[str, int]:

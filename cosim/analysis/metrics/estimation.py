@@ -31,6 +31,8 @@ class EstimationScore:
         self.seg_last_out: int | None = None
         self.seg_last: tuple[int, float] | None = None
         self.faults: dict[str, FaultRecovery] = {}
+        self.saturated = 0
+        self.first_saturated: int | None = None
 
     @property
     def band(self) -> float | None:
@@ -53,6 +55,12 @@ class EstimationScore:
             if band is not None and error > band:
                 self.seg_last_out = k
             self.seg_last = (k, error)
+
+    def saturation(self, k: int) -> None:
+        """Tick k's estimate has a component at its bus signal's bound: the node saturated it."""
+        self.saturated += 1
+        if self.first_saturated is None:
+            self.first_saturated = k
 
     def close(self, segment: Segment) -> None:
         dt, band = self.sample_time, self.band
@@ -84,5 +92,9 @@ class EstimationScore:
             ticks_scored=self.scored,
             band=self.band,
             bias_rejection_ratio=post / base if post is not None and base else None,
+            saturated_ticks=self.saturated,
+            saturated_from=None
+            if self.first_saturated is None or self.sample_time is None
+            else round(self.first_saturated * self.sample_time, 9),
             faults=self.faults,
         )

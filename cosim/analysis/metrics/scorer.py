@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,8 +56,11 @@ class Tick:
 class Scorer:
     """Every score of a run, fed its log's messages in file order."""
 
-    def __init__(self, run: RunFacts) -> None:
+    def __init__(self, run: RunFacts, bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None) -> None:
         self.run = run
+        #: Per estimator, each estimate signal's bus range (from the logged DBC), its bounds within
+        #: half a quantum: a decoded value there was saturated by the node.
+        self.bounds = dict(bounds or {})
         self.warnings: list[str] = []
         self.owner = run.record.estimate_topics()
         self.expected_parts = (2 + len(self.owner)) if run.states else 0
@@ -173,6 +176,14 @@ class Scorer:
             self._score(k, self.pending.pop(k))
         self._close_segment()
         self.bus.finish()
+        for name, score in self.estimators.items():
+            if score.saturated:
+                first = self.run.seconds(score.first_saturated)
+                since = "" if first is None else f" from t = {first:g} s"
+                self.warnings.append(
+                    f"{name}: estimates at their bus range's bound on {score.saturated} ticks{since} "
+                    f"(saturated by the node: the estimator diverged, or widen the range with [bus.states.<state>])"
+                )
         if self.late:
             self.warnings.append(
                 f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored"
@@ -191,6 +202,9 @@ class Scorer:
             if x is not None and all(isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in states):
                 error = math.sqrt(math.fsum((x[s] - estimate[estimate_signal(s)]) ** 2 for s in states))
                 self.estimators[name].add(k, error, self.segment)
+            bounds = self.bounds.get(name)
+            if bounds and any(not lo < estimate.get(signal, 0.0) < hi for signal, (lo, hi) in bounds.items()):
+                self.estimators[name].saturation(k)
             alarm = self.alarms.get(name)
             if alarm is not None and isinstance(estimate.get(alarm), (int, float)):
                 if name not in self.diagnosis:

@@ -72,6 +72,8 @@ class EstimationMetrics:
     ticks_scored: int = 0
     band: float | None = None
     bias_rejection_ratio: float | None = None
+    saturated_ticks: int = 0
+    saturated_from: float | None = None
     faults: dict[str, FaultRecovery] = field(default_factory=dict)
 
 
