@@ -734,8 +734,9 @@ def test_a_diverging_estimate_is_saturated_on_the_bus_and_counted_not_the_runs_e
     assert result.status == "completed"
     measured = api.metrics(path)
     uniform = measured["estimators"]["uniform"]
-    assert uniform["saturated_ticks"] > 0 and uniform["saturated_from"] >= 5.0  # the fault starts at 5 s
-    assert any("uniform: estimates at their bus range's bound" in w for w in measured["warnings"])
+    assert uniform["saturated"] and all(s["ticks"] > 0 and s["first_at"] >= 5.0 for s in uniform["saturated"].values())
+    for signal in uniform["saturated"]:  # the fault starts at 5 s
+        assert any(w.startswith(f"uniform: {signal} at its bus range's bound") for w in measured["warnings"])
     with LogReader(path) as reader:  # the frames carry the bound itself
         signals = [msg for topic, _, msg in reader.messages() if topic.startswith("/can/EST_uniform")]
     carried = [v for msg in signals for name, v in msg.items() if name.startswith("xhat_")]
@@ -748,4 +749,4 @@ def test_an_estimate_inside_its_range_is_never_counted_as_saturated(tmp_path):
     path = tmp_path / "small.mcap"
     api.run(api.load_scenario("masses-bias", {"duration": 8.0}), path, in_process=True)
     estimates = api.metrics(path)["estimators"].values()
-    assert all(e["saturated_ticks"] == 0 and e["saturated_from"] is None for e in estimates)
+    assert all(e["saturated"] == {} for e in estimates)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 
 from cosim.analysis.metrics.segments import Segment
-from cosim.analysis.metrics.values import EstimationMetrics, FaultRecovery
+from cosim.analysis.metrics.values import EstimationMetrics, FaultRecovery, Saturation
 
 #: The pre-fault band is this many times the largest settled pre-fault error.
 BAND_FACTOR = 2.0
@@ -31,8 +31,7 @@ class EstimationScore:
         self.seg_last_out: int | None = None
         self.seg_last: tuple[int, float] | None = None
         self.faults: dict[str, FaultRecovery] = {}
-        self.saturated = 0
-        self.first_saturated: int | None = None
+        self.saturated: dict[str, list[int]] = {}  # signal -> [ticks, first tick]
 
     @property
     def band(self) -> float | None:
@@ -56,11 +55,9 @@ class EstimationScore:
                 self.seg_last_out = k
             self.seg_last = (k, error)
 
-    def saturation(self, k: int) -> None:
-        """Tick k's estimate has a component at its bus signal's bound: the node saturated it."""
-        self.saturated += 1
-        if self.first_saturated is None:
-            self.first_saturated = k
+    def saturation(self, k: int, signal: str) -> None:
+        """Tick k's estimate signal sits at its bus range's bound: the node saturated it."""
+        self.saturated.setdefault(signal, [0, k])[0] += 1
 
     def close(self, segment: Segment) -> None:
         dt, band = self.sample_time, self.band
@@ -92,9 +89,9 @@ class EstimationScore:
             ticks_scored=self.scored,
             band=self.band,
             bias_rejection_ratio=post / base if post is not None and base else None,
-            saturated_ticks=self.saturated,
-            saturated_from=None
-            if self.first_saturated is None or self.sample_time is None
-            else round(self.first_saturated * self.sample_time, 9),
+            saturated={
+                signal: Saturation(n, None if self.sample_time is None else round(first * self.sample_time, 9))
+                for signal, (n, first) in sorted(self.saturated.items())
+            },
             faults=self.faults,
         )

@@ -19,7 +19,7 @@ from cosim.analysis.metrics.diagnosis import DiagnosisScore
 from cosim.analysis.metrics.estimation import EstimationScore
 from cosim.analysis.metrics.facts import RunFacts
 from cosim.analysis.metrics.segments import Segment
-from cosim.bus.codec import estimate_signal
+from cosim.bus.codec import estimate_signal, estimated_state
 from cosim.log.topics import (
     FAULTS,
     IDS,
@@ -177,12 +177,11 @@ class Scorer:
         self._close_segment()
         self.bus.finish()
         for name, score in self.estimators.items():
-            if score.saturated:
-                first = self.run.seconds(score.first_saturated)
-                since = "" if first is None else f" from t = {first:g} s"
+            for signal, (ticks, first) in sorted(score.saturated.items()):
+                since = "" if self.run.sample_time is None else f" from t = {self.run.seconds(first):g} s"
                 self.warnings.append(
-                    f"{name}: estimates at their bus range's bound on {score.saturated} ticks{since} "
-                    f"(saturated by the node: the estimator diverged, or widen the range with [bus.states.<state>])"
+                    f"{name}: {signal} at its bus range's bound on {ticks} ticks{since} (saturated by the node: "
+                    f"the estimator diverged, or widen the range with [bus.states.{estimated_state(signal)}])"
                 )
         if self.late:
             self.warnings.append(
@@ -202,9 +201,9 @@ class Scorer:
             if x is not None and all(isinstance(estimate.get(estimate_signal(s)), (int, float)) for s in states):
                 error = math.sqrt(math.fsum((x[s] - estimate[estimate_signal(s)]) ** 2 for s in states))
                 self.estimators[name].add(k, error, self.segment)
-            bounds = self.bounds.get(name)
-            if bounds and any(not lo < estimate.get(signal, 0.0) < hi for signal, (lo, hi) in bounds.items()):
-                self.estimators[name].saturation(k)
+            for signal, (lo, hi) in self.bounds.get(name, {}).items():
+                if not lo < estimate.get(signal, 0.0) < hi:
+                    self.estimators[name].saturation(k, signal)
             alarm = self.alarms.get(name)
             if alarm is not None and isinstance(estimate.get(alarm), (int, float)):
                 if name not in self.diagnosis:

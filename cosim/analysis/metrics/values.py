@@ -62,6 +62,15 @@ class FaultRecovery:
 
 
 @dataclass
+class Saturation:
+    """``estimators.<name>.saturated.<signal>``: ticks at which the estimate signal sat at its bus
+    range's bound (the node saturated it), and the first one's time (s)."""
+
+    ticks: int = 0
+    first_at: float | None = None
+
+
+@dataclass
 class EstimationMetrics:
     """``estimators.<name>``: the error |x − x̂| of one estimator."""
 
@@ -72,8 +81,7 @@ class EstimationMetrics:
     ticks_scored: int = 0
     band: float | None = None
     bias_rejection_ratio: float | None = None
-    saturated_ticks: int = 0
-    saturated_from: float | None = None
+    saturated: dict[str, Saturation] = field(default_factory=dict)
     faults: dict[str, FaultRecovery] = field(default_factory=dict)
 
 
