@@ -48,10 +48,13 @@ def _run(m: RunMetrics, console: Console) -> None:
     for missing in m.missing:
         console.print(f"[yellow]missing:[/yellow] {escape(missing)}")
     onset = m.fault_onset
+    first = "-" if onset is None else f"{onset:g} s"
+    if onset is not None and m.duration_s is not None and onset >= m.duration_s:
+        first += " (after the run's end: no fault happened)"
     console.print(
         f"scenario {m.scenario} ({m.source}), seed {m.seed}, status {m.status}\n"
         f"{m.ticks} ticks, {m.duration_s} s simulated; frames {m.frames.total} "
-        f"({m.frames.lost} lost); first fault at {'-' if onset is None else f'{onset:g} s'}"
+        f"({m.frames.lost} lost); first fault at {first}"
     )
     channels = _table("channels", ["topic", "messages"])
     for topic, count in m.channels.items():

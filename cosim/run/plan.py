@@ -43,6 +43,7 @@ from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
 from cosim.scenario.faults import build_bus_faults
+from cosim.scenario.load import timing_warnings
 from estimators import Diagnostic, Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
 from estimators.design import fault_rejectable
@@ -86,8 +87,9 @@ def build_controller(
 
 def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
     """Warnings about scenario faults that an estimator cannot reject by design: a constant bias
-    whose direction lies in Im(Y) (TAC 2024 Remark 4, CDC 2016 Remark 2)."""
-    found = []
+    whose direction lies in Im(Y) (TAC 2024 Remark 4, CDC 2016 Remark 2), after those about the
+    faults' timing."""
+    found = timing_warnings(s)
     for spec in s.faults:
         if spec.kind != "bias":
             continue

@@ -374,6 +374,17 @@ def _faults(s: Scenario, names: _Names) -> list[str]:
     return problems
 
 
+def timing_warnings(s: Scenario) -> list[str]:
+    """Faults that never happen: those that start at or after the run's last tick."""
+    end = (s.ticks - 1) * s.sample_time
+    return [
+        f"faults[{i}] ({fault.name or fault.kind}) starts at {fault.start:g} s, after the run's last tick "
+        f"(t = {end:g} s): it never happens; start it earlier or lengthen the run (duration = {s.duration:g})"
+        for i, fault in enumerate(s.faults)
+        if fault.start > end + 1e-9 * max(1.0, end)
+    ]
+
+
 def _labels(s: Scenario) -> list[str]:
     noise_labels, fault_labels = s.fault_labels()
     labels = noise_labels + fault_labels
