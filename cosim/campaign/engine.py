@@ -15,6 +15,7 @@ with its run, and a worker that dies is reported as that run's failure.
 
 from __future__ import annotations
 
+import logging
 import os
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator
@@ -89,9 +90,11 @@ class DaskEngine(Engine):
             self.description = (
                 f"local Dask cluster, {self.workers} worker processes (dashboard: {cluster.dashboard_link})"
             )
-        from cosim.campaign.worker import preload
+        from cosim.campaign.worker import ignore_interrupts, preload
 
         self.client.run(preload)  # every worker imports the runner now, not during its first run
+        if not address:  # workers of the user's own cluster keep their Ctrl-C
+            self.client.run(ignore_interrupts)
 
     def results(self, function: Callable[..., Any], items: Iterable[Any], *args: Any) -> Iterator[tuple[Any, Any]]:
         from distributed import as_completed
@@ -122,6 +125,11 @@ class DaskEngine(Engine):
             submit(1)
 
     def __exit__(self, *exc: object) -> None:
+        if isinstance(exc[1] if len(exc) > 1 else None, KeyboardInterrupt):
+            # Stopping a cluster in the middle of its tasks makes Dask log every cancelled
+            # coroutine; the user asked for the stop, and the coordinator says what was kept.
+            for name in ("distributed", "tornado", "asyncio"):
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
         self._stack.close()
 
 

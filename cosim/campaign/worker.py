@@ -23,6 +23,17 @@ def preload() -> None:
     import cosim.run.runner  # noqa: F401
 
 
+def ignore_interrupts() -> None:
+    """Leave Ctrl-C to the coordinator: a terminal sends SIGINT to every process of its foreground
+    group, local workers included, and each would print its own traceback while the coordinator
+    stops them anyway."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
     """Run ``spec`` with its log in ``folder/logs``; returns its part: ``rows`` (one per estimator,
     or one describing the failure) and ``state_unit``."""
