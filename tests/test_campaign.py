@@ -177,6 +177,32 @@ def test_resume_after_the_coordinator_is_killed_loses_nothing_and_duplicates_not
     assert table.equals(metrics_table(fresh.path))
 
 
+@pytest.mark.slow
+def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path, inline_table):
+    """Ctrl-C in a terminal sends SIGINT to its whole foreground group, the local cluster's worker
+    processes included: the campaign says it was interrupted (no Dask tracebacks) and --resume
+    completes the same table."""
+    path = write(tmp_path, TINY)
+    folder = tmp_path / "interrupted"
+    command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2"]
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list((folder / "parts").glob("run-*.json")):
+        time.sleep(0.1)
+    os.killpg(process.pid, signal.SIGINT)  # what the terminal does
+    out, _ = process.communicate(timeout=60)
+    assert process.returncode == 128 + signal.SIGINT
+    assert "Traceback" not in out and "ERROR" not in out, out
+    after = out.split("engine:", 1)[1].strip().splitlines()[1:]  # below the engine line and the progress
+    assert len(after) <= 3, out
+    assert "interrupted" in out and "--resume" in out
+    resumed = run_campaign(load_campaign(path), folder, engine="inline", resume=True)
+    assert resumed.resumed >= 1 and resumed.runs == 4
+    assert metrics_table(resumed.path).equals(metrics_table(inline_table.path))
+
+
 def test_intervals_are_the_textbook_ones():
     low, high = wilson(8, 10)  # Wilson 95 %, 8 of 10: [0.4902, 0.9433]
     assert math.isclose(low, 0.49016, abs_tol=1e-4) and math.isclose(high, 0.94331, abs_tol=1e-4)

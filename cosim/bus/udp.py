@@ -10,8 +10,11 @@ program joins the run with ``interface="udp_multicast"``) but:
 - accepts datagrams from this host's own addresses only (where the group is one a remote host could
   reach, as an IPv4 group can): anything sent from another host is foreign;
 - never raises for what it receives: a datagram it cannot unpack (garbage, a truncated or
-  oversized packet) or one from another host is a ``ForeignDatagram``, handed to ``on_foreign`` and
-  counted, and reception goes on.
+  oversized packet, or a well-formed message whose fields are not a CAN frame's: an identifier
+  that is no integer in range, a payload that is no byte string of a CAN length, a flag that is no
+  boolean) or one from another host is a ``ForeignDatagram``, handed to ``on_foreign`` and
+  counted, and reception goes on. Fields are checked before a frame is built from them, so a
+  datagram cannot make the receiver allocate more than the datagram itself.
 
 It is registered as the python-can interface ``cosim_udp`` (``can.Bus(interface="cosim_udp", ...)``).
 """
@@ -27,12 +30,48 @@ from functools import cache
 from typing import Any
 
 import can
+import msgpack
 from can.bus import CanProtocol
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus, UdpMulticastBus
-from can.interfaces.udp_multicast.utils import unpack_message
 
 #: Bytes of a foreign datagram's payload that are kept for the log.
 KEEP_BYTES = 64
+#: The fields python-can's ``pack_message`` writes, with the types a frame's fields have.
+_FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_fd", "bitrate_switch", "error_state_indicator")
+_CAN_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
+
+
+def unpack_datagram(data: bytes, timestamp: float) -> can.Message:
+    """The frame a python-can ``udp_multicast`` datagram carries; ValueError naming the first field
+    that is not a CAN frame's (checked before the frame is built)."""
+    try:
+        fields = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=64, max_str_len=256)
+    except Exception as error:  # msgpack raises several kinds for bad bytes
+        raise ValueError(f"not a msgpack message ({type(error).__name__})") from None
+    if not isinstance(fields, dict):
+        raise ValueError("not a map of a frame's fields")
+    identifier, payload = fields.get("arbitration_id"), fields.get("data")
+    if type(identifier) is not int:
+        raise ValueError("arbitration_id is not an integer")
+    for flag in _FLAGS:
+        if type(fields.get(flag, False)) is not bool:
+            raise ValueError(f"{flag} is not a boolean")
+    extended = fields.get("is_extended_id", False)
+    if not 0 <= identifier < (1 << 29 if extended else 1 << 11):
+        raise ValueError(f"arbitration_id {identifier} is out of range")
+    if not isinstance(payload, bytes) or len(payload) not in _CAN_LENGTHS:
+        raise ValueError("data is not a CAN payload (bytes of a CAN or CAN FD length)")
+    if len(payload) > 8 and not fields.get("is_fd", False):
+        raise ValueError("data longer than 8 bytes in a classic frame")
+    channel = fields.get("channel")
+    return can.Message(
+        timestamp=timestamp,
+        arbitration_id=identifier,
+        data=payload,
+        channel=channel if isinstance(channel, (str, int)) else None,
+        **{flag: fields.get(flag, False) for flag in _FLAGS},
+        check=True,
+    )
 
 
 @dataclass(frozen=True)
@@ -161,8 +200,8 @@ class HostMulticastBus(UdpMulticastBus):
         if not is_local_address(address, sender[3] if len(sender) > 3 else 0):
             return self._foreign("remote", sender, data)
         try:
-            message = unpack_message(data, replace={"timestamp": timestamp}, check=True)
-        except Exception:  # msgpack and python-can raise several kinds for bad bytes
+            message = unpack_datagram(data, timestamp)
+        except (ValueError, TypeError):  # can.Message's own check raises these
             return self._foreign("garbage", sender, data)
         if message.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
             return None, False  # a classic CAN bus does not see CAN FD frames (as udp_multicast)

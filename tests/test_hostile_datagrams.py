@@ -1,0 +1,90 @@
+"""Datagrams crafted against the receive path: well-formed msgpack whose fields are not a CAN
+frame's is counted as foreign, never raises, and never makes the receiver allocate more than the
+datagram itself."""
+
+from __future__ import annotations
+
+import math
+import socket
+import tracemalloc
+
+import can
+import msgpack
+import pytest
+from can.interfaces.udp_multicast.utils import pack_message
+
+from cosim.bus.transport import allocate, open_bus
+from cosim.bus.udp import unpack_datagram
+
+GOOD = {
+    "timestamp": 0.0,
+    "arbitration_id": 0x100,
+    "is_extended_id": False,
+    "is_remote_frame": False,
+    "is_error_frame": False,
+    "channel": None,
+    "dlc": 2,
+    "data": b"\x01\x02",
+    "is_fd": False,
+    "bitrate_switch": False,
+    "error_state_indicator": False,
+}
+
+CRAFTED = {
+    "a float identifier": {"arbitration_id": 256.0},
+    "a NaN identifier": {"arbitration_id": math.nan},
+    "a negative identifier": {"arbitration_id": -1},
+    "an identifier past 11 bits": {"arbitration_id": 0x800},
+    "an identifier past 29 bits": {"arbitration_id": 1 << 29, "is_extended_id": True},
+    "a huge integer identifier": {"arbitration_id": 2**63},
+    "an integer payload (would allocate that many bytes)": {"data": 500_000_000},
+    "a string payload": {"data": "abc"},
+    "a list payload": {"data": [1, 2, 3]},
+    "a 9-byte classic payload": {"data": bytes(9)},
+    "a 10-byte FD payload (no CAN FD length)": {"data": bytes(10), "is_fd": True},
+    "a flag that is a string": {"is_fd": "yes"},
+    "a flag that is a number": {"is_extended_id": 1},
+}
+
+
+def crafted(change: dict) -> bytes:
+    return msgpack.packb(GOOD | change, use_bin_type=True)
+
+
+def test_a_python_can_datagram_unpacks_to_its_frame():
+    frame = can.Message(arbitration_id=0x123, data=bytes(range(12)), is_extended_id=False, is_fd=True)
+    got = unpack_datagram(pack_message(frame), 5.0)
+    assert got.arbitration_id == 0x123 and got.data == frame.data and got.is_fd and got.timestamp == 5.0
+    assert unpack_datagram(crafted({}), 0.0).data == b"\x01\x02"
+
+
+@pytest.mark.parametrize("change", CRAFTED.values(), ids=CRAFTED.keys())
+def test_fields_that_are_not_a_frames_are_refused_in_one_line(change):
+    with pytest.raises(ValueError) as refused:
+        unpack_datagram(crafted(change), 0.0)
+    assert "\n" not in str(refused.value)
+
+
+@pytest.mark.parametrize("data", [b"", b"\xc1", msgpack.packb([1, 2]), msgpack.packb({}), b"\x92" * 100])
+def test_what_is_no_map_of_fields_is_refused(data):
+    with pytest.raises(ValueError):
+        unpack_datagram(data, 0.0)
+
+
+def test_the_runs_socket_counts_each_crafted_datagram_and_allocates_nothing_for_it():
+    config = allocate("udp_multicast")
+    with open_bus(config) as bus:
+        family = socket.AF_INET6 if ":" in config.channel else socket.AF_INET
+        with socket.socket(family, socket.SOCK_DGRAM) as sender:
+            tracemalloc.start()
+            for change in CRAFTED.values():
+                sender.sendto(crafted(change), (config.channel, config.port))
+                assert bus.recv(1.0) is None
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+        assert bus.foreign == len(CRAFTED)
+        assert peak < 1_000_000  # the integer payload would have been 500 MB
+        sender_bus = can.Bus(**config.kwargs())
+        with sender_bus:  # and the bus still receives frames
+            sender_bus.send(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False))
+            assert bus.recv(1.0).data == b"\x01"
