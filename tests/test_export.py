@@ -275,6 +275,36 @@ def test_candump_reads_back_with_python_can_and_decodes_with_cantools(which, req
     check_decoded(decoded, log, start)
 
 
+@pytest.mark.parametrize("which", ["classic_log", "fd_log"])
+def test_asc_reads_back_with_python_can_and_is_dated_at_the_runs_start(which, request, tmp_path):
+    """Vector's ASC: the header's date is the run's (not the export's), the frames relative to it."""
+    from datetime import datetime
+
+    log = request.getfixturevalue(which)
+    result = export(log, "asc", tmp_path / "out.asc")
+    start = logged_start(log)
+    header = result.path.read_text().splitlines()
+    when = datetime.fromtimestamp(start)
+    assert header[0] == "date " + when.strftime(f"%a %b %d %H:%M:%S.{when.microsecond // 1000:03d} %Y")
+    assert header[3].startswith("Begin Triggerblock ") and header[3][len("Begin Triggerblock ") :] == header[0][5:]
+    check_frames(list(can.ASCReader(result.path)), log, 1e-6)  # relative to the trigger block's start
+    assert result.count == len(logged_frames(log))
+
+
+def test_trc_reads_back_with_python_can_at_the_runs_date(classic_log, tmp_path):
+    """PEAK's TRC 2.1: absolute times from its $STARTTIME, the header naming the file written."""
+    result = export(classic_log, "trc", tmp_path / "bus.trc")
+    text = result.path.read_text()
+    assert ";$FILEVERSION=2.1" in text and ";   bus.trc\n" in text and ".part" not in text
+    check_frames(list(can.TRCReader(result.path)), classic_log, 1e-5, logged_start(classic_log))  # 0.1 µs
+
+
+def test_trc_refuses_can_fd_frames_rather_than_leaving_them_out(fd_log, tmp_path):
+    with pytest.raises(CosimError, match=r"--to trc: the log has CAN FD frames.*--to asc, blf, candump or mf4"):
+        export(fd_log, "trc", tmp_path / "bus.trc")
+    assert list(tmp_path.iterdir()) == []  # no file, not even a part
+
+
 def test_candump_has_the_run_s_date_for_can_utils_and_start_time_overrides_it(classic_log, tmp_path):
     """can-utils' log2asc writes one header with the run's date (not one per line from 1970);
     --start-time 0 gives times from the epoch, an ISO date and time its own."""
@@ -347,8 +377,11 @@ def test_mf4_is_a_bus_log_that_asammdf_decodes_with_the_attached_dbc(which, requ
 
 
 def test_exports_are_deterministic(classic_log, tmp_path):
+    """The same bytes whenever and wherever they are written (TRC's header names the file)."""
+    for n in "ab":
+        (tmp_path / n).mkdir()
     for fmt in FORMATS:
-        a, b = (export(classic_log, fmt, tmp_path / f"{n}.{fmt}").path.read_bytes() for n in "ab")
+        a, b = (export(classic_log, fmt, tmp_path / n / f"out.{fmt}").path.read_bytes() for n in "ab")
         assert a == b, fmt
 
 
@@ -365,7 +398,10 @@ def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, t
         frames = sum(1 for _ in reader.messages([FRAMES]))
         ticks = int(reader.metadata()["cosim.result"]["ticks"])
     start = logged_start(log)
+    fd = load(name).scenario.bus.fd
     for fmt in FORMATS:
+        if fmt == "trc" and fd:  # classic CAN only (test_trc_refuses_can_fd_frames_rather_than_leaving_them_out)
+            continue
         result = export(log, fmt, tmp_path / f"out.{fmt}")
         assert result.count == (ticks if fmt in ("csv", "parquet") else frames) and result.warnings == [], fmt
         if fmt in ("candump", "mf4", "blf"):
@@ -373,7 +409,6 @@ def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, t
     assert (tmp_path / "out.candump").read_text().startswith(f"({start:.6f}) ")
 
     # the same scenario on the other bus (classic CAN for CAN FD, and back): the same table columns
-    fd = load(name).scenario.bus.fd
     other = run_short(
         name, 2 * load(name).scenario.sample_time, tmp_path / "other.mcap", f"bus.fd={str(not fd).lower()}"
     )

@@ -13,7 +13,7 @@ loaded whole):
   not measured. Lists (the active faults, the dropped sensors) are comma-joined text. Decoded
   frames go to the row of the tick they carry (their ``tick`` signal), which is the tick they were
   logged at in lockstep; control messages (NMT, SYNC, heartbeats) are in the frame exports only.
-- **Frame logs** (``blf``, ``mf4``, ``candump``): every frame of ``/can/frames`` in bus order,
+- **Frame logs** (``blf``, ``mf4``, ``candump``, ``asc``, ``trc``): every frame of ``/can/frames`` in bus order,
   stamped at the run's wall-clock start plus simulated time (the frames of one tick share t_k),
   so tools show the date the run happened. The start is the log's ``cosim.run`` ``start_time_ns``
   to the millisecond (BLF's header holds milliseconds; the three formats then agree to the
@@ -21,11 +21,14 @@ loaded whole):
   a log that records no start is stamped from the epoch, with a warning. BLF is written with
   python-can's ``BLFWriter`` (channel 1), candump with its ``CanutilsLogWriter`` (the text of
   ``candump -L``: ``(t) can0 1A0#0011 R``, ``##<flags>`` for CAN FD, which can-utils' log2asc,
-  ``can.LogReader``, cantools and SavvyCAN read). MF4 is an ASAM MDF 4.10 bus log written in bulk
-  with asammdf's public API: one ``CAN_DataFrame`` channel group in the standard bus-logging
-  layout (``ID``, ``IDE``, ``DLC``, ``DataLength``, ``DataBytes``, ``EDL``, ``BRS``, ...) with a
-  CAN bus acquisition source and the DBC attached, so asammdf's ``extract_bus_logging`` and
-  CANalyzer decode it; its header's start time is the start, its timestamps simulated time.
+  ``can.LogReader``, cantools and SavvyCAN read), ASC (Vector's text log, channel 1, CANoe and
+  CANalyzer) with its ``ASCWriter`` and TRC (PEAK's trace, version 2.1, PCAN-View and PCAN-Explorer;
+  classic CAN only: python-can does not write CAN FD to it) with its ``TRCWriter``. MF4 is an
+  ASAM MDF 4.10 bus log written in bulk with asammdf's public API: one ``CAN_DataFrame`` channel
+  group in the standard bus-logging layout (``ID``, ``IDE``, ``DLC``, ``DataLength``,
+  ``DataBytes``, ``EDL``, ``BRS``, ...) with a CAN bus acquisition source and the DBC attached, so
+  asammdf's ``extract_bus_logging`` and CANalyzer decode it; its header's start time is the start,
+  its timestamps simulated time.
 
 Output goes to a ``.part`` file renamed into place at the end, so a failed export leaves no
 half-written file under the final name.
@@ -51,9 +54,17 @@ from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
 
 #: Format → file suffix of its output.
-FORMATS = {"csv": ".csv", "parquet": ".parquet", "blf": ".blf", "mf4": ".mf4", "candump": ".log"}
+FORMATS = {
+    "csv": ".csv",
+    "parquet": ".parquet",
+    "blf": ".blf",
+    "mf4": ".mf4",
+    "candump": ".log",
+    "asc": ".asc",
+    "trc": ".trc",
+}
 TABLE_FORMATS = ("csv", "parquet")
-FRAME_FORMATS = ("blf", "mf4", "candump")
+FRAME_FORMATS = ("blf", "mf4", "candump", "asc", "trc")
 TRUTH_TOPICS = (STATE, SENSORS, INPUTS, FAULTS)
 #: Decoded topics that are bus control, not signals.
 CONTROL_MESSAGES = re.compile(r"^/can/(NMT|SYNC|HEARTBEAT_.*)$")
@@ -125,7 +136,7 @@ def export(
                 count = _export_table(reader, fmt, part, warnings)
             else:
                 start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
-                count = _export_frames(reader, fmt, part, dbc, start)
+                count = _export_frames(reader, fmt, part, dbc, start, out.name)
             part.replace(out)
         finally:
             part.unlink(missing_ok=True)
@@ -338,7 +349,7 @@ def frames(reader: LogReader) -> Iterator[tuple[int, dict[str, Any]]]:
         yield log_time, frame
 
 
-def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None, start_ns: int) -> int:
+def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None, start_ns: int, title: str) -> int:
     if FRAMES not in reader.schemas():
         raise LogError(
             f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
@@ -347,7 +358,7 @@ def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | No
     if fmt == "mf4":
         require("asammdf", "cosim export --to mf4")
         return _write_mf4(path, frames(reader), _dbc_text(reader, dbc), start_ns)
-    return (_write_blf if fmt == "blf" else _write_candump)(path, frames(reader), start_ns)
+    return _write_frame_log(fmt, path, frames(reader), start_ns, title)
 
 
 def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
@@ -381,26 +392,47 @@ def can_message(time_ns: int, frame: dict[str, Any]):
     )
 
 
-def _write_blf(path: Path, source: Iterator[tuple[int, dict[str, Any]]], start_ns: int) -> int:
+def _python_can_writer(fmt: str, path: Path, start_ns: int, title: str) -> Any:
+    """python-can's writer of a frame-log format (BLF and ASC on channel 1, candump on ``can0``),
+    its header dated at the run's start and naming the file ``title``, so that an export is the
+    same bytes whenever and wherever it is made."""
     import can
 
-    count = 0
-    with can.BLFWriter(path, channel=1) as writer:
+    if fmt == "blf":
+        blf = can.BLFWriter(path, channel=1)
         # The header's start time is in milliseconds and objects are stamped in ns after it: start
         # there (a whole millisecond) rather than at the first frame's time truncated.
-        writer.start_timestamp = start_ns / 1e9
-        for log_time, frame in source:
-            writer.on_message_received(can_message(start_ns + log_time, frame))
-            count += 1
-    return count
+        blf.start_timestamp = start_ns / 1e9
+        return blf
+    if fmt == "asc":
+        asc = can.ASCWriter(path, channel=1)
+        # Its header's date is the export's; its trigger block's (local time, as CANoe writes it)
+        # the first frame's: the header gets the run's date in the same form.
+        started = datetime.fromtimestamp(start_ns / 1e9)
+        date = started.strftime(f"%a %b %d %H:%M:%S.{started.microsecond // 1000:03d} %Y")
+        text: Any = asc.file  # opened in text mode
+        text.seek(0)
+        text.truncate()
+        text.write(f"date {date}\nbase hex  timestamps absolute\ninternal events logged\n")
+        return asc
+    if fmt == "trc":
+        trc = can.TRCWriter(path, channel=1)
+        trc.filepath = title  # the header names the file: the final name, not the path written to
+        return trc
+    return can.CanutilsLogWriter(path, channel=CANDUMP_INTERFACE)
 
 
-def _write_candump(path: Path, source: Iterator[tuple[int, dict[str, Any]]], start_ns: int) -> int:
-    import can
-
+def _write_frame_log(
+    fmt: str, path: Path, source: Iterator[tuple[int, dict[str, Any]]], start_ns: int, title: str
+) -> int:
     count = 0
-    with can.CanutilsLogWriter(path, channel=CANDUMP_INTERFACE) as writer:
+    with _python_can_writer(fmt, path, start_ns, title) as writer:
         for log_time, frame in source:
+            if fmt == "trc" and frame["fd"]:  # python-can's TRC writer would leave it out with a log line
+                raise CosimError(
+                    "--to trc: the log has CAN FD frames, which python-can's TRC writer does not write; "
+                    "export them with --to asc, blf, candump or mf4"
+                )
             writer.on_message_received(can_message(start_ns + log_time, frame))
             count += 1
     return count
