@@ -30,8 +30,8 @@ loaded whole):
   asammdf's ``extract_bus_logging`` and CANalyzer decode it; its header's start time is the start,
   its timestamps simulated time.
 
-Output goes to a ``.part`` file renamed into place at the end, so a failed export leaves no
-half-written file under the final name.
+Output goes to a temporary file beside the output (``cosim.files``) renamed into place at the
+end, so a failed export leaves no half-written file under the final name.
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ from typing import Any
 from cosim.analysis import names
 from cosim.errors import CosimError, LogError
 from cosim.extras import require
+from cosim.files import temporary_beside
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
@@ -128,7 +129,7 @@ def export(
     if out.resolve() == Path(log).resolve():
         raise CosimError(f"{out}: the output would overwrite the log; choose another --out")
     with LogReader(log) as reader:
-        part = out.with_name(f"{out.name}.part{FORMATS[fmt]}")  # asammdf insists on its suffix
+        part = temporary_beside(out, FORMATS[fmt])  # asammdf insists on its suffix
         warnings: list[str] = []
         start = None
         try:

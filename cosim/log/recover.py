@@ -23,6 +23,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from cosim import __version__
 from cosim.errors import LogError
+from cosim.files import temporary_beside
 from cosim.log.reader import READ_ERRORS, LogReader
 
 RECOVERED = "cosim.recovered"
@@ -52,45 +53,49 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     with LogReader(source):  # a clear error for a file that is not MCAP at all
         pass
     target = Path(out) if out is not None else source
-    temporary = target.with_name(f".{target.name}.recovering")
+    temporary = temporary_beside(target, ".recovering")
     result = Recovered(target, bytes_total=source.stat().st_size)
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
-    with open(source, "rb") as stream, open(temporary, "wb") as sink:
-        writer = Writer(sink, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
-        library = f"cosim/{__version__} (recovered)"
-        started = False
-        try:
-            for record in StreamReader(stream, validate_crcs=True).records:
-                if isinstance(record, records.Header):
-                    writer.start(profile=record.profile, library=record.library or library)
-                    started = True
-                    continue
-                if not started:
-                    writer.start(profile="", library=library)
-                    started = True
-                _copy(writer, record, schemas, channels, result)
-                result.bytes_read = stream.tell()
-        except EndOfFile:
-            result.damage = (
-                f"the file ends at byte {result.bytes_total} without its summary and footer (its writer stopped)"
+    try:
+        with open(source, "rb") as stream, open(temporary, "wb") as sink:
+            writer = Writer(sink, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+            library = f"cosim/{__version__} (recovered)"
+            started = False
+            try:
+                for record in StreamReader(stream, validate_crcs=True).records:
+                    if isinstance(record, records.Header):
+                        writer.start(profile=record.profile, library=record.library or library)
+                        started = True
+                        continue
+                    if not started:
+                        writer.start(profile="", library=library)
+                        started = True
+                    _copy(writer, record, schemas, channels, result)
+                    result.bytes_read = stream.tell()
+            except EndOfFile:
+                result.damage = (
+                    f"the file ends at byte {result.bytes_total} without its summary and footer (its writer stopped)"
+                )
+            except READ_ERRORS as error:
+                reason = str(error) or type(error).__name__
+                result.damage = f"reading stopped at byte {result.bytes_read} of {result.bytes_total}: {reason}"
+            if not started:
+                writer.start(profile="", library=library)
+            writer.add_metadata(
+                RECOVERED,
+                {
+                    "from": str(source),
+                    "messages": str(result.messages),
+                    "last_time_ns": str(result.last_time_ns),
+                    "damage": result.damage or "none: every record was read",
+                },
             )
-        except READ_ERRORS as error:
-            reason = str(error) or type(error).__name__
-            result.damage = f"reading stopped at byte {result.bytes_read} of {result.bytes_total}: {reason}"
-        if not started:
-            writer.start(profile="", library=library)
-        writer.add_metadata(
-            RECOVERED,
-            {
-                "from": str(source),
-                "messages": str(result.messages),
-                "last_time_ns": str(result.last_time_ns),
-                "damage": result.damage or "none: every record was read",
-            },
-        )
-        writer.finish()
-    os.replace(temporary, target)
+            writer.finish()
+        os.replace(temporary, target)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
     result.channels = len(channels)
     return result
 

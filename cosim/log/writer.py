@@ -33,6 +33,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cosim import __version__
+from cosim.files import open_output
 
 _JSON_OPTIONS = orjson.OPT_SERIALIZE_NUMPY
 
@@ -129,7 +130,7 @@ class McapLog:
     def __init__(self, path: str | Path, *, chunk_size: int = 512 * 1024, sink: LogSink | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stream: IO[bytes] = open(self.path, "wb")
+        self._stream: IO[bytes] = open_output(self.path)  # never through a link planted at the name
         self._writer = _Writer(
             self._stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, index_types=IndexType.ALL
         )
