@@ -6,7 +6,10 @@ A name resolves, in this order, from
 1. the group's built-in table, ``name -> "module:attribute"``, imported when the name is first
    looked up (a node process that runs a Kalman filter imports neither the LMI designs nor SciPy's
    optimizer);
-2. the name itself as a module path, ``"package.module:ClassName"``;
+2. the name itself as a module path, ``"package.module:ClassName"``, or a file path,
+   ``"/path/to/observers.py:ClassName"`` (a scenario's relative ``observers.py:ClassName`` is made
+   absolute against the scenario's folder when it is loaded; the file's folder joins the import
+   path, so the file may import its neighbours);
 3. the entry points of the installed distributions in the group's entry-point group
    (``cosim.estimators``, ``cosim.controllers``, ``cosim.faults``, ``cosim.plants``), read once per
    process and only for a name that is neither built in nor a module path.
@@ -183,9 +186,42 @@ def _reference(found: Any) -> str:
 
 
 def _attribute(reference: str) -> Any:
-    """The object ``module:attribute`` (the attribute may be dotted) names."""
+    """The object ``module:attribute`` (the attribute may be dotted) names; the module may be a
+    Python file's path (``.../observers.py``)."""
     module, _, attribute = reference.partition(":")
-    return functools.reduce(getattr, attribute.split("."), importlib.import_module(module))
+    imported = _module_file(module) if module.endswith(".py") else importlib.import_module(module)
+    return functools.reduce(getattr, attribute.split("."), imported)
+
+
+def is_file_reference(name: str) -> bool:
+    """Whether a kind names a class in a Python file (``observers.py:ClassName``)."""
+    return name.partition(":")[0].endswith(".py")
+
+
+@functools.cache
+def _module_file(path: str) -> Any:
+    """The module of a Python file, imported once per process under a name unique to its path."""
+    import hashlib
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    file = Path(path)
+    if not file.is_absolute() or not file.is_file():
+        raise FileNotFoundError(f"no Python file {path} (a path relative to the scenario file)")
+    name = f"cosim_plugin_{file.stem}_{hashlib.sha256(str(file).encode()).hexdigest()[:8]}"
+    spec = importlib.util.spec_from_file_location(name, file)
+    assert spec is not None and spec.loader is not None  # a .py file always has a source loader
+    module = importlib.util.module_from_spec(spec)
+    if str(file.parent) not in sys.path:
+        sys.path.append(str(file.parent))  # its neighbours import as they would next to it
+    sys.modules[name] = module  # before running it: dataclasses look their module up
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
 
 
 @functools.cache

@@ -152,12 +152,15 @@ class Plant:
             mujoco.mj_forward(self.model, self.data if data is None else data)
 
     def reset(self, initial: dict[str, float] | None = None, keyframe: str | None = None) -> None:
-        """Back to the plant's keyframe (or the one named), then override the named state components."""
+        """Back to the plant's keyframe (or the one named; none: qpos0), then override the named state
+        components."""
         keyframe = keyframe or self.info.keyframe
-        key = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_KEY, keyframe)
-        if key < 0:
+        if not keyframe:  # a model of the user's without keyframes: its qpos0
+            mujoco.mj_resetData(self.model, self.data)
+        elif (key := mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_KEY, keyframe)) < 0:
             raise ModelError(f'{self.info.model_file}: no keyframe named {keyframe!r}; add <key name="{keyframe}"/>')
-        mujoco.mj_resetDataKeyframe(self.model, self.data, key)
+        else:
+            mujoco.mj_resetDataKeyframe(self.model, self.data, key)
         if initial or self._tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
             x = self.state()
             for name, value in (initial or {}).items():

@@ -20,10 +20,11 @@ from pydantic import ValidationError
 
 import scenarios
 from cosim.bus.codec import CONTROLLER, PLANT
-from cosim.errors import CodecError, ScenarioError
-from cosim.kinds import KindError, Kinds
+from cosim.errors import CodecError, ModelError, ScenarioError
+from cosim.kinds import KindError, Kinds, is_file_reference
 from cosim.plant import statespace
 from cosim.plant.fmu_model import FmuError, is_fmu
+from cosim.plant.mjcf_file import is_mjcf
 from cosim.scenario.faults import OnBus
 from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import problem_message, problem_path
@@ -106,7 +107,7 @@ def validate(data: dict[str, Any], source: str, folder: Path | None = None) -> S
             f"{source}: {deep}: nested more than {MAX_NESTING} tables or lists deep; a scenario needs "
             f"far fewer (flatten the sum of waveforms)"
         )
-    data = _absolute_fmu(data, folder if folder is not None else folder_of(source))
+    data = _absolute_paths(data, folder if folder is not None else folder_of(source))
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as error:
@@ -118,16 +119,38 @@ def validate(data: dict[str, Any], source: str, folder: Path | None = None) -> S
     return scenario
 
 
-def _absolute_fmu(data: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """The data with an FMU plant's relative path made absolute (the scenario then means the same
-    file wherever it is run from, and its resolved JSON in a log names it)."""
+def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """The data with its relative file paths made absolute against ``folder``: an FMU or MJCF
+    plant's model file, and the Python file of an estimator's or the controller's kind
+    (``observers.py:ClassName``); the scenario then means the same files wherever it is run from,
+    in node processes and on campaign workers too, and its resolved JSON in a log names them."""
+
+    def absolute(path: str) -> str:
+        return path if Path(path).is_absolute() else str((folder / path).resolve())
+
+    def kind(entry: Any) -> Any:
+        if (
+            not isinstance(entry, dict)
+            or not isinstance(entry.get("kind"), str)
+            or not is_file_reference(entry["kind"])
+        ):
+            return entry
+        file, _, name = entry["kind"].partition(":")
+        return {**entry, "kind": f"{absolute(file)}:{name}"}
+
+    data = dict(data)
     plant = data.get("plant")
-    if not isinstance(plant, dict):
-        return data
-    model = plant.get("model")
-    if not isinstance(model, str) or not is_fmu(model) or Path(model).is_absolute():
-        return data
-    return {**data, "plant": {**plant, "model": str((folder / model).resolve())}}
+    if (
+        isinstance(plant, dict)
+        and isinstance(plant.get("model"), str)
+        and (is_fmu(plant["model"]) or is_mjcf(plant["model"]))
+    ):
+        data["plant"] = {**plant, "model": absolute(plant["model"])}
+    if isinstance(data.get("estimators"), list):
+        data["estimators"] = [kind(entry) for entry in data["estimators"]]
+    if "controller" in data:
+        data["controller"] = kind(data["controller"])
+    return data
 
 
 def _too_deep(data: Any, path: str = "", depth: int = 0) -> str | None:
@@ -161,9 +184,11 @@ def check(s: Scenario) -> list[str]:
         ]
     if s.plant.fmu is not None and not fmu:
         return [f'plant.fmu: only used with an FMU plant (plant.model = "….fmu", got {s.plant.model!r})']
+    if s.plant.mjcf is not None and not is_mjcf(s.plant.model):
+        return [f'plant.mjcf: only used with an MJCF file plant (plant.model = "….xml", got {s.plant.model!r})']
     try:
         info = s.plant_info
-    except FmuError as error:
+    except (FmuError, ModelError) as error:
         return [str(error)]
     except KeyError as error:
         alternative = f", or {statespace.NAME!r} with a [plant.state_space] table"

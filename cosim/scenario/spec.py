@@ -16,7 +16,7 @@ from cosim.bus.codec import Codec
 from cosim.bus.secoc import secure_dbc
 from cosim.bus.signals import Channel
 from cosim.errors import ScenarioError
-from cosim.plant import fmu_model, statespace
+from cosim.plant import fmu_model, mjcf_file, statespace
 from cosim.scenario.faults import FaultSpec, NoiseSpec
 from cosim.scenario.tables import Identifier, NonNegative, Positive, Strict, problem_message, problem_path
 from cosim.scenario.waveforms import WaveformSpec
@@ -116,13 +116,28 @@ class FmuSpec(Strict):
     """Bus resolution of the Float signals (classic CAN)."""
 
 
+class MjcfSpec(Strict):
+    """A plant of the user's own MJCF file's settings (``plant.model = "robot.xml"``, docs/extending.md)."""
+
+    disturbances: list[str] = []
+    """Actuators that are unknown inputs driven by [[disturbances]], not inputs on the bus."""
+    keyframe: str = ""
+    """The keyframe of the initial state and the design point; default the model's first, or qpos0."""
+    bound: float = Field(default=1e3, gt=0)
+    """Bus range ±bound of the signals ([bus.sensors], [bus.states], [bus.actuators] override it)."""
+    resolution: float = Field(default=1e-6, gt=0)
+    """Bus resolution of the signals in classic CAN."""
+
+
 class PlantSpec(Strict):
     model: str
     """A registered MJCF plant (``cosim scenarios`` lists them), "state-space" with
-    [plant.state_space], or an FMU file (``*.fmu``, a path relative to the scenario file)."""
+    [plant.state_space], an MJCF file (``*.xml``) or an FMU file (``*.fmu``), each a path relative
+    to the scenario file."""
     state_space: StateSpaceSpec | None = None
     """The plant's matrices (model "state-space"), or an FMU plant's design model."""
     fmu: FmuSpec | None = None
+    mjcf: MjcfSpec | None = None
     sensors: list[str] | None = None
     """Transmitted sensors, in order; default: all the plant declares."""
     initial_state: dict[str, float] = {}
@@ -397,6 +412,8 @@ class Scenario(Strict):
     def plant_info(self) -> mjcf.PlantInfo:
         if fmu_model.is_fmu(self.plant.model):
             return self.fmu_model().info()
+        if mjcf_file.is_mjcf(self.plant.model):
+            return mjcf_file.plant_info(self.plant.model, self.plant.mjcf or MjcfSpec())
         if self.plant.model == statespace.NAME:
             if self.plant.state_space is None:
                 raise KeyError('plant.model "state-space" needs a [plant.state_space] table with A, B and C')
