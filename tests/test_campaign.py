@@ -24,6 +24,7 @@ from cosim.campaign.results import NONDETERMINISTIC
 from cosim.campaign.spec import builtin_names, load_campaign
 from cosim.cli import main
 from cosim.errors import ScenarioError
+from cosim.log.reader import LogReader
 
 TINY = """
 name = "tiny"
@@ -94,12 +95,33 @@ def test_bad_campaign_files_get_one_line_errors_naming_the_field(tmp_path, chang
     assert message in str(error.value) and "\n" not in str(error.value).strip()
 
 
+def test_two_cells_that_differ_only_in_an_estimator_see_bit_identical_sensor_frames(tmp_path):
+    """Common random numbers: the noise of replicate r is the same in every cell of the grid."""
+    text = TINY.replace(
+        'key = "faults[0].value"\nvalues = [0.2, 0.5]\nname = "bias"',
+        ('key = "estimators[1].params.process_std"\nvalues = [1e-4, 1e-3]\nname = "q"'),
+    )
+    text = text.split("[[sample]]")[0]
+    result = run_campaign(load_campaign(write(tmp_path, text)), tmp_path / "crn", engine="inline", keep_logs="all")
+    rows = {(r["q"], r["replicate"]): r for r in pq.read_table(result.path).to_pylist()}
+
+    def sensor_frames(row):
+        with LogReader(tmp_path / "crn" / row["log"]) as reader:
+            return [(t, m) for topic, t, m in reader.messages() if topic.startswith("/can/SENSOR_")]
+
+    for replicate in (0, 1):
+        cells = [sensor_frames(rows[(q, replicate)]) for q in (1e-4, 1e-3)]
+        assert cells[0] and cells[0] == cells[1]
+    assert sensor_frames(rows[(1e-4, 0)]) != sensor_frames(rows[(1e-4, 1)])  # replicates differ
+
+
 def test_runs_are_derived_from_the_file_and_their_index_alone(tmp_path):
     campaign = load_campaign(write(tmp_path, TINY))
     runs = campaign.runs()
     assert [r.index for r in runs] == [0, 1, 2, 3] and [r.replicate for r in runs] == [0, 1, 0, 1]
     assert [dict(r.columns)["bias"] for r in runs] == [0.2, 0.2, 0.5, 0.5]
-    assert len({r.seed for r in runs}) == 4
+    seeds = [r.seed for r in runs]  # common random numbers: one seed per replicate, across the grid
+    assert seeds[0] == seeds[2] and seeds[1] == seeds[3] and seeds[0] != seeds[1]
     std = [dict(r.columns)["noise[0].std"] for r in runs]
     assert all(0.0005 <= s <= 0.005 for s in std) and len(set(std)) == 4
     again = load_campaign(write(tmp_path, TINY, "again.toml")).runs()
@@ -203,6 +225,43 @@ def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path,
     assert metrics_table(resumed.path).equals(metrics_table(inline_table.path))
 
 
+def synthetic_table(path, differences: dict[str, list[float]]) -> Path:
+    """A results table of len(values) runs: estimator "base" with RMS 1 in every run, and each other
+    estimator with RMS 1 + its difference in that run."""
+    import pyarrow as pa
+
+    runs = len(next(iter(differences.values())))
+    rows = [
+        {"run": i, "status": "completed", "estimator": name, "kind": "k", "fault_kind": "bias", "rms_post_fault": rms}
+        for i in range(runs)
+        for name, rms in [("base", 1.0), *((n, 1.0 + d[i]) for n, d in differences.items())]
+    ]
+    pq.write_table(pa.Table.from_pylist(rows), path)
+    return path
+
+
+def test_paired_differences_rank_apart_or_tie_with_holms_adjustment(tmp_path):
+    rng = np.random.default_rng(4)
+    worse = 0.05 + 0.01 * rng.standard_normal(20)  # worse than "base" in every run: ranked apart
+    same = worse + 0.005 * rng.choice([-1.0, 1.0], 20)  # as often better as worse than "worse": tied
+    table = synthetic_table(tmp_path / "t.parquet", {"worse": list(worse), "same": list(same)})
+    (group,) = leaderboard(table)["groups"]
+    ranking = {s["estimator"]: s for s in group["ranking"]}
+    assert [s["estimator"] for s in group["ranking"]][0] == "base" and ranking["base"]["rank"] == 1
+    first = ranking["base"]["vs_next"]
+    assert first["pairs"] == 20 and first["p_holm"] < 0.001 and not first["tied"]
+    low, high = first["median_difference_ci95"]
+    assert 0.0 < low < 0.05 < high  # the true median difference is 0.05
+    assert {ranking["worse"]["rank"], ranking["same"]["rank"]} == {2} and ranking["worse"]["tied"]
+
+
+def test_holm_is_the_textbook_step_down():
+    from cosim.campaign.leaderboard import holm
+
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])  # 3·0.01, max(2·0.03, .03), max(.04, .06)
+    assert holm([0.5, 0.9]) == [1.0, 1.0] and holm([]) == []
+
+
 def test_intervals_are_the_textbook_ones():
     low, high = wilson(8, 10)  # Wilson 95 %, 8 of 10: [0.4902, 0.9433]
     assert math.isclose(low, 0.49016, abs_tol=1e-4) and math.isclose(high, 0.94331, abs_tol=1e-4)
@@ -221,7 +280,8 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
     assert [g["group"] for g in board["groups"]] == [{"bias": 0.2}, {"bias": 0.5}]
     for group in board["groups"]:
         ranking = group["ranking"]
-        assert [s["rank"] for s in ranking] == [1, 2]
+        assert [s["rank"] for s in ranking] == [1, 1] and all(s["tied"] for s in ranking)  # 2 pairs tell nothing
+        assert ranking[0]["vs_next"]["pairs"] == 2 and ranking[0]["vs_next"]["p_holm"] >= 0.05
         medians = [s["rms_post_fault_median"] for s in ranking]
         assert medians == sorted(medians) and all(s["runs"] == 2 for s in ranking)
     out = io.StringIO()

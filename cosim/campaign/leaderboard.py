@@ -15,6 +15,14 @@ per group (the values of the ``by`` columns; by default the fault kind) and esti
 Estimators are ranked by the median RMS error after onset, or, in a group without any (a
 fault-free group), by false alarms per hour; diagnosis schemes then by detection rate. ``outliers``
 lists the runs whose error lies beyond Q3 + 3 IQR of their estimator's group: where to look first.
+
+Each estimator is compared with the next in its ranking on the runs both took part in (the same
+run: the same noise, faults and weather; ``cosim.campaign.spec``'s common random numbers make the
+runs of a replicate alike across the grid): the paired differences d of their RMS errors after
+onset, their median with a 95 % bootstrap interval, and the two-sided Wilcoxon signed-rank test of
+d (zero differences left out). The p-values of all the comparisons in the leaderboard are adjusted
+by Holm's step-down procedure; where the adjusted p is 0.05 or more the two share a rank ("tied"):
+the data do not tell them apart.
 """
 
 from __future__ import annotations
@@ -104,6 +112,7 @@ class Entry:
     runs: int = 0
     failed: int = 0
     rms: list[float] = field(default_factory=list)
+    rms_by_run: dict[int, float] = field(default_factory=dict)
     rejection: list[float] = field(default_factory=list)
     final: list[float] = field(default_factory=list)
     diagnoses: bool = False
@@ -125,6 +134,8 @@ class Entry:
         self.runs += 1
         for found, value in ((self.rms, row.rms_post_fault), (self.rejection, row.bias_rejection_ratio)):
             _append(found, value)
+        if (rms := _number(row.rms_post_fault)) is not None and row.run is not None:
+            self.rms_by_run[row.run] = rms
         _append(self.final, row.final_error)
         if not row.diagnoses:
             return
@@ -209,10 +220,14 @@ def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]
         groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row)
     ranked = []
     for key in sorted(groups, key=lambda k: tuple(str(v) for v in k)):
-        scores = sorted((entry.scores() for entry in groups[key].values()), key=_rank_key)
-        for place, score in enumerate(scores, start=1):
-            score["rank"] = place
+        entries = sorted(groups[key].values(), key=lambda entry: _rank_key(entry.scores()))
+        scores = [entry.scores() for entry in entries]
+        for score, entry, following in zip(scores, entries, entries[1:]):
+            score["vs_next"] = paired_comparison(entry.rms_by_run, following.rms_by_run) | {
+                "estimator": following.estimator
+            }
         ranked.append({"group": dict(zip(by, key)), "ranking": scores})
+    _rank_with_ties(ranked)
     return {
         "table": str(path),
         "campaign": table.metadata.get("cosim.campaign.name"),
@@ -223,6 +238,53 @@ def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]
         "groups": ranked,
         "outliers": outliers(table.rows, by),
     }
+
+
+def paired_comparison(first: dict[int, float], second: dict[int, float]) -> dict[str, Any]:
+    """``second`` − ``first`` on the runs both have: how many, the median difference and its 95 %
+    bootstrap interval, and the Wilcoxon signed-rank test's two-sided p (1 without a nonzero
+    difference; Holm's adjustment comes later, over every comparison)."""
+    runs = sorted(first.keys() & second.keys())
+    differences = [second[run] - first[run] for run in runs]
+    nonzero = [d for d in differences if d != 0.0]
+    p = 1.0
+    if nonzero:
+        from scipy.stats import wilcoxon
+
+        p = float(wilcoxon(nonzero).pvalue)
+    return {
+        "pairs": len(differences),
+        "median_difference": percentile(differences, 50),
+        "median_difference_ci95": bootstrap_median(differences),
+        "p": p,
+    }
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm's step-down adjustment of m p-values (family-wise error rate), in their order."""
+    m = len(pvalues)
+    adjusted = [0.0] * m
+    running = 0.0
+    for step, index in enumerate(sorted(range(m), key=lambda i: pvalues[i])):
+        running = max(running, min(1.0, (m - step) * pvalues[index]))
+        adjusted[index] = running
+    return adjusted
+
+
+def _rank_with_ties(groups: list[dict[str, Any]], alpha: float = 0.05) -> None:
+    """Holm-adjust every comparison's p, and rank each group: an estimator not told apart from the
+    one above it (adjusted p ≥ ``alpha``) shares its rank, and both say ``tied``."""
+    comparisons = [s["vs_next"] for g in groups for s in g["ranking"] if "vs_next" in s]
+    for comparison, adjusted in zip(comparisons, holm([c["p"] for c in comparisons])):
+        comparison["p_holm"] = adjusted
+        comparison["tied"] = adjusted >= alpha
+    for group in groups:
+        ranking = group["ranking"]
+        for place, score in enumerate(ranking, start=1):
+            above = ranking[place - 2] if place > 1 else None
+            tied = bool(above and above["vs_next"]["tied"])
+            score["rank"] = above["rank"] if above and tied else place
+            score["tied"] = tied or bool(score.get("vs_next", {}).get("tied"))
 
 
 def _rank_key(score: dict[str, Any]) -> tuple[float, float, float]:

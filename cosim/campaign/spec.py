@@ -25,9 +25,15 @@ A campaign file is TOML::
 
 An axis may set several paths at once (``key`` a list, each value a list with one entry per key).
 Runs are numbered 0, 1, … over the grid (the first axis slowest), with the replicates innermost.
-Run i's scenario seed is drawn from SeedSequence(campaign seed, spawn_key=(i,)), and its samples from
-spawn_key=(i, 1): a run's settings and seed depend on nothing but the file and its index, so the
-results do not depend on the engine, the number of workers or the order of completion.
+
+Common random numbers: a run's scenario seed depends on its replicate alone, drawn from
+SeedSequence(campaign seed, spawn_key=(REPLICATE_KEY, replicate)); within a run every noise model,
+fault, environment and bus fault draws from its own stream keyed by its label. So every cell of the
+grid sees, replicate by replicate, the same weather, noise and random faults wherever a setting
+does not change them: two estimators, two fault sizes or two thresholds are compared on the same
+draws (paired), and the leaderboard tests their differences pair by pair. Run i's samples are drawn
+from spawn_key=(i, 1). A run's settings and seed depend on nothing but the file and its index, so
+the results do not depend on the engine, the number of workers or the order of completion.
 """
 
 from __future__ import annotations
@@ -53,6 +59,8 @@ from cosim.scenario.tables import Strict, problem_message, problem_path
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent / "campaigns"
 #: Columns of the results table that every row has; axis and sample columns must not take these names.
 RESERVED = ("run", "replicate", "seed", "status", "error", "wall_time_s", "estimator", "kind", "log")
+#: The spawn-key group of the replicates' scenario seeds (a run's samples use (run index, 1)).
+REPLICATE_KEY = 0x5EED
 
 
 class AxisSpec(Strict):
@@ -129,7 +137,7 @@ class CampaignSpec(Strict):
     description: str = ""
     scenario: str
     seed: Annotated[int, Field(ge=0)] = 0
-    seeds: Annotated[int, Field(ge=1)] | Annotated[list[int], Field(min_length=1)] = 1
+    seeds: Annotated[int, Field(ge=1)] | Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=1)] = 1
     bus: Literal["in-process", "processes"] = "in-process"
     set: dict[str, Any] = {}
     axes: list[AxisSpec] = []
@@ -195,7 +203,7 @@ class Campaign:
 
     def run(self, index: int, point: tuple[int, ...], replicate: int) -> RunSpec:
         spec = self.spec
-        seed = int(np.random.SeedSequence(spec.seed, spawn_key=(index,)).generate_state(1)[0])
+        seed = replicate_seed(spec.seed, replicate)
         rng = np.random.default_rng(np.random.SeedSequence(spec.seed, spawn_key=(index, 1)))
         settings = list(spec.set.items())
         columns: list[tuple[str, Any]] = []
@@ -216,6 +224,11 @@ class Campaign:
             self.base.source,
             spec.bus == "in-process",
         )
+
+
+def replicate_seed(campaign_seed: int, replicate: int) -> int:
+    """The scenario seed of every run of a replicate (common random numbers across the grid)."""
+    return int(np.random.SeedSequence(campaign_seed, spawn_key=(REPLICATE_KEY, replicate)).generate_state(1)[0])
 
 
 def _cell(value: Any) -> Any:
