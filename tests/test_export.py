@@ -545,3 +545,10 @@ def test_exports_stream_in_bounded_memory(tmp_path, monkeypatch):
             per_tick = 1 if fmt in ("csv", "parquet") else 8  # SYNC, 3 sensors, 2 estimators x 2 frames
             assert result.count == per_tick * ticks, (fmt, result.count)
         assert peaks[1] < 1.25 * peaks[0] + 512 * 1024, (fmt, peaks)
+
+
+def test_the_command_line_offers_every_export_format():
+    from cosim.analysis.export import FORMATS
+    from cosim.cli.logs import EXPORT_FORMATS
+
+    assert sorted(EXPORT_FORMATS) == sorted(FORMATS)

@@ -1,4 +1,4 @@
-"""``cosim monitor``: the decoded signals of a running co-simulation, live."""
+"""``cosim monitor``: the decoded signals of a running co-simulation, or of any bus with a DBC, live."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from rich.text import Text
 from cosim.bus import registry
 from cosim.bus.client import Client
 from cosim.bus.codec import Decoded
+from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
 
 
@@ -23,14 +24,18 @@ def _table(latest: dict[str, Decoded], header: str) -> Group:
     for name in sorted(latest, key=lambda n: latest[n].spec.frame_id):
         decoded = latest[name]
         units = {signal: channel.unit for channel, signal in zip(decoded.spec.channels, decoded.spec.signals)}
-        signals = "  ".join(
-            f"{key}={value:.6g}{(' ' + units[key]) if units.get(key) else ''}"
-            if isinstance(value, float)
-            else f"{key}={value}"
-            for key, value in decoded.values.items()
-        )
-        table.add_row(name, decoded.spec.sender, str(decoded.tick), signals)
+        table.add_row(name, decoded.spec.sender, str(decoded.tick), _values(decoded.values, units))
     return Group(Text(header), table)
+
+
+def _values(values: dict[str, Any], units: dict[str, str | None]) -> str:
+    """A message's signals in a line: name=value unit."""
+    return "  ".join(
+        f"{key}={value:.6g}{(' ' + units[key]) if units.get(key) else ''}"
+        if isinstance(value, float)
+        else f"{key}={value}"
+        for key, value in values.items()
+    )
 
 
 def find_run(run: str | None, command: str) -> dict[str, Any]:
@@ -69,3 +74,55 @@ def monitor(run: str | None, console: Console) -> int:
         except KeyboardInterrupt:
             pass
     return 0
+
+
+def watch(dbc: str, interface: str, channel: str | None, port: int | None, console: Console) -> int:
+    """Show the frames of any bus decoded with the DBC file ``dbc`` (any DBC: a bench's, or one from
+    ``cosim dbc``) until Ctrl-C; frames the database does not know are counted."""
+    import cantools
+
+    if not channel:
+        raise CosimError("--dbc: say which bus with --channel (a multicast group, a CAN interface such as vcan0)")
+    if interface == "udp_multicast" and port is None:
+        raise CosimError("--dbc on udp_multicast: say which port with --port (cosim run prints it)")
+    try:
+        database = cantools.database.load_file(dbc, database_format="dbc", strict=False)
+    except (OSError, cantools.database.UnsupportedDatabaseFormatError, ValueError) as error:
+        raise CosimError(f"--dbc {dbc}: cannot read it as a DBC database ({str(error).splitlines()[0]})") from None
+    config = BusConfig(interface, channel, port, fd=True)
+    header = f"{dbc} on {config.describe()}"
+    latest: dict[str, tuple[Any, dict[str, Any]]] = {}
+    frames = unknown = 0
+    started, shown = time.monotonic(), 0.0
+    bus = open_bus(config)
+    try:
+        with Live(_signals(latest, header), console=console, refresh_per_second=5, transient=False) as live:
+            while True:
+                for frame in drain(bus, 0.1):
+                    frames += 1
+                    try:
+                        message = database.get_message_by_frame_id(frame.arbitration_id)
+                        latest[message.name] = (message, message.decode(frame.data, decode_choices=False))
+                    except (KeyError, ValueError, cantools.database.DecodeError):
+                        unknown += 1
+                now = time.monotonic()
+                if now - shown > 0.2:
+                    shown = now
+                    rate = frames / max(now - started, 1e-9)
+                    live.update(_signals(latest, f"{header}   {frames} frames ({unknown} unknown), {rate:,.0f}/s"))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.shutdown()
+    return 0
+
+
+def _signals(latest: dict[str, tuple[Any, dict[str, Any]]], header: str) -> Group:
+    table = Table(box=None, header_style="bold", pad_edge=False)
+    for column in ("message", "id", "sender", "signals"):
+        table.add_column(column)
+    for name in sorted(latest, key=lambda n: latest[n][0].frame_id):
+        message, values = latest[name]
+        units = {signal.name: signal.unit for signal in message.signals}
+        table.add_row(name, f"{message.frame_id:03X}", ", ".join(message.senders), _values(values, units))
+    return Group(Text(header), table)

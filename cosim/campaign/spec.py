@@ -42,6 +42,7 @@ import itertools
 import json
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -242,10 +243,17 @@ def builtin_names() -> list[str]:
     return scenario_files(BUILTIN_DIR)
 
 
-def load_campaign(name_or_path: str | Path) -> Campaign:
+def load_campaign(
+    name_or_path: str | Path, *, seeds: int | None = None, settings: Sequence[tuple[str, Any]] = ()
+) -> Campaign:
     """A built-in campaign by name, or a campaign file; every grid point is validated against the
-    base scenario before anything runs (one error naming the field, like a scenario's)."""
+    base scenario before anything runs (one error naming the field, like a scenario's).
+
+    ``seeds`` replaces the file's, ``settings`` (``--set KEY=VALUE``) join its ``[set]``: the
+    campaign's text (stored in its folder, compared on ``--resume``) is the file so changed."""
     text, source, path = read_toml_file(str(name_or_path), BUILTIN_DIR, "campaign")
+    if seeds is not None or settings:
+        text = _changed(text, source, seeds, settings)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
@@ -265,6 +273,24 @@ def load_campaign(name_or_path: str | Path) -> Campaign:
     campaign = Campaign(spec, source, text, base)
     _check_settings(campaign)
     return campaign
+
+
+def _changed(text: str, source: str, seeds: int | None, settings: Sequence[tuple[str, Any]]) -> str:
+    """The campaign file's text with the command line's seeds and settings, its comments kept."""
+    import tomlkit
+    from tomlkit.exceptions import TOMLKitError
+
+    try:
+        document = tomlkit.parse(text)
+    except TOMLKitError as error:
+        raise ScenarioError(f"{source}: invalid TOML: {error}") from None
+    if seeds is not None:
+        document["seeds"] = seeds
+    if settings:
+        table = document.setdefault("set", tomlkit.table())
+        for key, value in settings:
+            table[key] = value
+    return tomlkit.dumps(document)
 
 
 def _check_settings(campaign: Campaign) -> None:

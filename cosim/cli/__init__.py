@@ -1,0 +1,91 @@
+"""The ``cosim`` command line: one module per family of commands, each registering its own.
+
+``run`` (``run``, ``node``, ``monitor``), ``replay``, ``logs`` (``inspect``, ``plot``, ``report``,
+``export``, ``layout``, ``recover``), ``campaign`` (``campaign``, ``campaigns``, ``leaderboard``) and
+``scenario`` (``scenarios``, ``kinds``, ``dbc``, ``fmu``); ``common`` holds what they share.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from rich.markup import escape
+
+from cosim import __version__
+from cosim.cli import campaign, common, logs, replay, run, scenario
+from cosim.errors import CosimError
+
+EXAMPLES = """\
+examples:
+  cosim run                          run the default scenario (masses-bias)
+  cosim run masses-bias --seed 3     a built-in scenario with another seed
+  cosim run my.toml --out my.mcap    a scenario file of your own
+  cosim run vessel-nominal --mode realtime --foxglove   watch it in Foxglove (ws://127.0.0.1:8765)
+  cosim run --json -q                a machine-readable summary of the run on standard output
+  cosim run masses-bias --set duration=5 --set 'faults[0].value=[0.5, 0, 0]'
+  cosim scenarios [--json]           list the built-in scenarios
+  cosim kinds                        the estimators, controllers, faults and plants a scenario can name
+  cosim inspect latest               summarize the newest log in runs/
+  cosim campaign masses-bias-sweep --out runs/sweep   many runs on a local Dask cluster
+  cosim leaderboard runs/sweep/results.parquet --html board.html
+  cosim inspect runs/my.mcap --json  summarize a log for other tools
+  cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
+  cosim fmu masses-bias --out plant.fmu   the scenario's plant with its faults as an FMU
+  cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, asc, trc, candump)
+  cosim layout runs/my.mcap --out my-layout.json   a Foxglove layout for the log (or for a scenario)
+  cosim plot runs/my.mcap --format pdf   the figures, for a paper (png, svg or pdf)
+  cosim replay runs/my.mcap -e kalman  feed the log's bus traffic to one of its estimators again
+  cosim report runs/my.mcap          one self-contained HTML page: scenario, metrics, figures
+  cosim monitor                      watch the running co-simulation's signals live
+  cosim replay runs/my.mcap --foxglove   play a log into Foxglove at its pace
+"""
+
+#: The command families, in the order ``cosim --help`` lists their commands.
+FAMILIES = (run, scenario, logs, replay, campaign)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cosim",
+        description="Co-simulation testbed for fault-tolerant state estimation: a MuJoCo plant, injected "
+        "faults, sensor readings and estimates as CAN frames, everything logged to MCAP.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"cosim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for family in FAMILIES:
+        family.register(sub)
+    return parser
+
+
+def _feature(args: argparse.Namespace) -> str:
+    """The command as the user gave it, for messages: ``cosim export --to mf4``."""
+    feature = f"cosim {args.command}"
+    if getattr(args, "to", None):
+        feature += f" --to {args.to}"
+    if getattr(args, "foxglove", None) is not None:
+        feature += " --foxglove"
+    return feature
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except CosimError as error:
+        common.error_console().print(f"[red]error:[/red] {escape(str(error))}")
+        return 1
+    except ImportError as error:  # a package of an optional extra that is not installed
+        from cosim.extras import missing_extra
+
+        missing = missing_extra(error, _feature(args))
+        if missing is None:
+            raise
+        common.error_console().print(f"[red]error:[/red] {escape(str(missing))}")
+        return 1
+    except OSError as error:  # the log or DBC cannot be written, a path is a directory, ...
+        common.error_console().print(f"[red]error:[/red] {escape(str(error))}")
+        return 1
+    except KeyboardInterrupt as interrupt:
+        return common.exit_code(interrupt)

@@ -1,0 +1,240 @@
+"""What the commands share: the console, argument types and option groups, progress display, and
+how an output's default name is chosen and an existing file is kept."""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import signal
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.markup import escape
+
+from cosim.errors import CosimError
+
+
+def console(stderr: bool = False, quiet: bool = False) -> Console:
+    """The console commands talk on; ``quiet``: nothing but errors (``-q``)."""
+    return Console(stderr=stderr, highlight=False, soft_wrap=True, quiet=quiet)
+
+
+def error_console() -> Console:
+    return console(stderr=True)
+
+
+def print_json(value) -> None:
+    import orjson
+
+    sys.stdout.write(orjson.dumps(value, option=orjson.OPT_INDENT_2).decode() + "\n")
+
+
+def warn(talk: Console, warnings) -> None:
+    for warning in warnings:
+        talk.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+
+
+def check_scenario_name(name: str | None) -> None:
+    """A scenario argument that is neither a file nor a built-in scenario: the error says which
+    built-in names are near it."""
+    from cosim import scenario
+
+    if name is None or Path(name).exists() or name in scenario.builtin_names():
+        return
+    near = difflib.get_close_matches(name, scenario.builtin_names(), n=3, cutoff=0.6)
+    hint = f"did you mean {' or '.join(near)}? " if near else ""
+    kind = "file" if name.endswith(".toml") or "/" in name else "built-in scenario"
+    raise CosimError(f"no {kind} {name!r}: {hint}('cosim scenarios' lists the built-in ones)")
+
+
+def load_scenario(name: str | None, settings: list[str] | None, seed: int | None = None):
+    """A scenario by name or file, with the command line's ``--set`` (and ``--seed``) applied."""
+    from cosim import scenario
+
+    check_scenario_name(name)
+    changes = [scenario.parse_setting(text) for text in settings or []]
+    changes += [("seed", seed)] if seed is not None else []
+    return scenario.apply(scenario.load(name), changes)
+
+
+def refuse(args: argparse.Namespace, flags: tuple[str, ...], why: str) -> None:
+    """CosimError naming the first of ``flags`` the user gave, an option that would do nothing here."""
+    for flag in flags:
+        value = getattr(args, flag.removeprefix("--").replace("-", "_"))
+        if value is not None and value is not False and value != [] and value != "":
+            raise CosimError(f"{flag}: {why}")
+
+
+def interrupted(talk: Console, interrupt: KeyboardInterrupt, where: str = "") -> int:
+    """Ctrl-C (or SIGTERM, raised as KeyboardInterrupt with its signum): said, and the shell's exit code."""
+    talk.print(f"[yellow]interrupted[/yellow]{where}")
+    return exit_code(interrupt)
+
+
+def exit_code(interrupt: KeyboardInterrupt) -> int:
+    return 128 + getattr(interrupt, "signum", signal.SIGINT)
+
+
+def where_the_log_is(out: Path) -> str:
+    return (
+        f"the log up to that point is in {escape(str(out))}"
+        if out.exists()
+        else f"no log was written ({escape(str(out))} does not exist)"
+    )
+
+
+# -- outputs --------------------------------------------------------------------------------------
+
+
+def new_output(given: str | None, default: Path, force: bool) -> Path:
+    """Where a command writes: ``given`` (an existing file only with ``--force``), else ``default``,
+    numbered (``-2``, ``-3``, ...) past the files that exist, so that two runs never share a log."""
+    if given:
+        return unused(Path(given), force)
+    out, number = default, 1
+    while out.exists():
+        number += 1
+        out = default.with_name(f"{default.stem}-{number}{default.suffix}")
+    return out
+
+
+def unused(out: Path, force: bool) -> Path:
+    """``out``, which must not exist unless ``--force`` was given."""
+    if out.exists() and not force and not out.is_dir():
+        raise CosimError(f"{out} exists: choose another file, or pass --force to replace it")
+    return out
+
+
+def stamp() -> str:
+    """The time in a default file name, to the second."""
+    return time.strftime("%Y%m%d-%H%M%S")
+
+
+def latest_log(name: str | None) -> str:
+    """``latest`` (or nothing): the newest log under ``runs/``; anything else is a path."""
+    if name not in (None, "latest"):
+        return name
+    logs = sorted(Path("runs").glob("*.mcap"), key=lambda p: p.stat().st_mtime)
+    if not logs:
+        raise CosimError("no logs in runs/ ('latest' is the newest runs/*.mcap): give the log's path")
+    return str(logs[-1])
+
+
+# -- argument types -------------------------------------------------------------------------------
+
+
+def _integer(text: str, what: str = "an integer") -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+
+
+def positive(text: str) -> int:
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: give at least 1")
+    return value
+
+
+def seed(text: str) -> int:
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; seeds are >= 0")
+    return value
+
+
+def port(text: str) -> int:
+    value = _integer(text, "a port number")
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{value}: ports are 0-65535 (0: a free one)")
+    return value
+
+
+def dpi(text: str) -> int:
+    value = positive(text)
+    if value > 2400:
+        raise argparse.ArgumentTypeError(f"{value}: at most 2400 dots per inch")
+    return value
+
+
+# -- option groups --------------------------------------------------------------------------------
+
+INTERFACES = ("udp_multicast", "socketcan", "virtual")
+
+
+def bus_options(p: argparse.ArgumentParser, default: str) -> None:
+    """--interface, --channel, --port: where the bus is."""
+    p.add_argument("--interface", choices=INTERFACES, help=f"bus transport (default: {default})")
+    p.add_argument(
+        "--channel", help="bus channel: multicast group, CAN interface or virtual channel (default: a fresh one)"
+    )
+    p.add_argument("--port", type=port, help="udp_multicast port (default: a free one)")
+
+
+def set_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="change the scenario: KEY a path into it (duration, faults[0].value, estimators[1].params.epsilon, "
+        'bus.fd), VALUE in TOML (5, [0.5, 0, 0], "text", true); repeat for several; validated like the file',
+    )
+
+
+def quiet_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors and the result's path")
+
+
+def force_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", "-f", action="store_true", help="replace the output file if it exists")
+
+
+def foxglove_options(p: argparse.ArgumentParser, help: str) -> None:
+    p.add_argument("--foxglove", nargs="?", const=8765, type=port, metavar="PORT", help=help)
+    p.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="--foxglove: the address to serve on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)",
+    )
+
+
+def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None):
+    from cosim.log.live import FoxgloveSink
+
+    return FoxgloveSink(args.foxglove, host=args.foxglove_host, start_ns=start_ns, feature=feature)
+
+
+# -- progress -------------------------------------------------------------------------------------
+
+
+def with_progress(run, talk: Console, started, **execute):
+    """``run.execute`` with a progress bar of its ticks (on ``talk``: none when it is quiet)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    if talk.quiet:
+        return run.execute(on_start=started, **execute)
+    columns = (
+        TextColumn("[progress.description]{task.description}"),
+        BarColumn(),
+        TextColumn("t = {task.fields[sim]:>7.2f} s"),
+        TextColumn("{task.fields[rtf]:>6.1f}x real time"),
+        TextColumn("{task.fields[frames]:>8d} frames"),
+        TimeRemainingColumn(),
+    )
+    progress = Progress(*columns, console=talk, transient=False)
+    task = progress.add_task("simulating", total=run.scenario.ticks, sim=0.0, rtf=0.0, frames=0)
+
+    def update(p) -> None:
+        if not progress.live.is_started:  # drawn from the first tick on: no empty bar before an error
+            progress.start()
+        progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)
+
+    try:
+        return run.execute(update, on_start=started, **execute)
+    finally:
+        if progress.live.is_started:
+            progress.stop()

@@ -1,0 +1,270 @@
+"""``cosim run``, ``cosim node`` and ``cosim monitor``: a co-simulation on a live bus."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from rich.console import Console
+from rich.markup import escape
+
+from cosim.cli import common
+from cosim.errors import CosimError
+
+
+def register(sub) -> None:
+    _register_run(sub)
+    _register_node(sub)
+    _register_monitor(sub)
+
+
+def _register_run(sub) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run a scenario and log it to MCAP",
+        description="Run a scenario: simulate the plant, "
+        "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.",
+    )
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        metavar="SCENARIO",
+        help="built-in scenario name or path to a TOML file (default: masses-bias)",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        metavar="FILE.mcap",
+        help="where to write the log (default: runs/<scenario>-seed<N>-<time>.mcap, numbered if it exists)",
+    )
+    common.force_option(p)
+    p.add_argument(
+        "--seed", type=common.seed, metavar="N", help="random seed for noise and faults, >= 0 (default: the scenario's)"
+    )
+    common.bus_options(p, "the scenario's, udp_multicast unless it says otherwise")
+    p.add_argument(
+        "--allow-network",
+        action="store_true",
+        help="udp_multicast: allow a --channel whose frames leave this host (link-local or wider group)",
+    )
+    p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
+    p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
+    common.set_option(p)
+    common.quiet_option(p)
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the run's summary as JSON on standard output (path, status, ticks, frames, lost, "
+        "real-time factor, ...) instead of the log's path",
+    )
+    common.foxglove_options(
+        p,
+        "serve the run live over the Foxglove WebSocket protocol on PORT (default 8765; 0: a free "
+        "one) and wait up to [timing] join_timeout for Foxglove to subscribe before tick 0 (not counted in the "
+        "run's timing)",
+    )
+    p.set_defaults(func=cmd_run)
+
+
+def _register_node(sub) -> None:
+    p = sub.add_parser(
+        "node",
+        help="run one estimator (or the controller) as a CAN node",
+        description="Run one estimator, "
+        "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
+        "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
+        "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger).",
+    )
+    p.add_argument("estimator", metavar="NAME", help="the estimator's name in the scenario, or 'controller'")
+    p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
+    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
+    p.set_defaults(func=cmd_node)
+
+
+def _register_monitor(sub) -> None:
+    p = sub.add_parser(
+        "monitor",
+        help="show a bus's decoded signals live",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Show decoded signals live, message by message: of a running co-simulation (the only one, or\n"
+        "--run ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log\n"
+        "written by another tool).",
+        epilog="examples:\n  cosim monitor\n  cosim monitor --run 3f2a\n"
+        "  cosim monitor --dbc bus.dbc --interface socketcan --channel vcan0\n"
+        "  cosim monitor --dbc bus.dbc --channel 239.74.163.2 --port 43113",
+    )
+    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
+    p.add_argument("--dbc", metavar="FILE.dbc", help="decode any bus with this database (with --interface, --channel)")
+    common.bus_options(p, "udp_multicast, with --dbc")
+    p.set_defaults(func=cmd_monitor)
+
+
+def _check_options(args: argparse.Namespace, s) -> None:
+    """Options that would do nothing with the scenario as it runs are errors, not ignored."""
+    mode = args.mode or s.timing.mode
+    if args.speed is not None and mode != "realtime":
+        raise CosimError(
+            f"--speed {args.speed:g}: only in realtime mode (add --mode realtime); {s.name} runs in {mode}, "
+            "as fast as its nodes answer"
+        )
+    interface = args.interface or s.bus.interface
+    if args.port is not None and interface != "udp_multicast":
+        raise CosimError(f"--port: only for the udp_multicast interface, not {interface}")
+
+
+def summary(result, out: Path, error: str = "") -> dict:
+    """``cosim run --json``: the run's summary."""
+    if result is None:
+        return {"path": str(out) if out.exists() else None, "status": "error", "error": error}
+    return {
+        "path": str(result.path),
+        "status": result.status,
+        "ticks": result.ticks,
+        "frames": result.frames,
+        "lost": result.frames_lost,
+        "deadline_misses": result.deadline_misses,
+        "sim_time_s": result.sim_time,
+        "wall_time_s": round(result.wall_time, 3),
+        "realtime_factor": round(result.realtime_factor, 3),
+        "error": result.error or error,
+    }
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from cosim.run import Run
+
+    loaded = common.load_scenario(args.scenario, args.set)
+    seed = loaded.scenario.seed if args.seed is None else args.seed
+    default = Path("runs") / f"{loaded.scenario.name}-seed{seed}-{common.stamp()}.mcap"
+    out = common.new_output(args.out, default, args.force)
+    _check_options(args, loaded.scenario)
+    run = Run(
+        loaded,
+        out,
+        args.seed,
+        interface=args.interface,
+        channel=args.channel,
+        port=args.port,
+        mode=args.mode,
+        speed=args.speed,
+        allow_network=True if args.allow_network else None,
+    )
+    talk = common.console(stderr=True, quiet=args.quiet)
+    s = run.scenario
+    timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
+    talk.print(
+        f"[bold]{escape(s.name)}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {s.seed}, "
+        f"{timing}; estimators: {', '.join(run.estimators) or 'none'} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
+    )
+    common.warn(common.error_console() if args.quiet else talk, run.warnings)
+    sink = common.foxglove_sink(args, "cosim run --foxglove") if args.foxglove is not None else None
+    try:
+        result = common.with_progress(run, talk, lambda run: _started(run, talk, sink), sink=sink)
+    except KeyboardInterrupt as interrupt:
+        r = run.result
+        done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
+        common.error_console().print(f"[yellow]interrupted{done}[/yellow]; {common.where_the_log_is(out)}")
+        if args.json:
+            common.print_json(summary(r, out))
+        return common.exit_code(interrupt)
+    except CosimError as error:
+        common.error_console().print(f"[red]error:[/red] {escape(str(error))}\n{common.where_the_log_is(out)}")
+        if args.json:
+            common.print_json(summary(run.result, out, str(error)))
+        return 1
+    finally:
+        if sink is not None:
+            sink.close()
+    _report(result, s, talk)
+    if args.json:
+        common.print_json(summary(result, out))
+    else:
+        print(out)
+    return 0
+
+
+def _started(run, talk: Console, sink) -> None:
+    """Said once the nodes are started: where the bus is, and what the run waits for."""
+    s = run.scenario
+    talk.print(f"run {run.run_id} on {joining(run.bus)}")
+    if sink is not None:
+        wait = s.timing.join_timeout
+        pace = "" if s.timing.mode == "realtime" else " (lockstep runs faster than real time: --mode realtime paces it)"
+        talk.print(
+            f"Foxglove: open connection {sink.url} (Foxglove WebSocket), or {sink.app_url()}; "
+            f"waiting up to {wait:g} s for it to subscribe{pace}"
+        )
+        interrupts = run.session.interrupts
+        if not sink.wait_for_viewer(wait, interrupted=lambda: interrupts.requested is not None):
+            talk.print("[yellow]no Foxglove client subscribed; running anyway[/yellow]")
+    external = [c.name for c in s.clients] + [e.name for e in s.estimators if e.external]
+    external += ["controller"] if s.controller is not None and s.controller.external else []
+    if external:
+        talk.print(
+            f"waiting up to {s.timing.join_timeout:g} s for {', '.join(external)} to join "
+            f"(cosim node NAME --run {run.run_id}, or your client)"
+        )
+
+
+def joining(bus) -> str:
+    """Where a bus is, and how another program joins it."""
+    if bus.interface == "virtual":
+        return f"{bus.describe()} (in this process: no other program can join it)"
+    return f"{bus.describe()}   join with: {escape(bus.python_can())}"
+
+
+def _report(result, s, talk: Console) -> None:
+    misses = f", {result.deadline_misses} deadline misses" if s.timing.mode == "realtime" else ""
+    talk.print(
+        f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "
+        f"{result.wall_time:.2f} s (real-time factor {result.realtime_factor:.1f})"
+    )
+    for name, counts in result.senders.items():
+        if counts["lost"] or counts["runner_frames_missed"]:
+            talk.print(
+                f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
+                f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]"
+            )
+
+
+def cmd_node(args: argparse.Namespace) -> int:
+    # A node never reads or writes MF4 files, but python-can's first import loads its MF4 support,
+    # asammdf with pandas, where the export extra is installed: a second of every node's start-up.
+    # Kept out of that import, python-can leaves MF4 out (as where asammdf is not installed);
+    # asammdf itself stays importable afterwards (cosim's MF4 export uses it directly).
+    hidden = "asammdf" not in sys.modules and "can" not in sys.modules
+    if hidden:
+        sys.modules["asammdf"] = None  # type: ignore[assignment]
+    try:
+        from cosim.run.node import load_spec, serve
+    finally:
+        if hidden and sys.modules.get("asammdf", False) is None:
+            del sys.modules["asammdf"]
+
+    if args.spec:
+        spec = load_spec(args.spec)
+        if spec.name != args.estimator:
+            raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
+    else:
+        from cosim.bus.monitor import find_run
+        from cosim.run.node import NodeSpec
+
+        info = find_run(args.run, f"cosim node {args.estimator}")
+        if args.estimator not in info.get("nodes", {}):
+            raise CosimError(
+                f"the running co-simulation ({info['scenario']}) expects no external node {args.estimator!r}; "
+                f"mark it 'external = true' in the scenario's [[estimators]] (or [controller]) to start it by hand"
+            )
+        spec = NodeSpec.from_json(info["nodes"][args.estimator])
+    return serve(spec)
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from cosim.bus import monitor
+
+    if args.dbc is None:
+        common.refuse(args, ("--interface", "--channel", "--port"), "only with --dbc (a run's bus is found by --run)")
+        return monitor.monitor(args.run, common.console())
+    common.refuse(args, ("--run",), "not with --dbc, which watches the bus --interface and --channel name")
+    return monitor.watch(args.dbc, args.interface or "udp_multicast", args.channel, args.port, common.console())
