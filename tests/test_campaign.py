@@ -293,9 +293,13 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["leaderboard", str(inline_table.path), "--by", "bias", "--markdown"]) == 0
-    tables = [line for line in out.getvalue().splitlines() if line.startswith("| 1 |") or line.startswith("| 2 |")]
+    tables = [line for line in out.getvalue().splitlines() if line.startswith(("| 1 |", "| 2 |", "| =1 |", "| =2 |"))]
     ranked = [s["estimator"] for g in board["groups"] for s in g["ranking"]]
     assert [line.split(" | ")[1] for line in tables] == ranked
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["leaderboard", str(inline_table.path)]) == 0
+    assert "RMS p50 [mixed units]" in out.getvalue()  # the unit of the table (the masses: m and m/s)
 
 
 def test_run_takes_settings_from_the_command_line(tmp_path):
@@ -338,3 +342,28 @@ def test_docs_define_every_column_of_the_table():
     defined = {row[0].strip("`"): row[1:3] for row in rows}
     for name, (kind, unit, _) in COLUMNS.items():
         assert defined.get(name) == [kind, "state" if unit == "state" else unit], f"docs/campaigns.md: {name}"
+
+
+def test_seeds_and_settings_from_the_command_line_change_the_stored_file(tmp_path):
+    path = write(tmp_path, "# my sweep\n" + TINY)
+    campaign = load_campaign(path, seeds=3, settings=[("duration", 0.5), ("faults[0].start", 0.2)])
+    assert campaign.spec.replicates == [0, 1, 2] and campaign.size == 2 * 3
+    assert campaign.spec.set["duration"] == 0.5 and campaign.spec.set["faults[0].start"] == 0.2
+    assert campaign.text.startswith("# my sweep\n") and "seeds = 3" in campaign.text
+    assert load_campaign(write(tmp_path, campaign.text, "again.toml")).spec == campaign.spec
+    with pytest.raises(ScenarioError, match="duration"):
+        load_campaign(path, settings=[("duration", -1.0)])
+
+
+def test_the_text_leaderboard_shows_intervals_final_error_units_and_ties(tmp_path, capsys):
+    rng = np.random.default_rng(4)
+    worse = 0.05 + 0.01 * rng.standard_normal(20)
+    same = worse + 0.005 * rng.choice([-1.0, 1.0], 20)
+    table = synthetic_table(tmp_path / "t.parquet", {"worse": list(worse), "same": list(same)})
+    assert main(["leaderboard", str(table)]) == 0
+    out = capsys.readouterr().out
+    assert "95 % interval" in out and "final p50" in out and "vs next" in out
+    lines = {line.split()[1]: line for line in out.splitlines() if line.strip()[:2] in ("1 ", "=2")}
+    assert set(lines) == {"base", "worse", "same"}
+    assert "> +0.0474 p 3.8e-06 (20)" in lines["base"] and "= +0.005 p 0.73 (20)" in lines["same"]
+    assert lines["worse"].lstrip().startswith("=2") and lines["same"].lstrip().startswith("=2")

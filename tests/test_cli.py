@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 from contextlib import redirect_stdout
+from pathlib import Path
 
 import pytest
 
@@ -164,3 +165,61 @@ def test_monitor_with_two_runs_names_the_option_that_chooses(tmp_path, capsys, m
         assert main(["monitor"]) == 1
     err = capsys.readouterr().err
     assert "2 co-simulations are running" in err and "choose one with --run ID (e.g. cosim monitor --run" in err
+
+
+def test_default_log_names_never_collide_and_an_existing_log_needs_force(tmp_path, monkeypatch, capsys):
+    from cosim.cli import common
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(common, "stamp", lambda: "20261126-120000")  # two runs within one second
+    quick = ["run", "--interface", "virtual", "--set", "duration=0.1", "-q"]
+    assert main(quick) == 0 and main(quick) == 0
+    first, second = capsys.readouterr().out.split()
+    assert first != second and Path(first).exists() and Path(second).exists()
+    assert Path(second).stem == Path(first).stem + "-2"
+    size = Path(first).stat().st_size
+    assert main([*quick, "--out", first]) == 1
+    assert f"{first} exists: choose another file, or pass --force to replace it" in capsys.readouterr().err
+    assert Path(first).stat().st_size == size
+    assert main([*quick, "--out", first, "--force"]) == 0
+
+
+def test_quiet_prints_nothing_but_the_path(tmp_path, capsys):
+    out = tmp_path / "q.mcap"
+    quick = ["run", "--interface", "virtual", "--set", "duration=0.1", "--set", "faults[0].start=0.05", "-q"]
+    assert main([*quick, "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and captured.out == f"{out}\n"
+    assert (
+        main(["run", "--interface", "virtual", "--set", "duration=0.1", "-q", "--out", str(tmp_path / "w.mcap")]) == 0
+    )
+    assert capsys.readouterr().err.startswith("warning: faults[0] (bias) starts at 5 s")  # warnings still say
+
+
+def test_a_virtual_bus_is_not_offered_to_other_programs(tmp_path, capsys):
+    assert main(["run", "--interface", "virtual", "--set", "duration=0.1", "--out", str(tmp_path / "v.mcap")]) == 0
+    err = capsys.readouterr().err
+    assert "no other program can join it" in err and "can.Bus(" not in err
+    assert err.count("\n") <= 5  # header, bus, progress, done
+
+
+def test_latest_is_the_newest_log_in_runs(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["inspect", "latest"]) == 1
+    assert "no logs in runs/" in capsys.readouterr().err
+    assert main(["run", "--interface", "virtual", "--set", "duration=0.2", "-q"]) == 0
+    newest = capsys.readouterr().out.strip()
+    assert main(["inspect", "--json"]) == 0 and main(["inspect", "latest", "--json"]) == 0
+    first, second = capsys.readouterr().out.split("\n}\n", 1)
+    assert json.loads(first + "}")["file"] == json.loads(second)["file"] == newest
+
+
+def test_kinds_lists_every_group_with_its_origin(capsys):
+    assert main(["kinds", "--json"]) == 0
+    listing = json.loads(capsys.readouterr().out)
+    assert set(listing) == {"cosim.estimators", "cosim.controllers", "cosim.faults", "cosim.plants"}
+    kalman = next(e for e in listing["cosim.estimators"] if e["name"] == "kalman")
+    assert kalman == {"name": "kalman", "source": "built-in", "target": "estimators.kalman:KalmanFilter"}
+    assert {e["name"] for e in listing["cosim.plants"]} >= {"masses", "three_tank", "vessel"}
+    assert main(["kinds"]) == 0
+    assert "observers.py:MyObserver" in capsys.readouterr().out

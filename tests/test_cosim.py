@@ -418,3 +418,40 @@ def test_nodes_exit_when_the_runner_is_killed_outright(tmp_path):
         return state == "Z"  # exited, waiting to be reaped by init
 
     wait_for(lambda: all(gone(pid) for pid in children), timeout=10)
+
+
+def test_monitor_decodes_any_bus_with_a_dbc(tmp_path):
+    """No co-simulation registered: a bus named by its channel and port, frames decoded by a DBC file."""
+    from cosim.bus.transport import open_bus
+
+    dbc = tmp_path / "bus.dbc"
+    assert subprocess.run([sys.executable, "-m", "cosim.cli", "dbc", "--out", str(dbc)]).returncode == 0
+    codec = scenario.load().scenario.codec()
+    config = allocate("udp_multicast")
+    monitor = cli(
+        "monitor",
+        "--dbc",
+        str(dbc),
+        "--channel",
+        config.channel,
+        "--port",
+        str(config.port),
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    time.sleep(1.0)  # its socket joins the group
+    bus = open_bus(config)
+    try:
+        for tick in range(40):
+            bus.send(codec.encode("SENSOR_x1", tick, [0.25]))
+            bus.send(can.Message(arbitration_id=0x7AB, data=b"\x01", is_extended_id=False))  # not in the DBC
+            time.sleep(0.05)
+    finally:
+        bus.shutdown()
+    monitor.send_signal(signal.SIGINT)
+    out, err = monitor.communicate(timeout=30)
+    assert monitor.returncode == 0, err
+    assert "SENSOR_x1" in out and "x1=0.25 m" in out and "unknown" in out
+    refused = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "monitor", "--dbc", str(dbc)], capture_output=True, text=True
+    )
+    assert refused.returncode == 1 and "--channel" in refused.stderr

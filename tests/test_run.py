@@ -395,3 +395,15 @@ def test_a_non_finite_effective_input_stops_the_run_with_a_clear_error(tmp_path,
     with pytest.raises(CosimError, match=r"actuator force: the effective input at tick 101 is not finite"):
         run(scenario.load(path), tmp_path / "blowup.mcap")
     assert inspect_json(tmp_path / "blowup.mcap")["status"] == "error"
+
+
+def test_a_wait_before_tick_0_does_not_count_in_the_real_time_factor(tmp_path, default_loaded):
+    """A viewer's wait (cosim run --foxglove) happens before tick 0: the run's pace is its ticks'."""
+    loaded = scenario.apply(default_loaded, [("duration", 0.5)])
+    seen = []
+    result = Run(loaded, tmp_path / "w.mcap", interface="virtual").execute(
+        seen.append, progress_every=0.0, on_start=lambda run: time.sleep(1.0)
+    )
+    assert result.wall_time > 1.0 > result.loop_time
+    assert result.realtime_factor == pytest.approx(result.sim_time / result.loop_time)
+    assert seen and all(p.wall_time < 1.0 for p in seen)

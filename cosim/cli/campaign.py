@@ -197,7 +197,7 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     if args.json:
         common.print_json(board)
         return 0
-    render_leaderboard(board, common.console(), markdown=args.markdown)
+    render_leaderboard(board, common.console(wide=True), markdown=args.markdown)
     return 0
 
 
@@ -218,8 +218,8 @@ def _versus(score: dict) -> str:
     comparison = score.get("vs_next")
     if not comparison or comparison.get("median_difference") is None:
         return ""
-    verdict = "tied" if comparison["tied"] else "better"
-    return f"{verdict}: +{comparison['median_difference']:.3g} (p = {comparison['p_holm']:.2g}, {comparison['pairs']})"
+    sign = "=" if comparison["tied"] else ">"
+    return f"{sign} {comparison['median_difference']:+.3g} p {comparison['p_holm']:.2g} ({comparison['pairs']})"
 
 
 def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]]:
@@ -258,8 +258,9 @@ def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]
 
 LEGEND = (
     "RMS of the estimation error after the first fault's onset, median over runs with its 95 % bootstrap interval; "
-    "final: the error at the last tick; vs next: the next estimator's median paired excess (+) over this one on "
-    "their common runs, Holm-adjusted Wilcoxon p and the number of pairs; = : ranks not told apart (p >= 0.05)"
+    "final: the error at the last tick; vs next: > told apart from the next (=: not), the next estimator's median "
+    "paired excess over this one on their common runs, Holm-adjusted Wilcoxon p and the number of pairs; =2: a "
+    "shared rank"
 )
 
 
@@ -282,7 +283,7 @@ def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> No
         table = Table(title=escape(title), title_justify="left", box=None, header_style="bold")
         headers, rows = leaderboard_rows(group, unit)
         for i, header in enumerate(headers):
-            table.add_column(header, justify="left" if 0 < i < 3 or header == "vs next" else "right")
+            table.add_column(escape(header), justify="left" if 0 < i < 3 or header == "vs next" else "right")
         for row in rows:
             table.add_row(*map(escape, row))
         talk.print(table)

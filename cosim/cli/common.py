@@ -16,9 +16,12 @@ from rich.markup import escape
 from cosim.errors import CosimError
 
 
-def console(stderr: bool = False, quiet: bool = False) -> Console:
-    """The console commands talk on; ``quiet``: nothing but errors (``-q``)."""
-    return Console(stderr=stderr, highlight=False, soft_wrap=True, quiet=quiet)
+def console(stderr: bool = False, quiet: bool = False, wide: bool = False) -> Console:
+    """The console commands talk on; ``quiet``: nothing but errors (``-q``); ``wide``: tables keep
+    their rows whole when written to a file or a pipe (rich would wrap them at 80 columns)."""
+    stream = sys.stderr if stderr else sys.stdout
+    width = 250 if wide and not stream.isatty() else None
+    return Console(stderr=stderr, highlight=False, soft_wrap=True, quiet=quiet, width=width)
 
 
 def error_console() -> Console:

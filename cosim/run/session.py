@@ -117,7 +117,10 @@ class RunResult:
 
     @property
     def realtime_factor(self) -> float:
-        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
+        """Simulated over wall-clock time of the ticks: the start-up (nodes joining, a viewer's
+        wait) is not the run's pace and does not count."""
+        elapsed = self.loop_time if self.loop_time > 0 else self.wall_time
+        return self.sim_time / elapsed if elapsed > 0 else float("inf")
 
 
 def ending(exc: BaseException) -> tuple[str, str]:
@@ -723,7 +726,8 @@ class Session:
 
     def progress(self, k: int, ticks: int) -> Progress:
         """Where the run is after ``k`` ticks."""
-        return Progress(k, ticks, self.time(k)[0], time.perf_counter() - self.start, self.recorder.frames, self.misses)
+        since = self.tick_start if self.tick_start is not None else self.start  # a viewer's wait does not count
+        return Progress(k, ticks, self.time(k)[0], time.perf_counter() - since, self.recorder.frames, self.misses)
 
     # -- the end --------------------------------------------------------------------------------
 
