@@ -43,7 +43,7 @@ def three_tank_figures(path: str | Path) -> dict[str, float]:
     """RMS of ẑ − z per window and estimator (z = H_z y, the fault-free virtual output), and of γ̂:
     the largest deviation from 1 before the first gain fault once the window has filled (50-400 s),
     the largest |γ̂ − γ| from one window after each onset on (450-700 s, 750-1500 s), γ̂ at 1500 s."""
-    from cosim.analysis.plot import load
+    from cosim.analysis.series import load
     from cosim.log.reader import LogReader
 
     with LogReader(path) as reader:
@@ -205,7 +205,7 @@ def check(name: str, figures: dict[str, float]) -> list[str]:
 
 
 def figures_of(name: str, path: str | Path) -> dict[str, float]:
-    from cosim.analysis.plot import load
+    from cosim.analysis.series import load
 
     return three_tank_figures(path) if name == "three-tank-reconciliation" else reproduction_figures(load(path))
 

@@ -23,8 +23,8 @@ def test_plot_writes_the_figures_of_an_adaptive_run(tmp_path: Path, capsys):
 
 
 def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
-    from cosim.analysis.plot import load as load_series
     from cosim.analysis.plot import plot
+    from cosim.analysis.series import load as load_series
     from cosim.scenario import LoadedScenario
 
     log = tmp_path / "uio.mcap"
@@ -60,10 +60,11 @@ def test_figures_come_as_png_svg_or_pdf_with_units_named_legends_and_nothing_cut
         "v2 [m/s]",
         "time t [s]",
         "uniform (pseudoinverse): x̂",
-        "kalman (kalman): x̂",
+        "kalman: x̂",  # an estimator named after its kind is not named twice
         "true state x",
     ):
         assert label in svg, label
+    assert "kalman (kalman)" not in svg
     assert "|x − x̂| (mixes m, m/s)" in (tmp_path / "svg" / "error.svg").read_text()
     assert "faults.fault.x1_minus_x2" in (tmp_path / "svg" / "faults.svg").read_text()
     assert "CreationDate" not in (tmp_path / "pdf" / "error.pdf").read_bytes().decode("latin-1")  # reproducible
@@ -97,3 +98,28 @@ def test_a_closed_loop_without_reconfiguration_does_not_promise_one(tmp_path: Pa
     assert "reconfigur" not in trajectory and "fault" not in trajectory  # it has neither
     for label in ("x [m]", "psi [rad]", "y_dot [m/s]", "r [rad/s]"):
         assert label in trajectory, label
+    path = written["path.svg"].read_text()  # the planar plant's path: y against x
+    for label in ("x [m]", "y [m]", "true path", "y against x"):
+        assert label in path, label
+
+
+def test_log_axes_span_six_decades_and_linear_axes_carry_no_offset():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from cosim.analysis.plot import STYLE, log_floor
+
+    with plt.rc_context(STYLE):
+        fig, (log, linear) = plt.subplots(2)
+        values = np.array([2.0, 1e-3, 1e-16, 0.0])  # a rejected fault's effect falls to rounding
+        log.semilogy(range(4), values)
+        log_floor(log, [values])
+        assert log.get_ylim() == (2e-6, 4.0)
+        linear.plot([0, 1], [1.00031, 1.00032])  # |Γ| near 1: matplotlib would write "+1" and 0.00031
+        fig.canvas.draw()
+        assert linear.yaxis.get_major_formatter().get_offset() == ""
+        assert any(label.get_text().startswith("1.000") for label in linear.get_yticklabels())
+        plt.close(fig)

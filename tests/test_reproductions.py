@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cosim.analysis.plot import bias_effect, load
+from cosim.analysis.series import bias_effect, load
 from cosim.run import Run
 from cosim.scenario import load as load_scenario
 from estimators.base import DiagnosticKind

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.analysis.plot import load
+from cosim.analysis.series import load
 from cosim.log.reader import LogReader
 from cosim.run import run
 from tests.doc_figures import check, three_tank_figures, undocumented
@@ -93,8 +93,9 @@ def test_the_papers_gain_estimator_does_not_converge(series):
 
 
 def test_cosim_plot_draws_the_gain_estimates_against_the_true_gains_and_z_hat_against_z(series, tmp_path):
-    from cosim.analysis.plot import load as load_series
-    from cosim.analysis.plot import plot, true_gains, virtual_output
+    from cosim.analysis.plot import plot
+    from cosim.analysis.series import load as load_series
+    from cosim.analysis.series import true_gains, virtual_output
 
     *_, path = series
     written = {p.name for p in plot(path, tmp_path)}

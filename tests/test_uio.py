@@ -9,7 +9,7 @@ import pytest
 
 import estimators
 from cosim import scenario
-from cosim.analysis.plot import load as load_series
+from cosim.analysis.series import load as load_series
 from cosim.run import run
 from estimators import LinearModel, ParameterError
 from estimators.base import DiagnosticKind

@@ -11,7 +11,8 @@ import pytest
 
 from cosim import scenario
 from cosim.analysis.metrics import compute_metrics
-from cosim.analysis.plot import load, plot
+from cosim.analysis.plot import plot
+from cosim.analysis.series import load
 from cosim.log.reader import LogReader
 from cosim.run import run
 from cosim.scenario import LoadedScenario

@@ -66,6 +66,8 @@ CAPTIONS = {
     "isolations and the controller's reconfiguration.",
     "trajectory": "The true state of the closed loop against time, with fault onsets and the controller's "
     "reconfiguration, if it happened.",
+    "path": "The path in the plane, y against x at equal scales: the true one (black, from the dot) and each "
+    "estimator's.",
 }
 
 
@@ -181,7 +183,8 @@ def _facts(meta: LogMetadata, values: RunMetrics) -> list[tuple[str, str]]:
 def _figures(path: Path) -> tuple[list[dict[str, str]], str, Any]:
     """The figures of ``cosim plot``, inlined, and the series they were drawn from; or a note saying
     why there are none."""
-    from cosim.analysis.plot import load, plot
+    from cosim.analysis.plot import plot
+    from cosim.analysis.series import load
 
     try:
         series = load(path)
