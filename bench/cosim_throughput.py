@@ -38,7 +38,7 @@ import can  # noqa: E402
 
 from cosim import scenario  # noqa: E402
 from cosim.bus.transport import BusConfig, allocate, open_bus  # noqa: E402
-from cosim.run import Run, launcher, session  # noqa: E402
+from cosim.run import Run, launcher, traffic  # noqa: E402
 
 ACK_ID = 0x7FF
 
@@ -96,7 +96,7 @@ class StartupClock:
     def __init__(self) -> None:
         self.spawned: dict[str, float] = {}
         self.joined: dict[str, float] = {}
-        self._originals = (launcher.ProcessNode.__init__, session.Traffic.on_message_received)
+        self._originals = (launcher.ProcessNode.__init__, traffic.Traffic.on_message_received)
 
     def __enter__(self) -> StartupClock:
         spawn, receive = self._originals
@@ -113,11 +113,11 @@ class StartupClock:
                 clock.joined.setdefault(name, time.perf_counter())
 
         launcher.ProcessNode.__init__ = spawning  # type: ignore[method-assign]
-        session.Traffic.on_message_received = receiving  # type: ignore[method-assign]
+        traffic.Traffic.on_message_received = receiving  # type: ignore[method-assign]
         return self
 
     def __exit__(self, *exc: object) -> None:
-        launcher.ProcessNode.__init__, session.Traffic.on_message_received = self._originals  # type: ignore[method-assign]
+        launcher.ProcessNode.__init__, traffic.Traffic.on_message_received = self._originals  # type: ignore[method-assign]
 
     def startup(self) -> dict[str, float]:
         return {name: self.joined[name] - start for name, start in self.spawned.items() if name in self.joined}

@@ -44,7 +44,7 @@ from cosim.bus.codec import Codec  # noqa: E402
 from cosim.bus.transport import allocate, open_bus  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
 from cosim.log.writer import McapLog  # noqa: E402
-from cosim.run import Run, loop, node, session  # noqa: E402
+from cosim.run import Run, loop, node, session, traffic  # noqa: E402
 from cosim.scenario import overrides  # noqa: E402
 from estimators.base import Estimator  # noqa: E402
 
@@ -97,8 +97,8 @@ def instrument(budget: Budget, bus_class: type) -> None:
     w(bus_class, "send", "bus send")
     w(bus_class, "recv", "bus recv")
     w(session.Session, "send", "loop")
-    w(session.Traffic, "on_message_received", "traffic")
-    w(session.Traffic, "flush", "traffic")
+    w(traffic.Traffic, "on_message_received", "traffic")
+    w(traffic.Traffic, "flush", "traffic")
     w(RunRecorder, "frame", "log frames")
     w(RunRecorder, "truth", "log truth")
     w(McapLog, "write", "mcap write")

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from cosim.run.session import Progress, RunResult
+from cosim.run.outcome import Progress, RunResult
 from cosim.scenario import LoadedScenario, apply, load, parse_setting
 
 

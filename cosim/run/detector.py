@@ -10,7 +10,7 @@ and holds no key. Per data id of the DBC it checks:
 - ``range``: a value outside its signal's range in the DBC (or not finite);
 - ``unknown``: a frame on an id outside the run's DBC, one that cannot be one of its frames (another
   length), or one on the runner's own ids that the runner did not send (the echo check of
-  ``cosim.run.session.Traffic``: the owner of an id sees a frame it did not send).
+  ``cosim.run.traffic.Traffic``: the owner of an id sees a frame it did not send).
 
 It never uses what the simulation knows (which frames a fault injected): a fault's intruder sends
 from the runner, so to the ``unknown`` check it is the owner. Each tick's verdict goes to

@@ -32,8 +32,9 @@ from cosim.errors import CosimError
 from cosim.plant import build_plant
 from cosim.run.launcher import ExternalClient, LocalController, LocalNode, ProcessNode
 from cosim.run.node import NodeSpec
+from cosim.run.outcome import Progress, RunResult, ending
 from cosim.run.plan import RunPlan
-from cosim.run.session import Progress, RunResult, Session, ending
+from cosim.run.session import Session
 from cosim.scenario import build_faults, build_waveform
 
 _ENVIRONMENT = 0xE1  # spawn key of the disturbance models' random streams (the faults use others)

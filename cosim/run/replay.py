@@ -54,8 +54,9 @@ from cosim.log.writer import McapLog
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.loop import execute, start_participants
 from cosim.run.node import NodeSpec
+from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan, build_estimators, design_warnings, estimator_record
-from cosim.run.session import Progress, RunResult, Session
+from cosim.run.session import Session
 from cosim.scenario import LoadedScenario, Scenario
 from estimators import LinearModel, ParameterError
 

@@ -22,8 +22,9 @@ from cosim.errors import CodecError, ScenarioError
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
 from cosim.log.writer import LogSink
 from cosim.run.loop import PlantSource, execute, start_participants
+from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan
-from cosim.run.session import Progress, RunResult, Session
+from cosim.run.session import Session
 from cosim.scenario import LoadedScenario
 
 

@@ -22,33 +22,20 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 import numpy as np
 
-from cosim.bus.codec import (
-    BOOTUP,
-    CLIENT,
-    COMMAND,
-    CONTROL,
-    CONTROLLER,
-    ESTIMATE,
-    HEARTBEAT,
-    NMT_STOP,
-    OPERATIONAL,
-    STOPPED,
-    Codec,
-    Decoded,
-)
+from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
 from cosim.bus.registry import Registration, alive
 from cosim.bus.secoc import Rejection, SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
-from cosim.errors import CodecError, CosimError
+from cosim.errors import CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog
@@ -57,6 +44,8 @@ from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
+from cosim.run.outcome import NodeFailure, Progress, RunResult
+from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
 _HEALTH = 0.25  # s: how often it asks its participants whether they are still alive
@@ -78,234 +67,6 @@ def remove_stale_workdirs() -> None:
             shutil.rmtree(folder, ignore_errors=True)
         except (ValueError, IndexError, OSError):
             continue
-
-
-class NodeFailure(CosimError):
-    """A node or client died, hung or left during the run."""
-
-
-@dataclass(frozen=True)
-class Progress:
-    tick: int
-    ticks: int
-    sim_time: float
-    wall_time: float
-    frames: int
-    deadline_misses: int = 0
-
-    @property
-    def realtime_factor(self) -> float:
-        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
-
-
-@dataclass(frozen=True)
-class RunResult:
-    path: Path
-    status: str
-    ticks: int
-    frames: int
-    frames_lost: int
-    wall_time: float
-    sim_time: float
-    error: str = ""
-    deadline_misses: int = 0
-    senders: dict[str, dict[str, int]] = field(default_factory=dict)
-    startup_time: float = 0.0
-    """Wall time from the start until every node had joined."""
-    loop_time: float = 0.0
-    """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
-
-    @property
-    def realtime_factor(self) -> float:
-        """Simulated over wall-clock time of the ticks: the start-up (nodes joining, a viewer's
-        wait) is not the run's pace and does not count."""
-        elapsed = self.loop_time if self.loop_time > 0 else self.wall_time
-        return self.sim_time / elapsed if elapsed > 0 else float("inf")
-
-
-def ending(exc: BaseException) -> tuple[str, str]:
-    """The status and error a log records for what stopped a run: Ctrl-C or SIGTERM (interrupted),
-    a CosimError (its message) or anything else (its type and message)."""
-    if isinstance(exc, KeyboardInterrupt):
-        return "interrupted", ""
-    if isinstance(exc, CosimError):
-        return "error", str(exc)
-    return "error", f"{type(exc).__name__}: {exc}"
-
-
-class Traffic(can.Listener):
-    """What the runner hears during a run, with the bookkeeping behind loss, lateness and trust.
-
-    Frames are taken as they arrive and logged tick by tick (``flush``). Heartbeats are decoded on
-    arrival, since the runner waits for them, and so are the controller node's commands;
-    everything else is decoded when logged. The runner's own frames come back on udp_multicast
-    (loopback): each is matched against what the runner sent, and not logged twice; a frame on one
-    of the runner's own ids that it did not send (a forged SYNC or NMT, another co-simulation on the
-    same group and port) is foreign: logged as such, never used. A node's heartbeat closing tick j
-    says how many frames it sent for j; frames of it missing at that point are counted as lost,
-    and the nodes report in their heartbeats how many of the runner's frames they found missing.
-    """
-
-    def __init__(
-        self,
-        codec: Codec,
-        recorder: RunRecorder,
-        own_senders: tuple[str, ...],
-        commands: bool = False,
-        echoes: bool = False,
-        on_foreign: Callable[[can.Message, str], None] | None = None,
-        secoc: SecOC | None = None,
-        on_rejected: Callable[[can.Message, Rejection], None] | None = None,
-    ) -> None:
-        self.codec = codec
-        # SecOC: every node's frame is verified on arrival (the runner's own, at sending); a rejected
-        # one is logged as it came, never used or counted as its sender's
-        self.secoc, self._on_rejected = secoc, on_rejected
-        self.rejected = 0
-        self.recorder = recorder
-        self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
-        self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
-        self.joined: set[str] = set()
-        self.left: dict[str, float] = {}  # node -> when its stopped heartbeat arrived (wall clock)
-        self.lost: Counter[str] = Counter()  # node -> frames of it the runner did not get
-        self.late: Counter[str] = Counter()  # node -> data frames of it logged after their tick
-        self.data: Counter[str] = Counter()  # node -> data frames received
-        self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
-        self.received: Counter[str] = Counter()
-        self.echoes = 0
-        self.repeated_bootups = 0
-        self.foreign_frames = 0
-        self._counts: Counter[tuple[str, int]] = Counter()
-        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
-        self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
-        self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if commands else set()
-        self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
-        self._echoes = echoes
-        self._sent: Counter[tuple[int, bytes]] = Counter()  # the runner's frames whose echo is still due
-        self._sent_ticks: list[list[tuple[int, bytes]]] = []
-        self._on_foreign = on_foreign
-        self.current = 0  # the tick whose frames the runner sent last
-        self._distrusted: set[int] = set()  # pending frames found foreign on arrival: logged raw, never counted
-        #: Where ``flush`` puts a tick's frames: the log, or, on an arbitrated bus, the wire (which logs them).
-        self.deliver: Callable[[int, float, int, can.Message, Decoded | None], None] = recorder.frame
-
-    def sent(self, frames: list[can.Message]) -> None:
-        """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""
-        if not self._echoes:
-            return
-        keys = [(frame.arbitration_id, bytes(frame.data)) for frame in frames]
-        self._sent.update(keys)
-        self._sent_ticks.append(keys)
-        if len(self._sent_ticks) > 256:  # an echo later than that was lost on the way: forget it
-            self._sent.subtract(self._sent_ticks.pop(0))
-            self._sent += Counter()  # drop counts at zero or below
-
-    def on_message_received(self, msg: can.Message) -> None:
-        identifier = None if msg.is_extended_id else msg.arbitration_id
-        if identifier in self._own:
-            key = (msg.arbitration_id, bytes(msg.data))
-            if self._sent[key] > 0:
-                self._sent[key] -= 1
-                self.echoes += 1
-            else:
-                self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
-                self.verify(msg)
-            return
-        if self.verify(msg):
-            self._distrusted.add(id(msg))
-            self.pending.append((msg, None))
-            return
-        decoded = None
-        if identifier in self._heartbeats:
-            decoded = self._decode(msg)
-            if decoded is not None:
-                sender, state = decoded.spec.sender, decoded.values["state"]
-                if state == BOOTUP and sender in self.joined:
-                    # A node repeats its boot-up until tick 0 (Client.announce); how often depends on
-                    # how long the others take to start, so the repeats are counted, not logged.
-                    self.repeated_bootups += 1
-                    return
-                if state == BOOTUP:
-                    self.joined.add(sender)
-                elif state == STOPPED:
-                    self.left[sender] = time.perf_counter()
-                elif state == OPERATIONAL and decoded.tick > self.current:
-                    self._foreign(msg, f"a heartbeat of {sender} closing tick {decoded.tick}, which has not started")
-                    self._distrusted.add(id(msg))
-                    decoded = None
-                elif state == OPERATIONAL:
-                    if sender in self.left:  # it answers on: that stopped heartbeat was not its own
-                        del self.left[sender]
-                        self._foreign(
-                            msg, f"{sender} answers after a stopped heartbeat in its name: that one was forged"
-                        )
-                    self.closed[sender] = decoded.tick
-        elif identifier in self._commands:
-            decoded = self._decode(msg)
-            if decoded is not None:
-                channel = decoded.spec.channels[0]
-                self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
-        self.pending.append((msg, decoded))
-
-    def verify(self, frame: can.Message) -> bool:
-        """Whether SecOC drops this frame (reported); frames of unsecured ids pass."""
-        if self.secoc is None:
-            return False
-        rejection = self.secoc.verify(frame, self.current)
-        if rejection is None:
-            return False
-        self.rejected += 1
-        if self._on_rejected is not None:
-            self._on_rejected(frame, rejection)
-        return True
-
-    def _foreign(self, frame: can.Message, reason: str) -> None:
-        self.foreign_frames += 1
-        if self._on_foreign is not None:
-            self._on_foreign(frame, reason)
-
-    def _decode(self, frame: can.Message) -> Decoded | None:
-        try:
-            return self.codec.decode(frame)
-        except CodecError:
-            return None  # logged raw, as an unknown frame
-
-    def flush(self, tick: int, t: float, t_ns: int) -> None:
-        """Account for the frames received during tick k, then log them by arbitration id."""
-        taken: list[tuple[can.Message, Decoded | None]] = []
-        counter_now = tick % self.codec.tick_modulus
-        for frame, decoded in self.pending:
-            if id(frame) in self._distrusted:
-                taken.append((frame, None))
-                continue
-            if decoded is None:
-                decoded = self._decode(frame)
-            taken.append((frame, decoded))
-            if decoded is None:
-                unknown = self.codec.spec_of(frame) is None
-                self._foreign(
-                    frame, "an id outside the run's database" if unknown else "cannot be decoded (its length or bits)"
-                )
-                continue
-            sender, role = decoded.spec.sender, decoded.spec.role
-            self.received[sender] += 1
-            if role in (ESTIMATE, CLIENT, COMMAND, CONTROL):
-                self._counts[(sender, decoded.tick)] += 1
-                self.data[sender] += 1
-                self.late[sender] += decoded.tick % self.codec.tick_modulus != counter_now
-            elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
-                counter = decoded.tick % self.codec.tick_modulus
-                self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
-                self.missed_by[sender] = int(decoded.values["lost"])
-        self.pending.clear()
-        self._distrusted.clear()
-        for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
-            self.deliver(tick, t, t_ns, frame, decoded)
-
-    def missing(self, sender: str, ticks: int) -> int:
-        """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
-        expected = ticks * len(self.codec.data_messages(sender))
-        return max(self.lost[sender], expected - self.data[sender])
 
 
 @dataclass(frozen=True)
@@ -741,44 +502,16 @@ class Session:
     def _finish(self, k: int, status: str, error: str, senders: list[str]) -> RunResult:
         loop = time.perf_counter() - self.tick_start if self.tick_start is not None else 0.0
         startup = self.tick_start - self.start if self.tick_start is not None else 0.0
-        traffic, codec = self.traffic, self.codec
-        for frame in drain(self.bus):  # what is already here came before the stop command
-            traffic(frame)
-        traffic.flush(*self._marker)
         t_end, t_end_ns = self.time(k)
-        stop = codec.nmt(NMT_STOP)
-        traffic.sent([stop])
-        try:
-            self.bus.send(stop)
-        except can.CanError:
-            pass
-        self.recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
-        for participant in self.participants:
-            warning = participant.stop(timeout=_STOP_HURRY if self.interrupts.hurry else _STOP)
-            if warning is not None and status == "completed":
-                self.warnings.append(warning)
-        quiet_until, end = time.perf_counter() + 0.1, time.perf_counter() + _LAST_FRAMES
-        while (now := time.perf_counter()) < min(quiet_until, end):  # the last frames, while they come
-            for frame in drain(self.bus, min(0.02, end - now)):
-                traffic(frame)
-                quiet_until = time.perf_counter() + 0.1
-        traffic.flush(k, t_end, t_end_ns)
+        self._stop_nodes(k, t_end, t_end_ns, status)
+        self.traffic.flush(k, t_end, t_end_ns)
         if self.arbitration is not None:
             self._log_passages(self.arbitration.finish())
         self._verdicts(k)
         self._close_foreign()
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
-        answering = {p.name for p in self.participants if p.lockstep}
-        counts = {
-            name: SenderCounts(
-                traffic.received[name],
-                traffic.missing(name, k) if name in answering else traffic.lost[name],
-                traffic.missed_by.get(name, 0),
-                traffic.late[name],
-            )
-            for name in senders
-        }
+        counts = self._sender_counts(k, senders)
         lost = sum(c.lost + c.runner_frames_missed for c in counts.values())
         self.event(
             k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error"
@@ -802,3 +535,42 @@ class Session:
             loop,
         )
         return self.result
+
+    def _stop_nodes(self, k: int, t_end: float, t_end_ns: int, status: str) -> None:
+        """Log what came before the stop command, send it (NMT stop), wait for the nodes to exit and
+        take the frames they still send, while they come."""
+        traffic, codec = self.traffic, self.codec
+        for frame in drain(self.bus):  # what is already here came before the stop command
+            traffic(frame)
+        traffic.flush(*self._marker)
+        stop = codec.nmt(NMT_STOP)
+        traffic.sent([stop])
+        try:
+            self.bus.send(stop)
+        except can.CanError:
+            pass
+        self.recorder.frame(k, t_end, t_end_ns, stop, codec.decode(stop))
+        for participant in self.participants:
+            warning = participant.stop(timeout=_STOP_HURRY if self.interrupts.hurry else _STOP)
+            if warning is not None and status == "completed":
+                self.warnings.append(warning)
+        quiet_until, end = time.perf_counter() + 0.1, time.perf_counter() + _LAST_FRAMES
+        while (now := time.perf_counter()) < min(quiet_until, end):
+            for frame in drain(self.bus, min(0.02, end - now)):
+                traffic(frame)
+                quiet_until = time.perf_counter() + 0.1
+
+    def _sender_counts(self, k: int, senders: list[str]) -> dict[str, SenderCounts]:
+        """Per sender: frames received, lost on the way (of a node answering every tick: every
+        frame of k ticks not received), the runner's frames it missed, and those logged late."""
+        traffic = self.traffic
+        answering = {p.name for p in self.participants if p.lockstep}
+        return {
+            name: SenderCounts(
+                traffic.received[name],
+                traffic.missing(name, k) if name in answering else traffic.lost[name],
+                traffic.missed_by.get(name, 0),
+                traffic.late[name],
+            )
+            for name in senders
+        }

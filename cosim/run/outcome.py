@@ -1,0 +1,61 @@
+"""How far a run has got and how it ended: ``Progress`` while it goes, ``RunResult`` once it is over."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cosim.errors import CosimError
+
+
+class NodeFailure(CosimError):
+    """A node or client died, hung or left during the run."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    tick: int
+    ticks: int
+    sim_time: float
+    wall_time: float
+    frames: int
+    deadline_misses: int = 0
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_time / self.wall_time if self.wall_time > 0 else float("inf")
+
+
+@dataclass(frozen=True)
+class RunResult:
+    path: Path
+    status: str
+    ticks: int
+    frames: int
+    frames_lost: int
+    wall_time: float
+    sim_time: float
+    error: str = ""
+    deadline_misses: int = 0
+    senders: dict[str, dict[str, int]] = field(default_factory=dict)
+    startup_time: float = 0.0
+    """Wall time from the start until every node had joined."""
+    loop_time: float = 0.0
+    """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated over wall-clock time of the ticks: the start-up (nodes joining, a viewer's
+        wait) is not the run's pace and does not count."""
+        elapsed = self.loop_time if self.loop_time > 0 else self.wall_time
+        return self.sim_time / elapsed if elapsed > 0 else float("inf")
+
+
+def ending(exc: BaseException) -> tuple[str, str]:
+    """The status and error a log records for what stopped a run: Ctrl-C or SIGTERM (interrupted),
+    a CosimError (its message) or anything else (its type and message)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", ""
+    if isinstance(exc, CosimError):
+        return "error", str(exc)
+    return "error", f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,190 @@
+"""What the runner hears on the bus during a run: frames taken as they arrive, accounted for (lost,
+late, foreign, rejected) and logged tick by tick in a canonical order."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import can
+
+from cosim.bus.codec import BOOTUP, CLIENT, COMMAND, CONTROL, ESTIMATE, HEARTBEAT, OPERATIONAL, STOPPED, Codec, Decoded
+from cosim.bus.secoc import Rejection, SecOC
+from cosim.errors import CodecError
+from cosim.log.recorder import RunRecorder
+
+
+class Traffic(can.Listener):
+    """What the runner hears during a run, with the bookkeeping behind loss, lateness and trust.
+
+    Frames are taken as they arrive and logged tick by tick (``flush``). Heartbeats are decoded on
+    arrival, since the runner waits for them, and so are the controller node's commands;
+    everything else is decoded when logged. The runner's own frames come back on udp_multicast
+    (loopback): each is matched against what the runner sent, and not logged twice; a frame on one
+    of the runner's own ids that it did not send (a forged SYNC or NMT, another co-simulation on the
+    same group and port) is foreign: logged as such, never used. A node's heartbeat closing tick j
+    says how many frames it sent for j; frames of it missing at that point are counted as lost,
+    and the nodes report in their heartbeats how many of the runner's frames they found missing.
+    """
+
+    def __init__(
+        self,
+        codec: Codec,
+        recorder: RunRecorder,
+        own_senders: tuple[str, ...],
+        commands: bool = False,
+        echoes: bool = False,
+        on_foreign: Callable[[can.Message, str], None] | None = None,
+        secoc: SecOC | None = None,
+        on_rejected: Callable[[can.Message, Rejection], None] | None = None,
+    ) -> None:
+        self.codec = codec
+        # SecOC: every node's frame is verified on arrival (the runner's own, at sending); a rejected
+        # one is logged as it came, never used or counted as its sender's
+        self.secoc, self._on_rejected = secoc, on_rejected
+        self.rejected = 0
+        self.recorder = recorder
+        self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
+        self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
+        self.joined: set[str] = set()
+        self.left: dict[str, float] = {}  # node -> when its stopped heartbeat arrived (wall clock)
+        self.lost: Counter[str] = Counter()  # node -> frames of it the runner did not get
+        self.late: Counter[str] = Counter()  # node -> data frames of it logged after their tick
+        self.data: Counter[str] = Counter()  # node -> data frames received
+        self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
+        self.received: Counter[str] = Counter()
+        self.echoes = 0
+        self.repeated_bootups = 0
+        self.foreign_frames = 0
+        self._counts: Counter[tuple[str, int]] = Counter()
+        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
+        self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
+        self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if commands else set()
+        self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
+        self._echoes = echoes
+        self._sent: Counter[tuple[int, bytes]] = Counter()  # the runner's frames whose echo is still due
+        self._sent_ticks: list[list[tuple[int, bytes]]] = []
+        self._on_foreign = on_foreign
+        self.current = 0  # the tick whose frames the runner sent last
+        self._distrusted: set[int] = set()  # pending frames found foreign on arrival: logged raw, never counted
+        #: Where ``flush`` puts a tick's frames: the log, or, on an arbitrated bus, the wire (which logs them).
+        self.deliver: Callable[[int, float, int, can.Message, Decoded | None], None] = recorder.frame
+
+    def sent(self, frames: list[can.Message]) -> None:
+        """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""
+        if not self._echoes:
+            return
+        keys = [(frame.arbitration_id, bytes(frame.data)) for frame in frames]
+        self._sent.update(keys)
+        self._sent_ticks.append(keys)
+        if len(self._sent_ticks) > 256:  # an echo later than that was lost on the way: forget it
+            self._sent.subtract(self._sent_ticks.pop(0))
+            self._sent += Counter()  # drop counts at zero or below
+
+    def on_message_received(self, msg: can.Message) -> None:
+        identifier = None if msg.is_extended_id else msg.arbitration_id
+        if identifier in self._own:
+            key = (msg.arbitration_id, bytes(msg.data))
+            if self._sent[key] > 0:
+                self._sent[key] -= 1
+                self.echoes += 1
+            else:
+                self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
+                self.verify(msg)
+            return
+        if self.verify(msg):
+            self._distrusted.add(id(msg))
+            self.pending.append((msg, None))
+            return
+        decoded = None
+        if identifier in self._heartbeats:
+            decoded = self._decode(msg)
+            if decoded is not None:
+                sender, state = decoded.spec.sender, decoded.values["state"]
+                if state == BOOTUP and sender in self.joined:
+                    # A node repeats its boot-up until tick 0 (Client.announce); how often depends on
+                    # how long the others take to start, so the repeats are counted, not logged.
+                    self.repeated_bootups += 1
+                    return
+                if state == BOOTUP:
+                    self.joined.add(sender)
+                elif state == STOPPED:
+                    self.left[sender] = time.perf_counter()
+                elif state == OPERATIONAL and decoded.tick > self.current:
+                    self._foreign(msg, f"a heartbeat of {sender} closing tick {decoded.tick}, which has not started")
+                    self._distrusted.add(id(msg))
+                    decoded = None
+                elif state == OPERATIONAL:
+                    if sender in self.left:  # it answers on: that stopped heartbeat was not its own
+                        del self.left[sender]
+                        self._foreign(
+                            msg, f"{sender} answers after a stopped heartbeat in its name: that one was forged"
+                        )
+                    self.closed[sender] = decoded.tick
+        elif identifier in self._commands:
+            decoded = self._decode(msg)
+            if decoded is not None:
+                channel = decoded.spec.channels[0]
+                self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
+        self.pending.append((msg, decoded))
+
+    def verify(self, frame: can.Message) -> bool:
+        """Whether SecOC drops this frame (reported); frames of unsecured ids pass."""
+        if self.secoc is None:
+            return False
+        rejection = self.secoc.verify(frame, self.current)
+        if rejection is None:
+            return False
+        self.rejected += 1
+        if self._on_rejected is not None:
+            self._on_rejected(frame, rejection)
+        return True
+
+    def _foreign(self, frame: can.Message, reason: str) -> None:
+        self.foreign_frames += 1
+        if self._on_foreign is not None:
+            self._on_foreign(frame, reason)
+
+    def _decode(self, frame: can.Message) -> Decoded | None:
+        try:
+            return self.codec.decode(frame)
+        except CodecError:
+            return None  # logged raw, as an unknown frame
+
+    def flush(self, tick: int, t: float, t_ns: int) -> None:
+        """Account for the frames received during tick k, then log them by arbitration id."""
+        taken: list[tuple[can.Message, Decoded | None]] = []
+        counter_now = tick % self.codec.tick_modulus
+        for frame, decoded in self.pending:
+            if id(frame) in self._distrusted:
+                taken.append((frame, None))
+                continue
+            if decoded is None:
+                decoded = self._decode(frame)
+            taken.append((frame, decoded))
+            if decoded is None:
+                unknown = self.codec.spec_of(frame) is None
+                self._foreign(
+                    frame, "an id outside the run's database" if unknown else "cannot be decoded (its length or bits)"
+                )
+                continue
+            sender, role = decoded.spec.sender, decoded.spec.role
+            self.received[sender] += 1
+            if role in (ESTIMATE, CLIENT, COMMAND, CONTROL):
+                self._counts[(sender, decoded.tick)] += 1
+                self.data[sender] += 1
+                self.late[sender] += decoded.tick % self.codec.tick_modulus != counter_now
+            elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
+                counter = decoded.tick % self.codec.tick_modulus
+                self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
+                self.missed_by[sender] = int(decoded.values["lost"])
+        self.pending.clear()
+        self._distrusted.clear()
+        for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
+            self.deliver(tick, t, t_ns, frame, decoded)
+
+    def missing(self, sender: str, ticks: int) -> int:
+        """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
+        expected = ticks * len(self.codec.data_messages(sender))
+        return max(self.lost[sender], expected - self.data[sender])
