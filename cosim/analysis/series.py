@@ -135,61 +135,50 @@ def load(path: str | Path) -> RunSeries:
         run = meta.run
         if run is None or run.sample_time is None or run.dt_ns is None:
             raise LogError(f"{path}: no cosim.run metadata; cosim plot needs a log written by cosim run")
-        states, sensors = run.states, run.sensors
         given = meta.scenario or ScenarioRecord()
-        description = given.resolved_json().get("description", "")
-        ests = {name: EstimatorSeries(e.kind, e.params, e.model, e) for name, e in run.estimators.items()}
+        series = RunSeries(
+            run.scenario or Path(path).stem,
+            given.resolved_json().get("description", ""),
+            run.sample_time,
+            run.states,
+            run.sensors,
+            {},
+            {},
+            {name: EstimatorSeries(e.kind, e.params, e.model, e) for name, e in run.estimators.items()},
+            [f.to_json() for f in run.faults],
+            toml=given.toml,
+            resolved=given.resolved,
+            reconfigured=run.controller.signals_of(DiagnosticKind.RECONFIGURATION) if run.controller else [],
+            units=names.units(reader.schemas()),
+            actuators=list(run.actuators),
+        )
         owner = run.estimate_topics()
         status = [message_topic(m) for m in run.controller.status_messages] if run.controller else []
-        reconfigured = run.controller.signals_of(DiagnosticKind.RECONFIGURATION) if run.controller else []
         control: dict[int, dict[str, float]] = defaultdict(dict)
-        dt_ns = run.dt_ns
-        truth: dict[int, np.ndarray] = {}
-        fault: dict[int, np.ndarray] = {}
-        sensor_truth: dict[int, np.ndarray] = {}
-        effectiveness: dict[int, np.ndarray] = {}
-        dropped: dict[int, list[str]] = {}
-        units = names.units(reader.schemas())
-        actuators = run.actuators
         for topic, log_time, msg in reader.messages([STATE, FAULTS, SENSORS, *owner, *status]):
             if topic == STATE:
-                truth[msg["tick"]] = np.array([msg[s] for s in states])
+                series.truth[msg["tick"]] = np.array([msg[s] for s in series.states])
             elif topic == SENSORS:
-                sensor_truth[msg["tick"]] = np.array([msg[s] for s in sensors])
-            elif topic in status:
-                control[carried_tick(log_time // dt_ns, msg["tick"])].update(
-                    {k: v for k, v in msg.items() if k != "tick"}
-                )
+                series.sensor_truth[msg["tick"]] = np.array([msg[s] for s in series.sensors])
             elif topic == FAULTS:
-                fault[msg["tick"]] = np.array([msg["fault"].get(s) or 0.0 for s in sensors])
-                delta = msg.get("effectiveness") or {}
-                effectiveness[msg["tick"]] = np.array([delta.get(a, 1.0) for a in actuators], dtype=float)
-                if msg.get("dropped"):
-                    dropped[msg["tick"]] = list(msg["dropped"])
-            else:
-                ests[owner[topic]].values[carried_tick(log_time // dt_ns, msg["tick"])].update(
+                _take_faults(series, msg)
+            else:  # an estimator's frame, or the controller's status: by the tick it belongs to
+                values = control if topic in status else series.estimators[owner[topic]].values
+                values[carried_tick(log_time // run.dt_ns, msg["tick"])].update(
                     {k: v for k, v in msg.items() if k != "tick"}
                 )
-    return RunSeries(
-        run.scenario or Path(path).stem,
-        description,
-        run.sample_time,
-        states,
-        sensors,
-        truth,
-        fault,
-        ests,
-        [f.to_json() for f in run.faults],
-        sensor_truth,
-        toml=given.toml,
-        resolved=given.resolved,
-        control=dict(control),
-        reconfigured=reconfigured,
-        units=units,
-        actuators=list(actuators),
-        effectiveness=effectiveness,
-        dropped=dropped,
-    )
+    series.control = dict(control)
+    return series
+
+
+def _take_faults(series: RunSeries, msg: dict) -> None:
+    """One tick of /truth/faults: the deviation per sensor, actuator effectiveness, frames dropped."""
+    k = msg["tick"]
+    series.fault[k] = np.array([msg["fault"].get(s) or 0.0 for s in series.sensors])
+    delta = msg.get("effectiveness") or {}
+    series.effectiveness[k] = np.array([delta.get(a, 1.0) for a in series.actuators], dtype=float)
+    if msg.get("dropped"):
+        series.dropped[k] = list(msg["dropped"])
 
 
 def true_gains(series: RunSeries, t: np.ndarray) -> np.ndarray:

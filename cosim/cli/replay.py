@@ -110,7 +110,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if not args.estimator:
         raise CosimError("replay needs --estimator NAME (one of the run's, or a new one with --kind), or --live")
     log = Path(args.log)
-    out = common.new_output(args.out, log.with_name(f"{log.stem}-replay-{args.estimator}.mcap"), args.force)
+    same = args.out is not None and log.exists() and Path(args.out).resolve() == log.resolve()  # Replay says why not
+    default = log.with_name(f"{log.stem}-replay-{args.estimator}.mcap")
+    out = Path(args.out) if same else common.new_output(args.out, default, args.force)
     replay = Replay(
         log,
         out,

@@ -155,7 +155,35 @@ def estimator_record(
     )
 
 
-@dataclass(frozen=True)
+def bus_record(s: Scenario) -> dict[str, Any]:
+    """The run record's ``bus``: its settings, those at their default left out (so that the log of
+    an ideal bus is what it always was)."""
+    bus = s.bus
+    traffic = [t.model_dump(exclude={"end"}) | {"end": t.end if math.isfinite(t.end) else None} for t in bus.traffic]
+    return {
+        "interface": bus.interface,
+        "fd": bus.fd,
+        "bitrate": bus.bitrate,
+        "data_bitrate": bus.data_bitrate,
+        **({"timing": bus.timing} if bus.timing != "ideal" else {}),
+        **({"authentication": bus.authentication} if bus.authentication != "none" else {}),
+        **({"intrusion_detector": True} if bus.intrusion_detector else {}),
+        **({"traffic": traffic} if traffic else {}),
+    }
+
+
+def channel_units(s: Scenario) -> dict[str, dict[str, str]]:
+    """The unit of every channel the recorder writes, by table."""
+    sensors, actuators, states = s.channels()
+    return {
+        "states": {c.name: c.unit for c in states},
+        "sensors": {c.name: c.unit for c in sensors},
+        "actuators": {c.name: c.unit for c in actuators},
+        "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
+    }
+
+
+@dataclass(frozen=True, kw_only=True)
 class RunPlan:
     """One run of a scenario, designed: everything that is fixed before tick 0."""
 
@@ -208,26 +236,20 @@ class RunPlan:
         injector = build_faults(s)
         bus_faults = build_bus_faults(s)
         onset = min([f for f in [injector.first_onset, *(b.start for b in bus_faults)] if f is not None], default=None)
-        sensors, actuators, states = s.channels()
         return cls(
-            loaded,
-            s,
-            tuple(plant.state_names),
-            model,
-            continuous,
-            built,
-            build_controller(s, model, loaded.source, continuous),
-            s.codec(),
-            tuple(design_warnings(s, built)),
-            tuple(fault_record(f, s) for f in [*injector.faults, *bus_faults]),
-            None if onset is None else first_tick_at(s, onset),
-            {
-                "states": {c.name: c.unit for c in states},
-                "sensors": {c.name: c.unit for c in sensors},
-                "actuators": {c.name: c.unit for c in actuators},
-                "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
-            },
-            run_secret() if s.bus.authentication == "secoc" else None,
+            loaded=loaded,
+            scenario=s,
+            state_names=tuple(plant.state_names),
+            model=model,
+            continuous_model=continuous,
+            estimators=built,
+            controller=build_controller(s, model, loaded.source, continuous),
+            codec=s.codec(),
+            warnings=tuple(design_warnings(s, built)),
+            faults=tuple(fault_record(f, s) for f in [*injector.faults, *bus_faults]),
+            onset_tick=None if onset is None else first_tick_at(s, onset),
+            units=channel_units(s),
+            secret=run_secret() if s.bus.authentication == "secoc" else None,
         )
 
     @property
@@ -380,26 +402,7 @@ class RunPlan:
             fault_onset=min((f.start for f in self.faults if f.start is not None), default=None),
             fault_onset_tick=self.onset_tick,
             faults=list(self.faults),
-            bus={
-                "interface": s.bus.interface,
-                "fd": s.bus.fd,
-                "bitrate": s.bus.bitrate,
-                "data_bitrate": s.bus.data_bitrate,
-                # only off the default, so that the log of an ideal bus is what it always was
-                **({"timing": s.bus.timing} if s.bus.timing != "ideal" else {}),
-                **({"authentication": s.bus.authentication} if s.bus.authentication != "none" else {}),
-                **({"intrusion_detector": True} if s.bus.intrusion_detector else {}),
-                **(
-                    {
-                        "traffic": [
-                            t.model_dump(exclude={"end"}) | {"end": t.end if math.isfinite(t.end) else None}
-                            for t in s.bus.traffic
-                        ]
-                    }
-                    if s.bus.traffic
-                    else {}
-                ),
-            },
+            bus=bus_record(s),
             timing=s.timing.model_dump(),
             start_time_ns=start_time_ns,
         )

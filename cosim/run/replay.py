@@ -45,6 +45,7 @@ from cosim.log.metadata import (
     LogMetadata,
     ReplayRecord,
     RunRecord,
+    ScenarioRecord,
     logged_dbc,
     versions,
 )
@@ -55,7 +56,7 @@ from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.loop import execute, start_participants
 from cosim.run.node import NodeSpec
 from cosim.run.outcome import Progress, RunResult
-from cosim.run.plan import RunPlan, build_estimators, design_warnings, estimator_record
+from cosim.run.plan import RunPlan, build_estimators, channel_units, design_warnings, estimator_record
 from cosim.run.session import Session
 from cosim.scenario import LoadedScenario, Scenario
 from estimators import LinearModel, ParameterError
@@ -239,17 +240,63 @@ class Replay:
         self.log, self.out = Path(log), Path(out)
         if self.out.exists() and self.log.exists() and self.out.samefile(self.log):
             raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
+        run, scenario_record, original = self._read_log()
+        overrides = dict(params or {})
+        self.name, self.new = estimator, kind is not None
+        if kind is not None:
+            model, spec_params = self._new_design(estimator, kind, run, overrides)
+        else:
+            kind, model, spec_params = self._recorded_design(estimator, run, original, overrides)
+        try:
+            estimators.ESTIMATORS[kind].check_params(spec_params)
+        except ParameterError as error:
+            raise CosimError(f"--param {error}") from None
+        self.kind, self.overrides, self.params = kind, overrides, spec_params
+        scenario = original.with_overrides(
+            estimators=[{"name": estimator, "kind": kind, "params": spec_params}],
+            clients=[],
+            mode="lockstep",
+            interface=interface or "udp_multicast",
+            channel=channel or "",
+            port=port or 0,
+        ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
+        if self.new or overrides:
+            built = build_estimators(scenario, model, f"{self.log} (replay)", model)
+        else:
+            try:
+                built = {estimator: estimators.create(kind, model, spec_params, scenario.sample_time)}
+            except ParameterError as error:
+                raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
+        self.plan = RunPlan(
+            loaded=LoadedScenario(scenario, str(self.log), scenario_record.toml),
+            scenario=scenario,
+            state_names=tuple(run.states),
+            model=model,
+            continuous_model=None,
+            estimators=built,
+            controller=None,
+            # The run's own DBC keeps a replayed estimator's ids, so that its frames can match bit for bit.
+            codec=scenario.codec() if self.new else self.log_codec,
+            warnings=tuple(design_warnings(scenario, built)),
+            faults=tuple(run.faults),
+            onset_tick=run.fault_onset_tick,
+            units=channel_units(scenario),
+            secret=run_secret() if scenario.bus.authentication == "secoc" else None,
+        )
+        self.bus: BusConfig | None = None
+        self.session: Session | None = None
+
+    def _read_log(self) -> tuple[RunRecord, ScenarioRecord, Scenario]:
+        """The log's run record, scenario record and scenario; its codec, ticks and attachments."""
         with LogReader(self.log) as reader:
             raw, self.attachments = reader.metadata(), reader.attachments()
             dbc = logged_dbc(reader, missing_ok=True)
             self.ticks = _sync_count(reader)
         self.meta = LogMetadata.read(raw)
-        made = (
-            self.meta.result.ticks if self.meta.result is not None else (self.meta.run.ticks if self.meta.run else None)
-        )
+        result, run, scenario_record = self.meta.result, self.meta.run, self.meta.scenario
+        made = result.ticks if result is not None else (run.ticks if run else None)
         if made is not None and made > self.ticks:  # the log lacks ticks its run made: replayed up to there
             self.ticks = made
-        run, scenario_record = self.meta.run, self.meta.scenario
         if run is None or scenario_record is None or dbc is None:
             raise LogError(
                 f"{self.log}: no cosim.run metadata, scenario or DBC; replay needs a log written by cosim run"
@@ -262,82 +309,47 @@ class Replay:
         except ValueError as error:
             raise LogError(f"{self.log}: its scenario cannot be read by this version of cosim ({error})") from None
         self.log_codec = Codec.from_dbc(dbc)
+        return run, scenario_record, original
+
+    def _new_design(
+        self, estimator: str, kind: str, run: RunRecord, params: dict[str, Any]
+    ) -> tuple[LinearModel, dict[str, Any]]:
+        """A new estimator's design model (the one the log records) and parameters."""
+        if estimator in run.estimators:
+            raise CosimError(
+                f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
+                f"replay it, or give the new one another name"
+            )
+        if self.closed_loop:
+            raise CosimError(
+                f"--kind {kind}: a new estimator cannot join the replay of a closed-loop run (the "
+                f"controller node's ids would move); replay one of the run's estimators"
+            )
+        if kind not in estimators.ESTIMATORS:
+            raise CosimError(
+                f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})"
+            )
+        return _recorded_model(run, estimators.ESTIMATORS[kind].continuous, kind, self.log), params
+
+    def _recorded_design(
+        self, estimator: str, run: RunRecord, original: Scenario, overrides: dict[str, Any]
+    ) -> tuple[str, LinearModel, dict[str, Any]]:
+        """One of the run's estimators: its kind, its design model and its parameters (changed ones
+        mean a new design; unchanged ones come with the run's design)."""
         recorded = run.estimators
-        overrides = dict(params or {})
-        self.name, self.new = estimator, kind is not None
-        if kind is not None:
-            if estimator in recorded:
-                raise CosimError(
-                    f"--estimator {estimator}: the run already has an estimator of that name; drop --kind to "
-                    f"replay it, or give the new one another name"
-                )
-            if self.closed_loop:
-                raise CosimError(
-                    f"--kind {kind}: a new estimator cannot join the replay of a closed-loop run (the "
-                    f"controller node's ids would move); replay one of the run's estimators"
-                )
-            if kind not in estimators.ESTIMATORS:
-                raise CosimError(
-                    f"--kind {kind}: unknown estimator kind (known: {', '.join(sorted(estimators.ESTIMATORS))})"
-                )
-            model = _recorded_model(run, estimators.ESTIMATORS[kind].continuous, kind, self.log)
-            spec_params = overrides
-        else:
-            if estimator not in recorded:
-                raise CosimError(
-                    f"--estimator {estimator}: the run has no estimator of that name (it has: "
-                    f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one"
-                )
-            kind = recorded[estimator].kind
-            design_model = recorded[estimator].model
-            if design_model is None:
-                raise LogError(
-                    f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed"
-                )
-            model = LinearModel.from_dict(design_model)
-            given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator].params)
-            # Changed parameters mean a new design; unchanged ones come with the run's design.
-            spec_params = {**given, **overrides} if overrides else recorded[estimator].params
-        try:
-            estimators.ESTIMATORS[kind].check_params(spec_params)
-        except ParameterError as error:
-            raise CosimError(f"--param {error}") from None
-        self.kind, self.overrides = kind, overrides
-        scenario = original.with_overrides(
-            estimators=[{"name": estimator, "kind": kind, "params": spec_params}],
-            clients=[],
-            mode="lockstep",
-            interface=interface or "udp_multicast",
-            channel=channel or "",
-            port=port or 0,
-        ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
-        # The run's own DBC keeps a replayed estimator's ids, so that its frames can match bit for bit.
-        codec = scenario.codec() if self.new else self.log_codec
-        if self.new or overrides:
-            built = build_estimators(scenario, model, f"{self.log} (replay)", model)
-        else:
-            try:
-                built = {estimator: estimators.create(kind, model, spec_params, scenario.sample_time)}
-            except ParameterError as error:
-                raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
-        self.params = spec_params
-        self.plan = RunPlan(
-            LoadedScenario(scenario, str(self.log), scenario_record.toml),
-            scenario,
-            tuple(run.states),
-            model,
-            None,
-            built,
-            None,
-            codec,
-            tuple(design_warnings(scenario, built)),
-            tuple(run.faults),
-            run.fault_onset_tick,
-            _units(scenario),
-            run_secret() if scenario.bus.authentication == "secoc" else None,
-        )
-        self.bus: BusConfig | None = None
-        self.session: Session | None = None
+        if estimator not in recorded:
+            raise CosimError(
+                f"--estimator {estimator}: the run has no estimator of that name (it has: "
+                f"{', '.join(recorded) or 'none'}); add --kind KIND to replay a new one"
+            )
+        design_model = recorded[estimator].model
+        if design_model is None:
+            raise LogError(
+                f"{self.log}: the log does not record the design model of {estimator}; it cannot be replayed"
+            )
+        given = next((e.params for e in original.estimators if e.name == estimator), recorded[estimator].params)
+        params = {**given, **overrides} if overrides else recorded[estimator].params
+        return recorded[estimator].kind, LinearModel.from_dict(design_model), params
 
     @property
     def scenario(self) -> Scenario:
@@ -415,17 +427,6 @@ def _recorded_model(run: RunRecord, continuous: bool, kind: str, log: Path) -> L
         f"--kind {kind}: is designed on the {time_domain}-time model, which {log} does not record (none of its "
         f"estimators uses one); pick a kind working in the other time domain, or run the scenario with it"
     )
-
-
-def _units(s: Scenario) -> dict[str, dict[str, str]]:
-    """The unit of every channel the recorder writes, by table."""
-    sensors, actuators, states = s.channels()
-    return {
-        "states": {c.name: c.unit for c in states},
-        "sensors": {c.name: c.unit for c in sensors},
-        "actuators": {c.name: c.unit for c in actuators},
-        "disturbances": {c.name: c.unit for c in s.plant_info.disturbances},
-    }
 
 
 @dataclass(frozen=True)
