@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from rich.console import Console, Group
@@ -28,10 +29,10 @@ def _table(latest: dict[str, Decoded], header: str) -> Group:
     return Group(Text(header), table)
 
 
-def _values(values: dict[str, Any], units: dict[str, str | None]) -> str:
+def _values(values: Mapping[str, Any], units: Mapping[str, str | None]) -> str:
     """A message's signals in a line: name=value unit."""
     return "  ".join(
-        f"{key}={value:.6g}{(' ' + units[key]) if units.get(key) else ''}"
+        f"{key}={value:.6g}{f' {units[key]}' if units.get(key) else ''}"
         if isinstance(value, float)
         else f"{key}={value}"
         for key, value in values.items()
@@ -91,7 +92,9 @@ def watch(dbc: str, interface: str, channel: str | None, port: int | None, conso
         raise CosimError(f"--dbc {dbc}: cannot read it as a DBC database ({str(error).splitlines()[0]})") from None
     config = BusConfig(interface, channel, port, fd=True)
     header = f"{dbc} on {config.describe()}"
-    latest: dict[str, tuple[Any, dict[str, Any]]] = {}
+    if not isinstance(database, cantools.database.can.Database):
+        raise CosimError(f"--dbc {dbc}: not a CAN database")
+    latest: dict[str, tuple[Any, Any]] = {}
     frames = unknown = 0
     started, shown = time.monotonic(), 0.0
     bus = open_bus(config)
@@ -102,7 +105,7 @@ def watch(dbc: str, interface: str, channel: str | None, port: int | None, conso
                     frames += 1
                     try:
                         message = database.get_message_by_frame_id(frame.arbitration_id)
-                        latest[message.name] = (message, message.decode(frame.data, decode_choices=False))
+                        latest[message.name] = (message, message.decode(bytes(frame.data), decode_choices=False))
                     except (KeyError, ValueError, cantools.database.DecodeError):
                         unknown += 1
                 now = time.monotonic()
@@ -117,7 +120,7 @@ def watch(dbc: str, interface: str, channel: str | None, port: int | None, conso
     return 0
 
 
-def _signals(latest: dict[str, tuple[Any, dict[str, Any]]], header: str) -> Group:
+def _signals(latest: dict[str, tuple[Any, Any]], header: str) -> Group:
     table = Table(box=None, header_style="bold", pad_edge=False)
     for column in ("message", "id", "sender", "signals"):
         table.add_column(column)

@@ -126,7 +126,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
                 address=args.address,
                 resume=args.resume,
                 keep_logs=args.keep_logs,
-                on_progress=progress.update_campaign,  # type: ignore[attr-defined]
+                on_progress=progress.update_campaign,
                 on_start=lambda description, workers: talk.print(f"engine: {escape(description)}"),
             )
     except KeyboardInterrupt as interrupt:
