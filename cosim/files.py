@@ -47,3 +47,13 @@ def temporary_beside(path: str | Path, suffix: str = "") -> Path:
     finally:
         os.close(descriptor)
     return Path(name)
+
+
+def file_version(path: Path, missing: Exception) -> tuple[Path, int, int]:
+    """``path`` with its modification time and size: what a file read once per version is cached
+    under; ``missing`` is raised if there is no such file."""
+    try:
+        stat = path.stat()
+    except OSError:
+        raise missing from None
+    return path, stat.st_mtime_ns, stat.st_size

@@ -124,6 +124,14 @@ def _series(path: str, label: str, color: str, width: float = 1.5) -> dict[str, 
     }
 
 
+def _against(
+    panel: str, quantity: str, what: str, unit: str, truth: tuple[str, str], other: tuple[str, str]
+) -> tuple[str, dict[str, Any]]:
+    """A plot panel of one quantity: its true value (black, thick) against another (path, label each)."""
+    title = f"{quantity}{f' [{unit}]' if unit else ''}: {what}"
+    return f"Plot!{panel}", _plot(title, [_series(*truth, TRUTH, 2), _series(*other, COLORS[3])], unit)
+
+
 def _plot(title: str, series: list[dict[str, Any]], unit: str = "", **extra: Any) -> dict[str, Any]:
     return {
         "foxglovePanelTitle": title,
@@ -250,18 +258,14 @@ def _fault_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:
             )
         )
     for sensor in [s for s in signals.sensors if s in targets]:
-        unit = signals.unit(sensor)
         panels.append(
-            (
-                f"Plot!sensor-{sensor}",
-                _plot(
-                    f"{sensor}{f' [{unit}]' if unit else ''}: sent on the bus against the true reading",
-                    [
-                        _series(f"{SENSORS}.{sensor}", f"sensors.{sensor} (true)", TRUTH, 2),
-                        _series(f"{FAULTS}.measured.{sensor}", f"faults.measured.{sensor} (sent)", COLORS[3]),
-                    ],
-                    unit,
-                ),
+            _against(
+                f"sensor-{sensor}",
+                sensor,
+                "sent on the bus against the true reading",
+                signals.unit(sensor),
+                (f"{SENSORS}.{sensor}", f"sensors.{sensor} (true)"),
+                (f"{FAULTS}.measured.{sensor}", f"faults.measured.{sensor} (sent)"),
             )
         )
     if actuator_faults:
@@ -278,18 +282,14 @@ def _fault_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:
             )
         )
         for actuator in actuator_faults:
-            unit = signals.unit(actuator)
             panels.append(
-                (
-                    f"Plot!actuator-{actuator}",
-                    _plot(
-                        f"{actuator}{f' [{unit}]' if unit else ''}: commanded against effective input",
-                        [
-                            _series(f"{INPUTS}.commanded.{actuator}", f"inputs.commanded.{actuator}", TRUTH, 2),
-                            _series(f"{INPUTS}.effective.{actuator}", f"inputs.effective.{actuator}", COLORS[3]),
-                        ],
-                        unit,
-                    ),
+                _against(
+                    f"actuator-{actuator}",
+                    actuator,
+                    "commanded against effective input",
+                    signals.unit(actuator),
+                    (f"{INPUTS}.commanded.{actuator}", f"inputs.commanded.{actuator}"),
+                    (f"{INPUTS}.effective.{actuator}", f"inputs.effective.{actuator}"),
                 )
             )
     return panels

@@ -39,6 +39,26 @@ def _values(values: Mapping[str, Any], units: Mapping[str, str | None]) -> str:
     )
 
 
+class _Count:
+    """Frames seen (and not decodable) since the start, and whether the display is due (5 per second)."""
+
+    def __init__(self) -> None:
+        self.frames = self.unknown = 0
+        self.started, self.shown = time.monotonic(), 0.0
+
+    def due(self) -> bool:
+        now = time.monotonic()
+        if now - self.shown <= 0.2:
+            return False
+        self.shown = now
+        return True
+
+    def __str__(self) -> str:
+        rate = self.frames / max(time.monotonic() - self.started, 1e-9)
+        unknown = f" ({self.unknown} unknown)" if self.unknown else ""
+        return f"{self.frames} frames{unknown}, {rate:,.0f} frames/s"
+
+
 def find_run(run: str | None, command: str) -> dict[str, Any]:
     """The running co-simulation ``run`` (an id or its start) names, or the only one; when several
     run and none is named, the error lists them and says how to choose: ``<command> --run ID``."""
@@ -59,19 +79,16 @@ def monitor(run: str | None, console: Console) -> int:
     info = find_run(run, "cosim monitor")
     header = f"{info['scenario']} (run {info['id']}) on {info['bus']['interface']} {info['bus']['channel']}"
     latest: dict[str, Decoded] = {}
-    frames, started, shown = 0, time.monotonic(), 0.0
+    count = _Count()
     with Client.attach(None, info["id"]) as client:
         try:
             with Live(_table(latest, header), console=console, refresh_per_second=5, transient=False) as live:
                 for decoded in client.frames(timeout=None):
                     latest[decoded.spec.name] = decoded
-                    frames += 1
-                    now = time.monotonic()
-                    if now - shown > 0.2:
-                        shown = now
-                        rate = frames / max(now - started, 1e-9)
-                        live.update(_table(latest, f"{header}   {frames} frames, {rate:,.0f} frames/s"))
-                live.update(_table(latest, f"{header}   {frames} frames: the run has stopped"))
+                    count.frames += 1
+                    if count.due():
+                        live.update(_table(latest, f"{header}   {count}"))
+                live.update(_table(latest, f"{header}   {count.frames} frames: the run has stopped"))
         except KeyboardInterrupt:
             pass
     return 0
@@ -95,24 +112,20 @@ def watch(dbc: str, interface: str, channel: str | None, port: int | None, conso
     if not isinstance(database, cantools.database.can.Database):
         raise CosimError(f"--dbc {dbc}: not a CAN database")
     latest: dict[str, tuple[Any, Any]] = {}
-    frames = unknown = 0
-    started, shown = time.monotonic(), 0.0
+    count = _Count()
     bus = open_bus(config)
     try:
         with Live(_signals(latest, header), console=console, refresh_per_second=5, transient=False) as live:
             while True:
                 for frame in drain(bus, 0.1):
-                    frames += 1
+                    count.frames += 1
                     try:
                         message = database.get_message_by_frame_id(frame.arbitration_id)
                         latest[message.name] = (message, message.decode(bytes(frame.data), decode_choices=False))
                     except (KeyError, ValueError, cantools.database.DecodeError):
-                        unknown += 1
-                now = time.monotonic()
-                if now - shown > 0.2:
-                    shown = now
-                    rate = frames / max(now - started, 1e-9)
-                    live.update(_signals(latest, f"{header}   {frames} frames ({unknown} unknown), {rate:,.0f}/s"))
+                        count.unknown += 1
+                if count.due():
+                    live.update(_signals(latest, f"{header}   {count}"))
     except KeyboardInterrupt:
         pass
     finally:

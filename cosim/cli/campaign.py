@@ -32,16 +32,18 @@ examples:
 
 def register(sub) -> None:
     _register_campaign(sub)
-    p = sub.add_parser("campaigns", help="list the built-in campaigns", description="List the built-in campaigns.")
-    p.set_defaults(func=cmd_campaigns)
+    common.command(
+        sub, "campaigns", cmd_campaigns, help="list the built-in campaigns", description="List the built-in campaigns."
+    )
     _register_leaderboard(sub)
 
 
 def _register_campaign(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "campaign",
+        cmd_campaign,
         help="run a campaign of many runs on a distributed engine",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description=CAMPAIGN_DESCRIPTION,
         epilog=CAMPAIGN_EXAMPLES,
     )
@@ -79,15 +81,16 @@ def _register_campaign(sub) -> None:
         help="which runs' MCAP logs stay in DIR/logs (default: those of failed runs)",
     )
     common.quiet_option(p)
-    p.set_defaults(func=cmd_campaign)
 
 
 def _register_leaderboard(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "leaderboard",
+        cmd_leaderboard,
         help="rank a campaign's estimators",
         description="Rank the estimators of a campaign's results table per group of runs (the fault kind by "
-        "default) by their RMS error after onset: median with its 95 %% interval, p90, final error, bias "
+        "default) by their RMS error after onset: median with its 95 % interval, p90, final error, bias "
         "rejection, detection rate, missed detections, false alarms per hour, detection and isolation delays, "
         "isolation accuracy. Each estimator is compared with the next on their common runs (paired: median "
         "difference, Wilcoxon signed-rank p, Holm-adjusted); ranks it cannot tell apart share their number (=).",
@@ -97,7 +100,6 @@ def _register_leaderboard(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
     p.add_argument("--markdown", action="store_true", help="print the tables as Markdown (for documents)")
-    p.set_defaults(func=cmd_leaderboard)
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:

@@ -241,3 +241,13 @@ def with_progress(run, talk: Console, started, **execute):
     finally:
         if progress.live.is_started:
             progress.stop()
+
+
+def command(sub, name: str, run, *, help: str, description: str, epilog: str | None = None) -> argparse.ArgumentParser:
+    """A command's parser, ``run`` called with its arguments; a description or epilog laid out by hand
+    (with line breaks) is kept as it is."""
+    raw = "\n" in description or epilog is not None
+    formatter = argparse.RawDescriptionHelpFormatter if raw else argparse.HelpFormatter
+    p = sub.add_parser(name, help=help, description=description, epilog=epilog, formatter_class=formatter)
+    p.set_defaults(func=run)
+    return p

@@ -30,18 +30,21 @@ Decode frames with the DBC from 'cosim dbc SCENARIO' (the MF4 file carries it)."
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "inspect",
+        cmd_inspect,
         help="summarize a log",
         description="Summarize a run log: channels and message counts, duration, scenario, frame counts, and per "
         "estimator the RMS of |x - x̂| before and after the first fault, with units.",
     )
     p.add_argument("log", nargs="?", metavar="FILE.mcap", help=LOG_HELP + " (default)")
     p.add_argument("--json", action="store_true", help="print one JSON object (stable keys, for other tools)")
-    p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "plot",
+        cmd_plot,
         help="draw a log's figures (PNG, SVG or PDF)",
         description="Draw the figures of a run log: the state against every estimate, estimation errors per "
         "estimator, the injected faults, and what the estimators publish (pseudoinverse weights s, z or Γ, the "
@@ -59,10 +62,11 @@ def register(sub) -> None:
     p.add_argument(
         "--dpi", type=common.dpi, default=150, metavar="N", help="dots per inch of PNG figures (default 150)"
     )
-    p.set_defaults(func=cmd_plot)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "report",
+        cmd_report,
         help="write a self-contained HTML report of a log",
         description="Write one HTML page about a run log: the scenario and its settings, the metrics "
         "of 'cosim inspect' as tables, and the figures of 'cosim plot'. The page is self-contained "
@@ -70,13 +74,14 @@ def register(sub) -> None:
     )
     p.add_argument("log", metavar="FILE.mcap", help=LOG_HELP)
     p.add_argument("--out", "-o", metavar="REPORT.html", help="output file (default: FILE.html next to the log)")
-    p.set_defaults(func=cmd_report)
 
     _register_export(sub)
     _register_layout(sub)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "recover",
+        cmd_recover,
         help="rebuild a log whose writer died (summary, indexes)",
         description="Rebuild the summary and indexes of a log whose writer died (a runner killed with SIGKILL, a "
         "full disk): its records are read in order, CRCs checked, up to the first damaged one, and written into a "
@@ -86,7 +91,6 @@ def register(sub) -> None:
     p.add_argument("log", metavar="FILE.mcap")
     p.add_argument("--out", "-o", metavar="FIXED.mcap", help="write the recovered log here instead of replacing FILE")
     common.force_option(p)
-    p.set_defaults(func=cmd_recover)
 
 
 #: ``cosim.analysis.export.FORMATS``, without importing the export at every start of the command line
@@ -95,10 +99,11 @@ EXPORT_FORMATS = ("csv", "parquet", "blf", "asc", "trc", "mf4", "candump")
 
 
 def _register_export(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "export",
+        cmd_export,
         help="export a log for other tools (CSV, Parquet, BLF, ASC, TRC, MF4, candump)",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description=EXPORT_DESCRIPTION,
         epilog="examples:\n  cosim export runs/my.mcap --to csv\n  cosim export runs/my.mcap --to mf4 --out bus.mf4\n"
         "  cosim export latest --to asc",
@@ -122,14 +127,14 @@ def _register_export(sub) -> None:
         "without a zone) or seconds since the Unix epoch; 0: the epoch (t = 0 s) (default: when the run started, "
         "to the millisecond)",
     )
-    p.set_defaults(func=cmd_export)
 
 
 def _register_layout(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "layout",
+        cmd_layout,
         help="write a Foxglove layout for a log or a scenario",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Write a Foxglove layout for a run: estimates against the truth per state, estimation errors "
         "(a user\nscript), the injected faults, diagnosis flags and residuals, and the trajectory of a planar "
         "plant. Every message\npath is a topic and field of the run's log. Open the log in Foxglove, then Layouts → "
@@ -149,7 +154,6 @@ def _register_layout(sub) -> None:
         metavar="FILE.json",
         help="output file (default: FILE.layout.json next to the log, or <scenario>.layout.json)",
     )
-    p.set_defaults(func=cmd_layout)
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:

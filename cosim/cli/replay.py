@@ -41,10 +41,11 @@ examples:
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "replay",
+        cmd_replay,
         help="feed a log's bus traffic to an estimator, or play it onto a live bus",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description=DESCRIPTION,
         epilog=EXAMPLES,
     )
@@ -92,7 +93,6 @@ def register(sub) -> None:
         metavar="S",
         help="--foxglove: how long to wait for Foxglove to subscribe before playing (default 60 s)",
     )
-    p.set_defaults(func=cmd_replay)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

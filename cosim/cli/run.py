@@ -20,8 +20,10 @@ def register(sub) -> None:
 
 
 def _register_run(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "run",
+        cmd_run,
         help="run a scenario and log it to MCAP",
         description="Run a scenario: simulate the plant, "
         "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.",
@@ -64,12 +66,13 @@ def _register_run(sub) -> None:
         "one) and wait up to [timing] join_timeout for Foxglove to subscribe before tick 0 (not counted in the "
         "run's timing)",
     )
-    p.set_defaults(func=cmd_run)
 
 
 def _register_node(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "node",
+        cmd_node,
         help="run one estimator (or the controller) as a CAN node",
         description="Run one estimator, "
         "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
@@ -79,14 +82,14 @@ def _register_node(sub) -> None:
     p.add_argument("estimator", metavar="NAME", help="the estimator's name in the scenario, or 'controller'")
     p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
-    p.set_defaults(func=cmd_node)
 
 
 def _register_monitor(sub) -> None:
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "monitor",
+        cmd_monitor,
         help="show a bus's decoded signals live",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Show decoded signals live, message by message: of a running co-simulation (the only one, or\n"
         "--run ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log\n"
         "written by another tool).",
@@ -97,7 +100,6 @@ def _register_monitor(sub) -> None:
     p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
     p.add_argument("--dbc", metavar="FILE.dbc", help="decode any bus with this database (with --interface, --channel)")
     common.bus_options(p, "udp_multicast, with --dbc")
-    p.set_defaults(func=cmd_monitor)
 
 
 def _check_options(args: argparse.Namespace, s) -> None:

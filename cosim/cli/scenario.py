@@ -15,17 +15,20 @@ from cosim.errors import CosimError
 
 
 def register(sub) -> None:
-    p = sub.add_parser("scenarios", help="list the built-in scenarios", description="List the built-in scenarios.")
+    p = common.command(
+        sub, "scenarios", cmd_scenarios, help="list the built-in scenarios", description="List the built-in scenarios."
+    )
     p.add_argument(
         "--json",
         action="store_true",
         help="print a JSON list: name, default, description, plant, duration_s, sample_time_s, estimators, bus, "
         "error (null unless the file is invalid)",
     )
-    p.set_defaults(func=cmd_scenarios)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "kinds",
+        cmd_kinds,
         help="list the estimators, controllers, fault models and plants a scenario can name",
         description="List every kind a scenario can name (estimators' and the controller's 'kind', faults' "
         "'kind', the plant's 'model'), with where it comes from: built into cosim, or an installed package's "
@@ -33,10 +36,11 @@ def register(sub) -> None:
         "can also name a class in a file, 'observers.py:MyObserver' (docs/extending.md).",
     )
     p.add_argument("--json", action="store_true", help="print a JSON object: group → [{name, source, target}]")
-    p.set_defaults(func=cmd_kinds)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "dbc",
+        cmd_dbc,
         help="write the CAN database of a scenario",
         description="Write the DBC database of a scenario's bus, so that external tools can decode its frames.",
     )
@@ -45,10 +49,11 @@ def register(sub) -> None:
     )
     p.add_argument("--out", "-o", metavar="FILE.dbc", help="output file (default: standard output)")
     common.set_option(p)
-    p.set_defaults(func=cmd_dbc)
 
-    p = sub.add_parser(
+    p = common.command(
+        sub,
         "fmu",
+        cmd_fmu,
         help="export a scenario's plant with its faults as an FMU",
         description="Package the scenario's plant with its sensor and actuator faults, noise and disturbances "
         "(seeded) as an FMI 3.0 co-simulation FMU (docs/fmi.md).",
@@ -58,7 +63,6 @@ def register(sub) -> None:
     common.force_option(p)
     p.add_argument("--seed", type=common.seed, metavar="N", help="the seed of its noise, faults and disturbances")
     common.set_option(p)
-    p.set_defaults(func=cmd_fmu)
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:

@@ -32,6 +32,7 @@ from xml.etree import ElementTree
 from cosim.bus.signals import Channel
 from cosim.errors import ModelError
 from cosim.extras import require
+from cosim.files import file_version
 from mjcf import PlantInfo
 
 #: The FMI versions cosim runs.
@@ -132,11 +133,8 @@ def read(path: str | Path, spec: Any) -> FmuModel:
     """The FMU at ``path`` (absolute) as a plant under the scenario's ``[plant.fmu]`` table (a
     validated ``FmuSpec``); FmuError in one line if it cannot be one."""
     path = Path(path)
-    try:
-        stat = path.stat()
-    except OSError:
-        raise FmuError(f"plant.model: no FMU at {path} (a path relative to the scenario file)") from None
-    key = (path, stat.st_mtime_ns, stat.st_size, spec.model_dump_json())
+    missing = FmuError(f"plant.model: no FMU at {path} (a path relative to the scenario file)")
+    key = (*file_version(path, missing), spec.model_dump_json())
     if key not in _READ:
         _READ[key] = _read(path, spec)
     return _READ[key]

@@ -33,6 +33,7 @@ import mujoco
 
 from cosim.bus.signals import Channel
 from cosim.errors import ModelError
+from cosim.files import file_version
 from mjcf import PlantInfo
 
 #: The unit of a sensor's reading by its MuJoCo type (joint sensors: see ``_joint_unit``).
@@ -90,11 +91,8 @@ def plant_info(path: str | Path, spec: Any) -> PlantInfo:
     table (a validated ``MjcfSpec``); ModelError in one line if it cannot be a plant. Read once per
     file version and table."""
     path = Path(path)
-    try:
-        stat = path.stat()
-    except OSError:
-        raise ModelError(f"plant.model: no MJCF file at {path} (a path relative to the scenario file)") from None
-    key = (path, stat.st_mtime_ns, stat.st_size, spec.model_dump_json())
+    missing = ModelError(f"plant.model: no MJCF file at {path} (a path relative to the scenario file)")
+    key = (*file_version(path, missing), spec.model_dump_json())
     if key not in _READ:
         _READ[key] = _plant_info(path, spec)
     return _READ[key]
