@@ -12,6 +12,12 @@ it into an MCAP log, with its estimators in node processes on a host-local multi
 ``cosim run``), or, with ``in_process``, on the in-process bus (the codec and its quantization
 still in the loop: the same frames, bit for bit). ``metrics`` is ``cosim inspect --json``'s object.
 Errors are ``cosim.errors.CosimError`` with one message naming what to fix.
+
+It also holds the contract a user's parts are written against (``docs/extending.md``): an
+estimator subclasses ``Estimator`` (a ``Params`` dataclass, the constructor ``(model, params,
+sample_time)`` on the plant's ``LinearModel``, ``_step(dy, du) -> Estimate`` in deviation
+coordinates, ``Diagnostic`` channels of a ``DiagnosticKind``); a controller ``Controller``; a fault
+model ``SensorFault`` or ``ActuatorFault``; a plant is a ``PlantInfo``.
 """
 
 from __future__ import annotations
@@ -22,6 +28,32 @@ from typing import Any
 
 from cosim.run.outcome import Progress, RunResult
 from cosim.scenario import LoadedScenario, apply, load, parse_setting
+from estimators import Estimate, Estimator, LinearModel, ParameterError
+from estimators.controller import Command, Controller
+from estimators.diagnostics import Diagnostic, DiagnosticKind
+from faults.models import ActuatorFault, SensorFault
+from mjcf import Parameter, PlantInfo
+
+__all__ = [
+    "ActuatorFault",
+    "Command",
+    "Controller",
+    "Diagnostic",
+    "DiagnosticKind",
+    "Estimate",
+    "Estimator",
+    "LinearModel",
+    "LoadedScenario",
+    "Parameter",
+    "ParameterError",
+    "PlantInfo",
+    "Progress",
+    "RunResult",
+    "SensorFault",
+    "load_scenario",
+    "metrics",
+    "run",
+]
 
 
 def load_scenario(

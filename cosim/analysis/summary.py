@@ -56,6 +56,9 @@ def _run(m: RunMetrics, console: Console) -> None:
         f"{m.ticks} ticks, {m.duration_s} s simulated; frames {m.frames.total} "
         f"({m.frames.lost} lost); first fault at {first}"
     )
+    for name, e in m.estimators.items():
+        if e.failed:
+            console.print(f"[yellow]estimator {escape(name)} {escape(e.failed)}[/yellow]")
     channels = _table("channels", ["topic", "messages"])
     for topic, count in m.channels.items():
         channels.add_row(escape(topic), str(count))

@@ -127,8 +127,9 @@ class Entry:
     isolated_correctly: int = 0
 
     def add(self, row: Row) -> None:
-        """A row of one of its runs: a failed run is counted, a completed one scored."""
-        if row.status != "completed":
+        """A row of one of its runs: a failed run (or a run this estimator failed in) is counted, a
+        completed one scored."""
+        if row.status != "completed" or row.estimator_failed:
             self.failed += 1
             return
         self.runs += 1

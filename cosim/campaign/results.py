@@ -45,6 +45,9 @@ class Row:
     log: str | None = column("text", "", "the run's log, relative to the campaign folder (empty if not kept)")
     estimator: str | None = column("text", "", "estimator name")
     kind: str | None = column("text", "", "estimator kind")
+    estimator_failed: str | None = column(
+        "text", "", "the estimator failed during the run: when and what it raised (empty if it did not)"
+    )
     fault_kind: str | None = column("text", "", "kinds of the run's faults, joined with +; none without faults")
     fault_onset_s: float | None = column("float", "s", "first fault onset")
     ticks: int | None = column("int", "", "ticks run")
@@ -135,6 +138,7 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
             frames_lost=metrics.frames.lost,
             estimator=name,
             kind=e.kind or (d.kind if d else None),
+            estimator_failed=e.failed,
             rms_pre_fault=e.rms_pre_fault,
             rms_post_fault=e.rms_post_fault,
             final_error=e.final_error,

@@ -129,6 +129,7 @@ def summary(result, out: Path, error: str = "") -> dict:
         "sim_time_s": result.sim_time,
         "wall_time_s": round(result.wall_time, 3),
         "realtime_factor": round(result.realtime_factor, 3),
+        "failed": result.failed,
         "error": result.error or error,
     }
 
@@ -222,6 +223,11 @@ def _report(result, s, talk: Console) -> None:
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "
         f"{result.wall_time:.2f} s (real-time factor {result.realtime_factor:.1f})"
     )
+    for name, why in result.failed.items():
+        talk.print(
+            f"[yellow]  estimator {escape(name)} {escape(why)}; the run went on without it "
+            "(its traceback: the log's /cosim/events)[/yellow]"
+        )
     for name, counts in result.senders.items():
         if counts["lost"] or counts["runner_frames_missed"]:
             talk.print(

@@ -406,6 +406,9 @@ class ResultRecord:
     foreign: dict[str, int] = field(default_factory=dict)
     """What arrived that does not belong to the run: ``datagrams`` (not frames of the bus: garbage,
     another host's) and ``frames`` (frames the run did not send on its own ids), counted."""
+    failed: dict[str, str] = field(default_factory=dict)
+    """Estimator nodes that failed during the run (their step raised, their process died), each with
+    the tick and what it raised; the run went on without them."""
 
     def to_metadata(self) -> dict[str, str]:
         return {
@@ -417,6 +420,7 @@ class ResultRecord:
             "error": self.error,
             "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
             "foreign": json.dumps(self.foreign),
+            **({"failed": json.dumps(self.failed)} if self.failed else {}),  # logs without failures as before
         }
 
     @classmethod
@@ -440,6 +444,7 @@ class ResultRecord:
             record.get("error", ""),
             senders,
             {str(k): int(v) for k, v in f.json("foreign", {}).items() if isinstance(v, int)},
+            {str(k): str(v) for k, v in f.json("failed", {}).items()},
         )
 
 

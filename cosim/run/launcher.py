@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import traceback
 from pathlib import Path
 
 from cosim.bus.transport import open_bus
@@ -113,12 +114,23 @@ class LocalNode(Participant):
         self.bus = open_bus(spec.bus)
         self.node = EstimatorNode(spec, self.bus, estimator)
         self.node.client.join()
+        self._failure: str | None = None
 
     def service(self) -> None:
-        self.node.service()
+        if self._failure is not None:
+            return
+        try:
+            self.node.service()
+        except Exception as error:  # noqa: BLE001 (the estimator's own code: as if its process had died)
+            output = "".join(traceback.format_exception(error))
+            self._failure = f"{self.kind} {self.name} raised {type(error).__name__}; its traceback:\n{output}"
+
+    def failure(self) -> str | None:
+        return self._failure
 
     def stop(self, timeout: float) -> str | None:
-        self.node.service()  # take the stop command
+        if self._failure is None:
+            self.node.service()  # take the stop command
         self.bus.shutdown()
         return None
 
@@ -133,6 +145,7 @@ class LocalController(LocalNode):
         self.bus = open_bus(spec.bus)
         self.node = ControllerNode(spec, self.bus, controller)
         self.node.client.join()
+        self._failure = None
 
 
 class ExternalClient(Participant):

@@ -42,6 +42,8 @@ class RunResult:
     """Wall time from the start until every node had joined."""
     loop_time: float = 0.0
     """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
+    failed: dict[str, str] = field(default_factory=dict)
+    """Estimator nodes that failed during the run, and why in a line (the run went on without them)."""
 
     @property
     def realtime_factor(self) -> float:
@@ -59,3 +61,15 @@ def ending(exc: BaseException) -> tuple[str, str]:
     if isinstance(exc, CosimError):
         return "error", str(exc)
     return "error", f"{type(exc).__name__}: {exc}"
+
+
+def last_words(output: str) -> str:
+    """A failed node's output (a Python traceback, usually) in one line: the exception, and where
+    in the user's code it was raised (the innermost frame outside cosim and the libraries)."""
+    lines = [line.strip() for line in output.splitlines() if line.strip()]
+    if not lines:
+        return "no output"
+    frames = [line for line in lines if line.startswith('File "')]
+    own = [f for f in frames if "/site-packages/" not in f and "/cosim/" not in f and "/estimators/" not in f]
+    where = f" ({own[-1].split(', in ')[0]})" if own else ""
+    return f"{lines[-1]}{where}"

@@ -66,7 +66,25 @@ def build_estimators(
                 design_cache.store(spec.kind, spec.params, chosen, built[spec.name].design_params())
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
+        except Exception as error:  # noqa: BLE001 (a plugin's design may raise anything: one line, not its traceback)
+            if estimators.ESTIMATORS.origin(spec.kind).source == "built-in":
+                raise  # a bug of ours: its traceback
+            raise ScenarioError(
+                f"{source}: estimators[{i}] ({spec.name}, {spec.kind}): its design raised {plugin_error(error)}"
+            ) from None
     return built
+
+
+def plugin_error(error: BaseException) -> str:
+    """What a plugin's code raised, in a line: the exception and where in the plugin's own code
+    (the innermost frame outside cosim, the libraries and the standard library)."""
+    import sysconfig
+    import traceback
+
+    ours = [str(Path(estimators.__file__).parent.parent), *sysconfig.get_paths().values()]
+    frames = [f for f in traceback.extract_tb(error.__traceback__) if not f.filename.startswith(tuple(ours))]
+    where = f" at {frames[-1].filename}:{frames[-1].lineno}" if frames else ""
+    return f"{type(error).__name__}: {error}{where}"
 
 
 def build_controller(

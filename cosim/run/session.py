@@ -44,7 +44,7 @@ from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant
-from cosim.run.outcome import NodeFailure, Progress, RunResult
+from cosim.run.outcome import NodeFailure, Progress, RunResult, last_words
 from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
@@ -128,6 +128,7 @@ class Session:
         self.participants: list[Participant] = []
         self.misses = 0
         self.warnings: list[str] = []
+        self.failed: dict[str, str] = {}  # estimator nodes out of the run, and why
         self.result: RunResult | None = None
         self.start = time.perf_counter()
         self.tick_start: float | None = None
@@ -242,9 +243,12 @@ class Session:
             self.traffic(frame)
 
     def _check_health(self) -> None:
-        for participant in self.participants:
-            if (reason := participant.failure()) is not None:
+        for participant in list(self.participants):
+            if (reason := participant.failure()) is None:
+                continue
+            if participant.kind != "node":  # the controller, whose commands the plant needs
                 raise NodeFailure(self._after_foreign(reason))
+            self._drop(participant, reason)
         now = time.perf_counter()
         for participant in self.participants:
             stopped = self.traffic.left.get(participant.name)
@@ -253,6 +257,18 @@ class Session:
                     f"{participant.kind} {participant.name} left the bus at tick {self._marker[0]} "
                     f"(stopped heartbeat) and answers no more"
                 )
+
+    def _drop(self, participant: Participant, reason: str) -> None:
+        """An estimator node that failed (its step raised, its process died) leaves the run, which
+        goes on without it: its estimates end at this tick, and the log and the result say why."""
+        k = self._marker[0]
+        self.participants.remove(participant)
+        participant.stop(timeout=0.0)
+        self.failed[participant.name] = f"failed at tick {k}: {last_words(reason)}"
+        self.event(k, "node failed", reason, "error")
+        self.warnings.append(
+            f"estimator {participant.name} {self.failed[participant.name]}; the run went on without it"
+        )
 
     def _after_foreign(self, reason: str) -> str:
         """A failure's report, naming the foreign frame that came before it, if one did."""
@@ -471,16 +487,15 @@ class Session:
     def end(self, k: int) -> None:
         """Tick k is over once every lockstep participant has answered it (lockstep, within the node
         timeout) or at its deadline (realtime, where each missing answer is a deadline miss)."""
-        lockstep = [p.name for p in self.participants if p.lockstep]
         closed = self.traffic.closed
         if self.timing.realtime:
             self.wait(lambda: False, self._deadline(k + 1), lambda: None)
-            for name in lockstep:
+            for name in [p.name for p in self.participants if p.lockstep]:
                 if closed.get(name, -1) < k and name != CONTROLLER:
                     self._miss(k, name)
         else:
-            self.wait(
-                lambda: all(closed.get(n, -1) >= k for n in lockstep),
+            self.wait(  # over the participants still in the run: one that failed meanwhile is not waited for
+                lambda: all(closed.get(p.name, -1) >= k for p in self.participants if p.lockstep),
                 time.perf_counter() + self.timing.node_timeout,
                 lambda: self._hung(k),
             )
@@ -518,7 +533,9 @@ class Session:
         )
         self.log.metadata(
             RESULT,
-            ResultRecord(status, k, self.recorder.frames, lost, self.misses, error, counts, self.foreign).to_metadata(),
+            ResultRecord(
+                status, k, self.recorder.frames, lost, self.misses, error, counts, self.foreign, self.failed
+            ).to_metadata(),
         )
         self.result = RunResult(
             self.out,
@@ -533,6 +550,7 @@ class Session:
             {name: vars(c) for name, c in counts.items()},
             startup,
             loop,
+            dict(self.failed),
         )
         return self.result
 

@@ -147,7 +147,10 @@ def _faults(run: RunFacts, scorer: Scorer) -> dict[str, FaultSpan]:
 
 def _estimators(run: RunFacts, scorer: Scorer) -> dict[str, EstimationMetrics]:
     baseline = scorer.estimators.get(run.baseline) if run.baseline else None
-    return {name: score.metrics(run.estimators[name].kind, baseline) for name, score in scorer.estimators.items()}
+    return {
+        name: replace(score.metrics(run.estimators[name].kind, baseline), failed=run.failed.get(name))
+        for name, score in scorer.estimators.items()
+    }
 
 
 def _diagnosis(run: RunFacts, scorer: Scorer) -> dict[str, DiagnosisMetrics]:

@@ -83,6 +83,9 @@ class EstimationMetrics:
     bias_rejection_ratio: float | None = None
     saturated: dict[str, Saturation] = field(default_factory=dict)
     faults: dict[str, FaultRecovery] = field(default_factory=dict)
+    failed: str | None = None
+    """The estimator failed during the run (its step raised, its node died): at which tick and what
+    it raised; its metrics cover the ticks before."""
 
 
 @dataclass

@@ -1,0 +1,183 @@
+"""An estimator the package never saw, written in a file beside the user's scenario, goes wherever a
+built-in goes: in-process, as a node process, in replay, in a campaign on two Dask workers, and on
+the leaderboard beside ``kalman``."""
+
+from __future__ import annotations
+
+import io
+import json
+from contextlib import redirect_stdout
+
+import pytest
+
+from cosim import api
+from cosim.campaign.coordinator import run_campaign
+from cosim.campaign.leaderboard import leaderboard
+from cosim.campaign.spec import load_campaign
+from cosim.cli import main
+from tests.conftest import ROOT
+from tests.snippets import short_scenario
+
+#: The user's observer: a Luenberger observer placed on independent rows of C (the masses' three
+#: sensors measure two independent quantities).
+OBSERVER = '''
+"""My observer, in a file next to my scenario."""
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import place_poles
+
+from cosim.api import Estimate, Estimator
+
+
+@dataclass(frozen=True)
+class Params:
+    poles: tuple[float, ...] = (0.8, 0.82, 0.84, 0.86)
+
+
+class Luenberger(Estimator):
+    """x̂⁺ = A x̂ + B u + L (y − C x̂ − D u), L placing spec(A − L C) at ``poles``."""
+
+    kind = "luenberger"
+    Params = Params
+
+    def __init__(self, model, params, sample_time=None):
+        super().__init__(model, params, sample_time)
+        rows = []
+        for i in range(model.p):  # the first independent rows of C
+            if np.linalg.matrix_rank(model.C[rows + [i]]) > len(rows):
+                rows.append(i)
+        self.L = np.zeros((model.n, model.p))
+        self.L[:, rows] = place_poles(model.A.T, model.C[rows].T, params.poles).gain_matrix.T
+        self.x = np.zeros(model.n)
+
+    def _step(self, dy, du):
+        m = self.model
+        estimate = self.x.copy()
+        self.x = m.A @ self.x + m.B @ du + self.L @ (np.nan_to_num(dy) - m.C @ self.x - m.D @ du)
+        return Estimate(estimate)
+'''
+
+#: The default scenario, shortened, with the user's observer beside its estimators.
+SCENARIO = (
+    short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 1.5)
+    + """
+[[estimators]]
+name = "mine"
+kind = "observers.py:Luenberger"
+params = { poles = [0.5, 0.55, 0.6, 0.65] }
+"""
+)
+
+CAMPAIGN = """
+name = "mine"
+scenario = "mine.toml"
+seed = 3
+seeds = 2
+bus = "processes"
+[set]
+"faults[0].start" = 0.5
+"bus.fd" = true
+"""
+
+
+@pytest.fixture()
+def folder(tmp_path):
+    (tmp_path / "observers.py").write_text(OBSERVER)
+    (tmp_path / "mine.toml").write_text(SCENARIO)
+    (tmp_path / "campaign.toml").write_text(CAMPAIGN)
+    return tmp_path
+
+
+def test_a_scenario_file_names_its_estimator_file_relative_to_itself(folder):
+    loaded = api.load_scenario(folder / "mine.toml")
+    assert [e.name for e in loaded.scenario.estimators] == ["uniform", "kalman", "mine"]
+    assert loaded.scenario.estimators[-1].kind == f"{folder / 'observers.py'}:Luenberger"
+
+
+@pytest.mark.slow
+def test_my_estimator_runs_replays_and_ranks_beside_the_built_ins(folder, monkeypatch, capsys):
+    monkeypatch.chdir(folder)
+    log = folder / "mine.mcap"
+    result = api.run(api.load_scenario(folder / "mine.toml"), log)  # node processes
+    assert result.status == "completed", result.error
+    mine = api.metrics(log)["estimators"]["mine"]
+    assert mine["final_error"] < 0.05  # converged from x̂ = 0
+
+    kind = f"{folder / 'observers.py'}:Luenberger"
+    assert main(["replay", str(log), "-e", "mine", "-q"]) == 0  # its frames again, bit for bit
+    assert main(["replay", str(log), "-e", "faster", "--kind", kind, "--param", "poles=[0.7, 0.72, 0.74, 0.76]"]) == 0
+    capsys.readouterr()
+    assert api.metrics(folder / "mine-replay-mine.mcap")["estimators"]["mine"]["rms_pre_fault"] == mine["rms_pre_fault"]
+    replayed = api.metrics(folder / "mine-replay-faster.mcap")["estimators"]["faster"]
+    assert replayed["kind"] == kind and replayed["final_error"] < 0.05
+
+    campaign = run_campaign(load_campaign(folder / "campaign.toml"), folder / "out", engine="dask", workers=2)
+    assert campaign.runs == 2 and campaign.failed == 0
+    board = leaderboard(campaign.path)
+    (group,) = board["groups"]
+    assert {s["estimator"] for s in group["ranking"]} == {"uniform", "kalman", "mine"}
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["leaderboard", str(campaign.path), "--json"]) == 0
+    ranked = json.loads(out.getvalue())["groups"][0]["ranking"]
+    assert next(s for s in ranked if s["estimator"] == "mine")["kind"] == kind
+
+
+BREAKS = '''
+"""An estimator with a bug that shows at its 51st step."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cosim.api import Estimate, Estimator
+
+
+@dataclass(frozen=True)
+class Params:
+    at: int = 50
+
+
+class Breaks(Estimator):
+    kind = "breaks"
+    Params = Params
+
+    def __init__(self, model, params, sample_time=None):
+        super().__init__(model, params, sample_time)
+        self.k = 0
+
+    def _step(self, dy, du):
+        self.k += 1
+        if self.k > self.params.at:
+            raise ZeroDivisionError("my bug")
+        return Estimate(np.zeros(self.model.n))
+'''
+
+
+@pytest.mark.parametrize("in_process", [True, False], ids=["in-process", "node process"])
+def test_an_estimator_whose_step_raises_leaves_the_run_which_goes_on(tmp_path, in_process, capsys):
+    (tmp_path / "breaks.py").write_text(BREAKS)
+    text = short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 1.0)
+    (tmp_path / "s.toml").write_text(text + '[[estimators]]\nname = "bad"\nkind = "breaks.py:Breaks"\n')
+    out = tmp_path / "run.mcap"
+    result = api.run(api.load_scenario(tmp_path / "s.toml"), out, in_process=in_process)
+    assert result.status == "completed" and result.ticks == 100
+    why = result.failed["bad"]
+    assert why.startswith("failed at tick 50: ZeroDivisionError: my bug") and "breaks.py" in why and "\n" not in why
+    metrics = api.metrics(out)
+    assert metrics["estimators"]["bad"]["failed"] == why and metrics["estimators"]["kalman"]["failed"] is None
+    assert metrics["estimators"]["kalman"]["ticks_scored"] == 100 and metrics["estimators"]["bad"]["ticks_scored"] == 50
+    from cosim.log.reader import LogReader
+
+    with LogReader(out) as reader:
+        events = [m for _, _, m in reader.messages(["/cosim/events"]) if m["event"] == "node failed"]
+    assert len(events) == 1 and 'raise ZeroDivisionError("my bug")' in events[0]["detail"]  # the whole traceback
+    from cosim.analysis.metrics import measure
+    from cosim.campaign.results import rows_of
+
+    rows = {row["estimator"]: row for row in rows_of(measure(out))}
+    assert rows["bad"]["estimator_failed"] == why and rows["kalman"]["estimator_failed"] is None
+    assert main(["inspect", str(out)]) == 0
+    assert "estimator bad failed at tick 50" in capsys.readouterr().out
