@@ -165,7 +165,6 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
     try:
         proc = cli(
             "run",
-            "-q",
             str(short(tmp_path, 2.0).source),
             "--channel",
             bus.channel,
@@ -176,7 +175,7 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
         )
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
-        assert f"bus: udp_multicast channel {bus.channel} port {bus.port}" in err
+        assert f" on udp_multicast channel {bus.channel} port {bus.port}   join with: can.Bus(" in err
         time.sleep(0.5)
     finally:
         logger.send_signal(signal.SIGINT)
