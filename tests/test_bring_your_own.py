@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 from contextlib import redirect_stdout
 
 import pytest
@@ -15,6 +16,7 @@ from cosim.campaign.coordinator import run_campaign
 from cosim.campaign.leaderboard import leaderboard
 from cosim.campaign.spec import load_campaign
 from cosim.cli import main
+from cosim.errors import CosimError
 from tests.conftest import ROOT
 from tests.snippets import short_scenario
 
@@ -181,3 +183,71 @@ def test_an_estimator_whose_step_raises_leaves_the_run_which_goes_on(tmp_path, i
     assert rows["bad"]["estimator_failed"] == why and rows["kalman"]["estimator_failed"] is None
     assert main(["inspect", str(out)]) == 0
     assert "estimator bad failed at tick 50" in capsys.readouterr().out
+
+
+MY_FAULTS = '''
+"""Faults of mine: a sensor that reads in steps, and an actuator wired the wrong way round."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cosim.api import ActuatorFault, SensorFault
+
+
+@dataclass
+class Quantized(SensorFault):
+    """y <- step * round(y / step) on its sensors."""
+
+    step: float = 0.1
+    kind = "quantized"
+
+    def _affect(self, y, elapsed):
+        return self.step * np.round(y / self.step)
+
+
+@dataclass
+class Reversed(ActuatorFault):
+    """u_eff = -u on its actuators."""
+
+    kind = "reversed"
+
+    def factors(self, t, n):
+        delta = np.ones(n)
+        if self.active(t):
+            delta[list(self.channels)] = -1.0
+        return delta
+'''
+
+
+def test_fault_kinds_of_my_own_act_like_the_built_ins(tmp_path):
+    (tmp_path / "my_faults.py").write_text(MY_FAULTS)
+    text = short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 1.0)
+    text = re.sub(r"\[\[faults\]\]\n(.+\n)+\n", "", text)  # without its bias
+    assert "[[faults]]" not in text and "[[estimators]]" in text
+    text += (
+        '[[faults]]\nkind = "my_faults.py:Quantized"\nsensors = ["x1"]\nstart = 0.5\nparams = { step = 0.05 }\n'
+        '[[faults]]\nkind = "my_faults.py:Reversed"\nactuators = ["force"]\nstart = 0.8\n'
+    )
+    (tmp_path / "s.toml").write_text(text)
+    loaded = api.load_scenario(tmp_path / "s.toml")
+    assert loaded.scenario.faults[0].kind == f"{tmp_path / 'my_faults.py'}:Quantized"  # made absolute
+    out = tmp_path / "run.mcap"
+    assert api.run(loaded, out, in_process=True).status == "completed"
+    from cosim.log.reader import LogReader
+
+    with LogReader(out) as reader:
+        faults = {m["tick"]: m for _, _, m in reader.messages(["/truth/faults"])}
+    assert faults[10]["fault"]["x1"] == 0.0 and faults[10]["effectiveness"]["force"] == 1.0
+    steps = [faults[k]["measured"]["x1"] / 0.05 for k in range(50, 100)]  # quantized from its onset
+    assert all(abs(s - round(s)) < 1e-9 for s in steps) and faults[60]["fault"]["x1"] != 0.0
+    assert faults[90]["effectiveness"]["force"] == -1.0 and faults[70]["effectiveness"]["force"] == 1.0
+    metrics = api.metrics(out)
+    assert {f["kind"] for f in metrics["faults"].values()} == {"quantized", "reversed"}
+    with pytest.raises(CosimError, match=r"params: size is not a parameter of fault .*Quantized.* \(it has: step\)"):
+        api.load_scenario(tmp_path / "s.toml", {"faults[0].params": {"size": 1.0}})
+    with pytest.raises(CosimError, match=r"faults\[1\]: actuators: fault .* acts on sensors"):
+        api.load_scenario(
+            tmp_path / "s.toml",
+            {"faults[1]": {"kind": f"{tmp_path / 'my_faults.py'}:Quantized", "actuators": ["force"]}},
+        )

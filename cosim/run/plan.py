@@ -42,7 +42,7 @@ from cosim.run.detector import IntrusionDetector
 from cosim.run.node import NodeSpec
 from cosim.run.session import Session, Timing
 from cosim.scenario import LoadedScenario, Scenario, build_faults
-from cosim.scenario.faults import build_bus_faults
+from cosim.scenario.faults import BiasSpec, build_bus_faults
 from cosim.scenario.load import timing_warnings
 from estimators import Diagnostic, Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
@@ -109,7 +109,7 @@ def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
     faults' timing."""
     found = timing_warnings(s)
     for spec in s.faults:
-        if spec.kind != "bias":
+        if not isinstance(spec, BiasSpec):
             continue
         sensors = spec.sensors if spec.sensors is not None else list(s.sensors)
         values = np.broadcast_to(np.asarray(spec.value, dtype=float), (len(sensors),))

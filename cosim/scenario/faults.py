@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Annotated, Any, ClassVar, Literal
+from dataclasses import fields as dataclass_fields
+from typing import Annotated, Any, ClassVar, Literal, get_args
 
-from pydantic import BeforeValidator, Discriminator, Field, model_validator
+from pydantic import BeforeValidator, Discriminator, Field, Tag, model_validator
 
 import faults as fm
-from cosim.scenario.tables import Identifier, NonNegative, Probability, Strict, Vector, as_list
+from cosim.scenario.tables import PLUGIN_TAG, Identifier, NonNegative, Probability, Strict, Vector, as_list
 from cosim.scenario.waveforms import ConstantSpec, WaveformSpec, build_waveform
 
 
@@ -223,26 +224,108 @@ class ReplaySpec(OnMessage):
     lag: Annotated[float, Field(gt=0.0)] = 1.0
 
 
+class PluginFaultSpec(Windowed):
+    """A fault model from outside cosim: an installed plugin's kind (entry-point group
+    ``cosim.faults``) or a class in a file (``kind = "my_faults.py:Stiction"``), a ``SensorFault``
+    or an ``ActuatorFault`` dataclass; ``sensors`` or ``actuators`` name what it acts on (default:
+    all), ``params`` its parameters (the dataclass's fields, a list for a tuple)."""
+
+    kind: str
+    sensors: list[str] | None = None
+    actuators: list[str] | None = None
+    params: dict[str, Any] = {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _known_kind(cls, data: Any) -> Any:
+        """An unknown kind is that, not the keys its table would have (checked before them)."""
+        from cosim.kinds import KindError
+
+        if isinstance(data, dict) and isinstance(kind := data.get("kind"), str):
+            try:
+                fm.FAULT_MODELS[kind]
+            except KindError as error:
+                raise ValueError(str(error)) from None
+        return data
+
+    @model_validator(mode="after")
+    def _contract(self) -> PluginFaultSpec:
+        model = fm.FAULT_MODELS[self.kind]
+        if not issubclass(model, (fm.SensorFault, fm.ActuatorFault)):
+            raise ValueError(
+                f"fault {self.kind!r} is a {model.__name__}: a plugin's fault acts on sensors or actuators"
+            )
+        wrong, right = ("sensors", "actuators") if issubclass(model, fm.ActuatorFault) else ("actuators", "sensors")
+        if getattr(self, wrong) is not None:
+            raise ValueError(f"{wrong}: fault {self.kind!r} acts on {right}")
+        known = {f.name for f in dataclass_fields(model) if f.init} - {"channels", "start", "end", "label"}
+        if unknown := sorted(set(self.params) - known):
+            raise ValueError(
+                f"params: {', '.join(unknown)} is not a parameter of fault {self.kind!r} "
+                f"(it has: {', '.join(sorted(known)) or 'none'})"
+            )
+        return self
+
+    @property
+    def acts_on(self) -> str:  # type: ignore[override]
+        return "actuators" if issubclass(fm.FAULT_MODELS[self.kind], fm.ActuatorFault) else "sensors"
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {name: _model_value(value) for name, value in self.params.items()}
+
+
+#: The built-in fault tables, each under its kind; any other kind is a plugin's (``PluginFaultSpec``).
+BUILTIN_FAULTS = (
+    BiasSpec,
+    DriftSpec,
+    GainSpec,
+    GaussianNoiseSpec,
+    UniformNoiseSpec,
+    StuckSpec,
+    DropoutSpec,
+    OutliersSpec,
+    ActuatorEffectivenessSpec,
+    ActuatorOffsetSpec,
+    FrameLossSpec,
+    FrameDelaySpec,
+    FrameCorruptionSpec,
+    BusOffSpec,
+    BabblingNodeSpec,
+    SpoofingSpec,
+    ReplaySpec,
+)
+_BUILTIN_KINDS = {get_args(table.model_fields["kind"].annotation)[0] for table in BUILTIN_FAULTS}
+
+
+def _table_of(value: Any) -> str | None:
+    """The union member a fault table validates as: its built-in kind, or a plugin's."""
+    kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
+    if kind is None:
+        return None
+    return kind if kind in _BUILTIN_KINDS else PLUGIN_TAG
+
+
 NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
 FaultSpec = Annotated[
-    BiasSpec
-    | DriftSpec
-    | GainSpec
-    | GaussianNoiseSpec
-    | UniformNoiseSpec
-    | StuckSpec
-    | DropoutSpec
-    | OutliersSpec
-    | ActuatorEffectivenessSpec
-    | ActuatorOffsetSpec
-    | FrameLossSpec
-    | FrameDelaySpec
-    | FrameCorruptionSpec
-    | BusOffSpec
-    | BabblingNodeSpec
-    | SpoofingSpec
-    | ReplaySpec,
-    Discriminator("kind"),
+    Annotated[BiasSpec, Tag("bias")]
+    | Annotated[DriftSpec, Tag("drift")]
+    | Annotated[GainSpec, Tag("gain")]
+    | Annotated[GaussianNoiseSpec, Tag("gaussian_noise")]
+    | Annotated[UniformNoiseSpec, Tag("uniform_noise")]
+    | Annotated[StuckSpec, Tag("stuck")]
+    | Annotated[DropoutSpec, Tag("dropout")]
+    | Annotated[OutliersSpec, Tag("outliers")]
+    | Annotated[ActuatorEffectivenessSpec, Tag("actuator_effectiveness")]
+    | Annotated[ActuatorOffsetSpec, Tag("actuator_offset")]
+    | Annotated[FrameLossSpec, Tag("frame_loss")]
+    | Annotated[FrameDelaySpec, Tag("frame_delay")]
+    | Annotated[FrameCorruptionSpec, Tag("frame_corruption")]
+    | Annotated[BusOffSpec, Tag("bus_off")]
+    | Annotated[BabblingNodeSpec, Tag("babbling_node")]
+    | Annotated[SpoofingSpec, Tag("spoofing")]
+    | Annotated[ReplaySpec, Tag("replay")]
+    | Annotated[PluginFaultSpec, Tag(PLUGIN_TAG)],
+    Discriminator(_table_of),
 ]
 
 

@@ -121,7 +121,7 @@ def validate(data: dict[str, Any], source: str, folder: Path | None = None) -> S
 
 def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     """The data with its relative file paths made absolute against ``folder``: an FMU or MJCF
-    plant's model file, and the Python file of an estimator's or the controller's kind
+    plant's model file, and the Python file of an estimator's, a fault's or the controller's kind
     (``observers.py:ClassName``); the scenario then means the same files wherever it is run from,
     in node processes and on campaign workers too, and its resolved JSON in a log names them."""
 
@@ -146,8 +146,9 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
         and (is_fmu(plant["model"]) or is_mjcf(plant["model"]))
     ):
         data["plant"] = {**plant, "model": absolute(plant["model"])}
-    if isinstance(data.get("estimators"), list):
-        data["estimators"] = [kind(entry) for entry in data["estimators"]]
+    for tables in ("estimators", "faults"):
+        if isinstance(data.get(tables), list):
+            data[tables] = [kind(entry) for entry in data[tables]]
     if "controller" in data:
         data["controller"] = kind(data["controller"])
     return data

@@ -46,6 +46,10 @@ class Strict(BaseModel):
         return data
 
 
+#: The union tag of a table whose kind is a plugin's (``cosim.scenario.faults.PluginFaultSpec``).
+PLUGIN_TAG = "plugin"
+
+
 def problem_path(loc: tuple[Any, ...], data: Any) -> str:
     """A readable field path, without the union tags pydantic inserts (``faults[0].bias.value``
     becomes ``faults[0].value``): a tag is the first item that names the current table's kind."""
@@ -57,7 +61,7 @@ def problem_path(loc: tuple[Any, ...], data: Any) -> str:
         if isinstance(item, int):
             parts.append(f"[{item}]")
             node = node[item] if isinstance(node, list) and item < len(node) else None
-        elif tag_pending and isinstance(node, dict) and node.get("kind") == item:
+        elif tag_pending and isinstance(node, dict) and item in (node.get("kind"), PLUGIN_TAG):
             tag_pending = False
             continue
         else:
