@@ -251,3 +251,57 @@ def test_fault_kinds_of_my_own_act_like_the_built_ins(tmp_path):
             tmp_path / "s.toml",
             {"faults[1]": {"kind": f"{tmp_path / 'my_faults.py'}:Quantized", "actuators": ["force"]}},
         )
+
+
+@pytest.mark.slow
+def test_the_plugin_template_installs_and_its_kinds_are_names(tmp_path):
+    """examples/plugin is a pip-installable package: installed, its entry points make
+    'residual-observer' and 'quantized' kinds by name, and its own test passes."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    source = tmp_path / "plugin"
+    shutil.copytree(ROOT / "examples" / "plugin", source)  # the build leaves its folders beside the sources
+    target = tmp_path / "site"
+    pip = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--target"]  # setuptools fetched to build
+    subprocess.run([*pip, str(target), str(source)], check=True, capture_output=True)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(target), os.environ.get("PYTHONPATH", "")])}
+    kinds = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "kinds", "--json"], env=env, capture_output=True, text=True, check=True
+    )
+    listing = json.loads(kinds.stdout)
+    mine = next(e for e in listing["cosim.estimators"] if e["name"] == "residual-observer")
+    assert mine["source"] == "entry point" and mine["distribution"] == "cosim-my-observer 0.1.0"
+    assert any(e["name"] == "quantized" for e in listing["cosim.faults"])
+    scenario = (
+        (source / "my-observer.toml").read_text().replace('"my_observer.py:ResidualObserver"', '"residual-observer"')
+    )
+    (tmp_path / "by-name.toml").write_text(
+        scenario + '\n[[faults]]\nkind = "quantized"\nsensors = ["x2"]\nparams = { step = 0.001 }\n'
+    )
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cosim.cli",
+            "run",
+            str(tmp_path / "by-name.toml"),
+            "-q",
+            "--out",
+            str(tmp_path / "r.mcap"),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 0, run.stderr
+    test = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(source / "test_my_observer.py")],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert test.returncode == 0, test.stdout + test.stderr
