@@ -419,3 +419,16 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
         assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
     assert sum(tally.values()) >= 50, tally
     print(f"chaos: {tally} in {trial + 1} trials")
+
+
+def test_a_scenario_file_alone_cannot_open_the_bus_to_the_network(tmp_path):
+    path = tmp_path / "wide.toml"
+    text = (Path(scenario.__file__).parent.parent.parent / "scenarios" / "masses-bias.toml").read_text()
+    path.write_text(text.replace("[bus]\n", '[bus]\nallow_network = true\nchannel = "ff0e::c05:1"\n'))
+    with pytest.raises(CosimError, match=r"bus.allow_network: a scenario file cannot widen the bus .*--allow-network"):
+        scenario.load(path)
+    with pytest.raises(CosimError, match=r"bus.allow_network"):
+        scenario.apply(scenario.load(), [("bus.allow_network", True)])
+    # whoever runs it may: the command line's override
+    s = scenario.load().scenario.with_overrides(allow_network=True, channel="ff0e::c05:1")
+    assert s.bus.allow_network

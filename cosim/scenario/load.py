@@ -114,6 +114,11 @@ def validate(data: dict[str, Any], source: str, folder: Path | None = None) -> S
         problems = [f"{problem_path(e['loc'], data)}: {problem_message(e)}" for e in error.errors()]
         raise ScenarioError(_report(source, problems)) from None
     problems = check(scenario)
+    if scenario.bus.allow_network:  # a file someone hands you must not open their bus to the network
+        problems.append(
+            "bus.allow_network: a scenario file cannot widen the bus beyond this host; whoever runs it "
+            "decides that, with cosim run --allow-network (or allow_network=True in cosim.api.run)"
+        )
     if problems:
         raise ScenarioError(_report(source, problems))
     return scenario

@@ -203,7 +203,8 @@ class BusSpec(Strict):
     port: Annotated[int, Field(ge=0, le=65535)] = 0
     """udp_multicast: the UDP port (default 0: a free port per run)."""
     allow_network: bool = False
-    """udp_multicast: allow a channel whose frames can leave this host (a link-local or wider group)."""
+    """udp_multicast: allow a channel whose frames can leave this host (a link-local or wider group);
+    set by whoever runs the scenario (``--allow-network``), refused in a scenario file."""
     fd: bool = False
     bitrate: Annotated[int, Field(gt=0)] = 500_000
     data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
