@@ -407,3 +407,16 @@ def test_a_wait_before_tick_0_does_not_count_in_the_real_time_factor(tmp_path, d
     assert result.wall_time > 1.0 > result.loop_time
     assert result.realtime_factor == pytest.approx(result.sim_time / result.loop_time)
     assert seen and all(p.wall_time < 1.0 for p in seen)
+
+
+def test_a_realtime_run_that_cannot_keep_up_says_so(tmp_path, default_loaded):
+    loaded = scenario.apply(default_loaded, [("duration", 2.0)])
+    result = Run(loaded, tmp_path / "fast.mcap", interface="virtual", mode="realtime", speed=2000.0).execute()
+    assert result.status == "completed" and result.late_ticks > 100  # 5 µs per tick: out of reach
+    (warning,) = [w for w in result.warnings if "fell behind" in w]
+    assert warning.startswith(f"realtime at 2000x fell behind: {result.late_ticks} of 200 ticks started late")
+    with LogReader(result.path) as reader:
+        record = reader.metadata()["cosim.result"]
+    assert int(record["late_ticks"]) == result.late_ticks
+    paced = Run(loaded, tmp_path / "paced.mcap", interface="virtual", mode="realtime", speed=5.0).execute()
+    assert paced.late_ticks == 0 and not [w for w in paced.warnings if "fell behind" in w]

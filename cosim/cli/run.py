@@ -130,6 +130,7 @@ def summary(result, out: Path, error: str = "") -> dict:
         "wall_time_s": round(result.wall_time, 3),
         "realtime_factor": round(result.realtime_factor, 3),
         "failed": result.failed,
+        "late_ticks": result.late_ticks,
         "error": result.error or error,
     }
 
@@ -223,6 +224,9 @@ def _report(result, s, talk: Console) -> None:
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "
         f"{result.wall_time:.2f} s (real-time factor {result.realtime_factor:.1f})"
     )
+    for warning in result.warnings:
+        if "fell behind" in warning:
+            talk.print(f"[yellow]  {escape(warning)}[/yellow]")
     for name, why in result.failed.items():
         talk.print(
             f"[yellow]  estimator {escape(name)} {escape(why)}; the run went on without it "

@@ -409,6 +409,8 @@ class ResultRecord:
     failed: dict[str, str] = field(default_factory=dict)
     """Estimator nodes that failed during the run (their step raised, their process died), each with
     the tick and what it raised; the run went on without them."""
+    late_ticks: int = 0
+    """Realtime: the ticks that started late (by a period or 20 ms or more: the run fell behind)."""
 
     def to_metadata(self) -> dict[str, str]:
         return {
@@ -420,7 +422,8 @@ class ResultRecord:
             "error": self.error,
             "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
             "foreign": json.dumps(self.foreign),
-            **({"failed": json.dumps(self.failed)} if self.failed else {}),  # logs without failures as before
+            **({"failed": json.dumps(self.failed)} if self.failed else {}),  # logs without them as before
+            **({"late_ticks": str(self.late_ticks)} if self.late_ticks else {}),
         }
 
     @classmethod
@@ -445,6 +448,7 @@ class ResultRecord:
             senders,
             {str(k): int(v) for k, v in f.json("foreign", {}).items() if isinstance(v, int)},
             {str(k): str(v) for k, v in f.json("failed", {}).items()},
+            f.integer("late_ticks") or 0,
         )
 
 

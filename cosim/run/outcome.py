@@ -44,6 +44,10 @@ class RunResult:
     """Wall time of the ticks themselves (from tick 0 to the end of the last one)."""
     failed: dict[str, str] = field(default_factory=dict)
     """Estimator nodes that failed during the run, and why in a line (the run went on without them)."""
+    late_ticks: int = 0
+    """Realtime: ticks that started late (by a period or 20 ms or more: the run fell behind)."""
+    warnings: list[str] = field(default_factory=list)
+    """What the run found worth saying (also the log's warning events)."""
 
     @property
     def realtime_factor(self) -> float:

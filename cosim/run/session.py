@@ -54,6 +54,7 @@ _FOREIGN_RECORDS = 64  # foreign arrivals logged one by one per tick; the rest a
 _STOP, _STOP_HURRY = 5.0, 0.5  # s: how long a node may take to exit after the stop command (hurried: 2nd Ctrl-C)
 _FLUSH_SIMULATED, _FLUSH_TICKS = 1.0, 50  # chunks put on disk every 1 s of simulated time and 50 ticks, at least
 _PENDING = 20_000  # frames held unlogged at most, whatever floods the bus
+_BEHIND = 0.02  # s: a realtime tick starting this much (or a period, if longer) after its time is late
 _LAST_FRAMES = 1.0  # s: how long the frames still arriving after the stop command are taken, at most
 
 
@@ -129,6 +130,7 @@ class Session:
         self.misses = 0
         self.warnings: list[str] = []
         self.failed: dict[str, str] = {}  # estimator nodes out of the run, and why
+        self.late_ticks = 0  # realtime: ticks that started a whole period after their time
         self.result: RunResult | None = None
         self.start = time.perf_counter()
         self.tick_start: float | None = None
@@ -330,6 +332,8 @@ class Session:
         """Tick k starts: Ctrl-C is taken here; in realtime, not before its time."""
         self.interrupts.check()
         if self.timing.realtime:
+            if time.perf_counter() > self._deadline(k) + max(self.timing.period, _BEHIND):
+                self.late_ticks += 1
             self.wait(lambda: False, self._deadline(k), lambda: None)
 
     def send(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
@@ -524,6 +528,12 @@ class Session:
             self._log_passages(self.arbitration.finish())
         self._verdicts(k)
         self._close_foreign()
+        if self.late_ticks:
+            achieved = t_end / loop if loop > 0 else float("inf")
+            self.warnings.append(
+                f"realtime at {self.timing.speed:g}x fell behind: {self.late_ticks} of {k} ticks started late (by a "
+                f"period or {_BEHIND * 1e3:g} ms or more); it ran at {achieved:.1f}x (lower --speed, or use lockstep)"
+            )
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
         counts = self._sender_counts(k, senders)
@@ -534,7 +544,16 @@ class Session:
         self.log.metadata(
             RESULT,
             ResultRecord(
-                status, k, self.recorder.frames, lost, self.misses, error, counts, self.foreign, self.failed
+                status,
+                k,
+                self.recorder.frames,
+                lost,
+                self.misses,
+                error,
+                counts,
+                self.foreign,
+                self.failed,
+                self.late_ticks,
             ).to_metadata(),
         )
         self.result = RunResult(
@@ -551,6 +570,8 @@ class Session:
             startup,
             loop,
             dict(self.failed),
+            self.late_ticks,
+            list(self.warnings),
         )
         return self.result
 
