@@ -8,11 +8,14 @@ status and last output; one that hangs; a client that went away) and how to stop
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import traceback
 from pathlib import Path
 
+from cosim.bus.registry import alive
 from cosim.bus.transport import open_bus
 from cosim.run.node import ControllerNode, EstimatorNode, NodeSpec
 from estimators import Estimator
@@ -158,3 +161,15 @@ class ExternalClient(Participant):
 
     def hung(self, tick: int, waited: float) -> str:
         return f"{self.kind} {self.name} did not answer tick {tick} within {waited:g} s: has it stopped?"
+
+
+def remove_stale_workdirs() -> None:
+    """Remove the node folders (specs and outputs) of runs whose runner was killed before it could."""
+    for folder in Path(tempfile.gettempdir()).glob("cosim-nodes-*-*"):
+        try:
+            pid = int(folder.name.split("-")[2])
+            if folder.lstat().st_uid != os.getuid() or alive(pid):
+                continue
+            shutil.rmtree(folder, ignore_errors=True)
+        except (ValueError, IndexError, OSError):
+            continue

@@ -16,7 +16,6 @@ deterministic, this order is.
 from __future__ import annotations
 
 import os
-import shutil
 import tempfile
 import time
 from collections import Counter
@@ -30,7 +29,7 @@ import can
 import numpy as np
 
 from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
-from cosim.bus.registry import Registration, alive
+from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.bus.udp import ForeignDatagram
@@ -43,7 +42,7 @@ from cosim.run.arbitration import Arbitration
 from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
-from cosim.run.launcher import Participant
+from cosim.run.launcher import Participant, remove_stale_workdirs
 from cosim.run.outcome import NodeFailure, Progress, RunResult, last_words
 from cosim.run.traffic import Traffic
 
@@ -56,18 +55,6 @@ _FLUSH_SIMULATED, _FLUSH_TICKS = 1.0, 50  # chunks put on disk every 1 s of simu
 _PENDING = 20_000  # frames held unlogged at most, whatever floods the bus
 _BEHIND = 0.02  # s: a realtime tick starting this much (or a period, if longer) after its time is late
 _LAST_FRAMES = 1.0  # s: how long the frames still arriving after the stop command are taken, at most
-
-
-def remove_stale_workdirs() -> None:
-    """Remove the node folders (specs and outputs) of runs whose runner was killed before it could."""
-    for folder in Path(tempfile.gettempdir()).glob("cosim-nodes-*-*"):
-        try:
-            pid = int(folder.name.split("-")[2])
-            if folder.lstat().st_uid != os.getuid() or alive(pid):
-                continue
-            shutil.rmtree(folder, ignore_errors=True)
-        except (ValueError, IndexError, OSError):
-            continue
 
 
 @dataclass(frozen=True)
