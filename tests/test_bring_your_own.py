@@ -20,46 +20,9 @@ from cosim.errors import CosimError
 from tests.conftest import ROOT
 from tests.snippets import short_scenario
 
-#: The user's observer: a Luenberger observer placed on independent rows of C (the masses' three
-#: sensors measure two independent quantities).
-OBSERVER = '''
-"""My observer, in a file next to my scenario."""
-
-from dataclasses import dataclass
-
-import numpy as np
-from scipy.signal import place_poles
-
-from cosim.api import Estimate, Estimator
-
-
-@dataclass(frozen=True)
-class Params:
-    poles: tuple[float, ...] = (0.8, 0.82, 0.84, 0.86)
-
-
-class Luenberger(Estimator):
-    """x̂⁺ = A x̂ + B u + L (y − C x̂ − D u), L placing spec(A − L C) at ``poles``."""
-
-    kind = "luenberger"
-    Params = Params
-
-    def __init__(self, model, params, sample_time=None):
-        super().__init__(model, params, sample_time)
-        rows = []
-        for i in range(model.p):  # the first independent rows of C
-            if np.linalg.matrix_rank(model.C[rows + [i]]) > len(rows):
-                rows.append(i)
-        self.L = np.zeros((model.n, model.p))
-        self.L[:, rows] = place_poles(model.A.T, model.C[rows].T, params.poles).gain_matrix.T
-        self.x = np.zeros(model.n)
-
-    def _step(self, dy, du):
-        m = self.model
-        estimate = self.x.copy()
-        self.x = m.A @ self.x + m.B @ du + self.L @ (np.nan_to_num(dy) - m.C @ self.x - m.D @ du)
-        return Estimate(estimate)
-'''
+#: The user's observer: the plugin template's (a Luenberger observer with residuals, an alarm and
+#: isolation flags), in a file next to the user's scenario.
+OBSERVER = (ROOT / "examples" / "plugin" / "my_observer.py").read_text()
 
 #: The default scenario, shortened, with the user's observer beside its estimators.
 SCENARIO = (
@@ -67,7 +30,7 @@ SCENARIO = (
     + """
 [[estimators]]
 name = "mine"
-kind = "observers.py:Luenberger"
+kind = "observers.py:ResidualObserver"
 params = { poles = [0.5, 0.55, 0.6, 0.65] }
 """
 )
@@ -95,7 +58,7 @@ def folder(tmp_path):
 def test_a_scenario_file_names_its_estimator_file_relative_to_itself(folder):
     loaded = api.load_scenario(folder / "mine.toml")
     assert [e.name for e in loaded.scenario.estimators] == ["uniform", "kalman", "mine"]
-    assert loaded.scenario.estimators[-1].kind == f"{folder / 'observers.py'}:Luenberger"
+    assert loaded.scenario.estimators[-1].kind == f"{folder / 'observers.py'}:ResidualObserver"
 
 
 @pytest.mark.slow
@@ -107,7 +70,7 @@ def test_my_estimator_runs_replays_and_ranks_beside_the_built_ins(folder, monkey
     mine = api.metrics(log)["estimators"]["mine"]
     assert mine["final_error"] < 0.05  # converged from x̂ = 0
 
-    kind = f"{folder / 'observers.py'}:Luenberger"
+    kind = f"{folder / 'observers.py'}:ResidualObserver"
     assert main(["replay", str(log), "-e", "mine", "-q"]) == 0  # its frames again, bit for bit
     assert main(["replay", str(log), "-e", "faster", "--kind", kind, "--param", "poles=[0.7, 0.72, 0.74, 0.76]"]) == 0
     capsys.readouterr()
