@@ -223,3 +223,15 @@ def test_kinds_lists_every_group_with_its_origin(capsys):
     assert {e["name"] for e in listing["cosim.plants"]} >= {"masses", "three_tank", "vessel"}
     assert main(["kinds"]) == 0
     assert "observers.py:MyObserver" in capsys.readouterr().out
+
+
+def test_inspect_says_the_units_of_its_tables(tmp_path, capsys):
+    out = tmp_path / "u.mcap"
+    assert main(["run", "--interface", "virtual", "--set", "duration=6", "-q", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["error_unit"] == "mixes m, m/s"  # positions and velocities
+    assert main(["inspect", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "estimation error |x - x̂| (mixes m, m/s)" in text
+    assert "onset [s]" in text and "recovery time after onset [s]" in text  # not read as rich markup

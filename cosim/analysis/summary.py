@@ -10,6 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from cosim.analysis.metrics import BusMetrics, DiagnosisMetrics, RunMetrics, compute_metrics
+from cosim.kinds import is_file_reference
 
 
 def summarize(path: str | Path) -> dict[str, Any]:
@@ -22,10 +23,18 @@ def _number(value: float | None, fmt: str = ".3e") -> str:
 
 
 def _table(title: str, columns: list[str]) -> Table:
-    table = Table(title=title, box=None, header_style="bold", title_justify="left")
-    for i, column in enumerate(columns):
-        table.add_column(column, justify="left" if i < 2 else "right")
+    table = Table(title=escape(title), box=None, header_style="bold", title_justify="left")
+    for i, column in enumerate(columns):  # escaped: "[s]" is a unit here, not rich's strike-through
+        table.add_column(escape(column), justify="left" if i < 2 else "right")
     return table
+
+
+def _kind(kind: str | None) -> str:
+    """A kind as a table shows it: a class in a file by the file's name, not its whole path."""
+    if kind is not None and is_file_reference(kind):
+        file, _, name = kind.rpartition(":")
+        return f"{Path(file).name}:{name}"
+    return str(kind)
 
 
 def render(report: RunMetrics | dict[str, Any], console: Console) -> None:
@@ -80,18 +89,20 @@ def _faults(m: RunMetrics, console: Console) -> None:
 def _estimation(m: RunMetrics, console: Console) -> None:
     if not m.estimators:
         return
+    unit = f" [{m.error_unit}]" if m.error_unit and not m.error_unit.startswith("mixes") else ""
+    mixed = f" ({m.error_unit})" if m.error_unit and m.error_unit.startswith("mixes") else ""
     table = _table(
-        "estimation error |x - x̂|",
+        f"estimation error |x - x̂|{unit}{mixed}",
         ["estimator", "kind", "RMS before fault", "RMS after fault", "final", "band", "bias rejection"],
     )
     per_fault = _table(
-        "per fault: peak error, its time and the recovery time after onset [s]",
+        f"per fault: peak error{unit}, its time and the recovery time after onset [s]",
         ["estimator", "fault", "peak", "peak at", "recovery"],
     )
     for name, e in m.estimators.items():
         table.add_row(
             escape(name),
-            str(e.kind),
+            escape(_kind(e.kind)),
             _number(e.rms_pre_fault),
             _number(e.rms_post_fault),
             _number(e.final_error),
@@ -108,7 +119,7 @@ def _estimation(m: RunMetrics, console: Console) -> None:
 
 def _diagnosis(name: str, d: DiagnosisMetrics, console: Console) -> None:
     console.print(
-        f"[bold]diagnosis {escape(name)}[/bold] ({d.kind}): {d.false_alarms} false alarms "
+        f"[bold]diagnosis {escape(name)}[/bold] ({escape(_kind(d.kind))}): {d.false_alarms} false alarms "
         f"({_number(d.false_alarm_rate_per_hour, '.3g')} per hour over {d.fault_free_time_s:g} s fault-free), "
         f"{d.missed_detections} missed detections"
     )

@@ -163,7 +163,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if args.json:
         common.print_json(report)
     else:
-        render(report, common.console())
+        render(report, common.console(wide=True))
     return 0
 
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from cosim.analysis import names
 from cosim.analysis.metrics.facts import RunFacts
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.analysis.metrics.values import (
@@ -45,7 +46,17 @@ def measure(path: str | Path) -> RunMetrics:
             )
         scorer.finish()
         warnings = reader.warnings + run.warnings + scorer.warnings
-    return _assemble(path, run, scorer, counts or dict(scanned), warnings)
+        unit = norm_unit(names.units(reader.schemas()), run.states)
+    return replace(_assemble(path, run, scorer, counts or dict(scanned), warnings), error_unit=unit)
+
+
+def norm_unit(units: dict[str, str], states: list[str]) -> str | None:
+    """The unit of |x − x̂| over these states: their common unit, or ``mixes m, m/s`` where they
+    differ (None without states; "" where none has a unit)."""
+    if not states:
+        return None
+    found = list(dict.fromkeys(units.get(s, "") for s in states))
+    return found[0] if len(found) == 1 else f"mixes {', '.join(u or '1' for u in found)}"
 
 
 def compute_metrics(path: str | Path) -> dict[str, Any]:

@@ -210,6 +210,8 @@ class RunMetrics:
     frames: FrameCounts = field(default_factory=FrameCounts)
     fault_onset: Number | None = None
     faults: dict[str, FaultSpan] = field(default_factory=dict)
+    error_unit: str | None = None
+    """The unit of the estimation error |x − x̂| (the states' common unit, or the units it mixes)."""
     estimators: dict[str, EstimationMetrics] = field(default_factory=dict)
     baseline: str | None = None
     diagnosis: dict[str, DiagnosisMetrics] = field(default_factory=dict)
