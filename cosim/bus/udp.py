@@ -63,11 +63,15 @@ def unpack_datagram(data: bytes, timestamp: float) -> can.Message:
         raise ValueError("data is not a CAN payload (bytes of a CAN or CAN FD length)")
     if len(payload) > 8 and not fields.get("is_fd", False):
         raise ValueError("data longer than 8 bytes in a classic frame")
+    dlc = fields.get("dlc", len(payload))  # a remote frame asks for dlc bytes and carries none
+    if type(dlc) is not int or not 0 <= dlc <= (64 if fields.get("is_fd", False) else 8):
+        raise ValueError("dlc is not a CAN data length")
     channel = fields.get("channel")
     return can.Message(
         timestamp=timestamp,
         arbitration_id=identifier,
         data=payload,
+        dlc=dlc,
         channel=channel if isinstance(channel, (str, int)) else None,
         **{flag: fields.get(flag, False) for flag in _FLAGS},
         check=True,

@@ -12,12 +12,11 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import traceback
 from pathlib import Path
 
 from cosim.bus.registry import alive
 from cosim.bus.transport import open_bus
-from cosim.run.node import ControllerNode, EstimatorNode, NodeSpec
+from cosim.run.node import ESTIMATOR_FAILED, ControllerNode, EstimatorFailure, EstimatorNode, NodeSpec
 from estimators import Estimator
 from estimators.controller import Controller
 
@@ -35,6 +34,11 @@ class Participant:
     def failure(self) -> str | None:
         """Why the participant can no longer answer, if it is known to have failed."""
         return None
+
+    @property
+    def estimator_failed(self) -> bool:
+        """Its failure is its estimator's (the step raised): the run goes on without it."""
+        return False
 
     def hung(self, tick: int, waited: float) -> str:
         """The report for a participant that has not answered tick ``tick`` in ``waited`` seconds."""
@@ -80,7 +84,13 @@ class ProcessNode(Participant):
         code = self.process.poll()
         if code is None:
             return None
+        if code == ESTIMATOR_FAILED:
+            return f"node {self.name}: its estimator raised; its traceback:\n{self.last_output(lines=40)}"
         return f"node {self.name} exited with status {code}; its last output:\n{self.last_output()}"
+
+    @property
+    def estimator_failed(self) -> bool:
+        return self.process.poll() == ESTIMATOR_FAILED
 
     def hung(self, tick: int, waited: float) -> str:
         self.process.kill()
@@ -124,12 +134,15 @@ class LocalNode(Participant):
             return
         try:
             self.node.service()
-        except Exception as error:  # noqa: BLE001 (the estimator's own code: as if its process had died)
-            output = "".join(traceback.format_exception(error))
-            self._failure = f"{self.kind} {self.name} raised {type(error).__name__}; its traceback:\n{output}"
+        except EstimatorFailure as failure:  # its estimator's code raised: as its process would exit
+            self._failure = str(failure)
 
     def failure(self) -> str | None:
         return self._failure
+
+    @property
+    def estimator_failed(self) -> bool:
+        return self._failure is not None
 
     def stop(self, timeout: float) -> str | None:
         if self._failure is None:

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import os
+import sys
+import traceback
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,9 +164,12 @@ class EstimatorNode(_Node):
         for i, name in enumerate(model.inputs):
             if name in tick.commands:
                 self._u[i] = tick.commands[name]
-        estimate = self.estimator.step(y, self._u.copy())
-        values = {signal: float(estimate.x[index]) for signal, index in self._states}
-        values |= {signal: estimate.diagnostics[signal] for signal in self._diagnostics}
+        try:  # the estimator's own code (a plugin's, maybe): what it raises ends this node, not the run
+            estimate = self.estimator.step(y, self._u.copy())
+            values = {signal: float(estimate.x[index]) for signal, index in self._states}
+            values |= {signal: float(estimate.diagnostics[signal]) for signal in self._diagnostics}
+        except Exception as error:  # noqa: BLE001
+            raise EstimatorFailure(self.client.name or "", error) from error
         self._publish(tick, values, saturate=True)
 
 
@@ -205,6 +210,18 @@ class ControllerNode(_Node):
         self._publish(tick, values)
 
 
+#: The exit status of a node process whose estimator raised (the runner goes on without it).
+ESTIMATOR_FAILED = 4
+
+
+class EstimatorFailure(Exception):
+    """The estimator of a node raised (or returned what is not an estimate): its traceback."""
+
+    def __init__(self, name: str, error: BaseException) -> None:
+        self.traceback = "".join(traceback.format_exception(error))
+        super().__init__(f"node {name}: its estimator raised {type(error).__name__}; its traceback:\n{self.traceback}")
+
+
 def serve(spec: NodeSpec) -> int:
     """Run a node process until the runner stops it (NMT stop) or goes away; returns the exit status."""
     parent = os.getppid()
@@ -220,6 +237,9 @@ def serve(spec: NodeSpec) -> int:
         return 0
     except KeyboardInterrupt:
         return 0
+    except EstimatorFailure as failure:
+        sys.stderr.write(failure.traceback)
+        return ESTIMATOR_FAILED
     finally:
         node.client.close()
         bus.shutdown()

@@ -235,7 +235,7 @@ class Session:
         for participant in list(self.participants):
             if (reason := participant.failure()) is None:
                 continue
-            if participant.kind != "node":  # the controller, whose commands the plant needs
+            if not participant.estimator_failed:  # died, killed, stopped: the run cannot be trusted
                 raise NodeFailure(self._after_foreign(reason))
             self._drop(participant, reason)
         now = time.perf_counter()
@@ -248,8 +248,8 @@ class Session:
                 )
 
     def _drop(self, participant: Participant, reason: str) -> None:
-        """An estimator node that failed (its step raised, its process died) leaves the run, which
-        goes on without it: its estimates end at this tick, and the log and the result say why."""
+        """An estimator node whose estimator raised leaves the run, which goes on without it: its
+        estimates end at this tick, and the log and the result say why."""
         k = self._marker[0]
         self.participants.remove(participant)
         participant.stop(timeout=0.0)
