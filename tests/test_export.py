@@ -286,7 +286,12 @@ def test_asc_reads_back_with_python_can_and_is_dated_at_the_runs_start(which, re
     header = result.path.read_text().splitlines()
     when = datetime.fromtimestamp(start)
     assert header[0] == "date " + when.strftime(f"%a %b %d %H:%M:%S.{when.microsecond // 1000:03d} %Y")
-    assert header[3].startswith("Begin Triggerblock ") and header[3][len("Begin Triggerblock ") :] == header[0][5:]
+    block = header[3].removeprefix("Begin Triggerblock ").split()  # python-can writes its ms unpadded here
+    clock, milliseconds = block[3].split(".")
+    assert header[3].startswith("Begin Triggerblock ") and block[:3] + block[4:] == header[0].split()[1:4] + [
+        header[0].split()[5]
+    ]
+    assert clock == when.strftime("%H:%M:%S") and int(milliseconds) == when.microsecond // 1000
     check_frames(list(can.ASCReader(result.path)), log, 1e-6)  # relative to the trigger block's start
     assert result.count == len(logged_frames(log))
 
