@@ -417,7 +417,7 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
         if victim == "runner-kill":
             time.sleep(1.5)  # its nodes notice their runner is gone
         assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
-    assert sum(tally.values()) >= 50, tally
+    assert sum(tally.values()) >= 30, tally
     print(f"chaos: {tally} in {trial + 1} trials")
 
 
