@@ -25,7 +25,7 @@ from cosim.errors import CosimError
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FRAMES
 from cosim.run import run
-from cosim.run.replay import TRUTH, Replay, parse_params
+from cosim.run.replay import TRUTH, Replay, parse_params, settings_as_params
 from cosim.scenario import LoadedScenario, Scenario
 from tests.snippets import masses_pid
 
@@ -180,7 +180,10 @@ def test_the_lpv_design_is_taken_from_the_log_not_solved_again(logs, tmp_path, m
 
 def test_changed_parameters_change_the_estimates_and_are_recorded(logs, tmp_path):
     original = logs("masses-faults-fd")
-    result = Replay(original, tmp_path / "kf.mcap", "kalman", params={"measurement_std": 0.05}).execute()
+    index = [e.name for e in scenario.load("masses-faults-fd").scenario.estimators].index("kalman")
+    result = Replay(
+        original, tmp_path / "kf.mcap", "kalman", settings=[(f"estimators[{index}].params.measurement_std", 0.05)]
+    ).execute()
     assert result.status == "completed"
     before, after = estimates(original, "kalman"), estimates(result.path, "kalman")
     assert len(after) == len(before) == result.ticks and after != before
@@ -226,6 +229,8 @@ def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_pat
         ("--estimator", "kalman", "--param", "measurement_std=abc"): "--param measurement_std: expected a number",
         ("--estimator", "kalman", "--param", "noise"): "--param 'noise': expected KEY=VALUE",
         ("--estimator", "kalman", "--speed", "2"): "--speed: only with --live",
+        ("--estimator", "kalman", "--set", "faults[0].value=2.0"): "to change faults, simulate again",
+        ("--live", "--set", "duration=1"): "--set: not with --live",
         ("--live", "--estimator", "kalman"): "--estimator: not with --live",
         ("--estimator", "kalman", "--out", original): "that is the log being replayed",
     }
@@ -235,6 +240,31 @@ def test_the_cli_replays_and_refuses_bad_requests_with_one_message(logs, tmp_pat
         err = capsys.readouterr().err
         assert message in " ".join(err.split()), (args, err)
         assert "Traceback" not in err
+
+
+def test_a_replay_honours_the_set_paths_of_its_estimator_and_refuses_the_rest():
+    original = scenario.load("masses-faults-fd").scenario
+    names = [e.name for e in original.estimators]
+    i = names.index("kalman")
+    assert settings_as_params([(f"estimators[{i}].params.measurement_std", 0.05)], original, "kalman", None) == {
+        "measurement_std": 0.05
+    }
+    refused = {
+        "faults[0].value": "only the replayed estimator's parameters can change (estimators[i].params.NAME); to "
+        "change faults, simulate again with 'cosim run SCENARIO --set faults[0].value=...'",
+        "duration": "to change duration, simulate again",
+        "estimators": "to change estimators, simulate again",
+        f"estimators[{1 - i}].params.x": f"the run's estimators[{1 - i}] is {names[1 - i]}, and the replay runs kalman",
+        "estimators[7].params.x": "the run has 2 estimators",
+        f"estimators[{i}].kind": "a new kind is --estimator NEWNAME --kind KIND",
+        f"estimators[{i}].params.a.b": f"only estimators[{i}].params.NAME can change",
+    }
+    for key, message in refused.items():
+        with pytest.raises(CosimError) as error:
+            settings_as_params([(key, 1)], original, "kalman", None)
+        assert message in str(error.value), key
+    with pytest.raises(CosimError, match="the replay runs a new estimator"):
+        settings_as_params([(f"estimators[{i}].params.x", 1)], original, "kf2", "kalman")
 
 
 def test_parameters_are_toml_values():

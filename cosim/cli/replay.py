@@ -33,6 +33,7 @@ EXAMPLES = """\
 examples:
   cosim replay runs/my.mcap --estimator kalman --out kalman-again.mcap
   cosim replay runs/my.mcap --estimator kalman --param measurement_std=0.01 --out kf-0.01.mcap
+  cosim replay runs/my.mcap --estimator kalman --set estimators[1].params.measurement_std=0.01
   cosim replay runs/my.mcap --estimator kf2 --kind kalman --param 'x0=[0, 0, 0, 0]'
   cosim replay latest --estimator mine --kind observers.py:MyObserver
   cosim replay runs/my.mcap --live --speed 0.5
@@ -71,6 +72,13 @@ def register(sub) -> None:
     p.add_argument(
         "--out", "-o", metavar="NEW.mcap", help="where to write the replay's log (default: FILE-replay-NAME.mcap)"
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="a setting of the run's scenario the replay can honour: the replayed estimator's "
+        "estimators[i].params.NAME (the same as --param NAME); anything that changes what was sent needs 'cosim run'",
+    )
     common.force_option(p)
     p.add_argument("--live", action="store_true", help="play every frame of the log onto a bus in real time instead")
     p.add_argument(
@@ -103,6 +111,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.live:
         return _play(args, talk)
     from cosim.run.replay import Replay, parse_params
+    from cosim.scenario import parse_setting
 
     common.refuse(
         args, ("--speed",), "only with --live (an estimator replay runs in lockstep, as fast as the node answers)"
@@ -119,6 +128,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         args.estimator,
         kind=args.kind,
         params=parse_params(args.param or []),
+        settings=[parse_setting(text) for text in args.set or []],
         interface=args.interface,
         channel=args.channel,
         port=args.port,
@@ -147,7 +157,7 @@ def _play_foxglove(args: argparse.Namespace, talk: Console) -> int:
 
     common.refuse(
         args,
-        ("--estimator", "--kind", "--param", "--out", "--live", "--interface", "--channel", "--port"),
+        ("--estimator", "--kind", "--param", "--set", "--out", "--live", "--interface", "--channel", "--port"),
         "not with --foxglove, which serves the log's messages to Foxglove as they are",
     )
     speed = 1.0 if args.speed is None else args.speed
@@ -177,7 +187,7 @@ def _play(args: argparse.Namespace, talk: Console) -> int:
 
     common.refuse(
         args,
-        ("--estimator", "--kind", "--param", "--out"),
+        ("--estimator", "--kind", "--param", "--set", "--out"),
         "not with --live, which plays the log's frames onto a bus as they are",
     )
     speed = 1.0 if args.speed is None else args.speed

@@ -24,7 +24,7 @@ import math
 import time
 import tomllib
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,7 @@ from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan, build_estimators, channel_units, design_warnings, estimator_record
 from cosim.run.session import Session
 from cosim.scenario import LoadedScenario, Scenario
+from cosim.scenario.overrides import path_parts
 from estimators import LinearModel, ParameterError
 
 #: The truth topics a replay copies from the original log.
@@ -128,6 +129,43 @@ def _replayed(frame: can.Message, codec: Codec) -> bool:
         decoded = codec.decode(frame)  # not None: the codec knows the frame's id
         return decoded is not None and decoded.values["state"] == OPERATIONAL
     return spec.role in REPLAYED_ROLES
+
+
+def settings_as_params(
+    settings: Iterable[tuple[str, Any]], original: Scenario, estimator: str, kind: str | None
+) -> dict[str, Any]:
+    """The run's ``--set`` paths a replay can honour, as the replayed estimator's parameters.
+
+    A replay feeds the logged frames to one estimator: ``estimators[i].params.NAME`` of that
+    estimator is ``--param NAME``; every other path (the plant, faults, noise, the bus, another
+    estimator) would change what was sent, which only a new simulation can do.
+    """
+    params: dict[str, Any] = {}
+    names = [e.name for e in original.estimators]
+    for key, value in settings:
+        parts = path_parts(key)
+        if parts[0] != "estimators" or len(parts) < 2 or not isinstance(parts[1], int):
+            raise CosimError(
+                f"--set {key}: a replay feeds the logged frames to an estimator, so only the replayed estimator's "
+                f"parameters can change (estimators[i].params.NAME); to change {parts[0]}, simulate again "
+                f"with 'cosim run SCENARIO --set {key}=...'"
+            )
+        index = parts[1]
+        if kind is not None or index >= len(names) or names[index] != estimator:
+            which = (
+                f"the run's estimators[{index}] is {names[index]}"
+                if index < len(names)
+                else f"the run has {len(names)} estimators"
+            )
+            target = f"a new estimator ({estimator})" if kind is not None else f"{estimator}"
+            raise CosimError(f"--set {key}: {which}, and the replay runs {target}; give its parameters with --param")
+        if len(parts) != 4 or parts[2] != "params" or not isinstance(parts[3], str):
+            raise CosimError(
+                f"--set {key}: only estimators[{index}].params.NAME can change in a replay (a new kind is "
+                f"--estimator NEWNAME --kind KIND)"
+            )
+        params[parts[3]] = value
+    return params
 
 
 def parse_params(items: list[str]) -> dict[str, Any]:
@@ -233,6 +271,7 @@ class Replay:
         *,
         kind: str | None = None,
         params: dict[str, Any] | None = None,
+        settings: Iterable[tuple[str, Any]] = (),
         interface: str | None = None,
         channel: str | None = None,
         port: int | None = None,
@@ -241,7 +280,7 @@ class Replay:
         if self.out.exists() and self.log.exists() and self.out.samefile(self.log):
             raise CosimError(f"--out {out}: that is the log being replayed; write the replay to another file")
         run, scenario_record, original = self._read_log()
-        overrides = dict(params or {})
+        overrides = {**settings_as_params(settings, original, estimator, kind), **(params or {})}
         self.name, self.new = estimator, kind is not None
         if kind is not None:
             model, spec_params = self._new_design(estimator, kind, run, overrides)
