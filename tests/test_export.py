@@ -554,6 +554,6 @@ def test_exports_stream_in_bounded_memory(tmp_path, monkeypatch):
 
 def test_the_command_line_offers_every_export_format():
     from cosim.analysis.export import FORMATS
-    from cosim.cli.logs import EXPORT_FORMATS
+    from cosim.cli.export import EXPORT_FORMATS
 
     assert sorted(EXPORT_FORMATS) == sorted(FORMATS)

@@ -1,8 +1,8 @@
-"""The ``cosim`` command line: one module per family of commands, each registering its own.
+"""The ``cosim`` command line: one module per command, ``common`` for what they share.
 
-``run`` (``run``, ``node``, ``monitor``), ``replay``, ``logs`` (``inspect``, ``plot``, ``report``,
-``export``, ``layout``, ``recover``), ``campaign`` (``campaign``, ``campaigns``, ``leaderboard``) and
-``scenario`` (``scenarios``, ``kinds``, ``dbc``, ``fmu``); ``common`` holds what they share.
+A command's module says what the command is for (``HELP``, ``DESCRIPTION``, and ``EPILOG`` for
+examples laid out by hand), declares its options (``arguments(parser)``, if it has any) and does it
+(``main(args) -> int``, the exit status). ``COMMANDS`` lists them in the order ``cosim --help`` does.
 """
 
 from __future__ import annotations
@@ -12,7 +12,26 @@ import argparse
 from rich.markup import escape
 
 from cosim import __version__
-from cosim.cli import campaign, common, logs, replay, run, scenario
+from cosim.cli import (
+    campaign,
+    campaigns,
+    common,
+    dbc,
+    export,
+    fmu,
+    inspect,
+    kinds,
+    layout,
+    leaderboard,
+    monitor,
+    node,
+    plot,
+    recover,
+    replay,
+    report,
+    run,
+    scenarios,
+)
 from cosim.errors import CosimError
 
 EXAMPLES = """\
@@ -40,8 +59,26 @@ examples:
   cosim replay runs/my.mcap --foxglove   play a log into Foxglove at its pace
 """
 
-#: The command families, in the order ``cosim --help`` lists their commands.
-FAMILIES = (run, scenario, logs, replay, campaign)
+#: Every command, in the order ``cosim --help`` lists them.
+COMMANDS = (
+    run,
+    node,
+    monitor,
+    scenarios,
+    kinds,
+    dbc,
+    fmu,
+    inspect,
+    plot,
+    report,
+    export,
+    layout,
+    recover,
+    replay,
+    campaign,
+    campaigns,
+    leaderboard,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,8 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"cosim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for family in FAMILIES:
-        family.register(sub)
+    for command in COMMANDS:
+        common.command(sub, command)
     return parser
 
 

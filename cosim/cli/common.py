@@ -9,11 +9,18 @@ import signal
 import sys
 import time
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.markup import escape
 
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    from cosim.bus.transport import BusConfig
+
+LOG_HELP = "a run log, or 'latest': the newest runs/*.mcap"
 
 
 def console(stderr: bool = False, quiet: bool = False, wide: bool = False) -> Console:
@@ -205,6 +212,13 @@ def foxglove_options(p: argparse.ArgumentParser, help: str) -> None:
     )
 
 
+def joining(bus: BusConfig) -> str:
+    """Where a bus is, and how another program joins it."""
+    if bus.interface == "virtual":
+        return f"{bus.describe()} (in this process: no other program can join it)"
+    return f"{bus.describe()}   join with: {escape(bus.python_can())}"
+
+
 def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None):
     from cosim.log.live import FoxgloveSink
 
@@ -243,11 +257,16 @@ def with_progress(run, talk: Console, started, **execute):
             progress.stop()
 
 
-def command(sub, name: str, run, *, help: str, description: str, epilog: str | None = None) -> argparse.ArgumentParser:
-    """A command's parser, ``run`` called with its arguments; a description or epilog laid out by hand
-    (with line breaks) is kept as it is."""
+def command(sub: argparse._SubParsersAction, module: ModuleType) -> argparse.ArgumentParser:
+    """The parser of a command module (its name, ``HELP``, ``DESCRIPTION``, ``EPILOG``, its options
+    from ``arguments``), calling its ``main``; a description or epilog laid out by hand (with line
+    breaks) is kept as it is."""
+    description, epilog = module.DESCRIPTION, getattr(module, "EPILOG", None)
     raw = "\n" in description or epilog is not None
     formatter = argparse.RawDescriptionHelpFormatter if raw else argparse.HelpFormatter
-    p = sub.add_parser(name, help=help, description=description, epilog=epilog, formatter_class=formatter)
-    p.set_defaults(func=run)
+    name = module.__name__.rpartition(".")[2]
+    p = sub.add_parser(name, help=module.HELP, description=description, epilog=epilog, formatter_class=formatter)
+    p.set_defaults(func=module.main)
+    if hasattr(module, "arguments"):  # a command without options has none
+        module.arguments(p)
     return p

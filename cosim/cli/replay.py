@@ -1,4 +1,4 @@
-"""``cosim replay``: a log's bus traffic fed to an estimator again, played onto a bus, or served to Foxglove."""
+"""``cosim replay``: feed a log's bus traffic to an estimator, or play it onto a live bus."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ from rich.console import Console
 from rich.markup import escape
 
 from cosim.cli import common
-from cosim.cli.run import joining
 from cosim.errors import CosimError
+
+HELP = "feed a log's bus traffic to an estimator, or play it onto a live bus"
 
 DESCRIPTION = """\
 Replay a run log without simulating the plant again.
@@ -29,7 +30,7 @@ for external tools and clients (decode with 'cosim dbc').
 With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket protocol, at
 its simulated time over --speed, stamped at the run's start plus simulated time."""
 
-EXAMPLES = """\
+EPILOG = """\
 examples:
   cosim replay runs/my.mcap --estimator kalman --out kalman-again.mcap
   cosim replay runs/my.mcap --estimator kalman --param measurement_std=0.01 --out kf-0.01.mcap
@@ -41,15 +42,7 @@ examples:
   cosim replay runs/my.mcap --foxglove --speed 2"""
 
 
-def register(sub) -> None:
-    p = common.command(
-        sub,
-        "replay",
-        cmd_replay,
-        help="feed a log's bus traffic to an estimator, or play it onto a live bus",
-        description=DESCRIPTION,
-        epilog=EXAMPLES,
-    )
+def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", metavar="FILE.mcap", help="a run log, or 'latest': the newest runs/*.mcap")
     p.add_argument(
         "--estimator",
@@ -103,7 +96,7 @@ def register(sub) -> None:
     )
 
 
-def cmd_replay(args: argparse.Namespace) -> int:
+def main(args: argparse.Namespace) -> int:
     args.log = common.latest_log(args.log)
     talk = common.console(stderr=True, quiet=args.quiet)
     if args.foxglove is not None:
@@ -139,7 +132,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     )
     where = f"the replay up to that point is in {escape(str(out))}"
     try:
-        result = common.with_progress(replay, talk, lambda run: talk.print(f"bus: {joining(run.bus)}"))
+        result = common.with_progress(replay, talk, lambda run: talk.print(f"bus: {common.joining(run.bus)}"))
     except KeyboardInterrupt as interrupt:
         return common.interrupted(common.error_console(), interrupt, f"; {where}")
     except CosimError as error:
@@ -193,7 +186,7 @@ def _play(args: argparse.Namespace, talk: Console) -> int:
     speed = 1.0 if args.speed is None else args.speed
 
     def started(bus) -> None:
-        talk.print(f"playing {escape(args.log)} at {speed:g}x real time onto {joining(bus)}")
+        talk.print(f"playing {escape(args.log)} at {speed:g}x real time onto {common.joining(bus)}")
 
     try:
         result = play(args.log, args.interface or "udp_multicast", args.channel or "", args.port or 0, speed, started)

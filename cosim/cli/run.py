@@ -1,9 +1,8 @@
-"""``cosim run``, ``cosim node`` and ``cosim monitor``: a co-simulation on a live bus."""
+"""``cosim run``: run a scenario and log it to MCAP."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from rich.console import Console
@@ -12,22 +11,15 @@ from rich.markup import escape
 from cosim.cli import common
 from cosim.errors import CosimError
 
+HELP = "run a scenario and log it to MCAP"
 
-def register(sub) -> None:
-    _register_run(sub)
-    _register_node(sub)
-    _register_monitor(sub)
+DESCRIPTION = (
+    "Run a scenario: simulate the plant, "
+    "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log."
+)
 
 
-def _register_run(sub) -> None:
-    p = common.command(
-        sub,
-        "run",
-        cmd_run,
-        help="run a scenario and log it to MCAP",
-        description="Run a scenario: simulate the plant, "
-        "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log.",
-    )
+def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "scenario",
         nargs="?",
@@ -68,74 +60,7 @@ def _register_run(sub) -> None:
     )
 
 
-def _register_node(sub) -> None:
-    p = common.command(
-        sub,
-        "node",
-        cmd_node,
-        help="run one estimator (or the controller) as a CAN node",
-        description="Run one estimator, "
-        "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
-        "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
-        "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger).",
-    )
-    p.add_argument("estimator", metavar="NAME", help="the estimator's name in the scenario, or 'controller'")
-    p.add_argument("--spec", metavar="FILE.json", help="the node spec written by 'cosim run'")
-    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
-
-
-def _register_monitor(sub) -> None:
-    p = common.command(
-        sub,
-        "monitor",
-        cmd_monitor,
-        help="show a bus's decoded signals live",
-        description="Show decoded signals live, message by message: of a running co-simulation (the only one, or\n"
-        "--run ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log\n"
-        "written by another tool).",
-        epilog="examples:\n  cosim monitor\n  cosim monitor --run 3f2a\n"
-        "  cosim monitor --dbc bus.dbc --interface socketcan --channel vcan0\n"
-        "  cosim monitor --dbc bus.dbc --channel 239.74.163.2 --port 43113",
-    )
-    p.add_argument("--run", metavar="ID", help="which running co-simulation (default: the only one)")
-    p.add_argument("--dbc", metavar="FILE.dbc", help="decode any bus with this database (with --interface, --channel)")
-    common.bus_options(p, "udp_multicast, with --dbc")
-
-
-def _check_options(args: argparse.Namespace, s) -> None:
-    """Options that would do nothing with the scenario as it runs are errors, not ignored."""
-    mode = args.mode or s.timing.mode
-    if args.speed is not None and mode != "realtime":
-        raise CosimError(
-            f"--speed {args.speed:g}: only in realtime mode (add --mode realtime); {s.name} runs in {mode}, "
-            "as fast as its nodes answer"
-        )
-    interface = args.interface or s.bus.interface
-    if args.port is not None and interface != "udp_multicast":
-        raise CosimError(f"--port: only for the udp_multicast interface, not {interface}")
-
-
-def summary(result, out: Path, error: str = "") -> dict:
-    """``cosim run --json``: the run's summary."""
-    if result is None:
-        return {"path": str(out) if out.exists() else None, "status": "error", "error": error}
-    return {
-        "path": str(result.path),
-        "status": result.status,
-        "ticks": result.ticks,
-        "frames": result.frames,
-        "lost": result.frames_lost,
-        "deadline_misses": result.deadline_misses,
-        "sim_time_s": result.sim_time,
-        "wall_time_s": round(result.wall_time, 3),
-        "realtime_factor": round(result.realtime_factor, 3),
-        "failed": result.failed,
-        "late_ticks": result.late_ticks,
-        "error": result.error or error,
-    }
-
-
-def cmd_run(args: argparse.Namespace) -> int:
+def main(args: argparse.Namespace) -> int:
     from cosim.run import Run
 
     loaded = common.load_scenario(args.scenario, args.set)
@@ -188,10 +113,43 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_options(args: argparse.Namespace, s) -> None:
+    """Options that would do nothing with the scenario as it runs are errors, not ignored."""
+    mode = args.mode or s.timing.mode
+    if args.speed is not None and mode != "realtime":
+        raise CosimError(
+            f"--speed {args.speed:g}: only in realtime mode (add --mode realtime); {s.name} runs in {mode}, "
+            "as fast as its nodes answer"
+        )
+    interface = args.interface or s.bus.interface
+    if args.port is not None and interface != "udp_multicast":
+        raise CosimError(f"--port: only for the udp_multicast interface, not {interface}")
+
+
+def summary(result, out: Path, error: str = "") -> dict:
+    """``cosim run --json``: the run's summary."""
+    if result is None:
+        return {"path": str(out) if out.exists() else None, "status": "error", "error": error}
+    return {
+        "path": str(result.path),
+        "status": result.status,
+        "ticks": result.ticks,
+        "frames": result.frames,
+        "lost": result.frames_lost,
+        "deadline_misses": result.deadline_misses,
+        "sim_time_s": result.sim_time,
+        "wall_time_s": round(result.wall_time, 3),
+        "realtime_factor": round(result.realtime_factor, 3),
+        "failed": result.failed,
+        "late_ticks": result.late_ticks,
+        "error": result.error or error,
+    }
+
+
 def _started(run, talk: Console, sink) -> None:
     """Said once the nodes are started: where the bus is, and what the run waits for."""
     s = run.scenario
-    talk.print(f"run {run.run_id} on {joining(run.bus)}")
+    talk.print(f"run {run.run_id} on {common.joining(run.bus)}")
     if sink is not None:
         wait = s.timing.join_timeout
         pace = "" if s.timing.mode == "realtime" else " (lockstep runs faster than real time: --mode realtime paces it)"
@@ -209,13 +167,6 @@ def _started(run, talk: Console, sink) -> None:
             f"waiting up to {s.timing.join_timeout:g} s for {', '.join(external)} to join "
             f"(cosim node NAME --run {run.run_id}, or your client)"
         )
-
-
-def joining(bus) -> str:
-    """Where a bus is, and how another program joins it."""
-    if bus.interface == "virtual":
-        return f"{bus.describe()} (in this process: no other program can join it)"
-    return f"{bus.describe()}   join with: {escape(bus.python_can())}"
 
 
 def _report(result, s, talk: Console) -> None:
@@ -238,45 +189,3 @@ def _report(result, s, talk: Console) -> None:
                 f"[yellow]  {name}: {counts['lost']} of its frames lost on the way to the runner, "
                 f"{counts['runner_frames_missed']} of the runner's frames missed by it[/yellow]"
             )
-
-
-def cmd_node(args: argparse.Namespace) -> int:
-    # A node never reads or writes MF4 files, but python-can's first import loads its MF4 support,
-    # asammdf with pandas, where the export extra is installed: a second of every node's start-up.
-    # Kept out of that import, python-can leaves MF4 out (as where asammdf is not installed);
-    # asammdf itself stays importable afterwards (cosim's MF4 export uses it directly).
-    hidden = "asammdf" not in sys.modules and "can" not in sys.modules
-    if hidden:
-        sys.modules["asammdf"] = None  # type: ignore[assignment]
-    try:
-        from cosim.run.node import load_spec, serve
-    finally:
-        if hidden and sys.modules.get("asammdf", False) is None:
-            del sys.modules["asammdf"]
-
-    if args.spec:
-        spec = load_spec(args.spec)
-        if spec.name != args.estimator:
-            raise CosimError(f"{args.spec} is the spec of node {spec.name!r}, not {args.estimator!r}")
-    else:
-        from cosim.bus.monitor import find_run
-        from cosim.run.node import NodeSpec
-
-        info = find_run(args.run, f"cosim node {args.estimator}")
-        if args.estimator not in info.get("nodes", {}):
-            raise CosimError(
-                f"the running co-simulation ({info['scenario']}) expects no external node {args.estimator!r}; "
-                f"mark it 'external = true' in the scenario's [[estimators]] (or [controller]) to start it by hand"
-            )
-        spec = NodeSpec.from_json(info["nodes"][args.estimator])
-    return serve(spec)
-
-
-def cmd_monitor(args: argparse.Namespace) -> int:
-    from cosim.bus import monitor
-
-    if args.dbc is None:
-        common.refuse(args, ("--interface", "--channel", "--port"), "only with --dbc (a run's bus is found by --run)")
-        return monitor.monitor(args.run, common.console())
-    common.refuse(args, ("--run",), "not with --dbc, which watches the bus --interface and --channel name")
-    return monitor.watch(args.dbc, args.interface or "udp_multicast", args.channel, args.port, common.console())
