@@ -23,7 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' linea
 
 from estimators import create
 from estimators.allocation import VesselController, VesselControllerParams, cluster_ratios, pseudo_inverse_allocation
-from estimators.cofd import SHIP_PAIRS, isolate
+from estimators.cofd import SHIP_PAIRS
+from estimators.isolation import isolate
 from tests.linear_vessel import X0, D, G, M, W, disturbance, exponential_faults, model, simulate
 
 GROUPS = [(0, 1), (2, 3), (4, 5), (6,), (7,)]

@@ -32,7 +32,7 @@ from cosim import scenario
 from cosim.campaign.leaderboard import poisson_rate, read_table
 from estimators import create
 from estimators.allocation import pseudo_inverse_allocation
-from estimators.cofd import isolate
+from estimators.isolation import isolate
 from tests.linear_vessel import X0, D, G, W, model
 
 WITHIN = 10.0  # s after the onset

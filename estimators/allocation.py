@@ -22,11 +22,13 @@ Minimizing |v| is minimizing |u| since NᵀN = I.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.optimize
+from numpy.typing import ArrayLike
 
 from estimators.base import ParameterError
 from estimators.controller import Command, Controller
@@ -69,9 +71,7 @@ def reduced_allocation(G: np.ndarray, tau: np.ndarray, faulty: tuple[int, ...] |
     return allocate(G, tau, allocation_basis(G.shape[1], faulty=faulty), exact=True)
 
 
-def cluster_matrix(
-    groups: list[tuple[int, ...]] | tuple[tuple[int, ...], ...], zeta: tuple[float, ...] | list[float], m: int
-) -> np.ndarray:
+def cluster_matrix(groups: Sequence[Sequence[int]], zeta: Sequence[float], m: int) -> np.ndarray:
     """The input combinations N (m, q) of the common-mode constraints (20), (24): u = N v.
 
     ``groups`` partitions the inputs 0 … m−1 into q clusters (e.g. the ship's thrusters
@@ -118,7 +118,12 @@ def cluster_ratios(u: np.ndarray, groups: list[tuple[int, ...]] | tuple[tuple[in
     return np.array(zeta)
 
 
-def allocation_basis(m: int, groups=None, zeta=None, faulty: tuple[int, ...] | list[int] = ()) -> np.ndarray:
+def allocation_basis(
+    m: int,
+    groups: Sequence[Sequence[int]] | None = None,
+    zeta: Sequence[float] | None = None,
+    faulty: tuple[int, ...] | list[int] = (),
+) -> np.ndarray:
     """The admissible inputs u = N v as an orthonormal basis N (m, r) with disjoint column supports:
     the unit vectors of the healthy inputs, or, with ``groups`` and ``zeta``, the normalized
     cluster combinations of ``cluster_matrix`` for the clusters without a faulty input."""
@@ -127,6 +132,8 @@ def allocation_basis(m: int, groups=None, zeta=None, faulty: tuple[int, ...] | l
         raise AllocationError(f"faulty inputs {sorted(failed)} must be columns 0…{m - 1} of G")
     if zeta is None:
         return np.eye(m)[:, [i for i in range(m) if i not in failed]]
+    if groups is None:
+        raise AllocationError("zeta needs the groups of inputs it relates")
     N = cluster_matrix(groups, zeta, m)
     keep = [j for j in range(N.shape[1]) if not any(N[i, j] != 0 for i in failed)]
     N = N[:, keep]
@@ -148,7 +155,9 @@ def allocate(G: np.ndarray, tau: np.ndarray, N: np.ndarray | None = None, exact:
     return N @ (np.linalg.pinv(GN) @ tau) if N.shape[1] else np.zeros(G.shape[1])
 
 
-def constrained_allocation(G: np.ndarray, tau: np.ndarray, groups, zeta) -> np.ndarray:
+def constrained_allocation(
+    G: np.ndarray, tau: np.ndarray, groups: Sequence[Sequence[int]], zeta: Sequence[float]
+) -> np.ndarray:
     """u meeting τ = G u exactly under the cluster constraints (24) (u_b = ζ u_a in every cluster),
     least-norm among those. Needs at most m − k constraints (eq. (19)) and rank(G N) = k (eq. (21))."""
     G, tau = _check_effect_matrix(G, tau)
@@ -163,7 +172,7 @@ def constrained_allocation(G: np.ndarray, tau: np.ndarray, groups, zeta) -> np.n
 
 
 def bounded_allocation(
-    G: np.ndarray, tau: np.ndarray, lower, upper, N: np.ndarray | None = None, gamma: float = 1e6
+    G: np.ndarray, tau: np.ndarray, lower: ArrayLike, upper: ArrayLike, N: np.ndarray | None = None, gamma: float = 1e6
 ) -> np.ndarray:
     """u in span N with lower ≤ u ≤ upper that meets G u = τ when the limits allow, least-norm
     among those; otherwise the τ̂ = G u closest to τ (eq. (3)).
@@ -330,7 +339,7 @@ class VesselController:
             self.limits = np.broadcast_to(np.asarray(params.thrust_limit, dtype=float), (m,)).copy()
         try:
             self.cluster_basis = None if params.zeta is None else allocation_basis(m, self.groups, params.zeta)
-            if self.cluster_basis is not None:
+            if params.zeta is not None:
                 constrained_allocation(self.G, np.zeros(3), self.groups, params.zeta)  # eq. (19), (21)
             pseudo_inverse_allocation(self.G, np.zeros(3))
         except AllocationError as error:
@@ -393,7 +402,7 @@ class VesselController:
         return u, {d.name: float(value) for d, value in zip(VESSEL_DIAGNOSTICS, values)}
 
 
-def input_groups(groups, m: int, parameter: str = "groups") -> list[tuple[int, ...]]:
+def input_groups(groups: Sequence[Sequence[Any]], m: int, parameter: str = "groups") -> list[tuple[int, ...]]:
     """1-based input numbers per thruster (as parsed from TOML) → 0-based column tuples, checked to
     split the m inputs, each in exactly one thruster; ParameterError(``parameter``) otherwise."""
     out = [tuple(whole(i, parameter) - 1 for i in g) for g in groups]

@@ -31,7 +31,9 @@ and the choices the paper leaves open.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.integrate
@@ -41,6 +43,7 @@ from estimators.allocation import FAULT_MASK, MAX_THRUSTERS, AllocationError, cl
 from estimators.base import Estimate, Estimator, ParameterError
 from estimators.design import AssumptionError
 from estimators.diagnostics import Diagnostic, DiagnosticKind
+from estimators.isolation import isolate, unisolable
 from estimators.model import LinearModel
 from estimators.rotating_frame import FrameTerms
 from estimators.thresholds import DeclaredEnvironment, residual_test
@@ -116,7 +119,7 @@ def cofd_observer(
     A: np.ndarray,
     W: np.ndarray,
     C: np.ndarray,
-    J,
+    J: Sequence[int],
     F: np.ndarray,
     S: np.ndarray | None = None,
     H_star: np.ndarray | None = None,
@@ -221,7 +224,12 @@ def _injection_gain(RA: np.ndarray, C: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def cofd_family(
-    A: np.ndarray, W: np.ndarray, C: np.ndarray, family, F: np.ndarray, S: np.ndarray | None = None
+    A: np.ndarray,
+    W: np.ndarray,
+    C: np.ndarray,
+    family: Sequence[Sequence[int]],
+    F: np.ndarray,
+    S: np.ndarray | None = None,
 ) -> list[COFDObserver]:
     """The observers {O_h} of eq. (13), one per multi-index of ``family`` (0-based columns of W),
     all with the same F and Ŝ (the paper's simplification after (13)). DesignError names the observer."""
@@ -234,7 +242,7 @@ def cofd_family(
     return observers
 
 
-def cluster_directions(W: np.ndarray, groups, zeta) -> np.ndarray:
+def cluster_directions(W: np.ndarray, groups: Sequence[Sequence[int]], zeta: Sequence[float]) -> np.ndarray:
     """W* = [W_{1} … W_{q}] = W N (n, q), eq. (22), (25): the input direction of each cluster of
     inputs under the constraints u_b = ζ u_a (20), (24) (``estimators.allocation.cluster_matrix``).
 
@@ -278,14 +286,16 @@ def residual_bounds(observer: COFDObserver, C: np.ndarray, E: np.ndarray, epsilo
     decay = -np.max(np.linalg.eigvals(F).real)
     horizon = 40.0 / decay
 
-    def integrand(s):
+    def integrand(s: float) -> np.ndarray:
         return np.linalg.norm(C @ scipy.linalg.expm(F * s) @ RE, axis=1)
 
     value, _ = scipy.integrate.quad_vec(integrand, 0.0, horizon, epsrel=1e-10, epsabs=0.0)
     return epsilon * value
 
 
-def fault_signatures(observers: list[COFDObserver], C: np.ndarray, W: np.ndarray, groups) -> np.ndarray:
+def fault_signatures(
+    observers: list[COFDObserver], C: np.ndarray, W: np.ndarray, groups: Sequence[Sequence[int]]
+) -> np.ndarray:
     """Which residual components a fault can move: s[h, i, j] is True when a fault of group j
     (a thruster: columns ``groups[j]`` of W) enters component i < ℓ of r^(h) = C e^(h), i.e. row i of
     C R^(h) W_{group j} is not zero; shape (observers, ℓ, groups). A False entry is a structural
@@ -299,43 +309,6 @@ def fault_signatures(observers: list[COFDObserver], C: np.ndarray, W: np.ndarray
         for j, g in enumerate(groups):
             signatures[h, : len(o.J), j] = np.abs(effect[: len(o.J), list(g)]).max(axis=1) > tol
     return signatures
-
-
-def hypothesis_signature(signatures: np.ndarray, hypothesis) -> np.ndarray:
-    """The components a fault on every group of ``hypothesis`` (0-based) can move."""
-    return np.asarray(signatures[:, :, list(hypothesis)].any(axis=2))
-
-
-def isolate(fired: np.ndarray, signatures: np.ndarray, hypotheses) -> tuple[int, ...] | None:
-    """The fault the fired components point to, or None.
-
-    A hypothesis (a set of groups) is consistent when no fired component is one it cannot move
-    (thresholds bound the fault-free residual, so an insensitive component stays below its
-    threshold under that hypothesis). The answer is the unique minimal consistent hypothesis (no
-    other consistent one that is not a superset of it); None when nothing fired, or when the
-    consistent hypotheses leave a choice (not yet isolable, or a fault outside the hypotheses)."""
-    fired = np.asarray(fired, dtype=bool)
-    if not fired.any():
-        return None
-    consistent = [tuple(H) for H in hypotheses if not (fired & ~hypothesis_signature(signatures, H)).any()]
-    minimal = [H for H in consistent if not any(set(other) < set(H) for other in consistent)]
-    return minimal[0] if len(minimal) == 1 else None
-
-
-def unisolable(signatures: np.ndarray, hypotheses) -> list[tuple[tuple[int, ...], tuple[int, ...]]]:
-    """Pairs (H, H′) where a fault H that moves every component it can still leaves H′ consistent
-    without H ⊂ H′: H can never be isolated from H′ by these observers. Empty for a good family."""
-    clashes = []
-    for H in hypotheses:
-        sig = hypothesis_signature(signatures, H)
-        for other in hypotheses:
-            if (
-                tuple(other) != tuple(H)
-                and not set(H) < set(other)
-                and not (sig & ~hypothesis_signature(signatures, other)).any()
-            ):
-                clashes.append((tuple(H), tuple(other)))
-    return clashes
 
 
 # -- the diagnosis node ---------------------------------------------------------------------------
@@ -468,7 +441,7 @@ class COFDDiagnosis(Estimator):
         self.t = 0.0
         self.isolated = np.zeros(len(self.groups), dtype=bool)
 
-    def _isolable_hypotheses(self, pairs) -> list[tuple[int, ...]]:
+    def _isolable_hypotheses(self, pairs: Sequence[Sequence[Any]]) -> list[tuple[int, ...]]:
         """The single faults and the given double ones (thruster numbers), 0-based, each of which
         the family can tell from every other (Sec. 3.2)."""
         hypotheses = [(j,) for j in range(len(self.groups))] + [
@@ -594,5 +567,5 @@ def _family(params: COFDParams, columns: int) -> list[tuple[int, ...]]:
     return family
 
 
-def _names(hypothesis) -> str:
+def _names(hypothesis: Sequence[int]) -> str:
     return " + ".join(f"T{j + 1}" for j in hypothesis)

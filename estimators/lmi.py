@@ -38,9 +38,15 @@ from __future__ import annotations
 
 import functools
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    import cvxpy as cp
 
 #: Margin of the strict inequalities (M > 0 is imposed as M ⪰ MARGIN·I).
 MARGIN = 1e-6
@@ -200,7 +206,14 @@ def _corner_bits(m: int) -> np.ndarray:
 
 
 def max_spectral_radius(
-    model: SensorFaultModel, gain, lower, upper, *, form: str = "pinv", samples: int = 200, seed: int = 0
+    model: SensorFaultModel,
+    gain: Callable[[np.ndarray], np.ndarray],
+    lower: ArrayLike,
+    upper: ArrayLike,
+    *,
+    form: str = "pinv",
+    samples: int = 200,
+    seed: int = 0,
 ) -> float:
     """max over γ of ρ(T_γ Ā − L(γ) C̄_γ), the error dynamics (17)/(37) with γ̂ = γ, at the corners
     of Γ and ``samples`` random points; ``gain`` maps γ to L (shape (nx, m))."""
@@ -222,7 +235,7 @@ CLARABEL_OPTIONS = {"chordal_decomposition_enable": False, "tol_gap_abs": 1e-7, 
 INFEASIBLE = "the LMIs are {status}; the design has no solution on this Γ (narrow Γ or check the model)"
 
 
-def solve_problem(problem, solver: str, what: str) -> None:
+def solve_problem(problem: cp.Problem, solver: str, what: str) -> None:
     import cvxpy as cp
 
     options = CLARABEL_OPTIONS if solver == "CLARABEL" else {}

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse
@@ -146,12 +147,18 @@ def theorem1_lmis(
     return np.concatenate(lmis)
 
 
-def theorem1_min_eigenvalue(TA, C, F, P, G, Y, mu) -> float:
+def theorem1_min_eigenvalue(
+    TA: np.ndarray, C: np.ndarray, F: np.ndarray, P: np.ndarray, G: np.ndarray, Y: np.ndarray, mu: float
+) -> float:
     """The smallest eigenvalue over all LMIs (19)–(20) at the solution (``theorem1_lmis``)."""
     return float(np.linalg.eigvalsh(theorem1_lmis(TA, C, F, P, G, Y, mu)).min())
 
 
-def theorem1_conic_data(TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: float = MARGIN):
+#: Clarabel's problem data: cost c, constraint matrix A, b, the PSD cones' sizes, where μ, P, G, Y lie in x.
+ConicData = tuple[np.ndarray, scipy.sparse.csc_matrix, np.ndarray, list[int], dict[str, Any]]
+
+
+def theorem1_conic_data(TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: float = MARGIN) -> ConicData:
     """Theorem 1 in Clarabel's conic form: minimise cᵀx subject to b − A x ∈ K, K a product of
     PSD cones in Clarabel's triangle form (upper triangle by columns, off-diagonal entries × √2).
 
@@ -240,7 +247,9 @@ def _xi_cones(
     return blocks, b, row
 
 
-def _theorem1_direct(TA, C, F, margin, solver):
+def _theorem1_direct(
+    TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: float, solver: str
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Theorem 1 through ``theorem1_conic_data``, solved by Clarabel; returns μ, P, G, Y."""
     import clarabel
 
@@ -275,7 +284,9 @@ def _theorem1_direct(TA, C, F, margin, solver):
     return float(x[layout["mu"]]), P, G, Y
 
 
-def _theorem1_cvxpy(TA, C, F, margin, solver):
+def _theorem1_cvxpy(
+    TA: np.ndarray, C: np.ndarray, F: np.ndarray, margin: float, solver: str
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Theorem 1 with (19)–(20) as printed, every (i, j) and (i, k, j), through cvxpy; returns μ, P, G, Y."""
     import cvxpy as cp
 
@@ -320,7 +331,8 @@ def _theorem1_cvxpy(TA, C, F, margin, solver):
     problem = cp.Problem(cp.Minimize(mu), constraints)
     solve_problem(problem, solver, "Theorem 1 (LPV-UIO)")
     mu_value = float(solved_value(mu.value, "Theorem 1 (LPV-UIO)"))
-    return mu_value, *(np.array([v.value for v in group]) for group in (P, G, Y))
+    P_value, G_value, Y_value = (np.array([v.value for v in group]) for group in (P, G, Y))
+    return mu_value, P_value, G_value, Y_value
 
 
 def _svec_indices(n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -26,6 +26,7 @@ virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and tha
 from __future__ import annotations
 
 from abc import abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -279,7 +280,7 @@ class UioReconciliator(_Reconciliator):
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         """The observer gain L at γ̂, shape (n + q, m)."""
 
-    def _solve(self, design, **kwargs):
+    def _solve(self, design: Callable[..., Any], **kwargs: Any) -> Any:
         try:
             return design(self.aug, self.lower, self.upper, solver=self.params.solver, **kwargs)
         except DesignError as error:

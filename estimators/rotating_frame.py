@@ -21,10 +21,17 @@ term r u of the cruise speed (docs/vessel-fdi.md). Between samples φ is linear 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from estimators.base import ParameterError
 from estimators.uio import UIODesign, discretize
+
+if TYPE_CHECKING:
+    from estimators.cofd import COFDObserver
+    from estimators.model import LinearModel
 
 OUTPUTS = ("x", "y", "psi", "u", "v", "r")
 """The outputs, in order, that the terms are written for (C = I)."""
@@ -47,7 +54,7 @@ def sampled_gains(H: np.ndarray, R: np.ndarray, F: np.ndarray, sample_time: floa
 class FrameTerms:
     """What R φ(y) adds to each observer's z over a sample (kind ``cofd``, ``rotating_frame``)."""
 
-    def __init__(self, model, observers, sample_time: float) -> None:
+    def __init__(self, model: LinearModel, observers: Sequence[COFDObserver], sample_time: float) -> None:
         if tuple(model.outputs) != OUTPUTS or not np.allclose(model.C, np.eye(len(OUTPUTS))):
             raise ParameterError(
                 "rotating_frame",

@@ -21,13 +21,18 @@ part that grows with the accelerations, and ``ResidualTest`` applies them tick b
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.integrate
 import scipy.linalg
 
 from estimators.base import ParameterError
+
+if TYPE_CHECKING:
+    from estimators.cofd import COFDObserver, COFDParams
 
 FORCE, MOMENT = (0, 1), (2,)
 """The environment's inputs among E's columns: the horizontal force (b_x, b_y), the yaw moment b_n."""
@@ -101,12 +106,18 @@ class DeclaredEnvironment:
             )
 
 
-def _integral(F: np.ndarray, left: np.ndarray, right: np.ndarray, weight=None, start: float = 0.0) -> np.ndarray:
+def _integral(
+    F: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    weight: Callable[[float], float] | None = None,
+    start: float = 0.0,
+) -> np.ndarray:
     """∫_start^∞ w(s) |(left e^{F s} right)_i|₂ ds per row i (w = 1 by default), integrated until
     e^{F s} has decayed by e^(−40)."""
     horizon = start + 40.0 / -np.max(np.linalg.eigvals(F).real)
 
-    def integrand(s):
+    def integrand(s: float) -> np.ndarray:
         gain = np.linalg.norm(left @ scipy.linalg.expm(F * s) @ right, axis=1)
         return gain if weight is None else weight(s) * gain
 
@@ -114,7 +125,9 @@ def _integral(F: np.ndarray, left: np.ndarray, right: np.ndarray, weight=None, s
     return value
 
 
-def band_gains(F: np.ndarray, left: np.ndarray, right: np.ndarray, band: tuple[float, float], points: int = 400):
+def band_gains(
+    F: np.ndarray, left: np.ndarray, right: np.ndarray, band: tuple[float, float], points: int = 400
+) -> tuple[np.ndarray, np.ndarray]:
     """|left (jωI − F)⁻¹ right|₂ per row on a grid of the band (endpoints included), shape
     (points, rows), and the grid."""
     omegas = np.linspace(band[0], band[1], points)
@@ -166,7 +179,9 @@ class InertialAllowance:
     diagonal F, q_k the first-order filter of a with pole f_k; a is the rate over each sample,
     (y_k − y_{k−1})/τ, held."""
 
-    def __init__(self, observers, C: np.ndarray, E: np.ndarray, ratio: float, sample_time: float) -> None:
+    def __init__(
+        self, observers: Sequence[COFDObserver], C: np.ndarray, E: np.ndarray, ratio: float, sample_time: float
+    ) -> None:
         poles = [np.diag(o.F) for o in observers]
         if any(not np.allclose(o.F, np.diag(f)) for o, f in zip(observers, poles)):
             raise ValueError("the inertial allowance needs a diagonal F")
@@ -224,7 +239,12 @@ class ResidualTest:
 
 
 def residual_test(
-    observers, C: np.ndarray, E: np.ndarray, params, flat: np.ndarray, sample_time: float
+    observers: Sequence[COFDObserver],
+    C: np.ndarray,
+    E: np.ndarray,
+    params: COFDParams,
+    flat: np.ndarray,
+    sample_time: float,
 ) -> ResidualTest:
     """The residual test of kind ``cofd`` (``params``: its ``COFDParams``): the flat thresholds
     ``flat`` throughout, or, with a declared environment, margin × ``centred_bounds`` of each

@@ -55,6 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+from numpy.typing import ArrayLike
 
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
 from estimators.design import AssumptionError, check_spectrum, observer_gain
@@ -161,7 +162,14 @@ def check_detectable(TA: np.ndarray, C: np.ndarray) -> np.ndarray:
     return modes
 
 
-def uio_design(A: np.ndarray, B: np.ndarray, C: np.ndarray, E: np.ndarray, poles=None, K1=None) -> UIODesign:
+def uio_design(
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    E: np.ndarray,
+    poles: ArrayLike | None = None,
+    K1: ArrayLike | None = None,
+) -> UIODesign:
     """The unknown input observer (2) of the course notes, eq. (8).
 
     1. H = E (CE)⁺ and T = I − H C (requires rank(CE) = rank(E));

@@ -24,7 +24,7 @@ equal ν = [u, v, r] at ψ = 0 only (ẋ, ẏ = P(ψ) [u, v]). The sensors u, v 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -161,7 +161,7 @@ def _heading(name: str, description: str) -> Channel:
     return Channel(name, "rad", description, -100.0, 100.0, 1e-6)
 
 
-def _speed(name: str, description: str, **kwargs) -> Channel:
+def _speed(name: str, description: str, **kwargs: Any) -> Channel:
     # 10 µm/s over ±20 m/s (39 knots): 23 bits.
     return Channel(name, "m/s", description, -20.0, 20.0, 1e-5, **kwargs)
 
@@ -320,7 +320,7 @@ class EnvironmentDisturbance:
 
 
 def environment_disturbance(
-    t: float | np.ndarray, rng_or_seed: int | np.random.SeedSequence | np.random.Generator, **magnitudes
+    t: float | np.ndarray, rng_or_seed: int | np.random.SeedSequence | np.random.Generator, **magnitudes: Any
 ) -> np.ndarray:
     """b(t) of the realization ``EnvironmentDisturbance.random(rng_or_seed, **magnitudes)``; pure:
     the same seed (or Generator state) gives the same b at every t. Shape (3,) or (len(t), 3)."""

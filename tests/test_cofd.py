@@ -31,8 +31,8 @@ from estimators.cofd import (
     output_directions,
     residual_bounds,
     uniform_subrank,
-    unisolable,
 )
+from estimators.isolation import unisolable
 from tests.linear_vessel import X0, A, C, D, E, G, M, W, disturbance, exponential_faults, model, simulate
 
 TAU = 0.1

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from hashlib import md5
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosim.analysis import names
 from cosim.errors import CosimError, LogError
@@ -53,6 +53,10 @@ from cosim.files import temporary_beside
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SENSORS, STATE, carried_tick
+
+if TYPE_CHECKING:
+    import can
+    import numpy as np
 
 #: Format → file suffix of its output.
 FORMATS = {
@@ -379,7 +383,7 @@ def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:
     return attached
 
 
-def can_message(time_ns: int, frame: dict[str, Any]):
+def can_message(time_ns: int, frame: dict[str, Any]) -> can.Message:
     """The python-can message of a ``/can/frames`` record, stamped ``time_ns`` (ns since the epoch)."""
     import can
 
@@ -439,7 +443,7 @@ def _write_frame_log(
     return count
 
 
-def mf4_frame_dtype():
+def mf4_frame_dtype() -> np.dtype:
     """The record of ASAM MDF bus logging's CAN_DataFrame channel group, as asammdf reads it."""
     import numpy as np
 

@@ -47,7 +47,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -55,6 +55,11 @@ from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, first
 from cosim.errors import LogError
 from cosim.extras import require
 from estimators.base import DiagnosticKind
+
+if TYPE_CHECKING:
+    from matplotlib.artist import Artist
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 #: Figure formats and what matplotlib writes into them that would change from one run to the next.
 FORMATS = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}
@@ -105,26 +110,26 @@ class Canvas:
         kind = self.series.estimators[name].kind
         return name if kind == name else f"{name} ({kind})"
 
-    def figure(self, rows: int, columns: int = 1, height: float = 2.2, **kw):
+    def figure(self, rows: int, columns: int = 1, height: float = 2.2, **kw: Any) -> tuple[Figure, np.ndarray]:
         return self.plt.subplots(
             rows, columns, figsize=(WIDTH, max(2.8, height * rows + 0.6)), squeeze=False, layout="constrained", **kw
         )
 
-    def save(self, fig, name: str, heading: str) -> None:
+    def save(self, fig: Figure, name: str, heading: str) -> None:
         fig.suptitle(f"{self.series.scenario}: {heading}")
         target = self.out / f"{name}.{self.fmt}"
         fig.savefig(target, dpi=self.dpi, bbox_inches="tight", pad_inches=0.08, metadata=FORMATS[self.fmt])
         self.plt.close(fig)
         self.written.append(target)
 
-    def faults_shaded(self, ax, label: bool = False) -> None:
+    def faults_shaded(self, ax: Axes, label: bool = False) -> None:
         """Every fault's window shaded, its onset dotted."""
         for f in self.series.faults:
             stop = self.end if f.get("end") is None else f["end"]
             ax.axvspan(f["start"], stop, color="0.5", alpha=0.06, lw=0)
             ax.axvline(f["start"], color="0.35", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None)
 
-    def events(self, ax, isolations: Sequence[tuple[float, str]] = (), label: bool = False) -> None:
+    def events(self, ax: Axes, isolations: Sequence[tuple[float, str]] = (), label: bool = False) -> None:
         """Fault onsets (dotted), isolations (red, named) and the reconfiguration (green, dashed)."""
         for f in self.series.faults:
             ax.axvline(f["start"], color="0.4", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None)
@@ -134,13 +139,13 @@ class Canvas:
             ax.axvline(at, color="C2", ls="--", lw=1.2, label=f"reconfigured at {at:g} s" if label else None)
 
     @staticmethod
-    def finish(ax, ylabel: str, legend: bool = True, **legend_kw) -> None:
+    def finish(ax: Axes, ylabel: str, legend: bool = True, **legend_kw: Any) -> None:
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         if legend and ax.get_legend_handles_labels()[0]:
             ax.legend(**{"loc": "best", "framealpha": 0.85, **legend_kw})
 
-    def state_grid(self, names: list[str]):
+    def state_grid(self, names: list[str]) -> tuple[Figure, list[Axes]]:
         """A panel per state, in two columns when there are more than three."""
         columns = 2 if len(names) > 3 else 1
         rows = -(-len(names) // columns)
@@ -156,16 +161,18 @@ class Canvas:
         return fig, cells
 
     @staticmethod
-    def figure_legend(fig, cells) -> None:
+    def figure_legend(fig: Figure, cells: Sequence[Axes]) -> None:
         """One legend for the whole figure, under its panels: each curve name once."""
-        found: dict[str, object] = {}
+        found: dict[str, Artist] = {}
         for ax in cells:
             for handle, text in zip(*ax.get_legend_handles_labels()):
                 found.setdefault(text, handle)
         if found:
             fig.legend(list(found.values()), list(found), loc="outside lower center", ncol=min(4, len(found)))
 
-    def one_panel(self, named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool):
+    def one_panel(
+        self, named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool
+    ) -> None:
         """One panel of one curve per estimator against time."""
         fig, axes = self.figure(1, height=3.0)
         ax = axes[0, 0]
@@ -181,7 +188,7 @@ class Canvas:
         self.save(fig, name, what)
 
 
-def log_floor(ax, curves: Sequence[np.ndarray]) -> None:
+def log_floor(ax: Axes, curves: Sequence[np.ndarray]) -> None:
     """A log axis that spans ``DECADES`` below the largest value (not down to a curve's zeros)."""
     top = max((float(np.max(v)) for v in curves if np.size(v)), default=0.0)
     if top > 0:

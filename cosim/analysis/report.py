@@ -32,7 +32,7 @@ import math
 import tempfile
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosim import __version__
 from cosim.analysis import report_sections as sections
@@ -42,6 +42,9 @@ from cosim.errors import CosimError
 from cosim.extras import MissingExtra
 from cosim.log.metadata import LogMetadata, ScenarioRecord
 from cosim.log.reader import LogReader
+
+if TYPE_CHECKING:
+    import jinja2
 
 #: What each figure of ``cosim plot`` shows (the file names are plot.py's).
 CAPTIONS = {
@@ -113,7 +116,7 @@ def report(path: str | Path, out: str | Path) -> Path:
     return out
 
 
-def _template():
+def _template() -> jinja2.Template:
     import jinja2
 
     environment = jinja2.Environment(

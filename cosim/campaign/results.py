@@ -22,6 +22,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the metrics' modules load the codec and the estimators: not for reading a table
+    import pyarrow as pa
+
     from cosim.analysis.metrics import DiagnosisMetrics, RunMetrics
 
 
@@ -195,7 +197,7 @@ class TableSchema:
     def names(self) -> list[str]:
         return [c[0] for c in self.columns]
 
-    def arrow(self):  # pyarrow.Schema
+    def arrow(self) -> pa.Schema:
         import pyarrow as pa
 
         types = {"int": pa.int64(), "float": pa.float64(), "bool": pa.bool_(), "text": pa.string()}

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.markup import escape
+from rich.progress import Progress
 
 from cosim.cli import common
+
+if TYPE_CHECKING:
+    from cosim.campaign.coordinator import CampaignProgress
 
 HELP = "run a campaign of many runs on a distributed engine"
 
@@ -81,7 +87,7 @@ def main(args: argparse.Namespace) -> int:
         f"({len(campaign.grid)} settings × {len(spec.replicates)} replicates, {spec.bus} bus) into "
         f"{escape(str(args.out))}"
     )
-    progress = _progress(talk, campaign.size)
+    progress, update = _progress(talk, campaign.size)
     try:
         with progress:
             result = run_campaign(
@@ -92,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
                 address=args.address,
                 resume=args.resume,
                 keep_logs=args.keep_logs,
-                on_progress=progress.update_campaign,
+                on_progress=update,
                 on_start=lambda description, workers: talk.print(f"engine: {escape(description)}"),
             )
     except KeyboardInterrupt as interrupt:
@@ -112,9 +118,9 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(talk: Console, total: int):
-    """A progress display of a campaign's runs, with ``update_campaign(CampaignProgress)``."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+def _progress(talk: Console, total: int) -> tuple[Progress, Callable[[CampaignProgress], None]]:
+    """A progress display of a campaign's runs, and the function that updates it."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     columns = (
         TextColumn("[progress.description]{task.description}"),
@@ -128,9 +134,8 @@ def _progress(talk: Console, total: int):
     progress = Progress(*columns, console=talk, transient=False, disable=talk.quiet)
     task = progress.add_task("runs", total=total, failed=0, per_run="", eta="-")
 
-    def update(p) -> None:
+    def update(p: CampaignProgress) -> None:
         eta = "-" if p.eta_s is None else time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
         progress.update(task, completed=p.done, failed=p.failed, per_run=f"{p.mean_run_s:.2f} s/run", eta=eta)
 
-    progress.update_campaign = update  # type: ignore[attr-defined]
-    return progress
+    return progress, update

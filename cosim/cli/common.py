@@ -8,9 +8,10 @@ import difflib
 import signal
 import sys
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -19,6 +20,12 @@ from cosim.errors import CosimError
 
 if TYPE_CHECKING:
     from cosim.bus.transport import BusConfig
+    from cosim.log.live import FoxgloveSink
+    from cosim.run import Run
+    from cosim.run.outcome import Progress as RunProgress
+    from cosim.run.outcome import RunResult
+    from cosim.run.replay import Replay
+    from cosim.scenario import LoadedScenario
 
 LOG_HELP = "a run log, or 'latest': the newest runs/*.mcap"
 
@@ -35,13 +42,13 @@ def error_console() -> Console:
     return console(stderr=True)
 
 
-def print_json(value) -> None:
+def print_json(value: Any) -> None:
     import orjson
 
     sys.stdout.write(orjson.dumps(value, option=orjson.OPT_INDENT_2).decode() + "\n")
 
 
-def warn(talk: Console, warnings) -> None:
+def warn(talk: Console, warnings: Iterable[str]) -> None:
     for warning in warnings:
         talk.print(f"[yellow]warning:[/yellow] {escape(warning)}")
 
@@ -59,7 +66,7 @@ def check_scenario_name(name: str | None) -> None:
     raise CosimError(f"no {kind} {name!r}: {hint}('cosim scenarios' lists the built-in ones)")
 
 
-def load_scenario(name: str | None, settings: list[str] | None, seed: int | None = None):
+def load_scenario(name: str | None, settings: list[str] | None, seed: int | None = None) -> LoadedScenario:
     """A scenario by name or file, with the command line's ``--set`` (and ``--seed``) applied."""
     from cosim import scenario
 
@@ -219,7 +226,7 @@ def joining(bus: BusConfig) -> str:
     return f"{bus.describe()}   join with: {escape(bus.python_can())}"
 
 
-def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None):
+def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None) -> FoxgloveSink:
     from cosim.log.live import FoxgloveSink
 
     return FoxgloveSink(args.foxglove, host=args.foxglove_host, start_ns=start_ns, feature=feature)
@@ -228,7 +235,7 @@ def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None =
 # -- progress -------------------------------------------------------------------------------------
 
 
-def with_progress(run, talk: Console, started, **execute):
+def with_progress(run: Run | Replay, talk: Console, started: Callable[[Any], None], **execute: Any) -> RunResult:
     """``run.execute`` with a progress bar of its ticks (on ``talk``: none when it is quiet)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -245,7 +252,7 @@ def with_progress(run, talk: Console, started, **execute):
     progress = Progress(*columns, console=talk, transient=False)
     task = progress.add_task("simulating", total=run.scenario.ticks, sim=0.0, rtf=0.0, frames=0)
 
-    def update(p) -> None:
+    def update(p: RunProgress) -> None:
         if not progress.live.is_started:  # drawn from the first tick on: no empty bar before an error
             progress.start()
         progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)

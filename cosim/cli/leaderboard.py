@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 
 from rich.console import Console
 from rich.markup import escape
@@ -45,15 +46,15 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _number(value) -> str:
+def _number(value: float | None) -> str:
     return "-" if value is None else f"{value:.4g}"
 
 
-def _percent(value) -> str:
+def _percent(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f} %"
 
 
-def _interval(bounds) -> str:
+def _interval(bounds: Sequence[float | None] | None) -> str:
     return "-" if not bounds or bounds[0] is None else f"[{bounds[0]:.3g}, {bounds[1]:.3g}]"
 
 

@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console
 from rich.markup import escape
 
 from cosim.cli import common
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    from cosim.bus.transport import BusConfig
 
 HELP = "feed a log's bus traffic to an estimator, or play it onto a live bus"
 
@@ -185,7 +189,7 @@ def _play(args: argparse.Namespace, talk: Console) -> int:
     )
     speed = 1.0 if args.speed is None else args.speed
 
-    def started(bus) -> None:
+    def started(bus: BusConfig) -> None:
         talk.print(f"playing {escape(args.log)} at {speed:g}x real time onto {common.joining(bus)}")
 
     try:

@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
 
 from cosim.cli import common
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    from cosim.log.live import FoxgloveSink
+    from cosim.run import Run
+    from cosim.run.outcome import RunResult
+    from cosim.scenario import Scenario
 
 HELP = "run a scenario and log it to MCAP"
 
@@ -113,7 +120,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_options(args: argparse.Namespace, s) -> None:
+def _check_options(args: argparse.Namespace, s: Scenario) -> None:
     """Options that would do nothing with the scenario as it runs are errors, not ignored."""
     mode = args.mode or s.timing.mode
     if args.speed is not None and mode != "realtime":
@@ -126,7 +133,7 @@ def _check_options(args: argparse.Namespace, s) -> None:
         raise CosimError(f"--port: only for the udp_multicast interface, not {interface}")
 
 
-def summary(result, out: Path, error: str = "") -> dict:
+def summary(result: RunResult | None, out: Path, error: str = "") -> dict[str, Any]:
     """``cosim run --json``: the run's summary."""
     if result is None:
         return {"path": str(out) if out.exists() else None, "status": "error", "error": error}
@@ -146,7 +153,7 @@ def summary(result, out: Path, error: str = "") -> dict:
     }
 
 
-def _started(run, talk: Console, sink) -> None:
+def _started(run: Run, talk: Console, sink: FoxgloveSink | None) -> None:
     """Said once the nodes are started: where the bus is, and what the run waits for."""
     s = run.scenario
     talk.print(f"run {run.run_id} on {common.joining(run.bus)}")
@@ -169,7 +176,7 @@ def _started(run, talk: Console, sink) -> None:
         )
 
 
-def _report(result, s, talk: Console) -> None:
+def _report(result: RunResult, s: Scenario, talk: Console) -> None:
     misses = f", {result.deadline_misses} deadline misses" if s.timing.mode == "realtime" else ""
     talk.print(
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost{misses}) in "

@@ -31,12 +31,15 @@ import time
 import urllib.parse
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosim.extras import require
 from cosim.log.metadata import LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.writer import dumps
+
+if TYPE_CHECKING:
+    from foxglove.websocket import ChannelView, Client
 
 DEFAULT_PORT = 8765
 #: The protocol's names: the SDK's, and the one Lichtblick and older Foxglove apps ask for.
@@ -68,7 +71,7 @@ class FoxgloveSink:
         subscribed, subscriptions = self._subscribed, self.subscriptions
 
         class Listener(ServerListener):
-            def on_subscribe(self, client, channel) -> None:
+            def on_subscribe(self, client: Client, channel: ChannelView) -> None:
                 subscriptions.add(channel.topic)
                 subscribed.set()
 

@@ -11,7 +11,7 @@ import io
 import json
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +73,7 @@ class LogReader:
     def __exit__(self, *exc: object) -> None:
         self._stream.close()
 
-    def summary(self):  # mcap.records.Summary | None
+    def summary(self) -> Summary | None:
         """The summary section, or None when the file has none."""
         return self._summary
 
@@ -129,7 +129,7 @@ class LogReader:
 
         return {channels[cid].topic: parsed(channels[cid].schema_id) for cid in sorted(channels)}
 
-    def _indexed_or_scanned(self, kind: type, indexed) -> list[Any]:
+    def _indexed_or_scanned(self, kind: type, indexed: Callable[[], Iterable[Any]]) -> list[Any]:
         """Records of one kind: from the summary's index if it can be read, else by a scan."""
         if self._summary is not None:
             try:

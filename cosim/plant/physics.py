@@ -590,7 +590,7 @@ def _stepped_tendon_model(
     return A, _central_difference(lambda du: stepped(zs, du), m.nu)
 
 
-def _central_difference(f, size: int) -> np.ndarray:
+def _central_difference(f: Callable[[np.ndarray], np.ndarray], size: int) -> np.ndarray:
     """∂f/∂v at v = 0 by central differences, shape (len(f(0)), size)."""
     if size == 0:
         return np.zeros((len(f(np.zeros(0))), 0))

@@ -11,6 +11,7 @@ discrete-time model is taken as it is (its step is the sample time). The interfa
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from mjcf import PlantInfo
 NAME = "state-space"
 
 
-def plant_info(spec) -> PlantInfo:
+def plant_info(spec: Any) -> PlantInfo:  # a StateSpaceSpec: the scenario's room is above the plant's
     """The PlantInfo of a ``[plant.state_space]`` table (a validated ``StateSpaceSpec``)."""
 
     def channels(names: Sequence[str], what: str) -> tuple[Channel, ...]:
@@ -46,7 +47,7 @@ def plant_info(spec) -> PlantInfo:
 class StateSpacePlant:
     """Exactly integrated linear plant with the ``Plant`` interface."""
 
-    def __init__(self, spec, info: PlantInfo, sample_time: float, sensors: Sequence[str] | None = None) -> None:
+    def __init__(self, spec: Any, info: PlantInfo, sample_time: float, sensors: Sequence[str] | None = None) -> None:
         self.spec, self.info = spec, info
         self.sample_time = float(sample_time)
         self.A, self.B = np.array(spec.A, dtype=float), np.array(spec.B, dtype=float)

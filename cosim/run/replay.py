@@ -60,7 +60,7 @@ from cosim.run.plan import RunPlan, build_estimators, channel_units, design_warn
 from cosim.run.session import Session
 from cosim.scenario import LoadedScenario, Scenario
 from cosim.scenario.overrides import path_parts
-from estimators import LinearModel, ParameterError
+from estimators import Estimator, LinearModel, ParameterError
 
 #: The truth topics a replay copies from the original log.
 TRUTH = (STATE, SENSORS, INPUTS, FAULTS)
@@ -299,13 +299,7 @@ class Replay:
             channel=channel or "",
             port=port or 0,
         ).model_copy(update={"controller": None})  # a closed loop's controller is replayed from the log, not run
-        if self.new or overrides:
-            built = build_estimators(scenario, model, f"{self.log} (replay)", model)
-        else:
-            try:
-                built = {estimator: estimators.create(kind, model, spec_params, scenario.sample_time)}
-            except ParameterError as error:
-                raise CosimError(f"{self.log}: estimator {estimator}: params.{error}") from None
+        built = self._build(scenario, model)
         self.plan = RunPlan(
             loaded=LoadedScenario(scenario, str(self.log), scenario_record.toml),
             scenario=scenario,
@@ -324,6 +318,16 @@ class Replay:
         )
         self.bus: BusConfig | None = None
         self.session: Session | None = None
+
+    def _build(self, scenario: Scenario, model: LinearModel) -> dict[str, Estimator]:
+        """The replayed estimator: designed again when it is new or its parameters changed, else
+        with the run's design (the parameters the log records carry it)."""
+        if self.new or self.overrides:
+            return build_estimators(scenario, model, f"{self.log} (replay)", model)
+        try:
+            return {self.name: estimators.create(self.kind, model, self.params, scenario.sample_time)}
+        except ParameterError as error:
+            raise CosimError(f"{self.log}: estimator {self.name}: params.{error}") from None
 
     def _read_log(self) -> tuple[RunRecord, ScenarioRecord, Scenario]:
         """The log's run record, scenario record and scenario; its codec, ticks and attachments."""

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 from uuid import uuid4
 
+from cosim.bus.codec import Codec
 from cosim.bus.registry import Registration
 from cosim.bus.transport import BusConfig, allocate
 from cosim.errors import CodecError, ScenarioError
@@ -25,7 +26,7 @@ from cosim.run.loop import PlantSource, execute, start_participants
 from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan
 from cosim.run.session import Session
-from cosim.scenario import LoadedScenario
+from cosim.scenario import LoadedScenario, Scenario
 
 
 class Run:
@@ -48,7 +49,7 @@ class Run:
         self.session: Session | None = None
 
     @property
-    def scenario(self):  # cosim.scenario.Scenario
+    def scenario(self) -> Scenario:
         return self.plan.scenario
 
     @property
@@ -60,7 +61,7 @@ class Run:
         return self.plan.warnings
 
     @property
-    def codec(self):  # cosim.bus.codec.Codec
+    def codec(self) -> Codec:
         return self.plan.codec
 
     @property
