@@ -13,10 +13,13 @@ from __future__ import annotations
 import errno
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO, TypeVar
 
 from cosim.errors import CosimError
+
+T = TypeVar("T")
 
 
 def open_output(path: str | Path, *, replace: bool = True) -> BinaryIO:
@@ -49,11 +52,17 @@ def temporary_beside(path: str | Path, suffix: str = "") -> Path:
     return Path(name)
 
 
-def file_version(path: Path, missing: Exception) -> tuple[Path, int, int]:
-    """``path`` with its modification time and size: what a file read once per version is cached
-    under; ``missing`` is raised if there is no such file."""
+def once_per_version(
+    cache: dict[tuple[Any, ...], T], path: Path, table: Any, missing: Exception, read: Callable[[Path, Any], T]
+) -> T:
+    """``read(path, table)``, done once per version of the file (its modification time and size)
+    and of ``table`` (a pydantic model of the scenario's settings for it), kept in ``cache``: a file
+    edited between two runs is read again. ``missing`` is raised if there is no such file."""
     try:
         stat = path.stat()
     except OSError:
         raise missing from None
-    return path, stat.st_mtime_ns, stat.st_size
+    key = (path, stat.st_mtime_ns, stat.st_size, table.model_dump_json())
+    if key not in cache:
+        cache[key] = read(path, table)
+    return cache[key]

@@ -258,16 +258,10 @@ def _fault_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:
             )
         )
     for sensor in [s for s in signals.sensors if s in targets]:
-        panels.append(
-            _against(
-                f"sensor-{sensor}",
-                sensor,
-                "sent on the bus against the true reading",
-                signals.unit(sensor),
-                (f"{SENSORS}.{sensor}", f"sensors.{sensor} (true)"),
-                (f"{FAULTS}.measured.{sensor}", f"faults.measured.{sensor} (sent)"),
-            )
-        )
+        true = (f"{SENSORS}.{sensor}", f"sensors.{sensor} (true)")
+        sent = (f"{FAULTS}.measured.{sensor}", f"faults.measured.{sensor} (sent)")
+        what = "sent on the bus against the true reading"
+        panels.append(_against(f"sensor-{sensor}", sensor, what, signals.unit(sensor), true, sent))
     if actuator_faults:
         panels.append(
             (
@@ -282,15 +276,11 @@ def _fault_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:
             )
         )
         for actuator in actuator_faults:
+            commanded = (f"{INPUTS}.commanded.{actuator}", f"inputs.commanded.{actuator}")
+            effective = (f"{INPUTS}.effective.{actuator}", f"inputs.effective.{actuator}")
+            what = "commanded against effective input"
             panels.append(
-                _against(
-                    f"actuator-{actuator}",
-                    actuator,
-                    "commanded against effective input",
-                    signals.unit(actuator),
-                    (f"{INPUTS}.commanded.{actuator}", f"inputs.commanded.{actuator}"),
-                    (f"{INPUTS}.effective.{actuator}", f"inputs.effective.{actuator}"),
-                )
+                _against(f"actuator-{actuator}", actuator, what, signals.unit(actuator), commanded, effective)
             )
     return panels
 

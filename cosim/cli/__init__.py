@@ -1,8 +1,9 @@
 """The ``cosim`` command line: one module per command, ``common`` for what they share.
 
-A command's module says what the command is for (``HELP``, ``DESCRIPTION``, and ``EPILOG`` for
-examples laid out by hand), declares its options (``arguments(parser)``, if it has any) and does it
-(``main(args) -> int``, the exit status). ``COMMANDS`` lists them in the order ``cosim --help`` does.
+A command's module says what the command is for in its docstring (the first line, then the
+description ``cosim COMMAND --help`` shows), gives examples in ``EPILOG`` where they help, declares
+its options (``arguments(parser)``, if it has any) and does it (``main(args) -> int``, the exit
+status). ``COMMANDS`` lists them in the order ``cosim --help`` does.
 """
 
 from __future__ import annotations

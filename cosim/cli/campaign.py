@@ -1,4 +1,13 @@
-"""``cosim campaign``: run a campaign of many runs on a distributed engine."""
+"""Run a campaign of many runs on a distributed engine.
+
+Run a campaign: a base scenario over seeds, axes (a grid of settings) and sampled settings, every
+run on a Dask cluster (a local one with a worker per core, or one joined with --address), into one
+table, DIR/results.parquet: a row per run and estimator, every metric of 'cosim inspect' with units.
+A run that fails is a row with its error; --resume after a kill or Ctrl-C redoes only the runs that
+did not finish. Every cell of the grid sees the same noise and weather replicate by replicate
+(common random numbers). The file's format is in docs/campaigns.md; 'cosim campaigns' lists the
+built-in ones.
+"""
 
 from __future__ import annotations
 
@@ -15,16 +24,6 @@ from cosim.cli import common
 
 if TYPE_CHECKING:
     from cosim.campaign.coordinator import CampaignProgress
-
-HELP = "run a campaign of many runs on a distributed engine"
-
-DESCRIPTION = """\
-Run a campaign: a base scenario over seeds, axes (a grid of settings) and sampled settings, every run
-on a Dask cluster (a local one with a worker per core, or one joined with --address), into one table,
-DIR/results.parquet: a row per run and estimator, every metric of 'cosim inspect' with units. A run that
-fails is a row with its error; --resume after a kill or Ctrl-C redoes only the runs that did not finish.
-Every cell of the grid sees the same noise and weather replicate by replicate (common random numbers).
-The file's format is in docs/campaigns.md; 'cosim campaigns' lists the built-in ones."""
 
 EPILOG = """\
 examples:
@@ -93,11 +92,7 @@ def main(args: argparse.Namespace) -> int:
             result = run_campaign(
                 campaign,
                 args.out,
-                engine=args.engine,
-                workers=args.workers,
-                address=args.address,
-                resume=args.resume,
-                keep_logs=args.keep_logs,
+                **common.picked(args, "engine", "workers", "address", "resume", "keep_logs"),
                 on_progress=update,
                 on_start=lambda description, workers: talk.print(f"engine: {escape(description)}"),
             )

@@ -1,4 +1,7 @@
-"""``cosim campaigns``: list the built-in campaigns."""
+"""List the built-in campaigns.
+
+List the built-in campaigns.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +12,6 @@ from rich.table import Table
 
 from cosim.cli import common
 from cosim.errors import CosimError
-
-HELP = "list the built-in campaigns"
-
-DESCRIPTION = "List the built-in campaigns."
 
 
 def main(args: argparse.Namespace) -> int:

@@ -7,6 +7,7 @@ import argparse
 import difflib
 import signal
 import sys
+import textwrap
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
     from cosim.scenario import LoadedScenario
 
 LOG_HELP = "a run log, or 'latest': the newest runs/*.mcap"
+SCENARIO_HELP = "a built-in scenario ('cosim scenarios' lists them) or a TOML file"
 
 
 def console(stderr: bool = False, quiet: bool = False, wide: bool = False) -> Console:
@@ -74,6 +76,11 @@ def load_scenario(name: str | None, settings: list[str] | None, seed: int | None
     changes = [scenario.parse_setting(text) for text in settings or []]
     changes += [("seed", seed)] if seed is not None else []
     return scenario.apply(scenario.load(name), changes)
+
+
+def picked(args: argparse.Namespace, *names: str) -> dict[str, Any]:
+    """The options ``names`` as given, to pass on as keyword arguments of the same names."""
+    return {name: getattr(args, name) for name in names}
 
 
 def refuse(args: argparse.Namespace, flags: tuple[str, ...], why: str) -> None:
@@ -264,16 +271,43 @@ def with_progress(run: Run | Replay, talk: Console, started: Callable[[Any], Non
             progress.stop()
 
 
+class ParagraphFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help text as paragraphs: each one filled to the terminal's width, except those with indented
+    lines (a table of formats, examples), which are kept as they are written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        paragraphs = []
+        for paragraph in textwrap.dedent(text).strip().split("\n\n"):
+            if any(line.startswith(" ") for line in paragraph.splitlines()):
+                paragraphs.append(textwrap.indent(paragraph, indent))
+            else:
+                paragraphs.append(
+                    textwrap.fill(
+                        " ".join(paragraph.split()),
+                        width,
+                        initial_indent=indent,
+                        subsequent_indent=indent,
+                        break_on_hyphens=False,
+                    )
+                )
+        return "\n\n".join(paragraphs)
+
+
 def command(sub: argparse._SubParsersAction, module: ModuleType) -> argparse.ArgumentParser:
-    """The parser of a command module (its name, ``HELP``, ``DESCRIPTION``, ``EPILOG``, its options
-    from ``arguments``), calling its ``main``; a description or epilog laid out by hand (with line
-    breaks) is kept as it is."""
-    description, epilog = module.DESCRIPTION, getattr(module, "EPILOG", None)
-    raw = "\n" in description or epilog is not None
-    formatter = argparse.RawDescriptionHelpFormatter if raw else argparse.HelpFormatter
+    """The parser of a command module, named after it: the docstring's first line is its help in
+    ``cosim --help``, the rest its description; ``EPILOG`` (examples) and ``arguments`` (its
+    options) where it has them; ``main`` runs it."""
+    first, _, description = (module.__doc__ or "").partition("\n\n")
+    help = first[0].lower() + first[1:].rstrip(".")
     name = module.__name__.rpartition(".")[2]
-    p = sub.add_parser(name, help=module.HELP, description=description, epilog=epilog, formatter_class=formatter)
+    p = sub.add_parser(
+        name,
+        help=help,
+        description=description.strip(),
+        epilog=getattr(module, "EPILOG", None),
+        formatter_class=ParagraphFormatter,
+    )
     p.set_defaults(func=module.main)
-    if hasattr(module, "arguments"):  # a command without options has none
+    if hasattr(module, "arguments"):
         module.arguments(p)
     return p

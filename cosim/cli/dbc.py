@@ -1,4 +1,7 @@
-"""``cosim dbc``: write the CAN database of a scenario."""
+"""Write the CAN database of a scenario.
+
+Write the DBC database of a scenario's bus, so that external tools can decode its frames.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +11,9 @@ from pathlib import Path
 
 from cosim.cli import common
 
-HELP = "write the CAN database of a scenario"
-
-DESCRIPTION = "Write the DBC database of a scenario's bus, so that external tools can decode its frames."
-
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "scenario", nargs="?", metavar="SCENARIO", help="built-in scenario name or TOML path (default: masses-bias)"
-    )
+    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help=f"{common.SCENARIO_HELP} (default: masses-bias)")
     p.add_argument("--out", "-o", metavar="FILE.dbc", help="output file (default: standard output)")
     common.set_option(p)
 

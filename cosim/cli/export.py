@@ -1,16 +1,7 @@
-"""``cosim export``: export a log for other tools (CSV, Parquet, BLF, ASC, TRC, MF4, candump)."""
+"""Export a log for other tools (CSV, Parquet, BLF, ASC, TRC, MF4, candump).
 
-from __future__ import annotations
-
-import argparse
-from pathlib import Path
-
-from cosim.cli import common
-
-HELP = "export a log for other tools (CSV, Parquet, BLF, ASC, TRC, MF4, candump)"
-
-DESCRIPTION = """\
-Export a run log for the tools engineers already use. The log is streamed: any length fits in memory.
+Export a run log for the tools engineers already use. The log is streamed: any length fits in
+memory.
 
 tables, one row per tick, columns tick, 't [s]' (simulated time), then '<topic>.<field> [unit]' for the
 truth and the decoded bus signals (state.x1 [m], faults.measured.x2 [m], EST_kalman.xhat_v1 [m/s], ...):
@@ -24,7 +15,15 @@ raw CAN frames, every frame on the bus, timestamped with simulated time:
   candump   text log of 'candump -L': (t) can0 ID#DATA, ID##<flags>DATA for CAN FD (can-utils,
             SavvyCAN, cantools, python-can)
 
-Decode frames with the DBC from 'cosim dbc SCENARIO' (the MF4 file carries it)."""
+Decode frames with the DBC from 'cosim dbc SCENARIO' (the MF4 file carries it).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from cosim.cli import common
 
 EPILOG = (
     "examples:\n  cosim export runs/my.mcap --to csv\n  cosim export runs/my.mcap --to mf4 --out bus.mf4\n"

@@ -1,4 +1,8 @@
-"""``cosim fmu``: export a scenario's plant with its faults as an FMU."""
+"""Export a scenario's plant with its faults as an FMU.
+
+Package the scenario's plant with its sensor and actuator faults, noise and disturbances (seeded) as
+an FMI 3.0 co-simulation FMU (docs/fmi.md).
+"""
 
 from __future__ import annotations
 
@@ -7,16 +11,9 @@ from pathlib import Path
 
 from cosim.cli import common
 
-HELP = "export a scenario's plant with its faults as an FMU"
-
-DESCRIPTION = (
-    "Package the scenario's plant with its sensor and actuator faults, noise and disturbances "
-    "(seeded) as an FMI 3.0 co-simulation FMU (docs/fmi.md)."
-)
-
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", metavar="SCENARIO", help="built-in scenario name or TOML path")
+    p.add_argument("scenario", metavar="SCENARIO", help=common.SCENARIO_HELP)
     p.add_argument("--out", "-o", required=True, metavar="FILE.fmu", help="the FMU to write")
     common.force_option(p)
     p.add_argument("--seed", type=common.seed, metavar="N", help="the seed of its noise, faults and disturbances")

@@ -1,17 +1,14 @@
-"""``cosim inspect``: summarize a log."""
+"""Summarize a log.
+
+Summarize a run log: channels and message counts, duration, scenario, frame counts, and per
+estimator the RMS of |x - x̂| before and after the first fault, with units.
+"""
 
 from __future__ import annotations
 
 import argparse
 
 from cosim.cli import common
-
-HELP = "summarize a log"
-
-DESCRIPTION = (
-    "Summarize a run log: channels and message counts, duration, scenario, frame counts, and per "
-    "estimator the RMS of |x - x̂| before and after the first fault, with units."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

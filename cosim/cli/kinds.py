@@ -1,4 +1,10 @@
-"""``cosim kinds``: list the estimators, controllers, fault models and plants a scenario can name."""
+"""List the estimators, controllers, fault models and plants a scenario can name.
+
+List every kind a scenario can name (estimators' and the controller's 'kind', faults' 'kind', the
+plant's 'model'), with where it comes from: built into cosim, or an installed package's entry point
+(groups cosim.estimators, cosim.controllers, cosim.faults, cosim.plants). A scenario can also name a
+class in a file, 'observers.py:MyObserver' (docs/extending.md).
+"""
 
 from __future__ import annotations
 
@@ -7,15 +13,6 @@ import argparse
 from rich.table import Table
 
 from cosim.cli import common
-
-HELP = "list the estimators, controllers, fault models and plants a scenario can name"
-
-DESCRIPTION = (
-    "List every kind a scenario can name (estimators' and the controller's 'kind', faults' "
-    "'kind', the plant's 'model'), with where it comes from: built into cosim, or an installed package's "
-    "entry point (groups cosim.estimators, cosim.controllers, cosim.faults, cosim.plants). A scenario "
-    "can also name a class in a file, 'observers.py:MyObserver' (docs/extending.md)."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

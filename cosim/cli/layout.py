@@ -1,4 +1,10 @@
-"""``cosim layout``: write a Foxglove layout for a log or a scenario."""
+"""Write a Foxglove layout for a log or a scenario.
+
+Write a Foxglove layout for a run: estimates against the truth per state, estimation errors (a user
+script), the injected faults, diagnosis flags and residuals, and the trajectory of a planar plant.
+Every message path is a topic and field of the run's log. Open the log in Foxglove, then Layouts →
+Import from file.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +14,6 @@ from pathlib import Path
 from rich.markup import escape
 
 from cosim.cli import common
-
-HELP = "write a Foxglove layout for a log or a scenario"
-
-DESCRIPTION = (
-    "Write a Foxglove layout for a run: estimates against the truth per state, estimation errors "
-    "(a user\nscript), the injected faults, diagnosis flags and residuals, and the trajectory of a planar "
-    "plant. Every message\npath is a topic and field of the run's log. Open the log in Foxglove, then Layouts → "
-    "Import from file."
-)
 
 EPILOG = (
     "examples:\n  cosim layout runs/my.mcap --out my-layout.json\n"

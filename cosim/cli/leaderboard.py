@@ -1,4 +1,11 @@
-"""``cosim leaderboard``: rank a campaign's estimators."""
+"""Rank a campaign's estimators.
+
+Rank the estimators of a campaign's results table per group of runs (the fault kind by default) by
+their RMS error after onset: median with its 95 % interval, p90, final error, bias rejection,
+detection rate, missed detections, false alarms per hour, detection and isolation delays, isolation
+accuracy. Each estimator is compared with the next on their common runs (paired: median difference,
+Wilcoxon signed-rank p, Holm-adjusted); ranks it cannot tell apart share their number (=).
+"""
 
 from __future__ import annotations
 
@@ -11,16 +18,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from cosim.cli import common
-
-HELP = "rank a campaign's estimators"
-
-DESCRIPTION = (
-    "Rank the estimators of a campaign's results table per group of runs (the fault kind by "
-    "default) by their RMS error after onset: median with its 95 % interval, p90, final error, bias "
-    "rejection, detection rate, missed detections, false alarms per hour, detection and isolation delays, "
-    "isolation accuracy. Each estimator is compared with the next on their common runs (paired: median "
-    "difference, Wilcoxon signed-rank p, Holm-adjusted); ranks it cannot tell apart share their number (=)."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

@@ -1,18 +1,15 @@
-"""``cosim monitor``: show a bus's decoded signals live."""
+"""Show a bus's decoded signals live.
+
+Show decoded signals live, message by message: of a running co-simulation (the only one, or --run
+ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log written
+by another tool).
+"""
 
 from __future__ import annotations
 
 import argparse
 
 from cosim.cli import common
-
-HELP = "show a bus's decoded signals live"
-
-DESCRIPTION = (
-    "Show decoded signals live, message by message: of a running co-simulation (the only one, or\n"
-    "--run ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log\n"
-    "written by another tool)."
-)
 
 EPILOG = (
     "examples:\n  cosim monitor\n  cosim monitor --run 3f2a\n"

@@ -1,4 +1,10 @@
-"""``cosim node``: run one estimator (or the controller) as a CAN node."""
+"""Run one estimator (or the controller) as a CAN node.
+
+Run one estimator, or the controller of a closed-loop scenario (NAME 'controller'), as a node on a
+co-simulation's bus. 'cosim run' starts its nodes this way (with --spec). Without --spec the node
+joins the running co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g.
+in a debugger).
+"""
 
 from __future__ import annotations
 
@@ -6,15 +12,6 @@ import argparse
 import sys
 
 from cosim.errors import CosimError
-
-HELP = "run one estimator (or the controller) as a CAN node"
-
-DESCRIPTION = (
-    "Run one estimator, "
-    "or the controller of a closed-loop scenario (NAME 'controller'), as a node on a co-simulation's bus. "
-    "'cosim run' starts its nodes this way (with --spec). Without --spec the node joins the running "
-    "co-simulation, whose scenario marks it 'external = true' (to run it by hand, e.g. in a debugger)."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,11 @@
-"""``cosim plot``: draw a log's figures (PNG, SVG or PDF)."""
+"""Draw a log's figures (PNG, SVG or PDF).
+
+Draw the figures of a run log: the state against every estimate, estimation errors per estimator,
+the injected faults, and what the estimators publish (pseudoinverse weights s, z or Γ, the fault's
+effect |h_Γ|, |Γ|, bias estimates φ̂ against the true fault, residuals, gain estimates, COFD
+residuals, the trajectory of a closed loop). Axes carry units; text is in the figure (nothing
+clipped).
+"""
 
 from __future__ import annotations
 
@@ -6,15 +13,6 @@ import argparse
 from pathlib import Path
 
 from cosim.cli import common
-
-HELP = "draw a log's figures (PNG, SVG or PDF)"
-
-DESCRIPTION = (
-    "Draw the figures of a run log: the state against every estimate, estimation errors per "
-    "estimator, the injected faults, and what the estimators publish (pseudoinverse weights s, z or Γ, the "
-    "fault's effect |h_Γ|, |Γ|, bias estimates φ̂ against the true fault, residuals, gain estimates, COFD "
-    "residuals, the trajectory of a closed loop). Axes carry units; text is in the figure (nothing clipped)."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,11 @@
-"""``cosim recover``: rebuild a log whose writer died (summary, indexes)."""
+"""Rebuild a log whose writer died (summary, indexes).
+
+Rebuild the summary and indexes of a log whose writer died (a runner killed with SIGKILL, a full
+disk): its records are read in order, CRCs checked, up to the first damaged one, and written into a
+complete MCAP file that every reader opens (mcap's make_reader, @mcap/core, Foxglove). A record
+'cosim.recovered' says what was found. Without --out the log is replaced, once the new file is
+complete.
+"""
 
 from __future__ import annotations
 
@@ -8,15 +15,6 @@ from pathlib import Path
 from rich.markup import escape
 
 from cosim.cli import common
-
-HELP = "rebuild a log whose writer died (summary, indexes)"
-
-DESCRIPTION = (
-    "Rebuild the summary and indexes of a log whose writer died (a runner killed with SIGKILL, a "
-    "full disk): its records are read in order, CRCs checked, up to the first damaged one, and written into a "
-    "complete MCAP file that every reader opens (mcap's make_reader, @mcap/core, Foxglove). A record "
-    "'cosim.recovered' says what was found. Without --out the log is replaced, once the new file is complete."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

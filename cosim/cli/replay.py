@@ -1,4 +1,21 @@
-"""``cosim replay``: feed a log's bus traffic to an estimator, or play it onto a live bus."""
+"""Feed a log's bus traffic to an estimator, or play it onto a live bus.
+
+Replay a run log without simulating the plant again.
+
+With --estimator: the frames the runner put on the bus (SYNC, sensor and command frames, tick by
+tick, as the bus delivered them: frames a dropout kept off the bus stay off) go to one estimator, a
+'cosim node' process on a bus of its own, in lockstep. The new log holds the original truth, those
+frames, the estimator's answers, and 'cosim.replay' metadata. An estimator of the run, unchanged,
+reproduces its logged frames bit for bit (its design is taken from the log); --param changes its
+parameters (and designs it again); --kind makes a new one, designed on the linear model the log
+records.
+
+With --live: every frame of the log goes onto a bus at its simulated time over --speed, like
+canplayer, for external tools and clients (decode with 'cosim dbc').
+
+With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket
+protocol, at its simulated time over --speed, stamped at the run's start plus simulated time.
+"""
 
 from __future__ import annotations
 
@@ -15,24 +32,6 @@ from cosim.errors import CosimError
 
 if TYPE_CHECKING:
     from cosim.bus.transport import BusConfig
-
-HELP = "feed a log's bus traffic to an estimator, or play it onto a live bus"
-
-DESCRIPTION = """\
-Replay a run log without simulating the plant again.
-
-With --estimator: the frames the runner put on the bus (SYNC, sensor and command frames, tick by tick, as
-the bus delivered them: frames a dropout kept off the bus stay off) go to one estimator, a 'cosim node'
-process on a bus of its own, in lockstep. The new log holds the original truth, those frames, the
-estimator's answers, and 'cosim.replay' metadata. An estimator of the run, unchanged, reproduces its
-logged frames bit for bit (its design is taken from the log); --param changes its parameters (and
-designs it again); --kind makes a new one, designed on the linear model the log records.
-
-With --live: every frame of the log goes onto a bus at its simulated time over --speed, like canplayer,
-for external tools and clients (decode with 'cosim dbc').
-
-With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket protocol, at
-its simulated time over --speed, stamped at the run's start plus simulated time."""
 
 EPILOG = """\
 examples:

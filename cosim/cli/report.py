@@ -1,4 +1,9 @@
-"""``cosim report``: write a self-contained HTML report of a log."""
+"""Write a self-contained HTML report of a log.
+
+Write one HTML page about a run log: the scenario and its settings, the metrics of 'cosim inspect'
+as tables, and the figures of 'cosim plot'. The page is self-contained (figures inlined, no network
+needed) and reads on a laptop and on a phone.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +11,6 @@ import argparse
 from pathlib import Path
 
 from cosim.cli import common
-
-HELP = "write a self-contained HTML report of a log"
-
-DESCRIPTION = (
-    "Write one HTML page about a run log: the scenario and its settings, the metrics "
-    "of 'cosim inspect' as tables, and the figures of 'cosim plot'. The page is self-contained "
-    "(figures inlined, no network needed) and reads on a laptop and on a phone."
-)
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,8 @@
-"""``cosim run``: run a scenario and log it to MCAP."""
+"""Run a scenario and log it to MCAP.
+
+Run a scenario: simulate the plant, inject faults, carry readings and estimates over CAN, and write
+everything to an MCAP log.
+"""
 
 from __future__ import annotations
 
@@ -18,21 +22,9 @@ if TYPE_CHECKING:
     from cosim.run.outcome import RunResult
     from cosim.scenario import Scenario
 
-HELP = "run a scenario and log it to MCAP"
-
-DESCRIPTION = (
-    "Run a scenario: simulate the plant, "
-    "inject faults, carry readings and estimates over CAN, and write everything to an MCAP log."
-)
-
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "scenario",
-        nargs="?",
-        metavar="SCENARIO",
-        help="built-in scenario name or path to a TOML file (default: masses-bias)",
-    )
+    p.add_argument("scenario", nargs="?", metavar="SCENARIO", help=f"{common.SCENARIO_HELP} (default: masses-bias)")
     p.add_argument(
         "--out",
         "-o",
@@ -79,11 +71,7 @@ def main(args: argparse.Namespace) -> int:
         loaded,
         out,
         args.seed,
-        interface=args.interface,
-        channel=args.channel,
-        port=args.port,
-        mode=args.mode,
-        speed=args.speed,
+        **common.picked(args, "interface", "channel", "port", "mode", "speed"),
         allow_network=True if args.allow_network else None,
     )
     talk = common.console(stderr=True, quiet=args.quiet)

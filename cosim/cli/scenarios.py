@@ -1,4 +1,7 @@
-"""``cosim scenarios``: list the built-in scenarios."""
+"""List the built-in scenarios.
+
+List the built-in scenarios.
+"""
 
 from __future__ import annotations
 
@@ -10,10 +13,6 @@ from rich.table import Table
 
 from cosim.cli import common
 from cosim.errors import CosimError
-
-HELP = "list the built-in scenarios"
-
-DESCRIPTION = "List the built-in scenarios."
 
 
 def arguments(p: argparse.ArgumentParser) -> None:

@@ -32,7 +32,7 @@ from xml.etree import ElementTree
 from cosim.bus.signals import Channel
 from cosim.errors import ModelError
 from cosim.extras import require
-from cosim.files import file_version
+from cosim.files import once_per_version
 from mjcf import PlantInfo
 
 #: The FMI versions cosim runs.
@@ -126,7 +126,7 @@ class FmuModel:
 
 
 #: What ``read`` found, by (path, modification time, size, table): ``Scenario.plant_info`` is asked often.
-_READ: dict[tuple[Path, int, int, str], FmuModel] = {}
+_READ: dict[tuple[Any, ...], FmuModel] = {}
 
 
 def read(path: str | Path, spec: Any) -> FmuModel:
@@ -134,10 +134,7 @@ def read(path: str | Path, spec: Any) -> FmuModel:
     validated ``FmuSpec``); FmuError in one line if it cannot be one."""
     path = Path(path)
     missing = FmuError(f"plant.model: no FMU at {path} (a path relative to the scenario file)")
-    key = (*file_version(path, missing), spec.model_dump_json())
-    if key not in _READ:
-        _READ[key] = _read(path, spec)
-    return _READ[key]
+    return once_per_version(_READ, path, spec, missing, _read)
 
 
 def _read(path: Path, spec: Any) -> FmuModel:

@@ -33,7 +33,7 @@ import mujoco
 
 from cosim.bus.signals import Channel
 from cosim.errors import ModelError
-from cosim.files import file_version
+from cosim.files import once_per_version
 from mjcf import PlantInfo
 
 #: The unit of a sensor's reading by its MuJoCo type (joint sensors: see ``_joint_unit``).
@@ -92,10 +92,7 @@ def plant_info(path: str | Path, spec: Any) -> PlantInfo:
     file version and table."""
     path = Path(path)
     missing = ModelError(f"plant.model: no MJCF file at {path} (a path relative to the scenario file)")
-    key = (*file_version(path, missing), spec.model_dump_json())
-    if key not in _READ:
-        _READ[key] = _plant_info(path, spec)
-    return _READ[key]
+    return once_per_version(_READ, path, spec, missing, _plant_info)
 
 
 _READ: dict[tuple[Any, ...], PlantInfo] = {}

@@ -19,9 +19,10 @@ import os
 import sys
 import traceback
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import can
 import numpy as np
@@ -96,6 +97,17 @@ class NodeSpec:
         )
 
 
+T = TypeVar("T")
+
+
+def _create(create: Callable[..., T], spec: NodeSpec, what: str) -> T:
+    """The node's estimator or controller, built by ``create`` from its spec; CosimError naming it."""
+    try:
+        return create(spec.kind, spec.model, spec.params, spec.sample_time)
+    except ParameterError as error:
+        raise CosimError(f"{what}: params.{error}") from None
+
+
 class _Node(ABC):
     """A participant answering each tick on a bus through its ``client``: ``answer`` publishes its
     frames for the tick and closes it with the heartbeat."""
@@ -145,10 +157,7 @@ class EstimatorNode(_Node):
 
     def __init__(self, spec: NodeSpec, bus: can.BusABC, estimator: Estimator | None = None) -> None:
         if estimator is None:
-            try:
-                estimator = estimators.create(spec.kind, spec.model, spec.params, spec.sample_time)
-            except ParameterError as error:
-                raise CosimError(f"estimator {spec.name}: params.{error}") from None
+            estimator = _create(estimators.create, spec, f"estimator {spec.name}")
         self.estimator = estimator
         self._join(spec, bus, spec.name)
         model = estimator.model
@@ -182,12 +191,7 @@ class ControllerNode(_Node):
     """
 
     def __init__(self, spec: NodeSpec, bus: can.BusABC, controller: controllers.Controller | None = None) -> None:
-        if controller is None:
-            try:
-                controller = controllers.create(spec.kind, spec.model, spec.params, spec.sample_time)
-            except ParameterError as error:
-                raise CosimError(f"controller: params.{error}") from None
-        self.controller = controller
+        self.controller = controller if controller is not None else _create(controllers.create, spec, "controller")
         self._join(spec, bus, CONTROLLER)
         self._inputs = {
             channel.name: signal
