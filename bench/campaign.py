@@ -25,7 +25,6 @@ Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N]
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -34,6 +33,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.common import bench_parser  # noqa: E402
 from cosim.campaign.coordinator import run_campaign  # noqa: E402
 from cosim.campaign.spec import load_campaign  # noqa: E402
 
@@ -70,8 +70,7 @@ def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
+    parser = bench_parser(__doc__)
     parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")

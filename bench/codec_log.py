@@ -15,7 +15,6 @@ Usage: python bench/codec_log.py [--json] [--frames N] [--repeat R]
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -27,7 +26,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import best_of  # noqa: E402
+from bench.common import bench_parser, best_of, best_run  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.codec import signal_bits  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
@@ -43,6 +42,16 @@ def workload(run: Run, n: int):
         (s.name, i, [float(rng.uniform(c.minimum, c.maximum) * 0.5) for c in s.channels])
         for i, s in zip(range(n), specs * (n // len(specs) + 1))
     ]
+
+
+def bench_run(loaded, repeat: int) -> dict[str, float]:
+    best = best_run(loaded, repeat, lambda r: r.wall_time)
+    return {
+        "run_wall_s": best.wall_time,
+        "run_ticks_per_s": best.ticks / best.wall_time,
+        "run_frames_per_s": best.frames / best.wall_time,
+        "run_realtime_factor": best.realtime_factor,
+    }
 
 
 def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
@@ -144,25 +153,9 @@ def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
     }
 
 
-def bench_run(loaded, repeat: int) -> dict[str, float]:
-    with tempfile.TemporaryDirectory() as tmp:
-        results = []
-        for _ in range(repeat):
-            results.append(Run(loaded, Path(tmp) / "run.mcap", interface="virtual").execute())
-        best = min(results, key=lambda r: r.wall_time)
-    return {
-        "run_wall_s": best.wall_time,
-        "run_ticks_per_s": best.ticks / best.wall_time,
-        "run_frames_per_s": best.frames / best.wall_time,
-        "run_realtime_factor": best.realtime_factor,
-    }
-
-
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--frames", type=int, default=20000, help="frames per codec/logger measurement")
-    parser.add_argument("--repeat", type=int, default=3, help="repetitions; the best is kept")
     args = parser.parse_args()
     loaded = scenario.load()
     run = Run(loaded, os.devnull)

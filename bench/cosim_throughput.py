@@ -24,7 +24,6 @@ Usage: python bench/cosim_throughput.py [--json] [--interface udp_multicast] [--
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing
 import sys
@@ -36,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import can  # noqa: E402
 
+from bench.common import bench_parser, best_run  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.transport import BusConfig, allocate, open_bus  # noqa: E402
 from cosim.run import Run, launcher, traffic  # noqa: E402
@@ -149,13 +149,7 @@ def pipeline(interface: str, repeat: int) -> dict[str, float]:
 
 
 def in_process(repeat: int) -> dict[str, float]:
-    loaded = scenario.load()
-    best = None
-    with tempfile.TemporaryDirectory() as tmp:
-        for _ in range(repeat):
-            result = Run(loaded, Path(tmp) / "inprocess.mcap", interface="virtual").execute()
-            if best is None or result.loop_time < best.loop_time:
-                best = result
+    best = best_run(scenario.load(), repeat, lambda r: r.loop_time)
     return {
         "inprocess_frames": best.frames,
         "inprocess_loop_s": best.loop_time,
@@ -166,13 +160,11 @@ def in_process(repeat: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--interface", default="udp_multicast", choices=("udp_multicast", "socketcan"))
     parser.add_argument("--channel", default="", help="socketcan interface (default vcan0)")
     parser.add_argument("--frames", type=int, default=50_000, help="frames for the raw measurement")
     parser.add_argument("--window", type=int, default=128, help="frames per acknowledged window (raw)")
-    parser.add_argument("--repeat", type=int, default=3, help="repetitions of each measurement; the fastest is kept")
     args = parser.parse_args()
     config = allocate(args.interface, args.channel)
     raw = max(

@@ -17,7 +17,6 @@ Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R]
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -28,6 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import estimators  # noqa: E402
+from bench.common import bench_parser  # noqa: E402
 from estimators import LinearModel  # noqa: E402
 from estimators.design import zoh_discretize  # noqa: E402
 from mjcf import three_tank  # noqa: E402
@@ -126,10 +126,8 @@ def time_steps(make, ys: np.ndarray, us: np.ndarray, warmup: int, repeat: int) -
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object: estimator name -> µs per step")
+    parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
 
     m3 = masses_model(SENSORS)

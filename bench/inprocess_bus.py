@@ -16,7 +16,6 @@ Usage: python bench/inprocess_bus.py [--json] [--frames N] [--receivers R] [--re
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -27,6 +26,7 @@ import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.common import bench_parser  # noqa: E402
 from cosim.bus.transport import allocate, open_bus  # noqa: E402
 
 BATCH = 100
@@ -73,11 +73,9 @@ def rates(frames: int, receivers: int, rounds: int) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser = bench_parser(__doc__, repeat=5)
     parser.add_argument("--frames", type=int, default=200_000, help="frames per measurement")
     parser.add_argument("--receivers", type=int, default=1, help="receivers of every frame")
-    parser.add_argument("--repeat", type=int, default=5, help="rounds; each bus's best is kept")
     args = parser.parse_args()
     best = rates(args.frames, args.receivers, args.repeat)
     figures = {"receivers": args.receivers} | {f"{name}_frames_per_s": value for name, value in best.items()}

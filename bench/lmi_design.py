@@ -22,7 +22,6 @@ Usage: python bench/lmi_design.py [--json] [--gamma-min G] [--skip-lpv] [--refer
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -32,6 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.common import bench_parser  # noqa: E402
 from estimators.lft_design import lft_uio_design  # noqa: E402
 from estimators.lmi import SensorFaultModel, max_spectral_radius  # noqa: E402
 from estimators.lpv_design import lpv_uio_design  # noqa: E402
@@ -48,8 +48,7 @@ def timed(design):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
+    parser = bench_parser(__doc__)
     parser.add_argument("--gamma-min", type=float, default=0.5, help="lower corner of Γ (default 0.5)")
     parser.add_argument("--skip-lpv", action="store_true", help="leave out the LPV design")
     parser.add_argument("--reference", action="store_true", help="also the LPV design through cvxpy (about 100 s)")

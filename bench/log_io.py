@@ -19,7 +19,6 @@ Usage: python bench/log_io.py [--json] [--seconds S] [--repeat R]
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -31,7 +30,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import best_of  # noqa: E402
+from bench.common import bench_parser, best_of  # noqa: E402
 from cosim import __version__, scenario  # noqa: E402
 from cosim.analysis.export import FORMATS, export  # noqa: E402
 from cosim.analysis.summary import summarize  # noqa: E402
@@ -175,12 +174,10 @@ def table(f: dict[str, float]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser = bench_parser(__doc__, repeat=3)
     parser.add_argument(
         "--seconds", type=float, default=30.0, help="simulated seconds of the default scenario (default 30)"
     )
-    parser.add_argument("--repeat", type=int, default=3, help="repetitions; the best is kept")
     args = parser.parse_args()
     figures = measure(args.seconds, args.repeat)
     print(json.dumps(figures) if args.json else table(figures))

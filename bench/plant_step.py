@@ -43,6 +43,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import mjcf  # noqa: E402
+from bench.common import bench_parser  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.plant.physics import Plant  # noqa: E402
 from cosim.run import run  # noqa: E402
@@ -187,10 +188,8 @@ def masses_figures(duration: float, vessel_duration: float, repeat: int) -> dict
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object of the figures")
+    parser = bench_parser(__doc__, repeat=5)
     parser.add_argument("--ticks", type=int, default=2000, help="vessel ticks per timing (0.1 s each)")
-    parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--masses-duration", type=float, default=30.0, help="s of masses-bias (its full 30 s)")
     parser.add_argument("--vessel-duration", type=float, default=30.0, help="s of the vessel run before it")
     parser.add_argument("--child-masses", type=float, default=None, help=argparse.SUPPRESS)

@@ -23,7 +23,6 @@ Usage: python bench/tick_budget.py [--json] [--scenario NAME] [--duration S] [--
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -38,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can  # noqa: E402
 
 import faults  # noqa: E402
+from bench.common import bench_parser  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus import client as client_module  # noqa: E402
 from cosim.bus.codec import Codec  # noqa: E402
@@ -180,11 +180,9 @@ def udp_costs(frames: int = 20_000) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--scenario", default="masses-bias")
     parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
-    parser.add_argument("--repeat", type=int, default=3, help="runs; the one with the fastest tick loop is kept")
     parser.add_argument("--udp-frames", type=int, default=20_000, help="frames of the transport measurement")
     args = parser.parse_args()
     figures = in_process(args.scenario, args.duration, args.repeat)

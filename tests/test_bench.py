@@ -23,34 +23,29 @@ def bench(script: str, *args: str) -> dict:
     return json.loads(result.stdout)
 
 
+def all_positive(figures: dict, keys: str) -> None:
+    """Every figure named in ``keys`` (separated by spaces) is there and above 0."""
+    for key in keys.split():
+        assert figures[key] > 0, key
+
+
 def test_codec_log_benchmark_reports_ratios_against_its_baselines():
     figures = bench("codec_log.py", "--frames", "500", "--repeat", "1")
-    for key in (
-        "codec_frames_per_s",
-        "codec_baseline_frames_per_s",
-        "codec_ratio",
-        "logger_frames_per_s",
-        "logger_baseline_frames_per_s",
-        "logger_ratio",
-        "run_wall_s",
-        "run_realtime_factor",
-    ):
-        assert figures[key] > 0, key
+    all_positive(
+        figures,
+        "codec_frames_per_s codec_baseline_frames_per_s codec_ratio logger_frames_per_s "
+        "logger_baseline_frames_per_s logger_ratio run_wall_s run_realtime_factor",
+    )
 
 
 def test_cosim_throughput_benchmark_reports_its_figures():
     figures = bench("cosim_throughput.py", "--frames", "3000", "--repeat", "1")
     assert figures["raw_lost_frames"] == 0 and figures["lost_frames"] == 0
-    for key in (
-        "raw_frames_per_s",
-        "pipeline_frames_per_s",
-        "ratio",
-        "realtime_factor",
-        "node_startup_s",
-        "inprocess_realtime_factor",
-        "inprocess_run_realtime_factor",
-    ):
-        assert figures[key] > 0, key
+    all_positive(
+        figures,
+        "raw_frames_per_s pipeline_frames_per_s ratio realtime_factor node_startup_s "
+        "inprocess_realtime_factor inprocess_run_realtime_factor",
+    )
     assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
     assert set(figures["node_startup"]) == {"uniform", "kalman"} and figures["inprocess_lost_frames"] == 0
 
@@ -92,17 +87,11 @@ def test_lmi_design_benchmark_reports_its_figures():
 
 def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
     figures = bench("log_io.py", "--seconds", "0.5", "--repeat", "1")
-    for key in (
-        "write_ratio",
-        "inspect_ratio",
-        "export_ratio",
-        "write_frames_per_s",
-        "bare_write_frames_per_s",
-        "inspect_frames_per_s",
-        "bare_read_frames_per_s",
-        "export_mf4_frames_per_s",
-    ):
-        assert figures[key] > 0, key
+    all_positive(
+        figures,
+        "write_ratio inspect_ratio export_ratio write_frames_per_s bare_write_frames_per_s "
+        "inspect_frames_per_s bare_read_frames_per_s export_mf4_frames_per_s",
+    )
     assert abs(figures["write_ratio"] - figures["write_frames_per_s"] / figures["bare_write_frames_per_s"]) < 1e-9
     assert figures["export_ratio"] == min(
         figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump")
@@ -127,20 +116,12 @@ def test_plant_step_benchmark_times_both_damping_mechanisms_and_the_masses_after
     figures = bench(
         "plant_step.py", "--ticks", "50", "--repeat", "1", "--masses-duration", "0.5", "--vessel-duration", "1"
     )
-    for key in (
-        "vessel_step_us",
-        "vessel_step_global_us",
-        "vessel_step_bare_us",
-        "vessel_step_held_us",
-        "vessel_step_ratio",
-        "masses_fresh_s",
-        "masses_fresh_first_s",
-        "masses_after_vessel_s",
-        "masses_after_vessel_ratio",
-        "masses_old_global_s",
-        "masses_old_global_ratio",
-    ):
-        assert figures[key] > 0, key
+    all_positive(
+        figures,
+        "vessel_step_us vessel_step_global_us vessel_step_bare_us vessel_step_held_us "
+        "vessel_step_ratio masses_fresh_s masses_fresh_first_s masses_after_vessel_s "
+        "masses_after_vessel_ratio masses_old_global_s masses_old_global_ratio",
+    )
     assert figures["vessel_max_abs_diff"] == 0.0  # the scoped callback is the old physics, bit for bit
     assert figures["vessel_held_max_abs_diff"] > 1e-9  # a force held over the tick is not
     assert figures["vessel_ticks"] == 50 and figures["vessel_substeps"] == 10 and figures["masses_ticks"] == 50

@@ -106,12 +106,11 @@ class Params:
 
 
 class Breaks(Estimator):
+    """Raises after ``at`` ticks: a bug in a plugin's step."""
+
     kind = "breaks"
     Params = Params
-
-    def __init__(self, model, params, sample_time=None):
-        super().__init__(model, params, sample_time)
-        self.k = 0
+    k = 0
 
     def _step(self, dy, du):
         self.k += 1
@@ -149,24 +148,13 @@ def test_an_estimator_whose_step_raises_leaves_the_run_which_goes_on(tmp_path, i
 
 
 MY_FAULTS = '''
-"""Faults of mine: a sensor that reads in steps, and an actuator wired the wrong way round."""
+"""A fault of mine: an actuator wired the wrong way round."""
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from cosim.api import ActuatorFault, SensorFault
-
-
-@dataclass
-class Quantized(SensorFault):
-    """y <- step * round(y / step) on its sensors."""
-
-    step: float = 0.1
-    kind = "quantized"
-
-    def _affect(self, y, elapsed):
-        return self.step * np.round(y / self.step)
+from cosim.api import ActuatorFault
 
 
 @dataclass
@@ -185,16 +173,17 @@ class Reversed(ActuatorFault):
 
 def test_fault_kinds_of_my_own_act_like_the_built_ins(tmp_path):
     (tmp_path / "my_faults.py").write_text(MY_FAULTS)
+    (tmp_path / "my_observer.py").write_text(OBSERVER)  # the template's quantized sensor
     text = short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 1.0)
     text = re.sub(r"\[\[faults\]\]\n(.+\n)+\n", "", text)  # without its bias
     assert "[[faults]]" not in text and "[[estimators]]" in text
     text += (
-        '[[faults]]\nkind = "my_faults.py:Quantized"\nsensors = ["x1"]\nstart = 0.5\nparams = { step = 0.05 }\n'
+        '[[faults]]\nkind = "my_observer.py:Quantized"\nsensors = ["x1"]\nstart = 0.5\nparams = { step = 0.05 }\n'
         '[[faults]]\nkind = "my_faults.py:Reversed"\nactuators = ["force"]\nstart = 0.8\n'
     )
     (tmp_path / "s.toml").write_text(text)
     loaded = api.load_scenario(tmp_path / "s.toml")
-    assert loaded.scenario.faults[0].kind == f"{tmp_path / 'my_faults.py'}:Quantized"  # made absolute
+    assert loaded.scenario.faults[0].kind == f"{tmp_path / 'my_observer.py'}:Quantized"  # made absolute
     out = tmp_path / "run.mcap"
     assert api.run(loaded, out, in_process=True).status == "completed"
     from cosim.log.reader import LogReader
@@ -212,7 +201,7 @@ def test_fault_kinds_of_my_own_act_like_the_built_ins(tmp_path):
     with pytest.raises(CosimError, match=r"faults\[1\]: actuators: fault .* acts on sensors"):
         api.load_scenario(
             tmp_path / "s.toml",
-            {"faults[1]": {"kind": f"{tmp_path / 'my_faults.py'}:Quantized", "actuators": ["force"]}},
+            {"faults[1]": {"kind": f"{tmp_path / 'my_observer.py'}:Quantized", "actuators": ["force"]}},
         )
 
 

@@ -24,14 +24,19 @@ def test_signal_bits_cover_the_range_at_the_resolution():
     assert signal_bits(Channel("h", "m", "", 0.0, 1.0, 2**-10)) == 12
 
 
+def random_values(c: Codec, seed: int, count: int = 1):
+    """(message, values) drawn uniformly within every signal's range, ``count`` per data message
+    (NMT, SYNC and heartbeats have their own constructors)."""
+    rng = np.random.default_rng(seed)
+    for spec in c.messages():
+        for _ in range(count if spec.channels else 0):
+            yield spec, [rng.uniform(ch.minimum, ch.maximum) for ch in spec.channels]
+
+
 @pytest.mark.parametrize("fd", [False, True])
 def test_round_trip(fd):
     c = codec(fd)
-    rng = np.random.default_rng(1)
-    for spec in c.messages():
-        if not spec.channels:
-            continue  # NMT, SYNC and heartbeats have their own constructors
-        values = [rng.uniform(ch.minimum, ch.maximum) for ch in spec.channels]
+    for spec, values in random_values(c, 1):
         frame = c.encode(spec.name, 123456, values)
         decoded = c.decode(frame)
         assert decoded.spec is spec and frame.is_fd == fd and not frame.is_extended_id
@@ -187,12 +192,7 @@ def test_the_codec_rebuilds_exactly_from_its_dbc(fd):
 @pytest.mark.parametrize("fd", [False, True])
 def test_encode_decoded_gives_exactly_what_a_receiver_decodes(fd):
     c = codec(fd)
-    rng = np.random.default_rng(3)
-    for spec in c.messages():
-        if not spec.channels:
-            continue
-        for _ in range(300):
-            values = [rng.uniform(ch.minimum, ch.maximum) for ch in spec.channels]
-            frame, carried = c.encode_decoded(spec.name, 99, values)
-            received = c.decode(frame)
-            assert carried.values == received.values and carried.tick == received.tick and carried.spec is received.spec
+    for spec, values in random_values(c, 3, count=300):
+        frame, carried = c.encode_decoded(spec.name, 99, values)
+        received = c.decode(frame)
+        assert carried.values == received.values and carried.tick == received.tick and carried.spec is received.spec

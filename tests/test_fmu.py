@@ -42,6 +42,7 @@ def scenario_text(
 name = "fmu-{fmu.stem}"
 duration = {duration}
 sample_time = {dt}
+{extra}
 
 [plant]
 model = "{fmu}"
@@ -49,8 +50,6 @@ model = "{fmu}"
 [plant.fmu]
 interface = "{interface}"
 {fmu_table}
-
-{extra}
 """
 
 
@@ -113,24 +112,18 @@ def reference(fmu: Path, interface: str, duration: float, dt: float, outputs: li
 
 
 STATE_SPACE_INPUTS = """
-[[inputs]]
-actuator = "u_1"
-signal = { kind = "sine", amplitude = 1.0, frequency = 0.5 }
-[[inputs]]
-actuator = "u_2"
-signal = { kind = "square", amplitude = 0.5, frequency = 2.0 }
-[[inputs]]
-actuator = "u_3"
-signal = 0.25
+inputs = [
+  { actuator = "u_1", signal = { kind = "sine", amplitude = 1.0, frequency = 0.5 } },
+  { actuator = "u_2", signal = { kind = "square", amplitude = 0.5, frequency = 2.0 } },
+  { actuator = "u_3", signal = 0.25 },
+]
 """
 
 STATE_SPACE_DISTURBANCES = """
-[[disturbances]]
-input = "u_1"
-signal = { kind = "sine", amplitude = 2.0, frequency = 1.0 }
-[[disturbances]]
-input = "u_3"
-signal = { kind = "ramp", slope = 0.5 }
+disturbances = [
+  { input = "u_1", signal = { kind = "sine", amplitude = 2.0, frequency = 1.0 } },
+  { input = "u_3", signal = { kind = "ramp", slope = 0.5 } },
+]
 """
 STATE_SPACE_A = "A = [0, 1, 0, -2, -0.5, 0, 0, 0, -1]"
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import math
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,76 +19,11 @@ from cosim.errors import ScenarioError
 from cosim.plant import build_plant
 
 NOISE = 1e-3
+MODELS = Path(__file__).parent / "data" / "mjcf"  # none like a built-in plant
 
-PENDULUM = """
-<mujoco model="pendulum">
-  <option timestep="0.002" integrator="RK4"/>
-  <worldbody>
-    <body name="arm" pos="0 0 1">
-      <joint name="theta" type="hinge" axis="0 1 0" damping="0.05"/>
-      <geom type="capsule" fromto="0 0 0 0 0 -0.5" size="0.02" mass="1"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="torque" joint="theta" ctrlrange="-5 5" ctrllimited="true"/>
-  </actuator>
-  <sensor>
-    <jointpos name="angle" joint="theta"/>
-  </sensor>
-</mujoco>
-"""
-
-CART_POLE = """
-<mujoco model="cart-pole">
-  <option timestep="0.002" integrator="RK4"/>
-  <worldbody>
-    <body name="cart" pos="0 0 1">
-      <joint name="cart" type="slide" axis="1 0 0" damping="0.5"/>
-      <geom type="box" size="0.1 0.05 0.05" mass="1"/>
-      <body name="pole">
-        <joint name="pole" type="hinge" axis="0 1 0" damping="0.01"/>
-        <geom type="capsule" fromto="0 0 0 0 0 -0.6" size="0.02" mass="0.2"/>
-      </body>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="push" joint="cart"/>
-  </actuator>
-  <sensor>
-    <jointpos name="position" joint="cart"/>
-    <jointpos name="angle" joint="pole"/>
-  </sensor>
-  <keyframe>
-    <key name="centre" qpos="0 0"/>
-  </keyframe>
-</mujoco>
-"""
-
-RIGID_BODY = """
-<mujoco model="rigid-body">
-  <option timestep="0.002" gravity="0 0 0"/>
-  <worldbody>
-    <body name="frame" pos="0 0 1">
-      <joint name="x" type="slide" axis="1 0 0" damping="0.2"/>
-      <joint name="y" type="slide" axis="0 1 0" damping="0.2"/>
-      <joint name="z" type="slide" axis="0 0 1" damping="0.2"/>
-      <joint name="roll" type="hinge" axis="1 0 0" damping="0.02"/>
-      <joint name="pitch" type="hinge" axis="0 1 0" damping="0.02"/>
-      <joint name="yaw" type="hinge" axis="0 0 1" damping="0.02"/>
-      <geom type="box" size="0.2 0.2 0.05" mass="1.2"/>
-      <site name="centre"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="fx" joint="x"/> <motor name="fy" joint="y"/> <motor name="fz" joint="z"/>
-    <motor name="mx" joint="roll"/> <motor name="my" joint="pitch"/> <motor name="mz" joint="yaw"/>
-  </actuator>
-  <sensor>
-    <framepos name="gnss" objtype="site" objname="centre"/>
-    <jointpos name="roll" joint="roll"/> <jointpos name="pitch" joint="pitch"/> <jointpos name="yaw" joint="yaw"/>
-  </sensor>
-</mujoco>
-"""
+PENDULUM = (MODELS / "pendulum.xml").read_text()
+CART_POLE = (MODELS / "cart_pole.xml").read_text()
+RIGID_BODY = (MODELS / "rigid_body.xml").read_text()
 
 
 def scenario_text(model: str, inputs: list[tuple[str, float, float]], bias: float, sensor: str) -> str:

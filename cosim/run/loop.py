@@ -35,9 +35,27 @@ from cosim.run.node import NodeSpec
 from cosim.run.outcome import Progress, RunResult, ending
 from cosim.run.plan import RunPlan
 from cosim.run.session import Session
-from cosim.scenario import build_faults, build_waveform
+from cosim.scenario import Scenario, build_faults, build_waveform
 
 _ENVIRONMENT = 0xE1  # spawn key of the disturbance models' random streams (the faults use others)
+
+
+class Execution:
+    """A plan carried out by a session on a bus: what a run and a replay share. ``bus`` and
+    ``session`` exist once ``execute`` has started it; ``result`` once it has ended."""
+
+    plan: RunPlan
+    bus: BusConfig | None = None
+    session: Session | None = None
+
+    @property
+    def scenario(self) -> Scenario:
+        return self.plan.scenario
+
+    @property
+    def result(self) -> RunResult | None:
+        """How it ended (once it has)."""
+        return self.session.result if self.session is not None else None
 
 
 class TickSource(Protocol):

@@ -53,7 +53,7 @@ from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SECURITY, SENSORS, STATE
 from cosim.log.writer import McapLog
 from cosim.run.interrupts import DeferredInterrupts
-from cosim.run.loop import execute, start_participants
+from cosim.run.loop import Execution, execute, start_participants
 from cosim.run.node import NodeSpec
 from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan, build_estimators, channel_units, design_warnings, estimator_record
@@ -187,24 +187,15 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 class LogSource:
     """Ticks of a log: the frames the runner put on the bus, as logged, and the truth, copied."""
 
-    def __init__(
-        self,
-        reader: LogReader,
-        log_codec: Codec,
-        codec: Codec,
-        ticks: int,
-        out: McapLog,
-        path: Path,
-        closed_loop: bool = False,
-    ) -> None:
-        self.reader, self.codec, self.ticks, self.path = reader, codec, ticks, path
-        self._ticks = logged_ticks(reader, log_codec)
-        self._truth = {
-            topic: out.channel(topic, {}) for topic in TRUTH
-        }  # registered, with their schemas, by the recorder
+    def __init__(self, reader: LogReader, replay: Replay, out: McapLog) -> None:
+        """The ticks ``reader`` holds of the log ``replay`` replays, decoded with the log's DBC
+        and again with the replay's; the truth is copied into ``out``."""
+        self.reader, self.codec, self.ticks, self.path = reader, replay.plan.codec, replay.ticks, replay.log
+        self.closed_loop = replay.closed_loop
+        self._ticks = logged_ticks(reader, replay.log_codec)
+        self._truth = {topic: out.channel(topic, {}) for topic in TRUTH}  # their schemas: the recorder's
         self._out = out
         self._logged: LoggedTick | None = None
-        self.closed_loop = closed_loop
 
     def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         logged = self._logged = next(self._ticks, None)
@@ -254,7 +245,7 @@ class LogSource:
             self._out.write(self._truth[topic], time_ns, payload)
 
 
-class Replay:
+class Replay(Execution):
     """One estimator fed with a log's bus traffic, into a new log.
 
     ``estimator`` names one of the run's estimators, or with ``kind`` a new one; ``params`` change
@@ -316,8 +307,6 @@ class Replay:
             units=channel_units(scenario),
             secret=run_secret() if scenario.bus.authentication == "secoc" else None,
         )
-        self.bus: BusConfig | None = None
-        self.session: Session | None = None
 
     def _build(self, scenario: Scenario, model: LinearModel) -> dict[str, Estimator]:
         """The replayed estimator: designed again when it is new or its parameters changed, else
@@ -394,14 +383,6 @@ class Replay:
         params = {**given, **overrides} if overrides else recorded[estimator].params
         return recorded[estimator].kind, LinearModel.from_dict(design_model), params
 
-    @property
-    def scenario(self) -> Scenario:
-        return self.plan.scenario
-
-    @property
-    def result(self) -> RunResult | None:
-        return self.session.result if self.session is not None else None
-
     def execute(
         self,
         on_progress: Callable[[Progress], None] | None = None,
@@ -415,7 +396,7 @@ class Replay:
             self.session = session
             self._write_metadata(session)
             session.begin_log(f"replay of {self.log} into {self.name} ({self.kind}), ticks={self.ticks}", plan.warnings)
-            source = LogSource(reader, self.log_codec, plan.codec, self.ticks, session.log, self.log, self.closed_loop)
+            source = LogSource(reader, self, session.log)
 
             def start() -> None:
                 start_participants(plan, session, self.node_spec)

@@ -18,18 +18,18 @@ from uuid import uuid4
 
 from cosim.bus.codec import Codec
 from cosim.bus.registry import Registration
-from cosim.bus.transport import BusConfig, allocate
+from cosim.bus.transport import allocate
 from cosim.errors import CodecError, ScenarioError
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
 from cosim.log.writer import LogSink
-from cosim.run.loop import PlantSource, execute, start_participants
+from cosim.run.loop import Execution, PlantSource, execute, start_participants
 from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan
 from cosim.run.session import Session
-from cosim.scenario import LoadedScenario, Scenario
+from cosim.scenario import LoadedScenario
 
 
-class Run:
+class Run(Execution):
     """One co-simulation run of a loaded scenario into an MCAP file.
 
     ``overrides`` (``seed``, ``interface``, ``channel``, ``port``, ``mode``, ``speed``) replace the
@@ -45,12 +45,6 @@ class Run:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         self.loaded, self.out = loaded, Path(out)
         self.run_id = uuid4().hex[:12]
-        self.bus: BusConfig | None = None
-        self.session: Session | None = None
-
-    @property
-    def scenario(self) -> Scenario:
-        return self.plan.scenario
 
     @property
     def estimators(self) -> dict[str, Any]:
@@ -63,11 +57,6 @@ class Run:
     @property
     def codec(self) -> Codec:
         return self.plan.codec
-
-    @property
-    def result(self) -> RunResult | None:
-        """How the run ended (once it has)."""
-        return self.session.result if self.session is not None else None
 
     @property
     def participants(self) -> list:
