@@ -12,6 +12,7 @@ import of cosim only the registry of kinds (``cosim.kinds``, which imports nothi
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -127,3 +128,17 @@ def test_the_codec_and_the_authentication_build_on_the_database_not_on_each_othe
         found = [target for _, target in imports(path, f"cosim.bus.{module}")]
         assert not [t for t in found if t.startswith(f"cosim.bus.{other}")], f"{module} imports {other}"
         assert any(t.startswith("cosim.bus.dbc") for t in found)
+
+
+def test_the_docs_describe_the_project_not_its_tracker():
+    """The README, the docs and the command line's help name no tracker issue ("issue 19", "#19")."""
+    texts = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "cosim" / "cli").glob("*.py"))]
+    tracker = re.compile(r"\bissues? #?\d+|\(#\d+\)|\bunder another issue\b", re.IGNORECASE)
+    found = [f"{p.relative_to(ROOT)}: {m.group(0)}" for p in texts for m in tracker.finditer(p.read_text())]
+    assert not found, found
+
+
+def test_the_architecture_page_names_every_room():
+    page = (ROOT / "docs" / "architecture.md").read_text()
+    rooms = [f"cosim.{p.name}" for p in sorted((ROOT / "cosim").iterdir()) if (p / "__init__.py").exists()]
+    assert rooms and not [room for room in rooms if f"`{room}" not in page]
