@@ -65,6 +65,9 @@ def test_estimator_step_benchmark_times_every_kind_against_kalman():
     figures = bench("estimator_step.py", "--steps", "300", "--repeat", "1")
     assert {
         "kalman",
+        "kalman_as_plugin",
+        "kalman_as_plugin_over_kalman",
+        "residual_observer",
         "pseudoinverse",
         "injection",
         "adaptive",

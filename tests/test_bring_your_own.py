@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
+import time
 from contextlib import redirect_stdout
 
 import pytest
@@ -257,3 +259,41 @@ def test_the_plugin_template_installs_and_its_kinds_are_names(tmp_path):
         cwd=tmp_path,
     )
     assert test.returncode == 0, test.stdout + test.stderr
+
+
+#: An observer whose dependency only the coordinator's process has: the campaign loads it, the
+#: workers cannot import it.
+COORDINATOR_ONLY = '''
+"""A plugin that imports on the coordinator and fails to import on the workers."""
+
+import os
+
+if str(os.getpid()) != os.environ.get("COSIM_TEST_COORDINATOR"):
+    raise ModuleNotFoundError("No module named 'secret_sauce'", name="secret_sauce")
+
+from estimators.kalman import KalmanFilter
+
+
+class Mine(KalmanFilter):
+    kind = "mine"
+'''
+
+
+@pytest.mark.slow
+def test_a_worker_that_cannot_import_a_plugin_fails_its_runs_in_one_line(tmp_path, monkeypatch):
+    monkeypatch.setenv("COSIM_TEST_COORDINATOR", str(os.getpid()))
+    (tmp_path / "coordinator_only.py").write_text(COORDINATOR_ONLY)
+    scenario_text = short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 0.5)
+    (tmp_path / "mine.toml").write_text(
+        scenario_text + '[[estimators]]\nname = "mine"\nkind = "coordinator_only.py:Mine"\n'
+    )
+    (tmp_path / "campaign.toml").write_text('name = "lacking"\nscenario = "mine.toml"\nseeds = 2\n')
+    started = time.monotonic()
+    campaign = run_campaign(load_campaign(tmp_path / "campaign.toml"), tmp_path / "out", engine="dask", workers=1)
+    assert time.monotonic() - started < 120  # no hang
+    assert campaign.runs == 2 and campaign.failed == 2
+    import pyarrow.parquet as pq
+
+    errors = set(pq.read_table(campaign.path).column("error").to_pylist())
+    (error,) = errors
+    assert "coordinator_only.py:Mine" in error and "No module named 'secret_sauce'" in error and "\n" not in error

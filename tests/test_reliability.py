@@ -350,7 +350,7 @@ def test_the_run_registry_is_private_to_its_user(tmp_path):
 
 
 def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_path):
-    """Kill or stop a random participant (a node, the runner, a client) at a random moment, 30 times:
+    """Kill or stop a random participant (a node, the runner, a client) at a random moment, 20 times:
     every log opens with cosim inspect and, recovered, with the official reader; the culprit is named;
     no process and no node folder is left."""
     rng = random.Random(17)
@@ -358,8 +358,8 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
     # long enough that the kill, at most a second after the run starts ticking, lands before it ends
     quick = ["--set", "duration=60", "--set", "timing.node_timeout=2", "--set", "timing.join_timeout=10"]
     tally: dict[str, int] = {}
-    for trial in range(45):  # 30 stops (each kind several times) keep the suite within CI's half hour
-        if sum(tally.values()) >= 30:
+    for trial in range(30):  # 20 stops (each kind several times) keep the suite within CI's half hour
+        if sum(tally.values()) >= 20:
             break
         victim = rng.choice(["node-kill", "node-stop", "runner-kill", "client-kill"])
         out = tmp_path / f"chaos-{trial}.mcap"
@@ -417,7 +417,7 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
         if victim == "runner-kill":
             time.sleep(1.5)  # its nodes notice their runner is gone
         assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
-    assert sum(tally.values()) >= 30, tally
+    assert sum(tally.values()) >= 20 and len(tally) == 4 and min(tally.values()) >= 3, tally
     print(f"chaos: {tally} in {trial + 1} trials")
 
 
