@@ -114,6 +114,13 @@ class Estimator(Configurable, ABC):
                 f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}"
             )
         estimate = self._step(y - self.model.y_op, u - self.model.u_op)
+        if not isinstance(estimate, Estimate):
+            raise TypeError(f"{self.kind}: _step returned {type(estimate).__name__}, not an Estimate(x, diagnostics)")
+        if np.shape(estimate.x) != (self.model.n,):
+            raise ValueError(
+                f"{self.kind}: _step returned an estimate of shape {np.shape(estimate.x)}, not ({self.model.n},): "
+                f"one value per state ({', '.join(self.model.states)})"
+            )
         return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
 
     def design_params(self) -> dict[str, Any]:

@@ -105,10 +105,11 @@ from cosim.api import Estimate, Estimator
 @dataclass(frozen=True)
 class Params:
     at: int = 50
+    how: str = "raise"
 
 
 class Breaks(Estimator):
-    """Raises after ``at`` ticks: a bug in a plugin's step."""
+    """After ``at`` ticks, raises, or returns an estimate of the wrong shape, or not an estimate."""
 
     kind = "breaks"
     Params = Params
@@ -117,6 +118,10 @@ class Breaks(Estimator):
     def _step(self, dy, du):
         self.k += 1
         if self.k > self.params.at:
+            if self.params.how == "shape":
+                return Estimate(np.zeros(1))
+            if self.params.how == "type":
+                return np.zeros(self.model.n)
             raise ZeroDivisionError("my bug")
         return Estimate(np.zeros(self.model.n))
 '''
@@ -147,6 +152,24 @@ def test_an_estimator_whose_step_raises_leaves_the_run_which_goes_on(tmp_path, i
     assert rows["bad"]["estimator_failed"] == why and rows["kalman"]["estimator_failed"] is None
     assert main(["inspect", str(out)]) == 0
     assert "estimator bad failed at tick 50" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("how", "said"),
+    [
+        ("shape", "ValueError: breaks: _step returned an estimate of shape (1,), not (4,): one value per state"),
+        ("type", "TypeError: breaks: _step returned ndarray, not an Estimate(x, diagnostics)"),
+    ],
+)
+def test_an_estimate_of_the_wrong_shape_or_type_fails_its_estimator_in_one_line(tmp_path, how, said):
+    (tmp_path / "breaks.py").write_text(BREAKS)
+    text = short_scenario((ROOT / "scenarios" / "masses-bias.toml").read_text(), 1.0)
+    bad = f'[[estimators]]\nname = "bad"\nkind = "breaks.py:Breaks"\nparams = {{ how = "{how}" }}\n'
+    (tmp_path / "s.toml").write_text(text + bad)
+    result = api.run(api.load_scenario(tmp_path / "s.toml"), tmp_path / "run.mcap", in_process=True)
+    assert result.status == "completed" and result.ticks == 100
+    why = result.failed["bad"]
+    assert why.startswith(f"failed at tick 50: {said}") and "\n" not in why, why
 
 
 MY_FAULTS = '''
