@@ -10,6 +10,9 @@ import pytest
 
 from tests.conftest import ROOT
 
+#: Each starts a benchmark script (seconds each): the quick subset leaves them to CI.
+pytestmark = pytest.mark.slow
+
 
 def bench(script: str, *args: str) -> dict:
     result = subprocess.run(

@@ -67,6 +67,7 @@ def inline_table(tmp_path_factory):
     return result
 
 
+@pytest.mark.slow
 def test_every_builtin_campaign_loads_and_validates_every_grid_point():
     assert {"masses-bias-sweep", "uio-threshold-sweep", "vessel-thrusters", "vessel-nominal"} <= set(builtin_names())
     for name in builtin_names():
@@ -353,6 +354,18 @@ def test_seeds_and_settings_from_the_command_line_change_the_stored_file(tmp_pat
     assert load_campaign(write(tmp_path, campaign.text, "again.toml")).spec == campaign.spec
     with pytest.raises(ScenarioError, match="duration"):
         load_campaign(path, settings=[("duration", -1.0)])
+
+
+def test_the_leaderboard_can_leave_out_the_runs_with_contested_ticks(tmp_path):
+    import pyarrow as pa
+
+    table = synthetic_table(tmp_path / "t.parquet", {"other": [0.1, 0.2, 0.3, 0.4]})
+    rows = pq.read_table(table).to_pylist()
+    contested = pa.Table.from_pylist([row | {"contested_ticks": 7 if row["run"] == 0 else 0} for row in rows])
+    pq.write_table(contested, table)
+    runs = {s["estimator"]: s["runs"] for s in leaderboard(table)["groups"][0]["ranking"]}
+    kept = {s["estimator"]: s["runs"] for s in leaderboard(table, exclude_contested=True)["groups"][0]["ranking"]}
+    assert runs == {"base": 4, "other": 4} and kept == {"base": 3, "other": 3}
 
 
 def test_the_text_leaderboard_shows_intervals_final_error_units_and_ties(tmp_path, capsys):

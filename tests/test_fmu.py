@@ -305,6 +305,7 @@ def one_line_error(scenario_path: Path) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_a_bad_fmu_is_one_line_naming_the_file_and_the_problem(tmp_path):
     vdp = FMUS / "fmi3" / "VanDerPol.fmu"
     fmi1 = rewritten(vdp, tmp_path / "Old.fmu", lambda n, d: (n, d.replace(b'fmiVersion="3.0"', b'fmiVersion="1.0"')))

@@ -71,6 +71,7 @@ def test_what_is_no_map_of_fields_is_refused(data):
         unpack_datagram(data, 0.0)
 
 
+@pytest.mark.slow
 def test_the_runs_socket_counts_each_crafted_datagram_and_allocates_nothing_for_it():
     config = allocate("udp_multicast")
     with open_bus(config) as bus:

@@ -22,9 +22,10 @@ pytestmark = pytest.mark.slow
 SENSOR_X2 = 0x101  # SENSOR_x2 of masses-bias
 
 
-def intrude(out, scenario: str, *settings: str, length: int = 5, fd: bool = False, env=None) -> dict:
+def intrude(out, scenario: str, *settings: str, length: int = 5, fd: bool = False, env=None, status: int = 0) -> dict:
     """Run ``scenario`` with node processes while a plain python-can program joins its bus after the
-    first SYNC and sends 100 frames on SENSOR_x2's id; the run's ``cosim inspect --json``."""
+    first SYNC and sends 100 frames on SENSOR_x2's id; the run's ``cosim inspect --json`` (the run's
+    exit status must be ``status``)."""
     command = [sys.executable, "-m", "cosim.cli", "run", scenario, "--out", str(out), "-q", *settings]
     runner = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
@@ -44,7 +45,7 @@ def intrude(out, scenario: str, *settings: str, length: int = 5, fd: bool = Fals
                 data = bytes([0xA5, i] + [0] * (length - 2))
                 intruder.send(can.Message(arbitration_id=SENSOR_X2, is_extended_id=False, data=data, is_fd=fd))
                 time.sleep(0.01)
-        assert runner.wait(120) == 0, runner.stderr.read()
+        assert runner.wait(120) == status, runner.stderr.read()
     finally:
         if runner.poll() is None:
             runner.kill()
@@ -54,9 +55,15 @@ def intrude(out, scenario: str, *settings: str, length: int = 5, fd: bool = Fals
     return json.loads(inspect.stdout)
 
 
-def test_a_python_can_intruder_is_seen_frame_by_frame(tmp_path):
-    summary = intrude(tmp_path / "intruded.mcap", "masses-bias", "--mode", "realtime", "--set", "duration=8")
+def test_a_python_can_intruder_is_seen_frame_by_frame_and_contests_its_ticks(tmp_path):
+    """Without authentication the intruder's frames may have been taken by the estimators: every tick
+    it sent in is contested, and the run says so in its status line and its exit status (3)."""
+    out = tmp_path / "intruded.mcap"
+    summary = intrude(out, "masses-bias", "--mode", "realtime", "--set", "duration=8", status=3)
     assert summary["bus"]["foreign_frames"] == {"0x101": 100}
+    assert 50 <= summary["contested_ticks"] <= 100, summary["contested_ticks"]
+    inspect = subprocess.run([sys.executable, "-m", "cosim.cli", "inspect", str(out)], capture_output=True, text=True)
+    assert f"status completed, {summary['contested_ticks']} contested ticks" in inspect.stdout
 
 
 def test_with_authentication_an_intruder_changes_no_estimate(tmp_path):
@@ -67,7 +74,7 @@ def test_with_authentication_an_intruder_changes_no_estimate(tmp_path):
     settings = ("--set", "faults=[]", "--set", "bus.authentication=secoc", "--set", "duration=30")
     intruded, clean = tmp_path / "intruded.mcap", tmp_path / "clean.mcap"
     summary = intrude(intruded, "masses-spoofing", *settings, length=16, fd=True, env=env)
-    assert summary["bus"]["foreign_frames"] == {"0x101": 100}
+    assert summary["bus"]["foreign_frames"] == {"0x101": 100} and summary["contested_ticks"] == 0
     assert (
         subprocess.run(
             [sys.executable, "-m", "cosim.cli", "run", "masses-spoofing", "--out", str(clean), "-q", *settings], env=env

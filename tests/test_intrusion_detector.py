@@ -68,6 +68,7 @@ def test_each_check_raises_on_what_it_looks_for_and_nothing_else():
     assert len(recorder.verdicts) == 11  # each tick once
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("timing", ["ideal", "arbitrated"])
 def test_masses_spoofing_is_detected_at_once_without_false_alarms(tmp_path, timing):
     settings = {"bus.intrusion_detector": True, "bus.timing": timing}
@@ -94,6 +95,7 @@ def test_masses_spoofing_is_detected_at_once_without_false_alarms(tmp_path, timi
     print(timing, report)
 
 
+@pytest.mark.slow
 def test_an_overloaded_bus_raises_no_alarm(tmp_path):
     """Late and replaced frames on an overloaded arbitrated bus are not intrusions."""
     out = tmp_path / "overload.mcap"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from cosim.cli import main
 from cosim.run import Run
 from cosim.scenario import load
@@ -39,6 +41,7 @@ def test_plot_draws_the_residual_of_an_unknown_input_observer(tmp_path: Path):
     assert "residual.png" in written and written["residual.png"].stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_figures_come_as_png_svg_or_pdf_with_units_named_legends_and_nothing_cut(tmp_path: Path, capsys):
     import matplotlib.image
     import numpy as np

@@ -507,6 +507,7 @@ def check_single_gain_fault(est, sensor, onset, steps, seed, bias=2.0, since=0):
     return gammas, z_err, raw
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sensor, onset", [(0, 250), (1, 430), (2, 610), (3, 790)])
 def test_a_single_gain_fault_on_any_sensor_is_identified_by_the_gain_test(lft_design, sensor, onset):
     """Each sensor in turn to 0.6, onsets across 200-800 s, the 2 cm bias from 150 s, 300 s after
@@ -559,6 +560,7 @@ def test_the_gain_test_identifies_the_papers_gain_profile(lft_design, kind):
     assert np.all(pe[800:] > 0)  # the square waves excite every window
 
 
+@pytest.mark.slow
 def test_a_window_without_excitation_is_reported_and_gamma_kept(lft_design):
     """Constant inputs from the steady state they hold, no unknown input: the levels do not move, so a gain change
     on sensor 1 at 300 s is indistinguishable from a step of its offset (y1 = γ C1 x + d1 with C1 x

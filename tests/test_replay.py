@@ -167,6 +167,7 @@ def test_frames_a_dropout_kept_off_the_bus_are_not_replayed(logs, tmp_path):
     assert len(sent) == result.ticks * 4 - dropped  # four sensors per tick, minus the dropped frames
 
 
+@pytest.mark.slow
 def test_the_lpv_design_is_taken_from_the_log_not_solved_again(logs, tmp_path, monkeypatch):
     original = logs("three-tank-reconciliation")
 

@@ -138,10 +138,11 @@ def _errors(path) -> dict[str, float]:
     return worst
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("timing", ["ideal", "arbitrated"])
 def test_masses_spoofing_corrupts_the_estimates_without_secoc_and_not_with_it(tmp_path, timing):
     settings = {"bus.timing": timing} if timing == "ideal" else {"bus.timing": timing, "duration": 14.0}
-    runs = {}
+    runs, contested = {}, {}
     for name, more in {
         "clean": {"bus.authentication": "secoc", "faults": []},
         "open": {"bus.authentication": "none"},
@@ -151,6 +152,7 @@ def test_masses_spoofing_corrupts_the_estimates_without_secoc_and_not_with_it(tm
         result = run(_loaded(**settings, **more), out, 0, interface="virtual")
         assert result.status == "completed", result.error
         runs[name] = out
+        contested[name] = result.contested_ticks
     clean, open_, secured = (_estimates(runs[n]) for n in ("clean", "open", "secoc"))
     # with SecOC the estimate frames carry exactly the attack-free run's values
     for topic in clean:
@@ -167,6 +169,8 @@ def test_masses_spoofing_corrupts_the_estimates_without_secoc_and_not_with_it(tm
         rejected = Counter((m["message"], m["reason"]) for _, _, m in reader.messages([SECURITY]))
     assert rejected == {("SENSOR_x1", BAD_MAC): injected["SENSOR_x1"], ("SENSOR_x2", REPLAYED): injected["SENSOR_x2"]}
     assert injected["SENSOR_x1"] == 500 and injected["SENSOR_x2"] == (500 if timing == "ideal" else 200)
+    # unauthenticated, every tick an intruder sent in is contested; authenticated, none is
+    assert contested == {"clean": 0, "open": injected["SENSOR_x1"] + injected["SENSOR_x2"], "secoc": 0}
     metrics = compute_metrics(runs["secoc"])
     assert metrics["bus"]["secoc_rejected"] == {
         "0x100": {"bad_mac": injected["SENSOR_x1"]},

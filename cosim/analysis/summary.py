@@ -60,8 +60,9 @@ def _run(m: RunMetrics, console: Console) -> None:
     first = "-" if onset is None else f"{onset:g} s"
     if onset is not None and m.duration_s is not None and onset >= m.duration_s:
         first += " (after the run's end: no fault happened)"
+    status = m.status + (f", {m.contested_ticks} contested ticks" if m.contested_ticks else "")
     console.print(
-        f"scenario {m.scenario} ({m.source}), seed {m.seed}, status {m.status}\n"
+        f"scenario {m.scenario} ({m.source}), seed {m.seed}, status {status}\n"
         f"{m.ticks} ticks, {m.duration_s} s simulated; frames {m.frames.total} "
         f"({m.frames.lost} lost); first fault at {first}"
     )

@@ -205,8 +205,9 @@ def _append(values: list[float], value: Any) -> None:
         values.append(number)
 
 
-def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]:
-    """The ranking of a results table per group (``by`` columns, default the fault kind)."""
+def leaderboard(path: str | Path, by: list[str] | None = None, exclude_contested: bool = False) -> dict[str, Any]:
+    """The ranking of a results table per group (``by`` columns, default the fault kind);
+    ``exclude_contested``: without the runs in which another program sent on the runner's ids."""
     table = read_table(path)
     by = by or ["fault_kind"]
     for column in by:
@@ -216,6 +217,8 @@ def leaderboard(path: str | Path, by: list[str] | None = None) -> dict[str, Any]
     for values in table.rows:
         row = Row.of(values)
         if not row.estimator:  # a run that failed before it had estimators
+            continue
+        if exclude_contested and row.contested_ticks:
             continue
         key = (row.estimator, row.kind or "")
         groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row)

@@ -50,6 +50,9 @@ class Row:
     estimator_failed: str | None = column(
         "text", "", "the estimator failed during the run: when and what it raised (empty if it did not)"
     )
+    contested_ticks: int | None = column(
+        "int", "", "ticks during which another program sent on the runner's ids (spoofing without authentication)"
+    )
     fault_kind: str | None = column("text", "", "kinds of the run's faults, joined with +; none without faults")
     fault_onset_s: float | None = column("float", "s", "first fault onset")
     ticks: int | None = column("int", "", "ticks run")
@@ -134,6 +137,7 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
         d = metrics.diagnosis.get(name)
         f = e.faults.get(first, FaultRecovery()) if first else FaultRecovery()
         row = Row(
+            contested_ticks=metrics.contested_ticks,
             fault_kind="+".join(sorted({str(f.kind) for _, f in faults})) or "none",
             fault_onset_s=metrics.fault_onset,
             ticks=metrics.ticks,

@@ -25,13 +25,18 @@ def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
+    p.add_argument(
+        "--exclude-contested",
+        action="store_true",
+        help="leave out the runs with contested ticks (another program sent on the runner's ids)",
+    )
     p.add_argument("--markdown", action="store_true", help="print the tables as Markdown (for documents)")
 
 
 def main(args: argparse.Namespace) -> int:
     from cosim.campaign.leaderboard import leaderboard
 
-    board = leaderboard(args.results, args.by)
+    board = leaderboard(args.results, args.by, exclude_contested=args.exclude_contested)
     if args.html:
         from cosim.campaign.page import write_page
 

@@ -2,6 +2,10 @@
 
 Run a scenario: simulate the plant, inject faults, carry readings and estimates over CAN, and write
 everything to an MCAP log.
+
+Exit status: 0 when the run completed; 3 when it completed with contested ticks (another program
+sent on the runner's own ids, so estimates may rest on forged frames); 1 on an error; 130 or 143
+when interrupted (Ctrl-C, SIGTERM): the log holds everything up to then.
 """
 
 from __future__ import annotations
@@ -15,6 +19,9 @@ from rich.markup import escape
 
 from cosim.cli import common
 from cosim.errors import CosimError
+
+#: The exit status of a run that completed with contested ticks.
+CONTESTED = 3
 
 if TYPE_CHECKING:
     from cosim.log.live import FoxgloveSink
@@ -105,7 +112,7 @@ def main(args: argparse.Namespace) -> int:
         common.print_json(summary(result, out))
     else:
         print(out)
-    return 0
+    return CONTESTED if result.contested_ticks else 0
 
 
 def _check_options(args: argparse.Namespace, s: Scenario) -> None:
@@ -137,6 +144,7 @@ def summary(result: RunResult | None, out: Path, error: str = "") -> dict[str, A
         "realtime_factor": round(result.realtime_factor, 3),
         "failed": result.failed,
         "late_ticks": result.late_ticks,
+        "contested_ticks": result.contested_ticks,
         "error": result.error or error,
     }
 
@@ -171,7 +179,7 @@ def _report(result: RunResult, s: Scenario, talk: Console) -> None:
         f"{result.wall_time:.2f} s (real-time factor {result.realtime_factor:.1f})"
     )
     for warning in result.warnings:
-        if "fell behind" in warning:
+        if "fell behind" in warning or "contested ticks" in warning:
             talk.print(f"[yellow]  {escape(warning)}[/yellow]")
     for name, why in result.failed.items():
         talk.print(

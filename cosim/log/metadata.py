@@ -411,6 +411,8 @@ class ResultRecord:
     the tick and what it raised; the run went on without them."""
     late_ticks: int = 0
     """Realtime: the ticks that started late (by a period or 20 ms or more: the run fell behind)."""
+    contested_ticks: int = 0
+    """Ticks during which a frame came on the runner's own ids that the runner did not send."""
 
     def to_metadata(self) -> dict[str, str]:
         return {
@@ -424,6 +426,7 @@ class ResultRecord:
             "foreign": json.dumps(self.foreign),
             **({"failed": json.dumps(self.failed)} if self.failed else {}),  # logs without them as before
             **({"late_ticks": str(self.late_ticks)} if self.late_ticks else {}),
+            **({"contested_ticks": str(self.contested_ticks)} if self.contested_ticks else {}),
         }
 
     @classmethod
@@ -449,6 +452,7 @@ class ResultRecord:
             {str(k): int(v) for k, v in f.json("foreign", {}).items() if isinstance(v, int)},
             {str(k): str(v) for k, v in f.json("failed", {}).items()},
             f.integer("late_ticks") or 0,
+            f.integer("contested_ticks") or 0,
         )
 
 

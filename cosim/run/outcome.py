@@ -46,6 +46,9 @@ class RunResult:
     """Estimator nodes that failed during the run, and why in a line (the run went on without them)."""
     late_ticks: int = 0
     """Realtime: ticks that started late (by a period or 20 ms or more: the run fell behind)."""
+    contested_ticks: int = 0
+    """Ticks during which another program sent on the runner's own ids (sensor, command, SYNC, NMT):
+    their estimates may rest on forged frames (``cosim run`` exits with status 3)."""
     warnings: list[str] = field(default_factory=list)
     """What the run found worth saying (also the log's warning events)."""
 

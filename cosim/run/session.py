@@ -331,6 +331,8 @@ class Session:
                 self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
+        if applied is not None and applied.intruders:
+            self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
         if self.secoc is not None:  # the runner hears these too: intruders' frames fail
             self.traffic.current = k
             for frame, _ in frames:
@@ -521,6 +523,8 @@ class Session:
                 f"realtime at {self.timing.speed:g}x fell behind: {self.late_ticks} of {k} ticks started late (by a "
                 f"period or {_BEHIND * 1e3:g} ms or more); it ran at {achieved:.1f}x (lower --speed, or use lockstep)"
             )
+        self.warnings += self.traffic.contested_warning()
+        contested = len(self.traffic.contested)
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
         counts = self._sender_counts(k, senders)
@@ -541,6 +545,7 @@ class Session:
                 self.foreign,
                 self.failed,
                 self.late_ticks,
+                contested,
             ).to_metadata(),
         )
         self.result = RunResult(
@@ -558,6 +563,7 @@ class Session:
             loop,
             dict(self.failed),
             self.late_ticks,
+            contested,
             list(self.warnings),
         )
         return self.result

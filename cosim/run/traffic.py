@@ -57,6 +57,9 @@ class Traffic(can.Listener):
         self.echoes = 0
         self.repeated_bootups = 0
         self.foreign_frames = 0
+        #: Ticks during which a frame on one of the runner's own ids came that the runner did not send:
+        #: without authentication a receiver cannot tell it from the runner's, so the tick is contested.
+        self.contested: set[int] = set()
         self._counts: Counter[tuple[str, int]] = Counter()
         self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
         self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
@@ -91,7 +94,8 @@ class Traffic(can.Listener):
                 self.echoes += 1
             else:
                 self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
-                self.verify(msg)
+                if not self.verify(msg):  # no authentication dropped it: receivers may have taken it
+                    self.contested.add(self.current)
             return
         if self.verify(msg):
             self._distrusted.add(id(msg))
@@ -128,6 +132,22 @@ class Traffic(can.Listener):
                 channel = decoded.spec.channels[0]
                 self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
         self.pending.append((msg, decoded))
+
+    def injected(self, tick: int, frames: list[can.Message]) -> None:
+        """Frames a simulated intruder (a bus fault) put on the bus during ``tick``: on the runner's own
+        ids and unauthenticated, a receiver cannot tell them from the runner's, so the tick is contested."""
+        if self.secoc is None and any(frame.arbitration_id in self._own for frame in frames):
+            self.contested.add(tick)
+
+    def contested_warning(self) -> list[str]:
+        """What the contested ticks mean, in a line (none without any)."""
+        if not self.contested:
+            return []
+        return [
+            f"{len(self.contested)} contested ticks (from tick {min(self.contested)}): another program sent on the "
+            "runner's own ids, so the estimates of those ticks may rest on forged frames (authenticate the bus: "
+            'bus.authentication = "secoc")'
+        ]
 
     def verify(self, frame: can.Message) -> bool:
         """Whether SecOC drops this frame (reported); frames of unsecured ids pass."""

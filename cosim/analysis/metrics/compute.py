@@ -127,6 +127,7 @@ def _assemble(
         source=run.record.source,
         seed=run.seed,
         status=run.status,
+        contested_ticks=run.contested_ticks,
         sample_time=dt,
         ticks=ticks,
         duration_s=round(ticks * dt, 9) if dt else None,

@@ -27,6 +27,7 @@ class RunFacts:
         self.late_by_sender = {name: c.late for name, c in result.senders.items()} if result else {}
         self.result_ticks = result.ticks if result else None
         self.failed = dict(result.failed) if result else {}
+        self.contested_ticks = result.contested_ticks if result else 0
         self.known = records.run is not None
         if records.run is None:
             self.warnings.append(

@@ -202,6 +202,9 @@ class RunMetrics:
     source: str | None = None
     seed: int | None = None
     status: str = "incomplete"
+    contested_ticks: int = 0
+    """Ticks during which another program sent on the runner's own ids (without authentication a
+    receiver cannot tell its frames from the runner's): their estimates may rest on forged readings."""
     sample_time: Number | None = None
     ticks: int = 0
     duration_s: float | None = None
