@@ -89,3 +89,20 @@ def test_the_runs_socket_counts_each_crafted_datagram_and_allocates_nothing_for_
         with sender_bus:  # and the bus still receives frames
             sender_bus.send(can.Message(arbitration_id=0x100, data=b"\x01", is_extended_id=False))
             assert bus.recv(1.0).data == b"\x01"
+
+
+def test_the_datagrams_the_kernel_drops_in_a_flood_are_counted():
+    """20 000 frames sent before the receiver reads any overflow its socket's buffer: what it reads
+    and what the kernel says it dropped (SO_RXQ_OVFL, told with the next datagram) add up to what was sent."""
+    config = allocate("udp_multicast")
+    with open_bus(config) as receiver, open_bus(config) as sender:
+        frame = can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False)
+        for _ in range(20_000):
+            sender.send(frame)
+        received = 0
+        while receiver.recv(0.2) is not None:
+            received += 1
+        sender.send(frame)  # the next datagram carries the count
+        received += receiver.recv(2.0) is not None
+        assert receiver.kernel_dropped > 0, "the flood did not overflow the buffer"
+        assert received + receiver.kernel_dropped == 20_001

@@ -22,8 +22,10 @@ It is registered as the python-can interface ``cosim_udp`` (``can.Bus(interface=
 from __future__ import annotations
 
 import errno
+import select
 import socket
 import struct
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
@@ -141,8 +143,34 @@ def multicast_scope(group: str) -> int:
     return 0
 
 
+#: Linux's socket options for receive timestamps and for the count of datagrams the kernel dropped
+#: because the socket's receive buffer was full (sent with every datagram once one was dropped).
+SO_TIMESTAMPNS, SO_RXQ_OVFL = 35, 40
+_ANCILLARY = socket.CMSG_SPACE(struct.calcsize("@ll")) + socket.CMSG_SPACE(struct.calcsize("@I"))
+
+
 class _GroupSocket(GeneralPurposeUdpMulticastBus):
-    """python-can's socket handler, with the socket bound to the group instead of the wildcard address."""
+    """python-can's socket handler, with the socket bound to the group instead of the wildcard
+    address, and the kernel's drops counted (``kernel_dropped``: datagrams that never reached it)."""
+
+    kernel_dropped = 0
+
+    def recv(self, timeout: float | None = None) -> tuple[bytes, Any, float] | None:
+        try:
+            ready, _, _ = select.select([self._socket], [], [], timeout)
+        except OSError as error:
+            raise can.CanOperationError(f"Failed to wait for IP/UDP socket: {error}") from error
+        if not ready:
+            return None
+        data, ancillary, _, sender = self._socket.recvmsg(self.max_buffer, _ANCILLARY)
+        timestamp = None
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= struct.calcsize("@ll"):
+                seconds, nanoseconds = struct.unpack_from("@ll", payload)
+                timestamp = seconds + nanoseconds * 1e-9
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
+                self.kernel_dropped = struct.unpack_from("@I", payload)[0]
+        return data, sender, time.time() if timestamp is None else timestamp
 
     def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:
         sock = socket.socket(address_family, socket.SOCK_DGRAM)
@@ -154,13 +182,13 @@ class _GroupSocket(GeneralPurposeUdpMulticastBus):
                 sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, ttl)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-            try:
-                sock.setsockopt(socket.SOL_SOCKET, 35, 1)  # SO_TIMESTAMPNS, as python-can asks for it
-                self.timestamp_nanosecond = True
-            except OSError as error:
-                if error.errno not in (errno.ENOPROTOOPT, errno.EINVAL):
-                    raise
-                self.timestamp_nanosecond = False
+            for option in (SO_TIMESTAMPNS, SO_RXQ_OVFL):  # where the system has them
+                try:
+                    sock.setsockopt(socket.SOL_SOCKET, option, 1)
+                except OSError as error:
+                    if error.errno not in (errno.ENOPROTOOPT, errno.EINVAL):
+                        raise
+            self.timestamp_nanosecond = True
             group = socket.inet_pton(address_family, self.group)
             if self.ip_version == 4:
                 sock.bind((self.group, self.port))
@@ -191,9 +219,14 @@ class HostMulticastBus(UdpMulticastBus):
     ) -> None:
         super().__init__(channel, port, hop_limit, fd=fd, **kwargs)
         self._multicast.shutdown()
-        self._multicast = _GroupSocket(channel, port, hop_limit)
+        self._multicast = self._group = _GroupSocket(channel, port, hop_limit)
         self.on_foreign = on_foreign
         self.foreign = 0
+
+    @property
+    def kernel_dropped(self) -> int:
+        """Datagrams the kernel dropped before this bus could read them (its receive buffer was full)."""
+        return self._group.kernel_dropped
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         result = self._multicast.recv(timeout)

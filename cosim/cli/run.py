@@ -145,6 +145,7 @@ def summary(result: RunResult | None, out: Path, error: str = "") -> dict[str, A
         "failed": result.failed,
         "late_ticks": result.late_ticks,
         "contested_ticks": result.contested_ticks,
+        "kernel_dropped": result.kernel_dropped,
         "error": result.error or error,
     }
 
@@ -179,7 +180,7 @@ def _report(result: RunResult, s: Scenario, talk: Console) -> None:
         f"{result.wall_time:.2f} s (real-time factor {result.realtime_factor:.1f})"
     )
     for warning in result.warnings:
-        if "fell behind" in warning or "contested ticks" in warning:
+        if any(what in warning for what in ("fell behind", "contested ticks", "kernel dropped")):
             talk.print(f"[yellow]  {escape(warning)}[/yellow]")
     for name, why in result.failed.items():
         talk.print(

@@ -413,6 +413,8 @@ class ResultRecord:
     """Realtime: the ticks that started late (by a period or 20 ms or more: the run fell behind)."""
     contested_ticks: int = 0
     """Ticks during which a frame came on the runner's own ids that the runner did not send."""
+    kernel_dropped: int = 0
+    """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
 
     def to_metadata(self) -> dict[str, str]:
         return {
@@ -427,6 +429,7 @@ class ResultRecord:
             **({"failed": json.dumps(self.failed)} if self.failed else {}),  # logs without them as before
             **({"late_ticks": str(self.late_ticks)} if self.late_ticks else {}),
             **({"contested_ticks": str(self.contested_ticks)} if self.contested_ticks else {}),
+            **({"kernel_dropped": str(self.kernel_dropped)} if self.kernel_dropped else {}),
         }
 
     @classmethod
@@ -453,6 +456,7 @@ class ResultRecord:
             {str(k): str(v) for k, v in f.json("failed", {}).items()},
             f.integer("late_ticks") or 0,
             f.integer("contested_ticks") or 0,
+            f.integer("kernel_dropped") or 0,
         )
 
 

@@ -49,6 +49,8 @@ class RunResult:
     contested_ticks: int = 0
     """Ticks during which another program sent on the runner's own ids (sensor, command, SYNC, NMT):
     their estimates may rest on forged frames (``cosim run`` exits with status 3)."""
+    kernel_dropped: int = 0
+    """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
     warnings: list[str] = field(default_factory=list)
     """What the run found worth saying (also the log's warning events)."""
 
@@ -58,6 +60,26 @@ class RunResult:
         wait) is not the run's pace and does not count."""
         elapsed = self.loop_time if self.loop_time > 0 else self.wall_time
         return self.sim_time / elapsed if elapsed > 0 else float("inf")
+
+
+def fell_behind(late_ticks: int, ticks: int, speed: float, achieved: float, behind_s: float) -> list[str]:
+    """A realtime run's warning when ticks started late (by a period or ``behind_s`` or more)."""
+    if not late_ticks:
+        return []
+    return [
+        f"realtime at {speed:g}x fell behind: {late_ticks} of {ticks} ticks started late (by a period or "
+        f"{behind_s * 1e3:g} ms or more); it ran at {achieved:.1f}x (lower --speed, or use lockstep)"
+    ]
+
+
+def kernel_drops(dropped: int) -> list[str]:
+    """The warning when the kernel dropped datagrams the runner never read."""
+    if not dropped:
+        return []
+    return [
+        f"the kernel dropped {dropped} datagrams before the runner read them (its receive buffer was full: a "
+        "flood on the bus?); the participants' frames among them count as lost"
+    ]
 
 
 def ending(exc: BaseException) -> tuple[str, str]:

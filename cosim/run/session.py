@@ -43,7 +43,7 @@ from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant, remove_stale_workdirs
-from cosim.run.outcome import NodeFailure, Progress, RunResult, last_words
+from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, kernel_drops, last_words
 from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
@@ -517,14 +517,12 @@ class Session:
             self._log_passages(self.arbitration.finish())
         self._verdicts(k)
         self._close_foreign()
-        if self.late_ticks:
-            achieved = t_end / loop if loop > 0 else float("inf")
-            self.warnings.append(
-                f"realtime at {self.timing.speed:g}x fell behind: {self.late_ticks} of {k} ticks started late (by a "
-                f"period or {_BEHIND * 1e3:g} ms or more); it ran at {achieved:.1f}x (lower --speed, or use lockstep)"
-            )
-        self.warnings += self.traffic.contested_warning()
-        contested = len(self.traffic.contested)
+        contested, dropped = len(self.traffic.contested), getattr(self.bus, "kernel_dropped", 0)
+        achieved = t_end / loop if loop > 0 else float("inf")
+        self.warnings += self.traffic.contested_warning() + [
+            *fell_behind(self.late_ticks, k, self.timing.speed, achieved, _BEHIND),
+            *kernel_drops(dropped),
+        ]
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
         counts = self._sender_counts(k, senders)
@@ -546,6 +544,7 @@ class Session:
                 self.failed,
                 self.late_ticks,
                 contested,
+                dropped,
             ).to_metadata(),
         )
         self.result = RunResult(
@@ -564,6 +563,7 @@ class Session:
             dict(self.failed),
             self.late_ticks,
             contested,
+            dropped,
             list(self.warnings),
         )
         return self.result
