@@ -106,3 +106,13 @@ def test_the_datagrams_the_kernel_drops_in_a_flood_are_counted():
         received += receiver.recv(2.0) is not None
         assert receiver.kernel_dropped > 0, "the flood did not overflow the buffer"
         assert received + receiver.kernel_dropped == 20_001
+
+
+def test_a_flood_is_named_as_the_cause_of_a_failure_and_a_trickle_is_not():
+    from cosim.run.outcome import flood_report
+
+    last = "0x7F0 (id 0x7F0, data 00)"
+    assert flood_report(50, 10.0, 0, last) is None  # 5 per second: not a flood
+    named = flood_report(30_000, 2.0, 0, last)
+    assert named is not None and "15000/s" in named and "0x7F0" in named and "not the participant" in named
+    assert flood_report(10, 10.0, 3, last) is not None  # the kernel dropped datagrams: a flood whatever the rate

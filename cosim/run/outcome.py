@@ -72,6 +72,22 @@ def fell_behind(late_ticks: int, ticks: int, speed: float, achieved: float, behi
     ]
 
 
+#: Arrivals per second the run did not send from which they are called a flood.
+FLOOD_RATE = 1000.0
+
+
+def flood_report(arrivals: int, elapsed: float, dropped: int, last: str) -> str | None:
+    """Another program's flood, named (how many arrived, how fast, the last, what the kernel
+    dropped) when it is one: the likely cause of a failure, rather than the participant it delayed."""
+    rate = arrivals / elapsed if elapsed > 0 else 0.0
+    if rate < FLOOD_RATE and not dropped:
+        return None
+    return (
+        f"another program flooded the bus: {arrivals} frames and datagrams the run did not send, {rate:.0f}/s, the "
+        f"last {last}; the kernel dropped {dropped} datagrams: the flood, not the participant, is the likely cause"
+    )
+
+
 def kernel_drops(dropped: int) -> list[str]:
     """The warning when the kernel dropped datagrams the runner never read."""
     if not dropped:

@@ -43,7 +43,7 @@ from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant, remove_stale_workdirs
-from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, kernel_drops, last_words
+from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, flood_report, kernel_drops, last_words
 from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
@@ -260,12 +260,18 @@ class Session:
         )
 
     def _after_foreign(self, reason: str) -> str:
-        """A failure's report, naming the foreign frame that came before it, if one did."""
+        """A failure's report, naming the foreign frame that came before it, if one did, and the flood
+        when what the run did not send came fast (or overflowed the kernel's buffer)."""
         if self._last_foreign is None:
             return reason
-        return (
-            f"{reason}\n(a frame the run did not send came before: {self._last_foreign}; see /cosim/foreign in the log)"
+        flood = flood_report(
+            self.foreign["frames"] + self.foreign["datagrams"],
+            time.perf_counter() - self.start,
+            getattr(self.bus, "kernel_dropped", 0),
+            self._last_foreign,
         )
+        before = flood or f"a frame the run did not send came before: {self._last_foreign}"
+        return f"{reason}\n({before}; see /cosim/foreign in the log)"
 
     def join(self) -> None:
         """Wait for the participants: every one must join (its boot-up heartbeat) before tick 0."""
