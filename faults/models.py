@@ -394,7 +394,7 @@ class BabblingNode(BusFault):
 @dataclass
 class Spoofing(BusFault):
     """An intruder sends ``message`` with the signal ``value`` every tick, right after the genuine
-    frame, so that receivers keeping the latest value take it."""
+    frame: a receiver that gets both trusts neither (without the genuine one, it takes the forgery)."""
 
     message: str = ""
     value: tuple[float, ...] = ()

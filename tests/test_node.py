@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import can
 import numpy as np
@@ -75,6 +76,22 @@ def test_a_late_frame_of_an_earlier_tick_is_counted_not_used():
     push_all(assembler, [c.sync(5, 1)])
     assert push_all(assembler, [c.encode("SENSOR_x1", 4, [0.3])]) == []
     assert assembler.lost == 1
+
+
+def test_a_second_copy_of_a_message_in_a_tick_leaves_neither_trusted():
+    """Someone else sends SENSOR_x1 and COMMAND_force too (spoofing, without authentication): the
+    reading becomes missing (NaN), the command is not taken (the node holds its previous one), and
+    the copies do not count towards the frames SYNC announced. (A copy that comes after its tick is
+    complete is too late to be seen: the runner's contested ticks say so.)"""
+    c = codec()
+    assembler = TickAssembler(c)
+    frames = tick_frames(c, 2, {"x1": 0.1, "x2": 0.2, "x1_minus_x2": -0.1}, 1.5)
+    forged = [c.encode("SENSOR_x1", 2, [0.5]), c.encode("COMMAND_force", 2, [-3.0])]
+    sync, x1, x2, x1_minus_x2, force = frames
+    (tick,) = push_all(assembler, [sync, x1, forged[0], force, forged[1], x2, x1_minus_x2])
+    assert tick.complete and tick.received == 4 and assembler.contested == 2 and assembler.lost == 0
+    assert math.isnan(tick.sensors["x1"]) and tick.sensors["x2"] == pytest.approx(0.2)
+    assert "force" not in tick.commands
 
 
 def node_spec(fd: bool, channel: str) -> NodeSpec:

@@ -23,6 +23,7 @@ The built-in estimator nodes are clients too (``cosim/node.py``): the protocol i
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Iterator, Mapping
@@ -68,6 +69,8 @@ class TickFrames:
     received: int = 0
     t: float | None = None
     upstream: dict[str, dict[str, float]] = field(default_factory=dict)
+    messages: set[str] = field(default_factory=set)
+    """The data messages of the tick that arrived (a second copy of one is not counted again)."""
 
     @property
     def complete(self) -> bool:
@@ -80,6 +83,10 @@ class TickAssembler:
     ``push`` returns the tick once all its announced frames arrived. If SYNC(k+1) arrives while
     tick k is still incomplete, tick k is returned incomplete and the missing frames are counted
     in ``lost`` (in lockstep this cannot happen without frame loss on the transport).
+
+    A second copy of a sensor or command message in one tick means that someone else sent it too
+    (spoofing, on a bus without authentication): neither copy is trusted. The reading becomes NaN
+    (missing), the command is held at its previous value, and ``contested`` counts the copies.
 
     ``upstream`` maps nodes whose frames this participant needs to a lag L: tick k is complete only
     once the node's frames of tick k − L are in, which its heartbeat closing that tick announces.
@@ -96,6 +103,7 @@ class TickAssembler:
         self.lost = 0
         self.last_sync: int | None = None  # the tick of the last SYNC taken: ticks only go forward
         self.distrusted = 0  # SYNC frames ignored because they would take the run back
+        self.contested = 0  # second copies of a tick's sensor or command message
         self.upstream = dict(upstream or {})
         self._heard: dict[str, dict[int, _Heard]] = {node: {} for node in self.upstream}
 
@@ -120,6 +128,15 @@ class TickAssembler:
                 self.lost += 1  # a late frame of an earlier tick
                 return done
             target = pending.sensors if role == SENSOR else pending.commands
+            if decoded.spec.name in pending.messages:  # another sender's copy: neither is trusted
+                self.contested += 1
+                for channel in decoded.spec.channels:
+                    if role == SENSOR:
+                        target[channel.name] = math.nan
+                    else:
+                        target.pop(channel.name, None)
+                return done
+            pending.messages.add(decoded.spec.name)
             for channel, signal in zip(decoded.spec.channels, decoded.spec.signals):
                 target[channel.name] = decoded.values[signal]
             pending.received += 1

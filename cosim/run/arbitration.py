@@ -34,6 +34,7 @@ import numpy as np
 import faults as fm
 from cosim.bus.codec import RUNNER, Codec, Decoded
 from cosim.bus.wire import Transmission, Wire, WireFrame
+from cosim.run.busfaults import counted_by_receivers
 
 #: Spawn key of the periodic traffic's payload streams (the faults and disturbances use others).
 _TRAFFIC = 0xB5
@@ -89,8 +90,8 @@ class Arbitration:
         authenticated: bool = False,
     ) -> None:
         self.codec = codec
-        # With SecOC, SYNC announces the genuine frames only: an intruder's frame is dropped by every
-        # receiver, and one counted would leave the receivers waiting for a frame they never take.
+        # SYNC announces the frames receivers count (``cosim.run.busfaults.counted_by_receivers``): one counted that
+        # they do not take would leave them waiting for it.
         self.authenticated = authenticated
         self.wire = Wire(bitrate, data_bitrate)
         self.dt_ns = dt_ns
@@ -173,7 +174,7 @@ class Arbitration:
     def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
         """SYNC(k) announcing the data frames through by the deadline, those frames (by id()) and
         the planned passages."""
-        counted = [f for f in data if id(f) not in self._senders] if self.authenticated else data
+        counted = counted_by_receivers(data, self._senders, self.authenticated)
         count, seen = len(counted), []
         while True:
             message = self.codec.sync(k, count)

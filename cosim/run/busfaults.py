@@ -19,9 +19,10 @@ drawing from its own seeded stream:
   spoofer has no key (its trailer is zeros) and the replaying intruder resends the secured frame
   it recorded byte for byte: it cannot sign another.
 
-SYNC(k) announces the frames the receivers get in tick k, intruders' included (a receiver keeps
-the latest value of a message, as a CAN mailbox does); with SecOC only the genuine ones, since
-every receiver drops the intruders'. What each fault did goes to
+SYNC(k) announces the frames the receivers count in tick k: an intruder's frame of a message
+whose genuine frame came too is a second copy, which a receiver does not count (it distrusts
+both: ``cosim.bus.client.TickAssembler``); one whose genuine frame did not come counts. With SecOC
+only the genuine ones count, since every receiver drops the intruders'. What each fault did goes to
 ``/truth/bus_faults``; intruders' frames are foreign frames (``/cosim/foreign``).
 """
 
@@ -35,7 +36,7 @@ import can
 import numpy as np
 
 import faults as fm
-from cosim.bus.codec import SYNC, Codec, Decoded
+from cosim.bus.codec import COMMAND, SENSOR, SYNC, Codec, Decoded
 
 Frame = tuple[can.Message, Decoded | None]
 _BUS = 3  # spawn key group of the bus faults' random streams (noise 0, sensor faults 1, actuators 2)
@@ -64,6 +65,23 @@ class Applied:
     delays_ns: dict[int, int] = field(default_factory=dict)
     intruders: dict[int, str] = field(default_factory=dict)
     events: list[BusEvent] = field(default_factory=list)
+
+
+def counted_by_receivers(frames: list[Frame], intruders: dict[int, str], authenticated: bool) -> list[Frame]:
+    """The frames of a tick its receivers count: under SecOC all but the intruders' (they fail it),
+    else all but the second copies of a sensor or command message (receivers distrust both)."""
+    if authenticated:
+        return [frame for frame in frames if id(frame) not in intruders]
+    seen: set[str] = set()
+    kept = []
+    for frame in frames:
+        decoded = frame[1]
+        if decoded is not None and decoded.spec.role in (SENSOR, COMMAND):
+            if decoded.spec.name in seen:
+                continue
+            seen.add(decoded.spec.name)
+        kept.append(frame)
+    return kept
 
 
 class BusFaultStage:
@@ -162,8 +180,7 @@ class BusFaultStage:
         self._held = [(arrives, frame) for arrives, frame in self._held if arrives > k]
         sync, _ = frames[0]
         if frames[0][1] is not None and frames[0][1].spec.role == SYNC:
-            injected = sum(id(frame) in out.intruders for frame in sent) if self.authenticated else 0
-            sync = self.codec.sync(k, len(sent) - injected)
+            sync = self.codec.sync(k, len(counted_by_receivers(sent, out.intruders, self.authenticated)))
         out.frames = [(sync, self.codec.decode(sync)), *sent, *late]
         return out
 
