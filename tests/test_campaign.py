@@ -209,7 +209,13 @@ def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path,
     folder = tmp_path / "interrupted"
     command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2"]
     process = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        # a shell starts background jobs with SIGINT ignored, and children keep it so: a terminal's does not
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list((folder / "parts").glob("run-*.json")):

@@ -436,6 +436,7 @@ def test_monitor_decodes_any_bus_with_a_dbc(tmp_path):
         "--port",
         str(config.port),
         env={**os.environ, "COLUMNS": "200"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as in a terminal, not a background job
     )
     time.sleep(1.0)  # its socket joins the group
     bus = open_bus(config)
