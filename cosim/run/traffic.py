@@ -119,6 +119,11 @@ class Traffic(can.Listener):
                     self._foreign(msg, f"a heartbeat of {sender} closing tick {decoded.tick}, which has not started")
                     self._distrusted.add(id(msg))
                     decoded = None
+                elif state == OPERATIONAL and self.closed.get(sender) == decoded.tick:
+                    # a node closes a tick once: a second heartbeat would count its frames as lost again
+                    self._foreign(msg, f"a second heartbeat of {sender} closing tick {decoded.tick}")
+                    self._distrusted.add(id(msg))
+                    decoded = None
                 elif state == OPERATIONAL:
                     if sender in self.left:  # it answers on: that stopped heartbeat was not its own
                         del self.left[sender]
