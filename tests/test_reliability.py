@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import resource
 import signal
 import socket
 import stat
@@ -98,9 +99,10 @@ def fuzz_datagrams(count: int, seed: int = 5) -> list[tuple[str, bytes]]:
 
 def test_ten_thousand_foreign_datagrams_change_no_estimate_and_every_one_is_counted(tmp_path):
     # 6000 ticks: the fuzzing (1-3 s) must end while the run still ticks, however fast the tick is
-    clean = run(loaded(tmp_path, 60.0), tmp_path / "clean.mcap")
-    target = Run(loaded(tmp_path, 60.0), tmp_path / "fuzzed.mcap")
     datagrams = fuzz_datagrams(10_000)
+    clean = run(loaded(tmp_path, 60.0), tmp_path / "clean.mcap")
+    peak_after_clean = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB: the runner is this process
+    target = Run(loaded(tmp_path, 60.0), tmp_path / "fuzzed.mcap")
     done = threading.Event()
 
     def fuzz() -> None:
@@ -129,6 +131,10 @@ def test_ten_thousand_foreign_datagrams_change_no_estimate_and_every_one_is_coun
     # every one is counted: as a datagram that is no frame, or as a frame the run did not send (a few random
     # byte strings happen to unpack as a map of a frame's fields)
     assert bus["foreign"]["datagrams"] + bus["foreign"]["frames"] == len(datagrams)
+    # the same run fuzzed needs at most 10 MB more than it did clean
+    growth = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak_after_clean
+    print(f"the runner's peak memory under the fuzz: +{growth / 1024:.1f} MB over the clean run's")
+    assert growth < 10 * 1024, growth
     assert bus["foreign"]["frames"] >= sum(kind == "frame" for kind, _ in datagrams)
 
 
