@@ -146,7 +146,8 @@ def multicast_scope(group: str) -> int:
 #: Linux's socket options for receive timestamps and for the count of datagrams the kernel dropped
 #: because the socket's receive buffer was full (sent with every datagram once one was dropped).
 SO_TIMESTAMPNS, SO_RXQ_OVFL = 35, 40
-_ANCILLARY = socket.CMSG_SPACE(struct.calcsize("@ll")) + socket.CMSG_SPACE(struct.calcsize("@I"))
+_TIMESPEC, _DROPS = struct.Struct("@ll"), struct.Struct("@I")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) + socket.CMSG_SPACE(_DROPS.size)
 
 
 class _GroupSocket(GeneralPurposeUdpMulticastBus):
@@ -165,11 +166,11 @@ class _GroupSocket(GeneralPurposeUdpMulticastBus):
         data, ancillary, _, sender = self._socket.recvmsg(self.max_buffer, _ANCILLARY)
         timestamp = None
         for level, kind, payload in ancillary:
-            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= struct.calcsize("@ll"):
-                seconds, nanoseconds = struct.unpack_from("@ll", payload)
+            if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) >= _TIMESPEC.size:
+                seconds, nanoseconds = _TIMESPEC.unpack_from(payload)
                 timestamp = seconds + nanoseconds * 1e-9
-            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
-                self.kernel_dropped = struct.unpack_from("@I", payload)[0]
+            elif level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= _DROPS.size:
+                self.kernel_dropped = _DROPS.unpack_from(payload)[0]
         return data, sender, time.time() if timestamp is None else timestamp
 
     def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:

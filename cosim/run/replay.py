@@ -157,7 +157,7 @@ def settings_as_params(
                 if index < len(names)
                 else f"the run has {len(names)} estimators"
             )
-            target = f"a new estimator ({estimator})" if kind is not None else f"{estimator}"
+            target = f"a new estimator ({estimator})" if kind is not None else estimator
             raise CosimError(f"--set {key}: {which}, and the replay runs {target}; give its parameters with --param")
         if len(parts) != 4 or parts[2] != "params" or not isinstance(parts[3], str):
             raise CosimError(

@@ -259,6 +259,11 @@ class Session:
             f"estimator {participant.name} {self.failed[participant.name]}; the run went on without it"
         )
 
+    @property
+    def kernel_dropped(self) -> int:
+        """Datagrams the kernel dropped before the runner read them (only a udp_multicast bus counts)."""
+        return getattr(self.bus, "kernel_dropped", 0)
+
     def _after_foreign(self, reason: str) -> str:
         """A failure's report, naming the foreign frame that came before it, if one did, and the flood
         when what the run did not send came fast (or overflowed the kernel's buffer)."""
@@ -267,7 +272,7 @@ class Session:
         flood = flood_report(
             self.foreign["frames"] + self.foreign["datagrams"],
             time.perf_counter() - self.start,
-            getattr(self.bus, "kernel_dropped", 0),
+            self.kernel_dropped,
             self._last_foreign,
         )
         before = flood or f"a frame the run did not send came before: {self._last_foreign}"
@@ -523,7 +528,7 @@ class Session:
             self._log_passages(self.arbitration.finish())
         self._verdicts(k)
         self._close_foreign()
-        contested, dropped = len(self.traffic.contested), getattr(self.bus, "kernel_dropped", 0)
+        contested, dropped = len(self.traffic.contested), self.kernel_dropped
         achieved = t_end / loop if loop > 0 else float("inf")
         self.warnings += self.traffic.contested_warning() + [
             *fell_behind(self.late_ticks, k, self.timing.speed, achieved, _BEHIND),
