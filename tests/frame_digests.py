@@ -20,6 +20,15 @@ DIGESTS = Path(__file__).resolve().parent / "data" / "frame_digests.json"
 ROLES = ("SENSOR_", "EST_", "COMMAND_")
 
 
+def unsigned(frame_id: int, data: str) -> str:
+    """A logged frame's data (hex) with a control frame's MAC zeroed: what two runs of a seed share
+    (each run signs its control frames with its own key)."""
+    from cosim.bus.dbc import control_mac_start
+
+    start = control_mac_start(frame_id)
+    return data if start is None else data[: 2 * start] + "0" * (len(data) - 2 * start)
+
+
 def log_digest(path: str | Path) -> tuple[str, int]:
     """The digest of a log's participant frames and how many there are."""
     from cosim.log.reader import LogReader

@@ -12,6 +12,7 @@ from cosim.bus.wire import Wire, WireFrame
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
 from cosim.run import run
+from tests.frame_digests import unsigned
 from tests.snippets import masses
 
 BIT_NS = 8000  # 125 kbit/s
@@ -125,20 +126,26 @@ def test_a_run_on_an_arbitrated_bus_delivers_each_frame_at_its_last_bit(tmp_path
             "COMMAND_force",
         ]
         start = t_k
-        for t, m in runner:
-            length = hand_bits(m["id"], bytes.fromhex(m["data"]))
+        for t, m in runner:  # the wire times a control frame's MAC as zeros: a run's key changes no timing
+            length = hand_bits(m["id"], bytes.fromhex(unsigned(m["id"], m["data"])))
             assert t == start + (length - 3) * BIT_NS
             start += length * BIT_NS
 
 
-def test_the_same_seed_gives_the_same_arbitrated_log(tmp_path):
+def test_the_same_seed_gives_the_same_arbitrated_log(tmp_path, monkeypatch):
+    """Two runs of a seed: the same frames at the same times, but for the control frames' MACs (each
+    run draws its key); with a fixed run secret, bit for bit."""
     s = _tiny(tmp_path, timing='"arbitrated"')
     logs = []
-    for name in ("a", "b"):
+    for name in ("a", "b", "c", "d"):
+        if name == "c":
+            monkeypatch.setenv("COSIM_RUN_SECRET", "5e" * 32)
         run(s, tmp_path / f"{name}.mcap", 0)
         with LogReader(tmp_path / f"{name}.mcap") as reader:
             logs.append([(t, m) for topic, t, m in reader.messages(["/can/frames", "/cosim/wire"])])
-    assert logs[0] == logs[1]
+    masked = [[(t, {**m, "data": unsigned(m["id"], m["data"])} if "data" in m else m) for t, m in log] for log in logs]
+    assert logs[0] != logs[1] and masked[0] == masked[1] == masked[2]
+    assert logs[2] == logs[3]
 
 
 @pytest.mark.parametrize(
@@ -169,7 +176,7 @@ def test_overload_degrades_the_estimators_against_the_ideal_bus(tmp_path):
     offered = over["bus"]["load_over_time"]["offered"]
     assert max(offered[:10]) < 1.0 < 1.5 < min(offered[10:])
     latency = over["bus"]["latency"]
-    assert latency["0x102"]["dropped"] > 1000 and latency["0x101"]["late"] > 100
+    assert latency["0x102"]["dropped"] > 1000 and latency["0x101"]["late"] + latency["0x101"]["dropped"] > 1000
     for estimator in ("uniform", "kalman"):
         assert over["estimators"][estimator]["ticks_scored"] < 0.5 * ideal["estimators"][estimator]["ticks_scored"]
         assert over["estimators"][estimator]["final_error"] > 1.5 * ideal["estimators"][estimator]["final_error"]

@@ -36,7 +36,7 @@ def test_scenarios_lists_the_default():
 def test_dbc_to_stdout_is_a_database():
     result = run_cli("dbc")
     assert (
-        result.returncode == 0 and "BO_ 128 SYNC: 5 runner" in result.stdout and "SENSOR_x1_minus_x2" in result.stdout
+        result.returncode == 0 and "BO_ 128 SYNC: 8 runner" in result.stdout and "SENSOR_x1_minus_x2" in result.stdout
     )
 
 

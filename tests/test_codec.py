@@ -97,9 +97,20 @@ def test_a_signal_too_wide_for_classic_can_is_refused_with_the_fix():
 def test_sync_frame_is_canopen_style():
     c = codec(False)
     frame = c.sync(70000, 4)
-    assert frame.arbitration_id == SYNC_ID == 0x80 and frame.dlc == 5
+    assert frame.arbitration_id == SYNC_ID == 0x80 and frame.dlc == 8  # tick, frames, then its MAC
     decoded = c.decode(frame)
-    assert decoded.tick == 70000 and decoded.values == {"frames": 4}
+    assert decoded.tick == 70000 and decoded.values == {"frames": 4}  # the MAC is no value
+
+
+def test_a_heartbeat_carries_its_tick_mod_65536_and_the_receiver_unwraps_it():
+    c = codec(True)
+    decoded = c.decode(c.heartbeat("kalman", 5, 70000, frames=3, lost=300))
+    assert decoded.tick == 70000 % 65536 and decoded.values == {"state": 5, "frames": 3, "lost": 300 % 256}
+    assert c.with_full_tick(decoded, 70001).tick == 70000
+    assert c.with_full_tick(decoded, 70000 + 30000).tick == 70000
+    assert c.with_full_tick(decoded, 70000 - 30000).tick == 70000  # a tick ahead of the receiver stays ahead
+    sync = c.decode(c.sync(70000, 4))
+    assert c.with_full_tick(sync, 5) is sync
 
 
 @pytest.mark.parametrize("fd", [False, True])
@@ -122,6 +133,7 @@ def test_the_dbc_text_decodes_frames_like_the_codec(fd):
             frame = c.encode(spec.name, 9, [0.125] * len(spec.channels))
         external = db.decode_message(frame.arbitration_id, bytes(frame.data))
         ours = c.decode(frame)
+        assert external.pop("mac", 0) == 0  # a control frame's MAC, unsigned here
         assert external.pop("tick", 0) == ours.tick
         assert external == pytest.approx(ours.values)
     if fd:

@@ -70,7 +70,7 @@ def test_with_authentication_an_intruder_changes_no_estimate(tmp_path):
     """SecOC on (CAN FD, a fixed run secret so that two runs sign alike): 100 forged SENSOR_x2 frames
     of the right length are foreign, rejected by every receiver, and the estimate frames are the
     clean run's bit for bit."""
-    env = {**os.environ, "COSIM_SECOC_SECRET": "5e" * 32}
+    env = {**os.environ, "COSIM_RUN_SECRET": "5e" * 32}
     settings = ("--set", "faults=[]", "--set", "bus.authentication=secoc", "--set", "duration=30")
     intruded, clean = tmp_path / "intruded.mcap", tmp_path / "clean.mcap"
     summary = intrude(intruded, "masses-spoofing", *settings, length=16, fd=True, env=env)

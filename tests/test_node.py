@@ -11,7 +11,8 @@ import pytest
 
 import mjcf
 from cosim.bus.client import Client, TickAssembler
-from cosim.bus.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED, Codec
+from cosim.bus.codec import BOOTUP, NMT_STOP, OPERATIONAL, RUNNER, STOPPED, Codec
+from cosim.bus.control_frames import ControlAuth, control_keys
 from cosim.bus.signals import Channel
 from cosim.bus.transport import BusConfig
 from cosim.errors import CosimError
@@ -21,6 +22,7 @@ from estimators import LinearModel
 
 INFO = mjcf.get("masses")
 SENSORS = ("x1", "x2", "x1_minus_x2")
+SECRET = bytes(range(32))
 
 
 def codec(fd=False) -> Codec:
@@ -104,7 +106,14 @@ def node_spec(fd: bool, channel: str) -> NodeSpec:
         codec(fd).dbc,
         BusConfig("virtual", channel, fd=fd),
         0.01,
+        control_keys=control_keys(SECRET, ["est", RUNNER]),
     )
+
+
+def signed(auth: ControlAuth, k: int, frames: list[can.Message]) -> list[can.Message]:
+    for frame in frames:
+        auth.sign(frame, k)
+    return frames
 
 
 def test_node_spec_round_trips_through_json_exactly():
@@ -124,17 +133,24 @@ def test_estimator_node_answers_each_tick_then_closes_it_with_a_heartbeat(fd):
         can.Bus(interface="cosim_virtual", channel=spec.bus.channel) as runner,
         can.Bus(interface="cosim_virtual", channel=spec.bus.channel) as bus,
     ):
+        auth = ControlAuth.from_secret(c, SECRET, [RUNNER, "est"])
         node = EstimatorNode(spec, bus)
         node.client.join()
-        boot = c.decode(runner.recv(0.0))
+        boot_frame = runner.recv(0.0)
+        boot = c.decode(boot_frame)
         assert boot.spec.name == "HEARTBEAT_est" and boot.values["state"] == BOOTUP
-        for frame in tick_frames(c, 0, {"x1": 0.1, "x2": 0.0, "x1_minus_x2": 0.1}, 0.0):
+        assert auth.verify(boot_frame, 0) is None  # signed with the node's control key
+        for frame in signed(auth, 0, tick_frames(c, 0, {"x1": 0.1, "x2": 0.0, "x1_minus_x2": 0.1}, 0.0)):
             runner.send(frame)
         assert node.service() == 1
         replies = []
         while (reply := runner.recv(0.0)) is not None:
+            assert auth.verify(reply, 0) is None
             replies.append(c.decode(reply))
-        runner.send(c.nmt(NMT_STOP))
+        runner.send(c.nmt(NMT_STOP))  # unsigned: anyone's
+        node.service()
+        assert not node.client.stopped and sum(node.client.rejections.values()) == 1
+        runner.send(signed(auth, 0, [c.nmt(NMT_STOP)])[0])
         node.service()
         assert node.client.stopped
     *estimates, heartbeat = replies

@@ -64,6 +64,7 @@ def test_the_codec_encodes_and_decodes_through_its_packers_as_cantools_does(name
             assert bytes(frame.data) == message.encode(payload, strict=False), (spec.name, payload)
             decoded = codec.decode(frame)
             assert decoded is not None and decoded.tick == int(theirs.pop("tick", 0)), spec.name
+            theirs.pop("mac", None)  # a control frame's MAC: in the DBC, no value of the codec's
             assert list(decoded.values.items()) == list(theirs.items()), spec.name  # same values, same order
             if carried is not None:
                 assert carried.tick == decoded.tick and carried.values == decoded.values, spec.name

@@ -27,6 +27,7 @@ from cosim.log.recorder import FRAMES
 from cosim.run import run
 from cosim.run.replay import TRUTH, Replay, parse_params, settings_as_params
 from cosim.scenario import LoadedScenario, Scenario
+from tests.frame_digests import unsigned
 from tests.snippets import masses_pid
 
 #: (built-in scenario, duration [s], factor dividing every fault's start and end)
@@ -82,7 +83,11 @@ def logs(tmp_path_factory):
 
 def frames(path, keep) -> list[tuple]:
     with LogReader(path) as reader:
-        return [(m["tick"], m["id"], m["dlc"], m["data"]) for _, _, m in reader.messages([FRAMES]) if keep(m)]
+        return [
+            (m["tick"], m["id"], m["dlc"], unsigned(m["id"], m["data"]))
+            for _, _, m in reader.messages([FRAMES])
+            if keep(m)
+        ]
 
 
 def topics(path, names) -> dict[str, list]:

@@ -12,7 +12,8 @@ import pytest
 from cosim import scenario
 from cosim.analysis.metrics import compute_metrics
 from cosim.bus.codec import Codec
-from cosim.bus.secoc import BAD_MAC, REPLAYED, SECRET_ENV, STALE, TRAILER, WINDOW, SecOC, derive_key
+from cosim.bus.keys import SECRET_ENV, derive_key
+from cosim.bus.secoc import BAD_MAC, REPLAYED, STALE, TRAILER, WINDOW, SecOC
 from cosim.errors import CosimError, ScenarioError
 from cosim.log.reader import LogReader
 from cosim.log.recorder import SECURITY
@@ -236,7 +237,7 @@ def test_a_replay_of_a_secured_run_leaves_out_what_its_receivers_dropped(tmp_pat
 
 
 def test_a_fixed_run_secret_repeats_a_secured_run_bit_for_bit(tmp_path, monkeypatch):
-    """Without COSIM_SECOC_SECRET two runs of a seed differ in their trailers only; with it, in nothing."""
+    """Without COSIM_RUN_SECRET two runs of a seed differ in their trailers only; with it, in nothing."""
     from tests.frame_digests import log_digest
 
     loaded = _loaded(**{"bus.authentication": "secoc", "duration": 0.5})
@@ -251,5 +252,5 @@ def test_a_fixed_run_secret_repeats_a_secured_run_bit_for_bit(tmp_path, monkeypa
         _estimates(tmp_path / f"run{i}.mcap")["/can/EST_kalman"].tolist() for i in (1, 3)
     ]
     monkeypatch.setenv(SECRET_ENV, "abc")
-    with pytest.raises(CosimError, match="COSIM_SECOC_SECRET must be 64 hex digits"):
+    with pytest.raises(CosimError, match="COSIM_RUN_SECRET must be 64 hex digits"):
         RunPlan.build(loaded)

@@ -40,12 +40,14 @@ from cosim.bus.codec import (
     NMT,
     NMT_STOP,
     OPERATIONAL,
+    RUNNER,
     SENSOR,
     STOPPED,
     SYNC,
     Codec,
     Decoded,
 )
+from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CodecError, CosimError
@@ -199,7 +201,10 @@ class Client:
     ``bus`` is an open python-can bus; the client does not close it unless it opened it itself.
     ``secoc`` (on a bus with ``authentication = "secoc"``): the keys it signs its frames with and
     verifies the frames it takes with; what fails is dropped and counted in ``rejections``
-    ((id, reason) → frames).
+    ((id, reason) → frames). ``control``: the control-frame keys (``cosim.bus.control_frames``):
+    its heartbeats are signed, and a SYNC, an NMT or an upstream node's heartbeat is taken only if
+    its MAC verifies (else counted in ``rejections`` too); without them, a client signs nothing and
+    takes every control frame as it comes.
     """
 
     def __init__(
@@ -213,9 +218,11 @@ class Client:
         owns_bus: bool = False,
         upstream: dict[str, int] | None = None,
         secoc: SecOC | None = None,
+        control: ControlAuth | None = None,
     ) -> None:
         self.name = name
         self.secoc = secoc
+        self.control = control
         self.rejections: Counter[tuple[int, str]] = Counter()
         self.codec = codec
         self.bus = bus
@@ -247,8 +254,12 @@ class Client:
         """Join the running co-simulation (the only one, or the one whose id starts with ``run``)."""
         info = registry.find(run)
         codec = Codec.from_dbc(info["dbc"])
+        keys = info.get("control_keys", {})
+        control = ControlAuth.from_hex(codec, {s: keys[s] for s in (RUNNER, CONTROLLER, name or "") if s in keys})
         bus = open_bus(BusConfig.from_dict(info["bus"]))
-        client = cls(name, codec, bus, lockstep=lockstep, sample_time=info["sample_time"], owns_bus=True)
+        client = cls(
+            name, codec, bus, lockstep=lockstep, sample_time=info["sample_time"], owns_bus=True, control=control
+        )
         client.join()
         return client
 
@@ -257,7 +268,7 @@ class Client:
         the first tick arrives, ``announce`` repeats it: a boot-up lost in a burst on the bus
         costs a second, not the run."""
         if self._node is not None and not self._joined:
-            self.bus.send(self.codec.heartbeat(self._node, BOOTUP))
+            self._heartbeat(BOOTUP)
             self._joined = True
             self._announced = time.monotonic()
 
@@ -265,13 +276,13 @@ class Client:
         """Repeat the boot-up heartbeat every ``every`` seconds until the run's first SYNC arrives."""
         if self._node is not None and self._joined and self.assembler.last_sync is None and not self.stopped:
             if time.monotonic() - self._announced >= every:
-                self.bus.send(self.codec.heartbeat(self._node, BOOTUP))
+                self._heartbeat(BOOTUP)
                 self._announced = time.monotonic()
 
     def close(self) -> None:
         """Leave the bus (a stopped heartbeat, then the bus is closed if the client opened it)."""
         if self._node is not None and self._joined and not self.stopped:
-            self.bus.send(self.codec.heartbeat(self._node, STOPPED))
+            self._heartbeat(STOPPED)
         self.stopped = True
         if self._owns_bus:
             self.bus.shutdown()
@@ -295,6 +306,13 @@ class Client:
             return []  # not decodable: someone else's frame with a clashing id
         if decoded is None or decoded.spec.sender == self.name:  # unknown id, or our own frame back
             return []
+        if decoded.spec.role in (SYNC, NMT, HEARTBEAT):
+            near = self.assembler.last_sync or 0
+            rejection = None if self.control is None else self.control.verify(frame, near)
+            if rejection is not None:  # forged, or another run's: it neither stops nor moves this node
+                self.rejections[(rejection.frame_id, rejection.reason)] += 1
+                return []
+            decoded = self.codec.with_full_tick(decoded, near)
         if self.secoc is not None:
             rejection = self.secoc.verify(frame, self.assembler.last_sync or 0)
             if rejection is not None:  # dropped before it counts: SYNC announces genuine frames only
@@ -336,7 +354,12 @@ class Client:
                     continue
                 if decoded is None:
                     continue
-                if decoded.spec.role == NMT and decoded.values["command"] == NMT_STOP and decoded.values["node"] == 0:
+                if (
+                    decoded.spec.role == NMT
+                    and decoded.values["command"] == NMT_STOP
+                    and decoded.values["node"] == 0
+                    and (self.control is None or self.control.verify(frame, 0) is None)
+                ):
                     self.stopped = True
                 yield decoded
                 if self.stopped:
@@ -374,5 +397,14 @@ class Client:
         """Close a tick: the heartbeat that tells the runner this node has answered it."""
         if self.lockstep and self._node is not None:  # lockstep only for a declared node
             k = tick.tick if isinstance(tick, TickFrames) else tick
-            self.bus.send(self.codec.heartbeat(self._node, OPERATIONAL, k, self._published, self.assembler.lost))
+            self._heartbeat(OPERATIONAL, k, self._published, self.assembler.lost)
         self._published = 0
+
+    def _heartbeat(self, state: int, tick: int | None = None, frames: int = 0, lost: int = 0) -> None:
+        """Send this node's heartbeat (boot-up and stopped ones at the last tick it saw), signed."""
+        assert self._node is not None
+        k = tick if tick is not None else self.assembler.last_sync or 0
+        frame = self.codec.heartbeat(self._node, state, k, frames, lost)
+        if self.control is not None:
+            self.control.sign(frame, k)
+        self.bus.send(frame)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import can
 from cantools.database.can import Database, Message
@@ -21,11 +21,13 @@ from cosim.bus.dbc import (
     CLIENT,
     COMMAND,
     CONTROL,
+    CONTROL_MAC,
     CONTROLLER,
     ESTIMATE,
     FD_TICK_BITS,
     HEARTBEAT,
     HEARTBEAT_BASE,
+    HEARTBEAT_TICK_BITS,
     MESSAGE_PREFIX,
     NMT,
     NMT_STOP,
@@ -37,10 +39,12 @@ from cosim.bus.dbc import (
     STOPPED,
     SYNC,
     SYNC_ID,
+    ControlFields,
     MessageSpec,
     build_database,
     bus_type,
     command_message,
+    control_fields,
     estimate_signal,
     estimated_state,
     heartbeat_message,
@@ -155,17 +159,25 @@ class Codec:
         self._messages: dict[str, Message] = {m.name: m for m in database.messages}
         # Each message compiled once into a packer (cosim.bus.packing) from cantools' message: the
         # tick counter first, then the spec's signals, in the order encode takes their values.
+        # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control`` fills it).
         self._packers: dict[str, Packer] = {}
+        #: Control ids with a MAC: the spec, and where its tick and MAC are.
+        self.control_macs: dict[int, tuple[MessageSpec, ControlFields]] = {}
         for spec in specs:
             message = self._messages[spec.name]
             has_tick = any(signal.name == "tick" for signal in message.signals) and "tick" not in spec.signals
-            self._packers[spec.name] = Packer(message, ("tick", *spec.signals) if has_tick else spec.signals)
+            order = ("tick", *spec.signals) if has_tick else spec.signals
+            fields = control_fields(message)
+            if fields is not None:  # a DBC written before control frames were authenticated has none
+                order = (*order, CONTROL_MAC)
+                self.control_macs[spec.frame_id] = (spec, fields)
+            self._packers[spec.name] = Packer(message, order)
         # id -> (spec, packer, where the tick counter is among the packer's values, the other signals)
         self._unpacking: dict[int, tuple[MessageSpec, Packer, int | None, tuple[str, ...]]] = {}
         for spec in specs:
             names = self._packers[spec.name].names
             at = names.index("tick") if "tick" in names else None
-            others = tuple(name for name in names if name != "tick")
+            others = tuple(name for name in names if name not in ("tick", CONTROL_MAC))
             self._unpacking[spec.frame_id] = (spec, self._packers[spec.name], at, others)
         self.tick_modulus = 2**FD_TICK_BITS if fd else 2**CLASSIC_TICK_BITS
         self.node_ids: dict[str, int] = {
@@ -206,7 +218,7 @@ class Codec:
 
     def _classic(self, name: str, values: dict[str, int]) -> can.Message:
         spec, packer = self.specs[name], self._packers[name]
-        data = packer.encode([values[signal] for signal in packer.names])
+        data = packer.encode([values.get(signal, 0) for signal in packer.names])  # the MAC's place left 0
         return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False)
 
     def sync(self, tick: int, frames: int) -> can.Message:
@@ -218,9 +230,11 @@ class Codec:
         return self._classic("NMT", {"command": command, "node": node})
 
     def heartbeat(self, node: str, state: int, tick: int = 0, frames: int = 0, lost: int = 0) -> can.Message:
+        """A node's heartbeat closing ``tick`` (carried mod 2¹⁶), with its ``frames`` of that tick
+        and the frames it found missing so far (carried mod 2⁸)."""
         return self._classic(
             heartbeat_message(node),
-            {"state": state, "tick": tick % 2**32, "frames": min(frames, 255), "lost": min(lost, 2**16 - 1)},
+            {"state": state, "tick": tick % 2**HEARTBEAT_TICK_BITS, "frames": min(frames, 255), "lost": lost % 256},
         )
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
@@ -251,6 +265,14 @@ class Codec:
             arbitration_id=spec.frame_id, data=data, is_extended_id=False, is_fd=self.fd, bitrate_switch=self.fd
         )
 
+    def with_full_tick(self, decoded: Decoded, near: int) -> Decoded:
+        """A decoded heartbeat with the tick it closes in full (it carries it mod 2¹⁶: the tick
+        nearest ``near`` with those bits); any other frame as it is."""
+        found = self.control_macs.get(decoded.spec.frame_id)
+        if found is None or found[1].tick is None or found[1].tick[1] >= 4:
+            return decoded
+        return replace(decoded, tick=nearest_tick(decoded.tick, near, 8 * found[1].tick[1]))
+
     def spec_of(self, frame: can.Message) -> MessageSpec | None:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)
 
@@ -273,6 +295,12 @@ class Codec:
         if at is None:  # NMT
             return Decoded(spec, 0, dict(zip(others, values)))
         return Decoded(spec, int(values[at]), dict(zip(others, values[:at] + values[at + 1 :])))
+
+
+def nearest_tick(counter: int, near: int, bits: int) -> int:
+    """The tick with the ``bits`` low bits ``counter`` nearest to ``near`` (within half the modulus)."""
+    half = 1 << (bits - 1)
+    return near + ((counter - near + half) % (1 << bits)) - half
 
 
 def _range_message(spec: MessageSpec, signal: str, channel: Channel, value: float, tick: int) -> str:

@@ -72,6 +72,9 @@ MAX_NODE_ID = 0x7F
 
 CLASSIC_TICK_BITS = 16
 FD_TICK_BITS = 32
+HEARTBEAT_TICK_BITS = 16
+CONTROL_MAC = "mac"
+"""The signal of a control frame's MAC (``cosim.bus.control``): in the DBC, never among a spec's signals."""
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
@@ -251,8 +254,8 @@ def layout_messages(
     if len(set(nodes)) != len(nodes):
         raise CodecError(f"estimator, client and controller names must differ: {', '.join(nodes)}")
     specs = [
-        MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), ("command", "node")),
-        MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), ("tick", "frames")),
+        MessageSpec("NMT", NMT_ID, RUNNER, NMT, (), _control_signals(NMT)),
+        MessageSpec("SYNC", SYNC_ID, RUNNER, SYNC, (), _control_signals(SYNC)),
     ]
     for i, channel in enumerate(sensors):
         specs += pack_channels(sensor_message(channel.name), SENSOR_BASE + i, PLANT, SENSOR, [channel], fd)
@@ -268,7 +271,7 @@ def layout_messages(
     for c, (name, channels) in enumerate(clients.items()):
         signals = [channel.name for channel in channels]
         specs += _node_messages(name, CLIENT, CLIENT_BASE + CLIENT_STRIDE * c, list(channels), signals, fd)
-    heartbeat_signals = ("state", "tick", "frames", "lost")
+    heartbeat_signals = _control_signals(HEARTBEAT)
     for node_id, name in enumerate(nodes, start=1):
         specs.append(
             MessageSpec(heartbeat_message(name), HEARTBEAT_BASE + node_id, name, HEARTBEAT, (), heartbeat_signals)
@@ -311,18 +314,31 @@ def _node_messages(
 
 
 _CONTROL_LAYOUT = {
-    NMT: [("command", 0, 8, "NMT command: 1 start, 2 stop"), ("node", 8, 8, "addressed node id, 0 for all")],
+    NMT: [
+        ("command", 0, 8, "NMT command: 1 start, 2 stop"),
+        ("node", 8, 8, "addressed node id, 0 for all"),
+        (CONTROL_MAC, 16, 48, "AES-CMAC under the runner's control key, truncated to 48 bits"),
+    ],
     SYNC: [
         ("tick", 0, 32, "tick counter k"),
         ("frames", 32, 8, "data frames the runner sends for tick k after this SYNC"),
+        (CONTROL_MAC, 40, 24, "AES-CMAC under the runner's control key, truncated to 24 bits"),
     ],
     HEARTBEAT: [
         ("state", 0, 8, "NMT state: 0 boot-up, 4 stopped, 5 operational"),
-        ("tick", 8, 32, "the tick this heartbeat closes"),
-        ("frames", 40, 8, "data frames the node sent for that tick"),
-        ("lost", 48, 16, "frames the node found missing so far"),
+        ("tick", 8, HEARTBEAT_TICK_BITS, "the tick this heartbeat closes, mod 65536"),
+        ("frames", 24, 8, "data frames the node sent for that tick"),
+        ("lost", 32, 8, "frames the node found missing so far, mod 256"),
+        (CONTROL_MAC, 40, 24, "AES-CMAC under the node's control key, truncated to 24 bits"),
     ],
 }
+
+
+def _control_signals(role: Role) -> tuple[str, ...]:
+    """A control message's signals as its spec names them (its MAC is not one of them)."""
+    return tuple(name for name, *_ in _CONTROL_LAYOUT[role] if name != CONTROL_MAC)
+
+
 _CONTROL_COMMENTS = {NMT: "network management (CANopen NMT)", SYNC: "start of tick k", HEARTBEAT: "node heartbeat"}
 
 
@@ -431,9 +447,7 @@ def spec_from_message(message: Message) -> MessageSpec:
     role = _role(message)
     sender = message.senders[0] if message.senders else "unknown"
     if role in _CONTROL_LAYOUT:
-        return MessageSpec(
-            message.name, message.frame_id, sender, role, (), tuple(name for name, *_ in _CONTROL_LAYOUT[role])
-        )
+        return MessageSpec(message.name, message.frame_id, sender, role, (), _control_signals(role))
     prefix = SIGNAL_PREFIX.get(role, "")
     channels, names = [], []
     for signal in sorted(message.signals, key=lambda s: s.start):
@@ -453,6 +467,39 @@ def spec_from_message(message: Message) -> MessageSpec:
         )
         names.append(signal.name)
     return MessageSpec(message.name, message.frame_id, sender, role, tuple(channels), tuple(names))
+
+
+def control_mac_start(frame_id: int) -> int | None:
+    """The byte where a control frame's MAC starts, by its id (None for any other frame): the
+    bytes that differ between two runs of a seed, each signed with its own key."""
+    if frame_id == NMT_ID:
+        role = NMT
+    elif frame_id == SYNC_ID:
+        role = SYNC
+    elif HEARTBEAT_BASE < frame_id <= HEARTBEAT_BASE + MAX_NODE_ID:
+        role = HEARTBEAT
+    else:
+        return None
+    return next(start for name, start, *_ in _CONTROL_LAYOUT[role] if name == CONTROL_MAC) // 8
+
+
+@dataclass(frozen=True)
+class ControlFields:
+    """Where a control message carries its tick counter (None: NMT) and its MAC: (first byte, bytes)."""
+
+    tick: tuple[int, int] | None
+    mac: tuple[int, int]
+
+
+def control_fields(message: Message) -> ControlFields | None:
+    """The tick and MAC fields of an authenticated control message (None: no MAC in the DBC)."""
+    signals = {signal.name: signal for signal in message.signals}
+    mac, tick = signals.get(CONTROL_MAC), signals.get("tick")
+    if mac is None or _role(message) not in _CONTROL_LAYOUT:
+        return None
+    return ControlFields(
+        None if tick is None else (tick.start // 8, tick.length // 8), (mac.start // 8, mac.length // 8)
+    )
 
 
 def load_dbc(text: str) -> cantools.database.can.Database:

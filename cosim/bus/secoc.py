@@ -13,7 +13,8 @@ as SecOC profile 1 ("24Bit-CMAC-8Bit-FV") has it:
   every receiver knows from SYNC); the frame carries its 8 least significant bits (``secoc_fv``);
 - the MAC (``secoc_mac``) is AES-128-CMAC over ``id (2 bytes, big-endian) | authentic PDU | full FV
   (4 bytes, big-endian)``, truncated to its 24 most significant bits;
-- each sender has its own key, derived (HKDF-SHA256) from the run secret and the sender's name.
+- each sender has its own key, derived (HKDF-SHA256) from the run secret and the sender's name
+  (``cosim.bus.keys``).
 
 A receiver rebuilds the full FV as the latest tick ≤ its current tick (the last SYNC) with those 8
 bits, verifies the MAC, and accepts the frame only if its FV is newer than the last it accepted on
@@ -31,7 +32,6 @@ module fills and checks the trailer.
 from __future__ import annotations
 
 import hmac
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -40,7 +40,6 @@ import cantools
 from cantools.database.can import Database, Signal
 
 from cosim.bus.dbc import SECOC_SIGNALS, DatabaseView, fd_length
-from cosim.errors import CosimError
 
 FV_SIGNAL, MAC_SIGNAL = SECOC_SIGNALS
 FV_BYTES, MAC_BYTES = 1, 3
@@ -49,8 +48,6 @@ WINDOW = 8
 """Ticks a frame may be late and still be accepted (a delayed or arbitrated frame arrives after its tick)."""
 BAD_MAC, REPLAYED, STALE = "bad_mac", "replayed", "stale"
 REASONS = (BAD_MAC, REPLAYED, STALE)
-SECRET_ENV = "COSIM_SECOC_SECRET"
-"""A fixed run secret (64 hex digits) instead of a random one: a secured run's frames repeat bit for bit."""
 _FV_MODULUS = 2**32
 
 
@@ -78,28 +75,6 @@ def secure_dbc(text: str) -> str:
         message.refresh()
     database.refresh()
     return database.as_dbc_string()
-
-
-def run_secret() -> bytes:
-    """A run's secret: random, or ``COSIM_SECOC_SECRET`` (64 hex digits) to repeat a run's frames."""
-    fixed = os.environ.get(SECRET_ENV)
-    if not fixed:
-        return os.urandom(32)
-    try:
-        secret = bytes.fromhex(fixed)
-    except ValueError:
-        secret = b""
-    if len(secret) != 32:
-        raise CosimError(f"{SECRET_ENV} must be 64 hex digits (32 bytes), or unset for a random run secret")
-    return secret
-
-
-def derive_key(secret: bytes, sender: str) -> bytes:
-    """The sender's AES-128 key: HKDF-SHA256 of the run secret, with the sender's name as info."""
-    from cryptography.hazmat.primitives import hashes
-    from cryptography.hazmat.primitives.kdf.hkdf import HKDF
-
-    return HKDF(hashes.SHA256(), 16, salt=None, info=b"cosim secoc key " + sender.encode()).derive(secret)
 
 
 @dataclass(frozen=True)

@@ -111,12 +111,17 @@ class Arbitration:
     def _wire_frame(self, frame: Frame, queued_ns: int, deadline_ns: int, sender: str) -> WireFrame:
         message, decoded = frame
         sender = decoded.spec.sender if decoded is not None else sender
+        data = bytes(message.data)
+        control = None if message.is_extended_id else self.codec.control_macs.get(message.arbitration_id)
+        if control is not None:  # timed with its MAC at 0: a run's (random) key changes no timing
+            at = control[1].mac[0]
+            data = data[:at] + bytes(len(data) - at)
         return WireFrame(
             message.arbitration_id,
             message.is_extended_id,
             message.is_fd,
             message.bitrate_switch,
-            bytes(message.data),
+            data,
             sender,
             queued_ns,
             deadline_ns,

@@ -30,6 +30,7 @@ import numpy as np
 import estimators
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import COMMAND, CONTROLLER, Codec, estimated_state
+from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
@@ -55,6 +56,9 @@ class NodeSpec:
     keys: dict[str, str] = field(default_factory=dict, repr=False)
     """SecOC (``cosim.bus.secoc``): AES keys (hex) by sender, its own and those of the senders it
     hears; secret: the spec file is private to the run and deleted once the node has read it."""
+    control_keys: dict[str, str] = field(default_factory=dict, repr=False)
+    """Control frames (``cosim.bus.control_frames``): keys (hex) by sender, its own (to sign its
+    heartbeats), the runner's and those of its upstream nodes (to verify); as secret as ``keys``."""
 
     def secoc(self, codec: Codec) -> SecOC | None:
         """The node's SecOC on a secured bus (None otherwise); a CosimError if its keys are missing."""
@@ -62,6 +66,15 @@ class NodeSpec:
         if secoc is not None and self.name not in self.keys:
             raise CosimError(f"node {self.name}: the bus is authenticated (SecOC) and its spec holds no key of it")
         return secoc
+
+    def control(self, codec: Codec) -> ControlAuth | None:
+        """The node's control-frame keys (None: the DBC's control frames carry no MAC); a CosimError
+        if its spec holds none of its own."""
+        if not codec.control_macs:
+            return None
+        if self.name not in self.control_keys:
+            raise CosimError(f"node {self.name}: its spec holds no control key of its own (control frames are signed)")
+        return ControlAuth.from_hex(codec, self.control_keys)
 
     def to_json(self) -> str:
         return json.dumps(
@@ -76,6 +89,7 @@ class NodeSpec:
                 "upstream": self.upstream,
                 "diagnosis": self.diagnosis,
                 **({"keys": self.keys} if self.keys else {}),
+                **({"control_keys": self.control_keys} if self.control_keys else {}),
             }
         )
 
@@ -94,6 +108,7 @@ class NodeSpec:
             data.get("upstream", {}),
             data.get("diagnosis", ""),
             data.get("keys", {}),
+            data.get("control_keys", {}),
         )
 
 
@@ -127,7 +142,13 @@ class _Node(ABC):
         self.spec = spec
         self.codec = Codec.from_dbc(spec.dbc)
         self.client = Client(
-            name, self.codec, bus, sample_time=spec.sample_time, upstream=spec.upstream, secoc=spec.secoc(self.codec)
+            name,
+            self.codec,
+            bus,
+            sample_time=spec.sample_time,
+            upstream=spec.upstream,
+            secoc=spec.secoc(self.codec),
+            control=spec.control(self.codec),
         )
         self.ticks = 0
 

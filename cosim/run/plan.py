@@ -21,8 +21,10 @@ import numpy as np
 import estimators
 import faults as fm
 from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
+from cosim.bus.control_frames import ControlAuth, control_keys
+from cosim.bus.keys import derive_key, run_secret
 from cosim.bus.registry import Registration
-from cosim.bus.secoc import SecOC, derive_key, run_secret
+from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig
 from cosim.errors import ModelError, ScenarioError
 from cosim.log.metadata import (
@@ -219,8 +221,9 @@ class RunPlan:
     faults: tuple[FaultRecord, ...]
     onset_tick: int | None
     units: dict[str, dict[str, str]]
-    secret: bytes | None = field(default=None, repr=False)
-    """The run secret of SecOC (``[bus] authentication = "secoc"``): random per plan, never logged."""
+    secret: bytes = field(default_factory=run_secret, repr=False)
+    """The run's secret (``cosim.bus.keys``): random per plan, never logged; the control frames'
+    keys, and SecOC's with ``[bus] authentication = "secoc"``, derive from it."""
 
     @classmethod
     def build(cls, loaded: LoadedScenario, seed: int | None = None, **overrides: Any) -> RunPlan:
@@ -267,7 +270,6 @@ class RunPlan:
             faults=tuple(fault_record(f, s) for f in [*injector.faults, *bus_faults]),
             onset_tick=None if onset is None else first_tick_at(s, onset),
             units=channel_units(s),
-            secret=run_secret() if s.bus.authentication == "secoc" else None,
         )
 
     @property
@@ -293,6 +295,7 @@ class RunPlan:
                 {diagnosis: 1} if diagnosis else {},
                 diagnosis,
                 self.keys(CONTROLLER, [PLANT, *([diagnosis] if diagnosis else [])]),
+                control_keys(self.secret, [CONTROLLER, RUNNER, *([diagnosis] if diagnosis else [])]),
             )
         spec = next(e for e in s.estimators if e.name == name)
         estimator = self.estimators[name]
@@ -306,20 +309,39 @@ class RunPlan:
             s.sample_time,
             {CONTROLLER: 0} if s.controller is not None else {},
             keys=self.keys(name, [PLANT, CONTROLLER]),
+            control_keys=control_keys(
+                self.secret, [name, RUNNER, *([CONTROLLER] if CONTROLLER in self.codec.node_ids else [])]
+            ),
         )
 
     def keys(self, node: str, hears: list[str]) -> dict[str, str]:
         """A node's SecOC keys (hex): its own, to sign, and those of the senders it hears, to verify."""
-        if self.secret is None:
+        if not self.authenticated:
             return {}
         return {sender: derive_key(self.secret, sender).hex() for sender in [node, *hears]}
 
     def secoc(self) -> SecOC | None:
         """The runner's SecOC: every sender's key (it signs the plant's frames and verifies everyone's)."""
-        if self.secret is None:
+        if not self.authenticated:
             return None
         senders = {spec.sender for spec in self.codec.specs.values()}
         return SecOC.from_codec(self.codec, {sender: derive_key(self.secret, sender) for sender in senders})
+
+    @property
+    def authenticated(self) -> bool:
+        """Whether the data frames carry SecOC (control frames are always authenticated)."""
+        return self.scenario.bus.authentication == "secoc"
+
+    def control(self) -> ControlAuth:
+        """The runner's control-frame keys: its own, to sign NMT and SYNC, and every node's."""
+        return ControlAuth.from_secret(self.codec, self.secret, [RUNNER, *self.codec.node_ids])
+
+    def client_keys(self) -> dict[str, str]:
+        """The control keys (hex) of the runner and of the participants a client may join as or
+        hear, for the run registry: the declared clients and the controller node."""
+        clients = [c.name for c in self.scenario.clients]
+        controller = [CONTROLLER] if CONTROLLER in self.codec.node_ids else []
+        return control_keys(self.secret, [RUNNER, *clients, *controller])
 
     @property
     def senders(self) -> list[str]:
@@ -357,7 +379,7 @@ class RunPlan:
                     s.bus.data_bitrate,
                     s.dt_ns,
                     build_traffic(s, [f for f in bus_faults if isinstance(f, fm.BabblingNode)]),
-                    authenticated=self.secret is not None,
+                    authenticated=self.authenticated,
                 )
                 if s.bus.timing == "arbitrated"
                 else None
@@ -370,12 +392,13 @@ class RunPlan:
                     s.dt_ns,
                     s.bus.bitrate,
                     s.bus.timing == "arbitrated",
-                    authenticated=self.secret is not None,
+                    authenticated=self.authenticated,
                 )
                 if bus_faults
                 else None
             ),
             secoc=self.secoc(),
+            control=self.control(),
             detector=IntrusionDetector(self.codec, s.dt_ns) if s.bus.intrusion_detector else None,
         )
 

@@ -33,7 +33,6 @@ import can
 
 import estimators
 from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
-from cosim.bus.secoc import run_secret
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
 from cosim.log.metadata import (
@@ -305,7 +304,6 @@ class Replay(Execution):
             faults=tuple(run.faults),
             onset_tick=run.fault_onset_tick,
             units=channel_units(scenario),
-            secret=run_secret() if scenario.bus.authentication == "secoc" else None,
         )
 
     def _build(self, scenario: Scenario, model: LinearModel) -> dict[str, Estimator]:

@@ -84,6 +84,7 @@ class Run(Execution):
                 "dbc": plan.codec.dbc,
                 "log": str(self.out.resolve()),
                 "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
+                "control_keys": plan.client_keys(),
             },
         )
         with plan.session(self.out, bus, registration, sink) as session:

@@ -29,6 +29,7 @@ import can
 import numpy as np
 
 from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
+from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
@@ -103,11 +104,13 @@ class Session:
         arbitration: Arbitration | None = None,
         bus_faults: BusFaultStage | None = None,
         secoc: SecOC | None = None,
+        control: ControlAuth | None = None,
         detector: IntrusionDetector | None = None,
     ) -> None:
         self.out, self.config, self.codec, self.timing = out, config, codec, timing
         self.detector = detector  # the key-less intrusion detector: every frame logged, and the foreign ones
         self.secoc = secoc  # authentication = "secoc": the runner signs its frames and verifies everyone's
+        self.control = control  # the control frames' keys: the runner signs NMT and SYNC, verifies heartbeats
         self.arbitration = arbitration  # arbitrated timing: the simulated wire decides what arrives when
         self.bus_faults = bus_faults  # what the scenario's bus faults do to the runner's frames, and intruders
         self._sink = sink  # the live view: the log tees every channel and message to it
@@ -149,6 +152,7 @@ class Session:
                 on_foreign=self._foreign_heard,
                 secoc=self.secoc,
                 on_rejected=self._rejected,
+                control=self.control,
             )
             self.traffic.deliver = self._log_frame
             self.log.metadata(BUS, {key: str(value) for key, value in self.config.to_dict().items()})
@@ -342,6 +346,7 @@ class Session:
                 self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
+        self._sign_control(k, frames, applied)
         if applied is not None and applied.intruders:
             self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
         if self.secoc is not None:  # the runner hears these too: intruders' frames fail
@@ -367,6 +372,15 @@ class Session:
             if applied is not None and id(item) in applied.intruders:
                 self._intruder(item[0], applied.intruders[id(item)])
         self._verdicts(k)
+
+    def _sign_control(self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None) -> None:
+        """Sign the runner's control frames of tick k (a simulated intruder's stay as it forged them)."""
+        if self.control is None:
+            return
+        intruders = applied.intruders if applied is not None else {}
+        for item in frames:
+            if id(item) not in intruders:
+                self.control.sign(item[0], k)
 
     def _bus_faults(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> Applied | None:
         """Tick k's frames through the bus faults; what they did goes to /truth/bus_faults."""
@@ -427,6 +441,7 @@ class Session:
         step = self.arbitration.tick(
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
+        self._sign_control(k, step.send, applied)  # timed on the wire with the MAC at 0: the key changes no timing
         self.traffic.sent([frame for frame, _ in step.send])
         for frame, _ in step.send:
             self.bus.send(frame)
@@ -587,6 +602,8 @@ class Session:
             traffic(frame)
         traffic.flush(*self._marker)
         stop = codec.nmt(NMT_STOP)
+        if self.control is not None:
+            self.control.sign(stop, k)
         traffic.sent([stop])
         try:
             self.bus.send(stop)

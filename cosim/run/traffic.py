@@ -10,6 +10,7 @@ from collections.abc import Callable
 import can
 
 from cosim.bus.codec import BOOTUP, CLIENT, COMMAND, CONTROL, ESTIMATE, HEARTBEAT, OPERATIONAL, STOPPED, Codec, Decoded
+from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import Rejection, SecOC
 from cosim.errors import CodecError
 from cosim.log.recorder import RunRecorder
@@ -38,11 +39,12 @@ class Traffic(can.Listener):
         on_foreign: Callable[[can.Message, str], None] | None = None,
         secoc: SecOC | None = None,
         on_rejected: Callable[[can.Message, Rejection], None] | None = None,
+        control: ControlAuth | None = None,
     ) -> None:
         self.codec = codec
-        # SecOC: every node's frame is verified on arrival (the runner's own, at sending); a rejected
-        # one is logged as it came, never used or counted as its sender's
-        self.secoc, self._on_rejected = secoc, on_rejected
+        # Control frames' MACs and SecOC: every node's frame is verified on arrival (the runner's
+        # own, at sending); a rejected one is logged as it came, never used or counted as its sender's
+        self.secoc, self.control, self._on_rejected = secoc, control, on_rejected
         self.rejected = 0
         self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
@@ -105,6 +107,7 @@ class Traffic(can.Listener):
         if identifier in self._heartbeats:
             decoded = self._decode(msg)
             if decoded is not None:
+                decoded = self.codec.with_full_tick(decoded, self.current)
                 sender, state = decoded.spec.sender, decoded.values["state"]
                 if state == BOOTUP and sender in self.joined:
                     # A node repeats its boot-up until tick 0 (Client.announce); how often depends on
@@ -155,10 +158,11 @@ class Traffic(can.Listener):
         ]
 
     def verify(self, frame: can.Message) -> bool:
-        """Whether SecOC drops this frame (reported); frames of unsecured ids pass."""
-        if self.secoc is None:
-            return False
-        rejection = self.secoc.verify(frame, self.current)
+        """Whether this frame fails its authentication (reported): a control frame's MAC, or SecOC's
+        trailer of a data frame; frames of unsecured ids pass."""
+        rejection = None if self.control is None else self.control.verify(frame, self.current)
+        if rejection is None and self.secoc is not None:
+            rejection = self.secoc.verify(frame, self.current)
         if rejection is None:
             return False
         self.rejected += 1

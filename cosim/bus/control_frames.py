@@ -1,0 +1,110 @@
+"""Authenticated control frames: only the run's participants can stop, advance or close a tick.
+
+NMT, SYNC and heartbeats steer a run: an NMT stop ends a node, a SYNC starts a tick, a heartbeat
+closes one. Each carries a MAC in its last bytes (``mac`` in the DBC, ``cosim.bus.dbc``), in every
+bus mode, with or without SecOC on the data frames::
+
+    NMT        | command | node | MAC (48 bits)                          |
+    SYNC       | tick (32 bits) | frames | MAC (24 bits)                 |
+    HEARTBEAT  | state | tick mod 2¹⁶ | frames | lost mod 2⁸ | MAC (24)  |
+
+- the MAC is AES-128-CMAC over ``id (2 bytes, big-endian) | the bytes before the MAC | the full
+  tick (4 bytes, big-endian)``, truncated to the MAC's length; a SYNC carries its tick, a heartbeat
+  the tick it closes mod 2¹⁶ (a receiver takes the tick nearest its own with those bits), an NMT
+  none (0): its freshness is the run (a frame of another run fails under this run's keys);
+- each sender has its own key, derived (HKDF-SHA256) from the run's secret and its name
+  (``cosim.bus.keys``, purpose ``control``): the runner's signs NMT and SYNC, each
+  node's its heartbeats. A node holds its own key and those of the senders it hears (the runner,
+  an upstream node); the runner holds all of them.
+
+A control frame whose MAC does not verify is dropped by every receiver and reported as a
+rejection (``bad_mac``), as SecOC reports a data frame's. A replayed SYNC or heartbeat carries a
+genuine MAC for a tick that is over: the protocol already ignores those (a SYNC must take the run
+forward, a node closes a tick once). With 24 bits, a forger needs 2²³ tries on average to pass one
+frame, each of which the runner counts; the one that passes is a second copy of a genuine frame,
+which marks its tick contested.
+
+Signing happens where the frame is sent, after the simulated wire has timed it with the MAC's bytes
+at 0: a run's timing does not depend on its (random) key.
+"""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Mapping
+
+import can
+
+from cosim.bus.codec import Codec, nearest_tick
+from cosim.bus.dbc import ControlFields
+from cosim.bus.keys import derive_key
+from cosim.bus.secoc import BAD_MAC, Rejection
+
+PURPOSE = "control"
+"""The key derivation's purpose for control frames (data frames' SecOC keys are ``secoc``'s)."""
+
+
+def control_keys(secret: bytes, senders: list[str]) -> dict[str, str]:
+    """The senders' control keys (hex), for a node's spec or the run registry."""
+    return {sender: derive_key(secret, sender, PURPOSE).hex() for sender in senders}
+
+
+class ControlAuth:
+    """Signs and verifies one participant's control frames: ``keys`` are the senders' control keys
+    it holds (its own to sign, the others' to verify); ``codec`` says where each id's MAC is."""
+
+    def __init__(self, codec: Codec, keys: Mapping[str, bytes]) -> None:
+        from cryptography.hazmat.primitives.ciphers import algorithms
+        from cryptography.hazmat.primitives.cmac import CMAC
+
+        # one CMAC per key, copied per frame: the key schedule is computed once
+        self._cmacs = {sender: CMAC(algorithms.AES(key)) for sender, key in keys.items()}
+        self._macs = codec.control_macs
+
+    @classmethod
+    def from_hex(cls, codec: Codec, keys: Mapping[str, str]) -> ControlAuth:
+        return cls(codec, {sender: bytes.fromhex(key) for sender, key in keys.items()})
+
+    @classmethod
+    def from_secret(cls, codec: Codec, secret: bytes, senders: list[str]) -> ControlAuth:
+        return cls(codec, {sender: derive_key(secret, sender, PURPOSE) for sender in senders})
+
+    def _tick(self, fields: ControlFields, data: bytes | bytearray, near: int) -> int:
+        if fields.tick is None:  # NMT
+            return 0
+        at, size = fields.tick
+        counter = int.from_bytes(data[at : at + size], "little")
+        return counter if size >= 4 else nearest_tick(counter, near, 8 * size)
+
+    def _mac(self, sender: str, frame_id: int, data: bytes | bytearray, fields: ControlFields, near: int) -> bytes:
+        at, size = fields.mac
+        cmac = self._cmacs[sender].copy()
+        tick = self._tick(fields, data, near) % 2**32
+        cmac.update(frame_id.to_bytes(2, "big") + bytes(data[:at]) + tick.to_bytes(4, "big"))
+        return cmac.finalize()[:size]
+
+    def sign(self, frame: can.Message, near: int) -> None:
+        """Write the MAC of a control frame sent at tick ``near`` (in place); other frames are left
+        as they are, and so are frames of senders whose key this participant does not hold."""
+        found = None if frame.is_extended_id else self._macs.get(frame.arbitration_id)
+        if found is None or found[0].sender not in self._cmacs:
+            return
+        spec, fields = found
+        at, size = fields.mac
+        frame.data[at : at + size] = self._mac(spec.sender, frame.arbitration_id, frame.data, fields, near)
+
+    def verify(self, frame: can.Message, near: int) -> Rejection | None:
+        """None if the frame is no control frame, or its MAC verifies at the receiver's tick ``near``;
+        else the rejection (``bad_mac``, with the tick the MAC was checked for)."""
+        found = None if frame.is_extended_id else self._macs.get(frame.arbitration_id)
+        if found is None:
+            return None
+        spec, fields = found
+        at, size = fields.mac
+        data = frame.data
+        if len(data) != at + size or spec.sender not in self._cmacs:
+            return Rejection(frame.arbitration_id, spec.sender, BAD_MAC, -1)
+        expected = self._mac(spec.sender, frame.arbitration_id, data, fields, near)
+        if not hmac.compare_digest(expected, bytes(data[at:])):
+            return Rejection(frame.arbitration_id, spec.sender, BAD_MAC, self._tick(fields, data, near))
+        return None
