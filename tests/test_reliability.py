@@ -32,6 +32,7 @@ from cosim.bus import registry
 from cosim.bus.codec import BOOTUP, NMT_STOP, OPERATIONAL, STOPPED
 from cosim.bus.transport import allocate, open_bus
 from cosim.errors import CosimError, ScenarioError
+from cosim.log.reader import LogReader
 from cosim.log.recover import recover
 from cosim.run import Replay, Run, run
 from tests.frame_digests import log_digest
@@ -180,6 +181,65 @@ def test_a_run_ends_while_another_program_transmits_without_pause(tmp_path, paus
         assert result.status == "completed"
     elif result.status != "completed":  # a participant delayed past its timeout: the flood is named, not it
         assert "another program flooded the bus" in result.error and "0x7F0" in result.error, result.error
+
+
+FLOODER = """
+import socket, sys, time
+channel, port, rate, seconds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+datagram = bytes.fromhex(sys.argv[5])
+family = socket.AF_INET6 if ":" in channel else socket.AF_INET
+sock = socket.socket(family, socket.SOCK_DGRAM)
+if family == socket.AF_INET6:
+    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, (1).to_bytes(4, "little"))
+else:
+    sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, (0).to_bytes(4, "little"))
+sent, start, batch = 0, time.perf_counter(), rate // 100
+while (now := time.perf_counter()) - start < seconds:
+    for _ in range(batch):
+        sock.sendto(datagram, (channel, port))
+    sent += batch
+    time.sleep(max(0.0, start + sent / rate - time.perf_counter()))
+print(sent, time.perf_counter() - start)
+"""
+
+
+def test_a_flood_of_100_000_frames_per_second_is_survived_and_every_loss_is_the_kernels(tmp_path):
+    """Another process sends 100 000 frames/s on a foreign id for 2 s into a lockstep run: it
+    completes, or stops naming the flood. The runner's socket accounts for every datagram sent to
+    it: what the kernel dropped is the flood's frames it did not count, the participants' frames
+    it lost and its own echoes that did not come back, exactly."""
+    from can.interfaces.udp_multicast.utils import pack_message
+
+    target = Run(loaded(tmp_path, 8.0), tmp_path / "flooded.mcap")
+    datagram = pack_message(can.Message(arbitration_id=0x7F0, data=bytes(8), is_extended_id=False)).hex()
+    flooder: list[subprocess.Popen] = []
+
+    def flood(p) -> None:
+        if not flooder and p.tick >= 50:
+            bus = target.bus
+            args = [sys.executable, "-c", FLOODER, bus.channel, str(bus.port), "100000", "2.0", datagram]
+            flooder.append(subprocess.Popen(args, stdout=subprocess.PIPE, text=True))
+
+    try:
+        result = target.execute(flood, progress_every=0.0)
+    except CosimError:
+        result = target.result
+    assert flooder, "the run ended before the flood began"
+    sent, seconds = flooder[0].communicate(timeout=30)[0].split()
+    assert result is not None
+    print(
+        f"flood: {int(sent)} frames in {float(seconds):.2f} s; {result.status}; kernel dropped {result.kernel_dropped}"
+    )
+    if result.status != "completed":
+        assert "another program flooded the bus" in result.error and "0x7F0" in result.error, result.error
+        return
+    traffic = target.session.traffic
+    with LogReader(result.path) as reader:
+        own = sum(1 for _, _, m in reader.messages(["/can/frames"]) if m["sender"] in ("runner", "plant", "controller"))
+    flood_received = traffic.foreign_frames
+    lost_at_runner = sum(traffic.lost.values())
+    assert int(sent) - flood_received + lost_at_runner + (own - traffic.echoes) == result.kernel_dropped
+    assert result.frames_lost == lost_at_runner + sum(traffic.missed_by.values())
 
 
 def test_a_second_run_on_the_same_group_and_port_is_refused_before_tick_0(tmp_path):

@@ -6,6 +6,8 @@ import can
 
 from cosim import scenario
 from cosim.bus.codec import OPERATIONAL, RUNNER, Decoded
+from cosim.bus.control_frames import ControlAuth
+from cosim.bus.secoc import Rejection
 from cosim.run.traffic import Traffic
 
 
@@ -35,3 +37,29 @@ def test_a_second_heartbeat_for_a_tick_is_foreign_and_counts_no_frame_as_lost():
     assert foreign == ["a second heartbeat of kalman closing tick 3"]
     assert len(delivered.frames) == len(estimates) + 2  # both heartbeats logged, the forged one undecoded
     assert sum(decoded is None for _, _, decoded in delivered.frames) == 1
+
+
+def test_a_heartbeat_without_the_nodes_mac_is_rejected_and_closes_nothing():
+    codec = scenario.load().scenario.codec()
+    keys = ControlAuth.from_secret(codec, bytes(32), [RUNNER, "kalman"])
+    rejected: list[Rejection] = []
+    traffic = Traffic(codec, Delivered(), (RUNNER,), control=keys, on_rejected=lambda f, r: rejected.append(r))  # type: ignore[arg-type]
+    traffic.current = 3
+    forged = codec.heartbeat("kalman", OPERATIONAL, 3, frames=255)  # would count 255 frames as lost
+    traffic.on_message_received(forged)
+    genuine = codec.heartbeat("kalman", OPERATIONAL, 3, frames=0)
+    keys.sign(genuine, 3)
+    traffic.on_message_received(genuine)
+    traffic.flush(3, 0.03, 30_000_000)
+    assert [(r.frame_id, r.reason, r.freshness) for r in rejected] == [(forged.arbitration_id, "bad_mac", 3)]
+    assert traffic.lost["kalman"] == 0 and traffic.closed["kalman"] == 3
+
+
+def test_the_frames_a_node_found_missing_add_up_past_the_heartbeats_256():
+    codec = scenario.load().scenario.codec()
+    traffic = Traffic(codec, Delivered(), (RUNNER,))  # type: ignore[arg-type]
+    for k, missing in enumerate([0, 100, 250, 300, 520, 601]):  # at most 255 a tick (what a SYNC announces)
+        traffic.current = k
+        traffic.on_message_received(codec.heartbeat("kalman", OPERATIONAL, k, lost=missing))
+        traffic.flush(k, 0.01 * k, 10_000_000 * k)
+    assert traffic.missed_by["kalman"] == 601

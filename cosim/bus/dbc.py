@@ -3,11 +3,11 @@
 Frame layout (CANopen-flavoured; ids in hex)
 ---------------------------------------------
 - ``NMT`` (0x000, sent by ``runner``): network management, ``command`` (1 start, 2 stop) and
-  ``node`` (0: all nodes). The runner sends "stop all" when a run ends.
+  ``node`` (0: all nodes), then ``mac`` (48 bits). The runner sends "stop all" when a run ends.
 - ``SYNC`` (0x080, CANopen's default SYNC COB-ID, sent by ``runner``): ``tick`` (uint32), the
   tick counter k, and ``frames`` (uint8), how many data frames the runner sends for tick k right
-  after it (sensor and command frames). A receiver knows it has all of tick k's inputs when it has
-  that many; a frame not sent by an injected dropout is simply not counted.
+  after it (sensor and command frames), then ``mac`` (24 bits). A receiver knows it has all of tick
+  k's inputs when it has that many; a frame not sent by an injected dropout is simply not counted.
 - ``SENSOR_<name>`` (0x100 + i, sent by ``plant``): one frame per sensor, like a smart sensor on
   its own node: ``tick`` and the reading.
 - ``COMMAND_<name>`` (0x180 + i, sent by ``controller``): the commanded input of each actuator:
@@ -19,15 +19,17 @@ Frame layout (CANopen-flavoured; ids in hex)
 - ``CLIENT_<client>[_n]`` (0x600 + 0x10·c + n, sent by a client declared in the scenario): the
   client's own signals.
 - ``HEARTBEAT_<node>`` (0x700 + node id, sent by each estimator or client node): ``state``
-  (CANopen NMT state: 0 boot-up, 4 stopped, 5 operational), ``tick``, ``frames`` (data frames the
-  node sent for that tick) and ``lost`` (frames the node found missing so far). A node sends its
-  boot-up heartbeat when it joins and one operational heartbeat after its frames of every tick:
-  that is what the runner waits for in lockstep, and what per-sender loss counting rests on.
+  (CANopen NMT state: 0 boot-up, 4 stopped, 5 operational), ``tick`` (mod 2¹⁶), ``frames`` (data
+  frames the node sent for that tick), ``lost`` (frames the node found missing so far, mod 2⁸)
+  and ``mac`` (24 bits). A node sends its boot-up heartbeat when it joins and one operational
+  heartbeat after its frames of every tick: that is what the runner waits for in lockstep, and
+  what per-sender loss counting rests on.
 
 Every data frame carries ``tick``: k mod 2¹⁶ in classic CAN (16 bits), k in CAN FD (32 bits).
 Classic CAN signals are scaled signed integers whose resolution and range come from the plant
 module (or the scenario's overrides); CAN FD signals are float64. NMT, SYNC and heartbeats are
-classic frames on either bus.
+classic frames of 8 bytes on either bus; their ``mac`` (``cosim.bus.control_frames``) is in the DBC
+but no signal of their spec.
 
 The DBC text is complete: ``spec_from_message`` rebuilds every message's spec from it, which is
 how node processes and clients get their codec. A secured DBC (``cosim.bus.secoc``) has a trailer

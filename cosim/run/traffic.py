@@ -55,6 +55,7 @@ class Traffic(can.Listener):
         self.late: Counter[str] = Counter()  # node -> data frames of it logged after their tick
         self.data: Counter[str] = Counter()  # node -> data frames received
         self.missed_by: dict[str, int] = {}  # node -> runner frames it reported missing
+        self._lost_carried: dict[str, int] = {}  # node -> its last heartbeat's count of them (mod 2^8)
         self.received: Counter[str] = Counter()
         self.echoes = 0
         self.repeated_bootups = 0
@@ -207,7 +208,12 @@ class Traffic(can.Listener):
             elif role == HEARTBEAT and decoded.values["state"] == OPERATIONAL:
                 counter = decoded.tick % self.codec.tick_modulus
                 self.lost[sender] += max(0, int(decoded.values["frames"]) - self._counts.pop((sender, counter), 0))
-                self.missed_by[sender] = int(decoded.values["lost"])
+                # the heartbeat carries the node's count mod 2^8: what it adds since the last one counts
+                carried = int(decoded.values["lost"])
+                self.missed_by[sender] = (
+                    self.missed_by.get(sender, 0) + (carried - self._lost_carried.get(sender, 0)) % 256
+                )
+                self._lost_carried[sender] = carried
         self.pending.clear()
         self._distrusted.clear()
         for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
