@@ -135,8 +135,13 @@ def test_bus_traffic_never_leaves_the_host(tmp_path):
         assert count - before.get(device, 0) < 100, device
 
 
-def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
-    bus = allocate("udp_multicast")
+@pytest.mark.parametrize("interface", ["cosim_udp", "udp_multicast"])
+def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path, interface):
+    """can.logger with the run's interface (cosim_udp: it reads the participants' batches), or
+    python-can's own udp_multicast on the mirror of a run started with --mirror: every frame the log
+    has, once."""
+    mirrored = interface == "udp_multicast"
+    bus = allocate("udp_multicast", mirror=mirrored)
     capture = tmp_path / "capture.log"
     logger = subprocess.Popen(
         [
@@ -144,11 +149,11 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
             "-m",
             "can.logger",
             "-i",
-            "udp_multicast",
+            interface,
             "-c",
             bus.channel,
             "--bus-kwargs",
-            f"port={bus.port}",
+            f"port={bus.mirror if mirrored else bus.port}",
             "-f",
             str(capture),
         ],
@@ -172,6 +177,7 @@ def test_a_python_can_logger_on_the_printed_bus_captures_the_run(tmp_path):
             str(bus.port),
             "--out",
             str(tmp_path / "logged.mcap"),
+            *(["--mirror"] if mirrored else []),
         )
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err

@@ -14,7 +14,7 @@ import pytest
 from can.interfaces.udp_multicast.utils import pack_message
 
 from cosim.bus.transport import allocate, open_bus
-from cosim.bus.udp import unpack_datagram
+from cosim.bus.udp import BATCH_TAG, MAX_BATCH, pack_batch, unpack_datagram, unpack_frames
 
 GOOD = {
     "timestamp": 0.0,
@@ -69,6 +69,49 @@ def test_fields_that_are_not_a_frames_are_refused_in_one_line(change):
 def test_what_is_no_map_of_fields_is_refused(data):
     with pytest.raises(ValueError):
         unpack_datagram(data, 0.0)
+
+
+def test_a_batch_unpacks_to_its_frames_in_order():
+    frames = [
+        can.Message(arbitration_id=0x100, data=b"\x01\x02", is_extended_id=False),
+        can.Message(arbitration_id=0x1FFFFFFF, data=bytes(range(64)), is_fd=True, bitrate_switch=True),
+        can.Message(arbitration_id=0x7FF, is_remote_frame=True, dlc=3, is_extended_id=False),
+    ]
+    got = unpack_frames(pack_batch(frames), 7.0)
+    assert [g.equals(f, timestamp_delta=None) for g, f in zip(got, frames, strict=True)] == [True] * 3
+    assert {g.timestamp for g in got} == {7.0}
+    assert [g.arbitration_id for g in unpack_frames(pack_message(frames[0]), 0.0)] == [0x100]  # python-can's own
+
+
+BAD_BATCHES = {
+    "another tag": ["cosim/2", [0x100, 0, 1, b"\x01"]],
+    "an item of three": [BATCH_TAG, [0x100, 0, b"\x01"]],
+    "flags out of range": [BATCH_TAG, [0x100, 64, 1, b"\x01"]],
+    "a float identifier": [BATCH_TAG, [256.0, 0, 1, b"\x01"]],
+    "an integer payload": [BATCH_TAG, [0x100, 0, 1, 500_000_000]],
+    "a 9-byte classic payload": [BATCH_TAG, [0x100, 0, 9, bytes(9)]],
+    "one bad frame among good ones": [BATCH_TAG, [0x100, 0, 1, b"\x01"], [0x800, 0, 1, b"\x01"]],
+    "more frames than a batch holds": [BATCH_TAG, *([[0x100, 0, 1, b"\x01"]] * (MAX_BATCH + 1))],
+}
+
+
+@pytest.mark.parametrize("batch", BAD_BATCHES.values(), ids=BAD_BATCHES.keys())
+def test_a_batch_with_anything_that_is_not_a_frame_is_refused_whole(batch):
+    with pytest.raises(ValueError) as refused:
+        unpack_frames(msgpack.packb(batch, use_bin_type=True), 0.0)
+    assert "\n" not in str(refused.value)
+
+
+def test_a_batch_goes_out_in_one_datagram_and_comes_in_frame_by_frame():
+    config = allocate("udp_multicast")
+    frames = [
+        can.Message(arbitration_id=0x100 + i, data=i.to_bytes(2, "little"), is_extended_id=False) for i in range(300)
+    ]
+    with open_bus(config) as sender, open_bus(config) as receiver:
+        sender.send_batch(frames)  # MAX_BATCH + 44: two datagrams
+        got = [receiver.recv(1.0) for _ in frames]
+        assert [g.arbitration_id for g in got] == [f.arbitration_id for f in frames] and receiver.recv(0.1) is None
+        assert receiver.kernel_dropped == 0 and receiver.foreign == 0
 
 
 @pytest.mark.slow

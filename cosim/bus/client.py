@@ -49,7 +49,7 @@ from cosim.bus.codec import (
 )
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import SecOC
-from cosim.bus.transport import BusConfig, drain, open_bus
+from cosim.bus.transport import BusConfig, drain, open_bus, send_all
 from cosim.errors import CodecError, CosimError
 
 _WAIT = 0.2  # s: how long a client waits for a frame before it checks its own timeout
@@ -237,6 +237,7 @@ class Client:
         self.stopped = False
         self._owns_bus = owns_bus
         self._published = 0
+        self._outbox: list[can.Message] = []  # a lockstep node's frames of the tick, until its heartbeat
         self._joined = False
         self._announced = 0.0
         # Only these frames concern a participant; telling them by id spares decoding the rest
@@ -380,6 +381,7 @@ class Client:
                 f"{self.name!r} has no messages in this run's DBC; declare it in the scenario's [[clients]]"
             )
         k = tick.tick if isinstance(tick, TickFrames) else tick
+        frames = []
         for spec in self.messages:
             missing = [s for s in spec.signals if s not in values]
             if missing:
@@ -390,21 +392,29 @@ class Client:
             frame = self.codec.encode(spec.name, k, payload)
             if self.secoc is not None:
                 self.secoc.sign(frame, k)
-            self.bus.send(frame)
-            self._published += 1
+            frames.append(frame)
+        self._published += len(frames)
+        if self.lockstep:  # they go with the heartbeat that closes the tick, in one datagram where the bus can
+            self._outbox += frames
+        else:
+            send_all(self.bus, frames)
 
     def done(self, tick: TickFrames | int) -> None:
-        """Close a tick: the heartbeat that tells the runner this node has answered it."""
+        """Close a tick: the heartbeat that tells the runner this node has answered it, after the
+        frames published for it (together, in one datagram on a bus that batches)."""
         if self.lockstep and self._node is not None:  # lockstep only for a declared node
             k = tick.tick if isinstance(tick, TickFrames) else tick
-            self._heartbeat(OPERATIONAL, k, self._published, self.assembler.lost)
+            self._outbox.append(self._heartbeat_frame(OPERATIONAL, k, self._published, self.assembler.lost))
+            send_all(self.bus, self._outbox)
+        self._outbox = []
         self._published = 0
 
-    def _heartbeat(self, state: int, tick: int | None = None, frames: int = 0, lost: int = 0) -> None:
-        """Send this node's heartbeat (boot-up and stopped ones at the last tick it saw), signed."""
-        assert self._node is not None
-        k = tick if tick is not None else self.assembler.last_sync or 0
-        frame = self.codec.heartbeat(self._node, state, k, frames, lost)
+    def _heartbeat_frame(self, state: int, tick: int, frames: int = 0, lost: int = 0) -> can.Message:
+        frame = self.codec.heartbeat(self._node or "", state, tick, frames, lost)
         if self.control is not None:
-            self.control.sign(frame, k)
-        self.bus.send(frame)
+            self.control.sign(frame, tick)
+        return frame
+
+    def _heartbeat(self, state: int) -> None:
+        """Send this node's boot-up or stopped heartbeat (at the last tick it saw), signed."""
+        self.bus.send(self._heartbeat_frame(state, self.assembler.last_sync or 0))

@@ -40,6 +40,8 @@ from cosim.errors import CosimError
 INTERFACES = ("udp_multicast", "socketcan", "virtual")
 #: The python-can interface of a ``virtual`` run's bus: cosim's in-process bus, without copies.
 VIRTUAL_INTERFACE = "cosim_virtual"
+#: The python-can interface of a ``udp_multicast`` run's bus (``cosim.bus.udp``): it reads batches.
+UDP_INTERFACE = "cosim_udp"
 RECEIVE_BUFFER = 8 * 1024 * 1024
 #: Frames one ``drain`` hands out at most before its caller gets control back.
 DRAIN_LIMIT = 4096
@@ -55,12 +57,19 @@ class BusConfig:
     port: int | None = None
     hop_limit: int | None = None
     fd: bool = False
+    mirror: int | None = None
+    """udp_multicast: the port (``port`` + 1) on which every frame also goes alone to the group, in
+    python-can's own format (None: no mirror). Another port, not another group: python-can's
+    ``udp_multicast`` binds the wildcard address, so it hears every group joined on its port."""
 
     def kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``can.Bus`` for this bus."""
+        """Keyword arguments of ``can.Bus`` for this bus: a udp_multicast run's is ``cosim_udp``,
+        which reads the datagrams that carry a participant's frames of a tick together."""
         kwargs: dict[str, Any] = {"interface": self.interface, "channel": self.channel}
         if self.interface == "udp_multicast":
-            kwargs |= {"port": self.port, "hop_limit": self.hop_limit, "fd": True}
+            kwargs |= {"interface": UDP_INTERFACE, "port": self.port, "hop_limit": self.hop_limit, "fd": True}
+            if self.mirror:
+                kwargs["mirror"] = self.mirror
         elif self.interface == "socketcan":
             kwargs["fd"] = self.fd
         elif self.interface == "virtual":
@@ -76,6 +85,12 @@ class BusConfig:
         args = ", ".join(f"{key}={value!r}" for key, value in self.kwargs().items())
         return f"can.Bus({args})"
 
+    def mirror_kwargs(self) -> dict[str, Any] | None:
+        """Keyword arguments of ``can.Bus`` for python-can's ``udp_multicast`` on the mirror (None: none)."""
+        if self.interface != "udp_multicast" or not self.mirror:
+            return None
+        return {"interface": "udp_multicast", "channel": self.channel, "port": self.mirror, "hop_limit": self.hop_limit}
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -85,13 +100,22 @@ class BusConfig:
 
 
 def allocate(
-    interface: str, channel: str = "", port: int = 0, fd: bool = False, allow_network: bool = False
+    interface: str,
+    channel: str = "",
+    port: int = 0,
+    fd: bool = False,
+    allow_network: bool = False,
+    mirror: bool = False,
 ) -> BusConfig:
     """A bus for one run; empty ``channel`` and zero ``port`` pick fresh ones. A udp_multicast group
     whose scope reaches beyond this host is refused unless ``allow_network``, and so is a group and
-    port that another co-simulation on this host is using."""
+    port that another co-simulation on this host is using; ``mirror``: the per-frame mirror on the
+    next port, which must be free too."""
     if interface == "udp_multicast":
-        config = _allocate_multicast(channel, port, fd, allow_network)
+        config = _allocate_multicast(channel, port, fd, allow_network, mirror)
+        if mirror:  # the next port: a tool finds it from the run's port alone
+            assert config.port is not None
+            config = BusConfig(config.interface, config.channel, config.port, config.hop_limit, fd, config.port + 1)
         _refuse_a_busy_bus(config)
         return config
     if interface == "socketcan":
@@ -131,9 +155,9 @@ def group_scope(channel: str) -> str | None:
     return None  # IPv4: sent with TTL 0, which keeps it on this host
 
 
-def _allocate_multicast(channel: str, port: int, fd: bool, allow_network: bool) -> BusConfig:
+def _allocate_multicast(channel: str, port: int, fd: bool, allow_network: bool, mirror: bool = False) -> BusConfig:
     rng = random.SystemRandom()
-    port = port or _free_port(rng)
+    port = port or _free_port(rng, 2 if mirror else 1)
     if channel:
         reason = group_scope(channel)
         if reason is not None and not allow_network:
@@ -163,21 +187,26 @@ def _refuse_a_busy_bus(config: BusConfig) -> None:
             )
 
 
-def _free_port(rng: random.Random) -> int:
-    """A UDP port no socket on this host is bound to (a probe without SO_REUSEADDR would fail)."""
+def _free_port(rng: random.Random, count: int = 1) -> int:
+    """A UDP port (the first of ``count`` in a row) no socket on this host is bound to (a probe
+    without SO_REUSEADDR would fail)."""
     for _ in range(200):
         port = rng.randrange(*_PORTS)
-        for family, address in ((socket.AF_INET6, "::"), (socket.AF_INET, "")):
-            try:
-                with socket.socket(family, socket.SOCK_DGRAM) as probe:
-                    probe.bind((address, port))
-            except OSError as error:
-                if error.errno == errno.EADDRINUSE:
-                    break
-                # the family is unavailable: the other one decides
-        else:
+        if all(_port_is_free(p) for p in range(port, port + count)):
             return port
     raise CosimError("bus: found no free UDP port for the run's multicast bus")
+
+
+def _port_is_free(port: int) -> bool:
+    for family, address in ((socket.AF_INET6, "::"), (socket.AF_INET, "")):
+        try:
+            with socket.socket(family, socket.SOCK_DGRAM) as probe:
+                probe.bind((address, port))
+        except OSError as error:
+            if error.errno == errno.EADDRINUSE:
+                return False
+            # the family is unavailable: the other one decides
+    return True
 
 
 def _ipv6_multicast_works() -> bool:
@@ -198,7 +227,7 @@ def open_bus(config: BusConfig, on_foreign: Callable[[ForeignDatagram], None] | 
         if config.interface == "udp_multicast":
             assert config.port is not None
             bus: can.BusABC = HostMulticastBus(
-                config.channel, config.port, config.hop_limit or 0, fd=True, on_foreign=on_foreign
+                config.channel, config.port, config.hop_limit or 0, fd=True, on_foreign=on_foreign, mirror=config.mirror
             )
         elif config.interface == "virtual":
             bus = InProcessBus(config.channel, share_frames=True)
@@ -239,3 +268,14 @@ def drain(bus: can.BusABC, timeout: float = 0.0, limit: int = DRAIN_LIMIT) -> It
         if count >= limit:
             return
         frame = bus.recv(0.0)
+
+
+def send_all(bus: can.BusABC, frames: list[can.Message]) -> None:
+    """Send a participant's frames of a tick: in one datagram where the bus can (``send_batch``),
+    else one by one."""
+    batch = getattr(bus, "send_batch", None)
+    if batch is not None:
+        batch(frames)
+    else:
+        for frame in frames:
+            bus.send(frame)

@@ -26,6 +26,7 @@ import select
 import socket
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
@@ -35,6 +36,7 @@ import can
 import msgpack
 from can.bus import CanProtocol
 from can.interfaces.udp_multicast.bus import GeneralPurposeUdpMulticastBus, UdpMulticastBus
+from can.interfaces.udp_multicast.utils import pack_message
 
 #: Bytes of a foreign datagram's payload that are kept for the log.
 KEEP_BYTES = 64
@@ -43,39 +45,87 @@ _FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_fd", "bitra
 _CAN_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
 
 
+BATCH_TAG = "cosim/1"
+"""The first element of a batch datagram: ``[BATCH_TAG, [id, flags, dlc, data], ...]`` (msgpack),
+one sender's frames of a tick in one datagram; ``flags`` has bit i set for the i-th of ``_FLAGS``."""
+MAX_BATCH = 256
+"""Frames per batch datagram at most (256 CAN FD frames of 64 bytes take about 20 kB)."""
+
+
+def _unpack(data: bytes) -> Any:
+    try:
+        return msgpack.unpackb(
+            data, raw=False, strict_map_key=True, max_bin_len=64, max_str_len=256, max_array_len=MAX_BATCH + 1
+        )
+    except Exception as error:  # msgpack raises several kinds for bad bytes
+        raise ValueError(f"not a msgpack message ({type(error).__name__})") from None
+
+
 def unpack_datagram(data: bytes, timestamp: float) -> can.Message:
     """The frame a python-can ``udp_multicast`` datagram carries; ValueError naming the first field
     that is not a CAN frame's (checked before the frame is built)."""
-    try:
-        fields = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=64, max_str_len=256)
-    except Exception as error:  # msgpack raises several kinds for bad bytes
-        raise ValueError(f"not a msgpack message ({type(error).__name__})") from None
+    fields = _unpack(data)
     if not isinstance(fields, dict):
         raise ValueError("not a map of a frame's fields")
-    identifier, payload = fields.get("arbitration_id"), fields.get("data")
+    flags = [fields.get(flag, False) for flag in _FLAGS]
+    dlc = fields.get("dlc", -1)
+    channel = fields.get("channel")
+    return _frame(fields.get("arbitration_id"), flags, dlc, fields.get("data"), timestamp, channel)
+
+
+def unpack_frames(data: bytes, timestamp: float) -> list[can.Message]:
+    """The frames a datagram carries: one of python-can's, or a batch (``BATCH_TAG``); ValueError
+    naming what is not a frame's (the whole datagram is refused)."""
+    fields = _unpack(data)
+    if isinstance(fields, dict):
+        return [unpack_datagram(data, timestamp)]
+    if not isinstance(fields, list) or not fields or fields[0] != BATCH_TAG:
+        raise ValueError("neither a frame's map nor a batch of frames")
+    frames = []
+    for item in fields[1:]:
+        if not isinstance(item, list) or len(item) != 4 or type(item[1]) is not int or not 0 <= item[1] < 64:
+            raise ValueError("a batch's item is not [id, flags, dlc, data]")
+        identifier, bits, dlc, payload = item
+        frames.append(_frame(identifier, [bool(bits >> i & 1) for i in range(len(_FLAGS))], dlc, payload, timestamp))
+    return frames
+
+
+def pack_batch(frames: list[can.Message]) -> bytes:
+    """One datagram of at most ``MAX_BATCH`` frames (``unpack_frames`` reads it)."""
+    items: list[Any] = [BATCH_TAG]
+    for frame in frames:
+        bits = sum(1 << i for i, flag in enumerate(_FLAGS) if getattr(frame, flag))
+        items.append([frame.arbitration_id, bits, frame.dlc, bytes(frame.data)])
+    return msgpack.packb(items, use_bin_type=True)
+
+
+def _frame(
+    identifier: Any, flags: list[Any], dlc: Any, payload: Any, timestamp: float, channel: Any = None
+) -> can.Message:
+    """A frame from its fields, each checked before it is built (ValueError naming the first that is wrong)."""
     if type(identifier) is not int:
         raise ValueError("arbitration_id is not an integer")
-    for flag in _FLAGS:
-        if type(fields.get(flag, False)) is not bool:
+    for flag, value in zip(_FLAGS, flags):
+        if type(value) is not bool:
             raise ValueError(f"{flag} is not a boolean")
-    extended = fields.get("is_extended_id", False)
+    extended, fd = flags[0], flags[3]
     if not 0 <= identifier < (1 << 29 if extended else 1 << 11):
         raise ValueError(f"arbitration_id {identifier} is out of range")
     if not isinstance(payload, bytes) or len(payload) not in _CAN_LENGTHS:
         raise ValueError("data is not a CAN payload (bytes of a CAN or CAN FD length)")
-    if len(payload) > 8 and not fields.get("is_fd", False):
+    if len(payload) > 8 and not fd:
         raise ValueError("data longer than 8 bytes in a classic frame")
-    dlc = fields.get("dlc", len(payload))  # a remote frame asks for dlc bytes and carries none
-    if type(dlc) is not int or not 0 <= dlc <= (64 if fields.get("is_fd", False) else 8):
+    if dlc == -1:
+        dlc = len(payload)
+    if type(dlc) is not int or not 0 <= dlc <= (64 if fd else 8):  # a remote frame asks for dlc bytes, carries none
         raise ValueError("dlc is not a CAN data length")
-    channel = fields.get("channel")
     return can.Message(
         timestamp=timestamp,
         arbitration_id=identifier,
         data=payload,
         dlc=dlc,
         channel=channel if isinstance(channel, (str, int)) else None,
-        **{flag: fields.get(flag, False) for flag in _FLAGS},
+        **dict(zip(_FLAGS, flags)),
         check=True,
     )
 
@@ -207,7 +257,13 @@ class _GroupSocket(GeneralPurposeUdpMulticastBus):
 
 class HostMulticastBus(UdpMulticastBus):
     """A udp_multicast bus that only this host's traffic on this run's group reaches, and that
-    reports what it cannot parse instead of raising (see the module's documentation)."""
+    reports what it cannot parse instead of raising (see the module's documentation).
+
+    ``send_batch`` puts several frames in one datagram (``pack_batch``): a sender's frames of a
+    tick cost one system call and one wake-up of each receiver instead of one per frame; receivers
+    still get one ``can.Message`` per frame from ``recv``. ``mirror``: another port, to which every
+    frame sent also goes alone (to the same group), in python-can's own format, for programs that
+    can only open ``udp_multicast`` (they cannot read a batch)."""
 
     def __init__(
         self,
@@ -216,6 +272,7 @@ class HostMulticastBus(UdpMulticastBus):
         hop_limit: int = 1,
         fd: bool = True,
         on_foreign: Callable[[ForeignDatagram], None] | None = None,
+        mirror: int | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(channel, port, hop_limit, fd=fd, **kwargs)
@@ -223,13 +280,38 @@ class HostMulticastBus(UdpMulticastBus):
         self._multicast = self._group = _GroupSocket(channel, port, hop_limit)
         self.on_foreign = on_foreign
         self.foreign = 0
+        self._pending: deque[can.Message] = deque()  # the rest of a batch, handed out one by one
+        self._mirror: tuple[Any, ...] | None = None
+        if mirror:
+            scope = multicast_scope(channel) if ":" in channel else 0
+            self._mirror = (channel, mirror, 0, scope) if ":" in channel else (channel, mirror)
 
     @property
     def kernel_dropped(self) -> int:
         """Datagrams the kernel dropped before this bus could read them (its receive buffer was full)."""
         return self._group.kernel_dropped
 
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        super().send(msg, timeout)
+        if self._mirror is not None:
+            self._group._socket.sendto(pack_message(msg), self._mirror)
+
+    def send_batch(self, frames: list[can.Message]) -> None:
+        """Send the frames in as few datagrams as hold them (one up to ``MAX_BATCH``), in order."""
+        if len(frames) == 1:
+            self.send(frames[0])
+            return
+        if self._can_protocol is not CanProtocol.CAN_FD and any(frame.is_fd for frame in frames):
+            raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
+        for start in range(0, len(frames), MAX_BATCH):
+            self._multicast.send(pack_batch(frames[start : start + MAX_BATCH]))
+        if self._mirror is not None:
+            for frame in frames:
+                self._group._socket.sendto(pack_message(frame), self._mirror)
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._pending:
+            return self._pending.popleft(), False
         result = self._multicast.recv(timeout)
         if not result:
             return None, False
@@ -238,12 +320,15 @@ class HostMulticastBus(UdpMulticastBus):
         if not is_local_address(address, sender[3] if len(sender) > 3 else 0):
             return self._foreign("remote", sender, data)
         try:
-            message = unpack_datagram(data, timestamp)
+            frames = unpack_frames(data, timestamp)
         except (ValueError, TypeError):  # can.Message's own check raises these
             return self._foreign("garbage", sender, data)
-        if message.is_fd and self._can_protocol is not CanProtocol.CAN_FD:
-            return None, False  # a classic CAN bus does not see CAN FD frames (as udp_multicast)
-        return message, False
+        if self._can_protocol is not CanProtocol.CAN_FD:  # a classic CAN bus does not see CAN FD frames
+            frames = [frame for frame in frames if not frame.is_fd]
+        if not frames:
+            return None, False
+        self._pending.extend(frames[1:])
+        return frames[0], False
 
     def _foreign(self, reason: str, sender: Any, data: bytes) -> tuple[None, bool]:
         self.foreign += 1

@@ -230,7 +230,12 @@ def joining(bus: BusConfig) -> str:
     """Where a bus is, and how another program joins it."""
     if bus.interface == "virtual":
         return f"{bus.describe()} (in this process: no other program can join it)"
-    return f"{bus.describe()}   join with: {escape(bus.python_can())}"
+    line = f"{bus.describe()}   join with: {escape(bus.python_can())}"
+    mirror = bus.mirror_kwargs()
+    if mirror is not None:
+        args = ", ".join(f"{key}={value!r}" for key, value in mirror.items())
+        line += f"\n  every frame mirrored for python-can's udp_multicast: {escape(f'can.Bus({args})')}"
+    return line
 
 
 def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None = None) -> FoxgloveSink:

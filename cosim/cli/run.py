@@ -48,6 +48,12 @@ def arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="udp_multicast: allow a --channel whose frames leave this host (link-local or wider group)",
     )
+    p.add_argument(
+        "--mirror",
+        action="store_true",
+        help="udp_multicast: also send every frame alone to a second group, for programs that can only open "
+        "python-can's udp_multicast (printed at the start; [bus] mirror)",
+    )
     p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
     p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
     common.set_option(p)
@@ -80,6 +86,7 @@ def main(args: argparse.Namespace) -> int:
         args.seed,
         **common.picked(args, "interface", "channel", "port", "mode", "speed"),
         allow_network=True if args.allow_network else None,
+        mirror=True if args.mirror else None,
     )
     talk = common.console(stderr=True, quiet=args.quiet)
     s = run.scenario

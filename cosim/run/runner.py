@@ -72,7 +72,9 @@ class Run(Execution):
         """Run every tick; the log is complete and valid whatever ends the run. ``sink`` (the live
         view, ``cosim.log.live``) gets every channel and message the log gets."""
         plan, s = self.plan, self.plan.scenario
-        self.bus = bus = allocate(s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd, s.bus.allow_network)
+        self.bus = bus = allocate(
+            s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd, s.bus.allow_network, s.bus.mirror
+        )
         registration = Registration(
             self.run_id,
             {

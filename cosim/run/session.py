@@ -32,7 +32,7 @@ from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
-from cosim.bus.transport import BusConfig, drain, open_bus
+from cosim.bus.transport import BusConfig, drain, open_bus, send_all
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CosimError
@@ -358,8 +358,7 @@ class Session:
             return
         self.traffic.current = k
         self.traffic.sent([frame for frame, _ in frames])
-        for frame, _ in frames:
-            self.bus.send(frame)
+        send_all(self.bus, [frame for frame, _ in frames])
         self.traffic.flush(*self._marker)
         self._close_foreign()
         t, t_ns = self.time(k)
@@ -443,8 +442,7 @@ class Session:
         )
         self._sign_control(k, step.send, applied)  # timed on the wire with the MAC at 0: the key changes no timing
         self.traffic.sent([frame for frame, _ in step.send])
-        for frame, _ in step.send:
-            self.bus.send(frame)
+        send_all(self.bus, [frame for frame, _ in step.send])
         t, t_ns = self.time(k)
         if k - self._flushed >= _FLUSH_TICKS and t - self.time(self._flushed)[0] >= _FLUSH_SIMULATED:
             self._flushed = k

@@ -202,6 +202,10 @@ class BusSpec(Strict):
     interface (default vcan0); virtual: the channel name (default: a fresh one)."""
     port: Annotated[int, Field(ge=0, le=65535)] = 0
     """udp_multicast: the UDP port (default 0: a free port per run)."""
+    mirror: bool = False
+    """udp_multicast: every frame also goes alone, in python-can's own format, to a second group on
+    the run's port, for programs that can only open python-can's ``udp_multicast`` (on the run's own
+    group each participant sends its frames of a tick in one datagram, which only ``cosim_udp`` reads)."""
     allow_network: bool = False
     """udp_multicast: allow a channel whose frames can leave this host (a link-local or wider group);
     set by whoever runs the scenario (``--allow-network``), refused in a scenario file."""
@@ -317,7 +321,8 @@ class Scenario(Strict):
 
     def with_overrides(self, **changes: Any) -> Scenario:
         """The scenario with command-line overrides, validated like the file: ``seed``, and
-        ``interface``, ``channel``, ``port`` of [bus] and ``mode``, ``speed`` of [timing]
+        ``interface``, ``channel``, ``port``, ``allow_network``, ``mirror`` of [bus] and ``mode``,
+        ``speed`` of [timing]
         (None keeps a value)."""
         data = self.model_dump()
         tables = {
@@ -325,6 +330,7 @@ class Scenario(Strict):
             "channel": "bus",
             "port": "bus",
             "allow_network": "bus",
+            "mirror": "bus",
             "mode": "timing",
             "speed": "timing",
         }
