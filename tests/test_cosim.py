@@ -24,6 +24,7 @@ from cosim.errors import CosimError
 from cosim.log.reader import LogReader
 from cosim.run import Run, run
 from tests.conftest import ROOT
+from tests.frame_digests import unsigned
 from tests.snippets import short_scenario
 
 pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
@@ -36,8 +37,13 @@ def private_registry(tmp_path, monkeypatch):
 
 
 def messages(path, exclude=("/cosim/events",)) -> list:
+    """A log's records, control frames without their MACs (each run signs with its own key)."""
     with LogReader(path) as reader:
-        return [(topic, t, msg) for topic, t, msg in reader.messages() if topic not in exclude]
+        return [
+            (topic, t, {**msg, "data": unsigned(msg["id"], msg["data"])} if topic == "/can/frames" else msg)
+            for topic, t, msg in reader.messages()
+            if topic not in exclude
+        ]
 
 
 def short(tmp_path, duration=3.0, extra="", name="short.toml", base=None):
