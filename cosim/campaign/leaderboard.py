@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -112,7 +113,8 @@ class Entry:
     runs: int = 0
     failed: int = 0
     rms: list[float] = field(default_factory=list)
-    rms_by_run: dict[int, float] = field(default_factory=dict)
+    rms_by_run: dict[Any, float] = field(default_factory=dict)
+    """RMS after onset by run (by case and run in a benchmark): what paired comparisons pair."""
     rejection: list[float] = field(default_factory=list)
     final: list[float] = field(default_factory=list)
     diagnoses: bool = False
@@ -126,9 +128,9 @@ class Entry:
     isolable: int = 0
     isolated_correctly: int = 0
 
-    def add(self, row: Row) -> None:
-        """A row of one of its runs: a failed run (or a run this estimator failed in) is counted, a
-        completed one scored."""
+    def add(self, row: Row, case: Any = None) -> None:
+        """A row of one of its runs (of ``case`` in a benchmark): a failed run (or a run this
+        estimator failed in) is counted, a completed one scored."""
         if row.status != "completed" or row.estimator_failed:
             self.failed += 1
             return
@@ -136,7 +138,7 @@ class Entry:
         for found, value in ((self.rms, row.rms_post_fault), (self.rejection, row.bias_rejection_ratio)):
             _append(found, value)
         if (rms := _number(row.rms_post_fault)) is not None and row.run is not None:
-            self.rms_by_run[row.run] = rms
+            self.rms_by_run[row.run if case is None else (case, row.run)] = rms
         _append(self.final, row.final_error)
         if not row.diagnoses:
             return
@@ -205,11 +207,23 @@ def _append(values: list[float], value: Any) -> None:
         values.append(number)
 
 
-def leaderboard(path: str | Path, by: list[str] | None = None, exclude_contested: bool = False) -> dict[str, Any]:
-    """The ranking of a results table per group (``by`` columns, default the fault kind);
+def leaderboard(
+    path: str | Path | Sequence[str | Path], by: list[str] | None = None, exclude_contested: bool = False
+) -> dict[str, Any]:
+    """The ranking of a results table per group (``by`` columns, default the fault kind), or of
+    ``cosim benchmark`` bundles (folders) merged into one standing table, per track and case;
     ``exclude_contested``: without the runs in which another program sent on the runner's ids."""
-    table = read_table(path)
-    by = by or ["fault_kind"]
+    paths = [path] if isinstance(path, (str, Path)) else list(path)
+    bundle = None
+    if len(paths) > 1 or Path(paths[0]).is_dir():
+        from cosim.campaign.benchmark import read_bundles
+
+        bundle, tables = read_bundles(paths)
+        table = _merged([read_table(t) for t in tables])
+        by = by or ["track", "case"]
+    else:
+        table = read_table(paths[0])
+        by = by or ["fault_kind"]
     for column in by:
         if column not in table.columns:
             raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
@@ -221,8 +235,8 @@ def leaderboard(path: str | Path, by: list[str] | None = None, exclude_contested
         if exclude_contested and row.contested_ticks:
             continue
         key = (row.estimator, row.kind or "")
-        groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row)
-    ranked = []
+        groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row, values.get("case"))
+    ranked: list[dict[str, Any]] = []
     for key in sorted(groups, key=lambda k: tuple(str(v) for v in k)):
         entries = sorted(groups[key].values(), key=lambda entry: _rank_key(entry.scores()))
         scores = [entry.scores() for entry in entries]
@@ -232,19 +246,69 @@ def leaderboard(path: str | Path, by: list[str] | None = None, exclude_contested
             }
         ranked.append({"group": dict(zip(by, key)), "ranking": scores})
     _rank_with_ties(ranked)
-    return {
-        "table": str(path),
+    case_units = (bundle or {}).get("units", {})
+    for group in ranked:
+        case = group["group"].get("case")
+        group["unit"] = case_units.get(case, "") if case is not None else table.units.get("rms_post_fault", "")
+    runs = {(row.get("case"), row["run"]) for row in table.rows}
+    board: dict[str, Any] = {
+        "table": ", ".join(map(str, paths)),
         "campaign": table.metadata.get("cosim.campaign.name"),
         "by": by,
-        "runs": len({row["run"] for row in table.rows}),
-        "failed_runs": len({row["run"] for row in table.rows if row.get("status") != "completed"}),
-        "units": {"rms_post_fault": table.units.get("rms_post_fault", "")},
+        "runs": len(runs),
+        "failed_runs": len({(row.get("case"), row["run"]) for row in table.rows if row.get("status") != "completed"}),
+        "units": {"rms_post_fault": table.units.get("rms_post_fault", "") if bundle is None else ""},
         "groups": ranked,
         "outliers": outliers(table.rows, by),
     }
+    if bundle is not None:
+        board["benchmark"] = {k: bundle[k] for k in ("suite", "version", "quick", "digest")} | {"bundles": len(paths)}
+        board["tracks"] = track_ranks(ranked)
+    return board
 
 
-def paired_comparison(first: dict[int, float], second: dict[int, float]) -> dict[str, Any]:
+def _merged(tables: list[ResultsTable]) -> ResultsTable:
+    """Bundles' tables as one: a run and estimator in several (the suite's own schemes) counted once;
+    one name for two kinds is an error."""
+    seen: dict[tuple[Any, Any, Any], str] = {}
+    rows, columns = [], list(tables[0].columns)
+    for table in tables:
+        columns += [c for c in table.columns if c not in columns]
+        for row in table.rows:
+            key = (row.get("case"), row.get("run"), row.get("estimator"))
+            if key in seen:
+                if seen[key] != row.get("kind"):
+                    raise CosimError(
+                        f"estimator {row.get('estimator')!r} is {seen[key]} in one bundle and {row.get('kind')} in "
+                        f"another: rename one (--estimator NEWNAME=KIND)"
+                    )
+                continue
+            seen[key] = str(row.get("kind"))
+            rows.append(row)
+    return ResultsTable(rows, columns, tables[0].units, tables[0].metadata)
+
+
+def track_ranks(groups: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    """Per track, each scheme's mean rank over the cases it ran in (as diagnosis competitions
+    rank across their test cases), best first."""
+    places: dict[str, dict[tuple[str, str], list[int]]] = defaultdict(lambda: defaultdict(list))
+    for group in groups:
+        track = str(group["group"].get("track"))
+        for score in group["ranking"]:
+            places[track][(score["estimator"], score["kind"])].append(int(score["rank"]))
+    return {
+        track: sorted(
+            (
+                {"estimator": name, "kind": kind, "mean_rank": sum(ranks) / len(ranks), "cases": len(ranks)}
+                for (name, kind), ranks in by_scheme.items()
+            ),
+            key=lambda item: (-item["cases"], item["mean_rank"], item["estimator"]),
+        )
+        for track, by_scheme in sorted(places.items())
+    }
+
+
+def paired_comparison(first: dict[Any, float], second: dict[Any, float]) -> dict[str, Any]:
     """``second`` − ``first`` on the runs both have: how many, the median difference and its 95 %
     bootstrap interval, and the Wilcoxon signed-rank test's two-sided p (1 without a nonzero
     difference; Holm's adjustment comes later, over every comparison)."""

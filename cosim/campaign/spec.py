@@ -244,16 +244,21 @@ def builtin_names() -> list[str]:
 
 
 def load_campaign(
-    name_or_path: str | Path, *, seeds: int | None = None, settings: Sequence[tuple[str, Any]] = ()
+    name_or_path: str | Path,
+    *,
+    seeds: int | None = None,
+    settings: Sequence[tuple[str, Any]] = (),
+    only: dict[str, list[str]] | None = None,
 ) -> Campaign:
     """A built-in campaign by name, or a campaign file; every grid point is validated against the
     base scenario before anything runs (one error naming the field, like a scenario's).
 
-    ``seeds`` replaces the file's, ``settings`` (``--set KEY=VALUE``) join its ``[set]``: the
-    campaign's text (stored in its folder, compared on ``--resume``) is the file so changed."""
+    ``seeds`` replaces the file's, ``settings`` (``--set KEY=VALUE``) join its ``[set]``, ``only``
+    keeps of an axis (by its column) the values shown as given: the campaign's text (stored in its
+    folder, compared on ``--resume``) is the file so changed."""
     text, source, path = read_toml_file(str(name_or_path), BUILTIN_DIR, "campaign")
-    if seeds is not None or settings:
-        text = _changed(text, source, seeds, settings)
+    if seeds is not None or settings or only:
+        text = _changed(text, source, seeds, settings, only or {})
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
@@ -275,8 +280,11 @@ def load_campaign(
     return campaign
 
 
-def _changed(text: str, source: str, seeds: int | None, settings: Sequence[tuple[str, Any]]) -> str:
-    """The campaign file's text with the command line's seeds and settings, its comments kept."""
+def _changed(
+    text: str, source: str, seeds: int | None, settings: Sequence[tuple[str, Any]], only: dict[str, list[str]]
+) -> str:
+    """The campaign file's text with the command line's seeds and settings and the axes' values
+    kept (``only``), its comments kept."""
     import tomlkit
     from tomlkit.exceptions import TOMLKitError
 
@@ -290,6 +298,18 @@ def _changed(text: str, source: str, seeds: int | None, settings: Sequence[tuple
         table = document.setdefault("set", tomlkit.table())
         for key, value in settings:
             table[key] = value
+    axes = {AxisSpec.model_validate(axis.unwrap()).column: axis for axis in document.get("axes", [])}
+    for column, kept in only.items():
+        if column not in axes:
+            raise ScenarioError(f"{source}: no axis {column!r} to choose values of (axes: {', '.join(axes)})")
+        axis = AxisSpec.model_validate(axes[column].unwrap())
+        indices = [i for i in range(len(axis.values)) if str(axis.shown(i)) in kept]
+        if len(indices) != len(kept):
+            shown = ", ".join(str(axis.shown(i)) for i in range(len(axis.values)))
+            raise ScenarioError(f"{source}: axis {column}: not all of {kept} are its values ({shown})")
+        axes[column]["values"] = [axis.values[i] for i in indices]
+        if axis.labels is not None:
+            axes[column]["labels"] = [axis.labels[i] for i in indices]
     return tomlkit.dumps(document)
 
 

@@ -14,6 +14,7 @@ from rich.markup import escape
 
 from cosim import __version__
 from cosim.cli import (
+    benchmark,
     campaign,
     campaigns,
     common,
@@ -78,6 +79,7 @@ COMMANDS = (
     replay,
     campaign,
     campaigns,
+    benchmark,
     leaderboard,
 )
 

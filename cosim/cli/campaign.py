@@ -47,21 +47,7 @@ def arguments(p: argparse.ArgumentParser) -> None:
         help="change the base scenario of every run, as in the file's [set] (duration=10, 'faults[0].start=5.0'); "
         "repeat for several",
     )
-    p.add_argument(
-        "--engine",
-        choices=("dask", "inline"),
-        default="dask",
-        help="dask (default): a Dask distributed cluster; inline: one run after the other in this process",
-    )
-    p.add_argument(
-        "--address", metavar="ADDR", help="join the Dask scheduler at ADDR instead of starting a local cluster"
-    )
-    p.add_argument(
-        "--workers", type=common.positive, metavar="N", help="local cluster: worker processes (default: one per core)"
-    )
-    p.add_argument(
-        "--resume", action="store_true", help="finish the campaign in DIR: only the runs without results run"
-    )
+    common.engine_options(p, "the campaign in DIR")
     p.add_argument(
         "--keep-logs",
         choices=("all", "failed", "none"),
@@ -86,7 +72,7 @@ def main(args: argparse.Namespace) -> int:
         f"({len(campaign.grid)} settings × {len(spec.replicates)} replicates, {spec.bus} bus) into "
         f"{escape(str(args.out))}"
     )
-    progress, update = _progress(talk, campaign.size)
+    progress, update = progress_display(talk, campaign.size)
     try:
         with progress:
             result = run_campaign(
@@ -113,7 +99,7 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(talk: Console, total: int) -> tuple[Progress, Callable[[CampaignProgress], None]]:
+def progress_display(talk: Console, total: int) -> tuple[Progress, Callable[[CampaignProgress], None]]:
     """A progress display of a campaign's runs, and the function that updates it."""
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 

@@ -316,3 +316,20 @@ def command(sub: argparse._SubParsersAction, module: ModuleType) -> argparse.Arg
     if hasattr(module, "arguments"):
         module.arguments(p)
     return p
+
+
+def engine_options(p: argparse.ArgumentParser, what: str) -> None:
+    """--engine, --address, --workers and --resume (of ``what``): where a campaign's runs run."""
+    p.add_argument(
+        "--engine",
+        choices=("dask", "inline"),
+        default="dask",
+        help="dask (default): a Dask distributed cluster; inline: one run after the other in this process",
+    )
+    p.add_argument(
+        "--address", metavar="ADDR", help="join the Dask scheduler at ADDR instead of starting a local cluster"
+    )
+    p.add_argument(
+        "--workers", type=positive, metavar="N", help="local cluster: worker processes (default: one per core)"
+    )
+    p.add_argument("--resume", action="store_true", help=f"finish {what}: only the runs without results run")

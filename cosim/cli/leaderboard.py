@@ -21,8 +21,16 @@ from cosim.cli import common
 
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("results", metavar="RESULTS.parquet", help="a campaign's DIR/results.parquet")
-    p.add_argument("--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind)")
+    p.add_argument(
+        "results",
+        nargs="+",
+        metavar="RESULTS",
+        help="a campaign's DIR/results.parquet, or the folders of one or more cosim benchmark bundles of the "
+        "same suite (merged into one standing table)",
+    )
+    p.add_argument(
+        "--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind; bundles: track case)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
     p.add_argument(
@@ -36,7 +44,8 @@ def arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from cosim.campaign.leaderboard import leaderboard
 
-    board = leaderboard(args.results, args.by, exclude_contested=args.exclude_contested)
+    results = args.results[0] if len(args.results) == 1 else args.results
+    board = leaderboard(results, args.by, exclude_contested=args.exclude_contested)
     if args.html:
         from cosim.campaign.page import write_page
 
@@ -112,28 +121,45 @@ LEGEND = (
 
 
 def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> None:
-    unit = board["units"].get("rms_post_fault") or ""
     name = str(board.get("campaign") or board["table"])
     summary = f"{board['runs']} runs, {board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
     if markdown:  # for documents: plain GitHub tables, one per group
         lines = [f"**{name}**: {summary}", ""]
         for group in board["groups"]:
-            headers, rows = leaderboard_rows(group, unit)
+            headers, rows = leaderboard_rows(group, group.get("unit", ""))
             lines += [", ".join(f"{k} = {v}" for k, v in group["group"].items()), ""]
             lines += ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
             lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
+        for track, schemes in board.get("tracks", {}).items():
+            lines += [f"track = {track}: mean rank over its cases", "", "| estimator | kind | mean rank | cases |"]
+            lines += ["|---|---|---|---|"] + [
+                f"| {s['estimator']} | {s['kind']} | {s['mean_rank']:.2f} | {s['cases']} |" for s in schemes
+            ]
+            lines.append("")
         sys.stdout.write("\n".join([*lines, LEGEND, ""]))
         return
     talk.print(f"[bold]{escape(name)}[/bold]: {summary}")
     for group in board["groups"]:
         title = ", ".join(f"{k} = {v}" for k, v in group["group"].items())
         table = Table(title=escape(title), title_justify="left", box=None, header_style="bold")
-        headers, rows = leaderboard_rows(group, unit)
+        headers, rows = leaderboard_rows(group, group.get("unit", ""))
         for i, header in enumerate(headers):
             table.add_column(escape(header), justify="left" if 0 < i < 3 or header == "vs next" else "right")
         for row in rows:
             table.add_row(*map(escape, row))
         talk.print(table)
+    for track, schemes in board.get("tracks", {}).items():
+        table = Table(title=f"track {escape(track)}: mean rank over its cases", title_justify="left", box=None)
+        for header in ("estimator", "kind", "mean rank", "cases"):
+            table.add_column(header, justify="right" if header in ("mean rank", "cases") else "left")
+        for s in schemes:
+            table.add_row(escape(s["estimator"]), escape(s["kind"]), f"{s['mean_rank']:.2f}", str(s["cases"]))
+        talk.print(table)
+    if "benchmark" in board:
+        b = board["benchmark"]
+        selection = "quick" if b["quick"] else "full"
+        suite = f"{escape(b['suite'])} v{b['version']} ({selection}, digest {b['digest'][:12]})"
+        talk.print(f"suite {suite}, {b['bundles']} bundles")
     talk.print(f"[dim]{escape(LEGEND)}[/dim]")
     if board["outliers"]:
         talk.print(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")

@@ -3,8 +3,9 @@
 It sees what any receiver on the bus sees, every frame as the runner logs it (at its arrival time),
 and holds no key. Per data id of the DBC it checks:
 
-- ``period``: a frame arrives less than half a sample time after the previous one of its id (every
-  data message is sent once per tick);
+- ``period``: a frame arrives less than half a sample time after the previous one of its id and
+  its tick counter is not the next one (every data message is sent once per tick; frames of
+  consecutive ticks may come closer on a busy arbitrated wire);
 - ``sequence``: its tick counter repeats the previous one of its id or goes back (a forward jump is
   a lost or replaced frame, not an intrusion);
 - ``range``: a value outside its signal's range in the DBC (or not finite);
@@ -54,9 +55,12 @@ class IntrusionDetector:
         counter = decoded.tick % self.codec.tick_modulus
         in_sequence = True
         if previous is not None:
-            if t_ns - previous[0] < self.dt_ns // 2:
-                self._raise(tick, "period", frame_id)
             step = (counter - previous[1]) % self.codec.tick_modulus
+            # Frames of consecutive ticks may come anywhere in their ticks (an arbitrated wire's
+            # jitter): closer than half a period is a second sender only if the counters do not
+            # say they are consecutive.
+            if t_ns - previous[0] < self.dt_ns // 2 and step != 1:
+                self._raise(tick, "period", frame_id)
             if step == 0 or step > self.codec.tick_modulus // 2:
                 self._raise(tick, "sequence", frame_id)
                 in_sequence = False
