@@ -100,11 +100,11 @@ def main(args: argparse.Namespace) -> int:
     displays: list[tuple[Progress, Callable[[CampaignProgress], None]]] = []
 
     def on_case(case: CaseSpec, campaign: Campaign) -> None:
+        if displays:
+            displays[-1][0].stop()
         name = escape(campaign.spec.name)
         talk.print(f"{escape(case.track)} / [bold]{escape(case.name)}[/bold]: {campaign.size} runs of {name}")
         progress, update = progress_display(talk, campaign.size)
-        if displays:
-            displays[-1][0].stop()
         progress.start()
         displays.append((progress, update))
 

@@ -1,0 +1,133 @@
+"""The standing benchmark: its suite and digest, the schemes it adds, bundles merged and ranked."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from cosim.campaign.benchmark import BUNDLE, Scheme, case_campaign, load_suite, merge_tables, read_bundles, suite_digest
+from cosim.campaign.leaderboard import leaderboard
+from cosim.campaign.spec import BUILTIN_DIR
+from cosim.cli import main
+from cosim.errors import CosimError, ScenarioError
+
+
+def small_suite(tmp_path: Path, seed: int = 11, duration: float = 2.0) -> Path:
+    """A suite of one case: masses-attacks shortened, from a campaign file of its own."""
+    campaign = (BUILTIN_DIR / "masses-attacks.toml").read_text().replace("seed = 11", f"seed = {seed}")
+    campaign += f'\n[set]\nduration = {duration}\n"faults[0].start" = 0.5\n"faults[0].end" = 1.0\n'
+    campaign += '"faults[1].start" = 1.2\n"faults[1].end" = 1.8\n'
+    (tmp_path / "attacks.toml").write_text(campaign)
+    suite = tmp_path / "suite.toml"
+    suite.write_text(
+        'name = "small"\nversion = 1\n\n[[cases]]\nname = "attacks"\ntrack = "attacks"\n'
+        f'campaign = "{tmp_path / "attacks.toml"}"\nquick = {{ seeds = 1, only = {{ ids = ["off"] }} }}\n'
+    )
+    return suite
+
+
+def test_the_builtin_suite_has_both_tracks_and_every_case_loads_quick_and_full():
+    suite = load_suite()
+    assert {case.track for case in suite.cases} == {"faults", "attacks"}
+    for case in suite.cases:
+        quick, full = case_campaign(case, True), case_campaign(case, False)
+        assert 0 < quick.size < full.size, case.name
+
+
+def test_the_digest_changes_when_any_run_changes(tmp_path):
+    first = suite_digest(load_suite(small_suite(tmp_path)), quick=False)
+    assert first == suite_digest(load_suite(small_suite(tmp_path)), quick=False)  # the same runs: the same digest
+    assert first != suite_digest(load_suite(small_suite(tmp_path)), quick=True)
+    assert first != suite_digest(load_suite(small_suite(tmp_path, seed=12)), quick=False)  # other seeds
+    assert first != suite_digest(load_suite(small_suite(tmp_path, duration=3.0)), quick=False)  # a setting
+
+
+def test_added_schemes_join_every_run_of_a_case_and_may_not_take_a_name():
+    case = next(c for c in load_suite().cases if c.name == "masses-bias")
+    mine = Scheme("mine", "kalman", {"measurement_std": 1e-3, "process_std": 1e-4})
+    campaign = case_campaign(case, True, [mine])
+    for run in campaign.runs():
+        added = [value for key, value in run.settings if key.startswith("estimators[")]
+        assert mine.table() in added
+    with pytest.raises(CosimError, match="already have the names kalman"):
+        case_campaign(case, True, [Scheme("kalman", "kalman", {})])
+
+
+def test_a_bad_suite_is_one_line_naming_the_field(tmp_path):
+    bad = tmp_path / "suite.toml"
+    bad.write_text('name = "x"\nversion = 1\n[[cases]]\nname = "a"\ntrack = "weather"\ncampaign = "masses-attacks"\n')
+    with pytest.raises(ScenarioError) as error:
+        load_suite(bad)
+    assert "cases[0].track" in str(error.value) and "\n" not in str(error.value)
+
+
+def bundle(folder: Path, digest: str, rows: list[dict]) -> Path:
+    """A bundle of one case ("c") with these rows, and another ("d") where the same schemes score
+    the other way round."""
+    folder.mkdir()
+    parts = []
+    for case in ("c", "d"):
+        table = folder / f"{case}.parquet"
+        flipped = [dict(r, rms_post_fault=3.0 - r["rms_post_fault"]) if case == "d" else r for r in rows]
+        pq.write_table(pa.Table.from_pylist(flipped), table)
+        parts.append((case, "faults", table))
+    record = {"suite": "s", "version": 1, "quick": False, "digest": digest, "units": {"c": "m", "d": "cm"}}
+    merge_tables(parts, folder / "results.parquet", record)
+    (folder / BUNDLE).write_text(json.dumps(record))
+    return folder
+
+
+def rows_of(names: dict[str, list[float]]) -> list[dict]:
+    return [
+        {"run": i, "status": "completed", "estimator": name, "kind": "k", "fault_kind": "bias", "rms_post_fault": rms}
+        for name, values in names.items()
+        for i, rms in enumerate(values)
+    ]
+
+
+def test_bundles_of_one_suite_merge_into_one_standing_table_and_others_are_refused(tmp_path):
+    rng = np.random.default_rng(1)
+    base = 1.0 + 0.01 * rng.standard_normal(20)
+    ours = bundle(tmp_path / "ours", "abc", rows_of({"paper": list(base), "baseline": list(base + 0.2)}))
+    mine = base + 0.2 + 1e-3 * rng.choice([-1.0, 1.0], 20)  # as often better as worse than the baseline
+    theirs = bundle(tmp_path / "theirs", "abc", rows_of({"paper": list(base), "mine": list(mine)}))
+    board = leaderboard([ours, theirs])
+    assert board["by"] == ["track", "case"] and board["benchmark"]["bundles"] == 2
+    (c, d) = board["groups"]
+    assert [g["group"] for g in (c, d)] == [{"track": "faults", "case": "c"}, {"track": "faults", "case": "d"}]
+    assert (c["unit"], d["unit"]) == ("m", "cm")
+    ranking = {s["estimator"]: s for s in c["ranking"]}
+    assert ranking["paper"]["rank"] == 1 and ranking["paper"]["runs"] == 20  # counted once, not once per bundle
+    assert ranking["paper"]["vs_next"]["pairs"] == 20 and not ranking["paper"]["vs_next"]["tied"]
+    assert ranking["baseline"]["rank"] == ranking["mine"]["rank"] == 2 and ranking["mine"]["tied"]
+    track = {s["estimator"]: s for s in board["tracks"]["faults"]}
+    assert track["paper"]["cases"] == 2 and track["paper"]["mean_rank"] == pytest.approx((1 + 3) / 2)
+    other = bundle(tmp_path / "other", "abd", rows_of({"paper": list(base)}))
+    with pytest.raises(CosimError) as refused:
+        read_bundles([ours, other])
+    assert "is not" in str(refused.value) and "not comparable" in str(refused.value)
+    assert "\n" not in str(refused.value)
+
+
+@pytest.mark.slow
+def test_cosim_benchmark_writes_a_bundle_that_the_leaderboard_ranks(tmp_path, capsys):
+    suite = small_suite(tmp_path)
+    out = tmp_path / "bundle"
+    args = ["benchmark", "--quick", "--suite", str(suite), "--out", str(out), "--engine", "inline", "-q"]
+    assert main([*args, "--estimator", "extra=kalman", "--params", "extra={measurement_std = 0.001}"]) == 0
+    record, tables = read_bundles([out])
+    assert record["suite"] == "small" and record["quick"] and record["runs"] == 2 and record["failed"] == 0
+    assert record["digest"] == suite_digest(load_suite(suite), quick=True)
+    names = {row["estimator"] for row in pq.read_table(tables[0]).to_pylist()}
+    assert names == {"uniform", "kalman", "extra"}
+    capsys.readouterr()
+    assert main(["leaderboard", str(out), "--json"]) == 0
+    board = json.loads(capsys.readouterr().out)
+    (group,) = board["groups"]
+    assert group["group"] == {"track": "attacks", "case": "attacks"} and len(group["ranking"]) == 3
+    assert main(["benchmark", "--suite", str(suite), "--out", str(out)]) == 1  # not empty: refused
