@@ -131,3 +131,26 @@ def test_cosim_benchmark_writes_a_bundle_that_the_leaderboard_ranks(tmp_path, ca
     (group,) = board["groups"]
     assert group["group"] == {"track": "attacks", "case": "attacks"} and len(group["ranking"]) == 3
     assert main(["benchmark", "--suite", str(suite), "--out", str(out)]) == 1  # not empty: refused
+
+
+def test_the_leaderboard_counts_a_confusion_matrix_of_isolated_against_true_targets(tmp_path):
+    rows = [
+        {
+            "run": i,
+            "status": "completed",
+            "estimator": "fdi",
+            "kind": "cofd",
+            "fault_kind": "loss_of_effectiveness",
+            "rms_post_fault": 1.0,
+            "diagnoses": True,
+            "isolation_correct": found == true,
+            "isolation_expected": true,
+            "isolation_result": found,
+        }
+        for i, (true, found) in enumerate([("T4", "T4"), ("T4", "T4"), ("T5", "T4+T5"), ("T5", "T5"), ("T5", "none")])
+    ]
+    pq.write_table(pa.Table.from_pylist(rows), tmp_path / "t.parquet")
+    (group,) = leaderboard(tmp_path / "t.parquet")["groups"]
+    (score,) = group["ranking"]
+    assert score["confusion"] == {"T4": {"T4": 2}, "T5": {"T4+T5": 1, "T5": 1, "none": 1}}
+    assert score["isolation_accuracy"] == pytest.approx(3 / 5)

@@ -127,6 +127,8 @@ class Entry:
     isolation_delays: list[float] = field(default_factory=list)
     isolable: int = 0
     isolated_correctly: int = 0
+    confusion: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Expected targets → isolated targets → runs (the first isolable fault of each run)."""
 
     def add(self, row: Row, case: Any = None) -> None:
         """A row of one of its runs (of ``case`` in a benchmark): a failed run (or a run this
@@ -154,6 +156,9 @@ class Entry:
         if row.isolation_correct is not None:
             self.isolable += 1
             self.isolated_correctly += bool(row.isolation_correct)
+        if row.isolation_expected:
+            cell = self.confusion.setdefault(row.isolation_expected, {})
+            cell[row.isolation_result or "none"] = cell.get(row.isolation_result or "none", 0) + 1
 
     def scores(self) -> dict[str, Any]:
         rms, rejection = self.rms, self.rejection
@@ -182,6 +187,7 @@ class Entry:
             "isolation_delay_p90_s": percentile(isolations, 90),
             "isolation_accuracy": self.isolated_correctly / self.isolable if self.isolable else None,
             "isolation_accuracy_ci95": wilson(self.isolated_correctly, self.isolable),
+            "confusion": {e: dict(sorted(found.items())) for e, found in sorted(self.confusion.items())} or None,
         }
         if not self.diagnoses:
             out |= {

@@ -76,6 +76,12 @@ class Row:
     isolated: bool | None = column("bool", "", "every isolable fault isolated")
     isolation_delay_s: float | None = column("float", "s", "first fault: onset to its isolation")
     isolation_correct: bool | None = column("bool", "", "every isolable fault isolated to the right targets")
+    isolation_expected: str | None = column(
+        "text", "", "first isolable fault: the targets it is to be isolated to, joined with +"
+    )
+    isolation_result: str | None = column(
+        "text", "", "first isolable fault: the targets the scheme isolated it to, joined with + (none: not isolated)"
+    )
 
     @classmethod
     def of(cls, values: dict[str, Any]) -> Row:
@@ -177,6 +183,10 @@ def _diagnosis_columns(row: Row, d: DiagnosisMetrics, first: str | None) -> None
     row.isolated = all(x.isolation_delay is not None for x in isolable) if isolable else None
     row.isolation_delay_s = head.isolation_delay
     row.isolation_correct = all(bool(x.isolation_correct) for x in isolable) if isolable else None
+    if isolable:  # the confusion matrix's cell of this run: the first isolable fault, expected and found
+        target = isolable[0]
+        row.isolation_expected = "+".join(sorted(target.expected or [])) or "none"
+        row.isolation_result = "+".join(sorted(target.isolated or [])) or "none"
 
 
 @dataclass(frozen=True)

@@ -120,6 +120,16 @@ LEGEND = (
 )
 
 
+def confusion_lines(group: dict) -> list[str]:
+    """Each diagnosis scheme's confusion matrix, true targets → isolated targets (runs)."""
+    lines = []
+    for s in group["ranking"]:
+        if s.get("confusion"):
+            cells = [f"{true} → {found} {n}" for true, row in s["confusion"].items() for found, n in row.items()]
+            lines.append(f"{s['estimator']}, true → isolated (runs): {'; '.join(cells)}")
+    return lines
+
+
 def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> None:
     name = str(board.get("campaign") or board["table"])
     summary = f"{board['runs']} runs, {board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
@@ -130,6 +140,7 @@ def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> No
             lines += [", ".join(f"{k} = {v}" for k, v in group["group"].items()), ""]
             lines += ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
             lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
+            lines += [*(f"- {line}" for line in confusion_lines(group)), ""] if confusion_lines(group) else []
         for track, schemes in board.get("tracks", {}).items():
             lines += [f"track = {track}: mean rank over its cases", "", "| estimator | kind | mean rank | cases |"]
             lines += ["|---|---|---|---|"] + [
@@ -148,6 +159,8 @@ def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> No
         for row in rows:
             table.add_row(*map(escape, row))
         talk.print(table)
+        for line in confusion_lines(group):
+            talk.print(f"  {escape(line)}")
     for track, schemes in board.get("tracks", {}).items():
         table = Table(title=f"track {escape(track)}: mean rank over its cases", title_justify="left", box=None)
         for header in ("estimator", "kind", "mean rank", "cases"):
