@@ -193,8 +193,9 @@ def log_content(path) -> tuple[list, dict, dict]:
 @pytest.mark.slow
 def test_same_seed_gives_the_same_log_but_for_the_start_time(tmp_path, default_loaded, monkeypatch):
     """A run's one wall-clock value is its start (cosim.run start_time_ns): two runs of the same seed
-    log the same messages, metadata and attachments but for it, and with the clock pinned, the same
-    bytes."""
+    with the same run secret (COSIM_RUN_SECRET; else the control frames' MACs differ) log the same
+    messages, metadata and attachments but for it, and with the clock pinned, the same bytes."""
+    monkeypatch.setenv("COSIM_RUN_SECRET", "a5" * 32)
     loaded = write_short(tmp_path, default_loaded.text, 6.0)
     started = time.time_ns()
     d = run(loaded, tmp_path / "d.mcap", seed=1, interface="virtual", channel="determinism")
