@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import can
+import pytest
 
 from cosim import scenario
 from cosim.bus.codec import OPERATIONAL, RUNNER, Decoded
-from cosim.bus.control_frames import ControlAuth
+from cosim.bus.control_frames import ControlAuth, ShortCmac
 from cosim.bus.secoc import Rejection
 from cosim.run.traffic import Traffic
 
@@ -63,3 +64,19 @@ def test_the_frames_a_node_found_missing_add_up_past_the_heartbeats_256():
         traffic.on_message_received(codec.heartbeat("kalman", OPERATIONAL, k, lost=missing))
         traffic.flush(k, 0.01 * k, 10_000_000 * k)
     assert traffic.missed_by["kalman"] == 601
+
+
+@pytest.mark.parametrize("length", range(16))
+def test_the_control_frames_cmac_is_rfc_4493s(length):
+    """Bit for bit the CMAC of ``cryptography`` (RFC 4493), for every message length a block holds,
+    and RFC 4493's own example 1 (the empty message)."""
+    from cryptography.hazmat.primitives.ciphers import algorithms
+    from cryptography.hazmat.primitives.cmac import CMAC
+
+    key = bytes.fromhex("2b7e151628aed2a6abf7158809cf4f3c")
+    message = bytes(range(length))
+    reference = CMAC(algorithms.AES(key))
+    reference.update(message)
+    assert ShortCmac(key)(message) == reference.finalize()
+    if length == 0:
+        assert ShortCmac(key)(b"").hex() == "bb1d6929e95937287fa37d129b756746"

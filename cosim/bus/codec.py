@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import can
 from cantools.database.can import Database, Message
@@ -271,7 +271,7 @@ class Codec:
         found = self.control_macs.get(decoded.spec.frame_id)
         if found is None or found[1].tick is None or found[1].tick[1] >= 4:
             return decoded
-        return replace(decoded, tick=nearest_tick(decoded.tick, near, 8 * found[1].tick[1]))
+        return Decoded(decoded.spec, nearest_tick(decoded.tick, near, 8 * found[1].tick[1]), decoded.values)
 
     def spec_of(self, frame: can.Message) -> MessageSpec | None:
         return None if frame.is_extended_id else self._by_id.get(frame.arbitration_id)
