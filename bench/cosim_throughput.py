@@ -18,6 +18,8 @@
 
 Each is repeated and the best kept: the machine's other load only ever slows a measurement down.
 - ratio: pipeline frames/s over raw frames/s.
+- floor: the same wire with three processes in lockstep doing no work (the runner's tick in one
+  datagram, each node's answer in one): µs per tick, and the pipeline's ticks/s over the floor's.
 
 Usage: python bench/cosim_throughput.py [--json] [--interface udp_multicast] [--frames N]
 """
@@ -37,7 +39,7 @@ import can  # noqa: E402
 
 from bench.common import bench_parser, best_run  # noqa: E402
 from cosim import scenario  # noqa: E402
-from cosim.bus.transport import BusConfig, allocate, open_bus  # noqa: E402
+from cosim.bus.transport import BusConfig, allocate, open_bus, send_all  # noqa: E402
 from cosim.run import Run, launcher, traffic  # noqa: E402
 
 ACK_ID = 0x7FF
@@ -88,6 +90,55 @@ def raw_rate(config: BusConfig, frames: int, window: int) -> dict[str, float]:
     receiver.join(10)
     bus.shutdown()
     return {"raw_frames": received, "raw_lost_frames": frames - received, "raw_frames_per_s": received / elapsed}
+
+
+def _floor_node(config: dict, node: int, ticks: int, ready, done) -> None:  # type: ignore[no-untyped-def]
+    """A node doing nothing: each tick's batch from the runner in, one batch of three frames out."""
+    bus = open_bus(BusConfig.from_dict(config))
+    answer = [
+        can.Message(arbitration_id=0x200 + 0x20 * node + i, data=bytes(8), is_extended_id=False) for i in range(3)
+    ]
+    ready.set()
+    answered = 0
+    while answered < ticks:
+        frame = bus.recv(5.0)
+        if frame is None:
+            break
+        if frame.arbitration_id == 0x080:  # a tick: answer it
+            send_all(bus, answer)
+            answered += 1
+    done.put(answered)
+    bus.shutdown()
+
+
+def lockstep_floor(config: BusConfig, ticks: int) -> dict[str, float]:
+    """The same wire's floor: a runner and two node processes in lockstep doing no work, the
+    runner's SYNC and four frames in one datagram, each node's three frames in one."""
+    context = multiprocessing.get_context("spawn")
+    done = context.Queue()
+    events = [context.Event() for _ in range(2)]
+    nodes = [context.Process(target=_floor_node, args=(config.to_dict(), n, ticks, events[n], done)) for n in range(2)]
+    for node in nodes:
+        node.start()
+    for event in events:
+        event.wait(30)
+    bus = open_bus(config)
+    time.sleep(0.2)
+    frames = [can.Message(arbitration_id=0x080 if i == 0 else 0x100 + i, data=bytes(8)) for i in range(5)]
+    start = time.perf_counter()
+    for _ in range(ticks):
+        send_all(bus, frames)
+        answers = 0
+        while answers < 2:
+            frame = bus.recv(5.0)
+            if frame is None:
+                raise RuntimeError("a node of the floor measurement stopped answering")
+            answers += frame.arbitration_id in (0x202, 0x222)  # each node's last frame closes its tick
+    elapsed = time.perf_counter() - start
+    for node in nodes:
+        node.join(10)
+    bus.shutdown()
+    return {"floor_ticks_per_s": ticks / elapsed, "floor_tick_us": 1e6 * elapsed / ticks}
 
 
 class StartupClock:
@@ -170,8 +221,12 @@ def main() -> None:
     raw = max(
         (raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"]
     )
-    figures = {"interface": args.interface} | raw | pipeline(args.interface, args.repeat) | in_process(args.repeat)
+    floor = max((lockstep_floor(config, 3000) for _ in range(args.repeat)), key=lambda f: f["floor_ticks_per_s"])
+    figures = (
+        {"interface": args.interface} | raw | floor | pipeline(args.interface, args.repeat) | in_process(args.repeat)
+    )
     figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
+    figures["floor_ratio"] = figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]
     if args.json:
         print(json.dumps(figures))
         return
@@ -188,6 +243,8 @@ def main() -> None:
         ("  frames lost", f"{figures['lost_frames']}"),
         ("  node start-up, spawn to first heartbeat (slowest node)", f"{figures['node_startup_s']:.2f} s"),
         ("ratio pipeline / raw (target >= 0.5)", f"{figures['ratio']:.2f}"),
+        ("same-wire floor: 3 processes in lockstep doing nothing", f"{figures['floor_tick_us']:.0f} us/tick"),
+        ("ratio pipeline / floor (ticks per second)", f"{figures['floor_ratio']:.2f}"),
         ("in-process (--interface virtual): real-time factor", f"{figures['inprocess_realtime_factor']:.1f} x"),
         ("  over the whole run, start-up included", f"{figures['inprocess_run_realtime_factor']:.1f} x"),
     ]

@@ -47,9 +47,10 @@ def test_cosim_throughput_benchmark_reports_its_figures():
     all_positive(
         figures,
         "raw_frames_per_s pipeline_frames_per_s ratio realtime_factor node_startup_s "
-        "inprocess_realtime_factor inprocess_run_realtime_factor",
+        "inprocess_realtime_factor inprocess_run_realtime_factor floor_ticks_per_s floor_tick_us floor_ratio",
     )
     assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
+    assert abs(figures["floor_ratio"] - figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]) < 1e-9
     assert set(figures["node_startup"]) == {"uniform", "kalman"} and figures["inprocess_lost_frames"] == 0
 
 
