@@ -154,3 +154,17 @@ def test_the_leaderboard_counts_a_confusion_matrix_of_isolated_against_true_targ
     (score,) = group["ranking"]
     assert score["confusion"] == {"T4": {"T4": 2}, "T5": {"T4+T5": 1, "T5": 1, "none": 1}}
     assert score["isolation_accuracy"] == pytest.approx(3 / 5)
+
+
+def test_the_intrusion_detector_is_a_scheme_of_its_own_in_the_table(tmp_path):
+    from cosim import api, scenario
+    from cosim.analysis.metrics import measure
+    from cosim.campaign.results import INTRUSION_DETECTOR, rows_of
+
+    loaded = scenario.apply(scenario.load("masses-spoofing"), {"bus.intrusion_detector": True, "duration": 8.0})
+    api.run(loaded, tmp_path / "ids.mcap", seed=0, in_process=True)
+    rows = {row["estimator"]: row for row in rows_of(measure(tmp_path / "ids.mcap"))}
+    detector = rows[INTRUSION_DETECTOR]
+    assert detector["diagnoses"] and detector["detected"] and detector["detection_delay_s"] == 0.0
+    assert detector["false_alarms"] == 0 and detector["rms_post_fault"] is None
+    assert {"uniform", "kalman"} <= rows.keys()

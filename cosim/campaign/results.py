@@ -137,17 +137,20 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
     faults = sorted(metrics.faults.items(), key=lambda item: (item[1].onset is None, item[1].onset or 0))
     first = faults[0][0] if faults else None
     names = [*metrics.estimators, *(n for n in metrics.diagnosis if n not in metrics.estimators)]
+    run: dict[str, Any] = {
+        "contested_ticks": metrics.contested_ticks,
+        "fault_kind": "+".join(sorted({str(f.kind) for _, f in faults})) or "none",
+        "fault_onset_s": metrics.fault_onset,
+        "ticks": metrics.ticks,
+        "frames_lost": metrics.frames.lost,
+    }
     rows = []
     for name in names:
         e = metrics.estimators.get(name, EstimationMetrics())
         d = metrics.diagnosis.get(name)
         f = e.faults.get(first, FaultRecovery()) if first else FaultRecovery()
         row = Row(
-            contested_ticks=metrics.contested_ticks,
-            fault_kind="+".join(sorted({str(f.kind) for _, f in faults})) or "none",
-            fault_onset_s=metrics.fault_onset,
-            ticks=metrics.ticks,
-            frames_lost=metrics.frames.lost,
+            **run,
             estimator=name,
             kind=e.kind or (d.kind if d else None),
             estimator_failed=e.failed,
@@ -163,7 +166,16 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
         if d is not None:
             _diagnosis_columns(row, d, first)
         rows.append(row.metric_columns())
+    detector = ((metrics.bus.intrusion_detection if metrics.bus else None) or {}).get("any")
+    if detector is not None:  # the runner's intrusion detector, scored as a diagnosis scheme of its own
+        row = Row(**run, estimator=INTRUSION_DETECTOR, kind=INTRUSION_DETECTOR, diagnoses=True)
+        _diagnosis_columns(row, detector, first)
+        rows.append(row.metric_columns())
     return rows
+
+
+INTRUSION_DETECTOR = "intrusion-detector"
+"""The ``estimator`` and ``kind`` of the intrusion detector's rows (``[bus] intrusion_detector``)."""
 
 
 def _diagnosis_columns(row: Row, d: DiagnosisMetrics, first: str | None) -> None:
