@@ -1,4 +1,4 @@
-"""Shared fixtures: a short version of the default scenario, run once per session."""
+"""Shared fixtures: the default scenario and the built-in scenarios, each run once per session."""
 
 from __future__ import annotations
 
@@ -37,3 +37,19 @@ def default_run(tmp_path_factory, default_loaded):
     out = tmp_path_factory.mktemp("run") / "default.mcap"
     result = run(default_loaded, out)
     return result
+
+
+@pytest.fixture(scope="session")
+def builtin_run(tmp_path_factory):
+    """A built-in scenario at seed 0 on its own bus (node processes over udp_multicast unless it says
+    otherwise), run once per session: the frame digests and the reproductions of the papers read the
+    same log."""
+    runs = {}
+
+    def get(name: str):
+        if name not in runs:
+            out = tmp_path_factory.mktemp("builtin") / f"{name}.mcap"
+            runs[name] = run(scenario.load(name), out, 0)
+        return runs[name]
+
+    return get

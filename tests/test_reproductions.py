@@ -7,8 +7,6 @@ import numpy as np
 import pytest
 
 from cosim.analysis.series import bias_effect, load
-from cosim.run import Run
-from cosim.scenario import load as load_scenario
 from estimators.base import DiagnosticKind
 from tests.doc_figures import check, reproduction_figures, undocumented
 
@@ -16,15 +14,15 @@ pytestmark = pytest.mark.slow  # every test here runs node processes or long sce
 
 
 @pytest.fixture(scope="module")
-def logs(tmp_path_factory):
+def logs(builtin_run):
+    """The papers' scenarios over CAN with node processes (the session's one run of each)."""
     cache = {}
 
     def get(name: str):
         if name not in cache:
-            out = tmp_path_factory.mktemp("repro") / f"{name}.mcap"
-            result = Run(load_scenario(name), out).execute()
+            result = builtin_run(name)
             assert result.status == "completed" and result.frames_lost == 0, result.error
-            cache[name] = load(out)
+            cache[name] = load(result.path)
         return cache[name]
 
     return get

@@ -306,7 +306,7 @@ class Session:
     def _refuse_a_second_runner(self) -> None:
         """Before tick 0 nothing may arrive on the runner's own ids: if it does, another
         co-simulation sends on this group and port, and both runs would corrupt each other."""
-        if self.traffic.foreign_frames:
+        if self.traffic.own_foreign:  # frames on other ids before tick 0 are a flood's or a program's, counted
             raise CosimError(
                 f"another co-simulation sends on {self.config.describe()} (frames on this run's SYNC, sensor or "
                 f"command ids arrive that this run did not send: {self._last_foreign}); give this run another port, or "

@@ -60,6 +60,7 @@ class Traffic(can.Listener):
         self.echoes = 0
         self.repeated_bootups = 0
         self.foreign_frames = 0
+        self.own_foreign = 0  # of those, frames on the runner's own ids (SYNC, NMT, sensors, commands)
         #: Ticks during which a frame on one of the runner's own ids came that the runner did not send:
         #: without authentication a receiver cannot tell it from the runner's, so the tick is contested.
         self.contested: set[int] = set()
@@ -96,6 +97,7 @@ class Traffic(can.Listener):
                 self._sent[key] -= 1
                 self.echoes += 1
             else:
+                self.own_foreign += 1
                 self._foreign(msg, "a frame on one of the runner's own ids that the runner did not send")
                 if not self.verify(msg):  # no authentication dropped it: receivers may have taken it
                     self.contested.add(self.current)
