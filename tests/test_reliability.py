@@ -430,7 +430,7 @@ VICTIMS = ("node-kill", "node-stop", "runner-kill", "client-kill")
 
 
 def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_path):
-    """Kill or stop a random participant (a node, the runner, a client) at a random moment, 12 times:
+    """Kill or stop a random participant (a node, the runner, a client) at a random moment, 8 times:
     every log opens with cosim inspect and, recovered, with the official reader; the culprit is named;
     no process and no node folder is left."""
     rng = random.Random(17)
@@ -438,8 +438,8 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
     # long enough that the kill, at most a second after the run starts ticking, lands before it ends
     quick = ["--set", "duration=60", "--set", "timing.node_timeout=2", "--set", "timing.join_timeout=10"]
     tally: dict[str, int] = {}
-    for trial in range(20):  # 12 stops (each kind 3 times) keep the suite within CI's half hour
-        if sum(tally.values()) >= 12:
+    for trial in range(16):  # 8 stops (each kind twice) keep the suite within CI's half hour
+        if sum(tally.values()) >= 8:
             break
         victim = VICTIMS[sum(tally.values()) % len(VICTIMS)]  # each kind in turn; the moment is random
         out = tmp_path / f"chaos-{trial}.mcap"
@@ -497,7 +497,7 @@ def test_chaos_every_stopped_participant_is_named_and_every_log_recovers(tmp_pat
         if victim == "runner-kill":
             time.sleep(1.5)  # its nodes notice their runner is gone
         assert subprocess.run(["pgrep", "-f", f"cosim-nodes-{process.pid}-"], capture_output=True).returncode == 1
-    assert tally == dict.fromkeys(VICTIMS, 3), tally
+    assert tally == dict.fromkeys(VICTIMS, 2), tally
     print(f"chaos: {tally} in {trial + 1} trials")
 
 
