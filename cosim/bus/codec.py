@@ -159,7 +159,7 @@ class Codec:
         self._messages: dict[str, Message] = {m.name: m for m in database.messages}
         # Each message compiled once into a packer (cosim.bus.packing) from cantools' message: the
         # tick counter first, then the spec's signals, in the order encode takes their values.
-        # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control`` fills it).
+        # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control_frames`` fills it).
         self._packers: dict[str, Packer] = {}
         #: Control ids with a MAC: the spec, and where its tick and MAC are.
         self.control_macs: dict[int, tuple[MessageSpec, ControlFields]] = {}

@@ -76,7 +76,7 @@ CLASSIC_TICK_BITS = 16
 FD_TICK_BITS = 32
 HEARTBEAT_TICK_BITS = 16
 CONTROL_MAC = "mac"
-"""The signal of a control frame's MAC (``cosim.bus.control``): in the DBC, never among a spec's signals."""
+"""The signal of a control frame's MAC (``cosim.bus.control_frames``): in the DBC, never among a spec's signals."""
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 

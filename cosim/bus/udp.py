@@ -68,7 +68,7 @@ def unpack_datagram(data: bytes, timestamp: float) -> can.Message:
     if not isinstance(fields, dict):
         raise ValueError("not a map of a frame's fields")
     flags = [fields.get(flag, False) for flag in _FLAGS]
-    dlc = fields.get("dlc", -1)
+    dlc = fields.get("dlc")  # absent: the payload's length
     channel = fields.get("channel")
     return _frame(fields.get("arbitration_id"), flags, dlc, fields.get("data"), timestamp, channel)
 
@@ -115,7 +115,7 @@ def _frame(
         raise ValueError("data is not a CAN payload (bytes of a CAN or CAN FD length)")
     if len(payload) > 8 and not fd:
         raise ValueError("data longer than 8 bytes in a classic frame")
-    if dlc == -1:
+    if dlc is None:
         dlc = len(payload)
     if type(dlc) is not int or not 0 <= dlc <= (64 if fd else 8):  # a remote frame asks for dlc bytes, carries none
         raise ValueError("dlc is not a CAN data length")
@@ -293,8 +293,7 @@ class HostMulticastBus(UdpMulticastBus):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         super().send(msg, timeout)
-        if self._mirror is not None:
-            self._group._socket.sendto(pack_message(msg), self._mirror)
+        self._to_mirror([msg])
 
     def send_batch(self, frames: list[can.Message]) -> None:
         """Send the frames in as few datagrams as hold them (one up to ``MAX_BATCH``), in order."""
@@ -305,6 +304,10 @@ class HostMulticastBus(UdpMulticastBus):
             raise can.CanOperationError("cannot send FD message over bus with CAN FD disabled")
         for start in range(0, len(frames), MAX_BATCH):
             self._multicast.send(pack_batch(frames[start : start + MAX_BATCH]))
+        self._to_mirror(frames)
+
+    def _to_mirror(self, frames: list[can.Message]) -> None:
+        """Each frame alone, in python-can's own format, to the mirror (if the run has one)."""
         if self._mirror is not None:
             for frame in frames:
                 self._group._socket.sendto(pack_message(frame), self._mirror)
