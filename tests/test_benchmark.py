@@ -124,12 +124,12 @@ def test_cosim_benchmark_writes_a_bundle_that_the_leaderboard_ranks(tmp_path, ca
     assert record["suite"] == "small" and record["quick"] and record["runs"] == 2 and record["failed"] == 0
     assert record["digest"] == suite_digest(load_suite(suite), quick=True)
     names = {row["estimator"] for row in pq.read_table(tables[0]).to_pylist()}
-    assert names == {"uniform", "kalman", "extra"}
+    assert names == {"uniform", "kalman", "extra", "secoc"}  # SecOC ranked with the estimators' diagnoses
     capsys.readouterr()
     assert main(["leaderboard", str(out), "--json"]) == 0
     board = json.loads(capsys.readouterr().out)
     (group,) = board["groups"]
-    assert group["group"] == {"track": "attacks", "case": "attacks"} and len(group["ranking"]) == 3
+    assert group["group"] == {"track": "attacks", "case": "attacks"} and len(group["ranking"]) == 4
     assert main(["benchmark", "--suite", str(suite), "--out", str(out)]) == 1  # not empty: refused
 
 
@@ -168,3 +168,26 @@ def test_the_intrusion_detector_is_a_scheme_of_its_own_in_the_table(tmp_path):
     assert detector["diagnoses"] and detector["detected"] and detector["detection_delay_s"] == 0.0
     assert detector["false_alarms"] == 0 and detector["rms_post_fault"] is None
     assert {"uniform", "kalman"} <= rows.keys()
+
+
+def test_secoc_is_a_scheme_of_its_own_detecting_and_isolating_by_the_rejected_message(tmp_path):
+    from cosim import api, scenario
+    from cosim.analysis.metrics import measure
+    from cosim.campaign.results import SECOC, rows_of
+
+    spoofing = scenario.load("masses-spoofing")  # spoof x1 from 5 to 10 s, replay x2 from 12 to 17 s
+    for authentication in ("secoc", "none"):
+        loaded = scenario.apply(spoofing, {"bus.authentication": authentication, "duration": 13.0})
+        api.run(loaded, tmp_path / f"{authentication}.mcap", seed=0, in_process=True)
+    metrics = measure(tmp_path / "secoc.mcap")
+    rows = {row["estimator"]: row for row in rows_of(metrics)}
+    secoc = rows[SECOC]
+    assert secoc["diagnoses"] and secoc["detected"] and secoc["detection_delay_s"] == 0.0
+    assert secoc["isolated"] and secoc["isolation_correct"] and secoc["isolation_delay_s"] == 0.0
+    assert (secoc["isolation_expected"], secoc["isolation_result"]) == ("SENSOR_x1", "SENSOR_x1")
+    assert secoc["false_alarms"] == 0 and secoc["rms_post_fault"] is None
+    faults = metrics.bus.secoc_detection.faults
+    assert faults["replay_x2"].isolated == ["SENSOR_x2"] and faults["replay_x2"].detection_delay == 0.0
+    # 5 s of spoofing and 1 s of replay, one forged frame a tick: the alarm is up exactly then
+    assert metrics.bus.secoc_detection.alarm_time_s == pytest.approx(6.0)
+    assert SECOC not in {row["estimator"] for row in rows_of(measure(tmp_path / "none.mcap"))}

@@ -166,16 +166,24 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
         if d is not None:
             _diagnosis_columns(row, d, first)
         rows.append(row.metric_columns())
-    detector = ((metrics.bus.intrusion_detection if metrics.bus else None) or {}).get("any")
-    if detector is not None:  # the runner's intrusion detector, scored as a diagnosis scheme of its own
-        row = Row(**run, estimator=INTRUSION_DETECTOR, kind=INTRUSION_DETECTOR, diagnoses=True)
-        _diagnosis_columns(row, detector, first)
-        rows.append(row.metric_columns())
+    # The bus's own schemes, each scored as a diagnosis scheme of its own: the runner's intrusion
+    # detector (its "any" check) and SecOC's receivers (their rejections)
+    bus = metrics.bus
+    for scheme, score in (
+        (INTRUSION_DETECTOR, (bus.intrusion_detection or {}).get("any") if bus else None),
+        (SECOC, bus.secoc_detection if bus else None),
+    ):
+        if score is not None:
+            row = Row(**run, estimator=scheme, kind=scheme, diagnoses=True)
+            _diagnosis_columns(row, score, first)
+            rows.append(row.metric_columns())
     return rows
 
 
 INTRUSION_DETECTOR = "intrusion-detector"
 """The ``estimator`` and ``kind`` of the intrusion detector's rows (``[bus] intrusion_detector``)."""
+SECOC = "secoc"
+"""The ``estimator`` and ``kind`` of SecOC's rows (``[bus] authentication = "secoc"``)."""
 
 
 def _diagnosis_columns(row: Row, d: DiagnosisMetrics, first: str | None) -> None:

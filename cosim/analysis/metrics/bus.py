@@ -116,9 +116,11 @@ class BusScore:
         deadline_misses: int | None,
         by_sender: tuple[dict[str, int], dict[str, int]],
         intrusion_detection: dict[str, DiagnosisMetrics] | None,
+        secoc_detection: DiagnosisMetrics | None = None,
     ) -> BusMetrics:
         """The scores over ``ticks`` ticks; ``deadline_misses`` the run's count (None: the log's),
-        ``by_sender`` its frames lost and late per node."""
+        ``by_sender`` its frames lost and late per node; the intrusion detector's and SecOC's
+        diagnosis scores where the run had them."""
         span = ticks * self.sample_time if self.sample_time else 0.0
         known = bool(self.bitrate) and span > 0
         return BusMetrics(
@@ -140,6 +142,7 @@ class BusScore:
             ),
             foreign_frames=dict(sorted(self.foreign_ids.items())),
             intrusion_detection=intrusion_detection,
+            secoc_detection=secoc_detection,
             secoc_rejected={i: dict(sorted(r.items())) for i, r in sorted(self.rejected.items())}
             if self.rejected
             else None,

@@ -8,6 +8,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from cantools.database.can import Database
+
 from cosim.analysis import names
 from cosim.analysis.metrics.facts import RunFacts
 from cosim.analysis.metrics.scorer import Scorer
@@ -19,11 +21,13 @@ from cosim.analysis.metrics.values import (
     FrameCounts,
     RunMetrics,
 )
-from cosim.bus.dbc import estimated_state, load_dbc
+from cosim.bus.dbc import SECOC_SIGNALS, estimated_state, load_dbc
 from cosim.errors import LogError
 from cosim.log.metadata import logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import FAULTS, FRAMES, STATE
+
+MAC_SIGNAL = SECOC_SIGNALS[1]
 
 
 def measure(path: str | Path) -> RunMetrics:
@@ -32,7 +36,8 @@ def measure(path: str | Path) -> RunMetrics:
     with LogReader(path) as reader:
         run = _facts(reader.metadata())
         counts = _counts(reader)
-        scorer = Scorer(run, _estimate_bounds(reader, run))
+        database = _database(reader)
+        scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
         scanned: dict[str, int] = defaultdict(int)
         try:
             for topic, log_time, msg in reader.messages():
@@ -75,14 +80,23 @@ def _facts(meta: dict[str, dict[str, str]]) -> RunFacts:
         return run
 
 
-def _estimate_bounds(reader: LogReader, run: RunFacts) -> dict[str, dict[str, tuple[float, float]]]:
-    """Each estimator's estimate signals with their bus range shrunk by half a quantum (a decoded
-    value outside it sits at the bound), from the logged DBC; {} without a readable one."""
+def _database(reader: LogReader) -> Database | None:
+    """The logged DBC; None without a readable one (reported elsewhere)."""
     try:
         text = logged_dbc(reader, missing_ok=True)
-        database = load_dbc(text) if text is not None else None
-    except (LogError, ValueError, LookupError):  # cantools' parse errors derive from these; reported elsewhere
-        return {}
+        return load_dbc(text) if text is not None else None
+    except (LogError, ValueError, LookupError):  # cantools' parse errors derive from these
+        return None
+
+
+def _authenticated(database: Database | None) -> list[str]:
+    """The messages SecOC authenticates (those with its trailer in the logged DBC)."""
+    return [m.name for m in database.messages if any(s.name == MAC_SIGNAL for s in m.signals)] if database else []
+
+
+def _estimate_bounds(database: Database | None, run: RunFacts) -> dict[str, dict[str, tuple[float, float]]]:
+    """Each estimator's estimate signals with their bus range shrunk by half a quantum (a decoded
+    value outside it sits at the bound), from the logged DBC; {} without one."""
     bounds: dict[str, dict[str, tuple[float, float]]] = {}
     for message in database.messages if database is not None else ():
         sender = message.senders[0] if message.senders else ""
@@ -176,7 +190,8 @@ def _bus(run: RunFacts, scorer: Scorer, ticks: int, lost: int | None) -> BusMetr
     dt = run.sample_time
     # only where the run had the intrusion detector (/cosim/ids)
     ids = {check: verdict.metrics(dt) for check, verdict in scorer.ids.items()} if scorer.ids and dt else None
-    return scorer.bus.metrics(ticks, lost, run.deadline_misses, (run.lost_by_sender, run.late_by_sender), ids)
+    secoc = scorer.secoc.metrics(dt) if scorer.secoc is not None and dt else None
+    return scorer.bus.metrics(ticks, lost, run.deadline_misses, (run.lost_by_sender, run.late_by_sender), ids, secoc)
 
 
 def _missing(run: RunFacts, scorer: Scorer, channels: dict[str, int]) -> list[str]:

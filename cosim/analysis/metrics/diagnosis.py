@@ -3,11 +3,13 @@ isolation"): per fault the detection delay, the isolation delay and decision, an
 (alarm episodes starting with no fault active) with their rate per fault-free hour.
 
 A process is an estimator that publishes an ``alarm`` (raised when > 0.5) and optionally isolation
-flags; the intrusion detector's checks are scored the same way, without flags.
+flags; the intrusion detector's checks are scored the same way, without flags, and SecOC's
+rejections with a flag per authenticated message (a forged or replayed frame names its message).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from cosim.analysis.metrics.segments import Segment
@@ -30,19 +32,19 @@ class _Open:
 
 
 class DiagnosisScore:
-    """Detection and isolation by one process: ``alarm`` its alarm signal, ``record`` its
-    estimator's (None: the intrusion detector, which has no flags), ``faults`` the run's."""
+    """Detection and isolation by one process: ``alarm`` its alarm signal, ``faults`` the run's,
+    ``flags`` each isolation flag (what it isolates, e.g. a thruster T1) with its signal and the
+    targets it names as faulty (none: the intrusion detector, which only detects)."""
 
-    def __init__(self, alarm: str, record: EstimatorRecord | None, faults: dict[str, FaultSpan]) -> None:
+    def __init__(
+        self, alarm: str, faults: dict[str, FaultSpan], flags: Mapping[str, tuple[str, list[str]]] | None = None
+    ) -> None:
         self.alarm = alarm
         self.run_faults = faults
-        #: flag (what it isolates, e.g. a thruster T1) → its signal; and what the flag names as faulty
-        isolation = record.signals_of(DiagnosticKind.ISOLATION) if record is not None else {}
-        self.signals = {target or signal: signal for signal, target in sorted(isolation.items())}
-        self.flags = sorted(self.signals)
-        self.targets = (
-            {flag: record.isolates.get(signal, []) for flag, signal in self.signals.items()} if record else {}
-        )
+        flags = dict(sorted((flags or {}).items()))
+        self.signals = {flag: signal for flag, (signal, _) in flags.items()}
+        self.flags = list(self.signals)
+        self.targets = {flag: list(targets) for flag, (_, targets) in flags.items()}
         self.alarm_prev = False
         self.scored = 0
         self.fault_free_ticks = 0
@@ -50,6 +52,13 @@ class DiagnosisScore:
         self.alarm_ticks = 0
         self.open: dict[str, _Open] = {}
         self.faults: dict[str, FaultDiagnosis] = {}
+
+    @classmethod
+    def of(cls, alarm: str, record: EstimatorRecord, faults: dict[str, FaultSpan]) -> DiagnosisScore:
+        """An estimator's diagnosis: its isolation signals are its flags, named by what they isolate."""
+        isolation = record.signals_of(DiagnosticKind.ISOLATION)
+        flags = {target or signal: (signal, record.isolates.get(signal, [])) for signal, target in isolation.items()}
+        return cls(alarm, faults, flags)
 
     def expected(self, label: str) -> set[str]:
         """The flags whose targets meet the targets of fault ``label``."""

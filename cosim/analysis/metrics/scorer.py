@@ -1,6 +1,6 @@
 """A log's messages scored in file order: each read through its topic's record
 (``cosim.log.topics``), ticks assembled from their parts (truth, estimates, the intrusion
-detector's verdict) and scored in tick order, fault onsets cutting the run into segments.
+detector's verdict, SecOC's rejections) and scored in tick order, fault onsets cutting the run into segments.
 
 Memory is bounded whatever the log's length: the parts of a tick are held only until the tick is
 complete (or ``WINDOW`` ticks old), then scored and dropped.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,7 +56,14 @@ class Tick:
 class Scorer:
     """Every score of a run, fed its log's messages in file order."""
 
-    def __init__(self, run: RunFacts, bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None) -> None:
+    def __init__(
+        self,
+        run: RunFacts,
+        bounds: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
+        authenticated: Sequence[str] = (),
+    ) -> None:
+        """``bounds``: each estimator's estimate signals' bus ranges; ``authenticated``: the messages
+        SecOC guards (from the logged DBC)."""
         self.run = run
         #: Per estimator, each estimate signal's bus range (from the logged DBC), its bounds within
         #: half a quantum: a decoded value there was saturated by the node.
@@ -67,8 +74,14 @@ class Scorer:
         # The intrusion detector, scored as a diagnosis: its alarm ("any" check) and each check's own
         self.ids: dict[str, DiagnosisScore] = {}
         if run.bus.get("intrusion_detector"):
-            self.ids = {check: DiagnosisScore(check, None, run.faults) for check in ("any", *IDS_CHECKS)}
+            self.ids = {check: DiagnosisScore(check, run.faults) for check in ("any", *IDS_CHECKS)}
             self.expected_parts += 1 if self.expected_parts else 0
+        # SecOC, scored as a diagnosis: a tick with a rejected frame raises its alarm, and the
+        # rejected messages are its isolation flags (a spoofed or replayed message names itself)
+        self.secoc: DiagnosisScore | None = None
+        self.rejected: dict[int, set[str]] = defaultdict(set)
+        if run.bus.get("authentication") == "secoc" and authenticated:
+            self.secoc = DiagnosisScore("alarm", run.faults, {m: (m, [m]) for m in authenticated})
         self.pending: dict[int, Tick] = {}
         self.next_tick = 0
         self.newest = -1
@@ -97,7 +110,7 @@ class Scorer:
             WirePassage.TOPIC: lambda m, t: bus.passage(WirePassage.read(m)),
             Event.TOPIC: lambda m, t: self._event(Event.read(m)),
             DeadlineMiss.TOPIC: lambda m, t: bus.deadline_miss(DeadlineMiss.read(m)),
-            SecurityRejection.TOPIC: lambda m, t: bus.rejection(SecurityRejection.read(m)),
+            SecurityRejection.TOPIC: lambda m, t: self._rejection(SecurityRejection.read(m)),
             Foreign.TOPIC: lambda m, t: bus.arrival(Foreign.read(m)),
         }
 
@@ -120,6 +133,16 @@ class Scorer:
                 f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
                 f"({type(error).__name__}: {error}); the topic is ignored from there on"
             )
+
+    def _rejection(self, rejection: SecurityRejection) -> None:
+        self.bus.rejection(rejection)
+        if self.secoc is None:
+            return
+        k = int(rejection.tick)
+        if k < self.next_tick:
+            self.late += 1
+        else:
+            self.rejected[k].add(str(rejection.message or hex(int(rejection.id))))
 
     def _event(self, event: Event) -> None:
         if event.event == "frames_lost":
@@ -185,7 +208,7 @@ class Scorer:
                 )
         if self.late:
             self.warnings.append(
-                f"{self.late} estimate messages arrived more than {WINDOW} ticks late and were not scored"
+                f"{self.late} estimate or SecOC rejection messages arrived after their tick was scored"
             )
 
     # scoring, tick by tick in order
@@ -207,11 +230,14 @@ class Scorer:
             alarm = self.alarms.get(name)
             if alarm is not None and isinstance(estimate.get(alarm), (int, float)):
                 if name not in self.diagnosis:
-                    self.diagnosis[name] = DiagnosisScore(alarm, self.run.estimators[name], self.run.faults)
+                    self.diagnosis[name] = DiagnosisScore.of(alarm, self.run.estimators[name], self.run.faults)
                 self.diagnosis[name].add(k, estimate, active, self.segment)
         if tick.ids is not None:
             for score in self.ids.values():
                 score.add(k, tick.ids, active, self.segment)
+        rejected = self.rejected.pop(k, set())
+        if self.secoc is not None:
+            self.secoc.add(k, {"alarm": float(bool(rejected))} | dict.fromkeys(rejected, 1.0), active, self.segment)
 
     def _segments(self, k: int, active: set[str]) -> None:
         """Onsets and clearances at tick ``k``: a fault that starts opens a new segment."""
@@ -233,6 +259,6 @@ class Scorer:
             estimation.close(self.segment)
         dt = self.run.sample_time
         assert dt is not None, "segments start at scored ticks, and ticks are scored only with a sample time"
-        for diagnosis in (*self.diagnosis.values(), *self.ids.values()):
+        for diagnosis in (*self.diagnosis.values(), *self.ids.values(), *([self.secoc] if self.secoc else [])):
             diagnosis.close(self.segment, dt)
         self.segment = None

@@ -2,8 +2,9 @@
 
 ``to_json`` is what ``cosim inspect --json`` prints and ``cosim.api.metrics`` returns: each
 dataclass an object with its fields in order (docs/metrics.md defines them), except that a field
-marked ``OMIT_NONE`` is left out where it is None (the bus's ``intrusion_detection`` and
-``secoc_rejected`` exist only where the run had the detector or SecOC dropped frames; a diagnosis
+marked ``OMIT_NONE`` is left out where it is None (the bus's ``intrusion_detection``,
+``secoc_detection`` and ``secoc_rejected`` exist only where the run had the detector, SecOC, or
+SecOC dropped frames; a diagnosis
 of the intrusion detector has no ``kind``). ``from_json`` reads that form back.
 
 Times are in seconds (delays from the fault's onset), errors in the state's units, loads as
@@ -180,6 +181,7 @@ class BusMetrics:
     foreign: ForeignTraffic = field(default_factory=ForeignTraffic)
     foreign_frames: dict[str, int] = field(default_factory=dict)
     intrusion_detection: dict[str, DiagnosisMetrics] | None = field(default=None, metadata=OMIT_NONE)
+    secoc_detection: DiagnosisMetrics | None = field(default=None, metadata=OMIT_NONE)
     secoc_rejected: dict[str, dict[str, int]] | None = field(default=None, metadata=OMIT_NONE)
     load_over_time: LoadOverTime | None = None
     latency: dict[str, IdLatency] | None = None
