@@ -262,6 +262,51 @@ def test_paired_differences_rank_apart_or_tie_with_holms_adjustment(tmp_path):
     assert {ranking["worse"]["rank"], ranking["same"]["rank"]} == {2} and ranking["worse"]["tied"]
 
 
+def test_schemes_that_only_diagnose_are_ranked_by_a_paired_sign_test_after_the_estimators(tmp_path):
+    """An attack case: an estimator (an RMS error), and three schemes with no error of their own.
+    "late" detects 0.5 s after "prompt" in 12 of 20 runs and like it in the rest: told apart (sign
+    test, p = 2⁻¹¹); "twin" is "late" run by run: tied with it. The estimator and "prompt" share no
+    measure: no comparison, no tie."""
+    import pyarrow as pa
+
+    def row(i: int, name: str, **columns) -> dict:
+        empty = dict.fromkeys(("rms_post_fault", "detected", "missed_detections", "false_alarms", "detection_delay_s"))
+        return (
+            {"run": i, "status": "completed", "estimator": name, "kind": name, "fault_kind": "spoofing"}
+            | empty
+            | columns
+        )
+
+    def diagnosis(delay: float) -> dict:
+        return {
+            "diagnoses": True,
+            "detected": True,
+            "missed_detections": 0,
+            "false_alarms": 0,
+            "detection_delay_s": delay,
+        }
+
+    rows = []
+    for i in range(20):
+        delay = 0.5 if i < 12 else 0.0
+        rows += [
+            row(i, "kalman", rms_post_fault=1.0, diagnoses=False),
+            row(i, "prompt", **diagnosis(0.0)),
+            row(i, "late", **diagnosis(delay)),
+            row(i, "twin", **diagnosis(delay)),
+        ]
+    pq.write_table(pa.Table.from_pylist(rows), tmp_path / "t.parquet")
+    (group,) = leaderboard(tmp_path / "t.parquet")["groups"]
+    ranking = {s["estimator"]: s for s in group["ranking"]}
+    assert [s["estimator"] for s in group["ranking"]][:2] == ["kalman", "prompt"]
+    assert "vs_next" not in ranking["kalman"] and ranking["kalman"]["rank"] == 1 and not ranking["kalman"]["tied"]
+    assert ranking["prompt"]["rank"] == 2 and not ranking["prompt"]["tied"]
+    versus = ranking["prompt"]["vs_next"]
+    assert (versus["metric"], versus["pairs"], versus["worse"], versus["better"]) == ("diagnosis", 20, 12, 0)
+    assert versus["p"] == pytest.approx(2.0**-11) and not versus["tied"]
+    assert ranking["late"]["rank"] == ranking["twin"]["rank"] == 3 and ranking["late"]["tied"]
+
+
 def test_holm_is_the_textbook_step_down():
     from cosim.campaign.leaderboard import holm
 

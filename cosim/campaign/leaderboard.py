@@ -12,17 +12,21 @@ per group (the values of the ``by`` columns; by default the fault kind) and esti
   delays, and the isolation accuracy (Wilson interval);
 - failed runs, which are counted, never scored.
 
-Estimators are ranked by the median RMS error after onset, or, in a group without any (a
-fault-free group), by false alarms per hour; diagnosis schemes then by detection rate. ``outliers``
-lists the runs whose error lies beyond Q3 + 3 IQR of their estimator's group: where to look first.
+Estimators are ranked by the median RMS error after onset; schemes without one (a fault-free
+group, or a scheme that only diagnoses: the intrusion detector, SecOC) after them, by detection
+rate, false alarms per hour, isolation accuracy and detection delay. ``outliers`` lists the runs
+whose error lies beyond Q3 + 3 IQR of their estimator's group: where to look first.
 
 Each estimator is compared with the next in its ranking on the runs both took part in (the same
 run: the same noise, faults and weather; ``cosim.campaign.spec``'s common random numbers make the
 runs of a replicate alike across the grid): the paired differences d of their RMS errors after
 onset, their median with a 95 % bootstrap interval, and the two-sided Wilcoxon signed-rank test of
-d (zero differences left out). The p-values of all the comparisons in the leaderboard are adjusted
-by Holm's step-down procedure; where the adjusted p is 0.05 or more the two share a rank ("tied"):
-the data do not tell them apart.
+d (zero differences left out). Two schemes that only diagnose are compared run by run on their
+diagnosis (missed faults, then a wrong isolation, false alarms, detection delay) by the two-sided
+sign test; an estimator and a scheme that only diagnoses have no common measure and are not
+compared. The p-values of all the comparisons in the leaderboard are adjusted by Holm's step-down
+procedure; where the adjusted p is 0.05 or more the two share a rank ("tied"): the data do not
+tell them apart.
 """
 
 from __future__ import annotations
@@ -114,6 +118,8 @@ class Entry:
     failed: int = 0
     rms: list[float] = field(default_factory=list)
     rms_by_run: dict[Any, float] = field(default_factory=dict)
+    diagnosis_by_run: dict[Any, tuple[float, ...]] = field(default_factory=dict)
+    """Per run, the diagnosis outcome ``diagnosis_outcome`` (lower is better)."""
     """RMS after onset by run (by case and run in a benchmark): what paired comparisons pair."""
     rejection: list[float] = field(default_factory=list)
     final: list[float] = field(default_factory=list)
@@ -139,12 +145,15 @@ class Entry:
         self.runs += 1
         for found, value in ((self.rms, row.rms_post_fault), (self.rejection, row.bias_rejection_ratio)):
             _append(found, value)
+        run = row.run if case is None else (case, row.run)
         if (rms := _number(row.rms_post_fault)) is not None and row.run is not None:
-            self.rms_by_run[row.run if case is None else (case, row.run)] = rms
+            self.rms_by_run[run] = rms
         _append(self.final, row.final_error)
         if not row.diagnoses:
             return
         self.diagnoses = True
+        if row.run is not None:
+            self.diagnosis_by_run[run] = diagnosis_outcome(row)
         has_fault = row.fault_kind not in (None, "none")
         self.with_fault += has_fault
         self.detected += bool(has_fault and row.detected)
@@ -220,16 +229,8 @@ def leaderboard(
     ``cosim benchmark`` bundles (folders) merged into one standing table, per track and case;
     ``exclude_contested``: without the runs in which another program sent on the runner's ids."""
     paths = [path] if isinstance(path, (str, Path)) else list(path)
-    bundle = None
-    if len(paths) > 1 or Path(paths[0]).is_dir():
-        from cosim.campaign.benchmark import read_bundles
-
-        bundle, tables = read_bundles(paths)
-        table = _merged([read_table(t) for t in tables])
-        by = by or ["track", "case"]
-    else:
-        table = read_table(paths[0])
-        by = by or ["fault_kind"]
+    table, bundle = load_results(paths)
+    by = by or (["fault_kind"] if bundle is None else ["track", "case"])
     for column in by:
         if column not in table.columns:
             raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
@@ -247,9 +248,13 @@ def leaderboard(
         entries = sorted(groups[key].values(), key=lambda entry: _rank_key(entry.scores()))
         scores = [entry.scores() for entry in entries]
         for score, entry, following in zip(scores, entries, entries[1:]):
-            score["vs_next"] = paired_comparison(entry.rms_by_run, following.rms_by_run) | {
-                "estimator": following.estimator
-            }
+            if entry.rms_by_run and following.rms_by_run:
+                comparison = paired_comparison(entry.rms_by_run, following.rms_by_run)
+            elif not entry.rms_by_run and not following.rms_by_run and entry.diagnoses and following.diagnoses:
+                comparison = sign_comparison(entry.diagnosis_by_run, following.diagnosis_by_run)
+            else:  # an estimator's error against a scheme that only diagnoses: no common measure
+                continue
+            score["vs_next"] = comparison | {"estimator": following.estimator}
         ranked.append({"group": dict(zip(by, key)), "ranking": scores})
     _rank_with_ties(ranked)
     case_units = (bundle or {}).get("units", {})
@@ -259,6 +264,7 @@ def leaderboard(
     runs = {(row.get("case"), row["run"]) for row in table.rows}
     board: dict[str, Any] = {
         "table": ", ".join(map(str, paths)),
+        "sources": [str(p) for p in paths],
         "campaign": table.metadata.get("cosim.campaign.name"),
         "by": by,
         "runs": len(runs),
@@ -271,6 +277,17 @@ def leaderboard(
         board["benchmark"] = {k: bundle[k] for k in ("suite", "version", "quick", "digest")} | {"bundles": len(paths)}
         board["tracks"] = track_ranks(ranked)
     return board
+
+
+def load_results(paths: Sequence[str | Path]) -> tuple[ResultsTable, dict[str, Any] | None]:
+    """A campaign's results table (one ``results.parquet``), or ``cosim benchmark`` bundles (one or
+    more folders) merged into one table, with their common record (None for a campaign's)."""
+    if len(paths) > 1 or Path(paths[0]).is_dir():
+        from cosim.campaign.benchmark import read_bundles
+
+        bundle, tables = read_bundles(paths)
+        return _merged([read_table(t) for t in tables]), bundle
+    return read_table(paths[0]), None
 
 
 def _merged(tables: list[ResultsTable]) -> ResultsTable:
@@ -334,6 +351,33 @@ def paired_comparison(first: dict[Any, float], second: dict[Any, float]) -> dict
     }
 
 
+def diagnosis_outcome(row: Row) -> tuple[float, ...]:
+    """A run's diagnosis by one scheme, to compare with another's on the same run (lower is better,
+    in this order): faults missed, a wrong or missing isolation, false alarms, the detection delay."""
+    delay = _number(row.detection_delay_s)
+    return (
+        float(row.missed_detections or 0),
+        float(row.isolation_correct is False),
+        float(row.false_alarms or 0),
+        math.inf if delay is None else delay,
+    )
+
+
+def sign_comparison(first: dict[Any, tuple[float, ...]], second: dict[Any, tuple[float, ...]]) -> dict[str, Any]:
+    """Two diagnosis schemes on the runs both have (``diagnosis_outcome`` per run): on how many runs
+    ``second`` did worse and better, and the two-sided sign test's p over the runs where they differ
+    (1 where they never do; Holm's adjustment comes later)."""
+    runs = sorted(first.keys() & second.keys(), key=str)
+    worse = sum(second[run] > first[run] for run in runs)
+    better = sum(second[run] < first[run] for run in runs)
+    p = 1.0
+    if worse + better:
+        from scipy.stats import binomtest
+
+        p = float(binomtest(worse, worse + better).pvalue)
+    return {"pairs": len(runs), "metric": "diagnosis", "worse": worse, "better": better, "p": p}
+
+
 def holm(pvalues: list[float]) -> list[float]:
     """Holm's step-down adjustment of m p-values (family-wise error rate), in their order."""
     m = len(pvalues)
@@ -356,20 +400,26 @@ def _rank_with_ties(groups: list[dict[str, Any]], alpha: float = 0.05) -> None:
         ranking = group["ranking"]
         for place, score in enumerate(ranking, start=1):
             above = ranking[place - 2] if place > 1 else None
-            tied = bool(above and above["vs_next"]["tied"])
+            tied = bool(above and above.get("vs_next", {}).get("tied"))
             score["rank"] = above["rank"] if above and tied else place
             score["tied"] = tied or bool(score.get("vs_next", {}).get("tied"))
 
 
-def _rank_key(score: dict[str, Any]) -> tuple[float, float, float]:
+def _rank_key(score: dict[str, Any]) -> tuple[float, ...]:
+    """Estimators by their error; schemes that only diagnose after them, by detection rate, false
+    alarms, isolation accuracy and detection delay."""
     inf = math.inf
-    rms = score.get("rms_post_fault_median")
-    alarms = score.get("false_alarms_per_hour")
-    detection = score.get("detection_rate")
+
+    def value(key: str, sign: float = 1.0) -> float:
+        found = score.get(key)
+        return inf if found is None else sign * found
+
     return (
-        rms if rms is not None else inf,
-        -(detection if detection is not None else -inf),
-        alarms if alarms is not None else inf,
+        value("rms_post_fault_median"),
+        value("detection_rate", -1.0),
+        value("false_alarms_per_hour"),
+        value("isolation_accuracy", -1.0),
+        value("detection_delay_median_s"),
     )
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from cosim import __version__
-from cosim.campaign.leaderboard import ResultsTable, read_table
+from cosim.campaign.leaderboard import ResultsTable, load_results
 from cosim.campaign.results import Row
 
 
@@ -38,19 +38,23 @@ def _ci(value: Any, pct: bool = False) -> str:
     return f"[{_pct(low)}, {_pct(high)}]" if pct else f"[{_num(low)}, {_num(high)}]"
 
 
+def _isolated_columns(confusion: dict[str, dict[str, int]]) -> list[str]:
+    """The columns of a confusion matrix: every target some fault was isolated to, sorted."""
+    return sorted({found for row in confusion.values() for found in row})
+
+
 def _png(fig: Any) -> str:
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=130, bbox_inches="tight")
     return base64.b64encode(buffer.getvalue()).decode()
 
 
-def figures(board: dict[str, Any], table: Path) -> list[dict[str, str]]:
+def figures(board: dict[str, Any], table: ResultsTable) -> list[dict[str, str]]:
     """The page's figures, each with its caption."""
     import matplotlib
 
     matplotlib.use("Agg")
-    found = read_table(table)
-    made = [_errors(board, found), _delays(board)]
+    made = [_errors(board, table), _delays(board)]
     return [figure for figure in made if figure is not None]
 
 
@@ -59,7 +63,7 @@ def _errors(board: dict[str, Any], table: ResultsTable) -> dict[str, str] | None
     import matplotlib.pyplot as plt
 
     panels = []
-    for group in (g["group"] for g in board["groups"]):
+    for group, unit in ((g["group"], g.get("unit", "")) for g in board["groups"]):
         by_estimator: dict[str, list[float]] = {}
         for values in table.rows:
             row = Row.of(values)
@@ -69,21 +73,21 @@ def _errors(board: dict[str, Any], table: ResultsTable) -> dict[str, str] | None
             if isinstance(error, float) and math.isfinite(error) and error > 0:
                 by_estimator.setdefault(str(row.estimator), []).append(error)
         if by_estimator:
-            panels.append((group, by_estimator))
+            panels.append((group, unit, by_estimator))
     if not panels:
         return None
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
-    for ax, (group, data) in zip(axes[:, 0], panels):
+    for ax, (group, unit, data) in zip(axes[:, 0], panels):
         names = sorted(data, key=lambda k: float(np.median(data[k])))
         ax.boxplot([data[k] for k in names], orientation="horizontal", whis=(10, 90), showfliers=True)
         ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
         errors = [v for k in names for v in data[k]]
         if max(errors) > 10 * min(errors):  # errors over decades: log scale; within one, plain numbers
             ax.set_xscale("log")
-        ax.set_title(", ".join(f"{k} = {v}" for k, v in group.items()), fontsize=9, loc="left")
+        title = ", ".join(f"{k} = {v}" for k, v in group.items())
+        ax.set_title(f"{title} [{unit}]" if unit else title, fontsize=9, loc="left")
         ax.grid(alpha=0.3, axis="x")
-    unit = table.units.get("rms_post_fault", "")
-    axes[-1, 0].set_xlabel(f"RMS of |x − x̂| after onset [{unit}]" if unit else "RMS of |x − x̂| after onset")
+    axes[-1, 0].set_xlabel("RMS of |x − x̂| after onset (in each panel's unit)")
     fig.tight_layout()
     figure = {
         "data": _png(fig),
@@ -136,15 +140,23 @@ def write_page(board: dict[str, Any], out: str | Path) -> Path:
     environment = jinja2.Environment(
         loader=jinja2.PackageLoader("cosim.campaign", "templates"), autoescape=True, undefined=jinja2.StrictUndefined
     )
-    environment.filters.update(num=_num, pct=_pct, ci=_ci)
-    table = Path(board["table"])
+    environment.filters.update(num=_num, pct=_pct, ci=_ci, isolated_columns=_isolated_columns)
+    sources = [Path(source) for source in board["sources"]]
+    table, bundle = load_results(sources)
     for group in board["groups"]:
         group["diagnosis"] = any(s["diagnoses"] for s in group["ranking"])
-    log_base = os.path.relpath(table.parent.resolve(), out.parent.resolve()).replace(os.sep, "/") + "/"
+    # a campaign's logs are kept beside its table; a bundle's under each case's folder, and the merged
+    # rows no longer say which bundle they came from: named, not linked
+    log_base = (
+        None
+        if bundle is not None
+        else os.path.relpath(sources[0].parent.resolve(), out.parent.resolve()).replace(os.sep, "/") + "/"
+    )
+    name = f"{bundle['suite']} v{bundle['version']}" if bundle else board.get("campaign") or sources[0].parent.name
     page = environment.get_template("leaderboard.html.j2").render(
         board=board,
         figures=figures(board, table),
-        title=f"{board.get('campaign') or table.parent.name}: leaderboard",
+        title=f"{name}: leaderboard",
         unit=board["units"].get("rms_post_fault") or "the state's units",
         log_base=log_base,
         version=__version__,

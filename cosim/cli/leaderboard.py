@@ -72,10 +72,16 @@ def _interval(bounds: Sequence[float | None] | None) -> str:
 def _versus(score: dict) -> str:
     """How an estimator compares with the next in its ranking, on their common runs."""
     comparison = score.get("vs_next")
-    if not comparison or comparison.get("median_difference") is None:
+    if not comparison:
         return ""
     sign = "=" if comparison["tied"] else ">"
-    return f"{sign} {comparison['median_difference']:+.3g} p {comparison['p_holm']:.2g} ({comparison['pairs']})"
+    if comparison.get("metric") == "diagnosis":
+        found = f"worse on {comparison['worse']}, better on {comparison['better']}"
+    elif comparison.get("median_difference") is not None:
+        found = f"{comparison['median_difference']:+.3g}"
+    else:
+        return ""
+    return f"{sign} {found} p {comparison['p_holm']:.2g} ({comparison['pairs']})"
 
 
 def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]]:
@@ -115,8 +121,9 @@ def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]
 LEGEND = (
     "RMS of the estimation error after the first fault's onset, median over runs with its 95 % bootstrap interval; "
     "final: the error at the last tick; vs next: > told apart from the next (=: not), the next estimator's median "
-    "paired excess over this one on their common runs, Holm-adjusted Wilcoxon p and the number of pairs; =2: a "
-    "shared rank"
+    "paired excess over this one on their common runs, Holm-adjusted Wilcoxon p and the number of pairs (two "
+    "schemes that only diagnose: on how many runs the next diagnosed worse and better, Holm-adjusted sign test p); "
+    "=2: a shared rank"
 )
 
 
