@@ -336,6 +336,9 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
         assert ranking[0]["vs_next"]["pairs"] == 2 and ranking[0]["vs_next"]["p_holm"] >= 0.05
         medians = [s["rms_post_fault_median"] for s in ranking]
         assert medians == sorted(medians) and all(s["runs"] == 2 for s in ranking)
+        # per run the peak after onset is at least the final error, so are their medians
+        assert all(s["peak_error_median"] >= s["final_error_median"] > 0 for s in ranking)
+        assert all(s["recovery_time_median_s"] is None or s["recovery_time_median_s"] >= 0 for s in ranking)
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["leaderboard", str(inline_table.path), "--json", "--html", str(tmp_path / "board.html")]) == 0
@@ -426,7 +429,7 @@ def test_the_text_leaderboard_shows_intervals_final_error_units_and_ties(tmp_pat
     table = synthetic_table(tmp_path / "t.parquet", {"worse": list(worse), "same": list(same)})
     assert main(["leaderboard", str(table)]) == 0
     out = capsys.readouterr().out
-    assert "95 % interval" in out and "final p50" in out and "vs next" in out
+    assert "95 % interval" in out and "final p50" in out and "peak p50" in out and "vs next" in out
     lines = {line.split()[1]: line for line in out.splitlines() if line.strip()[:2] in ("1 ", "=2")}
     assert set(lines) == {"base", "worse", "same"}
     assert "> +0.0474 p 3.8e-06 (20)" in lines["base"] and "= +0.005 p 0.73 (20)" in lines["same"]

@@ -4,8 +4,9 @@
 per group (the values of the ``by`` columns; by default the fault kind) and estimator, scores:
 
 - estimation: the median and 90th percentile of the RMS error after onset, with a 95 % bootstrap
-  interval of the median (2000 resamples, seeded: the same table gives the same interval), and
-  the median bias rejection ratio;
+  interval of the median (2000 resamples, seeded: the same table gives the same interval); the
+  median final and peak errors with theirs, the recovery time (median, p90) and the median bias
+  rejection ratio;
 - detection (estimators that publish an alarm): the detection rate over the runs with a fault
   (95 % Wilson interval), missed detections, false alarms per fault-free hour pooled over the runs
   (95 % exact Poisson interval), the median and 90th percentile of the detection and isolation
@@ -123,6 +124,8 @@ class Entry:
     """RMS after onset by run (by case and run in a benchmark): what paired comparisons pair."""
     rejection: list[float] = field(default_factory=list)
     final: list[float] = field(default_factory=list)
+    peak: list[float] = field(default_factory=list)
+    recovery: list[float] = field(default_factory=list)
     diagnoses: bool = False
     with_fault: int = 0
     detected: int = 0
@@ -149,6 +152,8 @@ class Entry:
         if (rms := _number(row.rms_post_fault)) is not None and row.run is not None:
             self.rms_by_run[run] = rms
         _append(self.final, row.final_error)
+        _append(self.peak, row.peak_error)
+        _append(self.recovery, row.recovery_time_s)
         if not row.diagnoses:
             return
         self.diagnoses = True
@@ -180,6 +185,11 @@ class Entry:
             "rms_post_fault_p90": percentile(rms, 90),
             "rms_post_fault_median_ci95": bootstrap_median(rms),
             "final_error_median": percentile(self.final, 50),
+            "final_error_median_ci95": bootstrap_median(self.final),
+            "peak_error_median": percentile(self.peak, 50),
+            "peak_error_median_ci95": bootstrap_median(self.peak),
+            "recovery_time_median_s": percentile(self.recovery, 50),
+            "recovery_time_p90_s": percentile(self.recovery, 90),
             "bias_rejection_median": percentile(rejection, 50),
         }
         detections, isolations = self.detection_delays, self.isolation_delays
@@ -203,7 +213,7 @@ class Entry:
                 key: None
                 for key in out
                 if key not in ("estimator", "kind", "runs", "failed", "diagnoses")
-                and not key.startswith(("rms_", "bias_", "final_"))
+                and not key.startswith(("rms_", "bias_", "final_", "peak_", "recovery_"))
             }
         return out
 

@@ -88,7 +88,8 @@ def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]
     """The headers and rows of one group of a leaderboard, as text."""
     diagnosis = any(s["diagnoses"] for s in group["ranking"])
     rms = f"RMS p50 [{unit}]" if unit else "RMS p50"
-    headers = ["#", "estimator", "kind", "runs", rms, "95 % interval", "p90", "final p50", "rejection", "vs next"]
+    headers = ["#", "estimator", "kind", "runs", rms, "95 % interval", "p90", "final p50", "peak p50"]
+    headers += ["recovery p50 [s]", "rejection", "vs next"]
     if diagnosis:
         headers += ["detected", "missed", "false alarms/h", "delay p50 [s]", "isolation p50 [s]", "isolated right"]
     rows = []
@@ -102,6 +103,8 @@ def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]
             _interval(s.get("rms_post_fault_median_ci95")),
             _number(s["rms_post_fault_p90"]),
             _number(s.get("final_error_median")),
+            _number(s.get("peak_error_median")),
+            _number(s.get("recovery_time_median_s")),
             _number(s["bias_rejection_median"]),
             _versus(s),
         ]
@@ -120,7 +123,8 @@ def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]
 
 LEGEND = (
     "RMS of the estimation error after the first fault's onset, median over runs with its 95 % bootstrap interval; "
-    "final: the error at the last tick; vs next: > told apart from the next (=: not), the next estimator's median "
+    "final: the error at the last tick; peak: its largest after the onset; recovery: from the onset until it stays "
+    "within twice its pre-fault level; vs next: > told apart from the next (=: not), the next estimator's median "
     "paired excess over this one on their common runs, Holm-adjusted Wilcoxon p and the number of pairs (two "
     "schemes that only diagnose: on how many runs the next diagnosed worse and better, Holm-adjusted sign test p); "
     "=2: a shared rank"
