@@ -68,6 +68,20 @@ def test_each_check_raises_on_what_it_looks_for_and_nothing_else():
     assert len(recorder.verdicts) == 11  # each tick once
 
 
+def test_a_frame_on_the_wire_outside_the_dbc_is_unknown_unless_it_is_declared_traffic():
+    import can
+
+    codec = _codec()
+    flood = can.Message(arbitration_id=0x0C0, data=bytes(8), is_extended_id=False)
+    for known, raised in ((frozenset(), {"unknown"}), (frozenset({0x0C0}), set())):
+        detector = IntrusionDetector(codec, DT_NS, known)
+        detector.frame(0, 1000, flood, None)  # a babbling node's frame, as the arbitrated wire delivers it
+        recorder = _Verdicts()
+        detector.publish(recorder, 1, 0.01)  # type: ignore[arg-type]
+        checks, ids = recorder.verdicts[0]
+        assert {c for c, n in checks.items() if n} == raised and ids == ([0x0C0] if raised else [])
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("timing", ["ideal", "arbitrated"])
 def test_masses_spoofing_is_detected_at_once_without_false_alarms(tmp_path, timing):
@@ -105,6 +119,14 @@ def test_an_overloaded_bus_raises_no_alarm(tmp_path):
     assert metrics["bus"]["latency"]["0x102"]["dropped"] > 1000  # the overload is there: replaced frames
     verdict = metrics["bus"]["intrusion_detection"]["any"]
     assert verdict["false_alarms"] == 0 and verdict["fault_free_time_s"] == 30.0
+    # the same flood, not declared but a babbling-node fault: unknown to the detector from its first frame
+    babbling = {"name": "babbling", "kind": "babbling_node", "id": 0x0C0, "period": 0.0011, "start": 10.0, "end": 20.0}
+    loaded = apply(
+        scenario.load("masses-bus-overload"), {"bus.intrusion_detector": True, "bus.traffic": [], "faults": [babbling]}
+    )
+    assert run(loaded, out, 0, interface="virtual").status == "completed"
+    scored = compute_metrics(out)["bus"]["intrusion_detection"]
+    assert scored["unknown"]["faults"]["babbling"]["detection_delay"] == 0.0 and scored["any"]["false_alarms"] == 0
 
 
 def test_without_the_detector_the_log_has_no_verdicts(tmp_path):

@@ -9,9 +9,11 @@ and holds no key. Per data id of the DBC it checks:
 - ``sequence``: its tick counter repeats the previous one of its id or goes back (a forward jump is
   a lost or replaced frame, not an intrusion);
 - ``range``: a value outside its signal's range in the DBC (or not finite);
-- ``unknown``: a frame on an id outside the run's DBC, one that cannot be one of its frames (another
-  length), or one on the runner's own ids that the runner did not send (the echo check of
-  ``cosim.run.traffic.Traffic``: the owner of an id sees a frame it did not send).
+- ``unknown``: a frame on an id outside the run's DBC and its declared background traffic
+  (``[[bus.traffic]]``, which a deployed detector would be configured with), one that cannot be
+  one of its frames (another length), or one on the runner's own ids that the runner did not send
+  (the echo check of ``cosim.run.traffic.Traffic``: the owner of an id sees a frame it did not
+  send). On an arbitrated wire that includes a babbling node's frames.
 
 It never uses what the simulation knows (which frames a fault injected): a fault's intruder sends
 from the runner, so to the ``unknown`` check it is the owner. Each tick's verdict goes to
@@ -35,8 +37,9 @@ _DATA = (SENSOR, COMMAND, CONTROL, ESTIMATE, CLIENT)
 class IntrusionDetector:
     """Per-id period, sequence and range checks and unknown senders, tick by tick."""
 
-    def __init__(self, codec: Codec, dt_ns: int) -> None:
-        self.codec, self.dt_ns = codec, dt_ns
+    def __init__(self, codec: Codec, dt_ns: int, traffic_ids: frozenset[int] = frozenset()) -> None:
+        """``traffic_ids``: the ids of the bus's declared background traffic (known, not checked)."""
+        self.codec, self.dt_ns, self.traffic_ids = codec, dt_ns, traffic_ids
         self._last: dict[int, tuple[int, int]] = {}  # id -> (arrival ns, tick counter) of its last frame
         self._alarms: defaultdict[int, defaultdict[str, set[int]]] = defaultdict(lambda: defaultdict(set))
         self._published = 0  # ticks before this one have their verdict in the log
@@ -48,8 +51,12 @@ class IntrusionDetector:
 
     def frame(self, tick: int, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
         """A frame as the runner logs it, at its arrival (tick, ns)."""
-        if decoded is None or decoded.spec.role not in _DATA:
-            return  # undecodable frames are the foreign frames' (``unknown``); control frames are not checked
+        if decoded is None:  # on the wire but in no message of the DBC: unknown unless declared traffic
+            if frame.arbitration_id not in self.traffic_ids or frame.is_extended_id:
+                self._raise(tick, "unknown", frame.arbitration_id if not frame.is_extended_id else -1)
+            return
+        if decoded.spec.role not in _DATA:
+            return  # control frames are not checked
         frame_id = frame.arbitration_id
         previous = self._last.get(frame_id)
         counter = decoded.tick % self.codec.tick_modulus

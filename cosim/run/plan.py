@@ -399,7 +399,9 @@ class RunPlan:
             ),
             secoc=self.secoc(),
             control=self.control(),
-            detector=IntrusionDetector(self.codec, s.dt_ns) if s.bus.intrusion_detector else None,
+            detector=IntrusionDetector(self.codec, s.dt_ns, frozenset(t.id for t in s.bus.traffic))
+            if s.bus.intrusion_detector
+            else None,
         )
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:
