@@ -119,9 +119,9 @@ class Entry:
     failed: int = 0
     rms: list[float] = field(default_factory=list)
     rms_by_run: dict[Any, float] = field(default_factory=dict)
-    diagnosis_by_run: dict[Any, tuple[float, ...]] = field(default_factory=dict)
-    """Per run, the diagnosis outcome ``diagnosis_outcome`` (lower is better)."""
     """RMS after onset by run (by case and run in a benchmark): what paired comparisons pair."""
+    diagnosis_by_run: dict[Any, tuple[float, ...]] = field(default_factory=dict)
+    """Per run, its ``diagnosis_outcome`` (lower is better): what sign comparisons pair."""
     rejection: list[float] = field(default_factory=list)
     final: list[float] = field(default_factory=list)
     peak: list[float] = field(default_factory=list)
@@ -255,8 +255,10 @@ def leaderboard(
         groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row, values.get("case"))
     ranked: list[dict[str, Any]] = []
     for key in sorted(groups, key=lambda k: tuple(str(v) for v in k)):
-        entries = sorted(groups[key].values(), key=lambda entry: _rank_key(entry.scores()))
-        scores = [entry.scores() for entry in entries]
+        scored = sorted(
+            ((entry.scores(), entry) for entry in groups[key].values()), key=lambda pair: _rank_key(pair[0])
+        )
+        scores, entries = [score for score, _ in scored], [entry for _, entry in scored]
         for score, entry, following in zip(scores, entries, entries[1:]):
             if entry.rms_by_run and following.rms_by_run:
                 comparison = paired_comparison(entry.rms_by_run, following.rms_by_run)

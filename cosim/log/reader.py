@@ -217,8 +217,8 @@ def _chunk_messages(data: bytes, length: int) -> tuple[list[records.Message], di
     and where each sits in the chunk's uncompressed records: offset -> (channel id, log time).
 
     mcap decompresses and checks the chunk; its records are walked here with one ``unpack_from``
-    each (the MCAP specification's Message layout), which reads a log 2.5 times as fast as
-    mcap's field-by-field stream reads."""
+    each (the MCAP specification's Message layout) rather than mcap's field-by-field stream reads:
+    ``cosim.analysis.metrics.measure`` of the default run's log takes 14 % less time."""
     if len(data) != length:
         raise EndOfFile(f"the file ends {length - len(data)} bytes into this chunk")
     stream = ReadDataStream(io.BytesIO(data))
