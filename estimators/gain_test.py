@@ -11,10 +11,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
 import scipy.special
 
-from estimators.model_window import stacked_window
+from estimators.box_least_squares import box_least_squares
+from estimators.model_window import Projection, complement_projection, reduced_system, stacked_window
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class GainTestWindow:
     """Σ_{i<k} C_y A^(k−1−i) B by sample and input, whitened, shape (N, m, N − 1, n_u)."""
     min_window: int
     """The shortest sub-window that may identify the gains after a change."""
+    projection: Projection
+    """W' of the whole window, the whitened equations of the N samples that the nuisance unknowns
+    cannot satisfy: the test of every tick, on the whole window with nothing missing, needs no more."""
 
     @property
     def window(self) -> int:
@@ -69,7 +72,7 @@ def gain_test_window(
     bases = tuple(
         _range_basis(Z[:L, :, :c].reshape(L * m, c)) for L, c in zip(range(min_window, N + 1), columns, strict=True)
     )
-    return GainTestWindow(weight, Z, columns, bases, forced, min_window)
+    return GainTestWindow(weight, Z, columns, bases, forced, min_window, complement_projection(Z, forced))
 
 
 def _range_basis(Z: np.ndarray) -> np.ndarray:
@@ -105,6 +108,10 @@ def window_system(
     Each sensor's offset d_j may jump at c as well (a bias step, or d_j = β_j F⁽ʲ⁾ b with a new
     β_j): m more nuisance columns, projected out with the others."""
     L, m = y.shape
+    if change is None and L == window.window and not np.isnan(y).any():
+        reduced = reduced_system(window.projection, y * window.weight, u)
+        R = window.projection.forced.shape[0]  # the equations left: L m − rank(Z_L)
+        return WindowSystem(reduced[:m, :m], reduced[:m, m], float(reduced[m, m]) ** 2, R)
     index = L - window.min_window
     kept = ~np.isnan(y).ravel()
     rows = np.arange(L * m)
@@ -184,7 +191,7 @@ def gain_hypotheses(
     """The hypotheses with the fewest fitted gains that the window does not reject at level α; none
     if it rejects every one (no constant gains explain it).
 
-    Each sensor's gain is either fitted (least squares; BVLS within [lower, upper] on β), or given:
+    Each sensor's gain is either fitted (least squares; within [lower, upper] on β), or given:
     its ``previous`` β, or 1 (healthy). With |S| gains fitted, T(β̂) ~ χ²(dof − |S|) if the
     hypothesis holds, so a true hypothesis is rejected with probability α: a gain differs from its
     previous value, or from 1, only if every hypothesis that keeps it is rejected."""
@@ -214,8 +221,7 @@ def gain_hypotheses(
                         if size == 1:
                             fitted = np.clip(fitted, lower[index], upper[index])
                         else:
-                            bounds = (lower[index], upper[index])
-                            fitted = scipy.optimize.lsq_linear(columns, rhs, bounds=bounds, method="bvls").x
+                            fitted = box_least_squares(columns, rhs, lower[index], upper[index])
                         beta[index] = fitted
                 statistic = chi2_statistic(system, beta)
                 if statistic <= threshold:

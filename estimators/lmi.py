@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 
 if TYPE_CHECKING:
     import cvxpy as cp
@@ -123,7 +124,13 @@ class SensorFaultModel:
 
     def Cbar(self, gamma: np.ndarray) -> np.ndarray:
         """C̄_γ = [Δ(γ) C_y, F], eq. (8), shape (m, n + q)."""
-        return np.hstack([np.asarray(gamma, dtype=float)[:, None] * self.C, self.F])
+        Cbar = self._Cbar_template.copy()  # the reconciliators build one every tick: no np.hstack
+        np.multiply(np.asarray(gamma, dtype=float)[:, None], self.C, out=Cbar[:, : self.n])
+        return Cbar
+
+    @functools.cached_property
+    def _Cbar_template(self) -> np.ndarray:
+        return np.hstack([np.zeros_like(self.C), self.F])
 
     @functools.cached_property
     def Ebar_G_pinv(self) -> np.ndarray:
@@ -146,14 +153,28 @@ def uio_matrices(model: SensorFaultModel, gamma: np.ndarray, *, form: str = "pin
     gamma = np.asarray(gamma, dtype=float)
     Ebar, Cbar = model.Ebar, model.Cbar(gamma)
     if form == "pinv":
-        CE = Cbar @ Ebar
-        Q = Ebar @ np.linalg.pinv(CE)
+        Q = Ebar @ pseudo_inverse(Cbar @ Ebar)
     elif form == "lft":
         Q = model.Ebar_G_pinv / gamma[None, :]
     else:
         raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
-    T = np.eye(model.n + model.q) - Q @ Cbar
+    T = -(Q @ Cbar)
+    T.flat[:: T.shape[0] + 1] += 1.0  # I − Q C̄, without building I
     return Q, T
+
+
+def pseudo_inverse(M: np.ndarray) -> np.ndarray:
+    """The Moore–Penrose inverse M⁺ = V Σ⁺ Uᵀ of M (k, l), as np.linalg.pinv (singular values below
+    1e-15 σ_max taken as zero), from LAPACK's SVD directly: the reconciliators form one every tick,
+    and numpy.linalg's checks cost more than the SVD of a 4 × 1 matrix."""
+    if M.shape[1] == 1:  # one unknown input: M⁺ = Mᵀ / ‖M‖² (0 for M = 0)
+        norm = float(M[:, 0] @ M[:, 0])
+        return M.T / norm if norm > 0.0 else np.zeros_like(M.T)
+    u, s, vt, info = lapack.dgesdd(M, compute_uv=1, full_matrices=0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"SVD did not converge (LAPACK dgesdd info {info})")
+    inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > 1e-15 * s.max(initial=0.0))
+    return vt.T @ (inverse[:, None] * u.T)
 
 
 def check_assumptions(model: SensorFaultModel, gammas: np.ndarray, tol: float = 1e-9) -> None:
@@ -190,16 +211,14 @@ def box_coordinates(gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> 
     """ρ(γ) ∈ S_l, l = 2^m: the multilinear (tensor-product) barycentric coordinates of γ in the
     box, ordered as ``box_vertices``. Σ ρ_i = 1, ρ ≥ 0 and Σ ρ_i γ_i = γ; so any map affine in
     each γ_j, like C̄_γ, equals Σ ρ_i C̄_γi exactly (the embedding (15))."""
-    lam = np.clip((np.asarray(gamma, dtype=float) - lower) / (np.asarray(upper) - lower), 0.0, 1.0)
-    return np.prod(np.where(_corner_bits(lam.size), lam, 1.0 - lam), axis=1)
-
-
-@functools.lru_cache(maxsize=8)
-def _corner_bits(m: int) -> np.ndarray:
-    """Which corner of the m-dimensional unit box has coordinate 1 where, ordered as ``box_vertices``."""
-    bits = box_vertices(np.zeros(m), np.ones(m)) == 1
-    bits.flags.writeable = False
-    return bits
+    lam = ((np.asarray(gamma, dtype=float) - lower) / (np.asarray(upper) - lower)).tolist()
+    # ρ_v = Π_j (λ_j if bit j of v is set else 1 − λ_j), built up one coordinate at a time (bit j
+    # the j-th least significant), in plain floats: the reconciliators evaluate it every tick.
+    weights = [1.0]
+    for value in lam:
+        value = min(max(value, 0.0), 1.0)
+        weights = [w * factor for factor in (1.0 - value, value) for w in weights]
+    return np.array(weights)
 
 
 # -- checks ------------------------------------------------------------------------------------

@@ -5,10 +5,54 @@ samples, solved for the gains by bounded least squares (docs/three-tank.md, "The
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
-import scipy.optimize
+from scipy.linalg import lapack
+
+from estimators.box_least_squares import box_least_squares
+
+
+class Projection(NamedTuple):
+    """W' (R, N m), an orthonormal basis of the equations of a window of N samples that its nuisance
+    unknowns cannot satisfy, in the two forms a tick needs."""
+
+    by_sensor: np.ndarray
+    """W'_j, the columns of W' that weigh sensor j's readings y_j(0 … N−1), shape (m, R, N)."""
+    forced: np.ndarray
+    """W' applied to the forced response, shape (R, (N − 1) n_u): times u(0 … N−2) stacked, W' r."""
+
+
+def complement_projection(Z: np.ndarray, forced: np.ndarray) -> Projection:
+    """The ``Projection`` onto the complement of range(Z) of a window's equations: Z (N, m, k), the
+    nuisance columns; forced (N, m, N − 1, n_u), as ``stacked_window`` returns them (weighted)."""
+    N, m = Z.shape[:2]
+    W = _complement(Z.reshape(N * m, -1)).reshape(-1, N, m)
+    by_sensor = np.ascontiguousarray(W.transpose(2, 0, 1))
+    return Projection(by_sensor, np.einsum("rkj,kjil->ril", W, forced).reshape(len(W), -1))
+
+
+def reduced_system(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """R̃ (m + 1, m + 1), the triangular factor of the QR factorization of [W' Y, W' r], with
+    Y = diag(y(k)) stacked: readings y (N, m), weighted, 0 where one is missing; inputs u (N, n_u).
+    Its blocks R = R̃[:m, :m], c = R̃[:m, m] and ρ = R̃[m, m] hold all of the window's least squares in
+    β: ‖W' Y β − W' r‖² = ‖R β − c‖² + ρ² for every β, and W' Y has the singular values and column
+    norms of R."""
+    system = np.empty((projection.by_sensor.shape[1], y.shape[1] + 1))
+    system[:, :-1] = (projection.by_sensor @ y.T[:, :, None])[:, :, 0].T  # W' Y: column j is W_j' y_j
+    system[:, -1] = projection.forced @ u[:-1].ravel()  # W' r
+    size = system.shape[1]
+    return lapack.dgeqrf(system)[0][:size] * _upper_triangle(size)  # R̃, as np.linalg.qr(system, "r")
+
+
+@functools.lru_cache(maxsize=16)
+def _upper_triangle(size: int) -> np.ndarray:
+    """1 on and above the diagonal, 0 below: R̃ from LAPACK's factors (np.triu builds its mask each call)."""
+    mask = np.triu(np.ones((size, size)))
+    mask.flags.writeable = False
+    return mask
 
 
 @dataclass(frozen=True)
@@ -35,10 +79,8 @@ class ModelWindow:
     weight: np.ndarray
     """1/‖C_y⁽ʲ⁾‖ per sensor, shape (m,): each sensor's equations in units of the state, so that a
     sensor scaled up (10·h1) does not outweigh the others in the fit and in its residual."""
-    complement: np.ndarray
-    """W' reshaped (R, N, m): the (weighted) equations that the nuisance unknowns cannot satisfy."""
-    forced: np.ndarray
-    """W' applied to the forced response, (R, N − 1, n_u): contracted with u(0 … N−2) it is W' r."""
+    projection: Projection
+    """W', the (weighted) equations that the nuisance unknowns cannot satisfy."""
 
 
 def _complement(Z: np.ndarray) -> np.ndarray:
@@ -76,10 +118,9 @@ def model_window(A: np.ndarray, B: np.ndarray, E: np.ndarray, C: np.ndarray, N: 
     m = C.shape[0]
     Z, forced = stacked_window(A, B, E, C, N)
     weight = 1.0 / np.linalg.norm(C, axis=1)
-    Z = (Z * weight[None, :, None]).reshape(N * m, -1)
+    Z *= weight[None, :, None]
     forced *= weight[None, :, None, None]
-    W = _complement(Z).reshape(-1, N, m)
-    return ModelWindow(Z, forced, weight, W, np.einsum("rkj,kjil->ril", W, forced))
+    return ModelWindow(Z.reshape(N * m, -1), forced, weight, complement_projection(Z, forced))
 
 
 def window_gains(
@@ -92,26 +133,28 @@ def window_gains(
     column-normalized regressor W' Y, whose ratio measures how well the window excites the gains;
     and the relative residual ‖W' (Y β − r)‖ / ‖W' r‖, which is small only if one γ explains the
     whole window through the model (it is not, e.g., when a fault changes inside the window).
-    The box 1/upper ≤ β ≤ 1/lower is imposed on β = 1/γ, where the problem is linear (BVLS).
+    The box 1/upper ≤ β ≤ 1/lower is imposed on β = 1/γ, where the problem is linear.
+
+    Everything after the projection works on the reduced system (``reduced_system``).
     """
     missing = np.isnan(y)
-    W, forced = window.complement, window.forced
+    projection = window.projection
     if missing.any():  # the complement of the nuisance columns within the equations that are left
         kept = ~missing.ravel()
         basis = _complement(window.nuisance[kept])
-        W = np.zeros((len(basis), kept.size))
-        W[:, kept] = basis
-        W = W.reshape(len(basis), *y.shape)
-        forced = np.einsum("rkj,kjil->ril", W, window.response)
-    y0 = np.where(missing, 0.0, y) * window.weight
-    regressor = np.einsum("rkj,kj->rj", W, y0)  # W' Y
-    target = np.einsum("ril,il->r", forced, u[:-1])  # W' r
-    scale = np.linalg.norm(regressor, axis=0)
-    sv = np.linalg.svd(regressor / np.where(scale > 0, scale, 1.0), compute_uv=False)
-    lo, hi = 1.0 / upper, 1.0 / lower
-    beta = np.linalg.lstsq(regressor, target, rcond=None)[0]
-    if np.any(beta < lo) or np.any(beta > hi):
-        beta = scipy.optimize.lsq_linear(regressor, target, bounds=(lo, hi), method="bvls").x
-    size = np.linalg.norm(target)
-    residual = float(np.linalg.norm(regressor @ beta - target) / size) if size > 0 else np.inf
+        complement = np.zeros((len(basis), kept.size))
+        complement[:, kept] = basis
+        complement = complement.reshape(len(basis), *y.shape)
+        forced = np.einsum("rkj,kjil->ril", complement, window.response).reshape(len(basis), -1)
+        projection = Projection(np.ascontiguousarray(complement.transpose(2, 0, 1)), forced)
+        y = np.where(missing, 0.0, y)
+    reduced = reduced_system(projection, y * window.weight, u)
+    R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2
+    scale = np.sqrt(np.einsum("ij,ij->j", R, R))
+    scale[scale == 0.0] = 1.0
+    sv = lapack.dgesvd(R / scale, compute_uv=0)[1]
+    beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
+    misfit = R @ beta - c
+    size = float(c @ c) + rest
+    residual = float(np.sqrt((misfit @ misfit + rest) / size)) if size > 0 else np.inf
     return 1.0 / beta, sv, residual

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.linalg import lapack
 
 from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
 from estimators.gain_test import GainDecision, GainTestWindow, decide_gains, gain_test_window
@@ -42,6 +43,7 @@ from estimators.model_window import model_window, window_gains
 from estimators.sample_window import Sample, SampleWindow
 
 Matrix = tuple[tuple[float, ...], ...]
+_ONE = np.ones(1)  # the affine term's input, u_bar = [u; 1]
 
 
 @dataclass(frozen=True)
@@ -289,7 +291,7 @@ class UioReconciliator(_Reconciliator):
     # -- the on-line phase --------------------------------------------------------------------
 
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
-        u_bar = np.append(u, 1.0)
+        u_bar = np.concatenate((u, _ONE))
         if self.gain_test is not None:
             self._tested_step(y, u_bar)
         else:
@@ -320,7 +322,7 @@ class UioReconciliator(_Reconciliator):
             y_prev, u_prev = self.previous
             prior = self.Abar @ self.x_hat + self.Bbar @ u_prev
             x_next = T @ prior + L @ (y_prev - Cbar @ self.x_hat)  # eq. (10)
-        used = np.where(np.isnan(y) | coast, Cbar @ prior, y)
+        used = np.where(np.isnan(y) | coast, Cbar @ prior, y) if coast or np.isnan(y).any() else y
         self.x_hat = x_next + Q @ used
         self.previous = (used, u_bar)
         n = self.model.n
@@ -385,7 +387,7 @@ class UioReconciliator(_Reconciliator):
         size = np.linalg.norm(r)
         self.fit = float(np.linalg.norm(r - gamma * s) / size) if size > 0 else 0.0
         # Condition (55): rank X̂_p = n, as the ratio of extreme singular values.
-        sv = np.linalg.svd(xs, compute_uv=False)
+        sv = lapack.dgesvd(xs, compute_uv=0)[1]  # as np.linalg.svd, without its checks' cost every tick
         self.pe = self._excitation(sv, self.model.n)
         return gamma
 
@@ -499,7 +501,11 @@ class LpvUioReconciliator(UioReconciliator):
         rho = box_coordinates(gamma, self.lower, self.upper)
         l, nx, m = self.Y_vertices.shape
         G = (rho @ self.G_vertices.reshape(l, nx * nx)).reshape(nx, nx)  # Σ ρ_i G_i
-        return np.linalg.solve(G, (rho @ self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
+        # LAPACK directly: numpy.linalg.solve's checks cost as much as the 5 × 5 solve
+        lu, pivots, L, info = lapack.dgesv(G, (rho @ self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
+        if info != 0:
+            raise np.linalg.LinAlgError(f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)")
+        return L
 
     def design_params(self) -> dict[str, Any]:
         l, nx = self.G_vertices.shape[:2]

@@ -334,7 +334,8 @@ def linear_window(gamma, steps=50, seed=0, bias=2.0):
 
 def test_the_model_window_eliminates_the_nuisance_unknowns():
     window = model_window(A, B, E, C, 50)
-    W = window.complement.reshape(len(window.complement), -1)
+    by_sensor = window.projection.by_sensor
+    W = by_sensor.transpose(1, 2, 0).reshape(by_sensor.shape[1], -1)  # (R, N m), sample-major
     np.testing.assert_allclose(W @ W.T, np.eye(len(W)), atol=1e-10)  # orthonormal
     assert np.abs(W @ window.nuisance).max() < 1e-9 * np.abs(window.nuisance).max()  # ⟂ range(Z)
     # 4·50 equations; d (4), x_p(0) (3), v (49) less the one direction they share (a steady state
@@ -580,3 +581,27 @@ def test_a_window_without_excitation_is_reported_and_gamma_kept(lft_design):
     # hold too few switchings of the square waves: reported as such, γ̂ kept).
     assert np.abs(gammas[500 + 2 * WINDOW :, 0] - 0.6).max() <= 0.03 and np.mean(pe[600:] > 0) > 0.9
     assert np.all(gammas[:, 1:] == 1.0)
+
+
+def test_the_gain_tests_window_system_is_its_statistics_definition():
+    """The tick's window system (the whole window, every reading there) reduced by the complement
+    of the nuisance columns gives, for any β, T(β) = ‖P⊥ D (Y β − r)‖² with P⊥ = I − Q Qᵀ, Q a basis
+    of range(Z), its degrees of freedom N m − rank Z, and the standard errors 1/‖P⊥ D Y_j‖."""
+    from estimators.gain_test import chi2_statistic, gain_standard_errors, gain_test_window, window_system
+
+    sigma = np.array([0.01, 0.02, 0.01, 0.03])
+    window = gain_test_window(A, np.hstack([B, np.ones((3, 1))]), E, C, sigma, WINDOW, 10)
+    ys, us = linear_window(TRUE_GAINS, WINDOW, seed=3)
+    us = np.hstack([us, np.ones((WINDOW, 1))])
+    system = window_system(window, ys, us)
+    Q = window.bases[-1]
+    projector = np.eye(len(Q)) - Q @ Q.T
+    Y = np.zeros((WINDOW * 4, 4))
+    Y[np.arange(WINDOW * 4), np.tile(np.arange(4), WINDOW)] = (ys / sigma).ravel()
+    r = np.einsum("kjil,il->kj", window.forced, us[:-1]).ravel()
+    assert system.dof == WINDOW * 4 - Q.shape[1]
+    rng = np.random.default_rng(4)
+    for beta in [1.0 / TRUE_GAINS, np.ones(4), *rng.uniform(1.0, 2.0, (5, 4))]:
+        direct = np.sum((projector @ (Y @ beta - r)) ** 2)
+        assert chi2_statistic(system, beta) == pytest.approx(direct, rel=1e-9, abs=1e-9 * (r @ r))
+    np.testing.assert_allclose(gain_standard_errors(system), 1 / np.linalg.norm(projector @ Y, axis=0), rtol=1e-9)
