@@ -143,15 +143,19 @@ class SensorFaultModel:
         return self.C @ self.E
 
 
-def uio_matrices(model: SensorFaultModel, gamma: np.ndarray, *, form: str = "pinv") -> tuple[np.ndarray, np.ndarray]:
+def uio_matrices(
+    model: SensorFaultModel, gamma: np.ndarray, *, form: str = "pinv", Cbar: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(Q_γ, T_γ) of the UIO: T = I − Q C̄_γ (11), with T Ē = 0 (12).
 
     ``form="pinv"``: Q = Ē (C̄_γ Ē)⁺, the Moore–Penrose left inverse of eq. (14) (Algorithm 1);
     ``form="lft"``: Q = Ē G⁺ Δ⁻¹(γ) with G⁺ = (GᵀG)⁻¹Gᵀ, another left inverse of C̄_γ Ē = Δ(γ) G
     (eq. (60)), which makes T affine in Δ⁻¹(γ) (eq. (61)) and is the one Theorem 2's LFT describes.
+    ``Cbar``: C̄_γ, where the caller has it already.
     """
     gamma = np.asarray(gamma, dtype=float)
-    Ebar, Cbar = model.Ebar, model.Cbar(gamma)
+    Ebar = model.Ebar
+    Cbar = model.Cbar(gamma) if Cbar is None else Cbar
     if form == "pinv":
         Q = Ebar @ pseudo_inverse(Cbar @ Ebar)
     elif form == "lft":

@@ -332,8 +332,9 @@ class UioReconciliator(_Reconciliator):
         """Q, T (eq. (11)–(14)), C̄ and L at γ̂, computed again only when γ̂ changes."""
         key = gamma.tobytes()
         if key != self.uio_gamma:
-            Q, T = uio_matrices(self.aug, gamma, form=self.form)
-            self.uio_matrices, self.uio_gamma = (Q, T, self.aug.Cbar(gamma), self.gain(gamma)), key
+            Cbar = self.aug.Cbar(gamma)
+            Q, T = uio_matrices(self.aug, gamma, form=self.form, Cbar=Cbar)
+            self.uio_matrices, self.uio_gamma = (Q, T, Cbar, self.gain(gamma)), key
         return self.uio_matrices
 
     def _tested_step(self, y: np.ndarray, u_bar: np.ndarray) -> None:

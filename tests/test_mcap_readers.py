@@ -196,3 +196,39 @@ def test_the_log_writer_writes_the_bytes_of_the_official_writer(tmp_path, monkey
     monkeypatch.setattr(writer_module, "_Writer", Writer)
     official = write(tmp_path / "official.mcap")
     assert ours == official
+
+
+def test_damaged_message_indexes_are_reported_and_the_messages_still_read(tmp_path):
+    """A chunk's message indexes carry no CRC: the reader checks each entry against the message it
+    points at, warns where one does not (or the count differs), and reads the chunk all the same."""
+    from mcap.reader import make_reader as official
+
+    from cosim.log.reader import LogReader
+    from cosim.log.writer import McapLog
+
+    path = tmp_path / "log.mcap"
+    with McapLog(path, chunk_size=4096) as log:
+        channel = log.channel("/a", {"title": "a", "type": "object"})
+        for k in range(2000):
+            log.write(channel, 10 * k, {"tick": k})
+    with path.open("rb") as stream:
+        summary = official(stream).get_summary()
+    assert summary is not None
+    first = min(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    entries_at = first.message_index_offsets[channel] + 1 + 8 + 2 + 4  # opcode, length, channel id, byte length
+
+    def read(data: bytes) -> tuple[int, list[str]]:
+        path.write_bytes(data)
+        with LogReader(path) as reader:
+            return sum(1 for _ in reader.messages()), reader.warnings
+
+    intact = path.read_bytes()
+    assert read(intact) == (2000, [])
+    moved = bytearray(intact)
+    moved[entries_at + 8 : entries_at + 16] = struct.pack("<Q", 3)  # the first entry's offset
+    count, warnings = read(bytes(moved))
+    assert count == 2000 and len(warnings) == 1 and "1 of its" in warnings[0] and "do not point at" in warnings[0]
+    cut = bytearray(intact)
+    cut[entries_at - 4 : entries_at] = struct.pack("<I", 16)  # the array now lists one entry
+    count, warnings = read(bytes(cut))
+    assert count == 2000 and len(warnings) == 1 and "message indexes" in warnings[0]

@@ -210,6 +210,8 @@ class LogReader:
 
 _RECORD = struct.Struct("<BQ")  # an MCAP record's opcode and length
 _MESSAGE = struct.Struct("<HIQQ")  # a Message record's channel id, sequence, log time and publish time
+_INDEX_HEADER = struct.Struct("<HI")  # a MessageIndex record's channel id and its entries' byte length
+_INDEX_ENTRY = struct.Struct("<QQ")  # one entry: log time, offset in the chunk's uncompressed records
 
 
 def _chunk_messages(data: bytes, length: int) -> tuple[list[records.Message], dict[int, tuple[int, int]]]:
@@ -248,19 +250,27 @@ def _chunk_messages(data: bytes, length: int) -> tuple[list[records.Message], di
 def _index_damage(index: records.ChunkIndex, data: bytes, offsets: dict[int, tuple[int, int]]) -> str | None:
     """What is wrong with a chunk's message indexes (``data``: their bytes after the chunk), or None.
 
-    The format gives them no CRC: each entry is checked against the message it points at."""
-    stream = ReadDataStream(io.BytesIO(data))
+    The format gives them no CRC: each entry is checked against the message it points at. The
+    records are read with ``struct`` (the MCAP specification's MessageIndex layout: channel id, the
+    entries' byte length, then (log time, offset) pairs), not entry by entry through mcap's stream."""
     entries = bad = 0
+    position = 0
     try:
-        while stream.count < len(data):
-            opcode, record_length = stream.read1(), stream.read8()
+        while position < len(data):
+            opcode, record_length = _RECORD.unpack_from(data, position)
+            start = position + _RECORD.size
+            position = start + record_length
+            if position > len(data):
+                raise EOFError(f"a record runs {position - len(data)} bytes past the message indexes")
             if opcode != Opcode.MESSAGE_INDEX:
-                stream.read(record_length)
                 continue
-            found = records.MessageIndex.read(stream)
-            for log_time, offset in found.records:
+            channel_id, size = _INDEX_HEADER.unpack_from(data, start)
+            if size % 16 or _INDEX_HEADER.size + size > record_length:
+                raise McapError(f"a message index of {size} bytes in a record of {record_length}")
+            pairs = _INDEX_ENTRY.iter_unpack(data[start + _INDEX_HEADER.size : start + _INDEX_HEADER.size + size])
+            for log_time, offset in pairs:
                 entries += 1
-                bad += offsets.get(offset) != (found.channel_id, log_time)
+                bad += offsets.get(offset) != (channel_id, log_time)
     except (McapError, struct.error, EOFError, ValueError) as error:
         return f"its message indexes cannot be read ({error or type(error).__name__})"
     if entries != len(offsets):
