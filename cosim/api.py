@@ -74,16 +74,24 @@ def run(
     seed: int | None = None,
     in_process: bool = False,
     on_progress: Callable[[Progress], None] | None = None,
+    measure: bool = False,
     **options: Any,
 ) -> RunResult:
     """Run a scenario (a loaded one, or a name or path) into the MCAP log ``out``; returns how it
-    ended. ``options`` are ``cosim run``'s: ``interface``, ``channel``, ``port``, ``mode``, ``speed``."""
+    ended. ``options`` are ``cosim run``'s: ``interface``, ``channel``, ``port``, ``mode``, ``speed``.
+    With ``measure``, the result's ``metrics`` are the log's (``metrics(out)`` as a ``RunMetrics``),
+    scored while the run wrote it rather than by reading it again."""
+    from dataclasses import replace
+
+    from cosim.analysis.metrics import LiveMeasurement
     from cosim.run.runner import Run
 
     loaded = scenario if isinstance(scenario, LoadedScenario) else load(scenario)
     if in_process:
         options["interface"] = "virtual"
-    return Run(loaded, out, seed, **options).execute(on_progress)
+    live = LiveMeasurement() if measure else None
+    result = Run(loaded, out, seed, **options).execute(on_progress, sink=live)
+    return replace(result, metrics=live.result(result.path)) if live is not None else result
 
 
 def metrics(log: str | Path) -> dict[str, Any]:

@@ -377,16 +377,12 @@ class UioReconciliator(_Reconciliator):
         ys, xs, bs = (self.history.field(name) for name in ("y", "x_p", "b"))
         s = xs @ self.model.C.T  # (N, m)
         r = ys - bs @ self.F.T
-        energy = np.sum(s * s, axis=0)
-        identified = energy > 0.0
-        if identified.all():
-            gamma = np.sum(r * s, axis=0) / energy
-        else:
-            gamma = self.gamma.copy()
-            gamma[identified] = np.sum(r * s, axis=0)[identified] / energy[identified]
+        energy = np.einsum("ij,ij->j", s, s)
+        gamma = np.divide(np.einsum("ij,ij->j", r, s), energy, out=self.gamma.copy(), where=energy > 0.0)
         gamma = np.minimum(np.maximum(gamma, self.lower), self.upper)  # clipped to Γ
-        size = np.linalg.norm(r)
-        self.fit = float(np.linalg.norm(r - gamma * s) / size) if size > 0 else 0.0
+        misfit = r - gamma * s
+        size = float(np.einsum("ij,ij", r, r))
+        self.fit = float(np.sqrt(np.einsum("ij,ij", misfit, misfit) / size)) if size > 0 else 0.0
         # Condition (55): rank X̂_p = n, as the ratio of extreme singular values.
         sv = lapack.dgesvd(xs, compute_uv=0)[1]  # as np.linalg.svd, without its checks' cost every tick
         self.pe = self._excitation(sv, self.model.n)

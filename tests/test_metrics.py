@@ -750,3 +750,24 @@ def test_an_estimate_inside_its_range_is_never_counted_as_saturated(tmp_path):
     api.run(api.load_scenario("masses-bias", {"duration": 8.0}), path, in_process=True)
     estimates = api.metrics(path)["estimators"].values()
     assert all(e["saturated"] == {} for e in estimates)
+
+
+@pytest.mark.parametrize(
+    ("name", "settings"),
+    [
+        ("masses-bias", {"duration": 8.0}),  # estimation, a bias from 5 s, the uniform baseline
+        ("masses-bus-overload", {"duration": 12.0}),  # the arbitrated wire: latency, late frames, load
+        ("masses-spoofing", {"duration": 14.0}),  # SecOC's rejections, scored as a diagnosis
+        ("masses-spoofing", {"duration": 14.0, "bus.intrusion_detector": True}),  # the detector's checks
+        ("uio-fault-detection", {"duration": 20.0}),  # alarms: detection, isolation, false alarms
+    ],
+)
+def test_metrics_scored_while_the_run_writes_are_those_of_its_log(name, settings, tmp_path):
+    """``run(..., measure=True)`` feeds the scorer what the log gets, as it gets it: its metrics are,
+    field for field, those ``measure`` reads back from the finished file."""
+    from cosim import api
+
+    loaded = api.load_scenario(name, settings)
+    result = api.run(loaded, tmp_path / "run.mcap", seed=4, in_process=True, measure=True)
+    assert result.status == "completed" and result.metrics is not None
+    assert result.metrics.to_json() == measure(result.path).to_json()

@@ -55,9 +55,10 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
         }
         units = {c.unit for c in loaded.scenario.plant_info.states}
         state_unit = units.pop() if len(units) == 1 else "mixed units"
-        result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process)
+        result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process, measure=True)
         status, error = result.status, result.error
-        rows = rows_of(measure(log))
+        # scored while the run wrote its log; a run that did not complete is read back, damage and all
+        rows = rows_of(result.metrics if status == "completed" and result.metrics is not None else measure(log))
     except CosimError as failure:
         error = str(failure)
     except Exception as failure:  # a bug, reported in its row: the campaign goes on

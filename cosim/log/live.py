@@ -120,20 +120,26 @@ class FoxgloveSink:
         self._channels.append(channel)
         return channel
 
-    def write(self, channel: Any, time_ns: int, payload: Any) -> None:
-        """Publish one message at the run's start plus its simulated time ``time_ns``."""
+    def write(self, channel: Any, time_ns: int, data: bytes) -> None:
+        """Publish one message (its JSON bytes) at the run's start plus its simulated time ``time_ns``."""
         if self._held is not None:
             if not self._subscribed.is_set():
-                self._held.append((channel, time_ns, payload))
+                self._held.append((channel, time_ns, data))
                 return
             self._release()
         if channel.has_sinks():
-            channel.log(dumps(payload), log_time=self.start_ns + time_ns)
+            channel.log(data, log_time=self.start_ns + time_ns)
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """Metadata is not streamed: a viewer gets the run's description from its topics."""
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        """Attachments are not streamed."""
 
     def _release(self) -> None:
         held, self._held = self._held or [], None
-        for channel, time_ns, payload in held:
-            self.write(channel, time_ns, payload)
+        for channel, time_ns, data in held:
+            self.write(channel, time_ns, data)
 
     # -- the viewer ------------------------------------------------------------------------------
 
@@ -276,6 +282,6 @@ def play(
                     time.sleep(delay)
             if topic not in channels:  # a topic the summary did not list (a cut log)
                 channels[topic] = sink.channel(topic, {"title": topic})
-            sink.write(channels[topic], log_time, message)
+            sink.write(channels[topic], log_time, dumps(message))
             count, last = count + 1, log_time
         return count, (last - (first or 0)) / 1e9, reader.warnings

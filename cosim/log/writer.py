@@ -8,8 +8,10 @@ zstd-compressed and fully indexed (viewers built on the TypeScript reader need m
 Nothing wall-clock goes into the file but what a caller writes (attachment times are simulated
 times; a run records its start in its metadata), so a deterministic run writes the same log.
 
-A ``LogSink`` (the live view, ``cosim.log.live``) may be handed to a log: every channel it
-registers and every message it writes is teed to the sink as well.
+A ``LogSink`` may be handed to a log: every channel it registers, every message it writes (the
+same JSON bytes), its metadata and attachments are teed to the sink as well, in the order the file
+gets them. Two sinks: the live view (``cosim.log.live``) and the metrics scored while a run writes
+its log (``cosim.analysis.metrics.LiveMeasurement``).
 
 Messages take a shorter path into the chunk than the official writer's ``add_message`` (which builds
 a ``Message`` record object and writes it field by field into a seekable buffer, about 20 Python
@@ -44,13 +46,20 @@ def dumps(payload: Any) -> bytes:
 
 
 class LogSink(Protocol):
-    """Another consumer of what a log writes: its channels, then its messages (simulated time)."""
+    """Another consumer of what a log writes, in the file's order: channels, messages (simulated
+    time), metadata records and attachments."""
 
     def channel(self, topic: str, schema: dict[str, Any]) -> Any:
         """A topic with its JSON Schema; returns the sink's handle for it."""
 
-    def write(self, channel: Any, time_ns: int, payload: Any) -> None:
-        """One message (a JSON-ready object) on a channel the sink returned."""
+    def write(self, channel: Any, time_ns: int, data: bytes) -> None:
+        """One message on a channel the sink returned: the JSON bytes the log writes."""
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record, as the log writes it."""
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        """An attachment."""
 
 
 #: A Message record's opcode, length, channel id, sequence, log time and publish time (MCAP spec).
@@ -169,12 +178,11 @@ class McapLog:
         """Append one message; ``time_ns`` is simulated time (log and publish time)."""
         sequence = self._sequence[channel_id]
         self._sequence[channel_id] = sequence + 1
-        self._writer.add_message(
-            channel_id, log_time=time_ns, data=dumps(payload), publish_time=time_ns, sequence=sequence
-        )
+        data = dumps(payload)
+        self._writer.add_message(channel_id, log_time=time_ns, data=data, publish_time=time_ns, sequence=sequence)
         self.messages += 1
         if self._sink is not None:
-            self._sink.write(self._teed[channel_id], time_ns, payload)
+            self._sink.write(self._teed[channel_id], time_ns, data)
 
     def flush(self) -> None:
         """Finish the chunk in progress and put everything written so far in the file: a writer
@@ -182,10 +190,15 @@ class McapLog:
         self._writer.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
-        self._writer.add_metadata(name, {key: str(value) for key, value in values.items()})
+        record = {key: str(value) for key, value in values.items()}
+        self._writer.add_metadata(name, record)
+        if self._sink is not None:
+            self._sink.metadata(name, record)
 
     def attach(self, name: str, media_type: str, data: bytes, time_ns: int = 0) -> None:
         self._writer.add_attachment(create_time=time_ns, log_time=time_ns, name=name, media_type=media_type, data=data)
+        if self._sink is not None:
+            self._sink.attach(name, media_type, data)
 
     def close(self) -> None:
         """Write the last chunk, the indexes and the summary; idempotent."""

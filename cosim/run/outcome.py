@@ -4,8 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    from cosim.analysis.metrics.values import RunMetrics
 
 
 class NodeFailure(CosimError):
@@ -53,6 +57,8 @@ class RunResult:
     """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
     warnings: list[str] = field(default_factory=list)
     """What the run found worth saying (also the log's warning events)."""
+    metrics: RunMetrics | None = None
+    """The log's metrics, scored while the run wrote it (``cosim.api.run(..., measure=True)``)."""
 
     @property
     def realtime_factor(self) -> float:

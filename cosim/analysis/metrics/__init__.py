@@ -1,7 +1,8 @@
 """Metrics of a run log against its ground truth: estimation, detection and isolation, the bus.
 
 ``measure(path)`` reads the log once, in file order, and returns a ``RunMetrics``;
-``compute_metrics(path)`` its JSON form (``cosim inspect --json`` prints it). Every metric is
+``compute_metrics(path)`` its JSON form (``cosim inspect --json`` prints it); ``LiveMeasurement``
+scores a run while it writes its log, to the same ``RunMetrics``. Every metric is
 defined in docs/metrics.md; in short, with e_k = |x_k − x̂_k| (Euclidean norm over the whole state)
 and τ the sample time:
 
@@ -25,7 +26,7 @@ The parts: ``values`` (the typed value and its JSON form), ``facts`` (what the m
 ``compute`` (reading a log, assembling its metrics).
 """
 
-from cosim.analysis.metrics.compute import compute_metrics, measure
+from cosim.analysis.metrics.compute import LiveMeasurement, compute_metrics, measure
 from cosim.analysis.metrics.estimation import BAND_FACTOR
 from cosim.analysis.metrics.values import (
     BusMetrics,
@@ -54,6 +55,7 @@ __all__ = [
     "FrameCounts",
     "IdLatency",
     "IdTraffic",
+    "LiveMeasurement",
     "LoadOverTime",
     "RunMetrics",
     "compute_metrics",

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import orjson
 from cantools.database.can import Database
 
 from cosim.analysis import names
@@ -23,11 +24,57 @@ from cosim.analysis.metrics.values import (
 )
 from cosim.bus.dbc import SECOC_SIGNALS, estimated_state, load_dbc
 from cosim.errors import LogError
-from cosim.log.metadata import logged_dbc
+from cosim.log.metadata import DBC_ATTACHMENT, logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import FAULTS, FRAMES, STATE
 
 MAC_SIGNAL = SECOC_SIGNALS[1]
+
+
+class LiveMeasurement:
+    """The metrics of a run scored while it writes its log: a ``cosim.log.writer.LogSink`` that the
+    log tees everything to, in the order the file gets it, and that feeds the same ``Scorer`` with
+    the same messages (its JSON bytes, decoded as the reader decodes them). ``result`` is then what
+    ``measure`` of the finished log returns (tested on every kind of run), without reading the log
+    again; a campaign scores each run so.
+
+    The scorer starts at the run's first message, by when the runner has written its description
+    (``cosim.run``) and its DBC; the outcome (``cosim.result``) is read at the end."""
+
+    def __init__(self) -> None:
+        self._meta: dict[str, dict[str, str]] = {}
+        self._attachments: dict[str, bytes] = {}
+        self._schemas: dict[str, dict[str, Any]] = {}
+        self._counts: dict[str, int] = {}
+        self._scorer: Scorer | None = None
+
+    def channel(self, topic: str, schema: dict[str, Any]) -> str:
+        self._schemas[topic] = schema
+        self._counts[topic] = 0
+        return topic
+
+    def write(self, channel: str, time_ns: int, data: bytes) -> None:
+        scorer = self._scorer
+        if scorer is None:
+            run = _facts(self._meta)
+            database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
+            scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
+        self._counts[channel] += 1
+        scorer.feed(channel, time_ns, orjson.loads(data))
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        self._meta[name] = dict(values)
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        self._attachments[name] = data
+
+    def result(self, path: str | Path) -> RunMetrics:
+        """The run's metrics, once its log is closed (``path``: the log, as the metrics name it)."""
+        run = _facts(self._meta)
+        scorer = self._scorer or Scorer(run)
+        scorer.finish()
+        unit = norm_unit(names.units(self._schemas), run.states)
+        return replace(_assemble(path, run, scorer, self._counts, run.warnings + scorer.warnings), error_unit=unit)
 
 
 def measure(path: str | Path) -> RunMetrics:
@@ -86,6 +133,14 @@ def _database(reader: LogReader) -> Database | None:
         text = logged_dbc(reader, missing_ok=True)
         return load_dbc(text) if text is not None else None
     except (LogError, ValueError, LookupError):  # cantools' parse errors derive from these
+        return None
+
+
+def _parse_dbc(data: bytes | None) -> Database | None:
+    """A DBC attachment's database; None without a readable one."""
+    try:
+        return load_dbc(data.decode()) if data is not None else None
+    except (UnicodeDecodeError, ValueError, LookupError):
         return None
 
 
