@@ -4,12 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 from cosim.errors import CosimError
-
-if TYPE_CHECKING:
-    from cosim.analysis.metrics.values import RunMetrics
 
 
 class NodeFailure(CosimError):
@@ -57,8 +54,9 @@ class RunResult:
     """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
     warnings: list[str] = field(default_factory=list)
     """What the run found worth saying (also the log's warning events)."""
-    metrics: RunMetrics | None = None
-    """The log's metrics, scored while the run wrote it (``cosim.api.run(..., measure=True)``)."""
+    metrics: Any = None
+    """The log's metrics (a ``cosim.analysis.metrics.RunMetrics``, which the runner's room does not
+    import), scored while the run wrote it: ``cosim.api.run(..., measure=True)``."""
 
     @property
     def realtime_factor(self) -> float:
