@@ -26,7 +26,7 @@ length of its run), so a frame costs a few table look-ups per byte.
 
 from __future__ import annotations
 
-from functools import cache
+from functools import cache, lru_cache
 
 #: Bits after the CRC field: CRC delimiter, ACK slot, ACK delimiter, EOF (7), intermission (3).
 TAIL_BITS = 13
@@ -111,6 +111,18 @@ def _arbitration(can_id: int, extended: bool, fd: bool) -> tuple[int, int]:
     return (can_id & 0x7FF) << 2, 1 + 11 + 2  # SOF, ID, RTR/RRS = 0, IDE = 0
 
 
+@lru_cache(maxsize=4096)  # bounded: a log of a flood of random ids must not grow it without end
+def _classic_header(can_id: int, extended: bool, dlc: int) -> tuple[int, int, int, int]:
+    """A classic frame's bits before its data (SOF to DLC: the arbitration field, r0 (and r1 for
+    29-bit ids) = 0, the DLC): the CRC register and the stuffing automaton after them, (CRC, stuff
+    bits, state, length)."""
+    head, head_len = _arbitration(can_id, extended, False)
+    control_len = 5 + (1 if extended else 0)
+    bits, length = head << control_len | dlc, head_len + control_len
+    stuffed, state = stuff_bits(bits, length)
+    return crc15(bits, length), stuffed, state, length
+
+
 def _fd_crc_field(length: int) -> int:
     """Bits of the ISO CAN FD CRC field: stuff count (4), CRC (17 or 21), fixed stuff bits."""
     crc = 17 if length <= 16 else 21
@@ -122,15 +134,17 @@ def frame_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data:
     counted exactly, intermission included. ``dlc`` is the data length code, ``data`` the payload
     (as many bytes as the DLC codes)."""
     n = len(data)
+    if not fd:  # the header's CRC register and stuffing state are the id's and DLC's: then byte by byte
+        crc, stuffed, state, length = _classic_header(can_id, extended, dlc)
+        table = _CHUNKS[8]
+        for byte in data:
+            crc = ((crc << 8) & 0x7FFF) ^ _CRC15[((crc >> 7) ^ byte) & 0xFF]
+            more, state = table[state][byte]
+            stuffed += more
+        more, _ = stuff_bits(crc, 15, state)
+        return length + 8 * n + 15 + stuffed + more + TAIL_BITS, 0
     payload = int.from_bytes(data, "big")
     head, head_len = _arbitration(can_id, extended, fd)
-    if not fd:  # ... then r0 (and r1 for 29-bit ids) = 0, DLC, data, CRC
-        control_len = 5 + (1 if extended else 0)
-        bits = ((head << control_len | dlc) << 8 * n) | payload
-        length = head_len + control_len + 8 * n
-        bits, length = bits << 15 | crc15(bits, length), length + 15
-        stuffed, _ = stuff_bits(bits, length)
-        return length + stuffed + TAIL_BITS, 0
     # FD: ... FDF = 1, res = 0, BRS | ESI = 0, DLC, data
     arbitration, arbitration_len = (head << 3) | (0b10 << 1) | int(brs), head_len + 3
     stuffed_a, state = stuff_bits(arbitration, arbitration_len)
