@@ -67,7 +67,9 @@ class BusScore:
         fd, brs, extended = bool(frame.fd), bool(frame.brs), bool(frame.extended)
         bits = frame_bits(int(frame.id), extended, fd, brs, int(frame.dlc), data)
         worst = frame_bits_worst_case(extended, fd, brs, len(data))
-        entry = self.by_id.setdefault(int(frame.id), IdTraffic(frame.message))
+        entry = self.by_id.get(int(frame.id))
+        if entry is None:
+            entry = self.by_id[int(frame.id)] = IdTraffic(frame.message)
         entry.frames += 1
         entry.bits += bits[0] + bits[1]
         self.frames += 1
