@@ -49,7 +49,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
         free = [i for i in range(m) if not held[i]]
         z = list(x)
         if free:
-            fixed = R @ np.array([v if h else 0.0 for v, h in zip(x, held, strict=True)])
+            fixed = R.dot(np.array([v if h else 0.0 for v, h in zip(x, held, strict=True)]))
             for i, v in zip(free, _least_squares(R[:, free], c - fixed).tolist(), strict=True):
                 z[i] = v
         first, reach, bound = -1, 1.0, 0.0  # the first variable z takes past a bound, along x → z
@@ -62,7 +62,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
             x[first], held[first] = bound, True
             continue
         x = z
-        g = (R.T @ (R @ np.array(x) - c)).tolist()
+        g = R.T.dot(R.dot(np.array(x)) - c).tolist()
         pull, release = tolerance, -1  # the held variable its multiplier pulls hardest into the box
         for i in range(m):
             if held[i] and (-g[i] if x[i] <= lo[i] else g[i]) > pull:

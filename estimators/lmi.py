@@ -157,12 +157,12 @@ def uio_matrices(
     Ebar = model.Ebar
     Cbar = model.Cbar(gamma) if Cbar is None else Cbar
     if form == "pinv":
-        Q = Ebar @ pseudo_inverse(Cbar @ Ebar)
+        Q = Ebar.dot(pseudo_inverse(Cbar.dot(Ebar)))
     elif form == "lft":
         Q = model.Ebar_G_pinv / gamma[None, :]
     else:
         raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
-    T = -(Q @ Cbar)
+    T = -Q.dot(Cbar)
     T.flat[:: T.shape[0] + 1] += 1.0  # I − Q C̄, without building I
     return Q, T
 

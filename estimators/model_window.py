@@ -154,7 +154,7 @@ def window_gains(
     scale[scale == 0.0] = 1.0
     sv = lapack.dgesvd(R / scale, compute_uv=0)[1]
     beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
-    misfit = R @ beta - c
-    size = float(c @ c) + rest
-    residual = float(np.sqrt((misfit @ misfit + rest) / size)) if size > 0 else np.inf
+    misfit = R.dot(beta) - c
+    size = float(c.dot(c)) + rest
+    residual = float(np.sqrt((misfit.dot(misfit) + rest) / size)) if size > 0 else np.inf
     return 1.0 / beta, sv, residual

@@ -304,7 +304,7 @@ class UioReconciliator(_Reconciliator):
         n = self.model.n
         assert self.x_hat is not None
         x_p, b = self.x_hat[:n], self.x_hat[n:]
-        z = float(self.Hz @ (self.model.C @ x_p))  # eq. (6)
+        z = float(self.Hz.dot(self.model.C.dot(x_p)))  # eq. (6)
         diagnostics = dict(zip(self.gamma_names, self.gamma.tolist())) | dict(zip(self.bias_names, b.tolist()))
         diagnostics |= {"zhat": z, "pe": self.pe, "fit": min(self.fit, 999.0)}
         return Estimate(x_p + self.x_s, diagnostics)
@@ -317,13 +317,13 @@ class UioReconciliator(_Reconciliator):
         Q, T, Cbar, L = self._uio(gamma)
         if self.x_hat is None or self.previous is None:  # t = 0: the UIO's own reconstruction from y(0) about x̂₀
             prior = self.x_bar0
-            x_next = T @ prior
+            x_next = T.dot(prior)
         else:
             y_prev, u_prev = self.previous
-            prior = self.Abar @ self.x_hat + self.Bbar @ u_prev
-            x_next = T @ prior + L @ (y_prev - Cbar @ self.x_hat)  # eq. (10)
-        used = np.where(np.isnan(y) | coast, Cbar @ prior, y) if coast or np.isnan(y).any() else y
-        self.x_hat = x_next + Q @ used
+            prior = self.Abar.dot(self.x_hat) + self.Bbar.dot(u_prev)
+            x_next = T.dot(prior) + L.dot(y_prev - Cbar.dot(self.x_hat))  # eq. (10)
+        used = np.where(np.isnan(y) | coast, Cbar.dot(prior), y) if coast or np.isnan(y).any() else y
+        self.x_hat = x_next + Q.dot(used)
         self.previous = (used, u_bar)
         n = self.model.n
         return Sample(used, self.x_hat[:n], self.x_hat[n:], y, u_bar)
@@ -376,7 +376,7 @@ class UioReconciliator(_Reconciliator):
         """
         ys, xs, bs = (self.history.field(name) for name in ("y", "x_p", "b"))
         s = xs @ self.model.C.T  # (N, m)
-        r = ys - bs @ self.F.T
+        r = ys - bs.dot(self.F.T)
         energy = np.einsum("ij,ij->j", s, s)
         gamma = np.divide(np.einsum("ij,ij->j", r, s), energy, out=self.gamma.copy(), where=energy > 0.0)
         gamma = np.minimum(np.maximum(gamma, self.lower), self.upper)  # clipped to Γ
