@@ -171,9 +171,6 @@ def pseudo_inverse(M: np.ndarray) -> np.ndarray:
     """The Moore–Penrose inverse M⁺ = V Σ⁺ Uᵀ of M (k, l), as np.linalg.pinv (singular values below
     1e-15 σ_max taken as zero), from LAPACK's SVD directly: the reconciliators form one every tick,
     and numpy.linalg's checks cost more than the SVD of a 4 × 1 matrix."""
-    if M.shape[1] == 1:  # one unknown input: M⁺ = Mᵀ / ‖M‖² (0 for M = 0)
-        norm = float(M[:, 0] @ M[:, 0])
-        return M.T / norm if norm > 0.0 else np.zeros_like(M.T)
     u, s, vt, info = lapack.dgesdd(M, compute_uv=1, full_matrices=0)
     if info != 0:
         raise np.linalg.LinAlgError(f"SVD did not converge (LAPACK dgesdd info {info})")

@@ -309,6 +309,9 @@ def test_the_runner_caches_designs(tmp_path, monkeypatch):
         == cached
     )
     assert design_cache.load("lft-uio-sr", {**params, "design_gamma_min": 0.6}, paper_model()) is None
+    # Another version of the design code (or of the solvers) solves it again: an LMI has many solutions.
+    monkeypatch.setattr(design_cache, "design_code", lambda cls: "other code")
+    assert design_cache.load("lft-uio-sr", params, paper_model()) is None
     monkeypatch.setenv("COSIM_CACHE_DIR", "off")
     assert design_cache.load("lft-uio-sr", params, paper_model()) is None
 

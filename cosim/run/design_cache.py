@@ -2,7 +2,7 @@
 
 An estimator's ``design_params()`` rebuild it without redoing its design; the runner stores them
 here under a hash of the estimator kind, the parameters its design depends on (all but the
-kind's ``design_free`` ones) and its design model, so that the next
+kind's ``design_free`` ones), its design model and the code that solves it (``design_code``), so that the next
 run of the same scenario (or any scenario with the same design problem) skips the solve. The
 stored values are exactly what the nodes receive, so a cached run logs the same content as a
 fresh one. Location: $COSIM_CACHE_DIR, else $XDG_CACHE_HOME/cosim/designs, else
@@ -12,10 +12,13 @@ ignored (the design is then computed).
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 import json
 import os
 import tempfile
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +37,39 @@ def directory() -> Path | None:
 
 
 def key(kind: str, params: dict[str, Any], model: LinearModel) -> str:
-    free = estimators.ESTIMATORS[kind].design_free if kind in estimators.ESTIMATORS else frozenset()
+    cls = estimators.ESTIMATORS[kind] if kind in estimators.ESTIMATORS else None
+    free = cls.design_free if cls is not None else frozenset()
     params = {name: value for name, value in params.items() if name not in free}
-    text = json.dumps({"kind": kind, "params": params, "model": model.to_dict()}, sort_keys=True, default=str)
+    inputs = {"kind": kind, "params": params, "model": model.to_dict(), "code": design_code(cls)}
+    text = json.dumps(inputs, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def design_code(cls: type | None) -> str:
+    """What a design depends on beside its kind, parameters and model: the code that solves it (the
+    ``estimators`` package's sources, and a plugin kind's own module) and the solvers' versions. A
+    design cached by other code is not the one this code would solve (an LMI has many solutions; a
+    solver release or a changed formulation picks another), and a cached run must log what a fresh
+    one logs."""
+    digest = hashlib.sha256(_package_code().encode())
+    own = inspect.getsourcefile(cls) if cls is not None else None
+    if own is not None and Path(own).parent != Path(estimators.__file__).parent:
+        digest.update(Path(own).read_bytes())
+    return digest.hexdigest()
+
+
+@functools.cache
+def _package_code() -> str:
+    digest = hashlib.sha256()
+    for path in sorted(Path(estimators.__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + path.read_bytes())
+    for library in ("numpy", "scipy", "cvxpy", "clarabel"):
+        try:
+            digest.update(f"{library} {metadata.version(library)}".encode())
+        except metadata.PackageNotFoundError:
+            digest.update(f"{library} -".encode())
+    return digest.hexdigest()
 
 
 def load(kind: str, params: dict[str, Any], model: LinearModel) -> dict[str, Any] | None:
