@@ -174,8 +174,9 @@ def pseudo_inverse(M: np.ndarray) -> np.ndarray:
     u, s, vt, info = lapack.dgesdd(M, compute_uv=1, full_matrices=0)
     if info != 0:
         raise np.linalg.LinAlgError(f"SVD did not converge (LAPACK dgesdd info {info})")
-    inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > 1e-15 * s.max(initial=0.0))
-    return vt.T @ (inverse[:, None] * u.T)
+    # LAPACK sorts s in decreasing order: s[0] is σ_max
+    inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > 1e-15 * s[0]) if len(s) else s
+    return vt.T.dot(inverse[:, None] * u.T)
 
 
 def check_assumptions(model: SensorFaultModel, gammas: np.ndarray, tol: float = 1e-9) -> None:

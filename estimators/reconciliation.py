@@ -375,7 +375,7 @@ class UioReconciliator(_Reconciliator):
         condition (54)) keeps its previous estimate.
         """
         ys, xs, bs = (self.history.field(name) for name in ("y", "x_p", "b"))
-        s = xs @ self.model.C.T  # (N, m)
+        s = xs.dot(self.model.C.T)  # (N, m)
         r = ys - bs.dot(self.F.T)
         energy = np.einsum("ij,ij->j", s, s)
         gamma = np.divide(np.einsum("ij,ij->j", r, s), energy, out=self.gamma.copy(), where=energy > 0.0)
@@ -497,9 +497,9 @@ class LpvUioReconciliator(UioReconciliator):
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         rho = box_coordinates(gamma, self.lower, self.upper)
         l, nx, m = self.Y_vertices.shape
-        G = (rho @ self.G_vertices.reshape(l, nx * nx)).reshape(nx, nx)  # Σ ρ_i G_i
+        G = rho.dot(self.G_vertices.reshape(l, nx * nx)).reshape(nx, nx)  # Σ ρ_i G_i
         # LAPACK directly: numpy.linalg.solve's checks cost as much as the 5 × 5 solve
-        lu, pivots, L, info = lapack.dgesv(G, (rho @ self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
+        lu, pivots, L, info = lapack.dgesv(G, rho.dot(self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
         if info != 0:
             raise np.linalg.LinAlgError(f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)")
         return L
