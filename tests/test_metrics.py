@@ -771,3 +771,20 @@ def test_metrics_scored_while_the_run_writes_are_those_of_its_log(name, settings
     result = api.run(loaded, tmp_path / "run.mcap", seed=4, in_process=True, measure=True)
     assert result.status == "completed" and result.metrics is not None
     assert result.metrics.to_json() == measure(result.path).to_json()
+
+
+def test_a_failing_live_scorer_leaves_the_run_alone(tmp_path, monkeypatch):
+    """Scoring during a run never ends it: a scorer that raises stops scoring, the run completes
+    with its whole log, and the result carries no metrics (a campaign then reads the log)."""
+    from cosim import api
+    from cosim.analysis.metrics import scorer
+
+    def broken(self, topic, log_time, msg):
+        raise RuntimeError("a bug in scoring")
+
+    monkeypatch.setattr(scorer.Scorer, "feed", broken)
+    loaded = api.load_scenario("masses-bias", {"duration": 1.0})
+    result = api.run(loaded, tmp_path / "run.mcap", seed=1, in_process=True, measure=True)
+    assert result.status == "completed" and result.metrics is None
+    with LogReader(result.path) as reader:
+        assert sum(1 for _ in reader.messages()) > 100

@@ -39,7 +39,8 @@ class LiveMeasurement:
     again; a campaign scores each run so.
 
     The scorer starts at the run's first message, by when the runner has written its description
-    (``cosim.run``) and its DBC; the outcome (``cosim.result``) is read at the end."""
+    (``cosim.run``) and its DBC; the outcome (``cosim.result``) is read at the end. Scoring never
+    stops the run: should the scorer fail, it stops scoring, and ``result`` is None (read the log)."""
 
     def __init__(self) -> None:
         self._meta: dict[str, dict[str, str]] = {}
@@ -47,6 +48,7 @@ class LiveMeasurement:
         self._schemas: dict[str, dict[str, Any]] = {}
         self._counts: dict[str, int] = {}
         self._scorer: Scorer | None = None
+        self.failure: str | None = None
 
     def channel(self, topic: str, schema: dict[str, Any]) -> str:
         self._schemas[topic] = schema
@@ -54,13 +56,18 @@ class LiveMeasurement:
         return topic
 
     def write(self, channel: str, time_ns: int, data: bytes) -> None:
-        scorer = self._scorer
-        if scorer is None:
-            run = _facts(self._meta)
-            database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
-            scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
-        self._counts[channel] += 1
-        scorer.feed(channel, time_ns, orjson.loads(data))
+        if self.failure is not None:
+            return
+        try:
+            scorer = self._scorer
+            if scorer is None:
+                run = _facts(self._meta)
+                database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
+                scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
+            self._counts[channel] += 1
+            scorer.feed(channel, time_ns, orjson.loads(data))
+        except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
+            self.failure = f"{type(error).__name__}: {error}"
 
     def metadata(self, name: str, values: dict[str, str]) -> None:
         self._meta[name] = dict(values)
@@ -68,8 +75,11 @@ class LiveMeasurement:
     def attach(self, name: str, media_type: str, data: bytes) -> None:
         self._attachments[name] = data
 
-    def result(self, path: str | Path) -> RunMetrics:
-        """The run's metrics, once its log is closed (``path``: the log, as the metrics name it)."""
+    def result(self, path: str | Path) -> RunMetrics | None:
+        """The run's metrics, once its log is closed (``path``: the log, as the metrics name it);
+        None if scoring failed on the way (``failure`` says how)."""
+        if self.failure is not None:
+            return None
         run = _facts(self._meta)
         scorer = self._scorer or Scorer(run)
         scorer.finish()
