@@ -65,8 +65,9 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
         g = R.T.dot(R.dot(np.array(x)) - c).tolist()
         pull, release = tolerance, -1  # the held variable its multiplier pulls hardest into the box
         for i in range(m):
-            if held[i] and (-g[i] if x[i] <= lo[i] else g[i]) > pull:
-                pull, release = (-g[i] if x[i] <= lo[i] else g[i]), i
+            inward = -g[i] if x[i] <= lo[i] else g[i]  # > 0: moving into the box lowers the cost
+            if held[i] and inward > pull:
+                pull, release = inward, i
         if release < 0:
             return np.array(x)
         held[release] = False

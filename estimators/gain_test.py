@@ -110,8 +110,8 @@ def window_system(
     L, m = y.shape
     if change is None and L == window.window and not np.isnan(y).any():
         reduced = reduced_system(window.projection, y * window.weight, u)
-        R = window.projection.forced.shape[0]  # the equations left: L m − rank(Z_L)
-        return WindowSystem(reduced[:m, :m], reduced[:m, m], float(reduced[m, m]) ** 2, R)
+        dof = window.projection.forced.shape[0]  # the equations left: L m − rank(Z_L)
+        return WindowSystem(reduced[:m, :m], reduced[:m, m], float(reduced[m, m]) ** 2, dof)
     index = L - window.min_window
     kept = ~np.isnan(y).ravel()
     rows = np.arange(L * m)

@@ -29,7 +29,11 @@ def complement_projection(Z: np.ndarray, forced: np.ndarray) -> Projection:
     """The ``Projection`` onto the complement of range(Z) of a window's equations: Z (N, m, k), the
     nuisance columns; forced (N, m, N − 1, n_u), as ``stacked_window`` returns them (weighted)."""
     N, m = Z.shape[:2]
-    W = _complement(Z.reshape(N * m, -1)).reshape(-1, N, m)
+    return _projection(_complement(Z.reshape(N * m, -1)).reshape(-1, N, m), forced)
+
+
+def _projection(W: np.ndarray, forced: np.ndarray) -> Projection:
+    """The ``Projection`` of W' given as (R, N, m), with the forced response (N, m, N − 1, n_u)."""
     by_sensor = np.ascontiguousarray(W.transpose(2, 0, 1))
     return Projection(by_sensor, np.einsum("rkj,kjil->ril", W, forced).reshape(len(W), -1))
 
@@ -144,9 +148,7 @@ def window_gains(
         basis = _complement(window.nuisance[kept])
         complement = np.zeros((len(basis), kept.size))
         complement[:, kept] = basis
-        complement = complement.reshape(len(basis), *y.shape)
-        forced = np.einsum("rkj,kjil->ril", complement, window.response).reshape(len(basis), -1)
-        projection = Projection(np.ascontiguousarray(complement.transpose(2, 0, 1)), forced)
+        projection = _projection(complement.reshape(len(basis), *y.shape), window.response)
         y = np.where(missing, 0.0, y)
     reduced = reduced_system(projection, y * window.weight, u)
     R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2

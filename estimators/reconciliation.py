@@ -322,7 +322,8 @@ class UioReconciliator(_Reconciliator):
             y_prev, u_prev = self.previous
             prior = self.Abar.dot(self.x_hat) + self.Bbar.dot(u_prev)
             x_next = T.dot(prior) + L.dot(y_prev - Cbar.dot(self.x_hat))  # eq. (10)
-        used = np.where(np.isnan(y) | coast, Cbar.dot(prior), y) if coast or np.isnan(y).any() else y
+        missing = np.isnan(y)
+        used = np.where(missing | coast, Cbar.dot(prior), y) if coast or missing.any() else y
         self.x_hat = x_next + Q.dot(used)
         self.previous = (used, u_bar)
         n = self.model.n

@@ -81,10 +81,7 @@ class LiveMeasurement:
         if self.failure is not None:
             return None
         run = _facts(self._meta)
-        scorer = self._scorer or Scorer(run)
-        scorer.finish()
-        unit = norm_unit(names.units(self._schemas), run.states)
-        return replace(_assemble(path, run, scorer, self._counts, run.warnings + scorer.warnings), error_unit=unit)
+        return _finish(path, run, self._scorer or Scorer(run), self._counts, [], self._schemas)
 
 
 def measure(path: str | Path) -> RunMetrics:
@@ -106,10 +103,23 @@ def measure(path: str | Path) -> RunMetrics:
                 f"reading stopped {where}: the file's summary is damaged ({type(error).__name__}: {error}); "
                 f"the {sum(scanned.values())} messages before were read"
             )
-        scorer.finish()
-        warnings = reader.warnings + run.warnings + scorer.warnings
-        unit = norm_unit(names.units(reader.schemas()), run.states)
-    return replace(_assemble(path, run, scorer, counts or dict(scanned), warnings), error_unit=unit)
+        return _finish(path, run, scorer, counts or dict(scanned), reader.warnings, reader.schemas())
+
+
+def _finish(
+    path: str | Path,
+    run: RunFacts,
+    scorer: Scorer,
+    counts: dict[str, int],
+    read_warnings: list[str],
+    schemas: dict[str, dict[str, Any]],
+) -> RunMetrics:
+    """The metrics once every message is fed: ``counts`` per topic, the reader's warnings, the
+    topics' schemas (their units)."""
+    scorer.finish()
+    warnings = read_warnings + run.warnings + scorer.warnings
+    unit = norm_unit(names.units(schemas), run.states)
+    return replace(_assemble(path, run, scorer, counts, warnings), error_unit=unit)
 
 
 def norm_unit(units: dict[str, str], states: list[str]) -> str | None:
