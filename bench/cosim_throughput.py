@@ -17,6 +17,10 @@
   (``inprocess_run_realtime_factor``).
 
 Each is repeated and the best kept: the machine's other load only ever slows a measurement down.
+- arithmetic floor: the same scenario's physics (``Plant.step`` and the sensor readout) and its
+  estimators' steps alone, tick after tick, with no bus, codec, faults or log: µs per tick
+  (``arithmetic_tick_us``), the real-time factor no orchestration can beat
+  (``arithmetic_realtime_factor``), and the in-process loop's tick over it (``inprocess_over_arithmetic``).
 - ratio: pipeline frames/s over raw frames/s.
 - floor: the same wire with three processes in lockstep doing no work (the runner's tick in one
   datagram, each node's answer in one): µs per tick, and the pipeline's ticks/s over the floor's.
@@ -36,11 +40,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import can  # noqa: E402
+import numpy as np  # noqa: E402
 
 from bench.common import bench_parser, best_run  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.transport import BusConfig, allocate, open_bus, send_all  # noqa: E402
 from cosim.run import Run, launcher, traffic  # noqa: E402
+from cosim.run.loop import PlantSource  # noqa: E402
+from cosim.run.plan import RunPlan  # noqa: E402
 
 ACK_ID = 0x7FF
 
@@ -210,6 +217,31 @@ def in_process(repeat: int) -> dict[str, float]:
     }
 
 
+def arithmetic_floor(repeat: int) -> dict[str, float]:
+    """The default scenario's physics and estimator steps alone, per tick (best of ``repeat``)."""
+    loaded = scenario.load()
+    best = float("inf")
+    for _ in range(repeat):
+        plan = RunPlan.build(loaded)
+        source = PlantSource(plan)
+        plant, s = source.plant, plan.scenario
+        readings, inputs = [], []
+        start = time.perf_counter()
+        for k in range(s.ticks):
+            readings.append(plant.sensors())
+            u = np.array([w(s.time(k)) for w in source.inputs])
+            inputs.append(u)
+            plant.step(u)
+        elapsed = time.perf_counter() - start
+        for estimator in plan.estimators.values():
+            start = time.perf_counter()
+            for y, u in zip(readings, inputs):
+                estimator.step(y, u)
+            elapsed += time.perf_counter() - start
+        best = min(best, elapsed / s.ticks)
+    return {"arithmetic_tick_us": best * 1e6, "arithmetic_realtime_factor": s.sample_time / best}
+
+
 def main() -> None:
     parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--interface", default="udp_multicast", choices=("udp_multicast", "socketcan"))
@@ -223,8 +255,14 @@ def main() -> None:
     )
     floor = max((lockstep_floor(config, 3000) for _ in range(args.repeat)), key=lambda f: f["floor_ticks_per_s"])
     figures = (
-        {"interface": args.interface} | raw | floor | pipeline(args.interface, args.repeat) | in_process(args.repeat)
+        {"interface": args.interface}
+        | raw
+        | floor
+        | pipeline(args.interface, args.repeat)
+        | in_process(args.repeat)
+        | arithmetic_floor(args.repeat)
     )
+    figures["inprocess_over_arithmetic"] = figures["arithmetic_realtime_factor"] / figures["inprocess_realtime_factor"]
     figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
     figures["floor_ratio"] = figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]
     if args.json:
@@ -247,6 +285,9 @@ def main() -> None:
         ("ratio pipeline / floor (ticks per second)", f"{figures['floor_ratio']:.2f}"),
         ("in-process (--interface virtual): real-time factor", f"{figures['inprocess_realtime_factor']:.1f} x"),
         ("  over the whole run, start-up included", f"{figures['inprocess_run_realtime_factor']:.1f} x"),
+        ("arithmetic floor: physics + estimator steps alone", f"{figures['arithmetic_tick_us']:.0f} us/tick"),
+        ("  its real-time factor (no orchestration can beat it)", f"{figures['arithmetic_realtime_factor']:.1f} x"),
+        ("  in-process tick over the floor", f"{figures['inprocess_over_arithmetic']:.2f}"),
     ]
     width = max(len(label) for label, _ in rows)
     for label, value in rows:

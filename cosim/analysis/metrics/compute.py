@@ -47,6 +47,7 @@ class LiveMeasurement:
         self._attachments: dict[str, bytes] = {}
         self._schemas: dict[str, dict[str, Any]] = {}
         self._counts: dict[str, int] = {}
+        self._reads: dict[str, bool] = {}  # per channel: does the scorer read its messages?
         self._scorer: Scorer | None = None
         self.failure: str | None = None
 
@@ -65,7 +66,10 @@ class LiveMeasurement:
                 database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
                 scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
             self._counts[channel] += 1
-            scorer.feed(channel, time_ns, orjson.loads(data))
+            if self._reads.setdefault(channel, scorer.reads(channel)):
+                scorer.feed(channel, time_ns, orjson.loads(data))
+            else:
+                scorer.seen(time_ns)
         except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
             self.failure = f"{type(error).__name__}: {error}"
 

@@ -116,9 +116,22 @@ class Scorer:
 
     # feeding, in file order
 
-    def feed(self, topic: str, log_time: int, msg: Any) -> None:
+    def reads(self, topic: str) -> bool:
+        """Whether ``feed`` looks into a message of ``topic`` (else only its log time counts: a
+        reader may hand ``seen`` the time instead and skip decoding the message)."""
+        if topic in self._topics:
+            return True
+        if not (self.expected_parts and self.run.dt_ns):
+            return False
+        return topic in (STATE, FAULTS) or topic in self.owner or (topic == IDS and bool(self.ids))
+
+    def seen(self, log_time: int) -> None:
+        """A message at ``log_time`` that the scores do not read: the log's time span only."""
         self.first_ns = log_time if self.first_ns is None else min(self.first_ns, log_time)
         self.last_ns = log_time if self.last_ns is None else max(self.last_ns, log_time)
+
+    def feed(self, topic: str, log_time: int, msg: Any) -> None:
+        self.seen(log_time)
         if topic in self.broken or not isinstance(msg, dict):
             return
         try:
