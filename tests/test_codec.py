@@ -201,6 +201,15 @@ def test_the_codec_rebuilds_exactly_from_its_dbc(fd):
         Codec.from_dbc("BO_ nonsense")
 
 
+def test_one_dbc_text_is_one_shared_codec_and_a_bad_one_fails_every_time():
+    text = codec(False).dbc
+    assert Codec.from_dbc(text) is Codec.from_dbc(text)  # a run's nodes and a worker's runs share it
+    assert Codec.from_dbc(text).dbc == text
+    for _ in range(2):  # a failure is not remembered as a codec
+        with pytest.raises(CodecError, match="the DBC cannot be parsed"):
+            Codec.from_dbc("BO_ nonsense")
+
+
 @pytest.mark.parametrize("fd", [False, True])
 def test_encode_decoded_gives_exactly_what_a_receiver_decodes(fd):
     c = codec(fd)

@@ -14,7 +14,7 @@ import pytest
 
 from cosim.bus import inprocess
 from cosim.bus.inprocess import InProcessBus
-from cosim.bus.transport import allocate, open_bus
+from cosim.bus.transport import allocate, open_bus, silent
 from tests.test_bench import bench
 
 
@@ -171,3 +171,16 @@ def test_the_benchmark_measures_the_three_buses_side_by_side():
     assert figures["receivers"] == 2
     for key in ("virtual_frames_per_s", "cosim_virtual_frames_per_s", "cosim_own_frames_per_s"):
         assert figures[key] > 0, key
+
+
+def test_a_bus_alone_on_its_channel_is_silent_once_the_others_leave():
+    """The runner's last drain waits for late frames only while another bus could still send them."""
+    with InProcessBus("t-alone", share_frames=True) as runner:
+        assert runner.alone and silent(runner)
+        node = InProcessBus("t-alone", share_frames=True)
+        assert not runner.alone and not silent(runner)
+        node.send(frame(1))
+        node.shutdown()
+        assert runner.alone and silent(runner)
+        assert [f.arbitration_id for f in taken(runner)] == [1]  # what was sent before it left is still there
+    assert not silent(can.Bus(interface="virtual", channel="t-alone-virtual"))  # python-can's: can't tell

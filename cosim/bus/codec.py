@@ -8,6 +8,7 @@ silently wrapped or clipped.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -133,7 +134,15 @@ class Codec:
 
     @classmethod
     def from_dbc(cls, text: str) -> Codec:
-        """The codec described by a DBC written by ``Codec.dbc`` (or ``cosim dbc``)."""
+        """The codec described by a DBC written by ``Codec.dbc`` (or ``cosim dbc``).
+
+        A codec does not change once built, so one text's codec is shared: the nodes of a run
+        in one process, and the runs of a campaign worker, read the same DBC (parsing it and
+        compiling its packers costs some 25 ms)."""
+        return _codec_of(text) if cls is Codec else cls._parse(text)
+
+    @classmethod
+    def _parse(cls, text: str) -> Codec:
         try:
             database = load_dbc(text)
         except Exception as error:  # cantools raises several parse error types
@@ -186,9 +195,11 @@ class Codec:
 
     # -- database -------------------------------------------------------------------------------
 
-    @property
+    @functools.cached_property
     def dbc(self) -> str:
-        """The database as DBC text (CAN FD frames are marked with VFrameFormat; a secured one as it was read)."""
+        """The database as DBC text (CAN FD frames are marked with VFrameFormat; a secured one as it was read).
+        Written once per codec: cantools takes some 25 ms to write it, and a run hands it to each of
+        its nodes and its log."""
         return self._secured_dbc if self._secured_dbc is not None else self.database.as_dbc_string()
 
     def messages(self, role: str | None = None, sender: str | None = None) -> list[MessageSpec]:
@@ -295,6 +306,12 @@ class Codec:
         if at is None:  # NMT
             return Decoded(spec, 0, dict(zip(others, values)))
         return Decoded(spec, int(values[at]), dict(zip(others, values[:at] + values[at + 1 :])))
+
+
+@functools.lru_cache(maxsize=16)
+def _codec_of(text: str) -> Codec:
+    """``Codec.from_dbc``'s codecs, by text (a CodecError is not kept: the text is read again)."""
+    return Codec._parse(text)
 
 
 def nearest_tick(counter: int, near: int, bits: int) -> int:

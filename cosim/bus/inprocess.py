@@ -185,6 +185,12 @@ class InProcessBus(BusABC):
                 receiver.waiting = False
         return (receiver.queue.popleft(), False) if receiver.queue else (None, False)
 
+    @property
+    def alone(self) -> bool:
+        """No other bus is open on this channel: nothing can arrive but what is queued already."""
+        with _lock:
+            return self._members == [self._receiver]
+
     def shutdown(self) -> None:
         super().shutdown()
         if not self._open:

@@ -270,6 +270,12 @@ def drain(bus: can.BusABC, timeout: float = 0.0, limit: int = DRAIN_LIMIT) -> It
         frame = bus.recv(0.0)
 
 
+def silent(bus: can.BusABC) -> bool:
+    """Whether nothing more can arrive on ``bus`` than it holds now: an in-process bus that no
+    other bus shares any longer. A network bus can always hear from someone."""
+    return bool(getattr(bus, "alone", False))
+
+
 def send_all(bus: can.BusABC, frames: list[can.Message]) -> None:
     """Send a participant's frames of a tick: in one datagram where the bus can (``send_batch``),
     else one by one."""

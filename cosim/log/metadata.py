@@ -18,6 +18,7 @@ it can instead of failing.
 
 from __future__ import annotations
 
+import functools
 import importlib.metadata
 import json
 import math
@@ -69,6 +70,11 @@ _LIBRARIES = ("mujoco", "numpy", "scipy", "python-can", "cantools", "mcap")
 
 def versions() -> dict[str, str]:
     """The ``cosim.versions`` record of this process."""
+    return dict(_versions())
+
+
+@functools.cache  # the installed packages' metadata is read once a process (4 ms a package)
+def _versions() -> dict[str, str]:
     found = {"python": platform.python_version(), "cosim": __version__}
     for package in _LIBRARIES:
         try:

@@ -32,7 +32,7 @@ from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
-from cosim.bus.transport import BusConfig, drain, open_bus, send_all
+from cosim.bus.transport import BusConfig, drain, open_bus, send_all, silent
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CosimError
@@ -612,6 +612,10 @@ class Session:
             warning = participant.stop(timeout=_STOP_HURRY if self.interrupts.hurry else _STOP)
             if warning is not None and status == "completed":
                 self.warnings.append(warning)
+        if silent(self.bus):  # every participant has closed its end of an in-process bus
+            for frame in drain(self.bus):
+                traffic(frame)
+            return
         quiet_until, end = time.perf_counter() + 0.1, time.perf_counter() + _LAST_FRAMES
         while (now := time.perf_counter()) < min(quiet_until, end):
             for frame in drain(self.bus, min(0.02, end - now)):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
@@ -160,8 +161,10 @@ def _database(reader: LogReader) -> Database | None:
         return None
 
 
+@functools.lru_cache(maxsize=4)
 def _parse_dbc(data: bytes | None) -> Database | None:
-    """A DBC attachment's database; None without a readable one."""
+    """A DBC attachment's database; None without a readable one. The scores only read it, so the
+    runs of a campaign worker, which log the same DBC, share one parse."""
     try:
         return load_dbc(data.decode()) if data is not None else None
     except (UnicodeDecodeError, ValueError, LookupError):
