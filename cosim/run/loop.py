@@ -5,7 +5,8 @@ Tick k at t_k = k τ, in four phases:
   1. ``session.begin(k)``: Ctrl-C is taken between ticks; in realtime, wait for the tick's time;
   2. ``session.send(k, source.frames(k))``: the runner's frames of tick k (SYNC(k), then the sensor
      and command frames) go on the bus; while the nodes work on them, the previous tick's traffic
-     and these frames are logged;
+     and these frames are logged (the frames themselves were made while the nodes answered tick
+     k − 1: ``run_ticks``);
   3. ``source.advance(k, session)``: the source does what follows the frames: the plant applies
      the commands (in a closed loop, the controller node's, waited for) through the actuator
      faults, logs the truth of tick k and advances the physics; a log copies its truth;
@@ -168,14 +169,40 @@ class PlantSource:
 
 
 def run_ticks(source: TickSource, session: Session, progress: Callable[[int], None]) -> int:
-    """Every tick of ``source`` through ``session``; returns the number of ticks run."""
+    """Every tick of ``source`` through ``session``; returns the number of ticks run.
+
+    The frames of tick k + 1 are made while the nodes answer tick k (between ``advance(k)`` and
+    ``end(k)``): sensing, faults and encoding leave the lockstep's critical path. What making them
+    raises is raised where it was before, when tick k + 1 sends them."""
+    upcoming = _Upcoming(source, 0)
     for k in range(source.ticks):
         session.begin(k)
-        session.send(k, source.frames(k))
+        session.send(k, upcoming.frames())
         source.advance(k, session)
+        if k + 1 < source.ticks:
+            upcoming = _Upcoming(source, k + 1)
         session.end(k)
         progress(k + 1)
     return source.ticks
+
+
+class _Upcoming:
+    """A tick's frames, made ahead of their tick; an error making them waits for it."""
+
+    __slots__ = ("_frames", "_error")
+
+    def __init__(self, source: TickSource, k: int) -> None:
+        self._frames: list[tuple[can.Message, Decoded | None]] = []
+        self._error: Exception | None = None
+        try:
+            self._frames = source.frames(k)
+        except Exception as error:  # noqa: BLE001 (re-raised by frames(), at its tick)
+            self._error = error
+
+    def frames(self) -> list[tuple[can.Message, Decoded | None]]:
+        if self._error is not None:
+            raise self._error
+        return self._frames
 
 
 def execute(
