@@ -67,7 +67,10 @@ class LiveMeasurement:
                 database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
                 scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
             self._counts[channel] += 1
-            if self._reads.setdefault(channel, scorer.reads(channel)):
+            reads = self._reads.get(channel)
+            if reads is None:
+                reads = self._reads[channel] = scorer.reads(channel)
+            if reads:
                 scorer.feed(channel, time_ns, orjson.loads(data))
             else:
                 scorer.seen(time_ns)
