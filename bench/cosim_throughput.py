@@ -15,12 +15,12 @@
   estimator nodes in its own process, over cosim's in-process bus): real-time factor over the tick
   loop (``inprocess_realtime_factor``) and over the whole run, start-up included
   (``inprocess_run_realtime_factor``).
-
-Each is repeated and the best kept: the machine's other load only ever slows a measurement down.
 - arithmetic floor: the same scenario's physics (``Plant.step`` and the sensor readout) and its
   estimators' steps alone, tick after tick, with no bus, codec, faults or log: µs per tick
   (``arithmetic_tick_us``), the real-time factor no orchestration can beat
   (``arithmetic_realtime_factor``), and the in-process loop's tick over it (``inprocess_over_arithmetic``).
+
+Each is repeated and the best kept: the machine's other load only ever slows a measurement down.
 - ratio: pipeline frames/s over raw frames/s.
 - floor: the same wire with three processes in lockstep doing no work (the runner's tick in one
   datagram, each node's answer in one): µs per tick, and the pipeline's ticks/s over the floor's.

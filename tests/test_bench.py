@@ -47,8 +47,11 @@ def test_cosim_throughput_benchmark_reports_its_figures():
     all_positive(
         figures,
         "raw_frames_per_s pipeline_frames_per_s ratio realtime_factor node_startup_s "
-        "inprocess_realtime_factor inprocess_run_realtime_factor floor_ticks_per_s floor_tick_us floor_ratio",
+        "inprocess_realtime_factor inprocess_run_realtime_factor floor_ticks_per_s floor_tick_us floor_ratio "
+        "arithmetic_tick_us arithmetic_realtime_factor inprocess_over_arithmetic",
     )
+    assert abs(figures["arithmetic_realtime_factor"] * figures["arithmetic_tick_us"] * 1e-6 - 0.01) < 1e-12  # τ
+    assert figures["inprocess_over_arithmetic"] > 1  # the run does what the floor does, and more
     assert abs(figures["ratio"] - figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]) < 1e-9
     assert abs(figures["floor_ratio"] - figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]) < 1e-9
     assert set(figures["node_startup"]) == {"uniform", "kalman"} and figures["inprocess_lost_frames"] == 0

@@ -57,3 +57,19 @@ def test_a_failure_making_frames_ends_the_run_at_that_tick_after_the_tick_before
     with pytest.raises(CosimError, match="the log ends at tick 2"):
         run_ticks(Source(calls, 5, broken=2), Session(calls), lambda done: calls.append(f"done {done}"))
     assert calls[-5:] == ["advance 1", "frames 2", "end 1", "done 2", "begin 2"]  # tick 1 answered, 2 never sent
+
+
+def test_an_interrupt_while_making_frames_is_not_held_back():
+    """Only errors wait for their tick; Ctrl-C (a BaseException) goes through at once."""
+
+    class Interrupted(Source):
+        def frames(self, k: int) -> list:
+            if k == 2:
+                self.calls.append("interrupted")
+                raise KeyboardInterrupt
+            return super().frames(k)
+
+    calls: list[str] = []
+    with pytest.raises(KeyboardInterrupt):
+        run_ticks(Interrupted(calls, 5), Session(calls), lambda done: None)
+    assert calls[-2:] == ["advance 1", "interrupted"]  # not after tick 1's end

@@ -138,7 +138,8 @@ class Codec:
 
         A codec does not change once built, so one text's codec is shared: the nodes of a run
         in one process, and the runs of a campaign worker, read the same DBC (parsing it and
-        compiling its packers costs some 25 ms)."""
+        compiling its packers costs some 25 ms). Its ``database``, ``specs`` and id maps are
+        therefore read-only to its users, in every thread."""
         return _codec_of(text) if cls is Codec else cls._parse(text)
 
     @classmethod

@@ -26,6 +26,7 @@ import ipaddress
 import random
 import socket
 import struct
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -274,6 +275,11 @@ def silent(bus: can.BusABC) -> bool:
     """Whether nothing more can arrive on ``bus`` than it holds now: an in-process bus that no
     other bus shares any longer. A network bus can always hear from someone."""
     return bool(getattr(bus, "alone", False))
+
+
+def drain_silent(bus: can.BusABC) -> Iterator[can.Message]:
+    """Every frame a ``silent`` bus still holds, however many (no limit: nothing more can come)."""
+    return drain(bus, limit=sys.maxsize)
 
 
 def send_all(bus: can.BusABC, frames: list[can.Message]) -> None:

@@ -18,7 +18,7 @@ from cosim.errors import CosimError
 
 def preload() -> None:
     """Import what a run needs, once per worker, before the first run (so that runs cost runs)."""
-    import scipy.signal  # noqa: F401 (observer designs import it when first used: a second and more)
+    import scipy.signal  # noqa: F401 (observer designs import it when first used: about 2 s)
 
     import cosim.analysis.metrics  # noqa: F401
     import cosim.api  # noqa: F401

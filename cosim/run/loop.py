@@ -66,7 +66,9 @@ class TickSource(Protocol):
 
     def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         """The runner's frames of tick k, SYNC(k) first, each with what a receiver decodes from it
-        (None for a frame the run's database does not describe)."""
+        (None for a frame the run's database does not describe). Called right after
+        ``advance(k − 1)``, before tick k − 1 is closed: it may depend on the source's own state
+        after that, not on the session's."""
 
     def advance(self, k: int, session: Session) -> None:
         """What follows tick k's frames on the bus, before the tick is closed."""
@@ -172,8 +174,9 @@ def run_ticks(source: TickSource, session: Session, progress: Callable[[int], No
     """Every tick of ``source`` through ``session``; returns the number of ticks run.
 
     The frames of tick k + 1 are made while the nodes answer tick k (between ``advance(k)`` and
-    ``end(k)``): sensing, faults and encoding leave the lockstep's critical path. What making them
-    raises is raised where it was before, when tick k + 1 sends them."""
+    ``end(k)``): with node processes, sensing, faults and encoding leave the lockstep's critical
+    path (in-process nodes answer in this thread, within ``end``: there it changes nothing). What
+    making them raises is raised where it was before, when tick k + 1 sends them."""
     upcoming = _Upcoming(source, 0)
     for k in range(source.ticks):
         session.begin(k)

@@ -32,7 +32,7 @@ from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
-from cosim.bus.transport import BusConfig, drain, open_bus, send_all, silent
+from cosim.bus.transport import BusConfig, drain, drain_silent, open_bus, send_all, silent
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CosimError
@@ -612,8 +612,8 @@ class Session:
             warning = participant.stop(timeout=_STOP_HURRY if self.interrupts.hurry else _STOP)
             if warning is not None and status == "completed":
                 self.warnings.append(warning)
-        if silent(self.bus):  # every participant has closed its end of an in-process bus
-            for frame in drain(self.bus):
+        if silent(self.bus):  # no other bus is open on the in-process channel: what it holds is all
+            for frame in drain_silent(self.bus):
                 traffic(frame)
             return
         quiet_until, end = time.perf_counter() + 0.1, time.perf_counter() + _LAST_FRAMES

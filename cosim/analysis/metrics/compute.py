@@ -35,7 +35,8 @@ MAC_SIGNAL = SECOC_SIGNALS[1]
 class LiveMeasurement:
     """The metrics of a run scored while it writes its log: a ``cosim.log.writer.LogSink`` that the
     log tees everything to, in the order the file gets it, and that feeds the same ``Scorer`` with
-    the same messages (its JSON bytes, decoded as the reader decodes them). ``result`` is then what
+    the same messages (its JSON bytes, decoded as the reader decodes them; those of topics the
+    scores never read, not decoded at all: ``Scorer.reads``). ``result`` is then what
     ``measure`` of the finished log returns (tested on every kind of run), without reading the log
     again; a campaign scores each run so.
 

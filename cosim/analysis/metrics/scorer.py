@@ -118,7 +118,8 @@ class Scorer:
 
     def reads(self, topic: str) -> bool:
         """Whether ``feed`` looks into a message of ``topic`` (else only its log time counts: a
-        reader may hand ``seen`` the time instead and skip decoding the message)."""
+        reader may hand ``seen`` the time instead and skip decoding the message). ``feed`` itself
+        goes by it, so a reader that skips what it says is skipped scores the same."""
         if topic in self._topics:
             return True
         if not (self.expected_parts and self.run.dt_ns):
@@ -132,13 +133,14 @@ class Scorer:
 
     def feed(self, topic: str, log_time: int, msg: Any) -> None:
         self.seen(log_time)
-        if topic in self.broken or not isinstance(msg, dict):
+        if topic in self.broken or not isinstance(msg, dict) or not self.reads(topic):
             return
         try:
             read = self._topics.get(topic)
             if read is not None:
                 read(msg, log_time)
-            elif self.expected_parts and self.run.dt_ns:
+            else:
+                assert self.run.dt_ns  # reads(): a tick's parts only with a sample time
                 self._part(topic, log_time, msg, self.run.dt_ns)
         except (KeyError, TypeError, ValueError) as error:
             self.broken.add(topic)
