@@ -1,13 +1,15 @@
-"""A cache of estimator designs that are slow to compute (the LMI solutions of IJC 2018).
+"""A cache of estimator designs that are slow to compute (the LMI solutions of IJC 2018, pole placements).
 
-An estimator's ``design_params()`` rebuild it without redoing its design; the runner stores them
-here under a hash of the estimator kind, the parameters its design depends on (all but the
-kind's ``design_free`` ones), its design model and the code that solves it (``design_code``), so that the next
-run of the same scenario (or any scenario with the same design problem) skips the solve. The
-stored values are exactly what the nodes receive, so a cached run logs the same content as a
-fresh one. Location: $COSIM_CACHE_DIR, else $XDG_CACHE_HOME/cosim/designs, else
-~/.cache/cosim/designs; ``COSIM_CACHE_DIR=off`` disables it. An unreadable or unwritable cache is
-ignored (the design is then computed).
+An estimator's ``node_params()`` rebuild it without redoing its design (``design_params()``, e.g. an
+LMI solution, and what spares a design redone to the same numbers, e.g. a placed observer gain, whose
+``scipy.signal`` import alone takes a second); the runner stores them here under a hash of the
+estimator kind, the parameters its design depends on (all but the kind's ``design_free`` ones), its
+design model and the code that solves it (``design_code``), so that the next run of the same
+scenario (or any scenario with the same design problem) skips the solve. The stored values are
+exactly what the nodes receive, so a cached run logs the same content as a fresh one. Location:
+$COSIM_CACHE_DIR, else $XDG_CACHE_HOME/cosim/designs, else ~/.cache/cosim/designs;
+``COSIM_CACHE_DIR=off`` disables it. An unreadable or unwritable cache is ignored (the design is then
+computed).
 """
 
 from __future__ import annotations

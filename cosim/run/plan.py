@@ -65,7 +65,7 @@ def build_estimators(
             cached = design_cache.load(spec.kind, spec.params, chosen)
             built[spec.name] = estimators.create(spec.kind, chosen, {**spec.params, **(cached or {})}, s.sample_time)
             if cached is None:
-                design_cache.store(spec.kind, spec.params, chosen, built[spec.name].design_params())
+                design_cache.store(spec.kind, spec.params, chosen, built[spec.name].node_params())
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
         except Exception as error:  # noqa: BLE001 (a plugin's design may raise anything: one line, not its traceback)

@@ -1,0 +1,45 @@
+"""The runner's design cache (``cosim.run.design_cache``) beyond the LMI designs: a pole placement is
+kept too, so that a run of the default scenario skips ``scipy.signal`` (a second of every ``cosim
+run``), and a run built from the cache is the run built without it. (The LMI designs' own cache test
+is in tests/test_reconciliation.py.)"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+
+from cosim import scenario
+from cosim.run.plan import RunPlan, estimator_record
+
+BUILD = """
+import sys
+import numpy as np
+from cosim import scenario
+from cosim.run.plan import RunPlan
+plan = RunPlan.build(scenario.load())
+print('scipy.signal' in sys.modules, np.asarray(plan.estimators['uniform'].L).tobytes().hex())
+"""
+
+
+def test_a_placed_gain_is_cached_and_the_cached_plan_is_the_fresh_one(tmp_path, monkeypatch):
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path))
+    fresh = RunPlan.build(scenario.load())
+    assert list(tmp_path.glob("*.json"))  # the placement is stored (it used to store nothing)
+
+    def built() -> tuple[bool, str]:
+        out = subprocess.run([sys.executable, "-c", BUILD], capture_output=True, text=True, check=True)
+        imported, gain = out.stdout.split()
+        return imported == "True", gain
+
+    imported, gain = built()  # a new process: the cache is all it has
+    assert not imported and gain == np.asarray(fresh.estimators["uniform"].L).tobytes().hex()
+    cached = RunPlan.build(scenario.load())
+    for name, estimator in fresh.estimators.items():
+        spec = next(e for e in fresh.scenario.estimators if e.name == name)
+        assert estimator_record(fresh.codec, name, spec.kind, spec.params, estimator) == estimator_record(
+            cached.codec, name, spec.kind, spec.params, cached.estimators[name]
+        )  # the log says the same: the given parameters, not the cached gain
+    monkeypatch.setenv("COSIM_CACHE_DIR", "off")
+    assert built()[0]  # without the cache the node's design is placed again
