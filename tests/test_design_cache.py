@@ -1,4 +1,4 @@
-"""The runner's design cache (``cosim.run.design_cache``) beyond the LMI designs: a pole placement is
+"""The runner's design cache (``cosim.design_cache``) beyond the LMI designs: a pole placement is
 kept too, so that a run of the default scenario skips ``scipy.signal`` (a second of every ``cosim
 run``), and a run built from the cache is the run built without it. (The LMI designs' own cache test
 is in tests/test_reconciliation.py.)"""
@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from cosim import scenario
+from cosim import design_cache, scenario
 from cosim.run.plan import RunPlan, estimator_record
 
 BUILD = """
@@ -43,3 +43,18 @@ def test_a_placed_gain_is_cached_and_the_cached_plan_is_the_fresh_one(tmp_path, 
         )  # the log says the same: the given parameters, not the cached gain
     monkeypatch.setenv("COSIM_CACHE_DIR", "off")
     assert built()[0]  # without the cache the node's design is placed again
+
+
+def test_create_stores_only_what_the_parameters_do_not_carry(tmp_path, monkeypatch):
+    """A log's parameters already carry an LMI design (a replay, the plots rebuild from them): nothing
+    is stored again; a pole placement they lack is."""
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path))
+    plan = RunPlan.build(scenario.load())
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path / "fresh"))
+    placed = design_cache.create("pseudoinverse", plan.model, {"poles": [0.75, 0.8, 0.85, 0.9]}, 0.01)
+    assert len(list((tmp_path / "fresh").glob("*.json"))) == 1
+    again = design_cache.create("pseudoinverse", plan.model, {"poles": [0.75, 0.8, 0.85, 0.9]}, 0.01)
+    assert np.array_equal(again.L, placed.L)
+    carried = {"poles": [0.75, 0.8, 0.85, 0.9], "gain": placed.L.tolist()}
+    design_cache.create("pseudoinverse", plan.model, carried, 0.01)
+    assert len(list((tmp_path / "fresh").glob("*.json"))) == 1  # the gain came with the parameters

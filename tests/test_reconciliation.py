@@ -290,7 +290,7 @@ def test_a_plant_without_unknown_input_is_refused():
 
 def test_the_runner_caches_designs(tmp_path, monkeypatch):
     """A design is solved once: the second build reads the stored gain, identical to the first."""
-    from cosim.run import design_cache
+    from cosim import design_cache
 
     monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path))
     params = {"Hz": HZ, "design_gamma_min": 0.5}

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import estimators
+from cosim import design_cache
 from cosim.analysis import names
 from cosim.bus.codec import estimate_signal
 from cosim.errors import LogError
@@ -222,7 +223,7 @@ def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] |
     e = series.estimators[name]
     if e.model is None:
         return None
-    estimator = estimators.create(e.kind, LinearModel.from_dict(e.model), e.params, series.sample_time)
+    estimator = design_cache.create(e.kind, LinearModel.from_dict(e.model), e.params, series.sample_time)
     ks = [k for k in sorted(e.values) if k in series.fault]
     out = []
     for k in ks:

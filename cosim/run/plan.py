@@ -20,6 +20,7 @@ import numpy as np
 
 import estimators
 import faults as fm
+from cosim import design_cache
 from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
 from cosim.bus.control_frames import ControlAuth, control_keys
 from cosim.bus.keys import derive_key, run_secret
@@ -37,7 +38,6 @@ from cosim.log.metadata import (
 )
 from cosim.log.writer import LogSink
 from cosim.plant import Plant, build_plant
-from cosim.run import design_cache
 from cosim.run.arbitration import Arbitration, build_traffic
 from cosim.run.busfaults import BusFaultStage
 from cosim.run.detector import IntrusionDetector
@@ -62,10 +62,7 @@ def build_estimators(
             chosen = continuous if estimators.ESTIMATORS[spec.kind].continuous else model
             if chosen is None:
                 raise ParameterError("model", f"{spec.kind} needs the continuous-time model")
-            cached = design_cache.load(spec.kind, spec.params, chosen)
-            built[spec.name] = estimators.create(spec.kind, chosen, {**spec.params, **(cached or {})}, s.sample_time)
-            if cached is None:
-                design_cache.store(spec.kind, spec.params, chosen, built[spec.name].node_params())
+            built[spec.name] = design_cache.create(spec.kind, chosen, spec.params, s.sample_time)
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
         except Exception as error:  # noqa: BLE001 (a plugin's design may raise anything: one line, not its traceback)

@@ -12,7 +12,7 @@ loss accounting and logging are the runner's own.
 The estimator is either one of the run's, rebuilt from what the log records about it (kind,
 parameters including its design, design model), which reproduces its logged frames bit for bit,
 or with some parameters changed (``params``), or a new one (``kind``) designed on the linear model
-the log records. Designs go through the design cache (``cosim.run.design_cache``).
+the log records. Designs go through the design cache (``cosim.design_cache``).
 
 ``play`` sends every frame of a log onto a live bus at the times the log gives them (simulated
 time over ``speed``), like ``canplayer``: for external tools and clients listening on that bus.
@@ -32,6 +32,7 @@ from typing import Any
 import can
 
 import estimators
+from cosim import design_cache
 from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
@@ -312,7 +313,7 @@ class Replay(Execution):
         if self.new or self.overrides:
             return build_estimators(scenario, model, f"{self.log} (replay)", model)
         try:
-            return {self.name: estimators.create(self.kind, model, self.params, scenario.sample_time)}
+            return {self.name: design_cache.create(self.kind, model, self.params, scenario.sample_time)}
         except ParameterError as error:
             raise CosimError(f"{self.log}: estimator {self.name}: params.{error}") from None
 

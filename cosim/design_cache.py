@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import estimators
-from estimators import LinearModel
+from estimators import Estimator, LinearModel
 
 
 def directory() -> Path | None:
@@ -95,3 +95,14 @@ def store(kind: str, params: dict[str, Any], model: LinearModel, design: dict[st
         os.replace(handle.name, folder / f"{key(kind, params, model)}.json")
     except OSError:
         pass
+
+
+def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: float | None = None) -> Estimator:
+    """``estimators.create`` through the cache: with the stored design if there is one, else
+    designed and stored. What the runner, a replay and the plots build their estimators with."""
+    cached = load(kind, params, model)
+    estimator = estimators.create(kind, model, {**params, **(cached or {})}, sample_time)
+    design = estimator.node_params()
+    if cached is None and any(name not in params for name in design):  # else the parameters carry it already
+        store(kind, params, model, design)
+    return estimator
