@@ -9,6 +9,7 @@ status). ``COMMANDS`` lists them in the order ``cosim --help`` does.
 from __future__ import annotations
 
 import argparse
+import sys
 
 from rich.markup import escape
 
@@ -109,7 +110,24 @@ def _feature(args: argparse.Namespace) -> str:
     return feature
 
 
+def _import_can_without_mf4() -> None:
+    """Import python-can without its MF4 support. Its first import loads asammdf with pandas where
+    the export extra is installed (half a second of every command, and of every node's start-up),
+    yet no command reads or writes MF4 through python-can; kept out of that import, python-can
+    leaves MF4 out (as where asammdf is not installed), and asammdf itself stays importable
+    afterwards (cosim's MF4 export uses it directly)."""
+    if "can" in sys.modules or "asammdf" in sys.modules:
+        return
+    sys.modules["asammdf"] = None  # type: ignore[assignment]
+    try:
+        import can  # noqa: F401
+    finally:
+        if sys.modules.get("asammdf", False) is None:
+            del sys.modules["asammdf"]
+
+
 def main(argv: list[str] | None = None) -> int:
+    _import_can_without_mf4()
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -9,7 +9,6 @@ in a debugger).
 from __future__ import annotations
 
 import argparse
-import sys
 
 from cosim.errors import CosimError
 
@@ -21,18 +20,7 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    # A node never reads or writes MF4 files, but python-can's first import loads its MF4 support,
-    # asammdf with pandas, where the export extra is installed: a second of every node's start-up.
-    # Kept out of that import, python-can leaves MF4 out (as where asammdf is not installed);
-    # asammdf itself stays importable afterwards (cosim's MF4 export uses it directly).
-    hidden = "asammdf" not in sys.modules and "can" not in sys.modules
-    if hidden:
-        sys.modules["asammdf"] = None  # type: ignore[assignment]
-    try:
-        from cosim.run.node import load_spec, serve
-    finally:
-        if hidden and sys.modules.get("asammdf", False) is None:
-            del sys.modules["asammdf"]
+    from cosim.run.node import load_spec, serve  # python-can without its MF4 support: cosim.cli.main
 
     if args.spec:
         spec = load_spec(args.spec)
