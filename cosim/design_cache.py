@@ -102,7 +102,8 @@ def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: f
     designed and stored. What the runner, a replay and the plots build their estimators with."""
     cached = load(kind, params, model)
     estimator = estimators.create(kind, model, {**params, **(cached or {})}, sample_time)
-    design = estimator.node_params()
-    if cached is None and any(name not in params for name in design):  # else the parameters carry it already
-        store(kind, params, model, design)
+    if cached is None:
+        design = estimator.node_params()
+        if any(name not in params for name in design):  # else the parameters carry it already
+            store(kind, params, model, design)
     return estimator

@@ -49,7 +49,6 @@ class LiveMeasurement:
         self._attachments: dict[str, bytes] = {}
         self._schemas: dict[str, dict[str, Any]] = {}
         self._counts: dict[str, int] = {}
-        self._reads: dict[str, bool] = {}  # per channel: does the scorer read its messages?
         self._scorer: Scorer | None = None
         self.failure: str | None = None
 
@@ -68,10 +67,7 @@ class LiveMeasurement:
                 database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
                 scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
             self._counts[channel] += 1
-            reads = self._reads.get(channel)
-            if reads is None:
-                reads = self._reads[channel] = scorer.reads(channel)
-            if reads:
+            if scorer.reads(channel):
                 scorer.feed(channel, time_ns, orjson.loads(data))
             else:
                 scorer.seen(time_ns)

@@ -105,6 +105,7 @@ class Scorer:
         self.first_ns: int | None = None
         self.last_ns: int | None = None
         bus = self.bus
+        self._reads: dict[str, bool] = {}
         self._topics: dict[str, Callable[[dict[str, Any], int], None]] = {
             CanFrame.TOPIC: lambda m, t: bus.frame(CanFrame.read(m), t),
             WirePassage.TOPIC: lambda m, t: bus.passage(WirePassage.read(m)),
@@ -120,11 +121,13 @@ class Scorer:
         """Whether ``feed`` looks into a message of ``topic`` (else only its log time counts: a
         reader may hand ``seen`` the time instead and skip decoding the message). ``feed`` itself
         goes by it, so a reader that skips what it says is skipped scores the same."""
-        if topic in self._topics:
-            return True
-        if not (self.expected_parts and self.run.dt_ns):
-            return False
-        return topic in (STATE, FAULTS) or topic in self.owner or (topic == IDS and bool(self.ids))
+        reads = self._reads.get(topic)
+        if reads is None:  # the answer is the scorer's settings', fixed at its start: kept per topic
+            parts = bool(self.expected_parts and self.run.dt_ns)
+            reads = self._reads[topic] = topic in self._topics or (
+                parts and (topic in (STATE, FAULTS) or topic in self.owner or (topic == IDS and bool(self.ids)))
+            )
+        return reads
 
     def seen(self, log_time: int) -> None:
         """A message at ``log_time`` that the scores do not read: the log's time span only."""
