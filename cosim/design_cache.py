@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import estimators
+from cosim import progress
 from estimators import Estimator, LinearModel
 
 
@@ -101,8 +102,10 @@ def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: f
     """``estimators.create`` through the cache: with the stored design if there is one, else
     designed and stored. What the runner, a replay and the plots build their estimators with."""
     cached = load(kind, params, model)
-    estimator = estimators.create(kind, model, {**params, **(cached or {})}, sample_time)
-    if cached is None:
+    if cached is not None:
+        return estimators.create(kind, model, {**params, **cached}, sample_time)
+    with progress.step("designing"):
+        estimator = estimators.create(kind, model, params, sample_time)
         design = estimator.node_params()
         if any(name not in params for name in design):  # else the parameters carry it already
             store(kind, params, model, design)

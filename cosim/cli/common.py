@@ -8,8 +8,10 @@ import difflib
 import signal
 import sys
 import textwrap
+import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -29,6 +31,8 @@ if TYPE_CHECKING:
     from cosim.scenario import LoadedScenario
 
 LOG_HELP = "a run log, or 'latest': the newest runs/*.mcap"
+#: The exit status of a run or replay that completed without an estimator that failed during it.
+ESTIMATOR_FAILED = 4
 SCENARIO_HELP = "a built-in scenario ('cosim scenarios' lists them) or a TOML file"
 
 
@@ -99,6 +103,15 @@ def interrupted(talk: Console, interrupt: KeyboardInterrupt, where: str = "") ->
 
 def exit_code(interrupt: KeyboardInterrupt) -> int:
     return 128 + getattr(interrupt, "signum", signal.SIGINT)
+
+
+def say_failed(talk: Console, result: RunResult) -> None:
+    """The estimators that failed during a run or replay, each in a line (status ``ESTIMATOR_FAILED``)."""
+    for name, why in result.failed.items():
+        talk.print(
+            f"[yellow]  estimator {escape(name)} {escape(why)}; the run went on without it "
+            "(its traceback: the log's /cosim/events)[/yellow]"
+        )
 
 
 def where_the_log_is(out: Path) -> str:
@@ -247,8 +260,88 @@ def foxglove_sink(args: argparse.Namespace, feature: str, start_ns: int | None =
 # -- progress -------------------------------------------------------------------------------------
 
 
-def with_progress(run: Run | Replay, talk: Console, started: Callable[[Any], None], **execute: Any) -> RunResult:
-    """``run.execute`` with a progress bar of its ticks (on ``talk``: none when it is quiet)."""
+#: Slow work is shown once a command has been busy this long (s) without showing anything else, ...
+SILENT_FOR = 2.0
+#: ... and, as plain lines, each step that has lasted this long (s).
+STEP_LASTED = 1.0
+
+
+class Preparation:
+    """The steps of slow work (``cosim.progress``), shown once the command has been busy for
+    ``SILENT_FOR``: on a terminal a spinner with the step and the time since the start; otherwise a
+    line (time since the start, the step) for each step that lasts ``STEP_LASTED``; until ``stop``
+    (the first tick's progress bar, or the end of the command)."""
+
+    def __init__(self, talk: Console) -> None:
+        from rich.live import Live
+        from rich.spinner import Spinner
+
+        self.talk = talk
+        self.started = self.since = time.perf_counter()
+        self.steps: tuple[str, ...] = ()
+        self.said: tuple[str, ...] = ()  # the steps of the last plain line
+        self.spinner = Spinner("dots", style="cyan")
+        self.live = Live(self.spinner, console=talk, transient=True, refresh_per_second=8) if talk.is_terminal else None
+        self._lock = threading.Lock()
+        self._stopped = threading.Event()
+        self._watcher = threading.Thread(target=self._watch, name="cosim-preparation", daemon=True)
+        self._watcher.start()
+
+    def __call__(self, steps: tuple[str, ...]) -> None:
+        with self._lock:
+            self.steps, self.since = steps, time.perf_counter()
+
+    def _watch(self) -> None:
+        while not self._stopped.wait(0.1):
+            with self._lock:
+                now = time.perf_counter()
+                if self.steps and now - self.started >= SILENT_FOR:
+                    self._show(now)
+
+    def _show(self, now: float) -> None:
+        what = ": ".join(self.steps)
+        if self.live is not None:
+            self.spinner.update(text=f"{escape(what)}  [dim]{now - self.started:.0f} s[/dim]")
+            if not self.live.is_started:
+                self.live.start()
+        elif now - self.since >= STEP_LASTED and self.steps != self.said[: len(self.steps)]:  # not a step left
+            self.talk.print(f"{self.since - self.started:6.1f} s  {escape(what)}")
+            self.said = self.steps
+
+    def stop(self) -> None:
+        """Shows nothing more (and takes the spinner away)."""
+        self._stopped.set()
+        self._watcher.join()
+        if self.live is not None and self.live.is_started:
+            self.live.stop()
+
+
+@contextmanager
+def preparing(talk: Console) -> Iterator[Preparation | None]:
+    """Shows the steps of slow work done in the block (nothing when ``talk`` is quiet): the
+    ``Preparation``, to stop when something else starts showing progress."""
+    from cosim import progress
+
+    if talk.quiet:
+        yield None
+        return
+    shown = Preparation(talk)
+    try:
+        with progress.listening(shown):
+            yield shown
+    finally:
+        shown.stop()
+
+
+def with_progress(
+    run: Run | Replay,
+    talk: Console,
+    started: Callable[[Any], None],
+    preparation: Preparation | None = None,
+    **execute: Any,
+) -> RunResult:
+    """``run.execute`` with a progress bar of its ticks (on ``talk``: none when it is quiet); the
+    ``preparation`` shown until then stops at the first tick."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     if talk.quiet:
@@ -266,6 +359,8 @@ def with_progress(run: Run | Replay, talk: Console, started: Callable[[Any], Non
 
     def update(p: RunProgress) -> None:
         if not progress.live.is_started:  # drawn from the first tick on: no empty bar before an error
+            if preparation is not None:
+                preparation.stop()
             progress.start()
         progress.update(task, completed=p.tick, sim=p.sim_time, rtf=p.realtime_factor, frames=p.frames)
 

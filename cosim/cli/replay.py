@@ -15,6 +15,9 @@ canplayer, for external tools and clients (decode with 'cosim dbc').
 
 With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket
 protocol, at its simulated time over --speed, stamped at the run's start plus simulated time.
+
+Exit status: 0 when the replay completed; 4 when it completed but the estimator failed during it
+(its step raised: the new log says why); 1 on an error; 130 or 143 when interrupted.
 """
 
 from __future__ import annotations
@@ -106,6 +109,12 @@ def main(args: argparse.Namespace) -> int:
         return _play_foxglove(args, talk)
     if args.live:
         return _play(args, talk)
+    with common.preparing(talk) as preparation:
+        return _replay(args, talk, preparation)
+
+
+def _replay(args: argparse.Namespace, talk: Console, preparation: common.Preparation | None) -> int:
+    """An estimator replayed on the log's frames into a new log."""
     from cosim.run.replay import Replay, parse_params
     from cosim.scenario import parse_setting
 
@@ -135,7 +144,9 @@ def main(args: argparse.Namespace) -> int:
     )
     where = f"the replay up to that point is in {escape(str(out))}"
     try:
-        result = common.with_progress(replay, talk, lambda run: talk.print(f"bus: {common.joining(run.bus)}"))
+        result = common.with_progress(
+            replay, talk, lambda run: talk.print(f"bus: {common.joining(run.bus)}"), preparation
+        )
     except KeyboardInterrupt as interrupt:
         return common.interrupted(common.error_console(), interrupt, f"; {where}")
     except CosimError as error:
@@ -144,8 +155,9 @@ def main(args: argparse.Namespace) -> int:
     talk.print(
         f"done: {result.ticks} ticks, {result.frames} frames ({result.frames_lost} lost) in {result.wall_time:.2f} s"
     )
+    common.say_failed(talk, result)
     print(out)
-    return 0
+    return common.ESTIMATOR_FAILED if result.failed else 0
 
 
 def _play_foxglove(args: argparse.Namespace, talk: Console) -> int:

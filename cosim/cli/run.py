@@ -3,9 +3,11 @@
 Run a scenario: simulate the plant, inject faults, carry readings and estimates over CAN, and write
 everything to an MCAP log.
 
-Exit status: 0 when the run completed; 3 when it completed with contested ticks (another program
-sent on the runner's own ids, so estimates may rest on forged frames); 1 on an error; 130 or 143
-when interrupted (Ctrl-C, SIGTERM): the log holds everything up to then.
+Exit status: 0 when the run completed; 4 when it completed but an estimator failed during it (its
+step raised: the run went on without it, and 'failed' in --json, the log's /cosim/events and
+'cosim inspect' say why); 3 when it completed with contested ticks (another program sent on the
+runner's own ids, so estimates may rest on forged frames), unless 4 applies; 1 on an error; 130 or
+143 when interrupted (Ctrl-C, SIGTERM): the log holds everything up to then.
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ from typing import TYPE_CHECKING, Any
 from rich.console import Console
 from rich.markup import escape
 
+from cosim import progress
 from cosim.cli import common
 from cosim.errors import CosimError
 
-#: The exit status of a run that completed with contested ticks.
+#: The exit status of a run that completed with contested ticks (and no estimator failed).
 CONTESTED = 3
 
 if TYPE_CHECKING:
@@ -73,9 +76,16 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from cosim.run import Run
+    talk = common.console(stderr=True, quiet=args.quiet)
+    with common.preparing(talk) as preparation:
+        return _run(args, talk, preparation)
 
-    loaded = common.load_scenario(args.scenario, args.set)
+
+def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparation | None) -> int:
+    with progress.step(f"loading {args.scenario or 'the default scenario'}"):
+        from cosim.run import Run
+
+        loaded = common.load_scenario(args.scenario, args.set)
     seed = loaded.scenario.seed if args.seed is None else args.seed
     default = Path("runs") / f"{loaded.scenario.name}-seed{seed}-{common.stamp()}.mcap"
     out = common.new_output(args.out, default, args.force)
@@ -88,7 +98,6 @@ def main(args: argparse.Namespace) -> int:
         allow_network=True if args.allow_network else None,
         mirror=True if args.mirror else None,
     )
-    talk = common.console(stderr=True, quiet=args.quiet)
     s = run.scenario
     timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
     talk.print(
@@ -98,7 +107,7 @@ def main(args: argparse.Namespace) -> int:
     common.warn(common.error_console() if args.quiet else talk, run.warnings)
     sink = common.foxglove_sink(args, "cosim run --foxglove") if args.foxglove is not None else None
     try:
-        result = common.with_progress(run, talk, lambda run: _started(run, talk, sink), sink=sink)
+        result = common.with_progress(run, talk, lambda run: _started(run, talk, sink), preparation, sink=sink)
     except KeyboardInterrupt as interrupt:
         r = run.result
         done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
@@ -119,7 +128,7 @@ def main(args: argparse.Namespace) -> int:
         common.print_json(summary(result, out))
     else:
         print(out)
-    return CONTESTED if result.contested_ticks else 0
+    return common.ESTIMATOR_FAILED if result.failed else CONTESTED if result.contested_ticks else 0
 
 
 def _check_options(args: argparse.Namespace, s: Scenario) -> None:
@@ -169,7 +178,9 @@ def _started(run: Run, talk: Console, sink: FoxgloveSink | None) -> None:
             f"waiting up to {wait:g} s for it to subscribe{pace}"
         )
         interrupts = run.session.interrupts
-        if not sink.wait_for_viewer(wait, interrupted=lambda: interrupts.requested is not None):
+        with progress.step("waiting for a Foxglove client to subscribe"):
+            subscribed = sink.wait_for_viewer(wait, interrupted=lambda: interrupts.requested is not None)
+        if not subscribed:
             talk.print("[yellow]no Foxglove client subscribed; running anyway[/yellow]")
     external = [c.name for c in s.clients] + [e.name for e in s.estimators if e.external]
     external += ["controller"] if s.controller is not None and s.controller.external else []
@@ -189,11 +200,7 @@ def _report(result: RunResult, s: Scenario, talk: Console) -> None:
     for warning in result.warnings:
         if any(what in warning for what in ("fell behind", "contested ticks", "kernel dropped")):
             talk.print(f"[yellow]  {escape(warning)}[/yellow]")
-    for name, why in result.failed.items():
-        talk.print(
-            f"[yellow]  estimator {escape(name)} {escape(why)}; the run went on without it "
-            "(its traceback: the log's /cosim/events)[/yellow]"
-        )
+    common.say_failed(talk, result)
     for name, counts in result.senders.items():
         if counts["lost"] or counts["runner_frames_missed"]:
             talk.print(

@@ -27,6 +27,7 @@ import can
 import numpy as np
 
 import faults as fm
+from cosim import progress
 from cosim.bus.codec import CONTROLLER, Decoded
 from cosim.bus.transport import BusConfig
 from cosim.errors import CosimError
@@ -170,7 +171,7 @@ class PlantSource:
         self.plant.step(u_eff, d)
 
 
-def run_ticks(source: TickSource, session: Session, progress: Callable[[int], None]) -> int:
+def run_ticks(source: TickSource, session: Session, advanced: Callable[[int], None]) -> int:
     """Every tick of ``source`` through ``session``; returns the number of ticks run.
 
     The frames of tick k + 1 are made while the nodes answer tick k (between ``advance(k)`` and
@@ -185,7 +186,7 @@ def run_ticks(source: TickSource, session: Session, progress: Callable[[int], No
         if k + 1 < source.ticks:
             upcoming = _Upcoming(source, k + 1)
         session.end(k)
-        progress(k + 1)
+        advanced(k + 1)
     return source.ticks
 
 
@@ -222,7 +223,7 @@ def execute(
     status, error, k = "completed", "", 0
     last_report = time.perf_counter()
 
-    def progress(done: int) -> None:
+    def advanced(done: int) -> None:
         nonlocal k, last_report
         k = done
         if on_progress is not None and (now := time.perf_counter()) - last_report >= progress_every:
@@ -230,9 +231,11 @@ def execute(
             on_progress(session.progress(done, source.ticks))
 
     try:
-        start()
-        session.join()
-        k = run_ticks(source, session, progress)
+        with progress.step("starting the nodes"):
+            start()
+        with progress.step(f"waiting for the {len(session.participants)} participants to join"):
+            session.join()
+        k = run_ticks(source, session, advanced)
     except BaseException as exc:
         status, error = ending(exc)
         raise

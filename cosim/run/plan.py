@@ -20,7 +20,7 @@ import numpy as np
 
 import estimators
 import faults as fm
-from cosim import design_cache
+from cosim import design_cache, progress
 from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
 from cosim.bus.control_frames import ControlAuth, control_keys
 from cosim.bus.keys import derive_key, run_secret
@@ -59,10 +59,12 @@ def build_estimators(
     built = {}
     for i, spec in enumerate(s.estimators):
         try:
-            chosen = continuous if estimators.ESTIMATORS[spec.kind].continuous else model
+            kind = estimators.ESTIMATORS[spec.kind]
+            chosen = continuous if kind.continuous else model
             if chosen is None:
                 raise ParameterError("model", f"{spec.kind} needs the continuous-time model")
-            built[spec.name] = design_cache.create(spec.kind, chosen, spec.params, s.sample_time)
+            with progress.step(f"estimator {spec.name} ({kind.kind}), {i + 1} of {len(s.estimators)}"):
+                built[spec.name] = design_cache.create(spec.kind, chosen, spec.params, s.sample_time)
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
         except Exception as error:  # noqa: BLE001 (a plugin's design may raise anything: one line, not its traceback)
@@ -97,7 +99,8 @@ def build_controller(
     if chosen is None:
         raise ScenarioError(f"{source}: controller: {s.controller.kind} needs the continuous-time model")
     try:
-        return kind.from_params(chosen, s.controller.params, s.sample_time)
+        with progress.step(f"controller ({s.controller.kind})"):
+            return kind.from_params(chosen, s.controller.params, s.sample_time)
     except ParameterError as error:
         raise ScenarioError(f"{source}: controller.params.{error}") from None
 
@@ -231,7 +234,8 @@ class RunPlan:
         except ScenarioError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         try:
-            plant = build_plant(s)
+            with progress.step(f"loading the plant {s.plant.model}"):
+                plant = build_plant(s)
         except ModelError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
         # Estimators are designed on the linearization at the plant's keyframe (its operating point),
@@ -240,7 +244,8 @@ class RunPlan:
             if not isinstance(plant, Plant):  # keyframes are MuJoCo's: a state-space plant has none
                 raise ScenarioError(f"{loaded.source}: a state-space plant has no design keyframe")
             plant.reset(keyframe=s.plant_info.design_keyframe)
-        model = plant.linearize()
+        with progress.step("linearizing the plant at its operating point"):
+            model = plant.linearize()
         needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
             s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous
         )
