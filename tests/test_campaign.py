@@ -7,6 +7,7 @@ import io
 import json
 import math
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -25,6 +26,7 @@ from cosim.campaign.spec import builtin_names, load_campaign
 from cosim.cli import main
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
+from tests.conftest import ROOT
 
 TINY = """
 name = "tiny"
@@ -166,6 +168,26 @@ def test_a_folder_holding_a_campaign_is_not_overwritten_and_resume_needs_the_sam
     assert again.resumed == 4 and metrics_table(again.path).equals(metrics_table(inline_table.path))
 
 
+def test_the_folder_keeps_the_campaign_with_its_options_and_a_scenario_file_found_from_there(tmp_path):
+    from cosim.campaign.coordinator import _prepare, resume_command
+
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "base.toml").write_text((ROOT / "scenarios" / "masses-bias.toml").read_text())
+    path = write(tmp_path / "mine", "# my sweep\n" + TINY.replace('"masses-bias"', '"base.toml"'))
+    options = {"seeds": 3, "settings": [("duration", 1.0)]}
+    folder = tmp_path / "runs" / "sweep"
+    _prepare(folder, load_campaign(path, **options), resume=False)
+    kept = (folder / "campaign.toml").read_text()
+    assert kept.startswith("# my sweep") and 'scenario = "../../mine/base.toml"' in kept and "seeds = 3" in kept
+    copy = load_campaign(folder / "campaign.toml")
+    assert copy.size == 6 and copy.base.scenario == load_campaign(path).base.scenario
+    _prepare(folder, copy, resume=True)  # the copy is the campaign, and so is the file with the same options
+    _prepare(folder, load_campaign(path, **options), resume=True)
+    with pytest.raises(ScenarioError.__mro__[1], match="holds another campaign") as raised:
+        _prepare(folder, load_campaign(path), resume=True)  # without --seeds, --set: another campaign
+    assert resume_command(folder) in str(raised.value)
+
+
 @pytest.mark.slow
 def test_a_local_dask_cluster_of_two_workers_gives_the_same_table(tmp_path, inline_table):
     campaign = load_campaign(write(tmp_path, TINY))
@@ -201,15 +223,19 @@ def test_resume_after_the_coordinator_is_killed_loses_nothing_and_duplicates_not
 
 
 @pytest.mark.slow
-def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path, inline_table):
+def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_the_command_it_prints_finishes_it(tmp_path, inline_table):
     """Ctrl-C in a terminal sends SIGINT to its whole foreground group, the local cluster's worker
-    processes included: the campaign says it was interrupted (no Dask tracebacks) and --resume
-    completes the same table."""
-    path = write(tmp_path, TINY)
-    folder = tmp_path / "interrupted"
-    command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2"]
+    processes included: the campaign says it was interrupted (no Dask tracebacks) and prints the
+    command that finishes it, which does as printed: the campaign was started with --seeds and --set,
+    its scenario is a file next to the campaign's, and the shell is elsewhere."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "base.toml").write_text((ROOT / "scenarios" / "masses-bias.toml").read_text())
+    write(tmp_path / "mine", TINY.replace('"masses-bias"', '"base.toml"').replace("duration = 1.5\n", ""))
+    cosim = [sys.executable, "-m", "cosim.cli"]
+    options = ["--seeds", "2", "--set", "duration=1.5", "--workers", "2"]
     process = subprocess.Popen(
-        command,
+        [*cosim, "campaign", "mine/campaign.toml", "--out", "out put", *options],
+        cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -217,6 +243,7 @@ def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path,
         # a shell starts background jobs with SIGINT ignored, and children keep it so: a terminal's does not
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
+    folder = tmp_path / "out put"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list((folder / "parts").glob("run-*.json")):
         time.sleep(0.1)
@@ -226,10 +253,13 @@ def test_ctrl_c_stops_a_campaign_in_a_few_lines_and_resume_finishes_it(tmp_path,
     assert "Traceback" not in out and "ERROR" not in out, out
     after = out.split("engine:", 1)[1].strip().splitlines()[1:]  # below the engine line and the progress
     assert len(after) <= 3, out
-    assert "interrupted" in out and "--resume" in out
-    resumed = run_campaign(load_campaign(path), folder, engine="inline", resume=True)
-    assert resumed.resumed >= 1 and resumed.runs == 4
-    assert metrics_table(resumed.path).equals(metrics_table(inline_table.path))
+    assert "interrupted" in out
+    printed = out.split("finish with: ", 1)[1].splitlines()[0]
+    assert printed == "cosim campaign 'out put/campaign.toml' --out 'out put' --resume"
+    finish = subprocess.run([*cosim, *shlex.split(printed)[1:]], cwd=tmp_path, capture_output=True, text=True)
+    assert finish.returncode == 0, finish.stderr
+    assert "from an earlier session" in finish.stderr
+    assert metrics_table(folder / "results.parquet").equals(metrics_table(inline_table.path))
 
 
 def synthetic_table(path, differences: dict[str, list[float]]) -> Path:

@@ -1,15 +1,18 @@
 """Running a campaign: its runs on an engine, their parts on disk, the results table at the end.
 
-``run_campaign`` writes into one folder: ``campaign.toml`` (the file as given), ``versions.json``,
+``run_campaign`` writes into one folder: ``campaign.toml`` (the file as given, with the command
+line's seeds and settings, its scenario file named relative to the folder), ``versions.json``,
 ``parts/`` (one file per finished run), ``logs/`` (the logs kept) and ``results.parquet``. With
 ``resume`` it finishes the campaign a killed coordinator left (SIGKILL included): the folder's
-campaign must be the same file, and only runs without a part run again.
+campaign must be the same (that copy itself, or the file with the same options), and only runs
+without a part run again.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shlex
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -168,17 +171,24 @@ def _schema(campaign: Campaign, runs: list[RunSpec]) -> TableSchema:
     return TableSchema.of(varying, states.pop() if len(states) == 1 else "mixed units")
 
 
+def resume_command(folder: Path) -> str:
+    """The command that finishes the campaign in ``folder``, as a shell takes it: the folder's own
+    copy of the campaign holds the command line's changes, and names its scenario file from there."""
+    return f"cosim campaign {shlex.quote(str(folder / 'campaign.toml'))} --out {shlex.quote(str(folder))} --resume"
+
+
 def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:
     stored = folder / "campaign.toml"
+    kept = campaign.kept_text(folder)
     if stored.exists():
         if not resume:
             raise CosimError(
                 f"--out {folder}: holds a campaign already; add --resume to finish it, or choose another folder"
             )
-        if stored.read_text(encoding="utf-8") != campaign.text:
+        if stored.read_text(encoding="utf-8") != kept:
             raise CosimError(
-                f"--resume: {folder} holds another campaign (its campaign.toml differs from {campaign.source}); "
-                f"resume it with that file, or choose another --out"
+                f"--resume: {folder} holds another campaign (its campaign.toml differs from {campaign.source} "
+                f"with the options given); finish it with: {resume_command(folder)}; or choose another --out"
             )
         for leftover in (folder / "parts").glob("*.tmp"):  # a part being written when the coordinator died
             leftover.unlink()
@@ -188,7 +198,7 @@ def _prepare(folder: Path, campaign: Campaign, resume: bool) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
     temporary = folder / "campaign.toml.tmp"
-    temporary.write_text(campaign.text, encoding="utf-8")
+    temporary.write_text(kept, encoding="utf-8")
     os.replace(temporary, stored)  # last: a folder with campaign.toml is a campaign
 
 

@@ -41,6 +41,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -183,6 +184,21 @@ class Campaign:
     source: str
     text: str
     base: LoadedScenario
+
+    def kept_text(self, folder: Path) -> str:
+        """The text a campaign's folder keeps (``campaign.toml``): the file with the command line's
+        changes, and a scenario file named relative to the folder, so that the copy is the campaign
+        wherever it is loaded from (``cosim campaign DIR/campaign.toml --out DIR --resume``)."""
+        if Path(self.spec.scenario).suffix != ".toml":  # a built-in scenario
+            return self.text
+        scenario = os.path.relpath(Path(self.base.source).resolve(), folder.resolve())
+        if scenario == self.spec.scenario:
+            return self.text
+        import tomlkit
+
+        document = tomlkit.parse(self.text)
+        document["scenario"] = Path(scenario).as_posix()
+        return tomlkit.dumps(document)
 
     @property
     def grid(self) -> list[tuple[int, ...]]:

@@ -4,9 +4,9 @@ Run a campaign: a base scenario over seeds, axes (a grid of settings) and sample
 run on a Dask cluster (a local one with a worker per core, or one joined with --address), into one
 table, DIR/results.parquet: a row per run and estimator, every metric of 'cosim inspect' with units.
 A run that fails is a row with its error; --resume after a kill or Ctrl-C redoes only the runs that
-did not finish. Every cell of the grid sees the same noise and weather replicate by replicate
-(common random numbers). The file's format is in docs/campaigns.md; 'cosim campaigns' lists the
-built-in ones.
+did not finish (Ctrl-C prints the command: the folder's campaign.toml keeps --seeds and --set).
+Every cell of the grid sees the same noise and weather replicate by replicate (common random
+numbers). The file's format is in docs/campaigns.md; 'cosim campaigns' lists the built-in ones.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
@@ -30,7 +31,7 @@ examples:
   cosim campaign masses-bias-sweep --out runs/sweep
   cosim campaign masses-bias-sweep --out runs/quick --seeds 2 --set duration=10
   cosim campaign my-campaign.toml --out runs/mine --workers 2 --keep-logs all
-  cosim campaign my-campaign.toml --out runs/mine --resume
+  cosim campaign runs/mine/campaign.toml --out runs/mine --resume
   cosim campaign my-campaign.toml --out runs/big --address tcp://10.0.0.5:8786"""
 
 
@@ -59,7 +60,7 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from cosim import scenario
-    from cosim.campaign.coordinator import require_extras, run_campaign
+    from cosim.campaign.coordinator import require_extras, resume_command, run_campaign
     from cosim.campaign.spec import load_campaign
 
     settings = [scenario.parse_setting(text) for text in args.set or []]
@@ -88,7 +89,9 @@ def main(args: argparse.Namespace) -> int:
             common.error_console(),
             interrupt,
             f" after {done:.0f} of {campaign.size} runs: their results are kept in {escape(str(args.out))}; "
-            f"finish with: cosim campaign {escape(args.file)} --out {escape(str(args.out))} --resume",
+            f"finish with: {escape(resume_command(Path(args.out)))}"
+            if (Path(args.out) / "campaign.toml").exists()
+            else " before the campaign started",
         )
     resumed = f" ({result.resumed} from an earlier session)" if result.resumed else ""
     talk.print(
