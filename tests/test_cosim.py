@@ -364,16 +364,26 @@ def test_an_external_estimator_started_by_hand(tmp_path, default_loaded):
     assert kalman(out) == kalman(reference.path)
 
 
-def test_monitor_shows_the_live_signals_until_the_run_stops(tmp_path):
+def test_monitor_writes_a_line_per_message_into_a_pipe_until_the_run_stops(tmp_path):
     loaded = short(tmp_path, 3.0, '\n[timing]\nmode = "realtime"\n')
     runner = cli("run", "-q", str(loaded.source), "--out", str(tmp_path / "monitored.mcap"))
     wait_for(lambda: registry.active())
-    monitor = cli("monitor", env={**os.environ, "COLUMNS": "200"})
+    monitor = cli("monitor")
+    first = monitor.stdout.readline()  # lines come as the messages do, not at the end
+    assert runner.poll() is None and len(first.split()) >= 3  # message, sender, tick, signals
     out, err = monitor.communicate(timeout=60)
     runner.communicate(timeout=60)
     assert monitor.returncode == 0, err
-    for text in ("SENSOR_x1", "EST_uniform_0", "xhat_x1=", "HEARTBEAT_kalman", "the run has stopped"):
-        assert text in out
+    lines = [first, *out.splitlines()]
+    estimates = [line.split() for line in lines if line.startswith("EST_uniform_0 ")]
+    assert len(estimates) > 100 and all(e[1] == "uniform" and e[3].startswith("xhat_x1=") for e in estimates)
+    ticks = [int(e[2]) for e in estimates]
+    assert ticks == sorted(ticks) and len(set(ticks)) == len(ticks)  # one line per message, in order
+    assert any(line.startswith("HEARTBEAT_kalman kalman ") for line in lines)
+    assert "\x1b[" not in out and "message" not in lines[0]  # no table, no terminal codes
+    header, summary = err.strip().splitlines()  # what is monitored, and how much: on standard error
+    assert header.startswith("masses-bias (run ") and summary.endswith("the run has stopped")
+    assert summary.startswith(f"{len(lines)} frames")
 
 
 def test_no_running_cosimulation_is_a_clear_error():
@@ -462,7 +472,11 @@ def test_monitor_decodes_any_bus_with_a_dbc(tmp_path):
     monitor.send_signal(signal.SIGINT)
     out, err = monitor.communicate(timeout=30)
     assert monitor.returncode == 0, err
-    assert "SENSOR_x1" in out and "x1=0.25 m" in out and "unknown" in out
+    lines = [line.split() for line in out.splitlines()]  # a line per decoded frame: time since the start (s),
+    assert 20 <= len(lines) <= 40  # message, id, sender, signals (a monitor that joins late misses the first)
+    assert all(line[1:] == ["SENSOR_x1", "100", "plant", f"tick={int(line[4][5:])}", "x1=0.25", "m"] for line in lines)
+    assert [float(line[0]) for line in lines] == sorted(float(line[0]) for line in lines)
+    assert err.strip().splitlines()[-1].startswith(f"{2 * len(lines)} frames ({len(lines)} unknown)")  # 0x7AB
     refused = subprocess.run(
         [sys.executable, "-m", "cosim.cli", "monitor", "--dbc", str(dbc)], capture_output=True, text=True
     )

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console, Group
 from rich.live import Live
@@ -16,6 +18,9 @@ from cosim.bus.client import Client
 from cosim.bus.codec import Decoded
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    import can
 
 
 def _table(latest: dict[str, Decoded], header: str) -> Group:
@@ -74,13 +79,55 @@ def find_run(run: str | None, command: str) -> dict[str, Any]:
     return registry.find(run)
 
 
+class _Lines:
+    """A monitor's output where it is not a terminal (a pipe, a file): a line per decoded message on
+    ``console``'s stream, written at once, and what is monitored (and, at the end, how many frames)
+    on standard error. A reader that goes away (``| head``) ends the monitor."""
+
+    def __init__(self, console: Console, header: str) -> None:
+        self.stream, self.count = console.file, _Count()
+        print(header, file=sys.stderr, flush=True)
+
+    def line(self, text: str) -> bool:
+        """Writes a line; False once the reader has gone."""
+        try:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+        except BrokenPipeError:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self.stream.fileno())  # nothing left for Python to flush
+            return False
+        return True
+
+    def end(self, how: str = "") -> int:
+        print(f"{self.count}{how}", file=sys.stderr, flush=True)
+        return 0
+
+
+def _decoded_line(decoded: Decoded) -> str:
+    """A message as a line: its name, sender, tick and signals (the columns of the live table)."""
+    spec = decoded.spec
+    units = {signal: channel.unit for channel, signal in zip(spec.channels, spec.signals)}
+    return f"{spec.name} {spec.sender} {decoded.tick} {_values(decoded.values, units)}"
+
+
 def monitor(run: str | None, console: Console) -> int:
-    """Attach to the running co-simulation and show its frames until it stops (or Ctrl-C)."""
+    """Attach to the running co-simulation and show its frames until it stops (or Ctrl-C): a live
+    table on a terminal, else a line per decoded message."""
     info = find_run(run, "cosim monitor")
     header = f"{info['scenario']} (run {info['id']}) on {info['bus']['interface']} {info['bus']['channel']}"
     latest: dict[str, Decoded] = {}
     count = _Count()
     with Client.attach(None, info["id"]) as client:
+        if not console.is_terminal:
+            lines = _Lines(console, header)
+            try:
+                for decoded in client.frames(timeout=None):
+                    lines.count.frames += 1
+                    if not lines.line(_decoded_line(decoded)):
+                        return 0
+            except KeyboardInterrupt:
+                return lines.end()
+            return lines.end(": the run has stopped")
         try:
             with Live(_table(latest, header), console=console, refresh_per_second=5, transient=False) as live:
                 for decoded in client.frames(timeout=None):
@@ -111,25 +158,62 @@ def watch(dbc: str, interface: str, channel: str | None, port: int | None, conso
     header = f"{dbc} on {config.describe()}"
     if not isinstance(database, cantools.database.can.Database):
         raise CosimError(f"--dbc {dbc}: not a CAN database")
+    bus = open_bus(config)
+    try:
+        if not console.is_terminal:
+            return _watch_lines(bus, database, _Lines(console, header))
+        return _watch_table(bus, database, console, header)
+    finally:
+        bus.shutdown()
+
+
+def _decode(database: Any, frame: can.Message) -> tuple[Any, dict[str, Any]] | None:
+    """A frame's message and values by the DBC, or None if it does not know the frame."""
+    import cantools
+
+    try:
+        message = database.get_message_by_frame_id(frame.arbitration_id)
+        return message, message.decode(bytes(frame.data), decode_choices=False)
+    except (KeyError, ValueError, cantools.database.DecodeError):
+        return None
+
+
+def _watch_lines(bus: can.BusABC, database: Any, lines: _Lines) -> int:
+    """A line per decoded frame: the time since the start (s), then the columns of the live table."""
+    started = time.monotonic()
+    try:
+        while True:
+            for frame in drain(bus, 0.1):
+                lines.count.frames += 1
+                if (found := _decode(database, frame)) is None:
+                    lines.count.unknown += 1
+                    continue
+                message, values = found
+                units = {signal.name: signal.unit for signal in message.signals}
+                senders = ",".join(message.senders) or "-"
+                text = f"{time.monotonic() - started:.3f} {message.name} {message.frame_id:03X} {senders} "
+                if not lines.line(text + _values(values, units)):
+                    return 0
+    except KeyboardInterrupt:
+        return lines.end()
+
+
+def _watch_table(bus: can.BusABC, database: Any, console: Console, header: str) -> int:
     latest: dict[str, tuple[Any, Any]] = {}
     count = _Count()
-    bus = open_bus(config)
     try:
         with Live(_signals(latest, header), console=console, refresh_per_second=5, transient=False) as live:
             while True:
                 for frame in drain(bus, 0.1):
                     count.frames += 1
-                    try:
-                        message = database.get_message_by_frame_id(frame.arbitration_id)
-                        latest[message.name] = (message, message.decode(bytes(frame.data), decode_choices=False))
-                    except (KeyError, ValueError, cantools.database.DecodeError):
+                    if (found := _decode(database, frame)) is None:
                         count.unknown += 1
+                    else:
+                        latest[found[0].name] = found
                 if count.due():
                     live.update(_signals(latest, f"{header}   {count}"))
     except KeyboardInterrupt:
         pass
-    finally:
-        bus.shutdown()
     return 0
 
 

@@ -3,6 +3,10 @@
 Show decoded signals live, message by message: of a running co-simulation (the only one, or --run
 ID, printed by 'cosim run'), or of any bus with --dbc (a bench, 'cosim replay --live', a log written
 by another tool).
+
+On a terminal: a table of every message's latest values. Piped or redirected: a line per decoded
+message as it comes (message, sender, tick, signals; with --dbc the seconds since the start, then
+message, id, senders, signals), what is watched and the frame count on standard error.
 """
 
 from __future__ import annotations
@@ -14,7 +18,8 @@ from cosim.cli import common
 EPILOG = (
     "examples:\n  cosim monitor\n  cosim monitor --run 3f2a\n"
     "  cosim monitor --dbc bus.dbc --interface socketcan --channel vcan0\n"
-    "  cosim monitor --dbc bus.dbc --channel 239.74.163.2 --port 43113"
+    "  cosim monitor --dbc bus.dbc --channel 239.74.163.2 --port 43113\n"
+    "  cosim monitor | grep EST_kalman > kalman.txt"
 )
 
 
