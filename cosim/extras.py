@@ -4,8 +4,8 @@
 pyproject.toml: ``lmi`` (cvxpy, Clarabel: the LMI designs of IJC 2018), ``export`` (pyarrow,
 asammdf: Parquet and MF4 exports), ``campaign`` (distributed, pyarrow: the campaign engine and its
 results table), ``plot`` (matplotlib: figures), ``live``
-(foxglove-sdk: the Foxglove WebSocket server), ``fmi`` (FMPy, pythonfmu3: FMU plants and ``cosim
-fmu``); ``all`` is every one of them.
+(foxglove-sdk: the Foxglove WebSocket server), ``fmi`` (FMPy, pythonfmu3, pint: FMU plants and
+``cosim fmu``); ``all`` is every one of them.
 
 ``require`` imports a package of an extra or raises ``MissingExtra`` naming the extra;
 ``missing_extra`` turns an ImportError raised deeper down (a lazy import in an estimator's design,
@@ -26,7 +26,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "campaign": ("distributed", "pyarrow"),
     "plot": ("matplotlib",),
     "live": ("foxglove", "websockets"),
-    "fmi": ("fmpy", "pythonfmu3"),
+    "fmi": ("fmpy", "pythonfmu3", "pint"),
 }
 #: Top-level module → the first extra that brings it (a feature needing it from another extra names that one).
 MODULE_EXTRA = {module: extra for extra, modules in reversed(EXTRAS.items()) for module in modules}

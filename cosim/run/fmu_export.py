@@ -1,34 +1,57 @@
 """``cosim fmu``: a scenario's plant with its sensor and actuator faults, noise and disturbances,
-packaged as an FMI 3.0 co-simulation FMU.
+packaged as an FMI 3.0 co-simulation FMU; and the packaging that the estimator's FMU
+(``cosim.run.fmu_estimator``) shares with it.
 
 The FMU is Python-backed (pythonfmu3, the ``fmi`` extra): its binary is pythonfmu3's prebuilt
-library (Linux x86-64, Windows x86-64), which runs ``cosim.run.fmu_slave`` in the host's Python,
-so exporting needs no compiler; running it needs a Python with cosim installed. Its resources hold
-the scenario (``scenario.json``: the resolved scenario and the signal names) and, for an FMU plant,
-that FMU. The bus (frames, bus faults, estimators, controller) is not part of it: it is the plant
-side of a run, whose outputs are the sensor stream ``cosim run`` logs (/truth/faults ``measured``)
-given the same commands (docs/fmi.md).
+library, which runs a slave module (``cosim.run.fmu_slave`` here) in the host's Python, so
+exporting needs no compiler; running it needs a Python with cosim installed. Its resources hold
+``content.json`` (what the slave builds itself from: the resolved scenario, the signal names and
+units) and, for an FMU plant, that FMU. The bus (frames, bus faults, estimators, controller) is not
+part of the plant's FMU: it is the plant side of a run, whose outputs are the sensor stream
+``cosim run`` logs (/truth/faults ``measured``) given the same commands (docs/fmi.md).
+
+What the packaging adds to pythonfmu3's: the variables' units as FMI units (``fmi_units``, their SI
+form from pint), only the binaries of the platforms every part of the FMU runs on (a nested FMU
+plant's included), and a model description that FMI's schema accepts (NaN start values as
+``NaN``, the sample time as the fixed internal step size).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import shutil
 import tempfile
+import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
+from cosim.bus.signals import Channel
 from cosim.errors import CosimError
 from cosim.extras import require
 from cosim.plant import build_plant
 from cosim.plant.fmu_model import is_fmu
 from cosim.scenario import LoadedScenario, Scenario
 
-SLAVE = Path(__file__).with_name("fmu_slave.py")
-#: The module name of the slave inside the FMU (pythonfmu3 imports it from the FMU's resources).
-SLAVE_MODULE = "cosim_fmu_slave"
+#: The file in the FMU's resources that its slave is built from.
+CONTENT = "content.json"
 PLANT_FILE = "plant.fmu"
+#: pythonfmu3's binary folders and the FMI platforms they are (as ``fmpy.supported_platforms`` names them).
+BINARY_PLATFORMS = {"x86_64-linux": "linux64", "x86_64-windows": "win64", "x86_64-darwin": "darwin64"}
+#: pint's base units and FMI's names of them (FMI 3.0, 2.4.3: the exponents of a BaseUnit).
+FMI_BASE_UNITS = {
+    "kilogram": "kg",
+    "meter": "m",
+    "second": "s",
+    "ampere": "A",
+    "kelvin": "K",
+    "mole": "mol",
+    "candela": "cd",
+    "radian": "rad",
+}
 
 
 def model_identifier(name: str) -> str:
@@ -37,19 +60,53 @@ def model_identifier(name: str) -> str:
     return cleaned if cleaned[:1].isalpha() else f"cosim_{cleaned}"
 
 
+def variable(channel: Channel) -> dict[str, str]:
+    """A signal as the slaves declare it: its name, description and unit."""
+    return {"name": channel.name, "description": channel.description, "unit": channel.unit}
+
+
+@functools.cache
+def _units_registry() -> Any:
+    pint = require("pint", "cosim fmu", "fmi")
+    return pint.UnitRegistry()
+
+
+def fmi_unit(name: str) -> dict[str, Any]:
+    """The FMI unit definition of a unit name: its SI form v_SI = factor·v + offset with the
+    exponents of the base units, e.g. ``cm^3/s`` → factor 1e-6, m³·s⁻¹. A name pint does not
+    parse, or whose SI form is not in FMI's base units, is declared by its name alone (no ``base``)."""
+    registry = _units_registry()
+    try:
+        zero = registry.Quantity(0.0, name).to_base_units()
+        one = registry.Quantity(1.0, name).to_base_units()
+    except Exception:  # noqa: BLE001 (pint raises several parse and definition errors)
+        return {}
+    base = {}
+    for unit, exponent in one.unit_items():
+        if unit not in FMI_BASE_UNITS or exponent != int(exponent):
+            return {}
+        base[FMI_BASE_UNITS[unit]] = int(exponent)
+    offset = float(zero.magnitude)
+    # the factor to 15 digits: pint's arithmetic leaves 1.0000000000000002e-06 for cm³
+    return {"factor": float(f"{float(one.magnitude) - offset:.15g}"), "offset": offset, "base": base}
+
+
+def fmi_units(variables: Iterable[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The unit definitions of the variables' units (a variable without a unit has none)."""
+    return {v["unit"]: fmi_unit(v["unit"]) for v in variables if v["unit"]}
+
+
 def exported(loaded: LoadedScenario) -> dict[str, Any]:
-    """What the FMU's ``scenario.json`` holds: the resolved scenario, its signals and the inputs'
-    start values (the plant's operating point)."""
+    """What the plant FMU's ``content.json`` holds: the resolved scenario, its signals and the
+    inputs' start values (the plant's operating point)."""
     s = loaded.scenario
     sensors, actuators, states = s.channels()
     plant = build_plant(s)
     data = json.loads(s.model_dump_json())
     if is_fmu(s.plant.model):
         data["plant"]["model"] = PLANT_FILE
-
-    def described(channels: list[Any]) -> list[list[str]]:
-        return [[c.name, f"{c.description} [{c.unit}]" if c.unit else c.description] for c in channels]
-
+    signals = {"actuators": actuators, "sensors": sensors, "states": states}
+    variables = {group: [variable(c) for c in channels] for group, channels in signals.items()}
     return {
         "model_identifier": model_identifier(s.name),
         "description": f"cosim scenario {s.name}: {s.description}" if s.description else f"cosim scenario {s.name}",
@@ -58,32 +115,85 @@ def exported(loaded: LoadedScenario) -> dict[str, Any]:
         "duration": s.duration,
         "seed": s.seed,
         "u_op": plant.linearize().u_op.tolist(),
-        "actuators": described(actuators),
-        "sensors": described(sensors),
-        "states": described(states),
+        **variables,
+        "units": fmi_units(v for group in variables.values() for v in group),
     }
 
 
 def export(loaded: LoadedScenario, out: Path) -> Path:
     """Write the scenario's plant as an FMU to ``out``; returns ``out``."""
+    model = loaded.scenario.plant.model
+    nested = {PLANT_FILE: Path(model)} if is_fmu(model) else {}
+    platforms = _fmu_platforms(Path(model)) if is_fmu(model) else None
+    return package(exported(loaded), Path(__file__).with_name("fmu_slave.py"), out, nested, platforms)
+
+
+def package(
+    content: dict[str, Any],
+    slave: Path,
+    out: Path,
+    files: dict[str, Path] | None = None,
+    platforms: set[str] | None = None,
+) -> Path:
+    """Build the FMU of ``slave`` (a pythonfmu3 slave module, packaged under its own name) with
+    ``content`` and ``files`` (name → file) in its resources, keeping the binaries of ``platforms``
+    only (None: all of pythonfmu3's); returns ``out``."""
     builder = require("pythonfmu3.builder", "cosim fmu", "fmi")
-    content = exported(loaded)
     with tempfile.TemporaryDirectory(prefix="cosim-fmu-") as folder:
         work = Path(folder)
-        (work / "scenario.json").write_text(json.dumps(content), encoding="utf-8")
-        project = [work / "scenario.json"]
-        if is_fmu(loaded.scenario.plant.model):
-            shutil.copyfile(loaded.scenario.plant.model, work / PLANT_FILE)
-            project.append(work / PLANT_FILE)
-        script = work / f"{SLAVE_MODULE}.py"
-        shutil.copyfile(SLAVE, script)
+        (work / CONTENT).write_text(json.dumps(content), encoding="utf-8")
+        project = [work / CONTENT]
+        for name, source in (files or {}).items():
+            target = work / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, target)
+            project.append(work / Path(name).parts[0])
+        script = work / f"cosim_{slave.name}"  # its module's name in the host: one per kind of slave
+        shutil.copyfile(slave, script)
         try:
-            built = builder.FmuBuilder.build_FMU(script, dest=work / "built", project_files=project)
+            built = builder.FmuBuilder.build_FMU(script, dest=work / "built", project_files=set(project))
         except Exception as error:  # noqa: BLE001 (pythonfmu3 raises plain Exceptions)
             raise CosimError(f"cosim fmu: pythonfmu3 could not build the FMU: {error}") from None
         out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(built, out)
+        _finish(Path(built), out, platforms, content["sample_time"])
     return out
+
+
+def _fmu_platforms(fmu: Path) -> set[str]:
+    """The platforms a nested FMU has binaries for."""
+    from fmpy import supported_platforms
+
+    return set(supported_platforms(str(fmu)))
+
+
+def _finish(built: Path, out: Path, platforms: set[str] | None, sample_time: float) -> None:
+    """Copy pythonfmu3's FMU to ``out`` without the binaries of the platforms not in ``platforms``
+    and with its model description fixed (``_fixed``)."""
+    with zipfile.ZipFile(built) as source, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
+        for item in source.infolist():
+            parts = Path(item.filename).parts
+            if parts[0] == "binaries" and platforms is not None and BINARY_PLATFORMS.get(parts[1]) not in platforms:
+                continue
+            data = source.read(item)
+            if item.filename == "modelDescription.xml":
+                data = _fixed(data, sample_time)
+            target.writestr(item, data)
+
+
+def _fixed(xml: bytes, sample_time: float) -> bytes:
+    """pythonfmu3's model description with ``nan``/``inf`` start values spelled as XML Schema's
+    doubles (``NaN``, ``INF``, ``-INF``), and the sample time as the co-simulation's fixed internal
+    step size (FMI 3.0: a ``doStep`` spans whole multiples of it)."""
+    root = ElementTree.fromstring(xml)
+    spelled = {"nan": "NaN", "inf": "INF", "-inf": "-INF"}
+    for element in root.iter():
+        start = element.get("start")
+        if start is not None:
+            element.set("start", " ".join(spelled.get(token, token) for token in start.split()))
+    cosimulation = root.find("CoSimulation")
+    if cosimulation is not None:
+        cosimulation.set("fixedInternalStepSize", repr(sample_time))
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ElementTree.tostring(root, encoding="unicode").encode()
 
 
 def plant_source(content: dict[str, Any], resources: Path, seed: int) -> Any:

@@ -1,16 +1,18 @@
-"""The Python inside an FMU that ``cosim fmu`` exports (pythonfmu3 packages this file).
+"""The Python inside the plant's FMU that ``cosim fmu`` exports (pythonfmu3 packages this file).
 
-The FMU's ``resources/scenario.json`` is the scenario (its resolved JSON, ``exported.json``); its
-plant, sensor and actuator faults, noise and disturbances run here as in ``cosim run``, through
-the same ``PlantSource``, so the outputs are the sensor stream a run logs (``measured`` of
-/truth/faults, NaN for a dropped frame) given the same commanded inputs. Its variables:
+The FMU's ``resources/content.json`` holds the scenario (its resolved JSON,
+``cosim.run.fmu_export.exported``); its plant, sensor and actuator faults, noise and disturbances
+run here as in ``cosim run``, through the same ``PlantSource``, so the outputs are the sensor
+stream a run logs (``measured`` of /truth/faults, NaN for a dropped frame) given the same commanded
+inputs. Its variables:
 
 - inputs: the actuators' commands (start: the operating point's), held over a step;
 - outputs: the transmitted sensors' measured readings, then ``state.<name>``, the plant's states;
 - parameter ``seed`` (fixed): the seed of the noise, the faults and the disturbance models.
 
 A step advances ``communicationStepSize`` / τ ticks (a whole number) of the scenario's sample time
-τ. The host needs a Python with cosim installed (its import path, e.g. FMPy in cosim's virtualenv).
+τ; any other step size is refused (``fmi3Error``, logged at [error]). The host needs a Python
+with cosim installed (its import path, e.g. FMPy in cosim's virtualenv).
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from typing import Any
 
 import numpy as np
 from pythonfmu3 import DefaultExperiment, Float64, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Int64
+from pythonfmu3.fmi3slave import Fmi3StepResult
 
-SCENARIO = "scenario.json"
+from cosim.run.fmu_interface import REFUSED, register_units, ticks_of
+
+CONTENT = "content.json"
 
 
 class CosimPlant(Fmi3Slave):
@@ -30,7 +35,7 @@ class CosimPlant(Fmi3Slave):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        exported = json.loads((Path(self.resources) / SCENARIO).read_text(encoding="utf-8"))
+        exported = json.loads((Path(self.resources) / CONTENT).read_text(encoding="utf-8"))
         self.exported = exported
         self.modelName = exported["model_identifier"]
         self.description = exported["description"]
@@ -41,6 +46,7 @@ class CosimPlant(Fmi3Slave):
         self.y = np.full(len(exported["sensors"]), np.nan)
         self.x = np.zeros(len(exported["states"]))
         self.time = 0.0
+        register_units(self, exported["units"])
         self.register_variable(
             Float64("time", causality=Fmi3Causality.independent, variability=Fmi3Variability.continuous)
         )
@@ -53,35 +59,24 @@ class CosimPlant(Fmi3Slave):
                 description="seed of the noise, the faults and the disturbance models",
             )
         )
-        for i, (name, about) in enumerate(exported["actuators"]):
+        for i, v in enumerate(exported["actuators"]):
             self.register_variable(
-                Float64(name, causality=Fmi3Causality.input, description=about, start=self.u[i], **_element(self.u, i)),
+                Float64(v["name"], causality=Fmi3Causality.input, start=self.u[i], **_about(v), **_element(self.u, i)),
                 nested=False,
             )
-        for i, (name, about) in enumerate(exported["sensors"]):
-            self.register_variable(
-                Float64(
-                    name,
-                    causality=Fmi3Causality.output,
-                    variability=Fmi3Variability.discrete,
-                    initial=Fmi3Initial.calculated,
-                    description=about,
-                    **_element(self.y, i),
-                ),
-                nested=False,
-            )
-        for i, (name, about) in enumerate(exported["states"]):
-            self.register_variable(
-                Float64(
-                    f"state.{name}",
-                    causality=Fmi3Causality.output,
-                    variability=Fmi3Variability.discrete,
-                    initial=Fmi3Initial.calculated,
-                    description=about,
-                    **_element(self.x, i),
-                ),
-                nested=False,
-            )
+        for prefix, group, values in (("", "sensors", self.y), ("state.", "states", self.x)):
+            for i, v in enumerate(exported[group]):
+                self.register_variable(
+                    Float64(
+                        prefix + v["name"],
+                        causality=Fmi3Causality.output,
+                        variability=Fmi3Variability.discrete,
+                        initial=Fmi3Initial.calculated,
+                        **_about(v),
+                        **_element(values, i),
+                    ),
+                    nested=False,
+                )
         self.source: Any = None
 
     def exit_initialization_mode(self) -> None:
@@ -91,15 +86,14 @@ class CosimPlant(Fmi3Slave):
         self._k = 0
         self._sense()
 
-    def do_step(self, current_time: float, step_size: float) -> bool:
-        ticks = round(step_size / self.sample_time)
-        if ticks < 1 or abs(ticks * self.sample_time - step_size) > 1e-9 * max(step_size, 1.0):
-            self.log(f"the step size {step_size:g} s is not a multiple of the sample time {self.sample_time:g} s")
-            return False
+    def do_step(self, current_time: float, step_size: float) -> Fmi3StepResult:
+        ticks = ticks_of(self, step_size, self.sample_time)
+        if ticks is None:
+            return REFUSED
         self._k = round(current_time / self.sample_time)
         for _ in range(ticks):
             self._advance()
-        return True
+        return Fmi3StepResult()
 
     def _advance(self) -> None:
         """Tick k's actuation (the actuator faults on the held commands, the disturbances) and the
@@ -119,6 +113,11 @@ class CosimPlant(Fmi3Slave):
         outcome = source.faults.sensors(source.plant.sensors(), source.scenario.time(self._k))
         self.y[:] = np.where(outcome.sent, outcome.measured, np.nan)
         self.x[:] = source.plant.state()
+
+
+def _about(v: dict[str, str]) -> dict[str, Any]:
+    """A signal's description and unit as a variable's keywords (a unit only where it has one)."""
+    return {"description": v["description"], **({"unit": v["unit"]} if v["unit"] else {})}
 
 
 def _element(values: np.ndarray, i: int) -> dict[str, Any]:
