@@ -223,3 +223,16 @@ def bus_inputs(log: Path, name: str) -> tuple[np.ndarray, dict[str, np.ndarray]]
                     rows.append([*y, *u])
     table = np.array(rows).reshape(len(rows), model.p + model.m)
     return np.array(ticks) * sample_time, dict(zip([*model.outputs, *model.inputs], table.T))
+
+
+def write_bus_inputs(log: Path, name: str, out: Path) -> Path:
+    """``bus_inputs`` as a CSV file (a ``time`` column, then one per input of the FMU, every value
+    to 17 digits, ``nan`` for a missing reading): the input file of ``fmpy simulate --input-file``,
+    a table for Simulink's or OMSimulator's signal sources."""
+    t, inputs = bus_inputs(log, name)
+    rows = [",".join(["time", *inputs])]
+    rows += [
+        ",".join(repr(float(v)) for v in (tk, *(column[i] for column in inputs.values()))) for i, tk in enumerate(t)
+    ]
+    out.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return out

@@ -1,0 +1,233 @@
+"""``cosim fmu``: what the exported FMUs declare (units, platforms, the refusal of a step size) and
+the estimator's FMU, which FMPy fed what the node read on the bus (``bus_inputs``, from a run's
+MCAP log) makes reproduce the node's logged estimates bit for bit: one estimator of each paper,
+and a user's plugin.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim import scenario
+from cosim.analysis.series import load
+from cosim.bus.codec import Codec
+from cosim.log.metadata import logged_dbc
+from cosim.log.reader import LogReader
+from cosim.run import run
+from tests.conftest import ROOT
+
+fmpy = pytest.importorskip("fmpy", reason="the 'fmi' extra (FMPy) is not installed")
+fmu_export = pytest.importorskip("cosim.run.fmu_export")
+from cosim.run import fmu_estimator  # noqa: E402 (after the extra's check)
+
+VANDERPOL_SCENARIO = ROOT / "tests" / "data" / "fmus" / "vanderpol-bias.toml"
+
+
+@pytest.fixture(scope="module")
+def vanderpol_fmu(tmp_path_factory):
+    """The plant FMU of the VanDerPol scenario (an FMU plant with Linux binaries only)."""
+    return fmu_export.export(scenario.load(str(VANDERPOL_SCENARIO)), tmp_path_factory.mktemp("fmu") / "vdp.fmu")
+
+
+def test_the_plant_fmu_declares_its_units_as_fmi_units(tmp_path):
+    out = fmu_export.export(scenario.load("three-tank-reconciliation"), tmp_path / "tanks.fmu")
+    description = fmpy.read_model_description(str(out))
+    units = {u.name: u.baseUnit for u in description.unitDefinitions}
+    flow = units["cm^3/s"]  # the pumps' unit: 1 cm³/s = 1e-6 m³ s⁻¹
+    assert (flow.m, flow.s, flow.kg, flow.factor, flow.offset) == (3, -1, 0, 1e-6, 0.0)
+    assert (units["cm"].m, units["cm"].factor) == (1, 0.01)
+    variables = [v for v in description.modelVariables if v.causality in ("input", "output")]
+    assert {v.unit for v in variables} == set(units)  # every unit declared, every variable has one
+    assert all("[" not in (v.description or "") for v in variables)  # not in the descriptions any more
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(out)) == []
+
+
+def test_a_unit_pint_cannot_read_is_declared_by_name_alone():
+    assert fmu_export.fmi_unit("furlongs per quux") == {}
+    assert fmu_export.fmi_unit("degC") == {"factor": 1.0, "offset": 273.15, "base": {"K": 1}}
+    assert fmu_export.fmi_unit("rad/s")["base"] == {"rad": 1, "s": -1}
+
+
+def test_the_plant_fmu_declares_only_the_platforms_its_nested_fmu_has(vanderpol_fmu):
+    assert fmpy.supported_platforms(str(vanderpol_fmu)) == ["linux64"]  # VanDerPol.fmu: Linux only
+    with zipfile.ZipFile(vanderpol_fmu) as fmu:
+        assert {Path(n).parts[1] for n in fmu.namelist() if n.startswith("binaries/")} == {"x86_64-linux"}
+
+
+def test_a_step_size_that_is_not_a_multiple_is_refused_at_error(vanderpol_fmu):
+    messages = []
+    with pytest.raises(Exception, match=r"fmi3DoStep failed with status 3 \(error\)"):
+        fmpy.simulate_fmu(
+            str(vanderpol_fmu),
+            stop_time=0.1,
+            output_interval=0.015,
+            debug_logging=True,
+            logger=lambda _, status, category, message: messages.append((status, category, message.decode())),
+        )
+    status, category, message = messages[-1]
+    assert (status, category) == (3, b"logStatusError")  # fmi3Error
+    assert message == "the step size 0.015 s is not a whole multiple of the sample time 0.01 s: refused"
+
+
+def fmu_estimates(fmu: Path, log: Path, name: str, **kwargs) -> dict[str, np.ndarray]:
+    """FMPy's simulation of an estimator's FMU fed what node ``name`` read on the bus (through the
+    CSV file ``cosim fmu --inputs-from`` writes): each output's answer to tick k, the output at
+    t_(k+1), after the step from t_k."""
+    from fmpy.util import read_csv
+
+    table = read_csv(fmu_estimator.write_bus_inputs(log, name, fmu.with_suffix(".csv")))
+    t = table["time"]
+    dt = t[1] - t[0]
+    outputs = [v.name for v in fmpy.read_model_description(str(fmu)).modelVariables if v.causality == "output"]
+    result = fmpy.simulate_fmu(
+        str(fmu), stop_time=t[-1] + dt, output_interval=dt, input=table, output=outputs, **kwargs
+    )
+    return {o: result[o][1:] for o in outputs}
+
+
+def logged_estimates(log: Path, name: str) -> dict[str, np.ndarray]:
+    """The node's logged estimates and diagnostics, signal by signal, tick by tick."""
+    values = load(log).estimators[name].values
+    ticks = sorted(values)
+    assert ticks == list(range(len(ticks)))
+    return {signal: np.array([values[k][signal] for k in ticks]) for signal in values[0]}
+
+
+def short_run(name: str, estimator: str, duration: float, folder: Path) -> tuple[scenario.LoadedScenario, Path]:
+    """A built-in scenario cut to ``duration`` with only ``estimator`` (and its controller), run
+    in-process: the frames of the run are the same."""
+    loaded = scenario.apply(scenario.load(name), [("duration", duration)])
+    spec = next(e for e in loaded.scenario.estimators if e.name == estimator)
+    alone = scenario.LoadedScenario(
+        loaded.scenario.model_copy(update={"estimators": [spec]}), loaded.source, loaded.text
+    )
+    log = folder / f"{name}.mcap"
+    assert run(alone, log, interface="virtual").status == "completed"
+    return alone, log
+
+
+#: One estimator of each paper (shared/papers/README.md), and the run that logs it: the session's
+#: run of the built-in scenario with node processes (shared with test_reproductions.py), or a
+#: shorter one in-process that still holds a fault.
+PAPERS = [
+    pytest.param("tac2024-s1-constant", "adaptive", None, marks=pytest.mark.slow, id="TAC2024-adaptive"),
+    pytest.param("cdc2016-ex1", "L1_k1", None, marks=pytest.mark.slow, id="CDC2016-adaptive-ct"),
+    pytest.param("three-tank-reconciliation", "lft", 230.0, id="IJC2018-lft-uio-sr"),  # the bias from 200 s
+    pytest.param("vessel-fault-T1", "fdi", 25.0, id="CJ-cofd"),  # closed loop; T1 fades from 20 s
+    pytest.param("uio-fault-detection", "uio", 11.0, id="notes-uio"),  # the sensor fault from 10 s
+]
+
+
+@pytest.mark.parametrize(("name", "estimator", "duration"), PAPERS)
+def test_the_estimator_fmu_reproduces_the_logged_estimates_bit_for_bit(
+    name, estimator, duration, builtin_run, tmp_path
+):
+    if duration is None:
+        result = builtin_run(name)
+        assert result.status == "completed", result.error
+        loaded, log = scenario.load(name), result.path
+    else:
+        loaded, log = short_run(name, estimator, duration, tmp_path)
+    fmu = fmu_estimator.export(loaded, estimator, tmp_path / f"{estimator}.fmu")
+    logged = logged_estimates(log, estimator)
+    computed = fmu_estimates(fmu, log, estimator)
+    assert sorted(computed) == sorted(logged)  # the estimate and every diagnostic, by their DBC names
+    for signal, values in logged.items():  # CAN FD: float64 signals, the node's values exactly
+        assert np.array_equal(computed[signal], values), signal
+
+
+def test_a_plugin_estimator_travels_in_its_fmu(tmp_path):
+    """examples/plugin's observer (a file kind) exports through the same path as a built-in; its
+    FMU runs from another folder once the source is gone. On classic CAN the outputs are the
+    estimator's values and the log holds them as the DBC's signals carry them (quantized)."""
+    source = tmp_path / "source"
+    shutil.copytree(ROOT / "examples" / "plugin", source)
+    loaded = scenario.apply(scenario.load(str(source / "my-observer.toml")), [("bus.fd", False)])
+    name = next(e.name for e in loaded.scenario.estimators if e.kind.endswith("my_observer.py:ResidualObserver"))
+    log = tmp_path / "run.mcap"
+    assert run(loaded, log, interface="virtual").status == "completed"
+    fmu = fmu_estimator.export(loaded, name, tmp_path / "mine.fmu")
+    shutil.rmtree(source)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    cwd = os.getcwd()
+    os.chdir(elsewhere)
+    try:
+        computed = fmu_estimates(fmu, log, name)
+    finally:
+        os.chdir(cwd)
+    with zipfile.ZipFile(fmu) as archive:
+        assert "resources/plugin/my_observer.py" in archive.namelist()
+    with LogReader(log) as reader:
+        codec = Codec.from_dbc(logged_dbc(reader))
+    logged = logged_estimates(log, name)
+    carried = {signal: np.empty(len(values)) for signal, values in logged.items()}
+    for spec in codec.data_messages(name):  # the bus' own arithmetic: saturated, then quantized
+        for k in range(len(logged[spec.signals[0]])):
+            values = [min(max(computed[s][k], c.minimum), c.maximum) for s, c in zip(spec.signals, spec.channels)]
+            _, decoded = codec.encode_decoded(spec.name, k, values)
+            for signal in spec.signals:
+                carried[signal][k] = decoded.values[signal]
+    for signal, values in logged.items():
+        assert np.array_equal(carried[signal], values), signal
+    assert any(not np.array_equal(computed[s], logged[s]) for s in logged)  # quantized: not the raw values
+
+
+def test_a_changed_design_parameter_redoes_the_frozen_design(tmp_path):
+    """The pseudoinverse observer's gain is placed at export (``node_params``) and frozen in the
+    FMU; setting ``params.poles`` places it again, else the FMU would run the old gain silently."""
+    import estimators
+
+    loaded, log = short_run("tac2024-s1-constant", "uniform", 1.0, tmp_path)
+    fmu = fmu_estimator.export(loaded, "uniform", tmp_path / "uniform.fmu")
+    poles = [0.5, 0.55, 0.6, 0.65]
+    messages = []
+    computed = fmu_estimates(
+        fmu,
+        log,
+        "uniform",
+        start_values={"params.poles": poles},
+        debug_logging=True,
+        logger=lambda _, status, category, message: messages.append(message.decode()),
+    )
+    assert "params.poles changed: the design is redone at initialization" in messages
+    content, _ = fmu_estimator.exported(loaded, "uniform")
+    model = estimators.LinearModel.from_dict(content["model"])
+    direct = estimators.create("pseudoinverse", model, {"poles": poles}, 0.01)
+    _, inputs = fmu_estimator.bus_inputs(log, "uniform")
+    table = np.column_stack(list(inputs.values()))
+    expected = [direct.step(row[: model.p], row[model.p :]).x[0] for row in table]
+    assert np.array_equal(computed["xhat_x1"], expected)
+    assert not np.array_equal(computed["xhat_x1"], logged_estimates(log, "uniform")["xhat_x1"])
+
+
+def test_cosim_fmu_estimator_names_an_unknown_estimator_in_one_line(tmp_path):
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "cosim.cli",
+            "fmu",
+            "--estimator",
+            "nope",
+            "masses-bias",
+            "--out",
+            str(tmp_path / "x.fmu"),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode != 0
+    assert result.stderr.strip().splitlines() == [
+        "error: builtin:masses-bias: no estimator 'nope' (its estimators: uniform, kalman)"
+    ], result.stderr
