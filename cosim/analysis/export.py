@@ -151,7 +151,11 @@ def export(
 def run_start_ns(reader: LogReader, warnings: list[str]) -> int:
     """The wall-clock start a frame log is stamped from: the run's (``cosim.run`` ``start_time_ns``)
     to the millisecond, or 0 (the epoch), with a warning, for a log that does not record it."""
-    run = LogMetadata.read(reader.metadata()).run
+    meta = LogMetadata.read(reader.metadata())
+    if meta.imported is not None:  # its first frame's time, to the millisecond
+        first = meta.imported.start_time_ns or 0
+        return first - first % 1_000_000
+    run = meta.run
     if run is None or run.start_time_ns is None:
         warnings.append(
             "the log does not record when the run started (written by an older cosim or another program): "
@@ -186,16 +190,28 @@ def parse_start_time(text: str) -> int:
 # -- tidy tables ----------------------------------------------------------------------------------
 
 
-def table_columns(schemas: dict[str, dict[str, Any]], dbc: str | bytes | None = None) -> list[Column]:
+def table_columns(
+    schemas: dict[str, dict[str, Any]], dbc: str | bytes | None = None, imported: bool = False
+) -> list[Column]:
     """The tidy table's columns, from the JSON Schemas of the log's topics and its DBC (which names
     a node's packed messages after the node, ``cosim.analysis.names``): ``tick``, ``t [s]``, the
-    truth topics, then the decoded data messages in channel order."""
-    columns = [
-        Column("tick", "", (), "int", "", "tick counter k"),
-        Column("t [s]", "", (), "float", "s", "simulated time t_k"),
+    truth topics, then the decoded data messages in channel order. An ``imported`` log (``cosim
+    import``) has no ticks: ``time [ns]`` (the frame's, since the Unix epoch), ``t [s]`` (since the
+    log's first frame), then every decoded message."""
+    if imported:
+        columns = [
+            Column("time [ns]", "", (), "int", "ns", "the frame's timestamp, ns since the Unix epoch"),
+            Column("t [s]", "", (), "float", "s", "time since the log's first frame"),
+        ]
+    else:
+        columns = [
+            Column("tick", "", (), "int", "", "tick counter k"),
+            Column("t [s]", "", (), "float", "s", "simulated time t_k"),
+        ]
+    known = {} if imported else names.prefixes(dbc)
+    decoded = [
+        t for t in schemas if t.startswith("/can/") and t != FRAMES and (imported or not CONTROL_MESSAGES.match(t))
     ]
-    known = names.prefixes(dbc)
-    decoded = [t for t in schemas if t.startswith("/can/") and t != FRAMES and not CONTROL_MESSAGES.match(t)]
     for topic in [t for t in TRUTH_TOPICS if t in schemas] + decoded:
         properties = {k: v for k, v in schemas[topic].get("properties", {}).items() if k not in ("tick", "t")}
         columns += _flatten(topic, names.prefix(topic, known), (), properties)
@@ -275,6 +291,21 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
         )
 
 
+def imported_rows(reader: LogReader, columns: list[Column], start_ns: int) -> Iterator[list[Any]]:
+    """Rows of an imported log's table (``cosim import``), one per decoded frame in the log's
+    order: its time, then its message's signals (the other messages' cells empty)."""
+    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
+    for i, column in enumerate(columns):
+        if column.topic:
+            fields.setdefault(column.topic, []).append((i, column.path, column.kind))
+    for topic, log_time, message in reader.messages(list(fields)):
+        row: list[Any] = [None] * len(columns)
+        row[0], row[1] = log_time, (log_time - start_ns) / 1e9
+        for i, path, kind in fields[topic]:
+            row[i] = _cell(message, path, kind)
+        yield row
+
+
 def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:
     value: Any = message
     for key in path:
@@ -289,10 +320,14 @@ def _cell(message: dict[str, Any], path: tuple[str, ...], kind: str) -> Any:
 
 
 def _export_table(reader: LogReader, fmt: str, path: Path, warnings: list[str]) -> int:
-    columns = table_columns(reader.schemas(), reader.attachments().get(DBC_ATTACHMENT))
+    imported = LogMetadata.read(reader.metadata()).imported
+    columns = table_columns(reader.schemas(), reader.attachments().get(DBC_ATTACHMENT), imported is not None)
     if fmt == "parquet":
         require("pyarrow", "cosim export --to parquet")
-    rows = table_rows(reader, columns, warnings)
+    if imported is not None:
+        rows = imported_rows(reader, columns, imported.start_time_ns or 0)
+    else:
+        rows = table_rows(reader, columns, warnings)
     return _write_csv(path, columns, rows) if fmt == "csv" else _write_parquet(path, columns, rows, reader)
 
 
@@ -348,10 +383,10 @@ def _source(column: Column) -> str:
 # -- frame logs -----------------------------------------------------------------------------------
 
 
-def frames(reader: LogReader) -> Iterator[tuple[int, dict[str, Any]]]:
-    """(log_time_ns, frame record) of every frame of ``/can/frames``, in bus order."""
+def frames(reader: LogReader, base_ns: int = 0) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(log_time_ns − ``base_ns``, frame record) of every frame of ``/can/frames``, in bus order."""
     for _, log_time, frame in reader.messages([FRAMES]):
-        yield log_time, frame
+        yield log_time - base_ns, frame
 
 
 def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | None, start_ns: int, title: str) -> int:
@@ -360,10 +395,12 @@ def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | No
             f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
             f"tables of its messages come with --to csv or parquet"
         )
+    # an imported log's log times are its frames' own (since the epoch), a run's simulated time
+    base = run_start_ns(reader, []) if LogMetadata.read(reader.metadata()).imported is not None else 0
     if fmt == "mf4":
         require("asammdf", "cosim export --to mf4")
-        return _write_mf4(path, frames(reader), _dbc_text(reader, dbc), start_ns)
-    return _write_frame_log(fmt, path, frames(reader), start_ns, title)
+        return _write_mf4(path, frames(reader, base), _dbc_text(reader, dbc), start_ns)
+    return _write_frame_log(fmt, path, frames(reader, base), start_ns, title)
 
 
 def _dbc_text(reader: LogReader, dbc: str | Path | None) -> bytes:

@@ -27,6 +27,7 @@ from __future__ import annotations
 from typing import Any
 
 from cosim.bus.codec import CLIENT, CONTROL, ESTIMATE, MESSAGE_PREFIX, Codec
+from cosim.bus.dbc import Role, load_dbc, message_roles
 from cosim.errors import CodecError
 from cosim.log.recorder import FAULTS, INPUTS, SENSORS, STATE, message_topic
 
@@ -38,12 +39,16 @@ NODE_ROLES = (ESTIMATE, CLIENT, CONTROL)
 
 def node_prefixes(codec: Codec) -> dict[str, str]:
     """Decoded topic of every node message (estimates, clients, controller status) → its node's name."""
+    return _node_prefixes({spec.name: (spec.role, spec.sender) for spec in codec.specs.values()})
+
+
+def _node_prefixes(roles: dict[str, tuple[Role, str]]) -> dict[str, str]:
+    """``node_prefixes`` of the messages' roles and senders, by name."""
     reserved = set(TRUTH_PREFIX.values())
     found = {}
-    for spec in codec.specs.values():
-        if spec.role in NODE_ROLES:
-            node = spec.sender if spec.sender not in reserved else f"{MESSAGE_PREFIX[spec.role]}_{spec.sender}"
-            found[message_topic(spec.name)] = node
+    for name, (role, sender) in roles.items():
+        if role in NODE_ROLES:
+            found[message_topic(name)] = sender if sender not in reserved else f"{MESSAGE_PREFIX[role]}_{sender}"
     return found
 
 
@@ -53,10 +58,13 @@ def prefixes(dbc: str | bytes | None) -> dict[str, str]:
     last path component."""
     found = dict(TRUTH_PREFIX)
     if dbc:
+        # Read by cantools, not compiled into a codec: any DBC cantools reads names its messages
+        # (one cosim's codec cannot compile too: big-endian or multiplexed signals, extended ids).
         try:
-            found.update(node_prefixes(Codec.from_dbc(dbc.decode() if isinstance(dbc, bytes) else dbc)))
+            database = load_dbc(dbc.decode(errors="replace") if isinstance(dbc, bytes) else dbc, strict=False)
         except CodecError:
-            pass  # a DBC cosim did not write: topics keep their names
+            return found  # not a CAN database: topics keep their names
+        found.update(_node_prefixes(message_roles(database)))
     return found
 
 

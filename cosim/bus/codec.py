@@ -144,10 +144,7 @@ class Codec:
 
     @classmethod
     def _parse(cls, text: str) -> Codec:
-        try:
-            database = load_dbc(text)
-        except Exception as error:  # cantools raises several parse error types
-            raise CodecError(f"the DBC cannot be parsed: {error}") from None
+        database = load_dbc(text)
         # The SecOC trailer is no signal of the codec: taken out, the secured frames keep their length.
         trailers = strip_secoc_trailer(database)
         fd = any(m.is_fd for m in database.messages) or bus_type(database) == "CAN FD"

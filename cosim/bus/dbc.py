@@ -444,10 +444,21 @@ def _role(message: Message) -> Role:
     return CLIENT
 
 
+def message_roles(database: Database) -> dict[str, tuple[Role, str]]:
+    """Each message's role and sender, by name, as ``spec_from_message`` finds them (for any DBC,
+    including one the codec cannot compile)."""
+    return {m.name: (_role(m), m.senders[0] if m.senders else "unknown") for m in database.messages}
+
+
 def spec_from_message(message: Message) -> MessageSpec:
     """The spec of a message read from a DBC (its role from its name and sender)."""
     role = _role(message)
     sender = message.senders[0] if message.senders else "unknown"
+    if message.is_extended_frame:
+        raise CodecError(
+            f"DBC message {message.name} has an extended (29-bit) id, 0x{message.frame_id:X}; cosim's bus codec "
+            "lays its messages out on standard ids ('cosim monitor --dbc' and 'cosim import' decode any DBC)"
+        )
     if role in _CONTROL_LAYOUT:
         return MessageSpec(message.name, message.frame_id, sender, role, (), _control_signals(role))
     prefix = SIGNAL_PREFIX.get(role, "")
@@ -455,20 +466,28 @@ def spec_from_message(message: Message) -> MessageSpec:
     for signal in sorted(message.signals, key=lambda s: s.start):
         if signal.name == "tick":
             continue
-        comment = signal.comment if isinstance(signal.comment, str) else ""
-        resolution = signal.scale if not signal.is_float else 2.0**-52
-        channels.append(
-            Channel(
-                signal.name.removeprefix(prefix),
-                signal.unit or "",
-                comment,
-                signal.minimum if signal.minimum is not None else -math.inf,
-                signal.maximum if signal.maximum is not None else math.inf,
-                resolution,
-            )
-        )
+        channels.append(_channel(message, signal, signal.name.removeprefix(prefix)))
         names.append(signal.name)
     return MessageSpec(message.name, message.frame_id, sender, role, tuple(channels), tuple(names))
+
+
+def _channel(message: Message, signal: Signal, name: str) -> Channel:
+    """The channel a DBC signal carries: its range (none where the DBC gives none, or gives one of
+    no width, as ``[0|0]`` says "not given") and its step, the factor's magnitude (a negative
+    factor is a valid DBC); a CodecError naming the message and the signal for a range whose
+    minimum is above its maximum."""
+    comment = signal.comment if isinstance(signal.comment, str) else ""
+    resolution = abs(signal.scale) if not signal.is_float else 2.0**-52
+    minimum = signal.minimum if signal.minimum is not None else -math.inf
+    maximum = signal.maximum if signal.maximum is not None else math.inf
+    if minimum == maximum:
+        minimum, maximum = -math.inf, math.inf
+    where = f"DBC message {message.name}, signal {signal.name}"
+    if not minimum < maximum:
+        raise CodecError(f"{where}: its range [{minimum:g}|{maximum:g}] holds no value (minimum above maximum)")
+    if not resolution > 0:
+        raise CodecError(f"{where}: its factor is 0, so it carries no value")
+    return Channel(name, signal.unit or "", comment, minimum, maximum, resolution)
 
 
 def control_mac_start(frame_id: int) -> int | None:
@@ -504,12 +523,23 @@ def control_fields(message: Message) -> ControlFields | None:
     )
 
 
-def load_dbc(text: str) -> cantools.database.can.Database:
-    """Parse DBC text (for tools and tests that decode a bus from ``cosim dbc``)."""
-    database = cantools.database.load_string(text, database_format="dbc")
+def load_dbc(text: str, strict: bool = True) -> cantools.database.can.Database:
+    """Parse DBC text (for tools and tests that decode a bus from ``cosim dbc``); ``strict=False``
+    takes what cantools takes of a vehicle's DBC, overlapping signals and all. A text cantools
+    refuses is a CodecError with its reason in one line."""
+    try:
+        database = cantools.database.load_string(text, database_format="dbc", strict=strict)
+    except Exception as error:  # noqa: BLE001 - cantools raises several parse error types
+        raise CodecError(f"cantools cannot read it as a DBC: {refusal(error)}") from None
     if not isinstance(database, Database):  # a diagnostics (CDD) database: never from the DBC format
         raise CodecError(f"expected a CAN database, got a {type(database).__name__}")
     return database
+
+
+def refusal(error: Exception) -> str:
+    """cantools' reason for refusing a DBC, in one line (its messages can span several)."""
+    text = " ".join(str(error).split()) or type(error).__name__
+    return text.removeprefix('DBC: "').removesuffix('"') if text.startswith('DBC: "') else text
 
 
 SECOC_SIGNALS = ("secoc_fv", "secoc_mac")

@@ -16,6 +16,7 @@ from rich.text import Text
 from cosim.bus import registry
 from cosim.bus.client import Client
 from cosim.bus.codec import Decoded
+from cosim.bus.foreign import FrameDecoder, read_dbc
 from cosim.bus.transport import BusConfig, drain, open_bus
 from cosim.errors import CosimError
 
@@ -142,63 +143,52 @@ def monitor(run: str | None, console: Console) -> int:
 
 
 def watch(dbc: str, interface: str, channel: str | None, port: int | None, console: Console) -> int:
-    """Show the frames of any bus decoded with the DBC file ``dbc`` (any DBC: a bench's, or one from
-    ``cosim dbc``) until Ctrl-C; frames the database does not know are counted."""
-    import cantools
-
+    """Show the frames of any bus decoded with the DBC file ``dbc`` (any DBC cantools reads: a
+    vehicle's, a bench's, or one from ``cosim dbc``) until Ctrl-C; a frame is looked up by its id
+    and its own extended flag (``cosim.bus.foreign``), and frames the database does not describe
+    are counted."""
     if not channel:
         raise CosimError("--dbc: say which bus with --channel (a multicast group, a CAN interface such as vcan0)")
     if interface == "udp_multicast" and port is None:
         raise CosimError("--dbc on udp_multicast: say which port with --port (cosim run prints it)")
-    try:
-        database = cantools.database.load_file(dbc, database_format="dbc", strict=False)
-    except (OSError, cantools.database.UnsupportedDatabaseFormatError, ValueError) as error:
-        raise CosimError(f"--dbc {dbc}: cannot read it as a DBC database ({str(error).splitlines()[0]})") from None
+    decoder = FrameDecoder(read_dbc(dbc))
     config = BusConfig(interface, channel, port, fd=True)
     header = f"{dbc} on {config.describe()}"
-    if not isinstance(database, cantools.database.can.Database):
-        raise CosimError(f"--dbc {dbc}: not a CAN database")
     bus = open_bus(config)
     try:
         if not console.is_terminal:
-            return _watch_lines(bus, database, _Lines(console, header))
-        return _watch_table(bus, database, console, header)
+            return _watch_lines(bus, decoder, _Lines(console, header))
+        return _watch_table(bus, decoder, console, header)
     finally:
         bus.shutdown()
 
 
-def _decode(database: Any, frame: can.Message) -> tuple[Any, dict[str, Any]] | None:
-    """A frame's message and values by the DBC, or None if it does not know the frame."""
-    import cantools
-
-    try:
-        message = database.get_message_by_frame_id(frame.arbitration_id)
-        return message, message.decode(bytes(frame.data), decode_choices=False)
-    except (KeyError, ValueError, cantools.database.DecodeError):
-        return None
+def _frame_id(message: Any) -> str:
+    """A DBC message's id as a table shows it: eight hex digits for an extended id, three for a standard one."""
+    return f"{message.frame_id:08X}" if message.is_extended_frame else f"{message.frame_id:03X}"
 
 
-def _watch_lines(bus: can.BusABC, database: Any, lines: _Lines) -> int:
+def _watch_lines(bus: can.BusABC, decoder: FrameDecoder, lines: _Lines) -> int:
     """A line per decoded frame: the time since the start (s), then the columns of the live table."""
     started = time.monotonic()
     try:
         while True:
             for frame in drain(bus, 0.1):
                 lines.count.frames += 1
-                if (found := _decode(database, frame)) is None:
+                if (found := decoder.decode(frame)) is None:
                     lines.count.unknown += 1
                     continue
                 message, values = found
                 units = {signal.name: signal.unit for signal in message.signals}
                 senders = ",".join(message.senders) or "-"
-                text = f"{time.monotonic() - started:.3f} {message.name} {message.frame_id:03X} {senders} "
+                text = f"{time.monotonic() - started:.3f} {message.name} {_frame_id(message)} {senders} "
                 if not lines.line(text + _values(values, units)):
                     return 0
     except KeyboardInterrupt:
         return lines.end()
 
 
-def _watch_table(bus: can.BusABC, database: Any, console: Console, header: str) -> int:
+def _watch_table(bus: can.BusABC, decoder: FrameDecoder, console: Console, header: str) -> int:
     latest: dict[str, tuple[Any, Any]] = {}
     count = _Count()
     try:
@@ -206,7 +196,7 @@ def _watch_table(bus: can.BusABC, database: Any, console: Console, header: str) 
             while True:
                 for frame in drain(bus, 0.1):
                     count.frames += 1
-                    if (found := _decode(database, frame)) is None:
+                    if (found := decoder.decode(frame)) is None:
                         count.unknown += 1
                     else:
                         latest[found[0].name] = found
@@ -224,5 +214,5 @@ def _signals(latest: dict[str, tuple[Any, Any]], header: str) -> Group:
     for name in sorted(latest, key=lambda n: latest[n][0].frame_id):
         message, values = latest[name]
         units = {signal.name: signal.unit for signal in message.signals}
-        table.add_row(name, f"{message.frame_id:03X}", ", ".join(message.senders), _values(values, units))
+        table.add_row(name, _frame_id(message), ", ".join(message.senders), _values(values, units))
     return Group(Text(header), table)

@@ -25,6 +25,8 @@ from typing import Any
 
 from cantools.database.conversion import IdentityConversion, LinearConversion
 
+from cosim.errors import CodecError
+
 _DOUBLE = struct.Struct("<d")
 
 
@@ -56,10 +58,12 @@ class Packer:
         self.length = message.length
         by_name = {}
         for signal in message.signals:
-            if signal.byte_order != "little_endian":
-                raise ValueError(f"{message.name}.{signal.name}: only little-endian signals are compiled")
-            if signal.is_float and signal.length != 64:
-                raise ValueError(f"{message.name}.{signal.name}: only 64-bit float signals are compiled")
+            if (problem := uncompiled(signal)) is not None:
+                raise CodecError(
+                    f"DBC message {message.name}, signal {signal.name}: {problem}, which cosim's bus codec does not "
+                    "compile (its own DBCs never have them); 'cosim monitor --dbc' and 'cosim import' decode such "
+                    "a bus through cantools"
+                )
             by_name[signal.name] = Field(
                 signal.name, signal.start, signal.length, signal.is_signed, signal.is_float, signal.conversion
             )
@@ -85,6 +89,18 @@ class Packer:
     def carried(self, values: Sequence[float]) -> list[float]:
         """What a receiver decodes from the payload ``encode(values)``: each value as the frame carries it."""
         return self.encode_carried(values)[1]
+
+
+def uncompiled(signal: Any) -> str | None:
+    """Why a cantools signal cannot be compiled into a packer (None: it can): big-endian, a float
+    of other than 64 bits, or one of a multiplexed message's signals (present in some frames only)."""
+    if signal.byte_order != "little_endian":
+        return "it is big-endian (Motorola byte order)"
+    if signal.is_float and signal.length != 64:
+        return f"it is a {signal.length}-bit float"
+    if signal.is_multiplexer or signal.multiplexer_ids:
+        return "its message is multiplexed"
+    return None
 
 
 def _compile(name: str, fields: tuple[Field, ...], length: int) -> dict[str, Any]:

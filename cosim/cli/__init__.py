@@ -22,6 +22,7 @@ from cosim.cli import (
     dbc,
     export,
     fmu,
+    import_log,
     inspect,
     kinds,
     layout,
@@ -54,6 +55,7 @@ examples:
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
   cosim fmu masses-bias --out plant.fmu   the scenario's plant with its faults as an FMU
   cosim export runs/my.mcap --to mf4  the bus as an ASAM MDF4 log (also csv, parquet, blf, asc, trc, candump)
+  cosim import drive.blf --dbc car.dbc --out drive.mcap   a vehicle's CAN log, decoded, for Foxglove
   cosim layout runs/my.mcap --out my-layout.json   a Foxglove layout for the log (or for a scenario)
   cosim plot runs/my.mcap --format pdf   the figures, for a paper (png, svg or pdf)
   cosim replay runs/my.mcap -e kalman  feed the log's bus traffic to one of its estimators again
@@ -71,6 +73,7 @@ COMMANDS = (
     kinds,
     dbc,
     fmu,
+    import_log,
     inspect,
     plot,
     report,

@@ -394,12 +394,12 @@ class ParagraphFormatter(argparse.RawDescriptionHelpFormatter):
 
 
 def command(sub: argparse._SubParsersAction, module: ModuleType) -> argparse.ArgumentParser:
-    """The parser of a command module, named after it: the docstring's first line is its help in
+    """The parser of a command module, named after it (or its ``NAME``): the docstring's first line is its help in
     ``cosim --help``, the rest its description; ``EPILOG`` (examples) and ``arguments`` (its
     options) where it has them; ``main`` runs it."""
     first, _, description = (module.__doc__ or "").partition("\n\n")
     help = first[0].lower() + first[1:].rstrip(".")
-    name = module.__name__.rpartition(".")[2]
+    name = getattr(module, "NAME", module.__name__.rpartition(".")[2])  # NAME: a command named by a keyword
     p = sub.add_parser(
         name,
         help=help,

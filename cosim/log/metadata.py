@@ -9,7 +9,9 @@ An MCAP metadata record is a flat map of strings; cosim writes these (nested val
 - ``cosim.versions``: the versions of Python, cosim and the libraries that shape a log;
 - ``cosim.bus``: where the run's bus was (``cosim.bus.transport.BusConfig``);
 - ``cosim.result`` (``ResultRecord``): how the run ended, written last;
-- ``cosim.replay`` (``ReplayRecord``): in a replay's log, what was replayed.
+- ``cosim.replay`` (``ReplayRecord``): in a replay's log, what was replayed;
+- ``cosim.import`` (``ImportRecord``): in a log ``cosim import`` made of another tool's CAN log,
+  what it was made of and what it holds.
 
 Reading is lenient: ``LogMetadata.read`` takes whatever a log has, and a field that is missing or
 damaged gets its default and a warning, so that a reader of a damaged or foreign log reports what
@@ -31,13 +33,14 @@ from cosim.errors import LogError
 from cosim.log.reader import LogReader
 from cosim.log.topics import decoded_topics
 
-RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY = (
+RUN, SCENARIO, VERSIONS, BUS, RESULT, REPLAY, IMPORT = (
     "cosim.run",
     "cosim.scenario",
     "cosim.versions",
     "cosim.bus",
     "cosim.result",
     "cosim.replay",
+    "cosim.import",
 )
 #: The attachment holding the run's CAN database.
 DBC_ATTACHMENT = "cosim.dbc"
@@ -501,6 +504,47 @@ class ReplayRecord:
 
 
 @dataclass(frozen=True)
+class ImportRecord:
+    """``cosim.import``: the CAN log and DBC an imported log was made of, and its frames: how many,
+    how many decoded, how many on ids the DBC does not describe (``unknown``) or not decodable by
+    their message (``undecodable``), error and remote frames left out (``skipped``), and the time
+    of its first and last frame (ns since the Unix epoch, as its messages' log times)."""
+
+    source: str
+    format: str
+    dbc: str
+    frames: int = 0
+    decoded: int = 0
+    unknown: int = 0
+    undecodable: int = 0
+    skipped: int = 0
+    start_time_ns: int | None = None
+    end_time_ns: int | None = None
+
+    def to_metadata(self) -> dict[str, str]:
+        return {key: "" if value is None else str(value) for key, value in vars(self).items()}
+
+    @classmethod
+    def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> ImportRecord:
+        f = _Fields(record, IMPORT, warnings)
+        frames, decoded, unknown, undecodable, skipped = (
+            f.integer(key) or 0 for key in ("frames", "decoded", "unknown", "undecodable", "skipped")
+        )
+        start, end = (f.integer(key) if record.get(key) else None for key in ("start_time_ns", "end_time_ns"))
+        text = {key: record.get(key, "") for key in ("source", "format", "dbc")}
+        return cls(
+            **text,
+            frames=frames,
+            decoded=decoded,
+            unknown=unknown,
+            undecodable=undecodable,
+            skipped=skipped,
+            start_time_ns=start,
+            end_time_ns=end,
+        )
+
+
+@dataclass(frozen=True)
 class LogMetadata:
     """Every cosim metadata record a log holds (None where it has none), and what was wrong with them."""
 
@@ -511,6 +555,7 @@ class LogMetadata:
     bus: dict[str, str] = field(default_factory=dict)
     versions: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    imported: ImportRecord | None = None
 
     @classmethod
     def read(cls, meta: dict[str, dict[str, str]]) -> LogMetadata:
@@ -523,4 +568,6 @@ class LogMetadata:
         )
         result = ResultRecord.from_metadata(meta[RESULT], warnings) if RESULT in meta else None
         replay = ReplayRecord.from_metadata(meta[REPLAY], warnings) if REPLAY in meta else None
-        return cls(run, scenario, result, replay, dict(meta.get(BUS, {})), dict(meta.get(VERSIONS, {})), warnings)
+        imported = ImportRecord.from_metadata(meta[IMPORT], warnings) if IMPORT in meta else None
+        bus, versions = dict(meta.get(BUS, {})), dict(meta.get(VERSIONS, {}))
+        return cls(run, scenario, result, replay, bus, versions, warnings, imported)

@@ -24,7 +24,7 @@ from cosim.analysis.metrics.values import (
     RunMetrics,
 )
 from cosim.bus.dbc import SECOC_SIGNALS, estimated_state, load_dbc
-from cosim.errors import LogError
+from cosim.errors import CodecError, LogError
 from cosim.log.metadata import DBC_ATTACHMENT, logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import FAULTS, FRAMES, STATE
@@ -157,7 +157,7 @@ def _database(reader: LogReader) -> Database | None:
     try:
         text = logged_dbc(reader, missing_ok=True)
         return load_dbc(text) if text is not None else None
-    except (LogError, ValueError, LookupError):  # cantools' parse errors derive from these
+    except (LogError, CodecError):
         return None
 
 
@@ -167,7 +167,7 @@ def _parse_dbc(data: bytes | None) -> Database | None:
     runs of a campaign worker, which log the same DBC, share one parse."""
     try:
         return load_dbc(data.decode()) if data is not None else None
-    except (UnicodeDecodeError, ValueError, LookupError):
+    except (UnicodeDecodeError, CodecError):
         return None
 
 

@@ -1,0 +1,168 @@
+"""A CAN log from another tool, with its DBC, as an MCAP log: what ``cosim import`` writes.
+
+The log is read frame by frame (``cosim.bus.canlogs``: candump, BLF, ASC, TRC, MF4, python-can's
+CSV and SQLite) and each frame decoded through cantools by the DBC (``cosim.bus.foreign``: by its
+id and its own extended flag). The MCAP log holds
+
+- ``/can/frames``: every data frame in the log's order, as a run logs its frames
+  (``cosim.log.topics.CanFrame``): ``tick`` and ``seq`` are the frame's position in the log (an
+  imported log has no ticks), ``t`` the seconds since its first frame, ``sender`` and ``message``
+  from the DBC (``unknown`` and null for ids it does not describe);
+- ``/can/<Message>``: each DBC message's decoded signals, one topic per message that occurs, its
+  JSON Schema naming each signal's unit (``"<comment> [<unit>]"``, as a run's do) and its value
+  table; a multiplexed message's signals are required only where they are in every frame;
+- the DBC as the ``cosim.dbc`` attachment, ``cosim.import`` metadata (``ImportRecord``) and
+  ``cosim.versions``.
+
+Every message's log time is the frame's own timestamp, in ns since the Unix epoch where the
+format records the date: Foxglove shows when the bus was recorded. Error and remote frames carry
+no signals and are left out (counted). The file is written beside the output and renamed into
+place once complete: an import that fails or is interrupted leaves nothing under the name.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+from cantools.database.can import Message
+
+from cosim.bus.canlogs import log_format, read_frames
+from cosim.bus.foreign import FrameDecoder, read_dbc
+from cosim.errors import CosimError
+from cosim.files import temporary_beside
+from cosim.log.metadata import DBC_ATTACHMENT, IMPORT, VERSIONS, ImportRecord, versions
+from cosim.log.topics import FRAMES, CanFrame, message_topic
+from cosim.log.writer import McapLog, number
+
+#: Choices shown in a signal's description, at most (a DTC table may have hundreds).
+CHOICES_SHOWN = 16
+
+
+@dataclass
+class ImportResult:
+    """What an import wrote: the MCAP file, its record, the decoded topics and frames per id the
+    DBC does not describe, and warnings."""
+
+    path: Path
+    record: ImportRecord
+    topics: dict[str, int] = field(default_factory=dict)
+    unknown_ids: Counter[str] = field(default_factory=Counter)
+    warnings: list[str] = field(default_factory=list)
+
+
+def signals_schema(message: Message) -> dict[str, Any]:
+    """The JSON Schema of a message's decoded signals: a number each, described by its comment (or
+    name), unit and value table; required where every frame of the message carries it."""
+    properties = {}
+    for signal in message.signals:
+        comment = signal.comment if isinstance(signal.comment, str) and signal.comment else signal.name
+        if signal.choices:
+            shown = list(signal.choices.items())[:CHOICES_SHOWN]
+            more = ", ..." if len(signal.choices) > CHOICES_SHOWN else ""
+            comment += f" ({', '.join(f'{value}: {name}' for value, name in shown)}{more})"
+        properties[signal.name] = number(" ".join(comment.split()), signal.unit or "")
+    kind = "extended" if message.is_extended_frame else "standard"
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": message.name,
+        "description": f"{message.name}: decoded signals of {kind} id 0x{message.frame_id:X}",
+        "type": "object",
+        "properties": properties,
+        "required": [s.name for s in message.signals if not s.multiplexer_ids],
+    }
+
+
+def import_log(source: str | Path, dbc: str | Path, out: str | Path) -> ImportResult:
+    """Write the MCAP log ``out`` of the CAN log ``source`` decoded by the DBC file ``dbc``."""
+    source, dbc, out = Path(source), Path(dbc), Path(out)
+    fmt = log_format(source)
+    decoder = FrameDecoder(read_dbc(dbc))
+    if any(message_topic(m.name) == FRAMES for m in decoder.database.messages):
+        raise CosimError(f"{dbc}: a message named 'frames' would share the topic {FRAMES} with the frames")
+    if out.suffix != ".mcap":
+        raise CosimError(f"--out {out}: an MCAP file (.mcap)")
+    part = temporary_beside(out, ".mcap")
+    try:
+        with McapLog(part) as log:
+            result = _write(log, source, fmt, dbc, decoder)
+        if result.record.frames == 0:
+            raise CosimError(f"{source}: the log holds no CAN data frames")
+        part.replace(out)
+    finally:
+        part.unlink(missing_ok=True)
+    result.path = out
+    return result
+
+
+def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecoder) -> ImportResult:
+    frames_channel = log.channel(FRAMES, CanFrame.schema())
+    channels: dict[str, int] = {}
+    topics: Counter[str] = Counter()
+    unknown: Counter[str] = Counter()
+    warnings: list[str] = []
+    count = decoded_count = undecodable = skipped = 0
+    first = last = None
+    for frame in read_frames(source, warnings):
+        if frame.is_error_frame or frame.is_remote_frame:
+            skipped += 1
+            continue
+        time_ns = round(frame.timestamp * 1e9)
+        if time_ns < 0:
+            raise CosimError(f"{source}: frame {count} is stamped before the Unix epoch ({frame.timestamp:g} s)")
+        first = time_ns if first is None else first
+        last = time_ns
+        message = decoder.message(frame)
+        sender = (message.senders[0] if message.senders else "unknown") if message is not None else "unknown"
+        name = message.name if message is not None else None
+        payload = CanFrame.payload(count, (time_ns - first) / 1e9, count, frame, sender, name)
+        log.write(frames_channel, time_ns, payload)
+        count += 1
+        if message is None:
+            unknown[_hex_id(frame)] += 1
+            continue
+        decoded = decoder.decode(frame)
+        if decoded is None:
+            undecodable += 1
+            continue
+        topic = message_topic(message.name)
+        channel = channels.get(topic)
+        if channel is None:
+            channel = channels[topic] = log.channel(topic, signals_schema(message))
+        log.write(channel, time_ns, decoded[1])
+        topics[topic] += 1
+        decoded_count += 1
+    record = ImportRecord(
+        source.name, fmt, dbc.name, count, decoded_count, sum(unknown.values()), undecodable, skipped, first, last
+    )
+    log.metadata(IMPORT, record.to_metadata())
+    log.metadata(VERSIONS, versions())
+    log.attach(DBC_ATTACHMENT, "text/plain", dbc.read_bytes(), first or 0)
+    warnings += _warnings(record, unknown)
+    return ImportResult(Path(), record, dict(topics), unknown, warnings)
+
+
+def _hex_id(frame: can.Message) -> str:
+    return f"0x{frame.arbitration_id:08X}" if frame.is_extended_id else f"0x{frame.arbitration_id:03X}"
+
+
+def _warnings(record: ImportRecord, unknown: Counter[str]) -> list[str]:
+    """What the DBC did not decode, said where the counts are shown."""
+    warnings = []
+    if record.unknown:
+        ids = ", ".join(f"{frame_id} ({n})" for frame_id, n in unknown.most_common(5))
+        more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""
+        warnings.append(
+            f"{record.unknown} frames on {len(unknown)} ids the DBC does not describe ({ids}{more}): in {FRAMES} only"
+        )
+    if record.undecodable:
+        warnings.append(
+            f"{record.undecodable} frames on the DBC's ids are not frames of their message (too short, or a "
+            f"multiplexer value it does not list): in {FRAMES} only"
+        )
+    if record.skipped:
+        warnings.append(f"{record.skipped} error or remote frames carry no signals and were left out")
+    return warnings
