@@ -51,6 +51,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cosim.analysis import bus_layout
 from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, first_tick, load, true_gains, virtual_output
 from cosim.errors import LogError
 from cosim.extras import require
@@ -511,6 +512,9 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if bus_layout.is_imported(path):  # a bus log of another tool (cosim import): a figure per message
+        Path(out).mkdir(parents=True, exist_ok=True)
+        return bus_layout.plot(path, Path(out), fmt, dpi, STYLE, FORMATS[fmt])
     with plt.rc_context(STYLE):
         series = load(path)
         out = Path(out)

@@ -33,7 +33,7 @@ from cosim.campaign.spec import Campaign, load_campaign
 from cosim.errors import CosimError, ScenarioError
 from cosim.log.metadata import versions
 from cosim.scenario import apply
-from cosim.scenario.tables import Strict, problem_message, problem_path
+from cosim.scenario.tables import Strict, loads_toml, problem_message, problem_path
 
 SUITE = Path(scenarios.__file__).resolve().parent / "benchmark" / "suite.toml"
 BUNDLE = "bundle.json"
@@ -76,7 +76,7 @@ def load_suite(path: str | Path = SUITE) -> SuiteSpec:
     """The suite file, validated (one line naming the field)."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = loads_toml(path.read_text())
     except OSError as error:
         raise CosimError(f"{path}: cannot read the suite ({error.strerror})") from None
     except tomllib.TOMLDecodeError as error:

@@ -56,7 +56,7 @@ from cosim.errors import ScenarioError
 from cosim.scenario import LoadedScenario, apply, load
 from cosim.scenario.load import builtin_names as scenario_files
 from cosim.scenario.load import read_toml_file
-from cosim.scenario.tables import Strict, problem_message, problem_path
+from cosim.scenario.tables import Strict, loads_toml, problem_message, problem_path
 
 BUILTIN_DIR = Path(scenarios.__file__).resolve().parent / "campaigns"
 #: Columns of the results table that every row has; axis and sample columns must not take these names.
@@ -276,7 +276,7 @@ def load_campaign(
     if seeds is not None or settings or only:
         text = _changed(text, source, seeds, settings, only or {})
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: invalid TOML: {error}") from None
     try:

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from rich.markup import escape
 
 from cosim.cli import common
+from cosim.scenario.tables import loads_toml
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -69,7 +70,7 @@ def schemes(estimators: list[str], params: list[str]) -> list[Scheme]:
     for text in params:
         name, _, table = text.partition("=")
         try:
-            given[name.strip()] = tomllib.loads(f"params = {table.strip()}")["params"]
+            given[name.strip()] = loads_toml(f"params = {table.strip()}")["params"]
         except (tomllib.TOMLDecodeError, KeyError) as error:
             raise CosimError(f"--params {text}: not NAME={{key = value, ...}} ({error})") from None
     out = []

@@ -3,7 +3,8 @@
 Write a Foxglove layout for a run: estimates against the truth per state, estimation errors (a user
 script), the injected faults, diagnosis flags and residuals, and the trajectory of a planar plant.
 Every message path is a topic and field of the run's log. Open the log in Foxglove, then Layouts →
-Import from file.
+Import from file. For a log of 'cosim import': a plot of each DBC message's signals, a tab per
+sending node.
 """
 
 from __future__ import annotations
@@ -37,9 +38,17 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from cosim.analysis import layout
+    from cosim.analysis import bus_layout, layout
 
     target = args.target
+    if target is not None and target.endswith(".mcap") and bus_layout.is_imported(target):
+        name, built = bus_layout.layout_of_log(target)  # a bus log of another tool: a plot per message
+        written = layout.write(built, Path(args.out) if args.out else Path(target).with_suffix(".layout.json"))
+        common.error_console().print(
+            f"wrote the Foxglove layout of {escape(name)}: Foxglove → Layouts → Import from file"
+        )
+        print(written)
+        return 0
     if target is not None and target.endswith(".mcap"):
         signals = layout.signals_of_log(target)
     else:

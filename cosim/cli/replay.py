@@ -10,8 +10,9 @@ reproduces its logged frames bit for bit (its design is taken from the log); --p
 parameters (and designs it again); --kind makes a new one, designed on the linear model the log
 records.
 
-With --live: every frame of the log goes onto a bus at its simulated time over --speed, like
-canplayer, for external tools and clients (decode with 'cosim dbc').
+With --live: every frame of the log goes onto a bus at its recorded pace over --speed, like
+canplayer, for external tools and clients (decode with 'cosim dbc'); the log may be any CAN log
+python-can reads too (candump -L .log, BLF, ASC, TRC, MF4), or one 'cosim import' wrote.
 
 With --foxglove: every message of the log (every topic) goes to Foxglove over its WebSocket
 protocol, at its simulated time over --speed, stamped at the run's start plus simulated time.
@@ -45,11 +46,16 @@ examples:
   cosim replay latest --estimator mine --kind observers.py:MyObserver
   cosim replay runs/my.mcap --live --speed 0.5
   cosim replay runs/my.mcap --live --interface socketcan --channel vcan0
+  cosim replay drive.blf --live --interface socketcan --channel vcan0   (any CAN log, at its pace)
   cosim replay runs/my.mcap --foxglove --speed 2"""
 
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", metavar="FILE.mcap", help="a run log, or 'latest': the newest runs/*.mcap")
+    p.add_argument(
+        "log",
+        metavar="FILE.mcap",
+        help="a run log, or 'latest': the newest runs/*.mcap; with --live any CAN log (.log, .blf, .asc, .trc, .mf4)",
+    )
     p.add_argument(
         "--estimator",
         "-e",
@@ -208,5 +214,5 @@ def _play(args: argparse.Namespace, talk: Console) -> int:
     except KeyboardInterrupt as interrupt:
         return common.interrupted(common.error_console(), interrupt)
     common.warn(talk, result.warnings)
-    talk.print(f"sent {result.frames} frames ({result.sim_time:g} s of simulated time) in {result.wall_time:.2f} s")
+    talk.print(f"sent {result.frames} frames ({result.sim_time:g} s of the log's time) in {result.wall_time:.2f} s")
     return 0

@@ -14,8 +14,9 @@ parameters including its design, design model), which reproduces its logged fram
 or with some parameters changed (``params``), or a new one (``kind``) designed on the linear model
 the log records. Designs go through the design cache (``cosim.design_cache``).
 
-``play`` sends every frame of a log onto a live bus at the times the log gives them (simulated
-time over ``speed``), like ``canplayer``: for external tools and clients listening on that bus.
+``play`` sends every frame of a log onto a live bus at the times the log gives them (over
+``speed``), like ``canplayer``: for external tools and clients listening on that bus. The log is
+cosim's MCAP (a run's, a replay's, an imported one) or any CAN log python-can reads.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import time
 import tomllib
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,7 @@ import can
 
 import estimators
 from cosim import design_cache
+from cosim.bus.canlogs import read_frames
 from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
@@ -60,6 +63,7 @@ from cosim.run.plan import RunPlan, build_estimators, channel_units, design_warn
 from cosim.run.session import Session
 from cosim.scenario import LoadedScenario, Scenario
 from cosim.scenario.overrides import path_parts
+from cosim.scenario.tables import loads_toml
 from estimators import Estimator, LinearModel, ParameterError
 
 #: The truth topics a replay copies from the original log.
@@ -178,7 +182,7 @@ def parse_params(items: list[str]) -> dict[str, Any]:
         if not sep or not key:
             raise CosimError(f"--param {item!r}: expected KEY=VALUE, e.g. --param measurement_std=0.002")
         try:
-            params[key] = tomllib.loads(f"value = {text}")["value"]
+            params[key] = loads_toml(f"value = {text}")["value"]
         except tomllib.TOMLDecodeError:
             params[key] = text
     return params
@@ -471,30 +475,50 @@ def play(
     on_start: Callable[[BusConfig], None] | None = None,
 ) -> Playback:
     """Send every frame of ``log`` onto a bus (default: a fresh host-local ``udp_multicast`` one):
-    the frames of simulated time t at t / ``speed`` seconds of wall-clock time after the start, in
-    the log's order. ``on_start`` gets the bus before the first frame; Ctrl-C stops between frames."""
+    the frame recorded t seconds after the log's first at t / ``speed`` seconds of wall-clock time
+    after the start, in the log's order. ``log`` is an MCAP log (a run's, a replay's, an imported
+    one: its ``/can/frames``) or any CAN log python-can reads (``cosim.bus.canlogs``: candump, BLF,
+    ASC, TRC, MF4, ...), whose error frames are left out. ``on_start`` gets the bus before the
+    first frame; Ctrl-C stops between frames."""
     if not (speed > 0 and math.isfinite(speed)):
         raise CosimError(f"--speed {speed:g}: must be a positive number of simulated seconds per wall-clock second")
-    sent, sim_time = 0, 0.0
-    with LogReader(log) as reader, DeferredInterrupts() as interrupts:
-        run = LogMetadata.read(reader.metadata()).run
-        if run is None:
-            raise LogError(f"{log}: no cosim.run metadata; --live plays the /can/frames of a log written by cosim run")
-        bus = allocate(interface, channel, port, bool(run.bus.get("fd", False)))
+    sent, sim_time, warnings = 0, 0.0, list[str]()
+    with ExitStack() as stack:
+        interrupts = stack.enter_context(DeferredInterrupts())
+        source, fd = _recorded_frames(Path(log), stack, warnings)
+        bus = allocate(interface, channel, port, fd)
         with open_bus(bus) as live:
             if on_start is not None:
                 on_start(bus)
-            start = None
-            for _, time_ns, record in reader.messages([FRAMES]):
-                sim_time = time_ns / 1e9
+            start = first = None
+            for time_ns, frame in source:
+                first = time_ns if first is None else first
+                sim_time = (time_ns - first) / 1e9
                 if start is None:  # the clock starts with the first frame, once the reader has it
-                    start = time.perf_counter() - sim_time / speed
+                    start = time.perf_counter()
                 due = start + sim_time / speed
                 while (wait := due - time.perf_counter()) > 0:
                     interrupts.check()
                     time.sleep(min(wait, 0.05))
                 interrupts.check()
-                live.send(frame_of(record))
+                live.send(frame)
                 sent += 1
-        warnings = list(reader.warnings)
     return Playback(sent, sim_time, 0.0 if start is None else time.perf_counter() - start, warnings)
+
+
+def _recorded_frames(
+    log: Path, stack: ExitStack, warnings: list[str]
+) -> tuple[Iterator[tuple[int, can.Message]], bool]:
+    """The frames of a log with their times in ns, and whether the bus must carry CAN FD (a run's
+    as its bus did; any other log's may hold FD frames). An MCAP log's reader's warnings join
+    ``warnings`` once the frames are read."""
+    if log.suffix.lower() != ".mcap":
+        frames = read_frames(log, warnings)
+        return ((round(f.timestamp * 1e9), f) for f in frames if not f.is_error_frame), True
+    reader = stack.enter_context(LogReader(log))
+    stack.callback(lambda: warnings.extend(reader.warnings))
+    meta = LogMetadata.read(reader.metadata())
+    if meta.run is None and meta.imported is None:
+        raise LogError(f"{log}: no cosim.run or cosim.import metadata; --live plays the /can/frames of cosim's logs")
+    fd = bool(meta.run.bus.get("fd", False)) if meta.run is not None else True
+    return ((time_ns, frame_of(record)) for _, time_ns, record in reader.messages([FRAMES])), fd

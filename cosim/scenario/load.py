@@ -9,6 +9,7 @@ one ScenarioError, each naming its field (``faults[0].value``) and the fix.
 from __future__ import annotations
 
 import difflib
+import importlib.util
 import math
 import tomllib
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ from cosim.plant.fmu_model import FmuError, is_fmu
 from cosim.plant.mjcf_file import is_mjcf
 from cosim.scenario.faults import OnBus
 from cosim.scenario.spec import Scenario
-from cosim.scenario.tables import problem_message, problem_path
+from cosim.scenario.tables import loads_toml, problem_message, problem_path
 from estimators import ESTIMATORS, ParameterError
 from estimators.controller import CONTROLLERS
 from mjcf import PlantInfo
@@ -93,7 +94,7 @@ def parse(text: str, source: str = "<scenario>", folder: Path | None = None) -> 
     """Validate scenario TOML text; raises one ScenarioError listing every problem. Paths in it
     (an FMU plant's) are relative to ``folder`` (default: ``folder_of(source)``)."""
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
     except tomllib.TOMLDecodeError as error:
         raise ScenarioError(f"{source}: invalid TOML: {error}") from None
     return validate(data, source, folder)
@@ -134,14 +135,13 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
         return path if Path(path).is_absolute() else str((folder / path).resolve())
 
     def kind(entry: Any) -> Any:
-        if (
-            not isinstance(entry, dict)
-            or not isinstance(entry.get("kind"), str)
-            or not is_file_reference(entry["kind"])
-        ):
+        if not isinstance(entry, dict) or not isinstance(entry.get("kind"), str):
             return entry
-        file, _, name = entry["kind"].partition(":")
-        return {**entry, "kind": f"{absolute(file)}:{name}"}
+        if is_file_reference(entry["kind"]):
+            file, _, name = entry["kind"].partition(":")
+            return {**entry, "kind": f"{absolute(file)}:{name}"}
+        beside = _module_beside(entry["kind"], folder)
+        return {**entry, "kind": beside} if beside is not None else entry
 
     data = dict(data)
     plant = data.get("plant")
@@ -157,6 +157,24 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     if "controller" in data:
         data["controller"] = kind(data["controller"])
     return data
+
+
+def _module_beside(kind: str, folder: Path) -> str | None:
+    """A module path kind (``myobs:Cls``, ``pkg.myobs:Cls``) whose module is not on the import path
+    but next to the scenario (``myobs.py``, ``pkg/myobs.py`` in its folder), as that file's
+    reference; None for any other kind (the import path comes first, as Python's own lookup)."""
+    module, colon, attribute = kind.partition(":")
+    if not colon or not all(part.isidentifier() for part in module.split(".")):
+        return None
+    file = folder.joinpath(*module.split(".")).with_suffix(".py")
+    if not file.is_file():
+        return None
+    try:
+        if importlib.util.find_spec(module) is not None:
+            return None
+    except (ImportError, ValueError):  # a parent package that does not import: not on the import path
+        pass
+    return f"{file.resolve()}:{attribute}"
 
 
 def _too_deep(data: Any, path: str = "", depth: int = 0) -> str | None:

@@ -19,6 +19,7 @@ from typing import Any
 
 from cosim.errors import ScenarioError
 from cosim.scenario.load import LoadedScenario, folder_of, validate
+from cosim.scenario.tables import loads_toml
 
 _PART = re.compile(r"([A-Za-z_][A-Za-z0-9_-]*)((?:\[\d+\])*)")
 _BARE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.:-]*$")
@@ -27,7 +28,7 @@ _BARE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.:-]*$")
 def parse_value(text: str) -> Any:
     """A TOML value; a bare word (``virtual``, ``kalman``) stands for itself."""
     try:
-        return tomllib.loads(f"value = {text}")["value"]
+        return loads_toml(f"value = {text}")["value"]
     except tomllib.TOMLDecodeError:
         if _BARE.match(text.strip()):
             return text.strip()
@@ -113,7 +114,7 @@ def apply(loaded: LoadedScenario, settings: Mapping[str, Any] | Iterable[tuple[s
     items = list(settings.items() if isinstance(settings, Mapping) else settings)
     if not items:
         return loaded
-    data = tomllib.loads(loaded.text)
+    data = loads_toml(loaded.text)
     for key, value in items:
         set_path(data, key, value)
     given = ", ".join(f"{key}={_short(value)}" for key, value in items)

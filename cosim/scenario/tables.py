@@ -8,10 +8,23 @@ turn pydantic's errors into the one-line messages cosim prints (``faults[0].valu
 from __future__ import annotations
 
 import difflib
+import tomllib
 from collections.abc import Mapping
 from typing import Annotated, Any
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, model_validator
+
+
+def loads_toml(text: str) -> dict[str, Any]:
+    """``tomllib.loads``, with text nested deeper than its recursive parser goes (a thousand
+    ``[[[...]]]``) a TOMLDecodeError like any other invalid TOML, not a RecursionError."""
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise tomllib.TOMLDecodeError(
+            "arrays or inline tables nested thousands deep (a scenario needs a few)"
+        ) from None
+
 
 Identifier = Annotated[str, Field(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,23}$")]
 NonNegative = Annotated[float, Field(ge=0)]
