@@ -35,6 +35,7 @@ from cosim.errors import CosimError, ScenarioError
 from cosim.log.reader import LogReader
 from cosim.log.recover import recover
 from cosim.run import Replay, Run, run
+from tests.conftest import ROOT
 from tests.frame_digests import log_digest
 from tests.snippets import short_scenario
 
@@ -411,6 +412,37 @@ def test_a_deeply_nested_waveform_is_one_line_not_a_traceback():
         nested = {"kind": "sum", "terms": [nested]}
     with pytest.raises(ScenarioError, match="nested more than 32"):
         scenario.apply(scenario.load("masses-bias"), {"inputs[0].signal": nested})
+
+
+@pytest.mark.parametrize("value", ["[" * 3000 + "]" * 3000, "{b = " * 3000 + "1" + "}" * 3000])
+def test_a_toml_nested_thousands_deep_is_one_line_not_a_recursion_error(tmp_path, value):
+    """tomllib's parser recurses: 3000 nested arrays or inline tables were ~3000 lines of traceback."""
+    (tmp_path / "deep.toml").write_text(f"a = {value}\n")
+    with pytest.raises(ScenarioError, match=r"deep.toml: invalid TOML: arrays or inline tables nested thousands deep"):
+        scenario.load(tmp_path / "deep.toml")
+    with pytest.raises(ScenarioError, match="is not a TOML value"):
+        scenario.parse_value(value)
+    done = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "run", str(tmp_path / "deep.toml")], capture_output=True, text=True
+    )
+    assert done.returncode == 1 and done.stderr.strip().endswith("nested thousands deep (a scenario needs a few)")
+    assert "Traceback" not in done.stderr
+
+
+def test_a_module_next_to_the_scenario_is_found(tmp_path):
+    """``kind = "module:Class"``: on the import path first, else ``module.py`` next to the scenario."""
+    text = (ROOT / "scenarios" / "masses-bias.toml").read_text()
+    (tmp_path / "myobs.py").write_text(
+        "from estimators.kalman import KalmanFilter\n\nclass Mine(KalmanFilter):\n    pass\n"
+    )
+    (tmp_path / "s.toml").write_text(text.replace('kind = "kalman"', 'kind = "myobs:Mine"'))
+    loaded = scenario.load(tmp_path / "s.toml").scenario
+    assert loaded.estimators[1].kind == f"{tmp_path / 'myobs.py'}:Mine"
+    assert loaded.codec().specs  # its kind resolved: the scenario validated whole
+    (tmp_path / "json.py").write_text("raise RuntimeError('the import path comes first')\n")
+    (tmp_path / "s.toml").write_text(text.replace('kind = "kalman"', 'kind = "json:JSONDecoder"'))
+    with pytest.raises(ScenarioError, match="estimators\\[1\\].kind: estimator 'json:JSONDecoder'"):
+        scenario.load(tmp_path / "s.toml")  # the standard library's json, not the file beside
 
 
 def test_the_run_registry_is_private_to_its_user(tmp_path):

@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 from rich.markup import escape
 
 from cosim.cli import common
-from cosim.scenario.tables import loads_toml
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -65,6 +64,7 @@ def schemes(estimators: list[str], params: list[str]) -> list[Scheme]:
     """The added schemes of --estimator NAME=KIND and --params NAME={...}."""
     from cosim.campaign.benchmark import Scheme
     from cosim.errors import CosimError
+    from cosim.scenario.tables import loads_toml
 
     given: dict[str, dict[str, object]] = {}
     for text in params:
