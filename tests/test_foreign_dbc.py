@@ -317,7 +317,9 @@ def test_import_of_an_mf4_log_and_inspect_on_the_command_line(tmp_path):
         env=env,
     )
     assert inspected.returncode == 0, inspected.stderr
-    assert json.loads(inspected.stdout)["channels"]["/can/frames"] == 15
+    summary = json.loads(inspected.stdout)
+    assert summary["channels"]["/can/frames"] == 15 and summary["status"] == "imported"
+    assert summary["source"] == "cosim import of bus.mf4 (mf4) by multiplex_choices.dbc" and not summary["warnings"]
     refused = subprocess.run(
         [
             sys.executable,

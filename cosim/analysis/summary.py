@@ -60,6 +60,10 @@ def _run(m: RunMetrics, console: Console) -> None:
     first = "-" if onset is None else f"{onset:g} s"
     if onset is not None and m.duration_s is not None and onset >= m.duration_s:
         first += " (after the run's end: no fault happened)"
+    if m.status == "imported":  # cosim import: a bus log, no run
+        console.print(f"{escape(str(m.source))}: frames {m.frames.total} over {m.time_span_s} s")
+        _channels(m, console)
+        return
     status = m.status + (f", {m.contested_ticks} contested ticks" if m.contested_ticks else "")
     console.print(
         f"scenario {m.scenario} ({m.source}), seed {m.seed}, status {status}\n"
@@ -69,6 +73,10 @@ def _run(m: RunMetrics, console: Console) -> None:
     for name, e in m.estimators.items():
         if e.failed:
             console.print(f"[yellow]estimator {escape(name)} {escape(e.failed)}[/yellow]")
+    _channels(m, console)
+
+
+def _channels(m: RunMetrics, console: Console) -> None:
     channels = _table("channels", ["topic", "messages"])
     for topic, count in m.channels.items():
         channels.add_row(escape(topic), str(count))

@@ -29,7 +29,16 @@ class RunFacts:
         self.failed = dict(result.failed) if result else {}
         self.contested_ticks = result.contested_ticks if result else 0
         self.known = records.run is not None
-        if records.run is None:
+        self.record = run = records.run or RunRecord()
+        if records.imported is not None:  # a bus log of another tool (cosim import): no run to score
+            i = records.imported
+            self.status = "imported"
+            self.record = run = RunRecord(source=f"cosim import of {i.source} ({i.format}) by {i.dbc}")
+            self.missing.append(
+                f"a run: an imported bus log ({i.decoded} of {i.frames} frames decoded, {i.unknown} on ids the DBC "
+                "does not describe); only channels, message counts and the time span are reported"
+            )
+        elif records.run is None:
             self.warnings.append(
                 "no cosim.run metadata: not a cosim log, or written by another program; "
                 "estimator errors, fault and diagnosis metrics and the bus load are unavailable"
@@ -38,9 +47,8 @@ class RunFacts:
                 "cosim.run metadata (sample time, states, estimators, faults, bus): without it only "
                 "channels, message counts and the time span are reported"
             )
-        if result is None:
+        if result is None and records.imported is None:
             self.missing.append("cosim.result metadata (status, frame counts): the run did not finish writing its log")
-        self.record = run = records.run or RunRecord()
         self.sample_time, self.dt_ns = run.sample_time, run.dt_ns
         self.states, self.sensors, self.actuators = run.states, run.sensors, run.actuators
         self.estimators: dict[str, EstimatorRecord] = run.estimators
