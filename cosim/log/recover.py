@@ -17,16 +17,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mcap import records
-from mcap.exceptions import EndOfFile
-from mcap.stream_reader import StreamReader
+from mcap.opcode import Opcode
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cosim import __version__
 from cosim.errors import LogError
 from cosim.files import temporary_beside
-from cosim.log.reader import READ_ERRORS, LogReader
+from cosim.log.reader import LogReader
+from cosim.log.scan import Cut, Damaged
 
 RECOVERED = "cosim.recovered"
+COPIED = {Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE, Opcode.METADATA, Opcode.ATTACHMENT}
 
 
 @dataclass
@@ -50,38 +51,30 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
     """Rewrite the readable records of the log at ``path`` into ``out`` (default: the same file,
     replaced only once the new one is complete)."""
     source = Path(path)
-    with LogReader(source):  # a clear error for a file that is not MCAP at all
-        pass
     target = Path(out) if out is not None else source
     temporary = temporary_beside(target, ".recovering")
-    result = Recovered(target, bytes_total=source.stat().st_size)
+    result = Recovered(target, bytes_total=source.stat().st_size if source.is_file() else 0)
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
     try:
-        with open(source, "rb") as stream, open(temporary, "wb") as sink:
+        with LogReader(source) as reader, open(temporary, "wb") as sink:  # LogReader: one line for a non-MCAP file
             writer = Writer(sink, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+            header = reader.header()
             library = f"cosim/{__version__} (recovered)"
-            started = False
+            writer.start(
+                profile=header.profile if header else "", library=(header.library if header else "") or library
+            )
             try:
-                for record in StreamReader(stream, validate_crcs=True).records:
-                    if isinstance(record, records.Header):
-                        writer.start(profile=record.profile, library=record.library or library)
-                        started = True
-                        continue
-                    if not started:
-                        writer.start(profile="", library=library)
-                        started = True
+                for offset, record in reader.scan(COPIED):
                     _copy(writer, record, schemas, channels, result)
-                    result.bytes_read = stream.tell()
-            except EndOfFile:
+                    result.bytes_read = offset
+            except Cut:
                 result.damage = (
                     f"the file ends at byte {result.bytes_total} without its summary and footer (its writer stopped)"
                 )
-            except READ_ERRORS as error:
-                reason = str(error) or type(error).__name__
-                result.damage = f"reading stopped at byte {result.bytes_read} of {result.bytes_total}: {reason}"
-            if not started:
-                writer.start(profile="", library=library)
+            except Damaged as error:
+                result.damage = f"reading stopped after byte {result.bytes_read} of {result.bytes_total}: {error}"
+            result.warnings += reader.warnings
             writer.add_metadata(
                 RECOVERED,
                 {
@@ -114,9 +107,9 @@ def _copy(writer: Writer, record: object, schemas: dict[int, int], channels: dic
     elif isinstance(record, records.Message):
         channel = channels.get(record.channel_id)
         if channel is None:
-            result.warnings.append(
-                f"a message on channel {record.channel_id}, which the file never declares, was dropped"
-            )
+            dropped = f"the messages on channel {record.channel_id}, which the file never declares, were dropped"
+            if dropped not in result.warnings:
+                result.warnings.append(dropped)
             return
         writer.add_message(channel, record.log_time, bytes(record.data), record.publish_time, record.sequence)
         result.messages += 1
