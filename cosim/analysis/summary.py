@@ -1,4 +1,5 @@
-"""``cosim inspect``: a log's summary and metrics (``cosim.analysis.metrics``), as JSON or as text tables."""
+"""``cosim inspect``: what any MCAP file holds (``cosim.log.info``: what ``mcap info`` says) and, for a
+log of cosim, its metrics (``cosim.analysis.metrics``), as JSON or as text tables."""
 
 from __future__ import annotations
 
@@ -11,11 +12,17 @@ from rich.table import Table
 
 from cosim.analysis.metrics import BusMetrics, DiagnosisMetrics, RunMetrics, compute_metrics
 from cosim.kinds import is_file_reference
+from cosim.log.info import file_info
+from cosim.log.reader import LogReader
 
 
 def summarize(path: str | Path) -> dict[str, Any]:
-    """The summary and metrics of a log in their JSON form (keys in the README and docs/metrics.md)."""
-    return compute_metrics(path)
+    """The metrics of a log in their JSON form (keys in the README and docs/metrics.md), with the
+    file's contents under ``mcap`` (``cosim.log.info.file_info``)."""
+    report = compute_metrics(path)
+    with LogReader(path) as reader:
+        report["mcap"] = file_info(reader)
+    return report
 
 
 def _number(value: float | None, fmt: str = ".3e") -> str:
@@ -38,10 +45,18 @@ def _kind(kind: str | None) -> str:
 
 
 def render(report: RunMetrics | dict[str, Any], console: Console) -> None:
-    """Print a log's metrics (``measure``'s value, or its JSON form) as text: the run, its channels,
-    then each metrics table that has rows."""
+    """Print a log's metrics (``measure``'s value, or its JSON form) as text: the file's contents
+    where the report has them, then for a log of cosim the run and each metrics table that has rows."""
     metrics = report if isinstance(report, RunMetrics) else RunMetrics.from_json(report)
-    _run(metrics, console)
+    info = None if isinstance(report, RunMetrics) else report.get("mcap")
+    console.print(f"[bold]{escape(metrics.file)}[/bold]")
+    for warning in metrics.warnings:
+        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+    if info is not None:
+        render_info(info, console)
+        if metrics.scenario is None and metrics.status != "imported":  # not a log of cosim: no run to show
+            return
+    _run(metrics, console, channels=info is None)
     _faults(metrics, console)
     _estimation(metrics, console)
     for name, diagnosis in metrics.diagnosis.items():
@@ -50,10 +65,70 @@ def render(report: RunMetrics | dict[str, Any], console: Console) -> None:
         _bus(metrics.bus, console)
 
 
-def _run(m: RunMetrics, console: Console) -> None:
-    console.print(f"[bold]{escape(m.file)}[/bold]")
-    for warning in m.warnings:
-        console.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+def render_info(info: dict[str, Any], console: Console) -> None:
+    """What ``mcap info`` prints of a file (``cosim.log.info.file_info``'s value): its writer, messages
+    and time span, chunks, channels with their schema, encoding and count, attachments, metadata."""
+    start, end = info["start_ns"], info["end_ns"]
+    lines = [f"library:     {info['library']}", f"profile:     {info['profile']}", f"messages:    {info['messages']}"]
+    if start is not None and end is not None:
+        lines += [
+            f"duration:    {_duration(end - start)}",
+            f"start:       {start / 1e9:.9f}",
+            f"end:         {end / 1e9:.9f}",
+        ]
+    if info["chunks"]:
+        lines.append("compression:")
+        total = sum(entry["chunks"] for entry in info["chunks"].values())
+        for name, entry in info["chunks"].items():
+            saved = 1 - entry["compressed"] / entry["uncompressed"] if entry["uncompressed"] else 0.0
+            lines.append(
+                f"    {name}: [{entry['chunks']}/{total} chunks] "
+                f"[{_bytes(entry['uncompressed'])}/{_bytes(entry['compressed'])} ({saved:.2%})]"
+            )
+    console.print(escape("\n".join(lines)), highlight=False)
+    seconds = (end - start) / 1e9 if start is not None and end is not None else 0.0
+    channels = _table(f"channels: {len(info['channels'])}", ["id", "topic", "messages", "rate", "schema", "encoding"])
+    for c in info["channels"]:
+        schema = "<no schema>" if c["schema"] is None else f"{c['schema']} [{c['schema_encoding']}]"
+        rate = f"{c['messages'] / seconds:.3g} Hz" if seconds > 0 and c["messages"] > 1 else "-"
+        channels.add_row(
+            str(c["id"]), escape(c["topic"]), str(c["messages"]), rate, escape(schema), escape(c["message_encoding"])
+        )
+    console.print(channels)
+    attachments = _table(f"attachments: {len(info['attachments'])}", ["name", "media type", "size", "log time [s]"])
+    for a in info["attachments"]:
+        attachments.add_row(
+            escape(a["name"]), escape(a["media_type"]), _bytes(a["bytes"]), f"{a['log_time_ns'] / 1e9:.9f}"
+        )
+    console.print(attachments)
+    metadata = _table(f"metadata: {len(info['metadata'])}", ["name", "keys"])
+    for m in info["metadata"]:
+        metadata.add_row(escape(m["name"]), escape(", ".join(m["metadata"])))
+    console.print(metadata)
+
+
+def _duration(ns: int) -> str:
+    """A duration as ``mcap info`` writes it: 9ns, 1.5ms, 12.25s, 2m3.5s."""
+    for unit, size in (("ns", 1), ("µs", 1_000), ("ms", 1_000_000)):
+        if abs(ns) < size * 1000:
+            return f"{ns / size:g}{unit}"
+    minutes, seconds = divmod(ns / 1e9, 60)
+    return f"{int(minutes)}m{seconds:g}s" if minutes else f"{seconds:g}s"
+
+
+def _bytes(n: int) -> str:
+    """A size in B, KiB, MiB or GiB."""
+    if n < 1024:
+        return f"{n} B"
+    size, unit = n / 1024, "KiB"
+    for larger in ("MiB", "GiB"):
+        if size < 1024:
+            break
+        size, unit = size / 1024, larger
+    return f"{size:.2f} {unit}"
+
+
+def _run(m: RunMetrics, console: Console, channels: bool = True) -> None:
     for missing in m.missing:
         console.print(f"[yellow]missing:[/yellow] {escape(missing)}")
     onset = m.fault_onset
@@ -62,7 +137,8 @@ def _run(m: RunMetrics, console: Console) -> None:
         first += " (after the run's end: no fault happened)"
     if m.status == "imported":  # cosim import: a bus log, no run
         console.print(f"{escape(str(m.source))}: frames {m.frames.total} over {m.time_span_s} s")
-        _channels(m, console)
+        if channels:
+            _channels(m, console)
         return
     status = m.status + (f", {m.contested_ticks} contested ticks" if m.contested_ticks else "")
     console.print(
@@ -73,14 +149,15 @@ def _run(m: RunMetrics, console: Console) -> None:
     for name, e in m.estimators.items():
         if e.failed:
             console.print(f"[yellow]estimator {escape(name)} {escape(e.failed)}[/yellow]")
-    _channels(m, console)
+    if channels:
+        _channels(m, console)
 
 
 def _channels(m: RunMetrics, console: Console) -> None:
-    channels = _table("channels", ["topic", "messages"])
+    table = _table("channels", ["topic", "messages"])
     for topic, count in m.channels.items():
-        channels.add_row(escape(topic), str(count))
-    console.print(channels)
+        table.add_row(escape(topic), str(count))
+    console.print(table)
 
 
 def _faults(m: RunMetrics, console: Console) -> None:

@@ -44,6 +44,7 @@ class Span:
     """How many messages a file holds per channel id, and the log times of the first and last."""
 
     counts: dict[int, int]
+    messages: int
     start_ns: int | None
     end_ns: int | None
 
@@ -222,20 +223,25 @@ class LogReader:
                 try:
                     payload = orjson.loads(message.data)
                 except orjson.JSONDecodeError as error:
-                    self.warn(
-                        f"{topic}: the message at t = {message.log_time / 1e9:g} s is not valid JSON ({error}); skipped"
-                    )
+                    self.undecodable(topic, message.log_time, error)
                     continue
                 count, last = count + 1, message.log_time
                 yield topic, message.log_time, payload
         except READ_ERRORS as error:
-            where = "at its start" if last is None else f"after t = {last / 1e9:g} s"
-            reason = str(error) or type(error).__name__
-            self.warn(f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read")
+            self._stopped(error, count, last)
         finally:
             if undecoded:
                 listed = ", ".join(f"{topic}: {n}" for topic, n in undecoded.items())
                 self.warn(f"messages that are not JSON were not decoded (cosim reads JSON messages): {listed}")
+
+    def undecodable(self, topic: str, log_time: int, error: Exception) -> None:
+        """Say that a message on a JSON channel is not JSON (it is skipped)."""
+        self.warn(f"{topic}: the message at t = {log_time / 1e9:g} s is not valid JSON ({error}); skipped")
+
+    def _stopped(self, error: Exception, count: int, last: int | None) -> None:
+        where = "at its start" if last is None else f"after t = {last / 1e9:g} s"
+        reason = str(error) or type(error).__name__
+        self.warn(f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read")
 
     def _decoded_topic(self, channel_id: int, topics: list[str] | None) -> str | None:
         """The topic of a channel whose messages ``messages`` decodes, None for one it does not."""
@@ -253,7 +259,7 @@ class LogReader:
         channel the file never declares is skipped with a warning."""
         if topics is not None:
             self._catalogue()
-        count = 0
+        count, last = 0, None
         try:
             for channel_id, message in self._messages(topics):
                 channel = self._channels.get(channel_id)
@@ -261,10 +267,10 @@ class LogReader:
                     self.warn(f"messages on channel {channel_id}, which the file never declares, were skipped")
                     continue
                 if topics is None or channel.topic in topics:
-                    count += 1
+                    count, last = count + 1, message.log_time
                     yield self._schemas.get(channel.schema_id), channel, message
         except READ_ERRORS as error:
-            self.warn(f"the file is damaged or cut after its {count} first messages ({error or type(error).__name__})")
+            self._stopped(error, count, last)
 
     def _messages(self, topics: list[str] | None) -> Iterator[tuple[int, records.Message]]:
         """(channel id, message) in file order: chunk by chunk through the chunk index where the
@@ -399,6 +405,7 @@ class LogReader:
             empty = statistics.message_count == 0
             return Span(
                 dict(statistics.channel_message_counts),
+                statistics.message_count,
                 None if empty else statistics.message_start_time,
                 None if empty else statistics.message_end_time,
             )
@@ -409,7 +416,7 @@ class LogReader:
                 counts[channel.id] += 1
                 start = message.log_time if start is None else min(start, message.log_time)
                 end = message.log_time if end is None else max(end, message.log_time)
-            self._span = Span(dict(counts), start, end)
+            self._span = Span(dict(counts), sum(counts.values()), start, end)
         return self._span
 
     def message_counts(self) -> dict[str, int]:

@@ -434,10 +434,9 @@ class Replay(Execution):
 def _sync_count(reader: LogReader) -> int:
     """How many ticks the log has: its SYNC frames (from the summary's statistics when it has them)."""
     topic = "/can/SYNC"
-    summary = reader.summary()
-    if summary is not None and summary.statistics is not None:
-        ids = [cid for cid, channel in summary.channels.items() if channel.topic == topic]
-        return sum(summary.statistics.channel_message_counts.get(cid, 0) for cid in ids)
+    counts = reader.summary_counts()
+    if counts is not None:
+        return counts.get(topic, 0)
     return sum(1 for _ in reader.messages([topic]))
 
 

@@ -94,14 +94,23 @@ def measure(path: str | Path) -> RunMetrics:
     all; damage and missing data become ``warnings`` and ``missing``."""
     with LogReader(path) as reader:
         run = _facts(reader.metadata())
-        counts = _counts(reader)
+        counts = reader.summary_counts()
         database = _database(reader)
         scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
         scanned: dict[str, int] = defaultdict(int)
-        try:
-            for topic, log_time, msg in reader.messages():
+        try:  # every message counted, those the scores read decoded (as LiveMeasurement does)
+            for _, channel, message in reader.raw_messages():
+                topic = channel.topic
                 scanned[topic] += 1
-                scorer.feed(topic, log_time, msg)
+                if not scorer.reads(topic):
+                    scorer.seen(message.log_time)
+                    continue
+                try:
+                    msg = orjson.loads(message.data)
+                except orjson.JSONDecodeError as error:
+                    reader.undecodable(topic, message.log_time, error)
+                    continue
+                scorer.feed(topic, message.log_time, msg)
         except (OSError, OverflowError, MemoryError) as error:  # a damaged index points outside the file
             where = "at its start" if scorer.last_ns is None else f"after t = {scorer.last_ns / 1e9:g} s"
             scorer.warnings.append(
@@ -187,21 +196,6 @@ def _estimate_bounds(database: Database | None, run: RunFacts) -> dict[str, dict
                 half = 0.0 if signal.is_float else 0.5 * float(signal.scale)
                 bounds.setdefault(sender, {})[signal.name] = (signal.minimum + half, signal.maximum - half)
     return bounds
-
-
-def _counts(reader: LogReader) -> dict[str, int]:
-    """Messages per topic from the summary's statistics ({} without them)."""
-    summary = reader.summary()
-    if summary is None or summary.statistics is None:
-        return {}
-    counts = {
-        summary.channels[cid].topic: n
-        for cid, n in summary.statistics.channel_message_counts.items()
-        if cid in summary.channels
-    }
-    for channel in summary.channels.values():
-        counts.setdefault(channel.topic, 0)
-    return counts
 
 
 def _assemble(
