@@ -502,8 +502,11 @@ FIGURES: tuple[Callable[[Canvas], None], ...] = (
 )
 
 
-def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) -> list[Path]:
-    """Write the figures of one log into ``out`` as ``fmt`` (png, svg, pdf); returns the files written."""
+def plot(
+    path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150, warnings: list[str] | None = None
+) -> list[Path]:
+    """Write the figures of one log into ``out`` as ``fmt`` (png, svg, pdf); returns the files written.
+    ``warnings``, if given, gets what the log reader found wrong (damage: the figures end there)."""
     if fmt not in FORMATS:
         raise LogError(f"unknown figure format {fmt!r}: choose png, svg or pdf")
     require("matplotlib", "cosim plot")
@@ -517,6 +520,8 @@ def plot(path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150) ->
         return bus_layout.plot(path, Path(out), fmt, dpi, STYLE, FORMATS[fmt])
     with plt.rc_context(STYLE):
         series = load(path)
+        if warnings is not None:
+            warnings.extend(series.warnings)
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         canvas = Canvas(series, out, fmt, dpi)

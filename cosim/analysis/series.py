@@ -70,6 +70,8 @@ class RunSeries:
     """The actuator effectiveness δ per tick (1: healthy)."""
     dropped: dict[int, list[str]] = field(default_factory=dict)
     """The sensors whose frame was not sent, per tick (only ticks with some)."""
+    warnings: list[str] = field(default_factory=list)
+    """What the log reader found wrong (damage, a cut: the series end there)."""
 
     def unit(self, name: str) -> str:
         """`` [unit]`` of a state, sensor or actuator, or "" if it has none."""
@@ -168,6 +170,7 @@ def load(path: str | Path) -> RunSeries:
                 values[carried_tick(log_time // run.dt_ns, msg["tick"])].update(
                     {k: v for k, v in msg.items() if k != "tick"}
                 )
+        series.warnings = list(reader.warnings)
     series.control = dict(control)
     return series
 

@@ -34,6 +34,8 @@ def main(args: argparse.Namespace) -> int:
 
     log = Path(common.latest_log(args.log))
     out = Path(args.out) if args.out else log.with_name(log.stem + "-plots")
-    for path in plot(log, out, fmt=args.format, dpi=args.dpi):
+    warnings: list[str] = []
+    for path in plot(log, out, fmt=args.format, dpi=args.dpi, warnings=warnings):
         print(path)
+    common.warn(common.error_console(), warnings)
     return 0

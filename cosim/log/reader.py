@@ -72,10 +72,12 @@ class LogReader:
             self._stream.close()
             raise LogError(f"{self.path}: not a readable MCAP file (it does not start with the MCAP magic bytes)")
         self._file = scan.McapFile(self._stream)
+        self.finished = True
+        """Whether the file ends with its footer (a writer that was killed, or a cut, leaves none)."""
         try:
             self._summary = scan.summary(self._file)
         except scan.Cut:
-            self._summary = None
+            self._summary, self.finished = None, False
             self.warn(
                 "the file has no summary section (its writer did not finish: killed, or the file was cut); "
                 "it is read sequentially up to the first damaged record"

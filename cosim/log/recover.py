@@ -65,13 +65,19 @@ def recover(path: str | Path, out: str | Path | None = None) -> Recovered:
                 profile=header.profile if header else "", library=(header.library if header else "") or library
             )
             try:
+                declared = reader.channels(), reader.schema_records()  # the summary's, for a chunk lost
                 for offset, record in reader.scan(COPIED):
+                    if isinstance(record, records.Message) and record.channel_id not in channels:
+                        _declare(writer, record.channel_id, declared, schemas, channels)
                     _copy(writer, record, schemas, channels, result)
                     result.bytes_read = offset
-            except Cut:
-                result.damage = (
+            except Cut as error:
+                stopped = (
                     f"the file ends at byte {result.bytes_total} without its summary and footer (its writer stopped)"
                 )
+                if reader.finished:  # a damaged length, not an end
+                    stopped = f"reading stopped after byte {result.bytes_read} of {result.bytes_total}: {error}"
+                result.damage = stopped
             except Damaged as error:
                 result.damage = f"reading stopped after byte {result.bytes_read} of {result.bytes_total}: {error}"
             result.warnings += reader.warnings
@@ -123,6 +129,24 @@ def _copy(writer: Writer, record: object, schemas: dict[int, int], channels: dic
     elif isinstance(record, records.Attachment):
         writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, bytes(record.data))
         result.attachments += 1
+
+
+def _declare(
+    writer: Writer,
+    channel_id: int,
+    declared: tuple[dict[int, records.Channel], dict[int, records.Schema]],
+    schemas: dict[int, int],
+    channels: dict[int, int],
+) -> None:
+    """A channel (and its schema) that the records read so far do not declare (it was in a chunk
+    that is lost) but the file's summary does."""
+    channel = declared[0].get(channel_id)
+    if channel is None:
+        return
+    schema = declared[1].get(channel.schema_id)
+    if schema is not None:
+        _copy(writer, schema, schemas, channels, Recovered(Path()))
+    _copy(writer, channel, schemas, channels, Recovered(Path()))
 
 
 def needs_recovery(path: str | Path) -> bool:
