@@ -211,6 +211,44 @@ def test_a_changed_design_parameter_redoes_the_frozen_design(tmp_path):
     assert not np.array_equal(computed["xhat_x1"], logged_estimates(log, "uniform")["xhat_x1"])
 
 
+def test_the_estimator_fmu_runs_in_a_host_without_python(tmp_path):
+    """A C host (tests/data/fmi_host/host.c) loads the FMU's binary as a non-Python tool does: it
+    cannot without the Python library, and with it preloaded (docs/fmi.md, *Running a cosim FMU in
+    other tools*) it steps the estimator as its node would."""
+    import sysconfig
+
+    import estimators
+
+    compiler = shutil.which("cc")
+    library = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("INSTSONAME") or "")
+    if compiler is None or not library.is_file():
+        pytest.skip("needs a C compiler and a shared Python library")
+    host = tmp_path / "host"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    source = ROOT / "tests" / "data" / "fmi_host" / "host.c"
+    subprocess.run([compiler, "-o", str(host), str(source), f"-I{headers}", "-ldl"], check=True)
+    loaded = scenario.load("uio-fault-detection")
+    fmu = fmu_estimator.export(loaded, "uio", tmp_path / "uio.fmu")
+    unpacked = Path(fmpy.extract(str(fmu), str(tmp_path / "unpacked")))
+    description = fmpy.read_model_description(str(fmu))
+    refs = {v.name: str(v.valueReference) for v in description.modelVariables}
+    binary = unpacked / "binaries" / "x86_64-linux" / f"{description.coSimulation.modelIdentifier}.so"
+    arguments = [str(host), str(binary), str(unpacked / "resources"), description.guid, refs["y1"], refs["xhat_x1"]]
+    arguments += ["5", "0.01"]
+    bare = subprocess.run(arguments, capture_output=True, text=True, env={"PATH": os.environ["PATH"]})
+    assert bare.returncode != 0 and "undefined symbol" in bare.stderr  # no Python in the process
+    python = {"LD_PRELOAD": str(library), "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    result = subprocess.run(arguments, capture_output=True, text=True, env={"PATH": os.environ["PATH"], **python})
+    # every FMI call returned and the library was unloaded; the embedded Python's shutdown at the
+    # host's exit (pythonfmu3's) then crashes now and then (SIGSEGV; docs/fmi.md)
+    assert result.stderr.endswith("closed\n") and result.returncode in (0, -11), result.stderr
+    printed = [float(line.split()[1]) for line in result.stdout.splitlines()]
+    content, _ = fmu_estimator.exported(loaded, "uio")
+    node = estimators.create("uio", estimators.LinearModel.from_dict(content["model"]), content["params"], 0.01)
+    expected = [node.step(np.array([1.0 + 0.01 * k, np.nan]), np.zeros(2)).x[0] for k in range(5)]
+    assert printed == expected
+
+
 def test_cosim_fmu_estimator_names_an_unknown_estimator_in_one_line(tmp_path):
     result = subprocess.run(
         [
