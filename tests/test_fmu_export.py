@@ -103,17 +103,25 @@ def logged_estimates(log: Path, name: str) -> dict[str, np.ndarray]:
     return {signal: np.array([values[k][signal] for k in ticks]) for signal in values[0]}
 
 
-def short_run(name: str, estimator: str, duration: float, folder: Path) -> tuple[scenario.LoadedScenario, Path]:
-    """A built-in scenario cut to ``duration`` with only ``estimator`` (and its controller), run
-    in-process: the frames of the run are the same."""
-    loaded = scenario.apply(scenario.load(name), [("duration", duration)])
-    spec = next(e for e in loaded.scenario.estimators if e.name == estimator)
-    alone = scenario.LoadedScenario(
-        loaded.scenario.model_copy(update={"estimators": [spec]}), loaded.source, loaded.text
-    )
-    log = folder / f"{name}.mcap"
-    assert run(alone, log, interface="virtual").status == "completed"
-    return alone, log
+@pytest.fixture(scope="module")
+def short_run(tmp_path_factory):
+    """A built-in scenario cut to a duration with only one estimator (and its controller), run
+    in-process once per module (the frames of the run are the same): (scenario, log)."""
+    runs: dict[tuple[str, str, float], tuple[scenario.LoadedScenario, Path]] = {}
+
+    def get(name: str, estimator: str, duration: float) -> tuple[scenario.LoadedScenario, Path]:
+        if (name, estimator, duration) not in runs:
+            loaded = scenario.apply(scenario.load(name), [("duration", duration)])
+            spec = next(e for e in loaded.scenario.estimators if e.name == estimator)
+            alone = scenario.LoadedScenario(
+                loaded.scenario.model_copy(update={"estimators": [spec]}), loaded.source, loaded.text
+            )
+            log = tmp_path_factory.mktemp("short") / f"{name}.mcap"
+            assert run(alone, log, interface="virtual").status == "completed"
+            runs[(name, estimator, duration)] = alone, log
+        return runs[(name, estimator, duration)]
+
+    return get
 
 
 #: One estimator of each paper (shared/papers/README.md), and the run that logs it: the session's
@@ -130,14 +138,14 @@ PAPERS = [
 
 @pytest.mark.parametrize(("name", "estimator", "duration"), PAPERS)
 def test_the_estimator_fmu_reproduces_the_logged_estimates_bit_for_bit(
-    name, estimator, duration, builtin_run, tmp_path
+    name, estimator, duration, builtin_run, short_run, tmp_path
 ):
     if duration is None:
         result = builtin_run(name)
         assert result.status == "completed", result.error
         loaded, log = scenario.load(name), result.path
     else:
-        loaded, log = short_run(name, estimator, duration, tmp_path)
+        loaded, log = short_run(name, estimator, duration)
     fmu = fmu_estimator.export(loaded, estimator, tmp_path / f"{estimator}.fmu")
     logged = logged_estimates(log, estimator)
     computed = fmu_estimates(fmu, log, estimator)
@@ -183,12 +191,12 @@ def test_a_plugin_estimator_travels_in_its_fmu(tmp_path):
     assert any(not np.array_equal(computed[s], logged[s]) for s in logged)  # quantized: not the raw values
 
 
-def test_a_changed_design_parameter_redoes_the_frozen_design(tmp_path):
+def test_a_changed_design_parameter_redoes_the_frozen_design(short_run, tmp_path):
     """The pseudoinverse observer's gain is placed at export (``node_params``) and frozen in the
     FMU; setting ``params.poles`` places it again, else the FMU would run the old gain silently."""
     import estimators
 
-    loaded, log = short_run("tac2024-s1-constant", "uniform", 1.0, tmp_path)
+    loaded, log = short_run("tac2024-s1-constant", "uniform", 1.0)
     fmu = fmu_estimator.export(loaded, "uniform", tmp_path / "uniform.fmu")
     poles = [0.5, 0.55, 0.6, 0.65]
     messages = []
@@ -249,23 +257,24 @@ def test_the_estimator_fmu_runs_in_a_host_without_python(tmp_path):
     assert printed == expected
 
 
-def test_cosim_fmu_estimator_names_an_unknown_estimator_in_one_line(tmp_path):
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "cosim.cli",
-            "fmu",
-            "--estimator",
-            "nope",
-            "masses-bias",
-            "--out",
-            str(tmp_path / "x.fmu"),
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert result.returncode != 0
-    assert result.stderr.strip().splitlines() == [
+def test_cosim_fmu_estimator_writes_the_fmu_and_its_inputs_and_refuses_in_one_line(short_run, tmp_path, capsys):
+    from fmpy.util import read_csv
+
+    from cosim.cli import main
+
+    _, log = short_run("uio-fault-detection", "uio", 11.0)
+    out = tmp_path / "uio.fmu"
+    assert main(["fmu", "--estimator", "uio", "uio-fault-detection", "--out", str(out), "--inputs-from", str(log)]) == 0
+    assert capsys.readouterr().err.count("wrote") == 2 and out.is_file()
+    table = read_csv(out.with_suffix(".csv"))
+    t, inputs = fmu_estimator.bus_inputs(log, "uio")
+    assert table.dtype.names == ("time", "y1", "y2", "u1", "u2") and np.array_equal(table["time"], t)
+    assert all(np.array_equal(table[n], inputs[n], equal_nan=True) for n in inputs)  # 17 digits: exact
+    assert main(["fmu", "--estimator", "nope", "masses-bias", "--out", str(tmp_path / "x.fmu")]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
         "error: builtin:masses-bias: no estimator 'nope' (its estimators: uniform, kalman)"
-    ], result.stderr
+    ]
+    assert main(["fmu", "masses-bias", "--out", str(tmp_path / "y.fmu"), "--inputs-from", str(log)]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "error: --inputs-from needs --estimator NAME: the inputs are those of an estimator's node"
+    ]

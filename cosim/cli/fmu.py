@@ -30,7 +30,9 @@ def arguments(p: argparse.ArgumentParser) -> None:
         "(the FMU's input table)",
     )
     common.force_option(p)
-    p.add_argument("--seed", type=common.seed, metavar="N", help="the seed of its noise, faults and disturbances")
+    p.add_argument(
+        "--seed", type=common.seed, metavar="N", help="the seed of its noise, faults and disturbances (the plant's FMU)"
+    )
     common.set_option(p)
 
 
