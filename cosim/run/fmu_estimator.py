@@ -29,7 +29,7 @@ import numpy as np
 import estimators
 from cosim import __version__
 from cosim.errors import CosimError, ScenarioError
-from cosim.kinds import KindError
+from cosim.kinds import KindError, is_file_reference
 from estimators import Estimator, LinearModel, ParameterError
 
 PLUGIN_FOLDER = "plugin"
@@ -163,7 +163,7 @@ def build(content: dict[str, Any], resources: Path, values: dict[str, Any]) -> t
                 params.pop(name, None)
         notes.append(("ok", f"params.{', params.'.join(redesign)} changed: the design is redone at initialization"))
     kind = content["kind"]
-    if kind.partition(":")[0].endswith(".py"):
+    if is_file_reference(kind):  # a plugin's file, shipped in the resources
         kind = f"{resources / kind.partition(':')[0]}:{kind.partition(':')[2]}"
     model = LinearModel.from_dict(content["model"])
     try:
