@@ -22,3 +22,14 @@ class CodecError(CosimError):
 
 class LogError(CosimError):
     """An MCAP log cannot be read."""
+
+
+class Interruption(KeyboardInterrupt):
+    """A run stopped by a signal (Ctrl-C: SIGINT, or SIGTERM): ``signum`` says which (the CLI exits
+    with 128 + signum), ``detail`` what was under way when it came, if that is worth a line."""
+
+    def __init__(self, signum: int, detail: str = "") -> None:
+        import signal
+
+        super().__init__(detail or signal.Signals(signum).name)
+        self.signum, self.detail = signum, detail

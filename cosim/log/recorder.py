@@ -4,9 +4,9 @@ channel by channel, in the order a reader finds them.
 The channels of every run are registered up front: ``/can/frames``, the decoded ``/can/<Message>``
 of each DBC message, the truth (``/truth/state``, ``sensors``, ``inputs``, ``faults``),
 ``/cosim/deadline_misses``, ``/cosim/foreign`` and ``/cosim/events``. ``/truth/bus_faults``,
-``/cosim/wire``, ``/cosim/security`` and ``/cosim/ids`` are registered with their first message:
-a run without bus faults, an arbitrated wire, SecOC rejections or the intrusion detector has no
-such topic. The run's metadata records are ``cosim.log.metadata``'s.
+``/cosim/wire``, ``/cosim/security``, ``/cosim/ids`` and ``/plant/fmu`` are registered with their
+first message: a run without bus faults, an arbitrated wire, SecOC rejections, the intrusion
+detector or an FMU plant that says something has no such topic. The run's metadata records are ``cosim.log.metadata``'s.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from cosim.log.topics import (
     CanFrame,
     DeadlineMiss,
     Event,
+    FmuMessage,
     Foreign,
     IntrusionVerdict,
     PlantNames,
@@ -198,6 +199,13 @@ class RunRecorder:
     ) -> None:
         record = Event(tick=tick, t=t, level=level, event=event, detail=detail, count=count)
         self.log.write(self._events, t_ns, record)
+
+    def fmu_messages(self, tick: int, t: float, t_ns: int, messages: list[Any]) -> None:
+        """What an FMU plant logged or printed (``cosim.plant.fmu_calls.FmuMessage``s) by tick k."""
+        channel = self._channel(FmuMessage)
+        for m in messages:
+            record = FmuMessage(tick=tick, t=t, source=m.source, status=m.status, category=m.category, message=m.text)
+            self.log.write(channel, t_ns, record)
 
     def security(
         self,

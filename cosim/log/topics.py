@@ -546,6 +546,18 @@ class IntrusionVerdict(TickRecord):
         return {check: getattr(self, check) for check in IDS_CHECKS}
 
 
+@topic(
+    "/plant/fmu", "cosim.FmuMessage", "What an FMU plant logged (its logger callback) or printed (its stdout, stderr)"
+)
+class FmuMessage(TickRecord):
+    source: str = prop(text("where it came from", enum=["logger", "stdout", "stderr"]))
+    status: str = prop(
+        text("the FMI status the FMU logged it with (OK, Warning, Discard, Error, Fatal); empty for a printed line")
+    )
+    category: str = prop(text("the FMU's log category (logger); empty for a printed line"))
+    message: str = prop(text("the message, or one printed line"))
+
+
 # -- the topics' names, for readers that choose topics ---------------------------------------------
 
 FRAMES = CanFrame.TOPIC
@@ -555,3 +567,4 @@ TRUTH = (STATE, SENSORS, INPUTS, FAULTS)
 BUS_FAULTS = BusFaultEvent.TOPIC
 EVENTS, DEADLINE_MISSES, FOREIGN = Event.TOPIC, DeadlineMiss.TOPIC, Foreign.TOPIC
 WIRE, SECURITY, IDS = WirePassage.TOPIC, SecurityRejection.TOPIC, IntrusionVerdict.TOPIC
+FMU_MESSAGES = FmuMessage.TOPIC

@@ -25,6 +25,7 @@ differences otherwise, then discretized by the exact zero-order hold like the ot
 from __future__ import annotations
 
 import ctypes
+import mmap
 import shutil
 import weakref
 from collections.abc import Callable, Sequence
@@ -33,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ModelError
-from cosim.plant.fmu_model import Element, FmuModel, fmpy
+from cosim.plant.fmu_calls import CallWatch, FmuCallError, FmuMessage
+from cosim.plant.fmu_model import Element, FmuModel, fmpy, start_value
 from cosim.plant.statespace import StateSpacePlant
 from estimators.model import LinearModel
 
@@ -61,6 +63,12 @@ class Access:
             position += _size(v)
         self._size = position
         self._take = np.array([self._offset[id(e.variable)] + e.index for e in self.elements], dtype=int)
+        # An enumeration variable takes only its items' values.
+        self._items = {
+            id(v): frozenset(int(item.value) for item in v.declaredType.items)
+            for v in self.variables
+            if v.type == "Enumeration" and v.declaredType is not None and v.declaredType.items
+        }
 
     def get(self, fmu: Any) -> np.ndarray:
         buffer = np.zeros(self._size)
@@ -74,7 +82,20 @@ class Access:
         buffer[self._take] = values
         for v in self.variables:
             chunk = buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)]
-            self._setter(fmu, v)([v.valueReference], [_typed(v, value) for value in chunk])
+            typed = [_typed(v, value) for value in chunk]
+            if id(v) in self._items:
+                self._check_items(v, typed)
+            self._setter(fmu, v)([v.valueReference], typed)
+
+    def _check_items(self, v: Any, values: list[Any]) -> None:
+        items = self._items[id(v)]
+        for value in values:
+            if value not in items:
+                listed = ", ".join(f"{item.value} ({item.name})" for item in v.declaredType.items)
+                raise ModelError(
+                    f"input {v.name} (enumeration {v.declaredType.name}) would be set to {value}, which is none of its "
+                    f"items: {listed}; check its input signal and actuator faults"
+                )
 
     def _count(self, v: Any) -> tuple[int, ...]:
         return (_size(v),) if self.version == 3 else ()
@@ -129,8 +150,14 @@ class FmuPlant:
         *,
         design: Any = None,
         tolerance: float | None = None,
+        slot: mmap.mmap | None = None,
+        on_message: Callable[[FmuMessage], None] | None = None,
     ) -> None:
         self.model = model
+        self.watch = CallWatch(model.path.name, model.version, slot)
+        self.watch.on_message = on_message
+        self.warnings: list[str] = []
+        """What the linearization found doubtful (directional derivatives against differences)."""
         self.info = model.info()
         self.sample_time, self.duration = float(sample_time), float(duration)
         experiment = model.description.defaultExperiment
@@ -146,6 +173,8 @@ class FmuPlant:
         self._states = Access(model.states, version)
         self._sensors = Access([by_name[n] for n in self.sensor_names], version)
         self._inputs = Access(model.actuators + model.disturbances, version)
+        self.start_inputs = np.array([start_value(e) for e in model.actuators + model.disturbances], dtype=float)
+        """The inputs' start values (actuators, then disturbance inputs): what an undriven input holds."""
         self.design = None if design is None else StateSpacePlant(design, self.info, sample_time, self.sensor_names)
         self._unzipped = fmpy().extract(str(model.path))
         self._finalizer = weakref.finalize(self, shutil.rmtree, self._unzipped, True)
@@ -165,8 +194,9 @@ class FmuPlant:
         parameters, the named states' start values overridden by ``initial``, initialized at t = 0."""
         self.close()
         self._start = start_values(self.model, initial)
-        self.fmu = instantiate(self.model, self._unzipped, self.model.interface)
         self._k = 0
+        self.watch.time = 0.0
+        self.fmu = instantiate(self.model, self._unzipped, self.model.interface, self.watch)
         self._event_time = initialize(
             self.model, self.fmu, self.model.interface, self._start, self.tolerance, self.duration
         )
@@ -176,12 +206,15 @@ class FmuPlant:
             self._solver = self._cvode()
 
     def close(self) -> None:
-        """Free the FMU instance (a later ``reset`` makes a new one)."""
+        """Free the FMU instance (a later ``reset`` makes a new one); after a Fatal status no call
+        is allowed, after an error only freeing it."""
         if self.fmu is not None:
-            self._solver = None
-            self.fmu.terminate()
-            self.fmu.freeInstance()
-            self.fmu = None
+            fmu, self.fmu, self._solver = self.fmu, None, None
+            release(fmu, self.watch)
+
+    def take_messages(self) -> list[FmuMessage]:
+        """What the FMU logged or printed since the last take."""
+        return self.watch.take()
 
     def __del__(self) -> None:
         try:
@@ -209,6 +242,7 @@ class FmuPlant:
         d = np.zeros(len(self.disturbance_names)) if disturbance is None else np.asarray(disturbance, dtype=float)
         u = np.concatenate([np.asarray(ctrl, dtype=float), d])
         t, t_next = self._k * self.sample_time, (self._k + 1) * self.sample_time
+        self.watch.time = t
         if self._solver is None:
             self._u = u
             self._inputs.set(self.fmu, u)
@@ -250,7 +284,12 @@ class FmuPlant:
             if event is not None and target > event and not isclose(target, event):
                 target = event
             time_event = event is not None and isclose(target, event)
-            state_event, _, t = self._solver.step(t, target)
+            try:
+                state_event, _, t = self._solver.step(t, target)
+            except RuntimeError as error:  # CVode's failure (FMPy's message holds CVode's own)
+                raise self.watch.solver_failed(str(error)) from None
+            self.watch.check()  # a call that failed inside the solver's callbacks
+            self.watch.time = t
             self.fmu.setTime(t)
             step_event = False
             if needs_step_event:
@@ -317,15 +356,37 @@ def start_values(model: FmuModel, initial: dict[str, float] | None) -> dict[str,
     return values
 
 
-def instantiate(model: FmuModel, unzipped: str, interface: str) -> Any:
-    """An FMU instance of the given interface (``fmpy.simulation.instantiate_fmu``)."""
+def instantiate(model: FmuModel, unzipped: str, interface: str, watch: CallWatch) -> Any:
+    """An FMU instance of the given interface (``fmpy.simulation.instantiate_fmu``), its calls and
+    log messages watched by ``watch``."""
     from fmpy.simulation import instantiate_fmu
 
     fmi_type = "CoSimulation" if interface == "co-simulation" else "ModelExchange"
     try:
-        return instantiate_fmu(unzipped, model.description, fmi_type)
+        fmu = instantiate_fmu(unzipped, model.description, fmi_type, logger=watch.logger())
+    except FmuCallError:
+        raise
     except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions when a library does not load)
-        raise ModelError(f"{model.path.name}: cannot instantiate its {interface} interface: {error}") from None
+        raise ModelError(
+            f"{model.path.name}: cannot instantiate its {interface} interface: {error}; {watch.last_words()}"
+        ) from None
+    return watch.watch(fmu)
+
+
+def release(fmu: Any, watch: CallWatch) -> None:
+    """Terminate and free an instance, as far as its state allows (nothing after a Fatal status,
+    only freeing after an error)."""
+    if watch.fatal:
+        return
+    if watch.failure is None:
+        try:
+            fmu.terminate()
+        except FmuCallError:
+            pass
+    try:
+        fmu.freeInstance()
+    except FmuCallError:
+        pass
 
 
 def initialize(

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ModelError
-from cosim.plant.fmu import FD_STEP, Access, FmuPlant, initialize, instantiate, set_continuous_states
+from cosim.plant.fmu import FD_STEP, Access, FmuPlant, initialize, instantiate, release, set_continuous_states
 from cosim.plant.fmu_model import FLOATS, Element
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
@@ -35,8 +35,8 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
     model = plant.model
     if not model.has_model_exchange:
         raise ModelError(
-            f"{model.path.name} has no model-exchange interface to linearize: give the estimators' design model "
-            "as [plant.state_space]"
+            f"{model.path.name} has no model-exchange interface to linearize (it is co-simulation only): give the "
+            "design model as [plant.state_space], or use a build of the FMU with model exchange"
         )
     renamed = model.states != model.continuous_states
     if x is not None and renamed:
@@ -79,12 +79,13 @@ def _jacobian(
     plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """∂[ẋ; s; y]/∂[x; v] at the point, and there the inputs v, the named states s and the sensors y,
-    from a fresh model-exchange instance."""
+    from a fresh model-exchange instance. Where the FMU provides directional derivatives they are
+    the Jacobian, checked against central differences (``plant.warnings`` says where they disagree)."""
     model = plant.model
-    fmu = instantiate(model, plant._unzipped, "model-exchange")
+    fmu = instantiate(model, plant._unzipped, "model-exchange", plant.watch)
     try:
         initialize(model, fmu, "model-exchange", plant._start, plant.tolerance, plant.duration)
-        version, nx = model.version, len(model.continuous_states)
+        version = model.version
         states, inputs = Access(model.continuous_states, version), Access(model.actuators + model.disturbances, version)
         derivatives, named, sensors = Access(model.derivatives, version), Access(model.states, version), plant._sensors
         if x is not None:
@@ -95,27 +96,116 @@ def _jacobian(
             inputs.set(fmu, v0)
         x0, s_op, y_op = states.get(fmu), named.get(fmu), sensors.get(fmu)
         knowns = model.continuous_states + model.actuators + model.disturbances
+        directional = None  # at the point itself, before the differences move the instance's states
         if model.directional and all(_scalar_float(e) for e in (*knowns, *model.derivatives, *model.states)):
-            return _directional_jacobian(fmu, version, [derivatives, named, sensors], knowns), v0, s_op, y_op
-
-        def at(dx: np.ndarray, dv: np.ndarray) -> np.ndarray:  # ẋ by the call that computes it
-            set_continuous_states(fmu, x0 + dx)
-            inputs.set(fmu, v0 + dv)
-            return np.concatenate([state_derivatives(fmu, version, nx), named.get(fmu), sensors.get(fmu)])
-
-        point = np.concatenate([x0, v0])
-        steps = FD_STEP * np.where(point != 0, np.abs(point), 1.0)
-        jacobian = np.zeros((nx + len(s_op) + len(y_op), len(knowns)))
-        for j, (h, known) in enumerate(zip(steps, knowns)):
-            if known.discrete:
-                continue  # an integer or Boolean input has no derivative
-            e = np.zeros(len(knowns))
-            e[j] = h
-            jacobian[:, j] = (at(e[:nx], e[nx:]) - at(-e[:nx], -e[nx:])) / (2.0 * h)
-        return jacobian, v0, s_op, y_op
+            directional = _directional_jacobian(fmu, version, [derivatives, named, sensors], knowns)
+        differences = _Point(fmu, model, x0, v0, inputs, named, sensors).differences(knowns)
+        if directional is None:
+            return differences, v0, s_op, y_op
+        plant.warnings += disagreements(model.path.name, plant, directional, differences)
+        return directional, v0, s_op, y_op
     finally:
-        fmu.terminate()
-        fmu.freeInstance()
+        release(fmu, plant.watch)
+
+
+class _Point:
+    """The FMU at the linearization point (x0, v0), evaluated at perturbations of it."""
+
+    def __init__(
+        self, fmu: Any, model: Any, x0: np.ndarray, v0: np.ndarray, inputs: Access, named: Access, sensors: Access
+    ) -> None:
+        self.fmu, self.model, self.x0, self.v0 = fmu, model, x0, v0
+        self.inputs, self.named, self.sensors = inputs, named, sensors
+        self.completes_steps = model.description.modelExchange.needsCompletedIntegratorStep
+
+    def at(self, dx: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """[ẋ; s; y] at (x0 + dx, v0 + dv). As a solver's step ends (FMPy's order): time, inputs and
+        states set, the integrator step completed where the FMU needs it, then the outputs read, then
+        the derivatives. OpenModelica's FMUs compute their outputs only in fmi2CompletedIntegratorStep
+        (and at events): without it they stay the initialization's, and C comes out all zeros."""
+        fmu = self.fmu
+        fmu.setTime(0.0)
+        self.inputs.set(fmu, self.v0 + dv)
+        set_continuous_states(fmu, self.x0 + dx)
+        if self.completes_steps:
+            fmu.completedIntegratorStep()
+        s, y = self.named.get(fmu), self.sensors.get(fmu)
+        return np.concatenate([state_derivatives(fmu, self.model.version, len(self.x0)), s, y])
+
+    def differences(self, knowns: tuple[Element, ...]) -> np.ndarray:
+        """The Jacobian by central differences, steps 2⁻²⁰·|value| (2⁻²⁰ at 0); integer and Boolean
+        inputs have no derivative (their columns are 0)."""
+        nx = len(self.x0)
+        point = np.concatenate([self.x0, self.v0])
+        steps = FD_STEP * np.where(point != 0, np.abs(point), 1.0)
+        columns = []
+        for j, (h, known) in enumerate(zip(steps, knowns)):
+            e = np.zeros(len(knowns))
+            if not known.discrete:
+                e[j] = h
+                columns.append((self.at(e[:nx], e[nx:]) - self.at(-e[:nx], -e[nx:])) / (2.0 * h))
+            else:
+                columns.append(None)
+        rows = nx + len(self.named.elements) + len(self.sensors.elements)
+        return (
+            np.column_stack([c if c is not None else np.zeros(rows) for c in columns])
+            if columns
+            else np.zeros((rows, 0))
+        )
+
+
+#: Directional derivatives and central differences disagree on an entry J_ij when
+#: |DD − FD| > RTOL·max(|DD|, |FD|) + ATOL·(the largest |entry| of its matrix).
+RTOL, ATOL = 1e-4, 1e-6
+
+
+def disagreements(name: str, plant: FmuPlant, directional: np.ndarray, differences: np.ndarray) -> list[str]:
+    """One warning per matrix (in the FMU's coordinates: A = ∂ẋ/∂x, B = ∂ẋ/∂u, E = ∂ẋ/∂d, C = ∂y/∂x,
+    D = ∂y/∂u, and S = ∂s/∂x for named states) whose entries disagree beyond the tolerance, with
+    its three worst entries."""
+    model = plant.model
+    nx, ns, m = len(model.continuous_states), len(model.states), len(model.actuators)
+    xs = [e.name for e in model.continuous_states]
+    rows = {
+        "x": (0, nx, xs),
+        "s": (nx, nx + ns, list(plant.state_names)),
+        "y": (nx + ns, None, list(plant.sensor_names)),
+    }
+    cols = {
+        "x": (0, nx, xs),
+        "u": (nx, nx + m, list(plant.actuator_names)),
+        "d": (nx + m, None, list(plant.disturbance_names)),
+    }
+    found = []
+    for matrix, row, col in (
+        ("A", "x", "x"),
+        ("B", "x", "u"),
+        ("E", "x", "d"),
+        ("S", "s", "x"),
+        ("C", "y", "x"),
+        ("D", "y", "u"),
+    ):
+        if matrix == "S" and model.states == model.continuous_states:
+            continue
+        r0, r1, row_names = rows[row]
+        c0, c1, col_names = cols[col]
+        dd, fd = directional[r0:r1, c0:c1], differences[r0:r1, c0:c1]
+        if dd.size == 0:
+            continue
+        gap = np.abs(dd - fd)
+        bad = gap > RTOL * np.maximum(np.abs(dd), np.abs(fd)) + ATOL * np.abs(dd).max()
+        if not bad.any():
+            continue
+        worst = sorted(zip(*np.nonzero(bad)), key=lambda ij: -gap[ij])[:3]
+        entries = ", ".join(
+            f"{matrix}[{row_names[i]}, {col_names[j]}] {dd[i, j]:.6g} vs {fd[i, j]:.6g}" for i, j in worst
+        )
+        found.append(
+            f"{name}: its directional derivatives and central differences disagree on {int(bad.sum())} entries of "
+            f"{matrix} (tolerance {RTOL:g} relative + {ATOL:g} of the matrix's largest entry), worst {entries}; the "
+            "design model uses the directional derivatives"
+        )
+    return found
 
 
 def state_derivatives(fmu: Any, version: int, nx: int) -> np.ndarray:

@@ -21,6 +21,7 @@ extra) reads the model description.
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import zipfile
 from collections.abc import Iterable
@@ -98,6 +99,8 @@ class FmuModel:
     derivatives: tuple[Element, ...]
     parameters: dict[str, Any] = field(default_factory=dict)
     """The scenario's parameter values by variable name (checked to be parameters)."""
+    settings: dict[str, Any] = field(default_factory=dict)
+    """The ``[plant.fmu]`` settings it was read with (FmuSpec's fields)."""
     directional: bool = False
     """Whether its model-exchange interface provides directional derivatives (FMI 2
     ``providesDirectionalDerivative``, FMI 3 ``providesDirectionalDerivatives``)."""
@@ -125,6 +128,20 @@ class FmuModel:
         )
 
 
+def start_value(element: Element) -> float:
+    """The start value of one scalar of a variable (its element of an array's start), as a float;
+    without one, 0 (an enumeration's first item)."""
+    v = element.variable
+    if v.start is None:
+        items = v.declaredType.items if v.type == "Enumeration" and v.declaredType is not None else None
+        return float(items[0].value) if items else 0.0
+    values = str(v.start).split() if v.shape else [str(v.start)]
+    text = values[element.index] if element.index < len(values) else values[-1]
+    if v.type == "Boolean":
+        return 1.0 if text.strip().lower() in ("true", "1") else 0.0
+    return float(text)
+
+
 #: What ``read`` found, by (path, modification time, size, table): ``Scenario.plant_info`` is asked often.
 _READ: dict[tuple[Any, ...], FmuModel] = {}
 
@@ -137,8 +154,14 @@ def read(path: str | Path, spec: Any) -> FmuModel:
     return once_per_version(_READ, path, spec, missing, _read)
 
 
+def read_fresh(path: str | Path, spec: Any) -> FmuModel:
+    """``read`` without its cache, ``spec`` any object with FmuSpec's attributes (an FMU's host
+    process reads the FMU again from the settings it is sent)."""
+    return _read(Path(path), spec)
+
+
 def _read(path: Path, spec: Any) -> FmuModel:
-    md, root = _description(path)
+    md, root = _description(path, spec.validate)
     interface = _interface(path, md, spec.interface)
     variables = {v.name: v for v in md.modelVariables}
     numeric = [v for v in md.modelVariables if v.type in NUMERIC]
@@ -174,15 +197,17 @@ def _read(path: Path, spec: Any) -> FmuModel:
         elements(continuous),
         elements(d.variable for d in md.derivatives),
         dict(spec.parameters),
+        spec.model_dump() if hasattr(spec, "model_dump") else dict(vars(spec)),
         _provides_directional_derivatives(md, root),
     )
     _distinct(path, model)
     return model
 
 
-def _description(path: Path) -> tuple[Any, ElementTree.Element]:
+def _description(path: Path, validate: bool = True) -> tuple[Any, ElementTree.Element]:
     """FMPy's model description and the XML's root, after the checks that need only the archive:
-    an FMU of a supported FMI version with a binary for this machine."""
+    an FMU of a supported FMI version with a binary for this machine; ``validate``: its
+    modelDescription.xml checked against the FMI schema (and FMPy's rules)."""
     lib = fmpy()
     try:
         with zipfile.ZipFile(path) as archive:
@@ -202,9 +227,15 @@ def _description(path: Path) -> tuple[Any, ElementTree.Element]:
             f"plant.model: {path.name} has binaries for {built}, not for this machine ({lib.platform}){sources}"
         )
     try:
-        return lib.read_model_description(str(path), validate=True), root
+        return lib.read_model_description(str(path), validate=validate), root
     except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions for an invalid description)
-        raise FmuError(f"plant.model: {path.name}: its modelDescription.xml is not valid: {error}") from None
+        problems = [line.strip("- ").strip() for line in str(error).splitlines()[1:] if line.strip()]
+        first = problems[0] if problems else str(error)
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        way_out = " to run it anyway: [plant.fmu] validate = false (or cosim run --no-validate)" if validate else ""
+        raise FmuError(
+            f"plant.model: {path.name}: its modelDescription.xml is not valid FMI {version}: {first}{more};{way_out}"
+        ) from None
 
 
 def _provides_directional_derivatives(md: Any, root: ElementTree.Element) -> bool:
@@ -250,12 +281,10 @@ def _elements(variable: Any, spec: Any, md: Any) -> list[Element]:
     declared = variable.declaredType
     unit = variable.unit or (declared.unit if declared is not None else None) or ""
     discrete = variable.type not in FLOATS
-    low, high = _limit(variable, declared, "min", -spec.bound), _limit(variable, declared, "max", spec.bound)
-    if variable.type == "Boolean":
-        low, high = 0.0, 1.0
-    if not low < high:
-        low, high = -spec.bound, spec.bound
-    resolution = 1.0 if discrete else spec.resolution
+    low, high = bus_range(variable, declared, spec.bound)
+    # A wide range gets a coarser classic-CAN resolution (the relative one of ±bound at `resolution`), so
+    # that it fits a frame: a signal in Pa or N never needs more bits than one of the default range.
+    resolution = 1.0 if discrete else spec.resolution * max(1.0, max(abs(low), abs(high)) / spec.bound)
     description = variable.description or f"{variable.causality} {variable.name} of {md.modelName}"
     found = []
     for index in range(size):
@@ -274,12 +303,45 @@ def _unravel(index: int, shape: tuple[int, ...]) -> list[int]:
     return indices[::-1]
 
 
-def _limit(variable: Any, declared: Any, key: str, default: float) -> float:
-    value = getattr(variable, key) or (getattr(declared, key) if declared is not None else None)
+def bus_range(variable: Any, declared: Any, bound: float) -> tuple[float, float]:
+    """A variable's range on the bus: its declared ``min``/``max`` (its own, else its type's); a
+    side it does not declare ±bound·scale, scale its ``nominal`` (else its start value's magnitude,
+    at least 1); 0 to 1 for a Boolean."""
+    if variable.type == "Boolean":
+        return 0.0, 1.0
+    nominal = _attribute(variable, declared, "nominal")
+    if nominal:
+        scale = abs(nominal)
+    else:
+        starts = (
+            [abs(float(x)) for x in str(variable.start).split() if _number(x)] if variable.start is not None else []
+        )
+        scale = max([1.0, *starts])
+    span = bound * scale
+    low, high = _attribute(variable, declared, "min"), _attribute(variable, declared, "max")
+    if low is not None and high is not None:
+        return (low, high) if low < high else (-span, span)
+    if low is not None:
+        return low, span if span > low else low + 2.0 * span
+    if high is not None:
+        return -span if -span < high else high - 2.0 * span, high
+    return -span, span
+
+
+def _attribute(variable: Any, declared: Any, key: str) -> float | None:
+    """A numeric attribute of the variable, else of its declared type (None: neither gives one)."""
+    for source in (variable, declared):
+        value = getattr(source, key, None) if source is not None else None
+        if value is not None and _number(str(value)):
+            return float(value)
+    return None
+
+
+def _number(text: str) -> bool:
     try:
-        return float(value) if value is not None else default
+        return math.isfinite(float(text))
     except ValueError:
-        return default
+        return False
 
 
 def _distinct(path: Path, model: FmuModel) -> None:

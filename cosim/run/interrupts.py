@@ -17,13 +17,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from cosim.errors import Interruption
 
-class Interrupted(KeyboardInterrupt):
-    """A run stopped by a signal; ``signum`` says which (the CLI exits with 128 + signum)."""
+
+class Interrupted(Interruption):
+    """A run stopped by a signal between ticks; ``signum`` says which (the CLI exits with 128 + signum)."""
 
     def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
+        super().__init__(signum)
 
 
 class DeferredInterrupts:

@@ -32,6 +32,7 @@ from cosim.bus.codec import CONTROLLER, Decoded
 from cosim.bus.transport import BusConfig
 from cosim.errors import CosimError
 from cosim.plant import build_plant
+from cosim.plant.fmu_calls import Said
 from cosim.run.launcher import ExternalClient, LocalController, LocalNode, ProcessNode
 from cosim.run.node import NodeSpec
 from cosim.run.outcome import Progress, RunResult, ending
@@ -72,7 +73,10 @@ class TickSource(Protocol):
         after that, not on the session's."""
 
     def advance(self, k: int, session: Session) -> None:
-        """What follows tick k's frames on the bus, before the tick is closed."""
+        """What follows tick k's frames on the bus, before the tick is closed.
+
+        A source may also have ``finish(k, session)``: called as the run ends after k ticks (however
+        it ends), before the session logs how (an FMU plant's last messages, as it is freed)."""
 
 
 class PlantSource:
@@ -81,26 +85,31 @@ class PlantSource:
 
     The actuators hold the operating point's inputs until a controller node's first command; in an
     open-loop run they receive the scenario's input signals as the command frames carry them
-    (quantized in classic CAN)."""
+    (quantized in classic CAN). An input the scenario does not drive holds its start value (an
+    FMU's start values; 0 for the other plants), a disturbance input likewise.
 
-    def __init__(self, plan: RunPlan) -> None:
+    ``interrupted``: what an FMU plant in a process of its own calls while it waits for the FMU (the
+    session's ``interrupts.check``: Ctrl-C and SIGTERM stop even an FMU that never answers)."""
+
+    def __init__(self, plan: RunPlan, interrupted: Callable[[], None] | None = None) -> None:
         s = self.scenario = plan.scenario
         self.codec = plan.codec
         self.ticks = s.ticks
-        self.plant = build_plant(s)
+        self.plant = build_plant(s, interrupted)
         self.plant.reset(s.plant.initial_state)
         self.faults = build_faults(s)
         self.closed_loop = s.controller is not None
+        u_start, d_start = held_inputs(plan, self.plant)
         self.inputs = [
-            next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(0.0))
-            for name in s.actuators
+            next((build_waveform(i.signal) for i in s.inputs if i.actuator == name), fm.Constant(float(u0)))
+            for name, u0 in zip(s.actuators, u_start)
         ]
         self.disturbances = [
             next(
                 (build_waveform(d.signal) for d in s.disturbances if d.input == name and d.signal is not None),
-                fm.Constant(0.0),
+                fm.Constant(float(d0)),
             )
-            for name in s.disturbance_inputs
+            for name, d0 in zip(s.disturbance_inputs, d_start)
         ]
         self.environments = [
             s.plant_info.disturbance_models[d.model](
@@ -111,9 +120,11 @@ class PlantSource:
         ]
         self.sensor_specs = [plan.codec.sensor(n) for n in s.sensors]
         self.command_specs = [plan.codec.command(n) for n in s.actuators]
-        self.u_cmd = plan.model.u_op.copy()  # what the actuators hold before a controller's first command
+        self.u_cmd = u_start.copy()  # what the actuators hold before a controller's first command
         self._sensed: tuple[np.ndarray, np.ndarray, fm.SensorOutcome] | None = None
         self._commands: list[tuple[can.Message, Decoded]] = []
+        self.said = Said()
+        """What the plant (an FMU) logged or printed, counted (the run's log has each message)."""
 
     def frames(self, k: int) -> list[tuple[can.Message, Decoded | None]]:
         codec, t = self.codec, self.scenario.time(k)
@@ -169,6 +180,35 @@ class PlantSource:
                 "faults"
             )
         self.plant.step(u_eff, d)
+        self._log_plant_messages(k, session)
+
+    def _log_plant_messages(self, k: int, session: Session) -> None:
+        take = getattr(self.plant, "take_messages", None)
+        if take is not None and (messages := take()):
+            self.said.add(messages)
+            session.recorder.fmu_messages(k, *session.time(k), messages)
+
+    def finish(self, k: int, session: Session) -> None:
+        self.close()
+        self._log_plant_messages(k, session)
+
+    def close(self) -> None:
+        """Free the plant (an FMU's instance)."""
+        close = getattr(self.plant, "close", None)
+        if close is not None:
+            close()
+
+
+def held_inputs(plan: RunPlan, plant: object) -> tuple[np.ndarray, np.ndarray]:
+    """What the actuators and the disturbance inputs hold while nothing drives them: an FMU's start
+    values, else the operating point's inputs (and no disturbance)."""
+    s = plan.scenario
+    start = getattr(plant, "start_inputs", None)
+    if start is not None:
+        m = len(s.actuators)
+        return np.asarray(start[:m], dtype=float), np.asarray(start[m:], dtype=float)
+    assert plan.model is not None  # only an FMU plant may have none
+    return plan.model.u_op.copy(), np.zeros(len(s.disturbance_inputs))
 
 
 def run_ticks(source: TickSource, session: Session, advanced: Callable[[int], None]) -> int:
@@ -240,6 +280,13 @@ def execute(
         status, error = ending(exc)
         raise
     finally:
+        finish = getattr(source, "finish", None)
+        if finish is not None:
+            with session.interrupts.shielded():
+                try:
+                    finish(k, session)
+                except Exception as exc:  # noqa: BLE001 (freeing the FMU must not keep the log from its end)
+                    session.warnings.append(f"the plant did not close cleanly: {exc}")
         result = session.finish(k, status, error, senders)
         if on_progress is not None:
             on_progress(session.progress(k, source.ticks))

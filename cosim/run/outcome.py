@@ -106,7 +106,7 @@ def ending(exc: BaseException) -> tuple[str, str]:
     """The status and error a log records for what stopped a run: Ctrl-C or SIGTERM (interrupted),
     a CosimError (its message) or anything else (its type and message)."""
     if isinstance(exc, KeyboardInterrupt):
-        return "interrupted", ""
+        return "interrupted", getattr(exc, "detail", "")
     if isinstance(exc, CosimError):
         return "error", str(exc)
     return "error", f"{type(exc).__name__}: {exc}"

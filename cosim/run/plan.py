@@ -38,6 +38,7 @@ from cosim.log.metadata import (
 )
 from cosim.log.writer import LogSink
 from cosim.plant import Plant, build_plant
+from cosim.plant.fmu_model import is_fmu
 from cosim.run.arbitration import Arbitration, build_traffic
 from cosim.run.busfaults import BusFaultStage
 from cosim.run.detector import IntrusionDetector
@@ -133,6 +134,49 @@ def design_warnings(s: Scenario, built: dict[str, Estimator]) -> list[str]:
     return found
 
 
+def model_users(s: Scenario) -> list[str]:
+    """Who needs a linear model of the plant: the estimators and the controller, as the scenario names them."""
+    users = [f"estimators[{i}] ({e.name}, {e.kind})" for i, e in enumerate(s.estimators)]
+    return users + ([f"controller ({s.controller.kind})"] if s.controller is not None else [])
+
+
+def _linearizations(s: Scenario, plant: Any, source: str) -> tuple[LinearModel | None, LinearModel | None]:
+    """The plant's discrete- and continuous-time linear models at its operating point (its design
+    keyframe if it has one). An FMU plant is linearized only when an estimator or the controller
+    needs a model (or the scenario gives its design model): else a co-simulation-only FMU could not run at all."""
+    users = model_users(s)
+    if is_fmu(s.plant.model) and not users and s.plant.state_space is None:
+        return None, None
+    if s.plant_info.design_keyframe:
+        if not isinstance(plant, Plant):  # keyframes are MuJoCo's: a state-space plant has none
+            raise ScenarioError(f"{source}: a state-space plant has no design keyframe")
+        plant.reset(keyframe=s.plant_info.design_keyframe)
+    try:
+        with progress.step("linearizing the plant at its operating point"):
+            model = plant.linearize()
+    except ModelError as error:
+        raise ScenarioError(f"{source}: {users[0]} needs a linear model of the plant: {error}") from None
+    needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
+        s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous
+    )
+    try:  # computed even when no estimator needs it: the log records it, for replay to design new ones on
+        continuous: LinearModel | None = plant.linearize(continuous=True)
+    except ModelError:  # a discrete-time state-space plant has none
+        if needs_continuous:
+            raise
+        continuous = None
+    return model, continuous
+
+
+def _close(plant: Any) -> list[Any]:
+    """Free a plant the plan is done with (an FMU's instance), and what it said."""
+    close = getattr(plant, "close", None)
+    if close is not None:
+        close()
+    take = getattr(plant, "take_messages", None)
+    return take() if take is not None else []
+
+
 def first_tick_at(s: Scenario, start: float) -> int:
     """The first tick k with t_k >= start: where a fault starting at ``start`` is first active."""
     k = max(0, math.ceil(start / s.sample_time) - 1)
@@ -210,8 +254,9 @@ class RunPlan:
     loaded: LoadedScenario
     scenario: Scenario
     state_names: tuple[str, ...]
-    model: LinearModel
-    """The discrete-time linearization the estimators and the controller are designed on."""
+    model: LinearModel | None
+    """The discrete-time linearization the estimators and the controller are designed on (None: an
+    FMU plant that none of them needs a model of)."""
     continuous_model: LinearModel | None
     """The continuous-time one (None for a discrete-time state-space plant)."""
     estimators: dict[str, Estimator]
@@ -221,6 +266,8 @@ class RunPlan:
     faults: tuple[FaultRecord, ...]
     onset_tick: int | None
     units: dict[str, dict[str, str]]
+    plant_messages: tuple[Any, ...] = ()
+    """What an FMU plant logged or printed while the plan was made (``fmu_calls.FmuMessage``)."""
     secret: bytes = field(default_factory=run_secret, repr=False)
     """The run's secret (``cosim.bus.keys``): random per plan, never logged; the control frames'
     keys, and SecOC's with ``[bus] authentication = "secoc"``, derive from it."""
@@ -238,24 +285,11 @@ class RunPlan:
                 plant = build_plant(s)
         except ModelError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
-        # Estimators are designed on the linearization at the plant's keyframe (its operating point),
-        # or at its design keyframe if it has one.
-        if s.plant_info.design_keyframe:
-            if not isinstance(plant, Plant):  # keyframes are MuJoCo's: a state-space plant has none
-                raise ScenarioError(f"{loaded.source}: a state-space plant has no design keyframe")
-            plant.reset(keyframe=s.plant_info.design_keyframe)
-        with progress.step("linearizing the plant at its operating point"):
-            model = plant.linearize()
-        needs_continuous = any(estimators.ESTIMATORS[e.kind].continuous for e in s.estimators) or (
-            s.controller is not None and controllers.CONTROLLERS[s.controller.kind].continuous
-        )
-        try:  # computed even when no estimator needs it: the log records it, for replay to design new ones on
-            continuous: LinearModel | None = plant.linearize(continuous=True)
-        except ModelError:  # a discrete-time state-space plant has none
-            if needs_continuous:
-                raise
-            continuous = None
-        built = build_estimators(s, model, loaded.source, continuous)
+        try:
+            model, continuous = _linearizations(s, plant, loaded.source)
+        finally:
+            said = _close(plant)
+        built = build_estimators(s, model, loaded.source, continuous) if model is not None else {}
         injector = build_faults(s)
         bus_faults = build_bus_faults(s)
         onset = min([f for f in [injector.first_onset, *(b.start for b in bus_faults)] if f is not None], default=None)
@@ -263,12 +297,13 @@ class RunPlan:
             loaded=loaded,
             scenario=s,
             state_names=tuple(plant.state_names),
+            plant_messages=tuple(said),
             model=model,
             continuous_model=continuous,
             estimators=built,
-            controller=build_controller(s, model, loaded.source, continuous),
+            controller=build_controller(s, model, loaded.source, continuous) if model is not None else None,
             codec=s.codec(),
-            warnings=tuple(design_warnings(s, built)),
+            warnings=tuple([*getattr(plant, "warnings", ()), *design_warnings(s, built)]),
             faults=tuple(fault_record(f, s) for f in [*injector.faults, *bus_faults]),
             onset_tick=None if onset is None else first_tick_at(s, onset),
             units=channel_units(s),
@@ -437,7 +472,7 @@ class RunPlan:
                 spec.name: estimator_record(codec, spec.name, spec.kind, spec.params, self.estimators[spec.name])
                 for spec in s.estimators
             },
-            model=self.model.to_dict(),
+            model=None if self.model is None else self.model.to_dict(),
             continuous_model=None if self.continuous_model is None else self.continuous_model.to_dict(),
             clients={
                 c.name: {"lockstep": c.lockstep, "messages": [m.name for m in codec.data_messages(c.name)]}

@@ -39,12 +39,22 @@ class Run(Execution):
 
     def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None, **overrides: Any) -> None:
         self.plan = RunPlan.build(loaded, seed, **overrides)
+        first = PlantSource(self.plan)
         try:  # the first tick's frames, before any process starts: a value outside its bus range is the scenario's
-            PlantSource(self.plan).frames(0)
+            first.frames(0)
         except CodecError as error:
             raise ScenarioError(f"{loaded.source}: {error}") from None
+        finally:
+            first.close()
         self.loaded, self.out = loaded, Path(out)
         self.run_id = uuid4().hex[:12]
+        self.source: PlantSource | None = None
+
+    @property
+    def plant_said(self) -> str:
+        """What an FMU plant logged and printed (in the log's /plant/fmu), in a few words; "" if nothing."""
+        said = self.source.said if self.source is not None else None
+        return f"{self.plan.scenario.plant_info.name} {said}" if said else ""
 
     @property
     def estimators(self) -> dict[str, Any]:
@@ -94,12 +104,17 @@ class Run(Execution):
             self._write_metadata(session)
             session.begin_log(f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}", plan.warnings)
 
+            if plan.plant_messages:
+                session.recorder.fmu_messages(0, *session.time(0), list(plan.plant_messages))
+            self.source = PlantSource(plan, session.interrupts.check)
+            self.source.said.add(list(plan.plant_messages))
+
             def start() -> None:
                 start_participants(plan, session)
                 if on_start is not None:
                     on_start(self)
 
-            return execute(PlantSource(plan), session, start, plan.senders, on_progress, progress_every)
+            return execute(self.source, session, start, plan.senders, on_progress, progress_every)
 
     def _write_metadata(self, session: Session) -> None:
         plan, log = self.plan, session.log

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from dataclasses import replace
 from typing import Annotated, Any, Literal
 
@@ -96,6 +97,10 @@ class StateSpaceSpec(Strict):
         return self.disturbances or [f"d{i + 1}" for i in range(len(self.E[0]) if self.E else 0)]
 
 
+# FmuSpec's key "validate" shadows BaseModel.validate, pydantic 1's deprecated name: harmless, not worth a warning.
+warnings.filterwarnings("ignore", message='Field name "validate" in "FmuSpec" shadows', category=UserWarning)
+
+
 class FmuSpec(Strict):
     """An FMU plant's settings (``plant.model = "plant.fmu"``, docs/fmi.md)."""
 
@@ -114,6 +119,11 @@ class FmuSpec(Strict):
     """Bus range ±bound of a signal whose variable declares no min/max (classic CAN)."""
     resolution: float = Field(default=1e-6, gt=0)
     """Bus resolution of the Float signals (classic CAN)."""
+    validate: bool = True  # type: ignore[assignment]
+    """Check the FMU's modelDescription.xml against the FMI schema; false runs one that breaks it."""
+    isolation: Literal["process", "none"] = "process"
+    """Where the FMU runs: in a process of its own (a hang, crash or print of the FMU cannot harm
+    the run), or in the runner's ("none": for an exported FMU's embedded plant, and measurements)."""
 
 
 class MjcfSpec(Strict):

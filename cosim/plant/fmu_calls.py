@@ -1,0 +1,173 @@
+"""Every FMI call of an FMU instance, watched: what the FMU logs, which call is under way, and a
+failed call as one line.
+
+FMPy sends each FMI function of an instance through one method (``_call(name, *args)``), which
+raises ``FMICallException`` for a status above Warning. ``CallWatch.watch`` wraps that method:
+
+- before each call, its name goes into ``slot`` (a small shared memory the process that runs the
+  FMU's host reads when the FMU does not answer or crashes), and a NUL byte after it returns;
+- a failed call becomes ``FmuCallError``: the FMU, the call, its status, the time and the FMU's last
+  log message, in one line. The first failure is kept (``failure``) because FMPy's solver calls the
+  FMU from C callbacks, where an exception is printed and lost;
+- the FMU's logger callback (FMI 2 ``logger``, FMI 3 ``logMessage``) collects its messages
+  (``FmuMessage``) in ``messages`` (or hands each to ``on_message``), instead of FMPy's default, which
+  prints them.
+"""
+
+from __future__ import annotations
+
+import mmap
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from cosim.errors import ModelError
+
+#: The FMI status names, by value (fmi2Status, fmi3Status).
+STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
+#: The bytes of the slot that name the call under way.
+SLOT_SIZE = 64
+
+
+@dataclass(frozen=True)
+class FmuMessage:
+    """One message of the FMU: logged through its logger callback (``source`` "logger", with its
+    FMI ``status`` and ``category``) or printed by its code on ``stdout``/``stderr`` (one line)."""
+
+    source: str
+    status: str
+    category: str
+    text: str
+
+    def __str__(self) -> str:
+        if self.source == "logger":
+            category = f" {self.category}" if self.category else ""
+            return f"[{self.status}]{category}: {self.text}"
+        return f"({self.source}) {self.text}"
+
+
+class FmuCallError(ModelError):
+    """An FMI call of the plant's FMU that failed (or a solver failure on it), in one line."""
+
+
+class CallWatch:
+    """Watches the FMI calls of the instances of one FMU (``name``: its file's name)."""
+
+    def __init__(self, name: str, version: int, slot: mmap.mmap | None = None) -> None:
+        self.name, self.version, self.slot = name, version, slot
+        self.time = 0.0
+        """The simulated time the calls are made at (for the error's line)."""
+        self.messages: list[FmuMessage] = []
+        """What it logged or printed, until taken (``take``)."""
+        self.last_logged: FmuMessage | None = None
+        self.failure: FmuCallError | None = None
+        self.fatal = False
+        """A call returned Fatal: no further call to any instance is allowed (FMI 2.0 §2.1.3)."""
+        self.on_message: Callable[[FmuMessage], None] | None = None
+
+    def watch(self, fmu: Any) -> Any:
+        """``fmu`` (an FMPy instance) with its calls watched."""
+        from fmpy.fmi1 import FMICallException
+
+        call = fmu._call
+        slot = self.slot
+
+        def watched(fname: str, *args: Any) -> Any:
+            if slot is not None:
+                slot[: len(fname) + 1] = fname.encode() + b"\0"
+            try:
+                result = call(fname, *args)
+            except FMICallException as error:
+                raise self.failed(fname, STATUS[error.status] if 0 <= error.status < 6 else str(error.status)) from None
+            if slot is not None:
+                slot[0] = 0
+            return result
+
+        fmu._call = watched
+        return fmu
+
+    def failed(self, call: str, status: str) -> FmuCallError:
+        """The error of ``call`` returning ``status`` (kept as the first failure)."""
+        self.fatal = self.fatal or status == "Fatal"
+        error = FmuCallError(f"{self.name}: {call} returned {status} at t = {self.time:g} s; {self.last_words()}")
+        self.failure = self.failure or error
+        return error
+
+    def solver_failed(self, what: str) -> FmuCallError:
+        """The error of FMPy's model-exchange solver (CVode) on this FMU."""
+        error = self.failure or FmuCallError(
+            f"{self.name}: the model-exchange solver (CVode) failed at t = {self.time:g} s: {what}; {self.last_words()}"
+        )
+        self.failure = error
+        return error
+
+    def last_words(self) -> str:
+        return f"its last message: {self.last_logged}" if self.last_logged else "it logged no message"
+
+    def take(self) -> list[FmuMessage]:
+        """The messages since the last take."""
+        taken, self.messages = self.messages, []
+        return taken
+
+    def check(self) -> None:
+        """Raise the first failure (of a call made from a C callback, where it was lost)."""
+        if self.failure is not None:
+            raise self.failure
+
+    def logger(self) -> Callable[..., None]:
+        """The FMU's logger callback for FMPy's ``instantiate_fmu`` (FMI 2 or 3 signature)."""
+        if self.version == 2:
+
+            def logger2(component: Any, instance: Any, status: int, category: Any, message: Any) -> None:
+                self._logged(status, category, message)
+
+            return logger2
+
+        def logger3(environment: Any, status: int, category: Any, message: Any) -> None:
+            self._logged(status, category, message)
+
+        return logger3
+
+    def _logged(self, status: int, category: Any, message: Any) -> None:
+        message = FmuMessage(
+            "logger", STATUS[status] if 0 <= status < 6 else str(status), _text(category), _text(message).rstrip()
+        )
+        self.last_logged = message
+        if self.on_message is not None:
+            self.on_message(message)
+        else:
+            self.messages.append(message)
+
+
+def _text(value: Any) -> str:
+    if value is None:
+        return ""
+    return value.decode("utf-8", "replace") if isinstance(value, bytes) else str(value)
+
+
+class Said:
+    """How many messages an FMU logged (by status) and lines it printed: the run's summary line."""
+
+    def __init__(self) -> None:
+        self.logged: dict[str, int] = {}
+        self.printed = 0
+
+    def add(self, messages: list[FmuMessage]) -> None:
+        for m in messages:
+            if m.source == "logger":
+                self.logged[m.status] = self.logged.get(m.status, 0) + 1
+            else:
+                self.printed += 1
+
+    def __bool__(self) -> bool:
+        return bool(self.logged or self.printed)
+
+    def __str__(self) -> str:
+        parts = []
+        if self.logged:
+            count = sum(self.logged.values())
+            by_status = ", ".join(f"{n} {status}" for status, n in self.logged.items())
+            parts.append(f"logged {count} message{'s' if count != 1 else ''} ({by_status})")
+        if self.printed:
+            parts.append(f"printed {self.printed} line{'s' if self.printed != 1 else ''}")
+        return " and ".join(parts)
