@@ -149,4 +149,6 @@ def main(argv: list[str] | None = None) -> int:
         common.error_console().print(f"[red]error:[/red] {escape(str(error))}")
         return 1
     except KeyboardInterrupt as interrupt:
+        if getattr(interrupt, "detail", ""):  # what was under way (an FMU that did not answer)
+            common.error_console().print(f"[yellow]interrupted:[/yellow] {escape(interrupt.detail)}")  # type: ignore[attr-defined]
         return common.exit_code(interrupt)

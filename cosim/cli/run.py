@@ -60,6 +60,12 @@ def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("lockstep", "realtime"), help="timing (default: the scenario's, lockstep)")
     p.add_argument("--speed", type=float, metavar="X", help="realtime: simulated seconds per wall-clock second")
     common.set_option(p)
+    p.add_argument(
+        "--no-validate",
+        action="store_true",
+        help="an FMU plant: run it even if its modelDescription.xml breaks the FMI schema "
+        "([plant.fmu] validate = false)",
+    )
     common.quiet_option(p)
     p.add_argument(
         "--json",
@@ -85,7 +91,7 @@ def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparatio
     with progress.step(f"loading {args.scenario or 'the default scenario'}"):
         from cosim.run import Run
 
-        loaded = common.load_scenario(args.scenario, args.set)
+        loaded = common.load_scenario(args.scenario, args.set, no_validate=args.no_validate)
     seed = loaded.scenario.seed if args.seed is None else args.seed
     default = Path("runs") / f"{loaded.scenario.name}-seed{seed}-{common.stamp()}.mcap"
     out = common.new_output(args.out, default, args.force)
@@ -111,12 +117,16 @@ def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparatio
     except KeyboardInterrupt as interrupt:
         r = run.result
         done = f" after {r.ticks} ticks (t = {r.sim_time:g} s)" if r else ""
-        common.error_console().print(f"[yellow]interrupted{done}[/yellow]; {common.where_the_log_is(out)}")
+        detail = getattr(interrupt, "detail", "")
+        why = f": {escape(detail)}" if detail else ""
+        common.error_console().print(f"[yellow]interrupted{done}[/yellow]{why}; {common.where_the_log_is(out)}")
+        _said(run, talk)
         if args.json:
-            common.print_json(summary(r, out))
+            common.print_json(summary(r, out, detail))
         return common.exit_code(interrupt)
     except CosimError as error:
         common.error_console().print(f"[red]error:[/red] {escape(str(error))}\n{common.where_the_log_is(out)}")
+        _said(run, talk)
         if args.json:
             common.print_json(summary(run.result, out, str(error)))
         return 1
@@ -124,11 +134,18 @@ def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparatio
         if sink is not None:
             sink.close()
     _report(result, s, talk)
+    _said(run, talk)
     if args.json:
         common.print_json(summary(result, out))
     else:
         print(out)
     return common.ESTIMATOR_FAILED if result.failed else CONTESTED if result.contested_ticks else 0
+
+
+def _said(run: Run, talk: Console) -> None:
+    """What an FMU plant logged and printed, in one line (each message is in the log)."""
+    if run.plant_said:
+        talk.print(f"  {escape(run.plant_said)} (each in the log's /plant/fmu)")
 
 
 def _check_options(args: argparse.Namespace, s: Scenario) -> None:

@@ -17,6 +17,7 @@ raises ``FMICallException`` for a status above Warning. ``CallWatch.watch`` wrap
 from __future__ import annotations
 
 import mmap
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,10 @@ from cosim.errors import ModelError
 STATUS = ("OK", "Warning", "Discard", "Error", "Fatal", "Pending")
 #: The bytes of the slot that name the call under way.
 SLOT_SIZE = 64
+#: A tick's request to an FMU's host process and its answer (``cosim.plant.fmu_host``): a tag byte,
+#: the request's header (the plant's key, the number of actuators), then float64 values.
+STEP, ANSWER = b"s", b"o"
+STEP_HEADER = struct.Struct("<ii")
 
 
 @dataclass(frozen=True)

@@ -5,12 +5,14 @@ connection on file descriptor FD; it runs them on ``FmuPlant`` instances (one pe
 opens) and answers each. Why a process of its own, and what it costs: docs/fmi.md, "How the FMU is
 isolated".
 
-- Requests: ``(op, key, args)``, op one of ``open`` (an FmuPlant from the FMU's path, its
-  ``[plant.fmu]`` settings and the plant's arguments), ``reset``, ``step``, ``set_state``,
-  ``linearize``, ``close``; ``key`` names the plant.
-- Answers: ``("ok", value)``, ``("error", line)`` (a ModelError, e.g. a failed FMI call) or
-  ``("bug", line, traceback)``; before an answer, ``("log", FmuMessage)`` for each message the FMU
-  logs, sent as it logs it (so that a crash loses none).
+- Requests: pickled ``(op, key, args)``, op one of ``open`` (an FmuPlant from the FMU's path, its
+  ``[plant.fmu]`` settings and the plant's arguments), ``reset``, ``set_state``, ``linearize``,
+  ``close``; ``key`` names the plant. A tick's step is raw bytes: ``STEP``, the key and the number
+  of actuators (``STEP_HEADER``), then the actuators' and the disturbance inputs' float64 values.
+- Answers: pickled ``("ok", value)``, ``("error", line)`` (a ModelError, e.g. a failed FMI call)
+  or ``("bug", line, traceback)``; a step's, ``ANSWER`` then the new states' and sensors' float64
+  values. Before an answer, ``("log", FmuMessage)`` for each message the FMU logs, sent as it logs
+  it (so that a crash loses none).
 - What the FMU's code (or FMPy) prints goes to this process's standard output and error, pipes the
   runner reads: C's buffers are flushed before each answer.
 - The call under way is named in the shared slot (SLOT_FD, ``fmu_calls.SLOT_SIZE`` bytes).
@@ -24,6 +26,7 @@ from __future__ import annotations
 import ctypes
 import mmap
 import os
+import pickle
 import signal
 import sys
 import traceback
@@ -36,7 +39,7 @@ import numpy as np
 from cosim.errors import ModelError
 from cosim.plant import fmu_model
 from cosim.plant.fmu import FmuPlant
-from cosim.plant.fmu_calls import SLOT_SIZE, FmuMessage
+from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuMessage
 
 _PR_SET_PDEATHSIG = 1
 
@@ -52,9 +55,13 @@ class Host:
     def serve(self) -> None:
         while True:
             try:
-                op, key, args = self.connection.recv()
+                request = self.connection.recv_bytes()
             except EOFError:  # the runner closed its end
                 return
+            if request[:1] == STEP:  # a tick: raw float64s both ways, no pickling
+                self._step(request)
+                continue
+            op, key, args = pickle.loads(request)
             try:
                 answer: tuple[Any, ...] = ("ok", getattr(self, op)(key, *args))
             except ModelError as error:
@@ -62,7 +69,21 @@ class Host:
             except Exception as error:  # noqa: BLE001 (a bug: its traceback goes back to the runner)
                 answer = ("bug", f"{type(error).__name__}: {error}", traceback.format_exc())
             self._flush()
-            self.connection.send(answer)
+            self.connection.send_bytes(pickle.dumps(answer))
+
+    def _step(self, request: bytes) -> None:
+        key, m = STEP_HEADER.unpack_from(request, 1)
+        values = np.frombuffer(request, dtype=float, offset=1 + STEP_HEADER.size)
+        try:
+            plant = self.plants[key]
+            plant.step(values[:m], values[m:])
+            answer = ANSWER + plant.state().tobytes() + plant.sensors().tobytes()
+        except ModelError as error:
+            answer = pickle.dumps(("error", str(error)))
+        except Exception as error:  # noqa: BLE001 (a bug: its traceback goes back to the runner)
+            answer = pickle.dumps(("bug", f"{type(error).__name__}: {error}", traceback.format_exc()))
+        self._flush()
+        self.connection.send_bytes(answer)
 
     def _flush(self) -> None:
         """What the FMU printed, out of C's and Python's buffers into the pipes, before the answer."""
@@ -71,7 +92,7 @@ class Host:
         sys.stderr.flush()
 
     def _log(self, message: FmuMessage) -> None:
-        self.connection.send(("log", message))
+        self.connection.send_bytes(pickle.dumps(("log", message)))
 
     def open(self, key: int, path: str, settings: dict[str, Any], arguments: dict[str, Any]) -> tuple[Any, ...]:
         model = fmu_model.read_fresh(path, SimpleNamespace(**settings))
@@ -82,11 +103,6 @@ class Host:
     def reset(self, key: int, initial: dict[str, float] | None) -> tuple[Any, ...]:
         plant = self.plants[key]
         plant.reset(initial)
-        return self._reading(plant)
-
-    def step(self, key: int, u: np.ndarray, d: np.ndarray) -> tuple[Any, ...]:
-        plant = self.plants[key]
-        plant.step(u, d)
         return self._reading(plant)
 
     def set_state(self, key: int, x: np.ndarray) -> tuple[Any, ...]:

@@ -28,6 +28,8 @@ import fcntl
 import itertools
 import mmap
 import os
+import pickle
+import select
 import signal
 import subprocess
 import sys
@@ -36,7 +38,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from multiprocessing import Pipe
-from multiprocessing.connection import Connection, wait
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +46,7 @@ import numpy as np
 
 import cosim
 from cosim.errors import Interruption, ModelError
-from cosim.plant.fmu_calls import SLOT_SIZE, FmuCallError, FmuMessage
+from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuCallError, FmuMessage
 from cosim.plant.fmu_model import FmuModel, start_value
 from cosim.plant.statespace import StateSpacePlant
 from estimators.model import LinearModel
@@ -94,9 +96,11 @@ class Host:
         theirs.close()
         self.connection: Connection = ours
         self._outputs = {"stdout": self.process.stdout, "stderr": self.process.stderr}
+        self._printed = select.poll()  # whether the host printed anything: one system call a tick
         for stream in self._outputs.values():
             assert stream is not None
             os.set_blocking(stream.fileno(), False)
+            self._printed.register(stream.fileno(), select.POLLIN)
             try:
                 fcntl.fcntl(stream.fileno(), _F_SETPIPE_SZ, 1 << 20)  # a chatty call does not block on a full pipe
             except OSError:
@@ -104,13 +108,24 @@ class Host:
 
     def call(self, op: str, key: int, args: tuple[Any, ...], t: float, interrupted: Callable[[], None] | None) -> Any:
         """The answer of one request; the FMU's messages meanwhile go to ``pending``."""
+        return self._exchange(pickle.dumps((op, key, args)), t, interrupted)[1]
+
+    def step(
+        self, key: int, u: np.ndarray, d: np.ndarray, t: float, interrupted: Callable[[], None] | None
+    ) -> np.ndarray:
+        """One tick: the new states, then the sensors."""
+        request = STEP + STEP_HEADER.pack(key, len(u)) + u.tobytes() + d.tobytes()
+        values: np.ndarray = self._exchange(request, t, interrupted)[1]
+        return values
+
+    def _exchange(self, request: bytes, t: float, interrupted: Callable[[], None] | None) -> Any:
         with self.lock:
             if self.failed:
                 raise ModelError(f"{self.name}: its process has failed before; build the plant again")
-            self.connection.send((op, key, args))
+            self.connection.send_bytes(request)
             answer = self._answer(t, interrupted)
-        if answer[0] == "ok":
-            return answer[1]
+        if answer[0] in ("ok", "step"):
+            return answer
         self.failed = True
         self.kill()
         if answer[0] == "error":
@@ -119,24 +134,25 @@ class Host:
 
     def _answer(self, t: float, interrupted: Callable[[], None] | None) -> tuple[Any, ...]:
         started = time.monotonic()
-        sources: list[Any] = [self.connection, *self._outputs.values()]
         try:
             while True:
-                ready = wait(sources, POLL)
-                if len(ready) > int(self.connection in ready):
+                if not self.connection.poll(POLL):  # the FMU is slow, chatty or hangs
                     self.read_output()
-                if self.connection in ready:
-                    try:
-                        message = self.connection.recv()
-                    except EOFError:
-                        raise self._crashed(t) from None
-                    if message[0] == "log":
-                        self.pending.append(message[1])
-                        continue
+                    if interrupted is not None:
+                        interrupted()
+                    continue
+                try:
+                    data = self.connection.recv_bytes()
+                except EOFError:
+                    raise self._crashed(t) from None
+                if data[:1] == ANSWER:
                     self.read_output()
-                    return message
-                if interrupted is not None:
-                    interrupted()
+                    return ("step", np.frombuffer(data, dtype=float, offset=1))
+                message = pickle.loads(data)
+                if message[0] != "log":
+                    self.read_output()
+                    return tuple(message)
+                self.pending.append(message[1])
         except KeyboardInterrupt as stop:
             call = self.call_under_way()
             self.failed = True
@@ -172,6 +188,8 @@ class Host:
     def read_output(self, final: bool = False) -> None:
         """What the host printed since the last read, as one message per line (a last partial line
         waits for its end, unless ``final``)."""
+        if not final and not self._printed.poll(0):
+            return
         for source, stream in self._outputs.items():
             assert stream is not None
             chunks = []
@@ -311,6 +329,9 @@ class IsolatedFmuPlant:
         if host is None:
             raise ModelError(f"{self.model.path.name}: the plant is closed")
         try:
+            if op == "step":
+                u, d = args
+                return host.step(self._key, u, d, self.time, self.interrupted)
             return host.call(op, self._key, args, self.time, self.interrupted)
         finally:
             self.messages += host.pending
@@ -338,7 +359,8 @@ class IsolatedFmuPlant:
 
     def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
         d = np.zeros(len(self.disturbance_names)) if disturbance is None else np.asarray(disturbance, dtype=float)
-        self._x, self._y = self._call("step", np.asarray(ctrl, dtype=float), d)
+        values = self._call("step", np.ascontiguousarray(ctrl, dtype=float), np.ascontiguousarray(d, dtype=float))
+        self._x, self._y = values[: self.nx], values[self.nx :]
         self._k += 1
 
     def linearize(

@@ -32,7 +32,7 @@ from cosim.scenario.load import (
     parse,
     validate,
 )
-from cosim.scenario.overrides import apply, parse_setting, parse_value
+from cosim.scenario.overrides import apply, load_with, parse_setting, parse_value
 from cosim.scenario.spec import EstimatorSpec, Scenario, StateSpaceSpec
 from cosim.scenario.waveforms import WaveformSpec, build_waveform
 
@@ -51,6 +51,7 @@ __all__ = [
     "StateSpaceSpec",
     "WaveformSpec",
     "apply",
+    "load_with",
     "build_fault",
     "build_faults",
     "build_waveform",

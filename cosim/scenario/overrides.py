@@ -1,6 +1,8 @@
 """Settings that change a scenario from outside its file: ``KEY=VALUE`` with KEY a path into the
 scenario (``duration``, ``faults[0].value``, ``estimators[1].params.epsilon``, ``bus.fd``) and
-VALUE in TOML (``5``, ``[0.5, 0, 0]``, ``"text"``, ``true``, ``{ kind = "sine", ... }``).
+VALUE in TOML (``5``, ``[0.5, 0, 0]``, ``"text"``, ``true``, ``{ kind = "sine", ... }``). A key
+that holds dots (an FMU's parameter ``mass.m``) is quoted as in TOML:
+``plant.fmu.parameters."mass.m"`` (or with single quotes).
 
 A setting is applied to the scenario's TOML data as read from its file, and the result goes
 through the same validation as a file (``cosim.scenario.load.validate``), so a bad value gets the
@@ -11,17 +13,21 @@ fault, given as a whole table).
 
 from __future__ import annotations
 
+import json
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from cosim.errors import ScenarioError
-from cosim.scenario.load import LoadedScenario, folder_of, validate
+from cosim.scenario.load import BUILTIN_DIR, DEFAULT_SCENARIO, LoadedScenario, folder_of, read_toml_file, validate
+from cosim.scenario.spec import Scenario
 from cosim.scenario.tables import loads_toml
 
-_PART = re.compile(r"([A-Za-z_][A-Za-z0-9_-]*)((?:\[\d+\])*)")
+#: One part of a path: a bare key, or a quoted one (TOML's basic or literal string), then its indices.
+_PART = re.compile(r"""(?:([A-Za-z_][A-Za-z0-9_-]*)|"((?:[^"\\]|\\.)*)"|'([^']*)')((?:\[\d+\])*)""")
 _BARE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.:-]*$")
 
 
@@ -53,23 +59,42 @@ def parse_setting(text: str) -> tuple[str, Any]:
 
 
 def path_parts(key: str) -> list[str | int]:
-    """``faults[0].value`` → ["faults", 0, "value"]; a ScenarioError for a malformed path."""
+    """``faults[0].value`` → ["faults", 0, "value"], ``plant.fmu.parameters."mass.m"`` → [..., "mass.m"];
+    a ScenarioError for a malformed path."""
     parts: list[str | int] = []
-    for piece in key.split("."):
-        match = _PART.fullmatch(piece)
-        if match is None:
+    position = 0
+    while True:
+        match = _PART.match(key, position)
+        if match is None or match.end() == position:
+            piece = key[position:].split(".", 1)[0]
             raise ScenarioError(
-                f"--set {key}: {piece!r} is not a key; write a path like duration, faults[0].value or bus.fd"
+                f"--set {key}: {piece!r} is not a key; write a path like duration, faults[0].value or bus.fd "
+                '(quote a key with dots: plant.fmu.parameters."mass.m")'
             )
-        parts.append(match.group(1))
-        parts += [int(index) for index in re.findall(r"\[(\d+)\]", match.group(2))]
-    return parts
+        bare, basic, literal, indices = match.groups()
+        parts.append(bare if bare is not None else literal if literal is not None else _unescaped(basic))
+        parts += [int(index) for index in re.findall(r"\[(\d+)\]", indices)]
+        position = match.end()
+        if position == len(key):
+            return parts
+        if key[position] != ".":
+            raise ScenarioError(f"--set {key}: expected a '.' after {key[:position]!r}")
+        position += 1
+
+
+def _unescaped(basic: str) -> str:
+    """A TOML basic string's content, its escapes resolved (by TOML itself)."""
+    return str(tomllib.loads(f'k = "{basic}"')["k"])
 
 
 def _where(parts: list[str | int]) -> str:
     text = ""
     for part in parts:
-        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else part)
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            name = part if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_-]*", part) else json.dumps(part)
+            text += f".{name}" if text else name
     return text
 
 
@@ -114,12 +139,28 @@ def apply(loaded: LoadedScenario, settings: Mapping[str, Any] | Iterable[tuple[s
     items = list(settings.items() if isinstance(settings, Mapping) else settings)
     if not items:
         return loaded
-    data = loads_toml(loaded.text)
+    scenario = _validated(loaded.text, loaded.source, items)
+    return replace(loaded, scenario=scenario, settings=(*loaded.settings, *items))
+
+
+def load_with(name_or_path: str | Path | None, settings: Iterable[tuple[str, Any]]) -> LoadedScenario:
+    """A scenario file (or built-in) with ``settings`` applied to its data before it is validated at
+    all: for a setting without which the file is refused (``plant.fmu.validate = false``)."""
+    target = DEFAULT_SCENARIO if name_or_path is None else str(name_or_path)
+    text, source, _ = read_toml_file(target, BUILTIN_DIR, "scenario")
+    items = list(settings)
+    return LoadedScenario(scenario=_validated(text, source, items), source=source, text=text, settings=tuple(items))
+
+
+def _validated(text: str, source: str, items: list[tuple[str, Any]]) -> Scenario:
+    try:
+        data = loads_toml(text)
+    except tomllib.TOMLDecodeError as error:
+        raise ScenarioError(f"{source}: invalid TOML: {error}") from None
     for key, value in items:
         set_path(data, key, value)
     given = ", ".join(f"{key}={_short(value)}" for key, value in items)
-    scenario = validate(data, f"{loaded.source} with --set {given}", folder_of(loaded.source))
-    return replace(loaded, scenario=scenario, settings=(*loaded.settings, *items))
+    return validate(data, f"{source} with --set {given}", folder_of(source))
 
 
 def _short(value: Any, limit: int = 60) -> str:
