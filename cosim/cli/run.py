@@ -125,7 +125,7 @@ def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparatio
             common.print_json(summary(r, out, detail))
         return common.exit_code(interrupt)
     except CosimError as error:
-        common.error_console().print(f"[red]error:[/red] {escape(str(error))}\n{common.where_the_log_is(out)}")
+        common.error_console().print(f"[red]error:[/red] {escape(str(error))}; {common.where_the_log_is(out)}")
         _said(run, talk)
         if args.json:
             common.print_json(summary(run.result, out, str(error)))

@@ -17,6 +17,7 @@ raises ``FMICallException`` for a status above Warning. ``CallWatch.watch`` wrap
 from __future__ import annotations
 
 import mmap
+import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -80,6 +81,8 @@ class CallWatch:
         def watched(fname: str, *args: Any) -> Any:
             if slot is not None:
                 slot[: len(fname) + 1] = fname.encode() + b"\0"
+            if fname.endswith("SetTime"):  # the solver's time, for the line of a call that fails inside it
+                self.time = float(args[1])
             try:
                 result = call(fname, *args)
             except FMICallException as error:
@@ -99,7 +102,10 @@ class CallWatch:
         return error
 
     def solver_failed(self, what: str) -> FmuCallError:
-        """The error of FMPy's model-exchange solver (CVode) on this FMU."""
+        """The error of FMPy's model-exchange solver (CVode) on this FMU (``what``: FMPy's message)."""
+        cvode = re.match(r"CVode error \(code (\S+)\).*?: (.*)$", what, re.S)
+        if cvode is not None:
+            what = f"CVode's error {cvode[1]}: {cvode[2].strip()}"
         error = self.failure or FmuCallError(
             f"{self.name}: the model-exchange solver (CVode) failed at t = {self.time:g} s: {what}; {self.last_words()}"
         )

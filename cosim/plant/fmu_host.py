@@ -39,7 +39,7 @@ import numpy as np
 from cosim.errors import ModelError
 from cosim.plant import fmu_model
 from cosim.plant.fmu import FmuPlant
-from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuMessage
+from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuCallError, FmuMessage
 
 _PR_SET_PDEATHSIG = 1
 
@@ -126,8 +126,21 @@ class Host:
         return plant.state(), plant.sensors()
 
 
+def _unraisable(hook: Any) -> Any:
+    """Python's hook for what a C callback raised, without the FMU's failed calls: FMPy's solver
+    calls the FMU from C, where an exception is printed and dropped; the call's watch keeps it and
+    raises it after the solver's step (``CallWatch.check``)."""
+
+    def unraisable(info: Any) -> None:
+        if not isinstance(info.exc_value, FmuCallError):
+            hook(info)
+
+    return unraisable
+
+
 def main(argv: list[str]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.unraisablehook = _unraisable(sys.unraisablehook)
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if os.getppid() != int(argv[2]):  # the runner died before prctl: nobody to serve
