@@ -25,7 +25,7 @@ import numpy as np
 
 from cosim.errors import ModelError
 from cosim.plant.fmu import FD_STEP, Access, FmuPlant, initialize, instantiate, release, set_continuous_states
-from cosim.plant.fmu_model import FLOATS, Element
+from cosim.plant.fmu_model import Element
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
 
@@ -97,7 +97,8 @@ def _jacobian(
         x0, s_op, y_op = states.get(fmu), named.get(fmu), sensors.get(fmu)
         knowns = model.continuous_states + model.actuators + model.disturbances
         directional = None  # at the point itself, before the differences move the instance's states
-        if model.directional and all(_scalar_float(e) for e in (*knowns, *model.derivatives, *model.states)):
+        continuous = [e for e in (*knowns, *model.derivatives, *model.states, *sensors.elements) if not e.discrete]
+        if model.directional and not any(e.variable.shape for e in continuous):
             directional = _directional_jacobian(fmu, version, [derivatives, named, sensors], knowns)
         differences = _Point(fmu, model, x0, v0, inputs, named, sensors).differences(knowns)
         if directional is None:
@@ -216,17 +217,14 @@ def state_derivatives(fmu: Any, version: int, nx: int) -> np.ndarray:
     return dx
 
 
-def _scalar_float(element: Element) -> bool:
-    return not element.variable.shape and element.variable.type in FLOATS
-
-
 def _directional_jacobian(fmu: Any, version: int, unknowns: list[Any], knowns: tuple[Element, ...]) -> np.ndarray:
     """∂(unknowns)/∂(knowns) column by column from the FMU's directional derivatives (scalars).
     An unknown that is itself a known (an output that is a continuous state) has the unit row:
-    FMUs need not answer for it (the Reference FMUs answer 0)."""
+    FMUs need not answer for it (the Reference FMUs answer 0). Integer and Boolean variables have
+    no derivative (FMI asks for Float ones only): their rows and columns are 0."""
     rows = [e for a in unknowns for e in a.elements]
     known_at = {id(k.variable): j for j, k in enumerate(knowns)}
-    asked = [i for i, e in enumerate(rows) if id(e.variable) not in known_at]
+    asked = [i for i, e in enumerate(rows) if id(e.variable) not in known_at and not e.discrete]
     vrs = [rows[i].variable.valueReference for i in asked]
     jacobian = np.zeros((len(rows), len(knowns)))
     for i, e in enumerate(rows):
@@ -235,6 +233,8 @@ def _directional_jacobian(fmu: Any, version: int, unknowns: list[Any], knowns: t
     for j, known in enumerate(knowns):
         if not vrs:
             break
+        if known.discrete:
+            continue
         reference = [known.variable.valueReference]
         if version == 2:
             column = fmu.getDirectionalDerivative(vrs, reference, [1.0])

@@ -149,7 +149,7 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *n
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n) { return fmi2Error; }
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate *s) { return fmi2Error; }
 
-/* d(der_x)/dx = -k, d(der_x)/du = 1, dy/dx = gain, dy/du = 0 (twice these with mode 7). */
+/* d(der_x)/dx = -k, d(der_x)/du = 1, dy/dx = gain, d(u_seen)/du = 1 (twice these with mode 7). */
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference unknown[], size_t nu,
                                         const fmi2ValueReference known[], size_t nk, const fmi2Real dk[], fmi2Real du[]) {
     Model *m = c;
@@ -161,6 +161,7 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
             if (unknown[a] == DER_X && known[b] == X) d = -m->r[K];
             if (unknown[a] == DER_X && known[b] == U) d = 1.0;
             if (unknown[a] == Y && known[b] == X) d = m->r[GAIN];
+            if (unknown[a] == U_SEEN && known[b] == U) d = 1.0;
             du[a] += wrong * d * dk[b];
         }
     }
