@@ -146,3 +146,16 @@ def feedthrough(model: fmu_model.FmuModel, outputs: list[str]) -> np.ndarray:
         for u in model.description.outputs
     }
     return np.array([depends.get(name, False) for name in outputs])
+
+
+@pytest.mark.parametrize("setting", ['plant.fmu.parameters."mass.m"=3', "plant.fmu.parameters.mass.m=3"])
+def test_a_dotted_parameter_is_set_quoted_or_not(setting, tmp_path):
+    """Dymola's spring pendulum, mass.m = 3 kg instead of 1: ẍ = −(c/m) x with c = 10 N/m."""
+    loaded = scenario_for("dymola/SpringPendulumExtForce1D_2022x_fmi2.fmu", "model-exchange", tmp_path)
+    changed = scenario.apply(loaded, [scenario.parse_setting(setting)])
+    assert changed.scenario.plant.fmu.parameters == {"mass.m": 3}
+    from cosim.plant.fmu import FmuPlant
+
+    plant = FmuPlant(changed.scenario.fmu_model(), DT, DURATION)
+    assert np.allclose(plant.linearize(continuous=True).A, [[0.0, 1.0], [-10.0 / 3.0, 0.0]], rtol=1e-9)
+    assert plant.warnings == []  # its directional derivatives agree with the differences

@@ -179,7 +179,7 @@ def test_what_the_fmu_prints_goes_to_the_log_and_json_stays_json(fmu, tmp_path):
     log = tmp_path / "run.mcap"
     done = cli("run", str(path), "--interface", "virtual", "--out", str(log), "--json")
     assert done.returncode == 0, done.stderr
-    assert json.loads(done.stdout)["status"] == "completed"
+    assert json.loads(done.stdout)["status"] == "completed", done.stdout
     assert "Misbehaving.fmu logged 20 messages (20 Warning) and printed 20 lines" in done.stderr
     said = messages(log)
     printed = [m for m in said if m.source == "stdout"]
@@ -188,7 +188,8 @@ def test_what_the_fmu_prints_goes_to_the_log_and_json_stays_json(fmu, tmp_path):
         ("Warning", "logStatusWarning", "a chatty step")
     }
     quiet = cli("run", str(path), "--interface", "virtual", "--out", str(tmp_path / "quiet.mcap"), "-q")
-    assert quiet.returncode == 0 and quiet.stderr == "" and quiet.stdout.strip() == str(tmp_path / "quiet.mcap")
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+    assert quiet.stdout.strip() == str(tmp_path / "quiet.mcap")
 
 
 def test_the_linearization_reads_the_outputs_as_a_step_completes(fmu):

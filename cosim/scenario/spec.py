@@ -10,7 +10,7 @@ import warnings
 from dataclasses import replace
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 import mjcf
 from cosim.bus.codec import Codec
@@ -124,6 +124,21 @@ class FmuSpec(Strict):
     isolation: Literal["process", "none"] = "process"
     """Where the FMU runs: in a process of its own (a hang, crash or print of the FMU cannot harm
     the run), or in the runner's ("none": for an exported FMU's embedded plant, and measurements)."""
+
+    @field_validator("parameters", mode="before")
+    @classmethod
+    def _dotted(cls, value: Any) -> Any:
+        """Nested tables are a dotted name: TOML reads ``mass.m = 3`` (and ``--set
+        plant.fmu.parameters.mass.m=3``) as ``mass = { m = 3 }``; a Modelica name is ``mass.m``."""
+        if not isinstance(value, dict):
+            return value
+        flat: dict[str, Any] = {}
+        for key, item in value.items():
+            if isinstance(item, dict):
+                flat |= {f"{key}.{name}": inner for name, inner in cls._dotted(item).items()}
+            else:
+                flat[key] = item
+        return flat
 
 
 class MjcfSpec(Strict):
