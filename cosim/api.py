@@ -69,7 +69,7 @@ def load_scenario(
 
 def run(
     scenario: LoadedScenario | str | Path | None,
-    out: str | Path,
+    out: str | Path | None,
     *,
     seed: int | None = None,
     in_process: bool = False,
@@ -80,7 +80,9 @@ def run(
     """Run a scenario (a loaded one, or a name or path) into the MCAP log ``out``; returns how it
     ended. ``options`` are ``cosim run``'s: ``interface``, ``channel``, ``port``, ``mode``, ``speed``.
     With ``measure``, the result's ``metrics`` are the log's (``metrics(out)`` as a ``RunMetrics``),
-    scored while the run wrote it rather than by reading it again."""
+    scored while the run wrote it rather than by reading it again. With ``out`` None the run writes
+    no log at all and is scored as it goes (``measure`` is implied): its metrics are, field for
+    field, those of the same run with its log (but ``file``, empty)."""
     from dataclasses import replace
 
     from cosim.analysis.metrics import LiveMeasurement
@@ -89,7 +91,7 @@ def run(
     loaded = scenario if isinstance(scenario, LoadedScenario) else load(scenario)
     if in_process:
         options["interface"] = "virtual"
-    live = LiveMeasurement() if measure else None
+    live = LiveMeasurement() if measure or out is None else None
     result = Run(loaded, out, seed, **options).execute(on_progress, sink=live)
     return replace(result, metrics=live.result(result.path)) if live is not None else result
 

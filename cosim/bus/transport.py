@@ -43,7 +43,6 @@ INTERFACES = ("udp_multicast", "socketcan", "virtual")
 VIRTUAL_INTERFACE = "cosim_virtual"
 #: The python-can interface of a ``udp_multicast`` run's bus (``cosim.bus.udp``): it reads batches.
 UDP_INTERFACE = "cosim_udp"
-RECEIVE_BUFFER = 8 * 1024 * 1024
 #: Frames one ``drain`` hands out at most before its caller gets control back.
 DRAIN_LIMIT = 4096
 _PORTS = (20000, 60000)
@@ -236,24 +235,7 @@ def open_bus(config: BusConfig, on_foreign: Callable[[ForeignDatagram], None] | 
             bus = can.Bus(**config.kwargs())
     except (can.CanError, OSError, ValueError) as error:
         raise CosimError(f"cannot open the bus {config.describe()}: {error}") from None
-    if config.interface == "udp_multicast":
-        _enlarge_receive_buffer(bus)
     return bus
-
-
-def _enlarge_receive_buffer(bus: can.BusABC) -> None:
-    """Room for bursts: the default (~200 kB) holds only a few hundred datagrams."""
-    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
-    if sock is None:
-        return
-    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-        if option is None:
-            continue
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER)
-            return
-        except OSError:
-            continue
 
 
 def drain(bus: can.BusABC, timeout: float = 0.0, limit: int = DRAIN_LIMIT) -> Iterator[can.Message]:

@@ -196,8 +196,27 @@ def multicast_scope(group: str) -> int:
 #: Linux's socket options for receive timestamps and for the count of datagrams the kernel dropped
 #: because the socket's receive buffer was full (sent with every datagram once one was dropped).
 SO_TIMESTAMPNS, SO_RXQ_OVFL = 35, 40
+#: Linux's option for a receive buffer past ``net.core.rmem_max`` (Python's socket module lacks it).
+SO_RCVBUFFORCE = 33
 _TIMESPEC, _DROPS = struct.Struct("@ll"), struct.Struct("@I")
 _ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) + socket.CMSG_SPACE(_DROPS.size)
+
+
+RECEIVE_BUFFER = 8 * 1024 * 1024
+"""Bytes the run's socket asks the kernel to hold for it: the default (about 200 kB) holds only a few
+hundred small datagrams (each takes about 800 bytes of the buffer), which a burst overflows."""
+
+
+def _enlarge_receive_buffer(sock: socket.socket) -> None:
+    """Room for bursts: ``RECEIVE_BUFFER``, where the system allows it (SO_RCVBUFFORCE, which may
+    pass ``net.core.rmem_max``, takes a privileged process; SO_RCVBUF is capped at that limit).
+    Whatever still overflows is counted (``kernel_dropped``)."""
+    for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, RECEIVE_BUFFER)
+            return
+        except OSError:
+            continue
 
 
 class _GroupSocket(GeneralPurposeUdpMulticastBus):
@@ -240,6 +259,7 @@ class _GroupSocket(GeneralPurposeUdpMulticastBus):
                     if error.errno not in (errno.ENOPROTOOPT, errno.EINVAL):
                         raise
             self.timestamp_nanosecond = True
+            _enlarge_receive_buffer(sock)
             group = socket.inet_pton(address_family, self.group)
             if self.ip_version == 4:
                 sock.bind((self.group, self.port))

@@ -8,6 +8,7 @@ campaign goes on.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,35 +38,21 @@ def ignore_interrupts() -> None:
 
 
 def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
-    """Run ``spec`` with its log in ``folder/logs``; returns its part: ``rows`` (one per estimator,
-    or one describing the failure) and ``state_unit``."""
-    from cosim import api
-    from cosim.analysis.metrics import measure
-    from cosim.scenario import LoadedScenario, apply, parse
-
+    """Run ``spec``; returns its part: ``rows`` (one per estimator, or one describing the failure)
+    and ``state_unit``. A run whose log is not to be kept (``keep_logs`` none, or failed and the
+    run completes) writes none: it is scored as it goes. With ``failed``, a run that does not
+    complete is run again with its log in ``folder/logs`` (a run is deterministic from its seed:
+    the same run), and that run's rows and log are the run's; with ``all`` every run writes its log."""
     start = time.perf_counter()
     log = Path(folder) / "logs" / f"run-{spec.index:06d}.mcap"
-    status, error, rows, state_unit = "error", "", [], ""
-    known: dict[str, Any] = {}
-    try:
-        base = LoadedScenario(parse(spec.scenario_text, spec.scenario_source), spec.scenario_source, spec.scenario_text)
-        loaded = apply(base, spec.settings)
-        kinds = sorted({spec.kind for spec in loaded.scenario.faults})
-        known = {
-            "fault_kind": "+".join(kinds) or "none",
-            "fault_onset_s": min((f.start for f in loaded.scenario.faults), default=None),
-        }
-        units = {c.unit for c in loaded.scenario.plant_info.states}
-        state_unit = units.pop() if len(units) == 1 else "mixed units"
-        result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process, measure=True)
-        status, error = result.status, result.error
-        # scored while the run wrote its log; a run that did not complete is read back, damage and all
-        rows = rows_of(result.metrics if status == "completed" and result.metrics is not None else measure(log))
-    except CosimError as failure:
-        error = str(failure)
-    except Exception as failure:  # a bug, reported in its row: the campaign goes on
-        error = f"{type(failure).__name__}: {failure}"
-    kept = log.exists() and (keep_logs == "all" or (keep_logs == "failed" and status != "completed"))
+    attempt = _attempt(spec, log if keep_logs == "all" else None)
+    if not attempt.logged and (attempt.unscored or (keep_logs == "failed" and attempt.status != "completed")):
+        attempt = _attempt(spec, log)  # the same run again, with its log
+    kept = (
+        attempt.logged
+        and log.exists()
+        and (keep_logs == "all" or (keep_logs == "failed" and attempt.status != "completed"))
+    )
     if log.exists() and not kept:
         log.unlink()
     common = {
@@ -73,9 +60,59 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
         "replicate": spec.replicate,
         "seed": spec.seed,
         **dict(spec.columns),
-        "status": status,
-        "error": error,
+        "status": attempt.status,
+        "error": attempt.error,
         "wall_time_s": time.perf_counter() - start,
         "log": str(log.relative_to(folder)) if kept else "",
     }
-    return {"rows": [{**common, **row} for row in rows] or [{**common, **known}], "state_unit": state_unit}
+    rows = attempt.rows or [attempt.known]
+    return {"rows": [{**common, **row} for row in rows], "state_unit": attempt.state_unit}
+
+
+@dataclass
+class _Attempt:
+    """One run of a spec: how it ended and its metric rows."""
+
+    logged: bool
+    status: str = "error"
+    error: str = ""
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    known: dict[str, Any] = field(default_factory=dict)
+    """What a row says of a run that has no metrics (its faults, from the scenario)."""
+    state_unit: str = ""
+    unscored: bool = False
+    """Run without a log, and its scoring failed on the way (a bug): to be run again with its log."""
+
+
+def _attempt(spec: RunSpec, log: Path | None) -> _Attempt:
+    """Run ``spec`` into ``log`` (None: no log, scored as it goes); never raises for a run that fails."""
+    from cosim import api
+    from cosim.analysis.metrics import measure
+    from cosim.scenario import LoadedScenario, apply, parse
+
+    attempt = _Attempt(logged=log is not None)
+    try:
+        base = LoadedScenario(parse(spec.scenario_text, spec.scenario_source), spec.scenario_source, spec.scenario_text)
+        loaded = apply(base, spec.settings)
+        kinds = sorted({fault.kind for fault in loaded.scenario.faults})
+        attempt.known = {
+            "fault_kind": "+".join(kinds) or "none",
+            "fault_onset_s": min((f.start for f in loaded.scenario.faults), default=None),
+        }
+        units = {c.unit for c in loaded.scenario.plant_info.states}
+        attempt.state_unit = units.pop() if len(units) == 1 else "mixed units"
+        result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process, measure=True)
+        attempt.status, attempt.error = result.status, result.error
+        metrics = result.metrics
+        if log is None and metrics is None:
+            attempt.unscored = True
+            return attempt
+        if metrics is None or result.status != "completed":
+            assert log is not None
+            metrics = measure(log)  # a run that did not complete is read back, damage and all
+        attempt.rows = rows_of(metrics)
+    except CosimError as failure:
+        attempt.error = str(failure)
+    except Exception as failure:  # a bug, reported in its row: the campaign goes on
+        attempt.error = f"{type(failure).__name__}: {failure}"
+    return attempt

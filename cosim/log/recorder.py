@@ -50,7 +50,7 @@ from cosim.log.topics import (
     carried_tick,
     message_topic,
 )
-from cosim.log.writer import McapLog
+from cosim.log.writer import McapLog, SinkLog
 
 # Readers that still import the topics' names from here (cosim.log.topics is their home).
 __all__ = [
@@ -74,11 +74,14 @@ __all__ = [
 
 
 class RunRecorder:
-    """Writes one run's frames, truth and events into a McapLog, each through its topic's record."""
+    """Writes one run's frames, truth and events into a McapLog, each through its topic's record;
+    or hands them to a ``SinkLog`` (a run that writes no file), which takes the ``/can/frames``
+    records themselves and whose sink is told only the time of the messages it does not read
+    (they are not built)."""
 
     def __init__(
         self,
-        log: McapLog,
+        log: McapLog | SinkLog,
         codec: Codec,
         *,
         states: tuple[str, ...],
@@ -88,6 +91,8 @@ class RunRecorder:
         disturbances: tuple[str, ...] = (),
     ) -> None:
         self.log = log
+        # a log without a file takes the records themselves, and only the time of what it does not read
+        self._records = isinstance(log, SinkLog)
         self.codec = codec
         self.plant = PlantNames(states, sensors, actuators, disturbances, units)
         self.frames = 0
@@ -113,14 +118,20 @@ class RunRecorder:
     ) -> None:
         """One frame on the bus; ``sender``: who sent a frame outside the DBC, where the run knows it."""
         spec = decoded.spec if decoded is not None else None
-        self.log.write(
-            self._frames,
-            t_ns,
-            CanFrame.payload(tick, t, self.frames, frame, spec.sender if spec else sender, spec.name if spec else None),
-        )
+        log, sender, message = self.log, spec.sender if spec else sender, spec.name if spec else None
+        if not self._records:
+            log.write(self._frames, t_ns, CanFrame.payload(tick, t, self.frames, frame, sender, message))
+        elif log.reads(self._frames):
+            log.write(self._frames, t_ns, CanFrame.of(tick, t, self.frames, frame, sender, message))
+        else:
+            log.seen(self._frames, t_ns)
         self.frames += 1
         if decoded is not None:
-            self.log.write(self._decoded[decoded.spec.name], t_ns, Signals.payload(decoded))
+            channel = self._decoded[decoded.spec.name]
+            if log.reads(channel):
+                log.write(channel, t_ns, Signals.payload(decoded))
+            else:
+                log.seen(channel, t_ns)
 
     def truth(
         self,
@@ -140,10 +151,22 @@ class RunRecorder:
         disturbance: np.ndarray | None = None,
     ) -> None:
         log, plant = self.log, self.plant
-        log.write(self._state, t_ns, TruthState.payload(tick, t, plant.states, x))
-        log.write(self._sensors, t_ns, TruthSensors.payload(tick, t, plant.sensors, y_true))
-        log.write(self._inputs, t_ns, TruthInputs.payload(tick, t, plant, u_cmd, u_eff, disturbance))
-        log.write(self._faults, t_ns, TruthFaults.payload(tick, t, plant, noise, fault, measured, delta, active))
+        if log.reads(self._state):
+            log.write(self._state, t_ns, TruthState.payload(tick, t, plant.states, x))
+        else:
+            log.seen(self._state, t_ns)
+        if log.reads(self._sensors):
+            log.write(self._sensors, t_ns, TruthSensors.payload(tick, t, plant.sensors, y_true))
+        else:
+            log.seen(self._sensors, t_ns)
+        if log.reads(self._inputs):
+            log.write(self._inputs, t_ns, TruthInputs.payload(tick, t, plant, u_cmd, u_eff, disturbance))
+        else:
+            log.seen(self._inputs, t_ns)
+        if log.reads(self._faults):
+            log.write(self._faults, t_ns, TruthFaults.payload(tick, t, plant, noise, fault, measured, delta, active))
+        else:
+            log.seen(self._faults, t_ns)
 
     def foreign(
         self,

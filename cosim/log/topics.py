@@ -235,6 +235,25 @@ class CanFrame(TickRecord):
             "message": message,
         }
 
+    @classmethod
+    def of(cls, tick: int, t: float, seq: int, frame: can.Message, sender: str, message: str | None) -> CanFrame:
+        """The record of ``payload``'s message (what reading it back gives), built directly."""
+        data = frame.data
+        return cls(
+            tick=tick,
+            t=t,
+            seq=seq,
+            id=frame.arbitration_id,
+            extended=frame.is_extended_id,
+            fd=frame.is_fd,
+            brs=frame.bitrate_switch,
+            dlc=len2dlc(len(data)),
+            length=len(data),
+            data=bytes(data).hex(),
+            sender=sender,
+            message=message,
+        )
+
     @property
     def payload_bytes(self) -> bytes:
         return bytes.fromhex(self.data)

@@ -67,6 +67,30 @@ _MESSAGE_HEADER = struct.Struct("<BQHIQQ")
 _MESSAGE_FIELDS = _MESSAGE_HEADER.size - 9  # the record's length counts what follows opcode and length
 
 
+class RecordSink(Protocol):
+    """What takes a run's messages where no file is written (``SinkLog``): the records and payloads
+    themselves, before their JSON, and only the time of those on topics it does not read."""
+
+    def channel(self, topic: str, schema: dict[str, Any]) -> Any:
+        """A topic with its JSON Schema; returns the sink's handle for it."""
+
+    def reads(self, topic: str) -> bool:
+        """Whether the sink looks into the messages of ``topic`` (else it is told their time only)."""
+
+    def message(self, channel: Any, time_ns: int, payload: Any) -> None:
+        """One message: the record (a ``cosim.log.topics`` dataclass) or the payload dict the log
+        would have written as JSON."""
+
+    def seen(self, channel: Any, time_ns: int) -> None:
+        """A message on a topic the sink does not read, at simulated time ``time_ns``."""
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record, as a log would write it."""
+
+    def attach(self, name: str, media_type: str, data: bytes) -> None:
+        """An attachment."""
+
+
 class _MessageIndex(MessageIndex):
     """A chunk's message index for one channel, written in one ``struct`` call (the same bytes)."""
 
@@ -174,6 +198,14 @@ class McapLog:
             self._teed[channel_id] = self._sink.channel(topic, schema)
         return channel_id
 
+    def reads(self, channel_id: int) -> bool:
+        """A file keeps every message (``SinkLog`` may not)."""
+        return True
+
+    def seen(self, channel_id: int, time_ns: int) -> None:
+        """For logs that may not keep a message (``SinkLog``): a file keeps every one."""
+        raise TypeError("McapLog keeps every message: write it (its reads() is always True)")
+
     def write(self, channel_id: int, time_ns: int, payload: Any) -> None:
         """Append one message; ``time_ns`` is simulated time (log and publish time)."""
         sequence = self._sequence[channel_id]
@@ -209,6 +241,73 @@ class McapLog:
             self._writer.finish()
         finally:
             self._stream.close()
+
+
+class SinkLog:
+    """A run's log that writes no file: what ``McapLog`` would write goes to ``sink`` alone, in the
+    same order, as objects rather than JSON bytes (a campaign run whose log is not kept is scored
+    so: ``cosim.analysis.metrics.LiveMeasurement``). ``reads(channel)`` tells a writer whether the
+    sink looks into a channel's messages; one that does not may call ``seen`` instead of building
+    the message. The channel ids are those an ``McapLog`` would give."""
+
+    path: Path | None = None
+
+    def __init__(self, sink: RecordSink) -> None:
+        self._sink = sink
+        self._channels: dict[str, int] = {}
+        self._topics: list[str] = []
+        self._handles: list[Any] = []
+        # asked of the sink at a channel's first message: channels are registered before the run's
+        # description is written, which is what the sink's answer may rest on
+        self._reads: list[bool | None] = []
+        self.messages = 0
+        self.closed = False
+
+    def __enter__(self) -> SinkLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def channel(self, topic: str, schema: dict[str, Any]) -> int:
+        if topic in self._channels:
+            return self._channels[topic]
+        channel_id = self._channels[topic] = len(self._handles)
+        self._topics.append(topic)
+        self._handles.append(self._sink.channel(topic, schema))
+        self._reads.append(None)
+        return channel_id
+
+    def reads(self, channel_id: int) -> bool:
+        """Whether the sink looks into this channel's messages (asked when one is to be written)."""
+        reads = self._reads[channel_id]
+        if reads is None:
+            reads = self._reads[channel_id] = self._sink.reads(self._topics[channel_id])
+        return reads
+
+    def write(self, channel_id: int, time_ns: int, payload: Any) -> None:
+        self.messages += 1
+        if self.reads(channel_id):
+            self._sink.message(self._handles[channel_id], time_ns, payload)
+        else:
+            self._sink.seen(self._handles[channel_id], time_ns)
+
+    def seen(self, channel_id: int, time_ns: int) -> None:
+        """A message at ``time_ns`` on a channel the sink does not read (``reads`` is False): counted."""
+        self.messages += 1
+        self._sink.seen(self._handles[channel_id], time_ns)
+
+    def flush(self) -> None:
+        """Nothing to put on disk."""
+
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        self._sink.metadata(name, {key: str(value) for key, value in values.items()})
+
+    def attach(self, name: str, media_type: str, data: bytes, time_ns: int = 0) -> None:
+        self._sink.attach(name, media_type, data)
+
+    def close(self) -> None:
+        self.closed = True
 
 
 def object_schema(title: str, properties: dict[str, Any], description: str = "") -> dict[str, Any]:

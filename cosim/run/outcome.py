@@ -29,7 +29,8 @@ class Progress:
 
 @dataclass(frozen=True)
 class RunResult:
-    path: Path
+    path: Path | None
+    """The log (None: the run wrote none, ``cosim.api.run(scenario, None)``)."""
     status: str
     ticks: int
     frames: int

@@ -36,7 +36,7 @@ from cosim.log.metadata import (
     RunRecord,
     ScenarioRecord,
 )
-from cosim.log.writer import LogSink
+from cosim.log.writer import LogSink, RecordSink
 from cosim.plant import Plant, build_plant
 from cosim.plant.fmu_model import is_fmu
 from cosim.run.arbitration import Arbitration, build_traffic
@@ -387,9 +387,14 @@ class RunPlan:
         return [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if self.controller is not None else [])]
 
     def session(
-        self, out: Path, bus: BusConfig, registration: Registration | None = None, sink: LogSink | None = None
+        self,
+        out: Path | None,
+        bus: BusConfig,
+        registration: Registration | None = None,
+        sink: LogSink | RecordSink | None = None,
     ) -> Session:
-        """The session of a run of this plan on ``bus``, logging to ``out`` (and to ``sink``)."""
+        """The session of a run of this plan on ``bus``, logging to ``out`` (and to ``sink``; with
+        ``out`` None, to ``sink`` alone)."""
         s = self.scenario
         closed_loop = self.controller is not None
         bus_faults = build_bus_faults(s)

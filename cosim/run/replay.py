@@ -54,7 +54,7 @@ from cosim.log.metadata import (
 )
 from cosim.log.reader import LogReader
 from cosim.log.recorder import FAULTS, FRAMES, INPUTS, SECURITY, SENSORS, STATE
-from cosim.log.writer import McapLog
+from cosim.log.writer import McapLog, SinkLog
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.loop import Execution, execute, start_participants
 from cosim.run.node import NodeSpec
@@ -191,7 +191,7 @@ def parse_params(items: list[str]) -> dict[str, Any]:
 class LogSource:
     """Ticks of a log: the frames the runner put on the bus, as logged, and the truth, copied."""
 
-    def __init__(self, reader: LogReader, replay: Replay, out: McapLog) -> None:
+    def __init__(self, reader: LogReader, replay: Replay, out: McapLog | SinkLog) -> None:
         """The ticks ``reader`` holds of the log ``replay`` replays, decoded with the log's DBC
         and again with the replay's; the truth is copied into ``out``."""
         self.reader, self.codec, self.ticks, self.path = reader, replay.plan.codec, replay.ticks, replay.log

@@ -21,7 +21,7 @@ from cosim.bus.registry import Registration
 from cosim.bus.transport import allocate
 from cosim.errors import CodecError, ScenarioError
 from cosim.log.metadata import DBC_ATTACHMENT, RUN, SCENARIO, VERSIONS, versions
-from cosim.log.writer import LogSink
+from cosim.log.writer import LogSink, RecordSink
 from cosim.run.loop import Execution, PlantSource, execute, start_participants
 from cosim.run.outcome import Progress, RunResult
 from cosim.run.plan import RunPlan
@@ -34,10 +34,13 @@ class Run(Execution):
 
     ``overrides`` (``seed``, ``interface``, ``channel``, ``port``, ``mode``, ``speed``) replace the
     scenario's values, validated like the file's. Building a Run designs everything (``plan``);
-    ``execute`` runs it.
+    ``execute`` runs it. With ``out`` None the run writes no file: everything goes to the sink
+    ``execute`` is given (a ``RecordSink``: the live scorer), as a campaign run whose log is not kept.
     """
 
-    def __init__(self, loaded: LoadedScenario, out: str | Path, seed: int | None = None, **overrides: Any) -> None:
+    def __init__(
+        self, loaded: LoadedScenario, out: str | Path | None, seed: int | None = None, **overrides: Any
+    ) -> None:
         self.plan = RunPlan.build(loaded, seed, **overrides)
         first = PlantSource(self.plan)
         try:  # the first tick's frames, before any process starts: a value outside its bus range is the scenario's
@@ -46,7 +49,7 @@ class Run(Execution):
             raise ScenarioError(f"{loaded.source}: {error}") from None
         finally:
             first.close()
-        self.loaded, self.out = loaded, Path(out)
+        self.loaded, self.out = loaded, None if out is None else Path(out)
         self.run_id = uuid4().hex[:12]
         self.source: PlantSource | None = None
 
@@ -77,10 +80,10 @@ class Run(Execution):
         on_progress: Callable[[Progress], None] | None = None,
         progress_every: float = 0.2,
         on_start: Callable[[Run], None] | None = None,
-        sink: LogSink | None = None,
+        sink: LogSink | RecordSink | None = None,
     ) -> RunResult:
         """Run every tick; the log is complete and valid whatever ends the run. ``sink`` (the live
-        view, ``cosim.log.live``) gets every channel and message the log gets."""
+        view, ``cosim.log.live``; the live scorer) gets every channel and message the log gets."""
         plan, s = self.plan, self.plan.scenario
         self.bus = bus = allocate(
             s.bus.interface, s.bus.channel, s.bus.port, s.bus.fd, s.bus.allow_network, s.bus.mirror
@@ -94,7 +97,7 @@ class Run(Execution):
                 "sample_time": s.sample_time,
                 "bus": bus.to_dict(),
                 "dbc": plan.codec.dbc,
-                "log": str(self.out.resolve()),
+                "log": "" if self.out is None else str(self.out.resolve()),
                 "nodes": {name: plan.node_spec(name, bus).to_json() for name in plan.external_nodes},
                 "control_keys": plan.client_keys(),
             },

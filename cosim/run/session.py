@@ -23,7 +23,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import can
 import numpy as np
@@ -38,7 +38,7 @@ from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
 from cosim.log.recorder import RunRecorder
-from cosim.log.writer import LogSink, McapLog
+from cosim.log.writer import LogSink, McapLog, RecordSink, SinkLog
 from cosim.run.arbitration import Arbitration
 from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
@@ -86,12 +86,13 @@ class Session:
     multicast bus and are not logged twice); with ``commands`` the controller node's command
     frames are collected for ``commands``. ``registration`` (the run's entry for clients and
     monitors) is written while the session is open; ``sink`` (the live view) gets everything the
-    log gets.
+    log gets. With ``out`` None the run writes no file: its ``sink`` (a ``RecordSink``, the live
+    scorer) gets what the log would have got, through a ``SinkLog``.
     """
 
     def __init__(
         self,
-        out: Path,
+        out: Path | None,
         config: BusConfig,
         codec: Codec,
         timing: Timing,
@@ -100,7 +101,7 @@ class Session:
         own_senders: tuple[str, ...],
         commands: bool = False,
         registration: Registration | None = None,
-        sink: LogSink | None = None,
+        sink: LogSink | RecordSink | None = None,
         arbitration: Arbitration | None = None,
         bus_faults: BusFaultStage | None = None,
         secoc: SecOC | None = None,
@@ -137,7 +138,13 @@ class Session:
         remove_stale_workdirs()
         try:
             self.interrupts = stack.enter_context(DeferredInterrupts())
-            self.log = stack.enter_context(McapLog(self.out, sink=self._sink))
+            log: McapLog | SinkLog = (
+                McapLog(self.out, sink=cast(LogSink | None, self._sink))
+                if self.out is not None
+                else SinkLog(self._record_sink())
+            )
+            stack.push(log.__exit__)
+            self.log = log
             self.bus = stack.enter_context(open_bus(self.config, on_foreign=self._foreign_datagram))
             self.workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix=f"cosim-nodes-{os.getpid()}-")))
             if self._registration is not None:
@@ -163,6 +170,12 @@ class Session:
 
     def __exit__(self, *exc: object) -> None:
         self._stack.close()
+
+    def _record_sink(self) -> RecordSink:
+        """The sink of a run that writes no log: what it hands everything to instead."""
+        if not hasattr(self._sink, "message"):
+            raise CosimError("a run without a log needs a sink that takes its records (its metrics: measure=True)")
+        return cast(RecordSink, self._sink)
 
     # -- time ---------------------------------------------------------------------------------
 

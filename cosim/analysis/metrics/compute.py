@@ -27,22 +27,33 @@ from cosim.bus.dbc import SECOC_SIGNALS, estimated_state, load_dbc
 from cosim.errors import CodecError, LogError
 from cosim.log.metadata import DBC_ATTACHMENT, logged_dbc
 from cosim.log.reader import LogReader
-from cosim.log.topics import FAULTS, FRAMES, STATE
+from cosim.log.topics import FAULTS, FRAMES, STATE, Record
+from cosim.log.writer import dumps
 
 MAC_SIGNAL = SECOC_SIGNALS[1]
 
 
 class LiveMeasurement:
-    """The metrics of a run scored while it writes its log: a ``cosim.log.writer.LogSink`` that the
-    log tees everything to, in the order the file gets it, and that feeds the same ``Scorer`` with
-    the same messages (its JSON bytes, decoded as the reader decodes them; those of topics the
-    scores never read, not decoded at all: ``Scorer.reads``). ``result`` is then what
-    ``measure`` of the finished log returns (tested on every kind of run), without reading the log
-    again; a campaign scores each run so.
+    """The metrics of a run scored while it goes: a sink that a run's log hands everything to, in
+    the order a file gets it, and that feeds the same ``Scorer`` as ``measure`` with the same
+    messages. ``result`` is then what ``measure`` of the finished log returns, field for field
+    (tested on every built-in scenario), without reading a log; a campaign scores each run so.
+
+    Two ways in, one scorer:
+
+    - a ``cosim.log.writer.LogSink`` of a log written to a file (``McapLog``): each message's JSON
+      bytes, decoded as the reader decodes them (those of topics the scores never read, not at
+      all: ``Scorer.reads``);
+    - a ``cosim.log.writer.RecordSink`` of a run that writes no file (``SinkLog``): the records
+      themselves for the topics read as records (``Scorer.feed_record``: the fields a reader
+      would read back, without the JSON between: the same ints, strings and floats, which JSON
+      writes and reads back exactly), and each other payload through the JSON it would have been
+      (``orjson`` both ways: NaN becomes null and numpy values plain ones, as in a file). Messages
+      of topics the scores do not read are not even built: ``seen`` counts them and their time.
 
     The scorer starts at the run's first message, by when the runner has written its description
     (``cosim.run``) and its DBC; the outcome (``cosim.result``) is read at the end. Scoring never
-    stops the run: should the scorer fail, it stops scoring, and ``result`` is None (read the log)."""
+    stops the run: should the scorer fail, it stops scoring, and ``result`` is None."""
 
     def __init__(self) -> None:
         self._meta: dict[str, dict[str, str]] = {}
@@ -52,25 +63,58 @@ class LiveMeasurement:
         self._scorer: Scorer | None = None
         self.failure: str | None = None
 
+    def _start(self) -> Scorer:
+        run = _facts(self._meta)
+        database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
+        self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
+        return self._scorer
+
     def channel(self, topic: str, schema: dict[str, Any]) -> str:
         self._schemas[topic] = schema
         self._counts[topic] = 0
         return topic
 
+    def reads(self, topic: str) -> bool:
+        """Whether the scores read ``topic``; asked at a topic's first message, by when the run has
+        written its description and its DBC (they come before any message)."""
+        try:
+            return (self._scorer or self._start()).reads(topic)
+        except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
+            self.failure = self.failure or f"{type(error).__name__}: {error}"
+            return False
+
     def write(self, channel: str, time_ns: int, data: bytes) -> None:
         if self.failure is not None:
             return
         try:
-            scorer = self._scorer
-            if scorer is None:
-                run = _facts(self._meta)
-                database = _parse_dbc(self._attachments.get(DBC_ATTACHMENT))
-                scorer = self._scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
+            scorer = self._scorer or self._start()
             self._counts[channel] += 1
             if scorer.reads(channel):
                 scorer.feed(channel, time_ns, orjson.loads(data))
             else:
                 scorer.seen(time_ns)
+        except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
+            self.failure = f"{type(error).__name__}: {error}"
+
+    def message(self, channel: str, time_ns: int, payload: Any) -> None:
+        if self.failure is not None:
+            return
+        try:
+            scorer = self._scorer or self._start()
+            self._counts[channel] += 1
+            if scorer.records(channel) and isinstance(payload, Record):
+                scorer.feed_record(channel, time_ns, payload)
+            else:
+                scorer.feed(channel, time_ns, orjson.loads(dumps(payload)))
+        except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
+            self.failure = f"{type(error).__name__}: {error}"
+
+    def seen(self, channel: str, time_ns: int) -> None:
+        if self.failure is not None:
+            return
+        try:
+            self._counts[channel] += 1
+            (self._scorer or self._start()).seen(time_ns)
         except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
             self.failure = f"{type(error).__name__}: {error}"
 
@@ -80,13 +124,14 @@ class LiveMeasurement:
     def attach(self, name: str, media_type: str, data: bytes) -> None:
         self._attachments[name] = data
 
-    def result(self, path: str | Path) -> RunMetrics | None:
-        """The run's metrics, once its log is closed (``path``: the log, as the metrics name it);
-        None if scoring failed on the way (``failure`` says how)."""
+    def result(self, path: str | Path | None) -> RunMetrics | None:
+        """The run's metrics, once its log is closed (``path``: the log, as the metrics name it;
+        None: the run wrote none, and ``file`` is empty); None if scoring failed on the way
+        (``failure`` says how)."""
         if self.failure is not None:
             return None
         run = _facts(self._meta)
-        return _finish(path, run, self._scorer or Scorer(run), self._counts, [], self._schemas)
+        return _finish("" if path is None else path, run, self._scorer or Scorer(run), self._counts, [], self._schemas)
 
 
 def measure(path: str | Path) -> RunMetrics:

@@ -30,6 +30,7 @@ from cosim.log.topics import (
     Event,
     Foreign,
     IntrusionVerdict,
+    Record,
     SecurityRejection,
     Signals,
     TruthFaults,
@@ -106,13 +107,14 @@ class Scorer:
         self.last_ns: int | None = None
         bus = self.bus
         self._reads: dict[str, bool] = {}
-        self._topics: dict[str, Callable[[dict[str, Any], int], None]] = {
-            CanFrame.TOPIC: lambda m, t: bus.frame(CanFrame.read(m), t),
-            WirePassage.TOPIC: lambda m, t: bus.passage(WirePassage.read(m)),
-            Event.TOPIC: lambda m, t: self._event(Event.read(m)),
-            DeadlineMiss.TOPIC: lambda m, t: bus.deadline_miss(DeadlineMiss.read(m)),
-            SecurityRejection.TOPIC: lambda m, t: self._rejection(SecurityRejection.read(m)),
-            Foreign.TOPIC: lambda m, t: bus.arrival(Foreign.read(m)),
+        #: The topics read as records: each topic's record and what takes one (at its log time).
+        self._topics: dict[str, tuple[type[Record], Callable[[Any, int], None]]] = {
+            CanFrame.TOPIC: (CanFrame, bus.frame),
+            WirePassage.TOPIC: (WirePassage, lambda r, t: bus.passage(r)),
+            Event.TOPIC: (Event, lambda r, t: self._event(r)),
+            DeadlineMiss.TOPIC: (DeadlineMiss, lambda r, t: bus.deadline_miss(r)),
+            SecurityRejection.TOPIC: (SecurityRejection, lambda r, t: self._rejection(r)),
+            Foreign.TOPIC: (Foreign, lambda r, t: bus.arrival(r)),
         }
 
     # feeding, in file order
@@ -141,16 +143,34 @@ class Scorer:
         try:
             read = self._topics.get(topic)
             if read is not None:
-                read(msg, log_time)
+                read[1](read[0].read(msg), log_time)
             else:
                 assert self.run.dt_ns  # reads(): a tick's parts only with a sample time
                 self._part(topic, log_time, msg, self.run.dt_ns)
         except (KeyError, TypeError, ValueError) as error:
-            self.broken.add(topic)
-            self.warnings.append(
-                f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
-                f"({type(error).__name__}: {error}); the topic is ignored from there on"
-            )
+            self._broken(topic, log_time, error)
+
+    def feed_record(self, topic: str, log_time: int, record: Record) -> None:
+        """A message of one of the topics read as records, as its record (a run scored while it
+        goes hands the record it would have logged): scored as ``feed`` scores the message it reads."""
+        self.seen(log_time)
+        if topic in self.broken:
+            return
+        try:
+            self._topics[topic][1](record, log_time)
+        except (KeyError, TypeError, ValueError) as error:
+            self._broken(topic, log_time, error)
+
+    def records(self, topic: str) -> bool:
+        """Whether ``topic`` is one that ``feed_record`` takes."""
+        return topic in self._topics
+
+    def _broken(self, topic: str, log_time: int, error: Exception) -> None:
+        self.broken.add(topic)
+        self.warnings.append(
+            f"{topic}: a message at t = {log_time / 1e9:g} s does not have the fields cosim writes "
+            f"({type(error).__name__}: {error}); the topic is ignored from there on"
+        )
 
     def _rejection(self, rejection: SecurityRejection) -> None:
         self.bus.rejection(rejection)
