@@ -104,7 +104,7 @@ def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: f
     cached = load(kind, params, model)
     if cached is not None:
         return estimators.create(kind, model, {**params, **cached}, sample_time)
-    with progress.step("designing"):
+    with progress.step("designing (not in the design cache)"):
         estimator = estimators.create(kind, model, params, sample_time)
         design = estimator.node_params()
         if any(name not in params for name in design):  # else the parameters carry it already

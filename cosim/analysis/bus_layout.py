@@ -15,7 +15,7 @@ import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from cosim.extras import require
 from cosim.log.metadata import LogMetadata
 from cosim.log.reader import LogReader
 from cosim.log.topics import FRAMES
+
+if TYPE_CHECKING:
+    from cosim.analysis.canvas import Style
 
 PANELS_PER_TAB = 6
 _UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.writer.number writes "<description> [<unit>]"
@@ -107,10 +110,12 @@ def layout_of_log(path: str | Path) -> tuple[str, dict[str, Any]]:
         return Path(path).stem, build(messages(reader))
 
 
-def plot(path: str | Path, out: Path, fmt: str, dpi: int, style: Any, metadata: dict[str, Any]) -> list[Path]:
+def plot(
+    path: str | Path, out: Path, fmt: str, dpi: int, style: Style, title: bool, metadata: dict[str, Any]
+) -> list[Path]:
     """One figure per decoded message of an imported log: its signals against the time since the
     log's first frame, a panel per unit (a signal without one alone in its panel), drawn as the
-    steps a bus holds a value in."""
+    steps a bus holds a value in; as wide as ``style`` says (a paper's exactly so), titled or not."""
     require("matplotlib", "cosim plot")
     import matplotlib
 
@@ -131,14 +136,18 @@ def plot(path: str | Path, out: Path, fmt: str, dpi: int, style: Any, metadata: 
                 value = decoded.get(name)
                 column.append(float(value) if isinstance(value, (int, float)) else np.nan)
     written = []
-    with plt.rc_context(style):
+    with plt.rc_context(style.rc):
         for message in found:
             times, values = series[message.topic]
             panels: dict[str, list[str]] = {}
             for name, unit in message.units.items():
                 panels.setdefault(unit or f"\0{name}", []).append(name)
             fig, axes = plt.subplots(
-                len(panels), 1, figsize=(9.0, max(2.8, 2.0 * len(panels) + 0.6)), squeeze=False, layout="constrained"
+                len(panels),
+                1,
+                figsize=(style.width, max(2.8, 2.0 * len(panels) + 0.6) * style.scale),
+                squeeze=False,
+                layout="constrained",
             )
             for ax, (unit, names) in zip(axes[:, 0], panels.items()):
                 for name in names:
@@ -146,9 +155,11 @@ def plot(path: str | Path, out: Path, fmt: str, dpi: int, style: Any, metadata: 
                 ax.set_ylabel(names[0] if unit.startswith("\0") else f"[{unit}]")
                 ax.legend(loc="best")
             axes[-1, 0].set_xlabel(f"time since the log's first frame, {_date(start)} [s]")
-            fig.suptitle(f"{Path(path).stem}: {message.name} (sent by {message.sender})")
+            if title:
+                fig.suptitle(f"{Path(path).stem}: {message.name} (sent by {message.sender})", wrap=True)
             target = out / f"{_file_name(message.name)}.{fmt}"
-            fig.savefig(target, dpi=dpi, bbox_inches="tight", pad_inches=0.08, metadata=metadata)
+            tight: dict[str, Any] = {"bbox_inches": "tight", "pad_inches": 0.08} if style.name == "screen" else {}
+            fig.savefig(target, dpi=dpi, metadata=metadata, **tight)
             plt.close(fig)
             written.append(target)
     return written

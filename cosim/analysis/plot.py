@@ -1,10 +1,14 @@
 """Paper-style figures of a run log: estimates against the truth, errors, faults, and what each estimator publishes.
 
-``cosim plot FILE.mcap [--out DIR] [--format png|svg|pdf] [--dpi N]`` writes one file per figure
-(matplotlib, no display needed; vector formats keep their text as text). Every axis says its
-quantity and unit (from the log's JSON Schemas), every legend names its curves after the
-estimators and signals (``cosim.analysis.names``), and figures are saved with their whole
-bounding box, so nothing is clipped. Colours are the estimators', the same in every figure.
+``cosim plot FILE.mcap [--out DIR] [--format png|svg|pdf] [--dpi N] [--style screen|paper]
+[--width single|double|INCHES] [--no-title] [--estimators A,B]`` writes one file per figure
+(matplotlib, no display needed; vector formats keep their text as text, PDFs embed their fonts).
+Every axis says its quantity and unit (from the log's JSON Schemas); legends sit outside the data
+and name estimators, sensors and faults as the scenario does; each series has a look of its own
+(colour-blind-safe colour, dashes, marker), an estimator the same in every figure
+(``cosim.analysis.canvas``). A screen's figures are saved with their whole bounding box, a paper's
+exactly a column wide; nothing is clipped. A curve is broken where its values are missing, and an
+axis that leaves a far start-up transient out says so.
 
 - ``estimates``: every state against each estimator's estimate x̂ (TAC 2024 Figs. 3–5 show the
   errors; these are what the errors are made of);
@@ -37,165 +41,48 @@ bounding box, so nothing is clipped. Colours are the estimators', the same in ev
 - ``path``: for a plant with planar positions ``x`` and ``y`` (the vessel), y against x, true and
   estimated, at equal scales.
 
-Each figure is one function of a ``Canvas`` (the log's series, colours and the shared drawing
-helpers) in the table ``FIGURES``; a figure that has nothing to show draws nothing. The series are
-read by ``cosim.analysis.series``.
+Each figure is one function of a ``Canvas`` (the log's series, the style, the looks and the shared
+drawing helpers: ``cosim.analysis.canvas``) in the table ``FIGURES``; a figure that has nothing to
+show draws nothing. The series are read by ``cosim.analysis.series``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cosim.analysis import bus_layout
-from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, first_tick, load, true_gains, virtual_output
+from cosim.analysis.canvas import FORMATS, GAP, PALETTE, TIME, Canvas, Style, gapped, log_floor
+from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, load, true_gains, virtual_output
 from cosim.errors import LogError
 from cosim.extras import require
 from estimators.base import DiagnosticKind
 
 if TYPE_CHECKING:
-    from matplotlib.artist import Artist
     from matplotlib.axes import Axes
-    from matplotlib.figure import Figure
-
-#: Figure formats and what matplotlib writes into them that would change from one run to the next.
-FORMATS = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}
-WIDTH = 9.0  # inches: a full-width figure
-DECADES = 6  # a log axis shows this many decades below its largest value
-STYLE: Any = {  # matplotlib rc parameters (typed as its literal keys)
-    "svg.fonttype": "none",  # text stays text
-    "pdf.fonttype": 42,
-    "axes.titlesize": 10,
-    "axes.labelsize": 9,
-    "xtick.labelsize": 8,
-    "ytick.labelsize": 8,
-    "legend.fontsize": 7.5,
-    "figure.titlesize": 11,
-    "axes.formatter.useoffset": False,  # tick labels say their values (|Γ| near 1.0003 is not "+1")
-}
-TIME = "time t [s]"
 
 
-class Canvas:
-    """One log's figures in the making: its series, a colour per estimator, the files written."""
-
-    def __init__(self, series: RunSeries, out: Path, fmt: str, dpi: int) -> None:
-        import matplotlib.pyplot as plt
-
-        self.plt, self.series, self.out, self.fmt, self.dpi = plt, series, out, fmt, dpi
-        self.color = {name: f"C{i % 10}" for i, name in enumerate(series.estimators)}
-        self.end = max(series.truth, default=0) * series.sample_time
-        self.written: list[Path] = []
-
-    @cached_property
-    def truth(self) -> tuple[np.ndarray, np.ndarray]:
-        """(t, x): the true state at every tick."""
-        s = self.series
-        ks = np.array(sorted(s.truth), dtype=int)
-        return ks * s.sample_time, np.array([s.truth[k] for k in ks]).reshape(len(ks), len(s.states))
-
-    @cached_property
-    def reconfigured_at(self) -> float | None:
-        """When the controller reconfigured (s), or None."""
-        s = self.series
-        if s.reconfigured and (k := first_tick(s.control, s.reconfigured[0])) is not None:
-            return k * s.sample_time
-        return None
-
-    def label(self, name: str) -> str:
-        """An estimator in a legend: its name, and its kind where that says more."""
-        kind = self.series.estimators[name].kind
-        return name if kind == name else f"{name} ({kind})"
-
-    def figure(self, rows: int, columns: int = 1, height: float = 2.2, **kw: Any) -> tuple[Figure, np.ndarray]:
-        return self.plt.subplots(
-            rows, columns, figsize=(WIDTH, max(2.8, height * rows + 0.6)), squeeze=False, layout="constrained", **kw
-        )
-
-    def save(self, fig: Figure, name: str, heading: str) -> None:
-        fig.suptitle(f"{self.series.scenario}: {heading}")
-        target = self.out / f"{name}.{self.fmt}"
-        fig.savefig(target, dpi=self.dpi, bbox_inches="tight", pad_inches=0.08, metadata=FORMATS[self.fmt])
-        self.plt.close(fig)
-        self.written.append(target)
-
-    def faults_shaded(self, ax: Axes, label: bool = False) -> None:
-        """Every fault's window shaded, its onset dotted."""
-        for f in self.series.faults:
-            stop = self.end if f.get("end") is None else f["end"]
-            ax.axvspan(f["start"], stop, color="0.5", alpha=0.06, lw=0)
-            ax.axvline(f["start"], color="0.35", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None)
-
-    def events(self, ax: Axes, isolations: Sequence[tuple[float, str]] = (), label: bool = False) -> None:
-        """Fault onsets (dotted), isolations (red, named) and the reconfiguration (green, dashed)."""
-        for f in self.series.faults:
-            ax.axvline(f["start"], color="0.4", ls=":", lw=1, label=f"fault onset ({f['label']})" if label else None)
-        for t, what in isolations:
-            ax.axvline(t, color="C3", ls="--", lw=1, label=f"isolated {what} at {t:g} s" if label else None)
-        if (at := self.reconfigured_at) is not None:
-            ax.axvline(at, color="C2", ls="--", lw=1.2, label=f"reconfigured at {at:g} s" if label else None)
-
-    @staticmethod
-    def finish(ax: Axes, ylabel: str, legend: bool = True, **legend_kw: Any) -> None:
-        ax.set_ylabel(ylabel)
-        ax.grid(alpha=0.3)
-        if legend and ax.get_legend_handles_labels()[0]:
-            ax.legend(**{"loc": "best", "framealpha": 0.85, **legend_kw})
-
-    def state_grid(self, names: list[str]) -> tuple[Figure, list[Axes]]:
-        """A panel per state, in two columns when there are more than three."""
-        columns = 2 if len(names) > 3 else 1
-        rows = -(-len(names) // columns)
-        fig, axes = self.figure(rows, columns, height=2.0, sharex=True)
-        cells = list(axes.T.ravel())
-        for ax in cells[len(names) :]:
-            ax.set_visible(False)
-        for ax in axes[-1]:
-            ax.set_xlabel(TIME)
-        if len(names) % columns:  # the column with one fewer panel gets its time axis labelled too
-            cells[len(names) - 1].set_xlabel(TIME)
-            cells[len(names) - 1].tick_params(labelbottom=True)
-        return fig, cells
-
-    @staticmethod
-    def figure_legend(fig: Figure, cells: Sequence[Axes]) -> None:
-        """One legend for the whole figure, under its panels: each curve name once."""
-        found: dict[str, Artist] = {}
-        for ax in cells:
-            for handle, text in zip(*ax.get_legend_handles_labels()):
-                found.setdefault(text, handle)
-        if found:
-            fig.legend(list(found.values()), list(found), loc="outside lower center", ncol=min(4, len(found)))
-
-    def one_panel(
-        self, named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool
-    ) -> None:
-        """One panel of one curve per estimator against time."""
-        fig, axes = self.figure(1, height=3.0)
-        ax = axes[0, 0]
-        log = log and any(np.size(v) and np.max(v) > 0 for _, v in named.values())  # all zeros: linear
-        ylabel += " (log scale)" if log else ""
-        for est, (t, v) in named.items():
-            (ax.semilogy if log else ax.plot)(t, v, color=self.color[est], label=self.label(est), lw=1)
-        if log:
-            log_floor(ax, [v for _, v in named.values()])
-        ax.set_xlabel(TIME)
-        self.faults_shaded(ax)
-        self.finish(ax, ylabel)
-        self.save(fig, name, what)
-
-
-def log_floor(ax: Axes, curves: Sequence[np.ndarray]) -> None:
-    """A log axis that spans ``DECADES`` below the largest value (not down to a curve's zeros)."""
-    top = max((float(np.max(v)) for v in curves if np.size(v)), default=0.0)
-    if top > 0:
-        ax.set_ylim(top * 10.0**-DECADES, top * 2.0)
-    else:  # nothing above zero (a fault rejected exactly): an axis of its own, not matplotlib's complaint
-        ax.set_ylim(10.0**-DECADES, 1.0)
+def one_panel(
+    c: Canvas, named: dict[str, tuple[np.ndarray, np.ndarray]], ylabel: str, what: str, name: str, log: bool
+) -> None:
+    """One panel of one curve per estimator against time."""
+    fig, axes = c.figure(1, height=3.0)
+    ax = axes[0, 0]
+    log = log and any(np.size(v) and np.max(v) > 0 for _, v in named.values())  # all zeros: linear
+    ylabel += " (log scale)" if log else ""
+    for est, (t, v) in named.items():
+        c.estimator(ax, est, t, v, log)
+    if log:
+        log_floor(ax, [v for _, v in named.values()])
+    ax.set_xlabel(TIME)
+    c.faults_shaded(ax)
+    c.onsets_named(ax)
+    c.finish(ax, ylabel)
+    c.legend(fig, [ax])
+    c.save(fig, name, what)
 
 
 def estimates(c: Canvas) -> None:
@@ -207,22 +94,26 @@ def estimates(c: Canvas) -> None:
         return
     fig, cells = c.state_grid(s.states)
     for i, (ax, state) in enumerate(zip(cells, s.states)):
-        ax.plot(t_true, x[:, i], color="k", lw=1.8, label="true state x")
+        c.reference(ax, t_true, x[:, i], "true state x")
         for name, (t, xhat, _) in estimated.items():
-            ax.plot(t, xhat[:, i], color=c.color[name], lw=1, label=f"{c.label(name)}: x̂")
-        c.faults_shaded(ax, label=True)
-        c.finish(ax, f"{state}{s.unit(state)}", legend=False)
-    c.figure_legend(fig, cells)
+            c.estimator(ax, name, t, xhat[:, i])
+        in_view(ax, [xhat[:, i] for _, xhat, _ in estimated.values()], x[:, i])
+        c.faults_shaded(ax)
+        c.finish(ax, f"{state}{s.unit(state)}")
+    c.onsets_named(cells[0])
+    c.legend(fig, cells)
     c.save(fig, "estimates", "true state and every estimate x̂")
 
     fig, cells = c.state_grid(s.states)
     for i, (ax, state) in enumerate(zip(cells, s.states)):
         for name, (t, xhat, xt) in estimated.items():
-            ax.plot(t, xhat[:, i] - xt[:, i], color=c.color[name], lw=1, label=c.label(name))
+            c.estimator(ax, name, t, xhat[:, i] - xt[:, i])
+        in_view(ax, [xhat[:, i] - xt[:, i] for _, xhat, xt in estimated.values()], np.zeros(1))
         ax.axhline(0, color="k", lw=0.6)
-        c.faults_shaded(ax, label=True)
-        c.finish(ax, f"x̂ − x of {state}{s.unit(state)}", legend=False)
-    c.figure_legend(fig, cells)
+        c.faults_shaded(ax)
+        c.finish(ax, f"x̂ − x of {state}{s.unit(state)}")
+    c.onsets_named(cells[0])
+    c.legend(fig, cells)
     c.save(fig, "state_errors", "estimation error per state, x̂ − x")
 
 
@@ -235,15 +126,17 @@ def error(c: Canvas) -> None:
     for name in s.estimators:
         t, err = s.error(name)
         if t.size:
-            linear.plot(t, err, color=c.color[name], label=c.label(name), lw=1)
-            log.semilogy(t, err, color=c.color[name], label=c.label(name), lw=1)
+            c.estimator(linear, name, t, err)
+            c.estimator(log, name, t, err, log=True)
             errors.append(err)
     log_floor(log, errors)
     for ax in (linear, log):
-        c.faults_shaded(ax, label=ax is linear)
+        c.faults_shaded(ax)
+    c.onsets_named(linear)
     c.finish(linear, f"|x − x̂|{s.norm_unit()}")
-    c.finish(log, "|x − x̂| (log scale)", legend=False)
+    c.finish(log, "|x − x̂| (log scale)")
     log.set_xlabel(TIME)
+    c.legend(fig, [linear, log])
     c.save(fig, "error", "estimation error norm |x − x̂| over the whole state")
 
 
@@ -252,33 +145,25 @@ def faults(c: Canvas) -> None:
     panels = _fault_panels(c.series)
     if not panels:
         return
-    ratios = [0.25 + 0.2 * len(curves) if events_only else 1.0 for _, curves, events_only in panels]
+    ratios = [0.35 + 0.2 * len(curves) if events_only else 1.0 for _, curves, events_only in panels]
     fig, axes = c.figure(len(panels), height=2.1 * sum(ratios) / len(ratios), sharex=True, height_ratios=ratios)
+    drawn = 0  # curves so far: each its own look, across the panels (they share one legend)
     for ax, (ylabel, curves, events_only) in zip(axes[:, 0], panels):
         if events_only:  # one row of marks per sensor, at the ticks its frame was not sent
             for row, (times, _) in enumerate(curves.values()):
-                ax.plot(times, np.full(len(times), row), "|", ms=8, mew=0.8, color=f"C{row}")
+                ax.plot(times, np.full(len(times), row), "|", ms=8 * c.style.scale, mew=0.8, color=PALETTE[row % 7])
             ax.set_yticks(range(len(curves)), list(curves))
             ax.set_ylim(-0.7, len(curves) - 0.3)
-            c.faults_shaded(ax)
-            c.finish(ax, ylabel, legend=False)
-            continue
-        for curve_label, (times, v) in curves.items():
-            ax.plot(times, v, lw=1, label=curve_label)
+            ax.set_title(ylabel, loc="left")  # beside the sensors' names a y label would not fit
+            ylabel = ""
+        for curve_label, (times, v) in () if events_only else curves.items():
+            c.curve(ax, times, v, drawn, curve_label)
+            drawn += 1
         c.faults_shaded(ax)
-        c.finish(ax, ylabel, ncol=min(3, len(curves)))
-    for f in c.series.faults:
-        axes[0, 0].annotate(
-            f" {f['label']} ({f['kind']})",
-            (f["start"], 1),
-            xycoords=("data", "axes fraction"),
-            rotation=90,
-            va="top",
-            ha="right",
-            fontsize=6.5,
-            color="0.3",
-        )
+        c.finish(ax, ylabel)
+    c.onsets_named(axes[0, 0])
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]))
     c.save(fig, "faults", "what the faults injected (/truth/faults), each from its onset")
 
 
@@ -298,9 +183,11 @@ def weights(c: Canvas) -> None:
     fig, axes = c.figure(len(weighted), height=2.2, sharex=True)
     for ax, (name, kind, (t, w)) in zip(axes[:, 0], weighted):
         for i, sensor in enumerate(s.sensors):
-            ax.plot(t, w[:, i], label=f"sensor {sensor}", lw=1)
-        c.finish(ax, f"{name}: {labels[kind]} [1]", loc="center right")
+            c.curve(ax, t, w[:, i], i, f"sensor {sensor}")
+        ax.set_title(name, loc="left")
+        c.finish(ax, f"{labels[kind]} [1]")
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]))
     c.save(fig, "weights", "pseudoinverse weights per sensor")
 
 
@@ -312,7 +199,7 @@ def effect_of_the_bias(c: Canvas) -> None:
         units = set(s.units.get(sensor, "") for sensor in s.sensors)
         unit = f" [{units.pop()}]" if len(units) == 1 and "" not in units else ""
         what = "the fault's effect on the output injection, |h_Γ|"
-        c.one_panel(effects, f"|h_Γ|{unit}", what, "bias_effect", log=True)
+        one_panel(c, effects, f"|h_Γ|{unit}", what, "bias_effect", log=True)
 
 
 def gamma_norm(c: Canvas) -> None:
@@ -321,7 +208,7 @@ def gamma_norm(c: Canvas) -> None:
         name: (t, np.linalg.norm(w, axis=1)) for name, (t, w) in c.series.diagnostics(DiagnosticKind.WEIGHT).items()
     }
     if norms:
-        c.one_panel(norms, "|Γ| [1]", "norm of the pseudoinverse weights Γ", "gamma_norm", log=False)
+        one_panel(c, norms, "|Γ| [1]", "norm of the pseudoinverse weights Γ", "gamma_norm", log=False)
 
 
 def bias_estimate(c: Canvas) -> None:
@@ -333,12 +220,39 @@ def bias_estimate(c: Canvas) -> None:
     fig, axes = c.figure(len(s.sensors), height=2.0, sharex=True)
     fk = np.array(sorted(s.fault))
     for i, (ax, sensor) in enumerate(zip(axes[:, 0], s.sensors)):
+        true = np.array([s.fault[k][i] for k in fk])
+        c.reference(ax, fk * s.sample_time, true, "true fault φ")
         for name, (t, v) in bias.items():
-            ax.plot(t, v[:, i], color=c.color[name], label=f"{name} φ̂", lw=1)
-        ax.plot(fk * s.sample_time, [s.fault[k][i] for k in fk], "k--", lw=1, label="true fault φ")
-        c.finish(ax, f"φ on {sensor}{s.unit(sensor)}", legend=i == 0)
+            c.estimator(ax, name, t, v[:, i])
+        in_view(ax, [v[:, i] for _, v in bias.values()], true)
+        c.finish(ax, f"φ̂ on {sensor}{s.unit(sensor)}")
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]))
     c.save(fig, "bias_estimate", "bias estimates φ̂ against the true sensor fault")
+
+
+#: How many times the span of what matters the values must span before ``in_view`` leaves some out.
+FAR = 20
+
+
+def in_view(ax: Axes, curves: Sequence[np.ndarray], reference: np.ndarray) -> None:
+    """Limits that show zero, ``reference`` and the bulk of ``curves`` (0.5–99.5 % of their values) when
+    a few values lie ``FAR`` times as far beyond (φ̂ of TAC 2024 starts at ±10⁴ against a fault of
+    1, an estimate at −250 against states of ±3: either would flatten the rest); the panel says
+    what is off the axis."""
+    values = np.concatenate([np.ravel(v) for v in curves]) if curves else np.zeros(0)
+    values = values[np.isfinite(values)]
+    if not values.size:
+        return
+    low, high = np.percentile(values, [0.5, 99.5])
+    low, high = min(low, *reference, 0.0), max(high, *reference, 0.0)  # zero: a scale for values that agree
+    low, high = low - 0.15 * (high - low or 1.0), high + 0.15 * (high - low or 1.0)
+    if values.max() - values.min() <= FAR * (high - low):
+        return
+    off = int(((values < low) | (values > high)).sum())
+    ax.set_ylim(low, high)
+    note = f"{off} values off the axis, from {values.min():.3g} to {values.max():.3g}"
+    ax.set_title(note, loc="right", fontsize="x-small", color="0.3")  # above the panel, not on its data
 
 
 def residual(c: Canvas) -> None:
@@ -351,20 +265,22 @@ def residual(c: Canvas) -> None:
     for i, (name, (t, r)) in enumerate(residuals.items()):
         linear, log = axes[2 * i, 0], axes[2 * i + 1, 0]
         for j, sensor in enumerate(s.sensors):
-            linear.plot(t, r[:, j], label=f"r on {sensor}{s.unit(sensor)}", lw=1)
+            c.curve(linear, t, r[:, j], j, f"r on {sensor}{s.unit(sensor)}")
         norm = np.linalg.norm(r, axis=1)
-        log.semilogy(t, norm, "k", lw=1, label="|r|")
+        log.semilogy(*gapped(t, norm, t, GAP * s.sample_time), "k", lw=c.style.line, label="|r|")
         log_floor(log, [norm])
         for ax in (linear, log):
-            c.faults_shaded(ax, label=ax is log)
-        c.finish(linear, f"{name}: r = y − C x̂", ncol=min(3, len(s.sensors)))
+            c.faults_shaded(ax)
+        c.finish(linear, f"{name}: r = y − C x̂")
         c.finish(log, f"{name}: |r|{s.norm_unit_of(s.sensors)} (log)")
+    c.onsets_named(axes[0, 0])
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]))
     c.save(fig, "residual", "residual r = y − C x̂ per output and its norm; faults shaded")
 
 
 def _reconciliators(s: RunSeries) -> list[str]:
-    return sorted(name for name in s.estimators if virtual_output(s, name) is not None)
+    return [name for name in s.estimators if virtual_output(s, name) is not None]
 
 
 def gain_estimate(c: Canvas) -> None:
@@ -377,11 +293,12 @@ def gain_estimate(c: Canvas) -> None:
     t_all = np.array(sorted(s.sensor_truth)) * s.sample_time
     truth = true_gains(s, t_all)
     for i, (ax, sensor) in enumerate(zip(axes[:, 0], s.sensors)):
-        for name, (t, g) in sorted(gains.items()):
-            ax.plot(t, g[:, i], color=c.color[name], label=f"{name} γ̂", lw=1)
-        ax.plot(t_all, truth[:, i], "k--", lw=1, label="true γ")
-        c.finish(ax, f"γ of {sensor} [1]", legend=i == 0, ncol=3)
+        c.reference(ax, t_all, truth[:, i], "true γ")
+        for name, (t, g) in gains.items():
+            c.estimator(ax, name, t, g[:, i])
+        c.finish(ax, f"γ̂ of {sensor} [1]")
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]))
     c.save(fig, "gain_estimate", "sensor effectiveness γ̂ against the true gain")
 
 
@@ -394,15 +311,18 @@ def reconciled_output(c: Canvas) -> None:
     fig, axes = c.figure(2, height=2.8, sharex=True)
     values, errors = axes[0, 0], axes[1, 0]
     t, _, z = next(iter(outputs.values()))
-    values.plot(t, z, "k", lw=1.6, label="true z = H_z y")
+    c.reference(values, t, z, "true z = H_z y")
     for name, (t, zhat, z) in outputs.items():
-        values.plot(t, zhat, color=c.color[name], lw=1, label=f"{name} ẑ")
-        errors.semilogy(t, np.maximum(np.abs(zhat - z), 1e-12), color=c.color[name], lw=1, label=name)
+        c.estimator(values, name, t, zhat)
+        c.estimator(errors, name, t, np.maximum(np.abs(zhat - z), 1e-12), log=True)
+    log_floor(errors, [np.abs(zhat - z) for _, zhat, z in outputs.values()])
     for ax in (values, errors):
         c.faults_shaded(ax)
-    c.finish(values, "virtual output z", ncol=2)
-    c.finish(errors, "|ẑ − z| (log scale)", ncol=2)
+    c.onsets_named(values)
+    c.finish(values, f"virtual output ẑ{s.norm_unit_of(s.sensors)}")
+    c.finish(errors, "|ẑ − z| (log scale)")
     errors.set_xlabel(TIME)
+    c.legend(fig, [values, errors])
     c.save(fig, "virtual_output", "reconciled virtual output ẑ against the true z")
 
 
@@ -433,14 +353,20 @@ def _cofd_figure(c: Canvas, name: str, file: str) -> None:
     raised = ["+".join(target for flag, target in flags.items() if e.values[k].get(flag, 0.0) > 0.5) for k in dk]
     isolations = [(t[i], what) for i, what in enumerate(raised) if what and (i == 0 or what != raised[i - 1])]
     fig, axes = c.figure(len(observers), height=2.2, sharex=True)
-    for number, (ax, (observer, components)) in enumerate(zip(axes[:, 0], observers.items())):
-        for residual in components:
+    own = []
+    for ax, (observer, components) in zip(axes[:, 0], observers.items()):
+        labels = [directions.get(residual, residual) for residual in components]
+        for j, (residual, label) in enumerate(zip(components, labels)):
             ratio = np.array([abs(e.values[k][residual]) / e.values[k][bounded[residual]] for k in dk])
-            ax.semilogy(t, np.maximum(ratio, 1e-4), lw=1, label=directions.get(residual, residual))
-        ax.axhline(1.0, color="k", lw=0.8, label="threshold" if number == 0 else None)
-        c.events(ax, isolations, label=number == 0)
-        c.finish(ax, f"{observer}: |r_i| / threshold", loc="upper left", ncol=2)
+            c.curve(ax, t, np.maximum(ratio, 1e-4), j, label, log=True)
+        ax.axhline(1.0, color="k", lw=0.8 * c.style.line, label="threshold")
+        c.events(ax, isolations)
+        c.finish(ax, observer)
+        c.legend_above(ax, labels)
+        own += labels
+    fig.supylabel("|r_i| / threshold")
     axes[-1, 0].set_xlabel(TIME)
+    c.legend(fig, list(axes[:, 0]), leave=own)
     c.save(fig, file, f"{name}, COFD residual components over their thresholds")
 
 
@@ -452,13 +378,13 @@ def trajectory(c: Canvas) -> None:
     t, x = c.truth
     fig, cells = c.state_grid(s.states)
     for i, (ax, state) in enumerate(zip(cells, s.states)):
-        ax.plot(t, x[:, i], "k", lw=1, label="true state")
-        c.events(ax, label=True)
-        c.finish(ax, f"{state}{s.unit(state)}", legend=False)
-    c.figure_legend(fig, cells)
+        ax.plot(t, x[:, i], "k", lw=c.style.line, label="true state")
+        c.events(ax)
+        c.finish(ax, f"{state}{s.unit(state)}")
+    c.legend(fig, cells)
     marks = [
         *(["fault onsets dotted"] if s.faults else []),
-        *(["reconfiguration dashed"] if c.reconfigured_at is not None else []),
+        *(["reconfiguration dash-dotted"] if c.reconfigured_at is not None else []),
     ]
     c.save(fig, "trajectory", "true state of the closed loop" + (f" ({', '.join(marks)})" if marks else ""))
 
@@ -472,15 +398,16 @@ def planar_path(c: Canvas) -> None:
     _, x = c.truth
     fig, axes = c.figure(1, height=5.0)
     ax = axes[0, 0]
-    ax.plot(x[:, ix], x[:, iy], color="k", lw=1.8, label="true path")
-    ax.plot(x[:1, ix], x[:1, iy], "ko", ms=4, label="start")
+    c.reference(ax, x[:, ix], x[:, iy], "true path")
+    ax.plot(x[:1, ix], x[:1, iy], "ko", ms=c.style.marker, label="start")
     for name in s.estimators:
         t, xhat, _ = s.estimate(name)
         if t.size:
-            ax.plot(xhat[:, ix], xhat[:, iy], color=c.color[name], lw=1, label=f"{c.label(name)}: x̂")
+            c.estimator(ax, name, xhat[:, ix], xhat[:, iy], along=t)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel(f"x{s.unit('x')}")
     c.finish(ax, f"y{s.unit('y')}")
+    c.legend(fig, [ax])
     c.save(fig, "path", "path in the plane, y against x")
 
 
@@ -503,10 +430,21 @@ FIGURES: tuple[Callable[[Canvas], None], ...] = (
 
 
 def plot(
-    path: str | Path, out: str | Path, fmt: str = "png", dpi: int = 150, warnings: list[str] | None = None
+    path: str | Path,
+    out: str | Path,
+    fmt: str = "png",
+    dpi: int = 150,
+    warnings: list[str] | None = None,
+    *,
+    style: str = "screen",
+    width: str | float | None = None,
+    title: bool = True,
+    estimators: Sequence[str] | None = None,
 ) -> list[Path]:
-    """Write the figures of one log into ``out`` as ``fmt`` (png, svg, pdf); returns the files written.
-    ``warnings``, if given, gets what the log reader found wrong (damage: the figures end there)."""
+    """Write the figures of one log into ``out`` as ``fmt`` (png, svg, pdf) in ``style`` (screen,
+    paper) at ``width`` (single, double, inches; default the style's), with or without titles, of
+    all its estimators or those named (in that order); returns the files written. ``warnings``, if
+    given, gets what the log reader found wrong (damage: the figures end there)."""
     if fmt not in FORMATS:
         raise LogError(f"unknown figure format {fmt!r}: choose png, svg or pdf")
     require("matplotlib", "cosim plot")
@@ -515,23 +453,28 @@ def plot(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    look = Style.of(style, width)
     if bus_layout.is_imported(path):  # a bus log of another tool (cosim import): a figure per message
+        if estimators is not None:
+            raise LogError(f"{path}: a bus log of another tool has no estimators to choose (--estimators)")
         Path(out).mkdir(parents=True, exist_ok=True)
-        return bus_layout.plot(path, Path(out), fmt, dpi, STYLE, FORMATS[fmt])
-    with plt.rc_context(STYLE):
-        series = load(path)
-        if warnings is not None:
-            warnings.extend(series.warnings)
+        return bus_layout.plot(path, Path(out), fmt, dpi, look, title, FORMATS[fmt])
+    series = load(path)
+    if warnings is not None:
+        warnings.extend(series.warnings)
+    if estimators is not None:
+        series = series.only(estimators)
+    with plt.rc_context(look.rc):
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        canvas = Canvas(series, out, fmt, dpi)
+        canvas = Canvas(series, out, fmt, dpi, look, title)
         for draw in FIGURES:
             draw(canvas)
         return canvas.written
 
 
 def _fault_panels(series: RunSeries) -> list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]], bool]]:
-    """The panels of the faults figure: (y label, curves, drawn as steps)."""
+    """The panels of the faults figure: (y label, curves named by sensor and fault, drawn as steps)."""
     panels: list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]], bool]] = []
     fk = np.array(sorted(series.fault), dtype=int)
     t = fk * series.sample_time
@@ -542,8 +485,8 @@ def _fault_panels(series: RunSeries) -> list[tuple[str, dict[str, tuple[np.ndarr
         for i in hit:
             by_unit.setdefault(series.units.get(series.sensors[i], ""), []).append(i)
         for unit, columns in by_unit.items():
-            curves = {f"faults.fault.{series.sensors[i]}": (t, values[:, i]) for i in columns}
-            panels.append((f"added to sensor{f' [{unit}]' if unit else ''}", curves, False))
+            curves = {_on(series, series.sensors[i]): (t, values[:, i]) for i in columns}
+            panels.append((f"fault on sensor{f' [{unit}]' if unit else ''}", curves, False))
     if series.dropped:
         curves = {}
         for sensor in series.sensors:
@@ -557,6 +500,14 @@ def _fault_panels(series: RunSeries) -> list[tuple[str, dict[str, tuple[np.ndarr
         delta = np.array([series.effectiveness[k] for k in ek])
         changed = [j for j, _ in enumerate(series.actuators) if np.any(delta[:, j] != 1.0)]
         if changed:
-            curves = {f"δ of {series.actuators[j]}": (ek * series.sample_time, delta[:, j]) for j in changed}
-            panels.append(("actuator effectiveness δ [1]", curves, False))
+            te = ek * series.sample_time
+            curves = {_on(series, series.actuators[j], "δ of "): (te, delta[:, j]) for j in changed}
+            panels.append(("effectiveness δ [1]", curves, False))
     return panels
+
+
+def _on(series: RunSeries, target: str, prefix: str = "") -> str:
+    """A sensor's or actuator's curve in the faults figure: its name and the faults on it, as the
+    scenario names them (``x1: bias, drift``)."""
+    names = [f["label"] for f in series.faults if f.get("targets") is None or target in f["targets"]]
+    return f"{prefix}{target}" + (f": {', '.join(names)}" if names else "")

@@ -8,14 +8,14 @@ the reproduction tests read them too.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 import estimators
-from cosim import design_cache
+from cosim import design_cache, progress
 from cosim.analysis import names
 from cosim.bus.codec import estimate_signal
 from cosim.errors import LogError
@@ -37,6 +37,17 @@ class EstimatorSeries:
     def signals(self, kind: DiagnosticKind) -> dict[str, str]:
         """Its diagnostic signals of one kind, each with its target."""
         return self.record.signals_of(kind)
+
+    @property
+    def shown_kind(self) -> str:
+        """Its kind as people read it: a built-in's name, or the name a plugin's class declares
+        (not its module path); the class's name where the plugin cannot be imported here."""
+        if ":" not in self.kind:
+            return self.kind
+        try:
+            return str(estimators.ESTIMATORS[self.kind].kind)
+        except Exception:  # noqa: BLE001 (a plugin's import may raise anything: its class name will do)
+            return self.kind.rsplit(":", 1)[-1]
 
 
 @dataclass
@@ -72,6 +83,16 @@ class RunSeries:
     """The sensors whose frame was not sent, per tick (only ticks with some)."""
     warnings: list[str] = field(default_factory=list)
     """What the log reader found wrong (damage, a cut: the series end there)."""
+
+    def only(self, names: Sequence[str]) -> RunSeries:
+        """The series with these estimators alone, in this order; a LogError names one it lacks."""
+        missing = [name for name in names if name not in self.estimators]
+        if missing:
+            raise LogError(
+                f"no estimator {', '.join(map(repr, missing))} in the log (its estimators: "
+                f"{', '.join(self.estimators) or 'none'})"
+            )
+        return replace(self, estimators={name: self.estimators[name] for name in dict.fromkeys(names)})
 
     def unit(self, name: str) -> str:
         """`` [unit]`` of a state, sensor or actuator, or "" if it has none."""
@@ -226,7 +247,8 @@ def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] |
     e = series.estimators[name]
     if e.model is None:
         return None
-    estimator = design_cache.create(e.kind, LinearModel.from_dict(e.model), e.params, series.sample_time)
+    with progress.step(f"estimator {name} ({e.shown_kind}), for its |h_Γ|"):
+        estimator = design_cache.create(e.kind, LinearModel.from_dict(e.model), e.params, series.sample_time)
     ks = [k for k in sorted(e.values) if k in series.fault]
     out = []
     for k in ks:
@@ -239,7 +261,8 @@ def bias_effect(series: RunSeries, name: str) -> tuple[np.ndarray, np.ndarray] |
 
 def cofd_directions(series: RunSeries, name: str) -> dict[str, str]:
     """What drives each COFD residual component r<h>_<i>: the i-th input column of observer h's
-    multi-index (its thruster input, or cluster), as a legend label; {} if it cannot be told."""
+    multi-index (its thruster input, or cluster), as a legend label (``r1_2 along T1y``); {} if it
+    cannot be told."""
     e = series.estimators[name]
     try:
         params = estimators.ESTIMATORS[e.kind].check_params(e.params)
@@ -258,10 +281,10 @@ def cofd_directions(series: RunSeries, name: str) -> dict[str, str]:
             if cluster:
                 what = f"cluster {j + 1}"
             elif 0 <= j < len(series.actuators):
-                what = f"input {series.actuators[j]}"
+                what = series.actuators[j]
             else:
                 what = f"column {j + 1}"
-            found[f"r{h}_{i}"] = f"r{h}_{i}: along {what}"
+            found[f"r{h}_{i}"] = f"r{h}_{i} along {what}"
     return found
 
 
