@@ -279,7 +279,7 @@ class Canvas:
             return ax.legend(handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=ncol, frameon=False)
 
         # from the panel's left edge to the figure's (a y axis's labels to the left of it)
-        self.fitted(ax.figure, make, len(handles), self.style.width - 0.6)  # type: ignore[arg-type]
+        self.fitted(ax.figure, make, len(handles), self.style.width - 0.85)  # type: ignore[arg-type]
 
     def finish(self, ax: Axes, ylabel: str) -> None:
         """The panel's y label (on two lines, before its parenthesis, where one line would run past
