@@ -91,13 +91,43 @@ DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
 """
 
 
+#: The same FMU described with its integer and Boolean variables only (co-simulation): no Float
+#: variable, no state.
+DISCRETE = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="misbehaving" guid="{8c4e810f-3df3-4a00-8276-176fa3c9f000}"
+  generationTool="cosim tests (gcc)" numberOfEventIndicators="0">
+  <CoSimulation modelIdentifier="misbehaving" canHandleVariableCommunicationStepSize="true"/>
+  <ModelVariables>
+    <ScalarVariable name="count" valueReference="2" causality="input" variability="discrete">
+      <Integer start="7"/></ScalarVariable>
+    <ScalarVariable name="count_seen" valueReference="4" causality="output" variability="discrete" initial="calculated">
+      <Integer/></ScalarVariable>
+    <ScalarVariable name="on" valueReference="0" causality="input" variability="discrete">
+      <Boolean start="true"/></ScalarVariable>
+    <ScalarVariable name="on_seen" valueReference="1" causality="output" variability="discrete" initial="calculated">
+      <Boolean/></ScalarVariable>
+  </ModelVariables>
+  <ModelStructure>
+    <Outputs>
+      <Unknown index="2" dependencies="1"/>
+      <Unknown index="4" dependencies="3"/>
+    </Outputs>
+    <InitialUnknowns>
+      <Unknown index="2"/>
+      <Unknown index="4"/>
+    </InitialUnknowns>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+
+
 def compiler() -> str | None:
     return shutil.which("gcc") or shutil.which("cc")
 
 
-def build(folder: Path, *, directional: bool = False, name: str = "Misbehaving") -> Path:
+def build(folder: Path, *, directional: bool = False, discrete: bool = False, name: str = "Misbehaving") -> Path:
     """The FMU at ``folder/<name>.fmu`` (its library compiled there); ``directional``: it declares
-    directional derivatives."""
+    directional derivatives; ``discrete``: described with its integer and Boolean variables only."""
     import fmpy
 
     library = folder / "misbehaving.so"
@@ -111,6 +141,6 @@ def build(folder: Path, *, directional: bool = False, name: str = "Misbehaving")
     flag = 'providesDirectionalDerivative="true"' if directional else ""
     fmu = folder / f"{name}.fmu"
     with zipfile.ZipFile(fmu, "w") as archive:
-        archive.writestr("modelDescription.xml", DESCRIPTION.format(directional=flag))
+        archive.writestr("modelDescription.xml", DISCRETE if discrete else DESCRIPTION.format(directional=flag))
         archive.write(library, "binaries/linux64/misbehaving.so")
     return fmu

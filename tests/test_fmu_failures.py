@@ -77,8 +77,9 @@ def result_of(log: Path) -> ResultRecord:
 
 
 def cli(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    # utf-8, not the locale's encoding: an FMU run in this process (FMPy's reference runs) may set C's locale
     return subprocess.run(
-        [sys.executable, "-m", "cosim.cli", *args], capture_output=True, text=True, timeout=300, **kwargs
+        [sys.executable, "-m", "cosim.cli", *args], capture_output=True, encoding="utf-8", timeout=300, **kwargs
     )
 
 
@@ -143,7 +144,7 @@ def test_an_fmu_that_never_returns_is_stopped_by_ctrl_c_and_sigterm(fmu, signum,
         [sys.executable, "-m", "cosim.cli", "run", str(path), "--interface", "virtual", "--out", str(log), "-q"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        encoding="utf-8",
     )
     deadline = time.monotonic() + 120
     while not (log.exists() and log.stat().st_size > 0) and time.monotonic() < deadline:  # the run has started
@@ -246,6 +247,15 @@ def test_a_co_simulation_only_fmu_runs_and_a_model_is_asked_only_when_needed(fmu
         "CoSimulationOnly.fmu has no model-exchange interface to linearize (it is co-simulation only): give the "
         "design model as [plant.state_space], or use a build of the FMU with model exchange"
     )
+
+
+def test_an_fmu_without_a_float_variable_or_a_state_runs(tmp_path):
+    fmu = misbehaving_fmu.build(tmp_path, discrete=True, name="Discrete")
+    loaded = scenario.load(write(tmp_path, fmu, extra='inputs = [{ actuator = "count", signal = 3.0 }]'))
+    assert run(loaded, tmp_path / "run.mcap", interface="virtual").status == "completed"
+    with LogReader(tmp_path / "run.mcap") as reader:
+        sensors = [TruthSensors.read(m).values for _, _, m in reader.messages([TruthSensors.TOPIC])]
+    assert sensors[0] == {"count_seen": 7.0, "on_seen": 1.0} and sensors[-1] == {"count_seen": 3.0, "on_seen": 1.0}
 
 
 def test_a_description_that_breaks_the_schema_is_refused_in_one_line_unless_told(fmu, tmp_path):

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from cosim.errors import ModelError
-from cosim.plant.fmu_calls import CallWatch, FmuCallError, FmuMessage
+from cosim.plant.fmu_calls import CallWatch, FmuCallError, FmuMessage, fmi2_callbacks
 from cosim.plant.fmu_model import Element, FmuModel, fmpy, start_value
 from cosim.plant.statespace import StateSpacePlant
 from estimators.model import LinearModel
@@ -47,7 +47,8 @@ FMPY_TOLERANCE = 1e-5
 
 
 class Access:
-    """Reads and writes a fixed list of an FMU's scalars (``Element``) as one float array."""
+    """Reads and writes a fixed list of an FMU's scalars (``Element``) as one float array: one FMI
+    call per variable type (all its variables' value references at once)."""
 
     def __init__(self, elements: Sequence[Element], version: int) -> None:
         self.elements = tuple(elements)
@@ -56,11 +57,19 @@ class Access:
         for e in self.elements:
             variables.setdefault(id(e.variable), e.variable)
         self.variables = list(variables.values())
-        # Each variable's values start at offset[variable] in the flat buffer of all their values.
-        self._offset, position = {}, 0
+        # The variables by FMI type; each type's values are one slice of the flat buffer, each
+        # variable's values start at offset[variable] in it.
+        by_type: dict[str, list[Any]] = {}
         for v in self.variables:
-            self._offset[id(v)] = position
-            position += _size(v)
+            by_type.setdefault(_type_name(v, version), []).append(v)
+        self._groups: list[tuple[str, list[int], int, int, list[Any]]] = []
+        self._offset, position = {}, 0
+        for type_name, group in by_type.items():
+            start = position
+            for v in group:
+                self._offset[id(v)] = position
+                position += _size(v)
+            self._groups.append((type_name, [v.valueReference for v in group], start, position, group))
         self._size = position
         self._take = np.array([self._offset[id(e.variable)] + e.index for e in self.elements], dtype=int)
         # An enumeration variable takes only its items' values.
@@ -72,20 +81,22 @@ class Access:
 
     def get(self, fmu: Any) -> np.ndarray:
         buffer = np.zeros(self._size)
-        for v in self.variables:
-            values = self._getter(fmu, v)([v.valueReference], *self._count(v))
-            buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)] = np.asarray(values, dtype=float)
+        for type_name, references, start, end, _ in self._groups:
+            count = (end - start,) if self.version == 3 else ()
+            buffer[start:end] = getattr(fmu, "get" + type_name)(references, *count)
         return buffer[self._take]
 
     def set(self, fmu: Any, values: np.ndarray) -> None:
         buffer = np.zeros(self._size)
         buffer[self._take] = values
-        for v in self.variables:
-            chunk = buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)]
-            typed = [_typed(v, value) for value in chunk]
-            if id(v) in self._items:
-                self._check_items(v, typed)
-            self._setter(fmu, v)([v.valueReference], typed)
+        for type_name, references, _, _, group in self._groups:
+            typed = []
+            for v in group:
+                chunk = [_typed(v, value) for value in buffer[self._offset[id(v)] : self._offset[id(v)] + _size(v)]]
+                if id(v) in self._items:
+                    self._check_items(v, chunk)
+                typed += chunk
+            getattr(fmu, "set" + type_name)(references, typed)
 
     def _check_items(self, v: Any, values: list[Any]) -> None:
         items = self._items[id(v)]
@@ -96,15 +107,6 @@ class Access:
                     f"input {v.name} (enumeration {v.declaredType.name}) would be set to {value}, which is none of its "
                     f"items: {listed}; check its input signal and actuator faults"
                 )
-
-    def _count(self, v: Any) -> tuple[int, ...]:
-        return (_size(v),) if self.version == 3 else ()
-
-    def _getter(self, fmu: Any, v: Any) -> Callable[..., list[Any]]:
-        return getattr(fmu, "get" + _type_name(v, self.version))
-
-    def _setter(self, fmu: Any, v: Any) -> Callable[..., None]:
-        return getattr(fmu, "set" + _type_name(v, self.version))
 
 
 def _size(variable: Any) -> int:
@@ -172,6 +174,7 @@ class FmuPlant:
         version = model.version
         self._states = Access(model.states, version)
         self._sensors = Access([by_name[n] for n in self.sensor_names], version)
+        self._reading = Access(self._states.elements + self._sensors.elements, version)
         self._inputs = Access(model.actuators + model.disturbances, version)
         self.start_inputs = np.array([start_value(e) for e in model.actuators + model.disturbances], dtype=float)
         """The inputs' start values (actuators, then disturbance inputs): what an undriven input holds."""
@@ -235,6 +238,10 @@ class FmuPlant:
 
     def sensors(self) -> np.ndarray:
         return self._sensors.get(self.fmu)
+
+    def reading(self) -> np.ndarray:
+        """The states, then the sensors, in one read (one FMI call per variable type)."""
+        return self._reading.get(self.fmu)
 
     def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
         """Hold the inputs (actuators ``ctrl``, disturbance inputs ``disturbance``, default 0) from
@@ -357,13 +364,24 @@ def start_values(model: FmuModel, initial: dict[str, float] | None) -> dict[str,
 
 
 def instantiate(model: FmuModel, unzipped: str, interface: str, watch: CallWatch) -> Any:
-    """An FMU instance of the given interface (``fmpy.simulation.instantiate_fmu``), its calls and
-    log messages watched by ``watch``."""
+    """An FMU instance of the given interface (as ``fmpy.simulation.instantiate_fmu`` makes it), its
+    calls and log messages watched by ``watch`` (FMI 2: the process's callbacks, ``fmi2_callbacks``)."""
     from fmpy.simulation import instantiate_fmu
 
-    fmi_type = "CoSimulation" if interface == "co-simulation" else "ModelExchange"
+    md = model.description
+    cs = interface == "co-simulation"
+    watch.instantiating()
     try:
-        fmu = instantiate_fmu(unzipped, model.description, fmi_type, logger=watch.logger())
+        if model.version == 3:
+            fmu = instantiate_fmu(unzipped, md, "CoSimulation" if cs else "ModelExchange", logger=watch.logger())
+        else:
+            from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+            part = md.coSimulation if cs else md.modelExchange
+            fmu = (FMU2Slave if cs else FMU2Model)(
+                guid=md.guid, unzipDirectory=unzipped, modelIdentifier=part.modelIdentifier, instanceName=None
+            )
+            fmu.instantiate(callbacks=fmi2_callbacks())
     except FmuCallError:
         raise
     except Exception as error:  # noqa: BLE001 (FMPy raises plain Exceptions when a library does not load)

@@ -12,6 +12,13 @@ raises ``FMICallException`` for a status above Warning. ``CallWatch.watch`` wrap
 - the FMU's logger callback (FMI 2 ``logger``, FMI 3 ``logMessage``) collects its messages
   (``FmuMessage``) in ``messages`` (or hands each to ``on_message``), instead of FMPy's default, which
   prints them.
+
+FMI 2's logger is variadic: FMPy formats its message through a proxy in C (``addLoggerProxy``)
+which keeps the Python logger it wraps in one pointer for the whole process. A logger per instance
+would leave that pointer to a freed callback once its instance is gone, and the next message of
+another instance would crash the process. So FMI 2 instances all get one callback structure that
+lives as long as the process (``fmi2_callbacks``), whose logger hands a message to the watch of
+the call under way (``_current``: calls are made one at a time).
 """
 
 from __future__ import annotations
@@ -79,6 +86,8 @@ class CallWatch:
         slot = self.slot
 
         def watched(fname: str, *args: Any) -> Any:
+            global _current
+            _current = self
             if slot is not None:
                 slot[: len(fname) + 1] = fname.encode() + b"\0"
             if fname.endswith("SetTime"):  # the solver's time, for the line of a call that fails inside it
@@ -126,18 +135,18 @@ class CallWatch:
             raise self.failure
 
     def logger(self) -> Callable[..., None]:
-        """The FMU's logger callback for FMPy's ``instantiate_fmu`` (FMI 2 or 3 signature)."""
-        if self.version == 2:
-
-            def logger2(component: Any, instance: Any, status: int, category: Any, message: Any) -> None:
-                self._logged(status, category, message)
-
-            return logger2
+        """The FMU's logMessage callback for FMPy's ``instantiate_fmu`` (FMI 3: one per instance,
+        kept by FMPy's instance object)."""
 
         def logger3(environment: Any, status: int, category: Any, message: Any) -> None:
             self._logged(status, category, message)
 
         return logger3
+
+    def instantiating(self) -> None:
+        """The calls about to be made (an instantiation) are this watch's."""
+        global _current
+        _current = self
 
     def _logged(self, status: int, category: Any, message: Any) -> None:
         message = FmuMessage(
@@ -182,3 +191,37 @@ class Said:
         if self.printed:
             parts.append(f"printed {self.printed} line{'s' if self.printed != 1 else ''}")
         return " and ".join(parts)
+
+
+_current: CallWatch | None = None
+"""The watch of the FMI call under way (FMI 2's logger hands it the message)."""
+_FMI2_CALLBACKS: Any = None
+
+
+def _logger2(component: Any, instance: Any, status: int, category: Any, message: Any) -> None:
+    if _current is not None:
+        _current._logged(status, category, message)
+
+
+def fmi2_callbacks() -> Any:
+    """The FMI 2 callback functions of every instance of this process (see the module's docstring)."""
+    global _FMI2_CALLBACKS
+    if _FMI2_CALLBACKS is None:
+        from ctypes import byref
+
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+        from fmpy.logging import addLoggerProxy
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(_logger2)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        addLoggerProxy(byref(callbacks))
+        _FMI2_CALLBACKS = callbacks
+    return _FMI2_CALLBACKS

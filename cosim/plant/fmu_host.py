@@ -77,7 +77,7 @@ class Host:
         try:
             plant = self.plants[key]
             plant.step(values[:m], values[m:])
-            answer = ANSWER + plant.state().tobytes() + plant.sensors().tobytes()
+            answer = ANSWER + plant.reading().tobytes()
         except ModelError as error:
             answer = pickle.dumps(("error", str(error)))
         except Exception as error:  # noqa: BLE001 (a bug: its traceback goes back to the runner)

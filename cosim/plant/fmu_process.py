@@ -95,6 +95,8 @@ class Host:
         )
         theirs.close()
         self.connection: Connection = ours
+        self._answered = select.poll()  # one system call a wait, not multiprocessing's selector per call
+        self._answered.register(ours.fileno(), select.POLLIN)
         self._outputs = {"stdout": self.process.stdout, "stderr": self.process.stderr}
         self._printed = select.poll()  # whether the host printed anything: one system call a tick
         for stream in self._outputs.values():
@@ -136,7 +138,7 @@ class Host:
         started = time.monotonic()
         try:
             while True:
-                if not self.connection.poll(POLL):  # the FMU is slow, chatty or hangs
+                if not self._answered.poll(POLL * 1000):  # the FMU is slow, chatty or hangs
                     self.read_output()
                     if interrupted is not None:
                         interrupted()
@@ -396,15 +398,22 @@ class IsolatedFmuPlant:
             pass
 
 
+def _python_interpreter() -> bool:
+    """Whether this process can start a Python like itself: not so in Python embedded in another
+    program (an exported cosim FMU inside a C tool, where ``sys.executable`` is that tool)."""
+    return Path(sys.executable).name.startswith("python")
+
+
 def fmu_plant(s: Any, interrupted: Callable[[], None] | None = None) -> Any:
     """The FMU plant of a validated scenario: in a process of its own, or in this one with
-    ``[plant.fmu] isolation = "none"``."""
+    ``[plant.fmu] isolation = "none"`` (and in Python embedded in another program, which has no
+    interpreter to start)."""
     from cosim.plant.fmu import FmuPlant
 
     model = s.fmu_model()
     tolerance = model.settings.get("tolerance")
     design = s.plant.state_space
-    if model.settings.get("isolation") == "none":
+    if model.settings.get("isolation") == "none" or not _python_interpreter():
         return FmuPlant(model, s.sample_time, s.duration, s.sensors, design=design, tolerance=tolerance)
     return IsolatedFmuPlant(
         model, s.sample_time, s.duration, s.sensors, design=design, tolerance=tolerance, interrupted=interrupted
