@@ -141,8 +141,9 @@ def _unraisable(hook: Any) -> Any:
 def main(argv: list[str]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     sys.unraisablehook = _unraisable(sys.unraisablehook)
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    prctl = getattr(ctypes.CDLL(None), "prctl", None)  # Linux's; elsewhere the host outlives a killed runner
+    if prctl is not None:
+        prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if os.getppid() != int(argv[2]):  # the runner died before prctl: nobody to serve
         return
     connection = Connection(int(argv[0]))
