@@ -82,8 +82,10 @@ def load_scenario(
     check_scenario_name(name)
     changes = [scenario.parse_setting(text) for text in settings or []]
     changes += [("seed", seed)] if seed is not None else []
-    if no_validate:  # before the file is validated: that would refuse the FMU
-        return scenario.load_with(name, [("plant.fmu.validate", False), *changes])
+    if no_validate:
+        changes.insert(0, ("plant.fmu.validate", False))
+    if any(key == "plant.fmu.validate" for key, _ in changes):  # applied before validating: that refuses the FMU
+        return scenario.load_with(name, changes)
     return scenario.apply(scenario.load(name), changes)
 
 
