@@ -210,18 +210,18 @@ class LogReader:
         if topics is not None:
             self._catalogue()
         decoded: dict[int, str | None] = {}  # channel id -> its topic, None for a channel not decoded
-        undecoded: Counter[str] = Counter()
+        undecoded: Counter[str] = Counter()  # "topic (encoding)" -> messages of a wanted topic not decoded
+        not_json: dict[int, str] = {}  # such a channel's id -> its "topic (encoding)"
         count, last, loads = 0, None, orjson.loads
         try:
             for channel_id, message in self._messages(topics):
                 topic = decoded.get(channel_id)
                 if topic is None:
                     if channel_id not in decoded:
-                        topic = decoded[channel_id] = self._decoded_topic(channel_id, topics)
+                        topic = decoded[channel_id] = self._decoded_topic(channel_id, topics, not_json)
                     if topic is None:
-                        channel = self._channels.get(channel_id)
-                        if channel is not None and (topics is None or channel.topic in topics):
-                            undecoded[f"{channel.topic} ({channel.message_encoding or 'no encoding'})"] += 1
+                        if channel_id in not_json:
+                            undecoded[not_json[channel_id]] += 1
                         continue
                 try:
                     payload = loads(message.data)
@@ -247,15 +247,19 @@ class LogReader:
         reason = str(error) or type(error).__name__
         self.warn(f"the log is damaged or cut {where} ({reason}); the {count} messages before it were read")
 
-    def _decoded_topic(self, channel_id: int, topics: list[str] | None) -> str | None:
-        """The topic of a channel whose messages ``messages`` decodes, None for one it does not."""
+    def _decoded_topic(self, channel_id: int, topics: list[str] | None, not_json: dict[int, str]) -> str | None:
+        """The topic of a channel whose messages ``messages`` decodes, None for one it does not; one
+        of a wanted topic that is not JSON goes into ``not_json``."""
         channel = self._channels.get(channel_id)
         if channel is None:
             self.warn(f"messages on channel {channel_id}, which the file never declares, were skipped")
             return None
-        if channel.message_encoding != MessageEncoding.JSON:
+        if topics is not None and channel.topic not in topics:
             return None
-        return channel.topic if topics is None or channel.topic in topics else None
+        if channel.message_encoding != MessageEncoding.JSON:
+            not_json[channel_id] = f"{channel.topic} ({channel.message_encoding or 'no encoding'})"
+            return None
+        return channel.topic
 
     def raw_messages(self, topics: list[str] | None = None) -> Iterator[Message]:
         """(schema, channel, message record) in file order, as mcap's readers yield them, for any
@@ -296,9 +300,10 @@ class LogReader:
                 and not wanted.intersection(index.message_index_offsets)
             ):
                 continue
-            yield from self._chunk(index)
+            chunk = self._chunk(index)
+            yield from (chunk if wanted is None else [item for item in chunk if item[0] in wanted])
 
-    def _chunk(self, index: records.ChunkIndex) -> Iterator[tuple[int, records.Message]]:
+    def _chunk(self, index: records.ChunkIndex) -> list[tuple[int, records.Message]]:
         """The messages of the chunk an index points at; one that is damaged is skipped with a warning,
         one whose message indexes do not match it is read with a warning."""
         at, length = index.chunk_start_offset, index.chunk_length
@@ -312,14 +317,14 @@ class LogReader:
                 f"a damaged chunk was skipped: bytes {at}-{at + length}, "
                 f"t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s ({error})"
             )
-            return
+            return []
         if damage is not None:
             self.warn(
                 f"the chunk at bytes {at}-{at + length} "
                 f"(t = {index.message_start_time / 1e9:g}-{index.message_end_time / 1e9:g} s) is intact but "
                 f"{damage}: readers that seek by them may miss or misplace messages ('cosim recover' rewrites them)"
             )
-        yield from messages
+        return messages
 
     def _chunk_messages(
         self, data: bytes, at: int
