@@ -183,7 +183,7 @@ def test_inspect_says_what_mcap_info_says_of_any_file(tmp_path):
     assert result.returncode == 0 and result.stderr == ""
     lines = [line.split() for line in result.stdout.splitlines()]
     assert ["messages:", "10"] in lines and ["duration:", "9ns"] in lines and ["end:", "0.000000009"] in lines
-    assert ["1", "example", "10", "1.11e+09", "Hz", "Example", "[c]", "a"] in lines
+    assert ["1", "example", "10", "1.111e+09", "Hz", "Example", "[c]", "a"] in lines
     assert "estimation error" not in result.stdout  # not a log of cosim: no metrics
 
 

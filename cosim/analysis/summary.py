@@ -90,7 +90,7 @@ def render_info(info: dict[str, Any], console: Console) -> None:
     channels = _table(f"channels: {len(info['channels'])}", ["id", "topic", "messages", "rate", "schema", "encoding"])
     for c in info["channels"]:
         schema = "<no schema>" if c["schema"] is None else f"{c['schema']} [{c['schema_encoding']}]"
-        rate = f"{c['messages'] / seconds:.3g} Hz" if seconds > 0 and c["messages"] > 1 else "-"
+        rate = f"{c['messages'] / seconds:.4g} Hz" if seconds > 0 and c["messages"] > 1 else "-"
         channels.add_row(
             str(c["id"]), escape(c["topic"]), str(c["messages"]), rate, escape(schema), escape(c["message_encoding"])
         )
