@@ -17,6 +17,11 @@ Algorithm 1 (scaling and low-pass filtering of φ̂ before the optimizer) handle
 constant direction and varying magnitude, φ_k = g_k φ̄ (35). The baseline (56) injects φ̂ instead:
 x̂⁺ = A x̂ + B u + L (Y†(y − φ̂) − H x̂), optionally with φ̂ low-pass filtered.
 
+Beyond the paper, off by default: a dead zone on the adaptation (``dead_zone`` δ > 0), the optimizer
+held while |φ̂_k| < δ, a standard robust modification of adaptive laws (Ioannou & Sun, *Robust
+Adaptive Control*, 1996, Ch. 8, "Dead zone"): without a bias to identify, φ̂ is noise and z
+would wander over 𝒮_ε (docs/tac2024.md, "Under measurement noise").
+
 All estimators here work on the outputs recombined by the orthogonal Σ of the construction
 after Assumption 2 (Σ = I when the plant's (Y, H) already satisfy it, as in the paper's case study).
 Ticks with a missing reading are open-loop predictions: no correction, optimizer and selector held.
@@ -229,6 +234,9 @@ class AdaptiveParams:
     """τ of Algorithm 1 (scaling and low-pass filtering of φ̂ before the optimizer); None: off."""
     eps_phi: float = 1e-3
     """Regularization ε_φ of Algorithm 1 (i), in output units."""
+    dead_zone: float = 0.0
+    """δ of a dead zone, beyond the paper: the optimizer holds z while |φ̂_k| < δ (output units), so that
+    measurement noise alone does not move it; 0: off, the paper's law. Set it above φ̂'s noise."""
     z0: tuple[float, ...] | None = None
     """Initial optimizer and selector states z₀ = s₀; None: the uniform weights 𝟙/√p."""
     x0: tuple[float, ...] | None = None
@@ -260,6 +268,8 @@ class AdaptivePseudoinverseObserver(Estimator):
             raise ParameterError("filter", f"{params.filter}: Algorithm 1 needs τ in (0, 1)")
         if not params.eps_phi > 0:
             raise ParameterError("eps_phi", "must be positive")
+        if not params.dead_zone >= 0:
+            raise ParameterError("dead_zone", f"{params.dead_zone}: the dead zone must be 0 (off) or positive")
         self.C = self.Sigma @ model.C
         self.L = _gain(model, self.H, params.poles, "poles")
         self.M = _gain(model, self.H, params.bias_poles, "bias_poles")
@@ -304,9 +314,9 @@ class AdaptivePseudoinverseObserver(Estimator):
                 self.phi_filtered = scale_and_filter(
                     phi_hat, self.phi_filtered, self.params.filter, self.params.eps_phi
                 )
-                self.z = optimizer_step(z, self.phi_filtered, self.Y)
-            else:
-                self.z = optimizer_step(z, phi_hat, self.Y)  # (16), (37e)
+            driving = phi_hat if self.params.filter is None else self.phi_filtered
+            if np.linalg.norm(phi_hat) >= self.params.dead_zone:  # always with δ = 0, the paper's law
+                self.z = optimizer_step(z, driving, self.Y)  # (16), (37e)
             self.s, self.h = select(s, z, self.Y, self.params.epsilon)  # (17) / (52)
             self.bias.update(y, du)  # (7a)
         outputs = self.model.outputs
