@@ -10,8 +10,9 @@ estimator from 0, the bias φ = [1, −1.5, 0.5] of Sec. VII-A from t = 5 s, 30 
 Gaussian of the given standard deviation on every sensor (seed per run). Per run: the peak and
 RMS of |x − x̂| from the onset, and the settled error, its RMS over the last 10 s. A setting
 *breaks* at the smallest noise where its median settled error exceeds the uniform-weight
-observer's (the paper's baseline, whose steady error the bias sets). About 6 minutes with 5 seeds.
-Needs the ``plot`` extra for the figure.
+observer's (the paper's baseline, whose steady error the bias sets). About 10 minutes with 5
+seeds on two busy cores; ``--rows`` redraws a sweep printed with ``--json``. Needs the ``plot``
+extra for the figure.
 """
 
 from __future__ import annotations
