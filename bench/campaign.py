@@ -14,13 +14,19 @@ campaign). Figures:
   engine costs per run beyond the run itself (submission, transfer, writing the run's part);
 - ``overhead_fraction``: that over the mean run time;
 - ``startup_s``: time to start the local cluster (all workers);
-- ``identical``: the two tables' metrics columns are equal.
+- ``identical``: the two tables' metrics columns are equal;
+- ``logged_run_s``: the same scenario run once in this process, in-process bus, writing its log and
+  not scored (``cosim run --in-process``'s work, start-up of the interpreter aside), the median of
+  ``--logged`` runs after one to warm up, measured before the campaigns;
+- ``campaign_run_cost_s``: a campaign run's cost per worker, loop time × workers / runs (with all
+  workers; ``campaign_run_cost_1w_s`` with one), and ``cost_over_logged_run``: that over
+  ``logged_run_s`` (a campaign run writes no log and is scored as it goes).
 
 With ``--memory-runs N`` it also runs a campaign of N runs of 0.05 s (so that the engine, not the
 runs, is what grows) and reports the coordinator's resident memory after the first tenth of the
 runs and at the end (``memory_rss_mb_at_10pct``, ``memory_rss_mb_at_end``, ``memory_runs``).
 
-Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N] [--memory-runs N]
+Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N] [--logged N] [--memory-runs N]
 """
 
 from __future__ import annotations
@@ -52,6 +58,22 @@ def rss_mb() -> float:
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+def logged_run(folder: Path, duration: float, count: int) -> float:
+    """Median wall time of ``count`` logged in-process runs of the campaign's scenario (one more first, to warm up)."""
+    import time
+
+    from cosim import api
+    from cosim.scenario import apply
+
+    loaded = apply(api.load("masses-bias"), [("duration", duration)])
+    times = []
+    for i in range(count + 1):
+        start = time.perf_counter()
+        api.run(loaded, folder / f"logged-{i}.mcap", seed=i, in_process=True)
+        times.append(time.perf_counter() - start)
+    return sorted(times[1:])[count // 2]
+
+
 def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
     """Coordinator memory over a campaign of many tiny runs."""
     campaign = load_campaign(campaign_file(folder, runs, 0.05))
@@ -74,6 +96,7 @@ def main() -> int:
     parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")
+    parser.add_argument("--logged", type=int, default=3, help="logged in-process runs to compare with (default 3)")
     parser.add_argument(
         "--memory-runs", type=int, default=0, help="also measure the coordinator over this many tiny runs"
     )
@@ -81,6 +104,7 @@ def main() -> int:
     import pyarrow.parquet as pq
 
     with tempfile.TemporaryDirectory() as folder:
+        logged = logged_run(Path(folder), args.duration, args.logged)
         campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration))
         results = {}
         for workers in (1, args.workers):
@@ -99,6 +123,10 @@ def main() -> int:
             "overhead_fraction": round(overhead / mean_run, 4),
             "mean_run_s": round(mean_run, 3),
             "startup_s": round(many.startup_time, 2),
+            "logged_run_s": round(logged, 3),
+            "campaign_run_cost_s": round(many.loop_time * many.workers / many.runs, 3),
+            "campaign_run_cost_1w_s": round(one.loop_time / one.runs, 3),
+            "cost_over_logged_run": round(many.loop_time * many.workers / many.runs / logged, 3),
             "runs": many.runs,
             "failed": one.failed + many.failed,
             "identical": tables[0].equals(tables[1]),
@@ -122,6 +150,13 @@ def main() -> int:
             f"{100 * figures['overhead_fraction']:.1f} % of a run",
         ),
         ("cluster start-up", f"{figures['startup_s']:.2f} s", "once per campaign"),
+        ("logged run", f"{figures['logged_run_s']:.2f} s", "in this process, in-process bus, log written, not scored"),
+        (
+            "campaign run cost",
+            f"{figures['campaign_run_cost_s']:.2f} s",
+            f"per worker ({figures['campaign_run_cost_1w_s']:.2f} s with 1): "
+            f"{figures['cost_over_logged_run']:.2f} × the logged run",
+        ),
         ("tables identical", str(figures["identical"]), "1 worker against all, metrics columns"),
     ]
     if args.memory_runs:

@@ -110,9 +110,12 @@ def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
 
 @pytest.mark.slow
 def test_campaign_benchmark_reports_runs_per_hour_speedup_and_overhead():
-    figures = bench("campaign.py", "--runs", "4", "--duration", "0.5", "--memory-runs", "20")
+    figures = bench("campaign.py", "--runs", "4", "--duration", "0.5", "--memory-runs", "20", "--logged", "1")
     assert figures["workers"] >= 1 and figures["runs_per_hour"] > 0 and figures["speedup"] > 0
     assert figures["overhead_per_run_s"] >= 0 and figures["identical"] is True, figures
+    assert figures["logged_run_s"] > 0 and figures["campaign_run_cost_s"] > 0
+    cost = figures["campaign_run_cost_s"] / figures["logged_run_s"]
+    assert figures["cost_over_logged_run"] == pytest.approx(cost, rel=0.01)
 
 
 def test_vessel_fdi_figures_isolate_every_fault_on_the_linear_model():

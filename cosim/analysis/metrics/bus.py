@@ -64,19 +64,18 @@ class BusScore:
 
     def frame(self, frame: CanFrame, log_time: int) -> None:
         data = frame.payload_bytes
-        fd, brs, extended = bool(frame.fd), bool(frame.brs), bool(frame.extended)
-        bits = frame_bits(int(frame.id), extended, fd, brs, int(frame.dlc), data)
-        worst = frame_bits_worst_case(extended, fd, brs, len(data))
-        entry = self.by_id.get(int(frame.id))
+        frame_id, fd, brs, extended = int(frame.id), bool(frame.fd), bool(frame.brs), bool(frame.extended)
+        bits = frame_bits(frame_id, extended, fd, brs, int(frame.dlc), data)
+        entry = self.by_id.get(frame_id)
         if entry is None:
-            entry = self.by_id[int(frame.id)] = IdTraffic(frame.message)
+            entry = self.by_id[frame_id] = IdTraffic(frame.message)
         entry.frames += 1
         entry.bits += bits[0] + bits[1]
         self.frames += 1
         busy = self._time(bits)
         self.busy += busy
         self.windows[log_time // LOAD_WINDOW_NS] += busy
-        self.busy_worst += self._time(worst)
+        self.busy_worst += self._time(frame_bits_worst_case(extended, fd, brs, len(data)))
         if frame.tick != self.tick:
             self.finish()
             self.tick, self.tick_busy = frame.tick, 0.0

@@ -102,7 +102,7 @@ class LiveMeasurement:
         try:
             scorer = self._scorer or self._start()
             self._counts[channel] += 1
-            if scorer.records(channel) and isinstance(payload, Record):
+            if isinstance(payload, Record) and scorer.records(channel):
                 scorer.feed_record(channel, time_ns, payload)
             else:
                 scorer.feed(channel, time_ns, orjson.loads(dumps(payload)))

@@ -133,8 +133,12 @@ class Scorer:
 
     def seen(self, log_time: int) -> None:
         """A message at ``log_time`` that the scores do not read: the log's time span only."""
-        self.first_ns = log_time if self.first_ns is None else min(self.first_ns, log_time)
-        self.last_ns = log_time if self.last_ns is None else max(self.last_ns, log_time)
+        if self.last_ns is None or self.first_ns is None:  # set together
+            self.first_ns = self.last_ns = log_time
+        elif log_time > self.last_ns:
+            self.last_ns = log_time
+        elif log_time < self.first_ns:
+            self.first_ns = log_time
 
     def feed(self, topic: str, log_time: int, msg: Any) -> None:
         self.seen(log_time)
