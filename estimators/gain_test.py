@@ -163,6 +163,25 @@ def gain_standard_errors(system: WindowSystem) -> np.ndarray:
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
 
 
+def normal_inverse(columns: np.ndarray) -> np.ndarray:
+    """(XᵀX)⁺ for the fitted columns X: for one column [[1/‖x‖²]] (0 for a zero column), which is
+    what ``np.linalg.pinv`` returns for a 1 × 1 matrix, bit for bit (tested), without its SVD (tens
+    of µs a call, and a gain search makes thousands); else, and where LAPACK's SVD would rescale a
+    1 × 1 (near the ends of the floats' range: its last bit may then differ), ``np.linalg.pinv``."""
+    gram = columns.T @ columns
+    if gram.shape == (1, 1):
+        g = float(gram[0, 0])
+        if g == 0.0:
+            return np.zeros((1, 1))
+        if _UNSCALED[0] < g < _UNSCALED[1]:
+            return np.array([[1.0 / g]])
+    return np.linalg.pinv(gram)
+
+
+#: Where a 1 × 1 SVD is |a| exactly (LAPACK scales matrices outside about 1e-146 to 1e146).
+_UNSCALED = (1e-100, 1e100)
+
+
 class GainHypothesis(NamedTuple):
     """A hypothesis about a window's gains: those in ``free`` changed to unknown values, each of the
     others is either as before (the previous γ̂) or back to 1."""
@@ -204,7 +223,7 @@ def gain_hypotheses(
         for free in itertools.combinations(range(m), size):
             index = list(free)
             columns = R[:, index]
-            covariance = np.linalg.pinv(columns.T @ columns) if free else np.zeros((0, 0))
+            covariance = normal_inverse(columns) if free else np.zeros((0, 0))
             error = float(np.sqrt(np.max(np.diag(covariance)))) if free else 0.0
             recovered = [j for j in range(m) if j not in free and previous[j] != 1.0]
             for back in itertools.product((False, True), repeat=len(recovered)):
