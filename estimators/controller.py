@@ -85,13 +85,14 @@ CONTROL_ERROR = Diagnostic("e_{}", "", "control error r - y of the loop on {}", 
 class PidController(Controller):
     """Decentralized discrete PID loops, loop i driving input ``inputs[i]`` from output ``outputs[i]``:
 
-        e_k = r − y_k,   I_k = I_{k−1} + τ e_k,
+        r_k = r + a sin(2π f t_k),   e_k = r_k − y_k,   I_k = I_{k−1} + τ e_k,
         u_k = u_op + k_p e_k + k_i I_k − k_d (y_k − y_{k−1}) / τ,
 
     derivative on the measurement (no kick when the set point r steps), saturation to
     [``lower``, ``upper``] with conditional integration as anti-windup (the integral is not
-    advanced while the loop is saturated in the direction the error pushes). A missing reading
-    holds the loop's last command. The inputs of the plant with no loop stay at u_op.
+    advanced while the loop is saturated in the direction the error pushes). The set point r may
+    swing around its value with amplitude a (``amplitude``) at f hertz (``frequency``). A missing
+    reading holds the loop's last command. The inputs of the plant with no loop stay at u_op.
     """
 
     kind = "pid"
@@ -106,6 +107,8 @@ class PidController(Controller):
         kd: tuple[float, ...] = (0.0,)
         lower: tuple[float, ...] = (-np.inf,)
         upper: tuple[float, ...] = (np.inf,)
+        amplitude: tuple[float, ...] = (0.0,)
+        frequency: tuple[float, ...] = (0.0,)
 
     def __init__(self, model: LinearModel, params: Params, sample_time: float | None = None) -> None:
         super().__init__(model, params, sample_time)
@@ -120,6 +123,7 @@ class PidController(Controller):
         self.setpoint, self.kp, self.ki, self.kd, self.lower, self.upper = (
             _per_loop(getattr(params, name), loops, name) for name in ("setpoint", "kp", "ki", "kd", "lower", "upper")
         )
+        self.amplitude, self.frequency = (_per_loop(getattr(params, n), loops, n) for n in ("amplitude", "frequency"))
         if np.any(self.lower >= self.upper):
             raise ParameterError("lower", "every lower limit must be below its upper limit")
         self.integral = np.zeros(loops)
@@ -130,9 +134,15 @@ class PidController(Controller):
     def diagnostic_channels(cls, model_inputs: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return CONTROL_ERROR.over(outputs)
 
+    def reference(self, t: float) -> np.ndarray:
+        """The set points r_k at t (the constant ones, as they are, when nothing swings)."""
+        if not self.amplitude.any():
+            return self.setpoint
+        return self.setpoint + self.amplitude * np.sin(2 * np.pi * self.frequency * t)
+
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         y = np.asarray(y, dtype=float)[self._y]
-        error = self.setpoint - y
+        error = self.reference(t) - y
         ok = np.isfinite(y)
         previous = y if self.previous is None else np.where(np.isfinite(self.previous), self.previous, y)
         derivative = np.where(ok, (y - previous) / self.sample_time, 0.0)

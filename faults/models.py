@@ -264,6 +264,9 @@ class ActuatorOffset(ActuatorFault):
         return offset
 
 
+#: The attack kinds of ``faults.attacks`` (imported when first named): kind -> class name.
+ATTACKS = {"suspension": "Suspension", "masquerade": "Masquerade", "fuzzing": "Fuzzing"}
+
 # -- bus faults -----------------------------------------------------------------------------------
 
 
@@ -282,20 +285,44 @@ class FrameFate:
 class BusFault(Fault):
     """A fault of the bus rather than of a signal: it acts on frames of some ``messages`` (DBC
     names), on a node's transmissions, or adds frames of an intruder. Bus faults are decided frame
-    by frame by the runner (``cosim.run.busfaults``), from their own random stream."""
+    by frame by the runner (``cosim.run.busfaults``), from their own random stream, through these
+    methods alone: a plugin's bus fault is one more subclass.
+
+    Each genuine frame the runner sends meets ``fate`` of every active fault it ``hits``; a frame
+    lost there may be taken over by an intruder (``substitute``); intruders add frames of a
+    message right after its genuine frame (``inject``) and raw frames anywhere in the tick
+    (``forge``). A fault that adds frames is an ``intruder``: its frames are foreign frames."""
 
     messages: tuple[str, ...] = ()
+
+    intruder: ClassVar[bool] = False
+    """It sends frames of its own (logged on ``/cosim/foreign``, each naming its frame)."""
 
     def targets(self) -> list[str]:
         """What it acts on, by name, for the log."""
         return list(self.messages)
 
+    def hits(self, message: str, sender: str) -> bool:
+        """Whether a genuine frame of ``message`` sent by ``sender`` meets ``fate``."""
+        return message in self.messages
+
     def fate(self, message: str, t: float) -> FrameFate:
         """What becomes of a frame of ``message`` queued at t (called only while active)."""
         return FrameFate()
 
+    def substitute(self, message: str, values: tuple[float, ...], t: float) -> tuple[float, ...] | None:
+        """The values an intruder sends in place of a genuine frame of ``message`` (with these
+        ``values``) that did not go out at t, in its slot and with its counter; None: nothing."""
+        return None
+
     def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
-        """Frames an intruder sends at t: (message, signal values), encoded by the runner."""
+        """Frames an intruder sends at t: (message, signal values), encoded by the runner, right
+        after the genuine frame of the message (at the end of the tick where there was none)."""
+        return []
+
+    def forge(self, t: float, dt: float) -> list[tuple[float, int, bytes]]:
+        """Raw frames an intruder puts on the bus in the tick [t, t + dt): (when, id, payload),
+        ``when`` in [t, t + dt)."""
         return []
 
     def observe(self, message: str, values: tuple[float, ...], t: float) -> None:
@@ -373,6 +400,9 @@ class BusOff(BusFault):
     def targets(self) -> list[str]:
         return [self.node]
 
+    def hits(self, message: str, sender: str) -> bool:
+        return sender == self.node
+
     def fate(self, message: str, t: float) -> FrameFate:
         return FrameFate(errors=64)
 
@@ -386,6 +416,7 @@ class BabblingNode(BusFault):
     period: float = 0.0
     length: int = 8
     kind = "babbling_node"
+    intruder = True
 
     def targets(self) -> list[str]:
         return [f"0x{self.frame_id:03X}"]
@@ -399,6 +430,7 @@ class Spoofing(BusFault):
     message: str = ""
     value: tuple[float, ...] = ()
     kind = "spoofing"
+    intruder = True
 
     def targets(self) -> list[str]:
         return [self.message]
@@ -416,6 +448,7 @@ class Replay(BusFault):
     message: str = ""
     lag: float = 1.0
     kind = "replay"
+    intruder = True
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
@@ -460,7 +493,8 @@ FAULT_MODELS: Kinds[type[Fault]] = Kinds(
             Spoofing,
             Replay,
         )
-    },
+    }
+    | {kind: f"faults.attacks:{name}" for kind, name in ATTACKS.items()},
     Fault,
     params=None,
     check=lambda model: (

@@ -180,6 +180,7 @@ class RunRecorder:
         data: bytes,
         frame_id: int | None = None,
         count: int = 1,
+        seq: int | None = None,
     ) -> None:
         record = Foreign(
             tick=tick,
@@ -191,6 +192,7 @@ class RunRecorder:
             length=length,
             data=data.hex(),
             count=count,
+            seq=seq,
         )
         self.log.write(self._foreign, t_ns, record)
 

@@ -452,6 +452,10 @@ class Foreign(TickRecord):
     length: int = prop(integer("bytes received (datagram) or payload bytes (frame)"))
     data: str = prop(text("the first bytes, hex"))
     count: int = prop(integer("how many such arrived in this tick that this record stands for"), default=1)
+    seq: int | None = prop(
+        integer("the frame's seq on /can/frames (an intruder's frame: the one this record labels)", nullable=True),
+        default=None,
+    )
 
 
 @topic("/cosim/events", "cosim.Event", "Runner events")

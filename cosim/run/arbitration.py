@@ -179,7 +179,7 @@ class Arbitration:
     def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
         """SYNC(k) announcing the data frames through by the deadline, those frames (by id()) and
         the planned passages."""
-        counted = counted_by_receivers(data, self._senders, self.authenticated)
+        counted = counted_by_receivers(data, self._senders, self.authenticated, k % self.codec.tick_modulus)
         count, seen = len(counted), []
         while True:
             message = self.codec.sync(k, count)

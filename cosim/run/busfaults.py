@@ -37,6 +37,7 @@ import numpy as np
 
 import faults as fm
 from cosim.bus.codec import COMMAND, SENSOR, SYNC, Codec, Decoded
+from cosim.errors import CodecError
 
 Frame = tuple[can.Message, Decoded | None]
 _BUS = 3  # spawn key group of the bus faults' random streams (noise 0, sensor faults 1, actuators 2)
@@ -67,20 +68,24 @@ class Applied:
     events: list[BusEvent] = field(default_factory=list)
 
 
-def counted_by_receivers(frames: list[Frame], intruders: dict[int, str], authenticated: bool) -> list[Frame]:
-    """The frames of a tick its receivers count: under SecOC all but the intruders' (they fail it),
-    else all but the second copies of a sensor or command message (receivers distrust both)."""
+def counted_by_receivers(
+    frames: list[Frame], intruders: dict[int, str], authenticated: bool, counter: int
+) -> list[Frame]:
+    """The frames of a tick its receivers count (``cosim.bus.client.TickAssembler``): under SecOC all
+    but the intruders' (they fail it); else the sensor and command frames that carry the tick's
+    ``counter`` (k modulo the codec's ``tick_modulus``), but for second copies of a message
+    (receivers distrust both)."""
     if authenticated:
         return [frame for frame in frames if id(frame) not in intruders]
     seen: set[str] = set()
     kept = []
     for frame in frames:
         decoded = frame[1]
-        if decoded is not None and decoded.spec.role in (SENSOR, COMMAND):
-            if decoded.spec.name in seen:
-                continue
+        if decoded is None or decoded.spec.role not in (SENSOR, COMMAND) or decoded.tick != counter:
+            continue
+        if decoded.spec.name not in seen:
             seen.add(decoded.spec.name)
-        kept.append(frame)
+            kept.append(frame)
     return kept
 
 
@@ -109,7 +114,7 @@ class BusFaultStage:
         self.off_until: dict[str, float] = {}  # node -> when it may rejoin (ns; inf: never)
         self.error_frames = 0
         self._held: list[tuple[int, Frame]] = []  # ideal bus: (tick it arrives in, frame) of delayed frames
-        self.intruder_labels = {m.label for m in models if isinstance(m, (fm.Spoofing, fm.Replay, fm.BabblingNode))}
+        self.intruder_labels = {m.label for m in models if m.intruder}
 
     def active(self, t: float) -> list[str]:
         """Labels of the bus faults active at t (for /truth/faults)."""
@@ -121,68 +126,103 @@ class BusFaultStage:
         out = Applied([])
         sent: list[Frame] = []
         for frame in frames[1:]:
-            message, decoded = frame
-            if decoded is None:
+            if frame[1] is None:
                 sent.append(frame)
-                continue
-            name, sender = decoded.spec.name, decoded.spec.sender
-            if self._off(sender, t_ns, out):
-                out.events.append(BusEvent("", "bus_off", name, "lost"))
-                continue
-            lost, delay, errors, single_shot, culprit = False, 0.0, 0, False, None
-            for model in self.models:
-                if not model.active(t):
-                    continue
-                hit = (
-                    model.node == sender
-                    if isinstance(model, fm.BusOff)
-                    else name in model.messages and not isinstance(model, (fm.Spoofing, fm.Replay, fm.BabblingNode))
-                )
-                if not hit:
-                    continue
-                fate = model.fate(name, t)
-                if fate.lost:
-                    out.events.append(BusEvent(model.label, model.kind, name, "lost"))
-                    lost = True
-                if fate.delay:
-                    out.events.append(BusEvent(model.label, model.kind, name, "delayed", delay=fate.delay))
-                delay += fate.delay
-                if fate.errors:
-                    culprit = culprit or model
-                errors += fate.errors
-                single_shot |= fate.single_shot
-            if errors and self._errors(sender, name, errors, single_shot, culprit, t_ns, out):
-                continue
-            if lost:
-                continue
-            if not errors:
-                self.tec[sender] = max(0, self.tec.get(sender, 0) - 1)
-            for model in self.models:
-                model.observe(name, tuple(decoded.values[s] for s in decoded.spec.signals), t)
-                if self.authenticated and isinstance(model, fm.Replay) and model.message == name:
-                    heard = self._recorded.setdefault(name, [])
-                    heard.append((t, bytes(message.data)))
-                    while heard[0][0] < t - model.lag - 1.0:
-                        heard.pop(0)
-            if delay > 0:
-                delay_ns = round(delay * 1e9)
-                if self.arbitrated:
-                    out.delays_ns[id(frame)] = delay_ns
-                else:
-                    arrives = (t_ns + delay_ns) // self.dt_ns
-                    if arrives > k:
-                        self._held.append((arrives, frame))
-                        continue
-            sent.append(frame)
-            self._inject(k, t, name, sent, out)
+            elif self._genuine(k, t_ns, frame, sent, out):
+                self._inject(k, t, frame[1].spec.name, sent, out)
         self._inject(k, t, None, sent, out)  # intruders whose genuine frame did not come
+        self._forge(t, sent, out)
         late = [frame for arrives, frame in self._held if arrives <= k]
         self._held = [(arrives, frame) for arrives, frame in self._held if arrives > k]
         sync, _ = frames[0]
         if frames[0][1] is not None and frames[0][1].spec.role == SYNC:
-            sync = self.codec.sync(k, len(counted_by_receivers(sent, out.intruders, self.authenticated)))
+            counted = counted_by_receivers(sent, out.intruders, self.authenticated, k % self.codec.tick_modulus)
+            sync = self.codec.sync(k, len(counted))
         out.frames = [(sync, self.codec.decode(sync)), *sent, *late]
         return out
+
+    def _genuine(self, k: int, t_ns: int, frame: Frame, sent: list[Frame], out: Applied) -> bool:
+        """One of the runner's frames through the active bus faults that hit it; True if it (or an
+        intruder's frame in its place) went into ``sent``, for the intruders that follow it."""
+        message, decoded = frame
+        assert decoded is not None
+        t = t_ns / 1e9
+        name, sender = decoded.spec.name, decoded.spec.sender
+        if self._off(sender, t_ns, out):
+            out.events.append(BusEvent("", "bus_off", name, "lost"))
+            return False
+        fates = [(model, model.fate(name, t)) for model in self.models if model.active(t) and model.hits(name, sender)]
+        for model, fate in fates:
+            if fate.lost:
+                out.events.append(BusEvent(model.label, model.kind, name, "lost"))
+            if fate.delay:
+                out.events.append(BusEvent(model.label, model.kind, name, "delayed", delay=fate.delay))
+        errors = sum(fate.errors for _, fate in fates)
+        culprit = next((model for model, fate in fates if fate.errors), None)
+        single_shot = any(fate.single_shot for _, fate in fates)
+        if errors and self._errors(sender, name, errors, single_shot, culprit, t_ns, out):
+            return False
+        if any(fate.lost for _, fate in fates):
+            return self._substitute(k, t, decoded, sent, out)
+        if not errors:
+            self.tec[sender] = max(0, self.tec.get(sender, 0) - 1)
+        self._observe(name, decoded, bytes(message.data), t)
+        delay = sum(fate.delay for _, fate in fates)
+        if delay > 0:
+            delay_ns = round(delay * 1e9)
+            if self.arbitrated:
+                out.delays_ns[id(frame)] = delay_ns
+            elif (arrives := (t_ns + delay_ns) // self.dt_ns) > k:
+                self._held.append((arrives, frame))
+                return False
+        sent.append(frame)
+        return True
+
+    def _observe(self, name: str, decoded: Decoded, data: bytes, t: float) -> None:
+        """A genuine frame that went out, as the intruders that record hear it."""
+        for model in self.models:
+            model.observe(name, tuple(decoded.values[s] for s in decoded.spec.signals), t)
+            if self.authenticated and isinstance(model, fm.Replay) and model.message == name:
+                heard = self._recorded.setdefault(name, [])
+                heard.append((t, data))
+                while heard[0][0] < t - model.lag - 1.0:
+                    heard.pop(0)
+
+    def _substitute(self, k: int, t: float, decoded: Decoded, sent: list[Frame], out: Applied) -> bool:
+        """An intruder's frame in the slot of a genuine one that did not go out (a masquerade)."""
+        values = tuple(decoded.values[s] for s in decoded.spec.signals)
+        for model in self.models:
+            if model.active(t) and (forged := model.substitute(decoded.spec.name, values, t)) is not None:
+                self._intrude(model, self.codec.encode_decoded(decoded.spec.name, k, forged), sent, out)
+                return True
+        return False
+
+    def _intrude(self, model: fm.BusFault, frame: Frame, sent: list[Frame], out: Applied) -> None:
+        """An intruder's frame onto the bus (after those in ``sent``)."""
+        sent.append(frame)
+        out.intruders[id(frame)] = model.label
+        name = frame[1].spec.name if frame[1] is not None else f"0x{frame[0].arbitration_id:03X}"
+        out.events.append(BusEvent(model.label, model.kind, name, "injected"))
+
+    def _forge(self, t: float, sent: list[Frame], out: Applied) -> None:
+        """The raw frames intruders put on the bus in this tick (fuzzing): on an arbitrated bus each
+        queued at its own time, on an ideal one in the tick."""
+        dt = self.dt_ns / 1e9
+        for model in self.models:
+            if not (model.start < t + dt and t < model.end):  # its window meets the tick
+                continue
+            for when, frame_id, data in model.forge(t, dt):
+                fd = self.codec.fd
+                message = can.Message(
+                    arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=fd, bitrate_switch=fd
+                )
+                try:
+                    frame: Frame = (message, self.codec.decode(message))
+                except CodecError:  # on one of the run's ids, but not one of its frames (length, bits)
+                    frame = (message, None)
+                if self.arbitrated and (offset := round((when - t) * 1e9)) > 0:
+                    out.delays_ns[id(frame)] = offset
+                self._intrude(model, frame, sent, out)
 
     def _off(self, sender: str, t_ns: int, out: Applied) -> bool:
         """Whether ``sender`` is bus-off at t (after a recovery its counters start again at 0)."""
@@ -227,9 +267,9 @@ class BusFaultStage:
         """Intruders' frames of ``name``, right after the genuine one (None: those not sent yet)."""
         done = set(out.intruders.values())
         for model in self.models:
-            if not isinstance(model, (fm.Spoofing, fm.Replay)) or not model.active(t) or model.label in done:
+            if not model.intruder or not model.active(t) or model.label in done:
                 continue
-            if name is not None and model.message != name:
+            if name is not None and name not in model.targets():
                 continue
             for message, values in model.inject(t):
                 if self.authenticated and isinstance(model, fm.Replay):
@@ -238,9 +278,7 @@ class BusFaultStage:
                         continue
                 else:
                     frame = self.codec.encode_decoded(message, k, values)
-                sent.append(frame)
-                out.intruders[id(frame)] = model.label
-                out.events.append(BusEvent(model.label, model.kind, message, "injected"))
+                self._intrude(model, frame, sent, out)
 
     def _recorded_frame(self, message: str, until: float) -> Frame | None:
         """The secured frame of ``message`` a replaying intruder recorded last by ``until``, as it was."""

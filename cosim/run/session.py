@@ -199,21 +199,29 @@ class Session:
         self.foreign["datagrams"] += 1
         self._record_foreign("datagram", datagram.reason, datagram.source, datagram.length, datagram.data)
 
-    def _foreign_frame(self, frame: can.Message, reason: str) -> None:
+    def _foreign_frame(self, frame: can.Message, reason: str, seq: int | None = None) -> None:
         self.foreign["frames"] += 1
         spec = self.codec.spec_of(frame)
         name = spec.name if spec is not None else f"0x{frame.arbitration_id:03X}"
         self._last_foreign = f"{name} (id 0x{frame.arbitration_id:03X}, data {bytes(frame.data).hex() or '-'})"
-        self._record_foreign("frame", reason, "", len(frame.data), bytes(frame.data), frame.arbitration_id)
+        self._record_foreign("frame", reason, "", len(frame.data), bytes(frame.data), frame.arbitration_id, seq)
 
     def _record_foreign(
-        self, kind: str, reason: str, source: str, length: int, data: bytes, frame_id: int | None = None
+        self,
+        kind: str,
+        reason: str,
+        source: str,
+        length: int,
+        data: bytes,
+        frame_id: int | None = None,
+        seq: int | None = None,
     ) -> None:
-        """Log it, one record each up to _FOREIGN_RECORDS per tick, then as counts at the tick's end."""
+        """Log it, one record each up to _FOREIGN_RECORDS per tick, then as counts at the tick's end;
+        a frame logged on /can/frames (``seq``: an intruder's) always gets its record, which labels it."""
         k = self._marker[0]
-        if self._foreign_this_tick < _FOREIGN_RECORDS:
-            self._foreign_this_tick += 1
-            self.recorder.foreign(k, *self.time(k), kind, reason, source, length, data[:64], frame_id)
+        if seq is not None or self._foreign_this_tick < _FOREIGN_RECORDS:
+            self._foreign_this_tick += seq is None
+            self.recorder.foreign(k, *self.time(k), kind, reason, source, length, data[:64], frame_id, seq=seq)
         else:
             self._foreign_more[(kind, reason)] += 1
 
@@ -438,8 +446,10 @@ class Session:
         )
 
     def _intruder(self, frame: can.Message, label: str) -> None:
-        """An intruder's frame: foreign, whatever its id (the run knows it did not come from the id's owner)."""
-        self._foreign_frame(frame, f"sent by an intruder (fault {label}), not by the owner of its id")
+        """An intruder's frame, just logged: foreign, whatever its id (the run knows it did not come
+        from the id's owner), its record naming the frame's place on /can/frames."""
+        reason = f"sent by an intruder (fault {label}), not by the owner of its id"
+        self._foreign_frame(frame, reason, self.recorder.frames - 1)
 
     def _send_arbitrated(
         self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None

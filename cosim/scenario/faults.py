@@ -224,6 +224,43 @@ class ReplaySpec(OnMessage):
     lag: Annotated[float, Field(gt=0.0)] = 1.0
 
 
+class SuspensionSpec(OnMessages):
+    """The ECU of ``messages`` silenced (``faults.attacks.Suspension``)."""
+
+    kind: Literal["suspension"]
+
+
+class MasqueradeSpec(OnMessage):
+    """The genuine sender of ``message`` suspended and an intruder sending in its place
+    (``faults.attacks.Masquerade``): ``value`` if given, else the genuine reading + ``offset`` +
+    ``rate`` (t − start)."""
+
+    kind: Literal["masquerade"]
+    value: Vector | None = None
+    offset: Vector = []
+    rate: Vector = []
+
+
+class FuzzingSpec(OnBus):
+    """Random ids in [``low``, ``high``] with random payloads every ``period`` (``faults.attacks.Fuzzing``)."""
+
+    kind: Literal["fuzzing"]
+    low: Annotated[int, Field(ge=0, le=0x7FF)] = 0x000
+    high: Annotated[int, Field(ge=0, le=0x7FF)] = 0x7FF
+    period: Annotated[float, Field(gt=0.0)] = 0.0005
+    length: Annotated[int, Field(ge=0, le=8)] = 8
+
+    @model_validator(mode="after")
+    def _ids(self) -> FuzzingSpec:
+        if self.low > self.high:
+            raise ValueError(f"low ({self.low:#x}) must not exceed high ({self.high:#x})")
+        return self
+
+    @property
+    def targets(self) -> list[str] | None:
+        return [f"0x{self.low:03X}-0x{self.high:03X}"]
+
+
 class PluginFaultSpec(Windowed):
     """A fault model from outside cosim: an installed plugin's kind (entry-point group
     ``cosim.faults``) or a class in a file (``kind = "my_faults.py:Stiction"``), a ``SensorFault``
@@ -293,6 +330,9 @@ BUILTIN_FAULTS = (
     BabblingNodeSpec,
     SpoofingSpec,
     ReplaySpec,
+    SuspensionSpec,
+    MasqueradeSpec,
+    FuzzingSpec,
 )
 _BUILTIN_KINDS = {get_args(table.model_fields["kind"].annotation)[0] for table in BUILTIN_FAULTS}
 
@@ -324,6 +364,9 @@ FaultSpec = Annotated[
     | Annotated[BabblingNodeSpec, Tag("babbling_node")]
     | Annotated[SpoofingSpec, Tag("spoofing")]
     | Annotated[ReplaySpec, Tag("replay")]
+    | Annotated[SuspensionSpec, Tag("suspension")]
+    | Annotated[MasqueradeSpec, Tag("masquerade")]
+    | Annotated[FuzzingSpec, Tag("fuzzing")]
     | Annotated[PluginFaultSpec, Tag(PLUGIN_TAG)],
     Discriminator(_table_of),
 ]

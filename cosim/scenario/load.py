@@ -514,11 +514,12 @@ def _check_bus_fault(s: Scenario, field: str, fault: OnBus) -> list[str]:
             problems.append(
                 f"{field}.{key}: {name!r} is not a message the runner sends{hint}; bus faults act on {known}"
             )
-    value = getattr(fault, "value", None)
-    if value is not None and len(names) == 1 and names[0] in runner:
-        signals = len(runner[names[0]].channels)
-        if len(value) != signals:
-            problems.append(f"{field}.value: {names[0]} carries {signals} signal(s); give {signals} value(s)")
+    for key in ("value", "offset", "rate"):
+        value = getattr(fault, key, None)
+        if value is not None and (key == "value" or value) and len(names) == 1 and names[0] in runner:
+            signals = len(runner[names[0]].channels)
+            if len(value) != signals:
+                problems.append(f"{field}.{key}: {names[0]} carries {signals} signal(s); give {signals} value(s)")
     kind = getattr(fault, "kind", "")
     if kind == "babbling_node" and s.bus.timing != "arbitrated":
         problems.append(f'{field}: a babbling node needs [bus] timing = "arbitrated" (an ideal bus takes no time)')
