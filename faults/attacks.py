@@ -23,6 +23,7 @@ class Suspension(BusFault):
     it bus-off, or its firmware stopped): none of their frames goes out while active."""
 
     kind = "suspension"
+    attack = "suspension"
 
     def fate(self, message: str, t: float) -> FrameFate:
         return FrameFate(lost=True)
@@ -44,6 +45,7 @@ class Masquerade(BusFault):
     rate: tuple[float, ...] = ()
     kind = "masquerade"
     intruder = True
+    attack = "masquerade"
 
     def targets(self) -> list[str]:
         return [self.message]
@@ -88,6 +90,7 @@ class Fuzzing(BusFault):
     length: int = 8
     kind = "fuzzing"
     intruder = True
+    attack = "fabrication"
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -297,6 +297,9 @@ class BusFault(Fault):
 
     intruder: ClassVar[bool] = False
     """It sends frames of its own (logged on ``/cosim/foreign``, each naming its frame)."""
+    attack: ClassVar[str] = ""
+    """Its class in the taxonomy of CAN attacks (``faults.attacks``): fabrication, suspension,
+    masquerade or replay; empty for a fault of the bus that no one causes on purpose."""
 
     def targets(self) -> list[str]:
         """What it acts on, by name, for the log."""
@@ -417,6 +420,7 @@ class BabblingNode(BusFault):
     length: int = 8
     kind = "babbling_node"
     intruder = True
+    attack = "fabrication"
 
     def targets(self) -> list[str]:
         return [f"0x{self.frame_id:03X}"]
@@ -431,6 +435,7 @@ class Spoofing(BusFault):
     value: tuple[float, ...] = ()
     kind = "spoofing"
     intruder = True
+    attack = "fabrication"
 
     def targets(self) -> list[str]:
         return [self.message]
@@ -449,6 +454,7 @@ class Replay(BusFault):
     lag: float = 1.0
     kind = "replay"
     intruder = True
+    attack = "replay"
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)

@@ -137,6 +137,7 @@ end = 0.8
             else:
                 truth[m["tick"]] = m
     assert all(f["seq"] is not None for f in foreign)  # 100 fuzzing frames a tick: none only counted
+    assert {f["source"] for f in foreign} == {"mq", "fz"}
     labelled = {f["seq"]: f["reason"] for f in foreign}
     for f in foreign:
         assert (frames[f["seq"]]["id"], frames[f["seq"]]["data"]) == (f["id"], f["data"])

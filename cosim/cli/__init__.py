@@ -19,6 +19,7 @@ from cosim.cli import (
     campaign,
     campaigns,
     common,
+    dataset,
     dbc,
     export,
     fmu,
@@ -51,6 +52,7 @@ examples:
   cosim inspect latest               summarize the newest log in runs/
   cosim campaign masses-bias-sweep --out runs/sweep   many runs on a local Dask cluster
   cosim leaderboard runs/sweep/results.parquet --html board.html
+  cosim dataset dataset-attacks --out runs/ds   a labelled data set of frames, signals, truth, split by seed
   cosim inspect runs/my.mcap --json  summarize a log for other tools
   cosim dbc --out bus.dbc            the CAN database, for candump/cantools/SavvyCAN
   cosim fmu masses-bias --out plant.fmu   the scenario's plant with its faults as an FMU
@@ -85,6 +87,7 @@ COMMANDS = (
     campaigns,
     benchmark,
     leaderboard,
+    dataset,
 )
 
 

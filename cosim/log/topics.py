@@ -22,7 +22,9 @@ time t_k = k τ in s; ``log_time`` is simulated time in ns):
 - ``Event``, ``/cosim/events``: runner events (start, stop, warnings, errors).
 - ``DeadlineMiss``, ``/cosim/deadline_misses``: in realtime mode, each tick a node did not answer
   by its deadline.
-- ``Foreign``, ``/cosim/foreign``: what arrived on the run's bus and does not belong to it.
+- ``Foreign``, ``/cosim/foreign``: what arrived on the run's bus and does not belong to it; a
+  simulated intruder's frame (a bus fault's) has a record each, with its fault's label
+  (``source``) and its ``seq`` on ``/can/frames``: the per-frame labels of a data set.
 - ``WirePassage``, ``/cosim/wire``: with ``[bus] timing = "arbitrated"`` only, each frame's
   passage on the simulated wire, logged at its delivery.
 - ``SecurityRejection``, ``/cosim/security``: frames a receiver dropped in SecOC verification.
@@ -447,7 +449,7 @@ class Foreign(TickRecord):
         text("a datagram that is no frame of the run, or a frame the run did not send", enum=["datagram", "frame"])
     )
     reason: str = prop(text("why it does not belong"))
-    source: str = prop(text("where it came from, where known"))
+    source: str = prop(text("where it came from, where known (an intruder's frame: the label of its fault)"))
     id: int | None = prop(integer("arbitration id (frames)", nullable=True), default=None)
     length: int = prop(integer("bytes received (datagram) or payload bytes (frame)"))
     data: str = prop(text("the first bytes, hex"))

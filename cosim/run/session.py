@@ -199,12 +199,12 @@ class Session:
         self.foreign["datagrams"] += 1
         self._record_foreign("datagram", datagram.reason, datagram.source, datagram.length, datagram.data)
 
-    def _foreign_frame(self, frame: can.Message, reason: str, seq: int | None = None) -> None:
+    def _foreign_frame(self, frame: can.Message, reason: str, seq: int | None = None, source: str = "") -> None:
         self.foreign["frames"] += 1
         spec = self.codec.spec_of(frame)
         name = spec.name if spec is not None else f"0x{frame.arbitration_id:03X}"
         self._last_foreign = f"{name} (id 0x{frame.arbitration_id:03X}, data {bytes(frame.data).hex() or '-'})"
-        self._record_foreign("frame", reason, "", len(frame.data), bytes(frame.data), frame.arbitration_id, seq)
+        self._record_foreign("frame", reason, source, len(frame.data), bytes(frame.data), frame.arbitration_id, seq)
 
     def _record_foreign(
         self,
@@ -447,9 +447,9 @@ class Session:
 
     def _intruder(self, frame: can.Message, label: str) -> None:
         """An intruder's frame, just logged: foreign, whatever its id (the run knows it did not come
-        from the id's owner), its record naming the frame's place on /can/frames."""
+        from the id's owner), its record naming the fault (``source``) and the frame's place on /can/frames."""
         reason = f"sent by an intruder (fault {label}), not by the owner of its id"
-        self._foreign_frame(frame, reason, self.recorder.frames - 1)
+        self._foreign_frame(frame, reason, self.recorder.frames - 1, label)
 
     def _send_arbitrated(
         self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None
