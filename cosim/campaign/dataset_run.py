@@ -111,9 +111,11 @@ def _decoded_columns(codec: Codec, record: RunRecord, estimates: bool) -> dict[s
         topics[f"/can/{spec.name}"][spec.signals[0]] = f"command.{actuator}"
     if estimates:
         for name, estimator in record.estimators.items():
+            signals = {estimate_signal(state): state for state in estimator.states}
             for message in estimator.messages:
-                for state in estimator.states:
-                    topics[f"/can/{message}"][estimate_signal(state)] = f"estimate.{name}.{state}"
+                for signal in codec.specs[message].signals:
+                    if signal in signals:
+                        topics[f"/can/{message}"][signal] = f"estimate.{name}.{signals[signal]}"
     return dict(topics)
 
 
