@@ -31,17 +31,19 @@ from cosim.scenario import LoadedScenario, apply, load, parse_setting
 from estimators import Estimate, Estimator, LinearModel, ParameterError
 from estimators.controller import Command, Controller
 from estimators.diagnostics import Diagnostic, DiagnosticKind
-from faults.models import ActuatorFault, SensorFault
+from faults.models import ActuatorFault, BusFault, FrameFate, SensorFault
 from mjcf import Parameter, PlantInfo
 
 __all__ = [
     "ActuatorFault",
+    "BusFault",
     "Command",
     "Controller",
     "Diagnostic",
     "DiagnosticKind",
     "Estimate",
     "Estimator",
+    "FrameFate",
     "LinearModel",
     "LoadedScenario",
     "Parameter",

@@ -81,6 +81,11 @@ class Estimator(Configurable, ABC):
     """True for estimators designed on the continuous-time model (dt None) that integrate their own
     ODE between samples; they are given the sample time separately."""
 
+    estimates: ClassVar[bool] = True
+    """False for a scheme that only diagnoses (a detector): its node publishes its diagnostics and no
+    state estimate (``_step`` still returns an ``Estimate``, whose ``x`` is not sent), so it has no
+    estimation error and ranks among the diagnosis schemes."""
+
     design_free: ClassVar[frozenset[str]] = frozenset()
     """Parameters that do not change what ``design_params()`` returns: estimators that differ only
     in them share one cached design."""

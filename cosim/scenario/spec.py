@@ -391,7 +391,7 @@ class Scenario(Strict):
         codec = Codec(
             sensors,
             actuators,
-            {e.name: states for e in self.estimators},
+            {e.name: states if ESTIMATORS[e.kind].estimates else [] for e in self.estimators},
             diagnostics=self.diagnostic_channels(),
             clients=self.client_channels(),
             controller=self.controller_channels(),
