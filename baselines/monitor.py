@@ -68,6 +68,8 @@ class Monitor(Estimator):
         self._over = self._under = 0
         self._alarm = 0.0
         if self.fitted is not None:
+            used = self.fitted.get("use", self.fitted["sensors"])
+            self.use = [model.outputs.index(name) for name in used]
             self.mean = np.asarray(self.fitted["mean"], dtype=float)
             self.std = np.asarray(self.fitted["std"], dtype=float)
             self.limits = {name: float(v) for name, v in self.fitted["limits"].items()}
@@ -84,7 +86,7 @@ class Monitor(Estimator):
         return [*cls.STATISTICS, ALARM]
 
     def statistics(self, y: np.ndarray) -> dict[str, float]:
-        """The monitored statistics of the readings y (absolute; NaN where missing)."""
+        """The monitored statistics of the readings y (absolute, the model's ``use``d ones; NaN where missing)."""
         raise NotImplementedError
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
@@ -94,7 +96,7 @@ class Monitor(Estimator):
                 f"{self.kind}: {source} has no model of a plant with the sensors {', '.join(self.model.outputs)}; "
                 "train one on a data set of this plant (python -m baselines.train)"
             )
-        values = self.statistics(dy + self.model.y_op)
+        values = self.statistics((dy + self.model.y_op)[self.use])
         over = any(not values[name] <= limit for name, limit in self.limits.items())  # NaN is over
         self._over, self._under = (self._over + 1, 0) if over else (0, self._under + 1)
         if self._over >= self.params.persistence:

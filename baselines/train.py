@@ -3,7 +3,8 @@
 Per plant (a campaign's sensors; campaigns with the same sensors are pooled): the readings of the
 train split's ticks before any fault or attack of their run began fit the models, and the same
 ticks of the validation split (the train split's where it has none) set each statistic's limit at
-its ``--quantile``. Writes ``DIR/pca.json`` and ``DIR/one_class.json`` and says what it fitted.
+its ``--quantile``. ``--leave-out SENSOR`` keeps a reading out of the models (a level that
+integrates, such as a ship's position, which no model fitted on one stretch of time holds on another). Writes ``DIR/pca.json`` and ``DIR/one_class.json`` and says what it fitted.
 """
 
 from __future__ import annotations
@@ -38,8 +39,12 @@ def normal_runs(dataset: Path, campaign: str, split: str, sensors: list[str]) ->
     return runs
 
 
-def train(datasets: list[Path], quantile: float = 0.999, variance: float = 0.95) -> dict[str, dict[str, Any]]:
-    """The models of both baselines, per plant, as their files hold them."""
+def train(
+    datasets: list[Path], quantile: float = 0.999, variance: float = 0.95, leave_out: tuple[str, ...] = ()
+) -> dict[str, dict[str, Any]]:
+    """The models of both baselines, per plant, as their files hold them; ``leave_out``: sensors the
+    models do not use (a level that integrates, as a ship's position, holds on no stretch of time
+    but the one it was fitted on)."""
     pooled: dict[tuple[str, ...], dict[str, list[np.ndarray]]] = defaultdict(lambda: defaultdict(list))
     plants: dict[tuple[str, ...], str] = {}
     for dataset in datasets:
@@ -54,10 +59,17 @@ def train(datasets: list[Path], quantile: float = 0.999, variance: float = 0.95)
         "one_class": {"kind": "one_class", "models": []},
     }
     for sensors, splits in pooled.items():
-        fit_on, limit_on = splits["train"], splits["validation"] or splits["train"]
-        if not fit_on:
+        if not splits["train"]:
             continue
-        common = {"plant": plants[sensors], "sensors": list(sensors), "quantile": quantile}
+        use = [i for i, name in enumerate(sensors) if name not in leave_out]
+        fit_on = [run[:, use] for run in splits["train"]]
+        limit_on = [run[:, use] for run in splits["validation"] or splits["train"]]
+        common = {
+            "plant": plants[sensors],
+            "sensors": list(sensors),
+            "use": [sensors[i] for i in use],
+            "quantile": quantile,
+        }
         model = pca.fit(np.vstack(fit_on), variance)
         stats = pca.statistics(model, np.vstack(limit_on))
         model["limits"] = {name: float(np.quantile(values, quantile)) for name, values in stats.items()}
@@ -75,15 +87,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="where pca.json and one_class.json go")
     parser.add_argument("--quantile", type=float, default=0.999, help="limits: this quantile of the normal ticks")
     parser.add_argument("--variance", type=float, default=0.95, help="PCA: the share of variance its components keep")
+    parser.add_argument(
+        "--leave-out", action="append", default=[], metavar="SENSOR", help="a sensor the models do not use (repeat)"
+    )
     args = parser.parse_args(argv)
-    files = train(args.datasets, args.quantile, args.variance)
+    files = train(args.datasets, args.quantile, args.variance, tuple(args.leave_out))
     args.out.mkdir(parents=True, exist_ok=True)
     for name, document in files.items():
         (args.out / f"{name}.json").write_text(json.dumps(document, indent=1) + "\n")
         for m in document["models"]:
             limits = ", ".join(f"{k} {v:.4g}" for k, v in m["limits"].items())
             extra = f", {len(m['eigenvalues'])} components ({m['explained']:.1%})" if "eigenvalues" in m else ""
-            print(f"{name}: {m['plant']} ({', '.join(m['sensors'])}): {m['ticks']} ticks{extra}; limits {limits}")
+            left = [s for s in m["sensors"] if s not in m["use"]]
+            out = f" (left out: {', '.join(left)})" if left else ""
+            print(f"{name}: {m['plant']} ({', '.join(m['use'])}){out}: {m['ticks']} ticks{extra}; limits {limits}")
     return 0
 
 

@@ -193,3 +193,46 @@ def test_it_refuses_what_it_cannot_make_in_one_line(built, tmp_path, capsys):
     assert "is not empty" in capsys.readouterr().err
     assert main(["dataset", str(root / "campaigns" / "tiny"), "--out", str(tmp_path / "x"), "--split", "1,1"]) == 1
     assert "three shares" in capsys.readouterr().err
+
+
+def test_the_baselines_train_on_its_splits_and_enter_a_run_as_plugins(built, tmp_path):
+    """python -m baselines.train fits both baselines on the train split (limits on the validation
+    split); named by module path, they run beside the estimators, publish an alarm and no estimate,
+    and the metrics score them as diagnosis schemes."""
+    from baselines.train import main as train
+    from cosim.analysis.metrics import compute_metrics
+    from cosim.run import run
+
+    root, _ = built
+    assert train([str(root / "ds"), "--out", str(tmp_path / "models")]) == 0
+    fitted = json.loads((tmp_path / "models" / "pca.json").read_text())["models"]
+    assert [m["sensors"] for m in fitted] == [["x1", "x2", "x1_minus_x2"]] and fitted[0]["ticks"] == 100
+    schemes = [
+        ("pca", "baselines.pca:PcaMonitor", "pca.json"),
+        ("oc", "baselines.one_class:OneClassMonitor", "one_class.json"),
+    ]
+    settings = [
+        ("duration", 3.0),
+        (
+            "faults",
+            [{"name": "mq", "kind": "masquerade", "message": "SENSOR_x2", "offset": 0.2, "start": 1.5, "end": 2.5}],
+        ),
+    ]
+    for i, (name, kind, file) in enumerate(schemes, start=2):
+        settings.append(
+            (f"estimators[{i}]", {"name": name, "kind": kind, "params": {"model": str(tmp_path / "models" / file)}})
+        )
+    loaded = scenario_apply(settings)
+    out = tmp_path / "run.mcap"
+    assert run(loaded, out, 11, interface="virtual").status == "completed"
+    metrics = compute_metrics(out)
+    for name, _, _ in schemes:
+        assert metrics["estimators"][name]["rms_post_fault"] is None
+        found = metrics["diagnosis"][name]["faults"]["mq"]
+        assert found["detected"] and found["detection_delay"] <= 0.05, (name, found)
+
+
+def scenario_apply(settings):
+    from cosim import scenario
+
+    return scenario.apply(scenario.load("masses-pid-can"), settings)
