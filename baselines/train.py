@@ -4,7 +4,8 @@ Per plant (a campaign's sensors; campaigns with the same sensors are pooled): th
 train split's ticks before any fault or attack of their run began fit the models, and the same
 ticks of the validation split (the train split's where it has none) set each statistic's limit at
 its ``--quantile``. ``--leave-out SENSOR`` keeps a reading out of the models (a level that
-integrates, such as a ship's position, which no model fitted on one stretch of time holds on another). Writes ``DIR/pca.json`` and ``DIR/one_class.json`` and says what it fitted.
+integrates, such as a ship's position, which no model fitted on one stretch of time holds on
+another). Writes ``DIR/pca.json`` and ``DIR/one_class.json`` and says what it fitted.
 """
 
 from __future__ import annotations
