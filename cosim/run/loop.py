@@ -273,7 +273,8 @@ def execute(
     try:
         with progress.step("starting the nodes"):
             start()
-        with progress.step(f"waiting for the {len(session.participants)} participants to join"):
+        joining = len(session.participants)
+        with progress.step(f"waiting for {joining} participant{'' if joining == 1 else 's'} to join"):
             session.join()
         k = run_ticks(source, session, advanced)
     except BaseException as exc:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 from uuid import uuid4
 
+from cosim import progress
 from cosim.bus.codec import Codec
 from cosim.bus.registry import Registration
 from cosim.bus.transport import allocate
@@ -42,7 +43,8 @@ class Run(Execution):
         self, loaded: LoadedScenario, out: str | Path | None, seed: int | None = None, **overrides: Any
     ) -> None:
         self.plan = RunPlan.build(loaded, seed, **overrides)
-        first = PlantSource(self.plan)
+        with progress.step(f"loading the plant {self.plan.scenario.plant.model} again, for the first tick's frames"):
+            first = PlantSource(self.plan)
         try:  # the first tick's frames, before any process starts: a value outside its bus range is the scenario's
             first.frames(0)
         except CodecError as error:
@@ -109,7 +111,8 @@ class Run(Execution):
 
             if plan.plant_messages:
                 session.recorder.fmu_messages(0, *session.time(0), list(plan.plant_messages))
-            self.source = PlantSource(plan, session.interrupts.check)
+            with progress.step(f"loading the plant {s.plant.model} for the run"):
+                self.source = PlantSource(plan, session.interrupts.check)
             self.source.said.add(list(plan.plant_messages))
 
             def start() -> None:
