@@ -88,10 +88,10 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparation | None) -> int:
-    with progress.step(f"loading {args.scenario or 'the default scenario'}"):
-        from cosim.run import Run
+    from cosim.run import Run
 
-        loaded = common.load_scenario(args.scenario, args.set, no_validate=args.no_validate)
+    # not a progress step: a bad file's error stays one line, however slow the imports
+    loaded = common.load_scenario(args.scenario, args.set, no_validate=args.no_validate)
     seed = loaded.scenario.seed if args.seed is None else args.seed
     default = Path("runs") / f"{loaded.scenario.name}-seed{seed}-{common.stamp()}.mcap"
     out = common.new_output(args.out, default, args.force)
