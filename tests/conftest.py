@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import locale
 import os
 from pathlib import Path
 
@@ -24,6 +25,16 @@ def design_cache_dir(tmp_path_factory):
         os.environ.pop("COSIM_CACHE_DIR", None)
     else:
         os.environ["COSIM_CACHE_DIR"] = previous
+
+
+@pytest.fixture(autouse=True)
+def locale_kept():
+    """Tests that load an FMU with FMPy in this process (its reference runs) must not leave the
+    locale an FMU's runtime set (Dymola's sets C: Python's default text encoding becomes ASCII)."""
+    kept = locale.setlocale(locale.LC_ALL)
+    yield
+    if locale.setlocale(locale.LC_ALL) != kept:
+        locale.setlocale(locale.LC_ALL, kept)
 
 
 @pytest.fixture(scope="session")

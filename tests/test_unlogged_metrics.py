@@ -23,6 +23,7 @@ SHORT: dict[str, list[tuple[str, object]]] = {
     "masses-bias": [("duration", 8.0)],
     "masses-bus-ideal": [("duration", 8.0)],
     "masses-bus-overload": [("duration", 12.0)],
+    "masses-pid-can": [("duration", 8.0)],
     "masses-faults-fd": [("duration", 12.0)],
     "masses-spoofing": [("duration", 14.0)],
     "tac2024-s1-constant": [("duration", 5.0)],

@@ -25,6 +25,7 @@ differences otherwise, then discretized by the exact zero-order hold like the ot
 from __future__ import annotations
 
 import ctypes
+import locale
 import mmap
 import shutil
 import weakref
@@ -371,6 +372,9 @@ def instantiate(model: FmuModel, unzipped: str, interface: str, watch: CallWatch
     md = model.description
     cs = interface == "co-simulation"
     watch.instantiating()
+    # Some exporters' runtimes (Dymola's) call setlocale(LC_ALL, "C") when instantiated; in this
+    # process that would make Python's default text encoding ASCII, so the locale is put back.
+    kept = locale.setlocale(locale.LC_ALL)
     try:
         if model.version == 3:
             fmu = instantiate_fmu(unzipped, md, "CoSimulation" if cs else "ModelExchange", logger=watch.logger())
@@ -388,6 +392,8 @@ def instantiate(model: FmuModel, unzipped: str, interface: str, watch: CallWatch
         raise ModelError(
             f"{model.path.name}: cannot instantiate its {interface} interface: {error}; {watch.last_words()}"
         ) from None
+    finally:
+        locale.setlocale(locale.LC_ALL, kept)
     return watch.watch(fmu)
 
 
