@@ -79,6 +79,10 @@ def test_my_estimator_runs_replays_and_ranks_beside_the_built_ins(folder, monkey
     assert api.metrics(folder / "mine-replay-mine.mcap")["estimators"]["mine"]["rms_pre_fault"] == mine["rms_pre_fault"]
     replayed = api.metrics(folder / "mine-replay-faster.mcap")["estimators"]["faster"]
     assert replayed["kind"] == kind and replayed["final_error"] < 0.05
+    assert replayed["kind_name"] == mine["kind_name"] == "residual-observer"  # the name its class declares
+    assert main(["inspect", str(log)]) == 0
+    shown = capsys.readouterr().out  # the text names the kind as the class does; --json has its path
+    assert "residual-observer" in shown and "observers.py" not in shown
 
     campaign = run_campaign(load_campaign(folder / "campaign.toml"), folder / "out", engine="dask", workers=2)
     assert campaign.runs == 2 and campaign.failed == 0
@@ -90,6 +94,10 @@ def test_my_estimator_runs_replays_and_ranks_beside_the_built_ins(folder, monkey
         assert main(["leaderboard", str(campaign.path), "--json"]) == 0
     ranked = json.loads(out.getvalue())["groups"][0]["ranking"]
     assert next(s for s in ranked if s["estimator"] == "mine")["kind"] == kind
+    assert next(s for s in ranked if s["estimator"] == "mine")["kind_name"] == "residual-observer"
+    with redirect_stdout(out := io.StringIO()):
+        assert main(["leaderboard", str(campaign.path)]) == 0
+    assert "mine (residual-observer)" in out.getvalue() and "observers.py" not in out.getvalue()
 
 
 BREAKS = '''

@@ -293,10 +293,11 @@ def test_paired_differences_rank_apart_or_tie_with_holms_adjustment(tmp_path):
 
 
 def test_schemes_that_only_diagnose_are_ranked_by_a_paired_sign_test_after_the_estimators(tmp_path):
-    """An attack case: an estimator (an RMS error), and three schemes with no error of their own.
-    "late" detects 0.5 s after "prompt" in 12 of 20 runs and like it in the rest: told apart (sign
-    test, p = 2⁻¹¹); "twin" is "late" run by run: tied with it. The estimator and "prompt" share no
-    measure: no comparison, no tie."""
+    """An attack case: an estimator (an RMS error), and three schemes with no error of their own,
+    ranked among themselves. "late" detects 0.5 s after "prompt" in 12 of 20 runs and like it in the
+    rest: told apart (sign test, p = 2⁻¹¹); "twin" is "late" run by run, but 20 runs do not show that
+    two schemes differ on fewer than 5 % of runs (0.95²⁰ = 0.36): not separated. The estimator and
+    "prompt" share no measure: no comparison."""
     import pyarrow as pa
 
     def row(i: int, name: str, **columns) -> dict:
@@ -329,16 +330,18 @@ def test_schemes_that_only_diagnose_are_ranked_by_a_paired_sign_test_after_the_e
     (group,) = leaderboard(tmp_path / "t.parquet")["groups"]
     ranking = {s["estimator"]: s for s in group["ranking"]}
     assert [s["estimator"] for s in group["ranking"]][:2] == ["kalman", "prompt"]
-    assert "vs_next" not in ranking["kalman"] and ranking["kalman"]["rank"] == 1 and not ranking["kalman"]["tied"]
-    assert ranking["prompt"]["rank"] == 2 and not ranking["prompt"]["tied"]
+    assert "vs_next" not in ranking["kalman"] and ranking["kalman"]["rank"] == 1 and not ranking["kalman"]["settled"]
+    assert ranking["prompt"]["rank"] == 1 and ranking["prompt"]["chain"] == "diagnosis" and ranking["prompt"]["settled"]
     versus = ranking["prompt"]["vs_next"]
-    assert (versus["metric"], versus["pairs"], versus["worse"], versus["better"]) == ("diagnosis", 20, 12, 0)
-    assert versus["p"] == pytest.approx(2.0**-11) and not versus["tied"]
-    assert ranking["late"]["rank"] == ranking["twin"]["rank"] == 3 and ranking["late"]["tied"]
+    assert (versus["measure"], versus["pairs"], versus["worse"], versus["better"]) == ("diagnosis", 20, 12, 0)
+    assert versus["p"] == pytest.approx(2.0**-11) and versus["verdict"] == "separated"
+    twins = ranking["late"]["vs_next"]
+    assert twins["verdict"] == "not separated" and twins["equivalence_p"] == pytest.approx(0.95**20)
+    assert ranking["late"]["rank"] == ranking["twin"]["rank"] == 2 and not ranking["twin"]["settled"]
 
 
 def test_holm_is_the_textbook_step_down():
-    from cosim.campaign.leaderboard import holm
+    from cosim.campaign.verdicts import holm
 
     assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])  # 3·0.01, max(2·0.03, .03), max(.04, .06)
     assert holm([0.5, 0.9]) == [1.0, 1.0] and holm([]) == []
@@ -362,8 +365,11 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
     assert [g["group"] for g in board["groups"]] == [{"bias": 0.2}, {"bias": 0.5}]
     for group in board["groups"]:
         ranking = group["ranking"]
-        assert [s["rank"] for s in ranking] == [1, 1] and all(s["tied"] for s in ranking)  # 2 pairs tell nothing
-        assert ranking[0]["vs_next"]["pairs"] == 2 and ranking[0]["vs_next"]["p_holm"] >= 0.05
+        assert [s["rank"] for s in ranking] == [1, 1] and not any(s["settled"] for s in ranking)  # 2 pairs tell nothing
+        versus = ranking[0]["vs_next"]
+        assert versus["pairs"] == 2 and versus["p_holm"] >= 0.05 and versus["verdict"] == "not separated"
+        assert versus["detectable"] is None and versus["needed"] >= 6  # a signed-rank test needs 6 pairs at 0.05
+        assert group["pooled"] == [{"column": "noise[0].std", "values": 2, "sampled": True}]
         medians = [s["rms_post_fault_median"] for s in ranking]
         assert medians == sorted(medians) and all(s["runs"] == 2 for s in ranking)
         # per run the peak after onset is at least the final error, so are their medians
@@ -372,19 +378,19 @@ def test_the_leaderboard_ranks_per_group_and_writes_a_page(tmp_path, inline_tabl
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["leaderboard", str(inline_table.path), "--json", "--html", str(tmp_path / "board.html")]) == 0
-    assert json.loads(out.getvalue())["groups"][0]["group"] == {"fault_kind": "bias"}
+    assert json.loads(out.getvalue())["groups"][0]["group"] == {"bias": 0.2}  # every axis swept, by default
     page = (tmp_path / "board.html").read_text()
     assert page.count("data:image/png;base64,") >= 1 and "http" not in page.replace("http-equiv", "")
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["leaderboard", str(inline_table.path), "--by", "bias", "--markdown"]) == 0
-    tables = [line for line in out.getvalue().splitlines() if line.startswith(("| 1 |", "| 2 |", "| =1 |", "| =2 |"))]
+    tables = [line for line in out.getvalue().splitlines() if line.startswith(("| 1 |", "| 2 |", "| ~1 |", "| ~2 |"))]
     ranked = [s["estimator"] for g in board["groups"] for s in g["ranking"]]
     assert [line.split(" | ")[1] for line in tables] == ranked
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(["leaderboard", str(inline_table.path)]) == 0
-    assert "RMS p50 [mixed units]" in out.getvalue()  # the unit of the table (the masses: m and m/s)
+    assert "RMS p50 [95 %] [mixed units]" in out.getvalue()  # the unit of the table (the masses: m and m/s)
 
 
 def test_run_takes_settings_from_the_command_line(tmp_path):
@@ -452,15 +458,21 @@ def test_the_leaderboard_can_leave_out_the_runs_with_contested_ticks(tmp_path):
     assert runs == {"base": 4, "other": 4} and kept == {"base": 3, "other": 3}
 
 
-def test_the_text_leaderboard_shows_intervals_final_error_units_and_ties(tmp_path, capsys):
+def test_the_text_leaderboard_fits_100_columns_and_says_each_verdict(tmp_path, capsys):
     rng = np.random.default_rng(4)
     worse = 0.05 + 0.01 * rng.standard_normal(20)
-    same = worse + 0.005 * rng.choice([-1.0, 1.0], 20)
-    table = synthetic_table(tmp_path / "t.parquet", {"worse": list(worse), "same": list(same)})
+    same = worse + 0.005 * rng.choice([-1.0, 1.0], 20)  # within ±0.5 % of "worse" in every run
+    long = "an_estimator_with_a_name_longer_than_the_column"
+    table = synthetic_table(tmp_path / "t.parquet", {"worse": list(worse), "same": list(same), long: list(worse + 1)})
     assert main(["leaderboard", str(table)]) == 0
     out = capsys.readouterr().out
-    assert "95 % interval" in out and "final p50" in out and "peak p50" in out and "vs next" in out
-    lines = {line.split()[1]: line for line in out.splitlines() if line.strip()[:2] in ("1 ", "=2")}
-    assert set(lines) == {"base", "worse", "same"}
-    assert "> +0.0474 p 3.8e-06 (20)" in lines["base"] and "= +0.005 p 0.73 (20)" in lines["same"]
-    assert lines["worse"].lstrip().startswith("=2") and lines["same"].lstrip().startswith("=2")
+    assert max(map(len, out.splitlines())) <= 100
+    assert "RMS p50 [95 %]" in out and "final" in out and "peak" in out and "recovery" in out
+    rows = {line.split()[1]: line for line in out.splitlines() if line.strip()[:2] in ("1 ", "=2", "4 ")}
+    assert rows["base"].lstrip().startswith("1 ") and rows["worse"].lstrip().startswith("=2")
+    assert rows["same"].lstrip().startswith("=2")
+    # 20 pairs all one way: exact p 2⁻¹⁹, times 3 comparisons (Holm)
+    assert "> same: error +4.7 % [+3.9 %, +5.7 %], p 5.7e-06: separated; detectable ≥ 0.98 %" in out
+    assert "= worse: error +0.47 % [−0.47 %, +0.48 %]: tied within ±5 %" in out
+    assert f"\n 4 {long} (k)\n" in out  # a long name on a line of its own, above its numbers
+    assert "2 separated, 1 tied within ±5 %, 0 not separated" in out.replace("\n  ", " ")

@@ -38,6 +38,7 @@ SHOWN = {
 #: The fields of an estimator's metrics with a column of their own (``faults`` has its table).
 ESTIMATION_COLUMNS = {
     "kind",
+    "kind_name",
     "rms_pre_fault",
     "rms_post_fault",
     "final_error",
@@ -45,6 +46,7 @@ ESTIMATION_COLUMNS = {
     "bias_rejection_ratio",
     "ticks_scored",
     "faults",
+    "failed",
 }
 
 
@@ -115,7 +117,7 @@ def _errors(values: RunMetrics, norm: str, note: str) -> Table:
     rows = [
         [
             text(name),
-            text(e.kind),
+            text(e.kind_name or e.kind),
             number(e.rms_pre_fault, norm),
             number(e.rms_post_fault, norm),
             number(e.final_error, norm),
@@ -135,6 +137,11 @@ def _errors(values: RunMetrics, norm: str, note: str) -> Table:
         + (f" ({baseline})" if baseline else " (none in this run)")
         + " (docs/metrics.md)."
     )
+    failed = [
+        f"{name} failed: {e.failed}; its errors cover the ticks before."
+        for name, e in values.estimators.items()
+        if e.failed
+    ]
     return Table(
         "Estimation error |x − x̂|",
         [
@@ -148,14 +155,19 @@ def _errors(values: RunMetrics, norm: str, note: str) -> Table:
             "ticks scored",
         ],
         rows,
-        " ".join(part for part in (scores, note) if part),
+        " ".join(part for part in (*failed, scores, note) if part),
         id="estimation",
     )
 
 
 def _more(e: EstimationMetrics) -> dict[str, Any]:
-    """An estimator's metrics beyond the columns of the page."""
-    return {key: value for key, value in to_json(e).items() if key not in ESTIMATION_COLUMNS}
+    """An estimator's metrics beyond the columns of the page, those with a value (a table of
+    nothing says nothing)."""
+    return {
+        key: value
+        for key, value in to_json(e).items()
+        if key not in ESTIMATION_COLUMNS and value is not None and value != {} and value != []
+    }
 
 
 def _per_fault(found: dict[str, EstimationMetrics], norm: str) -> list[Table]:
@@ -244,7 +256,11 @@ def diagnosis(values: RunMetrics) -> list[Table]:
             [text("time with the alarm raised"), number(d.alarm_time_s, "s")],
             [text("isolation flags"), text(flags)],
         ]
-        tables.append(Table(f"Diagnosis by {name} ({d.kind})", ["measure", "value"], measures, id=f"diagnosis-{name}"))
+        tables.append(
+            Table(
+                f"Diagnosis by {name} ({d.kind_name or d.kind})", ["measure", "value"], measures, id=f"diagnosis-{name}"
+            )
+        )
         if d.faults:
             rows = [
                 [

@@ -101,20 +101,23 @@ def scalar_rows(values: dict[str, Any]) -> list[list[Cell]]:
 
 def generic(title: str, value: dict[str, Any]) -> list[Table]:
     """A mapping of records as a table (a row per record), of scalars as key-value rows; nested
-    mappings as tables of their own."""
-    tables = []
+    mappings as tables of their own. A table is made only where it has cells to show: an empty
+    mapping, or records with nothing but nested mappings, make none of their own."""
+    tables: list[Table] = []
     if value and all(isinstance(v, dict) for v in value.values()):
         columns: list[str] = []
         for record in value.values():
             columns += [k for k, v in record.items() if not isinstance(v, dict) and k not in columns]
         rows = [[text(name)] + [value_cell(c, record.get(c)) for c in columns] for name, record in value.items()]
-        tables.append(Table(title, ["name", *columns], rows, id=f"other-{title}"))
+        if columns:
+            tables.append(Table(title, ["name", *columns], rows, id=f"other-{title}"))
         for name, record in value.items():
             for key, inner in record.items():
                 if isinstance(inner, dict):
                     tables += generic(f"{title} · {name} · {key}", inner)
         return tables
-    tables.append(Table(title, ["key", "value"], scalar_rows(value), id=f"other-{title}"))
+    if rows := scalar_rows(value):
+        tables.append(Table(title, ["key", "value"], rows, id=f"other-{title}"))
     for key, inner in value.items():
         if isinstance(inner, dict):
             tables += generic(f"{title} · {key}", inner)

@@ -10,8 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from cosim.analysis.metrics import BusMetrics, DiagnosisMetrics, RunMetrics, compute_metrics
-from cosim.kinds import is_file_reference
+from cosim.analysis.metrics import BusMetrics, DiagnosisMetrics, EstimationMetrics, RunMetrics, compute_metrics
 from cosim.log.info import file_info
 from cosim.log.reader import LogReader
 
@@ -36,12 +35,9 @@ def _table(title: str, columns: list[str]) -> Table:
     return table
 
 
-def _kind(kind: str | None) -> str:
-    """A kind as a table shows it: a class in a file by the file's name, not its whole path."""
-    if kind is not None and is_file_reference(kind):
-        file, _, name = kind.rpartition(":")
-        return f"{Path(file).name}:{name}"
-    return str(kind)
+def _kind(found: EstimationMetrics | DiagnosisMetrics) -> str:
+    """A kind as a table shows it: by the name its class declares (a plugin's module path is in --json)."""
+    return str(found.kind_name or found.kind)
 
 
 def render(report: RunMetrics | dict[str, Any], console: Console) -> None:
@@ -188,7 +184,7 @@ def _estimation(m: RunMetrics, console: Console) -> None:
     for name, e in m.estimators.items():
         table.add_row(
             escape(name),
-            escape(_kind(e.kind)),
+            escape(_kind(e)),
             _number(e.rms_pre_fault),
             _number(e.rms_post_fault),
             _number(e.final_error),
@@ -205,7 +201,7 @@ def _estimation(m: RunMetrics, console: Console) -> None:
 
 def _diagnosis(name: str, d: DiagnosisMetrics, console: Console) -> None:
     console.print(
-        f"[bold]diagnosis {escape(name)}[/bold] ({escape(_kind(d.kind))}): {d.false_alarms} false alarms "
+        f"[bold]diagnosis {escape(name)}[/bold] ({escape(_kind(d))}): {d.false_alarms} false alarms "
         f"({_number(d.false_alarm_rate_per_hour, '.3g')} per hour over {d.fault_free_time_s:g} s fault-free), "
         f"{d.missed_detections} missed detections"
     )

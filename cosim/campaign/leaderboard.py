@@ -1,7 +1,8 @@
 """The leaderboard of a campaign: estimators ranked per group of runs, with confidence intervals.
 
 ``leaderboard(results, by)`` reads a results table (``cosim campaign``'s ``results.parquet``) and,
-per group (the values of the ``by`` columns; by default the fault kind) and estimator, scores:
+per group (by default every axis the campaign swept; ``by`` groups by other columns and pools the
+rest, which the group names) and estimator, scores:
 
 - estimation: the median and 90th percentile of the RMS error after onset, with a 95 % bootstrap
   interval of the median (2000 resamples, seeded: the same table gives the same interval); the
@@ -18,16 +19,13 @@ group, or a scheme that only diagnoses: the intrusion detector, SecOC) after the
 rate, false alarms per hour, isolation accuracy and detection delay. ``outliers`` lists the runs
 whose error lies beyond Q3 + 3 IQR of their estimator's group: where to look first.
 
-Each estimator is compared with the next in its ranking on the runs both took part in (the same
-run: the same noise, faults and weather; ``cosim.campaign.spec``'s common random numbers make the
-runs of a replicate alike across the grid): the paired differences d of their RMS errors after
-onset, their median with a 95 % bootstrap interval, and the two-sided Wilcoxon signed-rank test of
-d (zero differences left out). Two schemes that only diagnose are compared run by run on their
-diagnosis (missed faults, then a wrong isolation, false alarms, detection delay) by the two-sided
-sign test; an estimator and a scheme that only diagnoses have no common measure and are not
-compared. The p-values of all the comparisons in the leaderboard are adjusted by Holm's step-down
-procedure; where the adjusted p is 0.05 or more the two share a rank ("tied"): the data do not
-tell them apart.
+Each estimator is compared with the next on the runs both took part in (paired: the same noise,
+faults and weather), and so is each scheme that only diagnoses with the next such scheme; an
+estimator and a scheme that only diagnoses have no common measure and are not compared.
+``cosim.campaign.verdicts`` gives each comparison its verdict (separated, tied within a margin,
+or not separated) and what its runs could tell. A scheme's rank in its chain (the estimators, or
+the schemes that only diagnose) is 1 + the number of schemes shown better; a benchmark track's
+mean rank counts a case only where the comparisons that place the scheme are conclusive.
 """
 
 from __future__ import annotations
@@ -41,23 +39,77 @@ from typing import Any
 
 import numpy as np
 
+from cosim.campaign import ranking
 from cosim.campaign.results import Row
+from cosim.campaign.verdicts import MARGIN, bootstrap_median
 from cosim.errors import CosimError
 from cosim.extras import require
 
 Z95 = 1.959963984540054
-BOOTSTRAP = 2000
 
 
 @dataclass
 class ResultsTable:
-    """A results table as read: its rows (every column by name), the unit of each column and the
-    table's metadata."""
+    """A results table as read: its rows (every column by name), the unit of each column, the
+    table's metadata, and the columns of its campaign's axes and samples (per case in a bundle:
+    the key is the case, None for a campaign's table)."""
 
     rows: list[dict[str, Any]]
     columns: list[str]
     units: dict[str, str]
     metadata: dict[str, str]
+    design: dict[str | None, Design] = field(default_factory=dict)
+
+    def pooled(self, rows: list[dict[str, Any]], by: Sequence[str]) -> list[dict[str, Any]]:
+        """The axes and samples that ``rows`` (a group) take more than one value of and ``by`` does
+        not group by, each with its number of values: what the group pools."""
+        found: dict[str, dict[str, Any]] = {}
+        for case in dict.fromkeys(row.get("case") for row in rows):
+            design = self.design.get(case, Design())
+            for column in (*design.axes, *design.samples):
+                if column in by:
+                    continue
+                values = len({repr(row.get(column)) for row in rows if row.get("case") == case})
+                if values > 1 and values > found.get(column, {}).get("values", 0):
+                    found[column] = {"column": column, "values": values, "sampled": column in design.samples}
+        return list(found.values())
+
+
+@dataclass(frozen=True)
+class Design:
+    """A campaign's grid: the columns of its axes and of its sampled settings."""
+
+    axes: tuple[str, ...] = ()
+    samples: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, metadata: dict[str, str]) -> Design:
+        """The design of the campaign file a table's metadata holds (``cosim.campaign``; none in a
+        table written by other means)."""
+        import tomllib
+
+        try:
+            document = tomllib.loads(metadata.get("cosim.campaign", ""))
+        except tomllib.TOMLDecodeError:
+            return cls()
+
+        def column(item: dict[str, Any]) -> str:
+            key = item.get("key", "")
+            return str(item.get("name") or (key if isinstance(key, str) else "+".join(map(str, key))))
+
+        return cls(tuple(map(column, document.get("axes", []))), tuple(map(column, document.get("sample", []))))
+
+
+def default_groups(table: ResultsTable) -> list[str]:
+    """A campaign's groups: every axis it swept (more than one value in the table), and the fault
+    kind first where the axes leave it varying (or where there is no axis)."""
+    design = table.design.get(None, Design())
+    swept = [c for c in design.axes if len({repr(row.get(c)) for row in table.rows}) > 1]
+    kinds: dict[tuple[Any, ...], set[Any]] = defaultdict(set)
+    for row in table.rows:
+        kinds[tuple(row.get(c) for c in swept)].add(row.get("fault_kind"))
+    varies = any(len(found) > 1 for found in kinds.values())
+    return ["fault_kind", *swept] if varies or not swept else swept
 
 
 def read_table(path: str | Path) -> ResultsTable:
@@ -71,21 +123,11 @@ def read_table(path: str | Path) -> ResultsTable:
         raise CosimError(f"{path}: not a readable Parquet table ({error})") from None
     units = {f.name: (f.metadata or {}).get(b"unit", b"").decode() for f in table.schema}
     metadata = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items()}
-    return ResultsTable(table.to_pylist(), table.column_names, units, metadata)
+    return ResultsTable(table.to_pylist(), table.column_names, units, metadata, {None: Design.of(metadata)})
 
 
 def percentile(values: list[float], q: float) -> float | None:
     return float(np.percentile(values, q)) if values else None
-
-
-def bootstrap_median(values: list[float], seed: int = 0) -> tuple[float, float] | None:
-    """95 % percentile-bootstrap interval of the median (None under 5 values)."""
-    if len(values) < 5:
-        return None
-    rng = np.random.default_rng(seed)
-    data = np.asarray(values)
-    medians = np.median(rng.choice(data, size=(BOOTSTRAP, data.size), replace=True), axis=1)
-    return float(np.percentile(medians, 2.5)), float(np.percentile(medians, 97.5))
 
 
 def wilson(successes: int, n: int) -> tuple[float, float] | None:
@@ -115,6 +157,8 @@ class Entry:
 
     estimator: str
     kind: str
+    kind_name: str = ""
+    """The name a plugin's kind declares (``kind`` is then its module path)."""
     runs: int = 0
     failed: int = 0
     rms: list[float] = field(default_factory=list)
@@ -142,6 +186,7 @@ class Entry:
     def add(self, row: Row, case: Any = None) -> None:
         """A row of one of its runs (of ``case`` in a benchmark): a failed run (or a run this
         estimator failed in) is counted, a completed one scored."""
+        self.kind_name = self.kind_name or row.kind_name or ""
         if row.status != "completed" or row.estimator_failed:
             self.failed += 1
             return
@@ -179,6 +224,7 @@ class Entry:
         out: dict[str, Any] = {
             "estimator": self.estimator,
             "kind": self.kind,
+            "kind_name": self.kind_name or self.kind,
             "runs": self.runs,
             "failed": self.failed,
             "rms_post_fault_median": percentile(rms, 50),
@@ -212,7 +258,7 @@ class Entry:
             out |= {
                 key: None
                 for key in out
-                if key not in ("estimator", "kind", "runs", "failed", "diagnoses")
+                if key not in ("estimator", "kind", "kind_name", "runs", "failed", "diagnoses")
                 and not key.startswith(("rms_", "bias_", "final_", "peak_", "recovery_"))
             }
         return out
@@ -233,18 +279,27 @@ def _append(values: list[float], value: Any) -> None:
 
 
 def leaderboard(
-    path: str | Path | Sequence[str | Path], by: list[str] | None = None, exclude_contested: bool = False
+    path: str | Path | Sequence[str | Path],
+    by: list[str] | None = None,
+    exclude_contested: bool = False,
+    margin: float = MARGIN,
 ) -> dict[str, Any]:
-    """The ranking of a results table per group (``by`` columns, default the fault kind), or of
-    ``cosim benchmark`` bundles (folders) merged into one standing table, per track and case;
-    ``exclude_contested``: without the runs in which another program sent on the runner's ids."""
+    """The ranking of a results table per group, or of ``cosim benchmark`` bundles (folders) merged
+    into one standing table, per track and case. A campaign's groups are by default every axis it
+    swept (and the fault kind where the axes do not fix it); ``by`` groups by these columns instead
+    and pools the rest, which each group names (``pooled``). ``exclude_contested``: without the runs
+    in which another program sent on the runner's ids; ``margin``: the equivalence margin of the
+    verdicts (``cosim.campaign.verdicts``)."""
     paths = [path] if isinstance(path, (str, Path)) else list(path)
     table, bundle = load_results(paths)
-    by = by or (["fault_kind"] if bundle is None else ["track", "case"])
-    for column in by:
-        if column not in table.columns:
-            raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
+    if by:
+        for column in by:
+            if column not in table.columns:
+                raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
+    else:
+        by = ["track", "case"] if bundle is not None else default_groups(table)
     groups: dict[tuple[Any, ...], dict[tuple[str, str], Entry]] = defaultdict(dict)
+    members: dict[tuple[Any, ...], list[dict[str, Any]]] = defaultdict(list)
     for values in table.rows:
         row = Row.of(values)
         if not row.estimator:  # a run that failed before it had estimators
@@ -252,29 +307,24 @@ def leaderboard(
         if exclude_contested and row.contested_ticks:
             continue
         key = (row.estimator, row.kind or "")
-        groups[tuple(values.get(c) for c in by)].setdefault(key, Entry(*key)).add(row, values.get("case"))
+        values_by = tuple(values.get(c) for c in by)
+        groups[values_by].setdefault(key, Entry(*key)).add(row, values.get("case"))
+        members[values_by].append(values)
+    keys = sorted(groups, key=lambda k: tuple(str(v) for v in k))
+    chains = {key: ranking.chains(groups[key]) for key in keys}
+    verdicts = ranking.judged(chains, margin)
     ranked: list[dict[str, Any]] = []
-    for key in sorted(groups, key=lambda k: tuple(str(v) for v in k)):
-        scored = sorted(
-            ((entry.scores(), entry) for entry in groups[key].values()), key=lambda pair: _rank_key(pair[0])
-        )
-        scores, entries = [score for score, _ in scored], [entry for _, entry in scored]
-        for score, entry, following in zip(scores, entries, entries[1:]):
-            if entry.rms_by_run and following.rms_by_run:
-                comparison = paired_comparison(entry.rms_by_run, following.rms_by_run)
-            elif not entry.rms_by_run and not following.rms_by_run and entry.diagnoses and following.diagnoses:
-                comparison = sign_comparison(entry.diagnosis_by_run, following.diagnosis_by_run)
-            else:  # an estimator's error against a scheme that only diagnoses: no common measure
-                continue
-            score["vs_next"] = comparison | {"estimator": following.estimator}
-        ranked.append({"group": dict(zip(by, key)), "ranking": scores})
-    _rank_with_ties(ranked)
+    for key in keys:
+        scores = [score for chain in chains[key] for score, _ in chain]
+        ranking.place(scores)
+        ranked.append({"group": dict(zip(by, key)), "pooled": table.pooled(members[key], by), "ranking": scores})
     case_units = (bundle or {}).get("units", {})
     for group in ranked:
         case = group["group"].get("case")
         group["unit"] = case_units.get(case, "") if case is not None else table.units.get("rms_post_fault", "")
     runs = {(row.get("case"), row["run"]) for row in table.rows}
     board: dict[str, Any] = {
+        "format": FORMAT,
         "table": ", ".join(map(str, paths)),
         "sources": [str(p) for p in paths],
         "campaign": table.metadata.get("cosim.campaign.name"),
@@ -282,13 +332,26 @@ def leaderboard(
         "runs": len(runs),
         "failed_runs": len({(row.get("case"), row["run"]) for row in table.rows if row.get("status") != "completed"}),
         "units": {"rms_post_fault": table.units.get("rms_post_fault", "") if bundle is None else ""},
+        "verdicts": verdicts,
+        "indicative": None,
         "groups": ranked,
         "outliers": outliers(table.rows, by),
     }
     if bundle is not None:
         board["benchmark"] = {k: bundle[k] for k in ("suite", "version", "quick", "digest")} | {"bundles": len(paths)}
-        board["tracks"] = track_ranks(ranked)
+        board["tracks"] = ranking.track_ranks(ranked)
+        if bundle["quick"]:
+            board["indicative"] = (
+                f"the quick selection has too few runs per case for verdicts ({verdicts['not_separated']} of "
+                f"{verdicts['comparisons']} comparisons not separated); rank with the full suite"
+            )
     return board
+
+
+FORMAT = 2
+"""The leaderboard's JSON format: 2 added the verdicts (separated, tied within a margin, not
+separated, with what the runs could tell), ranks per comparison chain, mean ranks over the placed
+cases, the pooled axes of each group and the indicative label of a quick selection."""
 
 
 def load_results(paths: Sequence[str | Path]) -> tuple[ResultsTable, dict[str, Any] | None]:
@@ -298,8 +361,23 @@ def load_results(paths: Sequence[str | Path]) -> tuple[ResultsTable, dict[str, A
         from cosim.campaign.benchmark import read_bundles
 
         bundle, tables = read_bundles(paths)
-        return _merged([read_table(t) for t in tables]), bundle
+        merged = _merged([read_table(t) for t in tables])
+        merged.design = {case: _case_design(tables, case) for case in bundle.get("cases", {})}
+        return merged, bundle
     return read_table(paths[0]), None
+
+
+def _case_design(tables: Sequence[Path], case: str) -> Design:
+    """A bundle's case's design, from its campaign's table beside the bundle's (the first bundle that
+    has it; none where no bundle kept its cases)."""
+    import pyarrow.parquet as pq
+
+    for table in tables:
+        path = table.parent / "cases" / case / "results.parquet"
+        if path.is_file():
+            metadata = pq.read_schema(path).metadata or {}
+            return Design.of({k.decode(): v.decode() for k, v in metadata.items()})
+    return Design()
 
 
 def _merged(tables: list[ResultsTable]) -> ResultsTable:
@@ -323,46 +401,6 @@ def _merged(tables: list[ResultsTable]) -> ResultsTable:
     return ResultsTable(rows, columns, tables[0].units, tables[0].metadata)
 
 
-def track_ranks(groups: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
-    """Per track, each scheme's mean rank over the cases it ran in (as diagnosis competitions
-    rank across their test cases), best first."""
-    places: dict[str, dict[tuple[str, str], list[int]]] = defaultdict(lambda: defaultdict(list))
-    for group in groups:
-        track = str(group["group"].get("track"))
-        for score in group["ranking"]:
-            places[track][(score["estimator"], score["kind"])].append(int(score["rank"]))
-    return {
-        track: sorted(
-            (
-                {"estimator": name, "kind": kind, "mean_rank": sum(ranks) / len(ranks), "cases": len(ranks)}
-                for (name, kind), ranks in by_scheme.items()
-            ),
-            key=lambda item: (-item["cases"], item["mean_rank"], item["estimator"]),
-        )
-        for track, by_scheme in sorted(places.items())
-    }
-
-
-def paired_comparison(first: dict[Any, float], second: dict[Any, float]) -> dict[str, Any]:
-    """``second`` − ``first`` on the runs both have: how many, the median difference and its 95 %
-    bootstrap interval, and the Wilcoxon signed-rank test's two-sided p (1 without a nonzero
-    difference; Holm's adjustment comes later, over every comparison)."""
-    runs = sorted(first.keys() & second.keys())
-    differences = [second[run] - first[run] for run in runs]
-    nonzero = [d for d in differences if d != 0.0]
-    p = 1.0
-    if nonzero:
-        from scipy.stats import wilcoxon
-
-        p = float(wilcoxon(nonzero).pvalue)
-    return {
-        "pairs": len(differences),
-        "median_difference": percentile(differences, 50),
-        "median_difference_ci95": bootstrap_median(differences),
-        "p": p,
-    }
-
-
 def diagnosis_outcome(row: Row) -> tuple[float, ...]:
     """A run's diagnosis by one scheme, to compare with another's on the same run (lower is better,
     in this order): faults missed, a wrong or missing isolation, false alarms, the detection delay."""
@@ -372,66 +410,6 @@ def diagnosis_outcome(row: Row) -> tuple[float, ...]:
         float(row.isolation_correct is False),
         float(row.false_alarms or 0),
         math.inf if delay is None else delay,
-    )
-
-
-def sign_comparison(first: dict[Any, tuple[float, ...]], second: dict[Any, tuple[float, ...]]) -> dict[str, Any]:
-    """Two diagnosis schemes on the runs both have (``diagnosis_outcome`` per run): on how many runs
-    ``second`` did worse and better, and the two-sided sign test's p over the runs where they differ
-    (1 where they never do; Holm's adjustment comes later)."""
-    runs = sorted(first.keys() & second.keys(), key=str)
-    worse = sum(second[run] > first[run] for run in runs)
-    better = sum(second[run] < first[run] for run in runs)
-    p = 1.0
-    if worse + better:
-        from scipy.stats import binomtest
-
-        p = float(binomtest(worse, worse + better).pvalue)
-    return {"pairs": len(runs), "metric": "diagnosis", "worse": worse, "better": better, "p": p}
-
-
-def holm(pvalues: list[float]) -> list[float]:
-    """Holm's step-down adjustment of m p-values (family-wise error rate), in their order."""
-    m = len(pvalues)
-    adjusted = [0.0] * m
-    running = 0.0
-    for step, index in enumerate(sorted(range(m), key=lambda i: pvalues[i])):
-        running = max(running, min(1.0, (m - step) * pvalues[index]))
-        adjusted[index] = running
-    return adjusted
-
-
-def _rank_with_ties(groups: list[dict[str, Any]], alpha: float = 0.05) -> None:
-    """Holm-adjust every comparison's p, and rank each group: an estimator not told apart from the
-    one above it (adjusted p ≥ ``alpha``) shares its rank, and both say ``tied``."""
-    comparisons = [s["vs_next"] for g in groups for s in g["ranking"] if "vs_next" in s]
-    for comparison, adjusted in zip(comparisons, holm([c["p"] for c in comparisons])):
-        comparison["p_holm"] = adjusted
-        comparison["tied"] = adjusted >= alpha
-    for group in groups:
-        ranking = group["ranking"]
-        for place, score in enumerate(ranking, start=1):
-            above = ranking[place - 2] if place > 1 else None
-            tied = bool(above and above.get("vs_next", {}).get("tied"))
-            score["rank"] = above["rank"] if above and tied else place
-            score["tied"] = tied or bool(score.get("vs_next", {}).get("tied"))
-
-
-def _rank_key(score: dict[str, Any]) -> tuple[float, ...]:
-    """Estimators by their error; schemes that only diagnose after them, by detection rate, false
-    alarms, isolation accuracy and detection delay."""
-    inf = math.inf
-
-    def value(key: str, sign: float = 1.0) -> float:
-        found = score.get(key)
-        return inf if found is None else sign * found
-
-    return (
-        value("rms_post_fault_median"),
-        value("detection_rate", -1.0),
-        value("false_alarms_per_hour"),
-        value("isolation_accuracy", -1.0),
-        value("detection_delay_median_s"),
     )
 
 

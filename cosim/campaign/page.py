@@ -17,25 +17,13 @@ from typing import Any
 import numpy as np
 
 from cosim import __version__
+from cosim.campaign import wording
 from cosim.campaign.leaderboard import ResultsTable, load_results
 from cosim.campaign.results import Row
 
 
-def _num(value: Any) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "–"
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
-
-
-def _pct(value: Any) -> str:
-    return "–" if value is None else f"{100 * value:.1f} %"
-
-
 def _ci(value: Any, pct: bool = False) -> str:
-    if value is None:
-        return ""
-    low, high = value
-    return f"[{_pct(low)}, {_pct(high)}]" if pct else f"[{_num(low)}, {_num(high)}]"
+    return wording.pct_interval(value) if pct else wording.interval(value)
 
 
 def _isolated_columns(confusion: dict[str, dict[str, int]]) -> list[str]:
@@ -140,7 +128,19 @@ def write_page(board: dict[str, Any], out: str | Path) -> Path:
     environment = jinja2.Environment(
         loader=jinja2.PackageLoader("cosim.campaign", "templates"), autoescape=True, undefined=jinja2.StrictUndefined
     )
-    environment.filters.update(num=_num, pct=_pct, ci=_ci, isolated_columns=_isolated_columns)
+    environment.filters.update(
+        num=wording.number,
+        pct=wording.pct,
+        ci=_ci,
+        seconds=wording.seconds,
+        rank=wording.rank,
+        scheme=wording.scheme,
+        verdict=wording.verdict,
+        pooled=wording.pooled,
+        group_title=wording.group_title,
+        summary=wording.summary,
+        isolated_columns=_isolated_columns,
+    )
     sources = [Path(source) for source in board["sources"]]
     table, bundle = load_results(sources)
     for group in board["groups"]:
@@ -160,6 +160,7 @@ def write_page(board: dict[str, Any], out: str | Path) -> Path:
         unit=board["units"].get("rms_post_fault") or "the state's units",
         log_base=log_base,
         version=__version__,
+        legend=wording.LEGEND,
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(page, encoding="utf-8")

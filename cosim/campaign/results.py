@@ -46,7 +46,10 @@ class Row:
     wall_time_s: float | None = column("float", "s", "wall-clock time of the run and its metrics")
     log: str | None = column("text", "", "the run's log, relative to the campaign folder (empty if not kept)")
     estimator: str | None = column("text", "", "estimator name")
-    kind: str | None = column("text", "", "estimator kind")
+    kind: str | None = column("text", "", "estimator kind (a plugin's: its module path)")
+    kind_name: str | None = column(
+        "text", "", "the name a plugin's kind declares, where its kind is a module path (empty otherwise)"
+    )
     estimator_failed: str | None = column(
         "text", "", "the estimator failed during the run: when and what it raised (empty if it did not)"
     )
@@ -153,6 +156,7 @@ def rows_of(metrics: RunMetrics) -> list[dict[str, Any]]:
             **run,
             estimator=name,
             kind=e.kind or (d.kind if d else None),
+            kind_name=e.kind_name or (d.kind_name if d else None),
             estimator_failed=e.failed,
             rms_pre_fault=e.rms_pre_fault,
             rms_post_fault=e.rms_post_fault,

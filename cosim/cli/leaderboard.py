@@ -1,23 +1,30 @@
 """Rank a campaign's estimators.
 
-Rank the estimators of a campaign's results table per group of runs (the fault kind by default) by
-their RMS error after onset: median with its 95 % interval, p90, final error, bias rejection,
-detection rate, missed detections, false alarms per hour, detection and isolation delays, isolation
-accuracy. Each estimator is compared with the next on their common runs (paired: median difference,
-Wilcoxon signed-rank p, Holm-adjusted); ranks it cannot tell apart share their number (=).
+Rank the estimators of a campaign's results table (or of cosim benchmark bundles) per group of
+runs (every axis the campaign swept; --by groups by other columns and pools the rest, which each
+group names) by their RMS error after onset: median with its 95 % interval, p90, final and peak
+error, recovery, and for diagnosis schemes detection, false alarms, delays and isolation. Each
+scheme is compared with the next on their common runs (paired): separated, tied within a margin,
+or not separated, with the smallest difference its runs could detect and, when not separated,
+about how many runs would separate the difference seen.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
-from collections.abc import Sequence
+import textwrap
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
+from cosim.campaign import wording
 from cosim.cli import common
+
+WIDTH = 100
+"""The text board's width: its rows stack onto more lines rather than run wider."""
 
 
 def arguments(p: argparse.ArgumentParser) -> None:
@@ -29,7 +36,18 @@ def arguments(p: argparse.ArgumentParser) -> None:
         "same suite (merged into one standing table)",
     )
     p.add_argument(
-        "--by", nargs="+", metavar="COLUMN", help="group by these columns (default: fault_kind; bundles: track case)"
+        "--by",
+        nargs="+",
+        metavar="COLUMN",
+        help="group by these columns and pool the campaign's other axes (default: every axis it swept; "
+        "bundles: track case)",
+    )
+    p.add_argument(
+        "--margin",
+        type=float,
+        default=5.0,
+        metavar="PERCENT",
+        help="equivalence margin: two schemes are tied when shown to differ by less than this (default 5 %%)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--html", metavar="FILE", help="also write a self-contained HTML page with figures and outliers")
@@ -43,147 +61,191 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from cosim.campaign.leaderboard import leaderboard
+    from cosim.errors import CosimError
 
+    if not 0 < args.margin < 100:
+        raise CosimError(f"--margin {args.margin:g}: give a percentage between 0 and 100, e.g. --margin 5")
     results = args.results[0] if len(args.results) == 1 else args.results
-    board = leaderboard(results, args.by, exclude_contested=args.exclude_contested)
+    board = leaderboard(results, args.by, exclude_contested=args.exclude_contested, margin=args.margin / 100)
     if args.html:
         from cosim.campaign.page import write_page
 
         common.error_console().print(f"wrote {escape(str(write_page(board, args.html)))}")
     if args.json:
         common.print_json(board)
-        return 0
-    render_leaderboard(board, common.console(wide=True), markdown=args.markdown)
+    elif args.markdown:
+        sys.stdout.write(markdown(board))
+    else:
+        render_leaderboard(board, common.console(wide=True))
     return 0
 
 
-def _number(value: float | None) -> str:
-    return "-" if value is None else f"{value:.4g}"
+def heading(board: dict[str, Any]) -> list[str]:
+    """What the board ranks, how, and whether its verdicts are only indicative."""
+    name = str(board.get("campaign") or board["table"])
+    lines = [f"{name}: {board['runs']} runs, {board['failed_runs']} failed; ranked per {', '.join(board['by'])}"]
+    if "benchmark" in board:
+        b = board["benchmark"]
+        selection = "quick selection" if b["quick"] else "full suite"
+        bundles = f"{b['bundles']} bundle{'s' if b['bundles'] != 1 else ''}"
+        lines.append(f"suite {b['suite']} v{b['version']} ({selection}, digest {b['digest'][:12]}), {bundles}")
+    if board.get("indicative"):
+        lines.append(f"INDICATIVE ONLY: {board['indicative']}")
+    return [*lines, wording.summary(board)]
 
 
-def _percent(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.1f} %"
+#: What a line never breaks: an interval, a number and its unit.
+UNBROKEN = re.compile(r"\[[^\]]*\]|\d \S*%|\d s\b|\d /h\b|α' = \S+")
 
 
-def _interval(bounds: Sequence[float | None] | None) -> str:
-    return "-" if not bounds or bounds[0] is None else f"[{bounds[0]:.3g}, {bounds[1]:.3g}]"
+def _wrapped(text: str, indent: int, hang: int = 2) -> list[str]:
+    """``text`` wrapped at ``WIDTH``, its intervals and numbers with their units kept whole."""
+    kept = UNBROKEN.sub(lambda found: found.group().replace(" ", "\0"), text)
+    lines = textwrap.wrap(
+        kept, WIDTH, initial_indent=" " * indent, subsequent_indent=" " * (indent + hang), break_on_hyphens=False
+    )
+    return [line.replace("\0", " ") for line in lines]
 
 
-def _versus(score: dict) -> str:
-    """How an estimator compares with the next in its ranking, on their common runs."""
-    comparison = score.get("vs_next")
-    if not comparison:
-        return ""
-    sign = "=" if comparison["tied"] else ">"
-    if comparison.get("metric") == "diagnosis":
-        found = f"worse on {comparison['worse']}, better on {comparison['better']}"
-    elif comparison.get("median_difference") is not None:
-        found = f"{comparison['median_difference']:+.3g}"
-    else:
-        return ""
-    return f"{sign} {found} p {comparison['p_holm']:.2g} ({comparison['pairs']})"
-
-
-def leaderboard_rows(group: dict, unit: str) -> tuple[list[str], list[list[str]]]:
-    """The headers and rows of one group of a leaderboard, as text."""
-    diagnosis = any(s["diagnoses"] for s in group["ranking"])
-    rms = f"RMS p50 [{unit}]" if unit else "RMS p50"
-    headers = ["#", "estimator", "kind", "runs", rms, "95 % interval", "p90", "final p50", "peak p50"]
-    headers += ["recovery p50 [s]", "rejection", "vs next"]
-    if diagnosis:
-        headers += ["detected", "missed", "false alarms/h", "delay p50 [s]", "isolation p50 [s]", "isolated right"]
-    rows = []
-    for s in group["ranking"]:
-        cells = [
-            f"{'=' if s.get('tied') else ''}{s['rank']}",
-            s["estimator"],
-            s["kind"],
-            f"{s['runs']}" + (f" +{s['failed']}!" if s["failed"] else ""),
-            _number(s["rms_post_fault_median"]),
-            _interval(s.get("rms_post_fault_median_ci95")),
-            _number(s["rms_post_fault_p90"]),
-            _number(s.get("final_error_median")),
-            _number(s.get("peak_error_median")),
-            _number(s.get("recovery_time_median_s")),
-            _number(s["bias_rejection_median"]),
-            _versus(s),
+def estimator_lines(group: dict[str, Any], level: float) -> list[str]:
+    """The estimators of a group, a block each: rank, scheme, runs and errors on one line (the
+    scheme's name on a line of its own where it is long), its diagnosis and its verdict below."""
+    ranked = [s for s in group["ranking"] if s.get("chain") == "estimation"]
+    if not ranked:
+        return []
+    unit = f" [{group['unit']}]" if group.get("unit") else ""
+    cells = [
+        [
+            wording.rank(s),
+            wording.scheme(s),
+            f"{s['runs']}" + (f"+{s['failed']}!" if s["failed"] else ""),
+            wording.with_interval(s["rms_post_fault_median"], s.get("rms_post_fault_median_ci95")),
+            wording.number(s["rms_post_fault_p90"]),
+            wording.number(s.get("final_error_median")),
+            wording.number(s.get("peak_error_median")),
+            wording.duration(s.get("recovery_time_median_s")),
         ]
-        if diagnosis:
-            cells += [
-                _percent(s["detection_rate"]),
-                str(s["missed_detections"] if s["missed_detections"] is not None else "-"),
-                _number(s["false_alarms_per_hour"]),
-                _number(s["detection_delay_median_s"]),
-                _number(s["isolation_delay_median_s"]),
-                _percent(s["isolation_accuracy"]),
-            ]
-        rows.append(cells)
-    return headers, rows
+        for s in ranked
+    ]
+    headers = ["#", "scheme", "runs", f"RMS p50 [95 %]{unit}", "p90", "final", "peak", "recovery"]
+    name_width = min(26, max(len(headers[1]), *(len(c[1]) for c in cells)))
+    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(headers)]
+    widths[1] = name_width
+
+    columns = len(headers)
+    if sum(widths) + len(widths) - 1 > WIDTH:  # errors of many digits: final, peak and recovery stacked below
+        columns = 5
+
+    def line(row: list[str]) -> str:
+        rank, name = (row[0], row[1]) if len(row[1]) <= name_width else ("", "")
+        parts = [rank.rjust(widths[0]), name.ljust(name_width), row[2].rjust(widths[2])]
+        parts += [cell.ljust(width) for cell, width in zip(row[3:columns], widths[3:columns])]
+        return " ".join(parts).rstrip()
+
+    lines = [line(headers)]
+    indent = widths[0] + 1
+    for score, row in zip(ranked, cells):
+        if len(row[1]) > name_width:  # a long name stacks above its numbers
+            lines += _wrapped(f"{row[0].rjust(widths[0])} {row[1]}", 0, indent)
+        lines.append(line(row))
+        if columns < len(headers):
+            lines += _wrapped(" · ".join(f"{h} {c}" for h, c in zip(headers[columns:], row[columns:])), indent)
+        if score["diagnoses"]:
+            lines += _wrapped(wording.diagnosis(score), indent)
+        if score.get("vs_next"):
+            lines += _wrapped(wording.verdict(score["vs_next"], level), indent)
+    return lines
 
 
-LEGEND = (
-    "RMS of the estimation error after the first fault's onset, median over runs with its 95 % bootstrap interval; "
-    "final: the error at the last tick; peak: its largest after the onset; recovery: from the onset until it stays "
-    "within twice its pre-fault level; vs next: > told apart from the next (=: not), the next estimator's median "
-    "paired excess over this one on their common runs, Holm-adjusted Wilcoxon p and the number of pairs (two "
-    "schemes that only diagnose: on how many runs the next diagnosed worse and better, Holm-adjusted sign test p); "
-    "=2: a shared rank"
-)
+def diagnosis_lines(group: dict[str, Any], level: float) -> list[str]:
+    """The schemes that only diagnose, ranked among themselves: a block each."""
+    ranked = [s for s in group["ranking"] if s.get("chain") == "diagnosis"]
+    lines = ["schemes that only diagnose, ranked among themselves:"] if ranked else []
+    for s in ranked:
+        runs = f"{s['runs']} runs" + (f" +{s['failed']} failed" if s["failed"] else "")
+        lines += _wrapped(f"{wording.rank(s)} {wording.scheme(s)}, {runs}: {wording.diagnosis(s)}", 1, 4)
+        if s.get("vs_next"):
+            lines += _wrapped(wording.verdict(s["vs_next"], level), 4)
+    unranked = [s for s in group["ranking"] if s.get("chain") is None]
+    if unranked:
+        names = ", ".join(f"{wording.scheme(s)} ({s['runs']} runs)" for s in unranked)
+        lines += _wrapped(f"not ranked (no error after an onset, no diagnosis): {names}", 1, 4)
+    return lines
 
 
-def confusion_lines(group: dict) -> list[str]:
+def confusion_lines(group: dict[str, Any]) -> list[str]:
     """Each diagnosis scheme's confusion matrix, true targets → isolated targets (runs)."""
     lines = []
     for s in group["ranking"]:
         if s.get("confusion"):
             cells = [f"{true} → {found} {n}" for true, row in s["confusion"].items() for found, n in row.items()]
-            lines.append(f"{s['estimator']}, true → isolated (runs): {'; '.join(cells)}")
+            lines += _wrapped(f"{s['estimator']}, true → isolated (runs): {'; '.join(cells)}", 1, 4)
     return lines
 
 
-def render_leaderboard(board: dict, talk: Console, markdown: bool = False) -> None:
-    name = str(board.get("campaign") or board["table"])
-    summary = f"{board['runs']} runs, {board['failed_runs']} failed; ranked per {', '.join(board['by'])}"
-    if markdown:  # for documents: plain GitHub tables, one per group
-        lines = [f"**{name}**: {summary}", ""]
-        for group in board["groups"]:
-            headers, rows = leaderboard_rows(group, group.get("unit", ""))
-            lines += [", ".join(f"{k} = {v}" for k, v in group["group"].items()), ""]
-            lines += ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-            lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
-            lines += [*(f"- {line}" for line in confusion_lines(group)), ""] if confusion_lines(group) else []
-        for track, schemes in board.get("tracks", {}).items():
-            lines += [f"track = {track}: mean rank over its cases", "", "| estimator | kind | mean rank | cases |"]
-            lines += ["|---|---|---|---|"] + [
-                f"| {s['estimator']} | {s['kind']} | {s['mean_rank']:.2f} | {s['cases']} |" for s in schemes
-            ]
-            lines.append("")
-        sys.stdout.write("\n".join([*lines, LEGEND, ""]))
-        return
-    talk.print(f"[bold]{escape(name)}[/bold]: {summary}")
-    for group in board["groups"]:
-        title = ", ".join(f"{k} = {v}" for k, v in group["group"].items())
-        table = Table(title=escape(title), title_justify="left", box=None, header_style="bold")
-        headers, rows = leaderboard_rows(group, group.get("unit", ""))
-        for i, header in enumerate(headers):
-            table.add_column(escape(header), justify="left" if 0 < i < 3 or header == "vs next" else "right")
-        for row in rows:
-            table.add_row(*map(escape, row))
-        talk.print(table)
-        for line in confusion_lines(group):
-            talk.print(f"  {escape(line)}")
+def track_lines(board: dict[str, Any]) -> list[str]:
+    lines = []
     for track, schemes in board.get("tracks", {}).items():
-        table = Table(title=f"track {escape(track)}: mean rank over its cases", title_justify="left", box=None)
-        for header in ("estimator", "kind", "mean rank", "cases"):
-            table.add_column(header, justify="right" if header in ("mean rank", "cases") else "left")
-        for s in schemes:
-            table.add_row(escape(s["estimator"]), escape(s["kind"]), f"{s['mean_rank']:.2f}", str(s["cases"]))
-        talk.print(table)
-    if "benchmark" in board:
-        b = board["benchmark"]
-        selection = "quick" if b["quick"] else "full"
-        suite = f"{escape(b['suite'])} v{b['version']} ({selection}, digest {b['digest'][:12]})"
-        talk.print(f"suite {suite}, {b['bundles']} bundles")
-    talk.print(f"[dim]{escape(LEGEND)}[/dim]")
+        lines += ["", f"track {track}: mean rank over the cases whose comparisons place each scheme"]
+        width = max(len(wording.scheme(s)) for s in schemes)
+        lines += [f"  {wording.scheme(s).ljust(width)}  {wording.track_rank(s)}" for s in schemes]
+        unplaced = sum(s["cases"] - s["placed"] for s in schemes)
+        if unplaced:
+            lines += _wrapped(
+                f"{unplaced} places not counted: the scheme was alone or not separated from a neighbour", 2
+            )
+    return lines
+
+
+def text_lines(board: dict[str, Any]) -> list[str]:
+    """The whole board as lines of at most ``WIDTH`` characters."""
+    level = board["verdicts"]["level"]
+    lines = [line for text in heading(board) for line in _wrapped(text, 0)]
+    for group in board["groups"]:
+        title = wording.group_title(group)
+        lines += ["", *_wrapped(title + (f" · {wording.pooled(group)}" if group.get("pooled") else ""), 0)]
+        lines += estimator_lines(group, level) + diagnosis_lines(group, level) + confusion_lines(group)
+    lines += track_lines(board)
+    lines += ["", *_wrapped(wording.LEGEND, 0, 0)]
     if board["outliers"]:
-        talk.print(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")
+        lines.append(f"{len(board['outliers'])} outliers and failed runs: see --json or --html")
+    return lines
+
+
+def render_leaderboard(board: dict[str, Any], talk: Console) -> None:
+    for line in text_lines(board):
+        talk.print(escape(line))
+
+
+def markdown(board: dict[str, Any]) -> str:
+    """The board as Markdown (for documents): a table per group, the verdicts in a column."""
+    level = board["verdicts"]["level"]
+    lines = [f"**{text}**" if i == 0 else text for i, text in enumerate(heading(board))]
+    lines = [line + "  " for line in lines[:-1]] + lines[-1:]
+    for group in board["groups"]:
+        lines += ["", f"*{wording.group_title(group)}*" + (f" ({wording.pooled(group)})" if group["pooled"] else "")]
+        unit = f" [{group['unit']}]" if group.get("unit") else ""
+        diagnoses = any(s["diagnoses"] for s in group["ranking"])
+        headers = ["#", "scheme", "runs", f"RMS p50 [95 %]{unit}", "p90", "final", "peak", "recovery [s]"]
+        headers += ["diagnosis"] if diagnoses else []
+        lines += ["", "| " + " | ".join(headers + ["vs next"]) + " |", "|" + "---|" * (len(headers) + 1)]
+        for s in group["ranking"]:
+            cells = [
+                wording.rank(s),
+                wording.scheme(s),
+                str(s["runs"]) + (f" +{s['failed']} failed" if s["failed"] else ""),
+                wording.with_interval(s["rms_post_fault_median"], s.get("rms_post_fault_median_ci95")),
+                wording.number(s["rms_post_fault_p90"]),
+                wording.number(s.get("final_error_median")),
+                wording.number(s.get("peak_error_median")),
+                wording.number(s.get("recovery_time_median_s")),
+            ]
+            cells += [wording.diagnosis(s) if s["diagnoses"] else "–"] if diagnoses else []
+            cells.append(wording.verdict(s["vs_next"], level) if s.get("vs_next") else "")
+            lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in cells) + " |")
+        lines += [f"- {line.strip()}" for line in confusion_lines(group)]
+    for track, schemes in board.get("tracks", {}).items():
+        lines += ["", f"*track {track}: mean rank over the cases whose comparisons place each scheme*", ""]
+        lines += ["| scheme | mean rank |", "|---|---|"]
+        lines += [f"| {wording.scheme(s)} | {wording.track_rank(s)} |" for s in schemes]
+    return "\n".join([*lines, "", wording.LEGEND, ""])

@@ -161,10 +161,19 @@ class EstimatorRecord:
     diagnostics: dict[str, DiagnosticRecord] = field(default_factory=dict)
     isolates: dict[str, list[str]] = field(default_factory=dict)
     """What each isolation diagnostic names as faulty: sensor or actuator names."""
+    declared: str = ""
+    """The name its kind's class declares, where ``kind`` is a module path (a plugin's
+    ``package.module:Class`` or ``file.py:Class``); empty where ``kind`` is that name."""
+
+    @property
+    def kind_name(self) -> str:
+        """The kind as people name it: the name its class declares."""
+        return self.declared or self.kind
 
     def to_json(self) -> dict[str, Any]:
         return {
             "kind": self.kind,
+            **({"declared": self.declared} if self.declared else {}),
             "messages": self.messages,
             "states": self.states,
             "params": self.params,
@@ -187,6 +196,7 @@ class EstimatorRecord:
             {str(k): [str(t) for t in v] for k, v in isolates.items() if isinstance(v, list)}
             if isinstance(isolates, dict)
             else {},
+            str(value.get("declared") or ""),
         )
 
     def signals_of(self, kind: str) -> dict[str, str]:

@@ -208,6 +208,7 @@ def estimator_record(
     """The ``cosim.run`` entry of one estimator: designed ``estimator`` of ``kind``, given ``params``."""
     model = estimator.model
     diagnostics = diagnostic_records(estimators.ESTIMATORS[kind].diagnostic_channels(model.states, model.outputs))
+    declared = str(getattr(type(estimator), "kind", "") or "")
     return EstimatorRecord(
         kind,
         [m.name for m in codec.data_messages(name)],
@@ -216,6 +217,7 @@ def estimator_record(
         model.to_dict(),
         diagnostics,
         estimator.isolation_targets(),
+        declared if declared != kind else "",
     )
 
 

@@ -295,7 +295,11 @@ def _faults(run: RunFacts, scorer: Scorer) -> dict[str, FaultSpan]:
 def _estimators(run: RunFacts, scorer: Scorer) -> dict[str, EstimationMetrics]:
     baseline = scorer.estimators.get(run.baseline) if run.baseline else None
     return {
-        name: replace(score.metrics(run.estimators[name].kind, baseline), failed=run.failed.get(name))
+        name: replace(
+            score.metrics(run.estimators[name].kind, baseline),
+            kind_name=run.estimators[name].declared or None,
+            failed=run.failed.get(name),
+        )
         for name, score in scorer.estimators.items()
     }
 
@@ -304,7 +308,12 @@ def _diagnosis(run: RunFacts, scorer: Scorer) -> dict[str, DiagnosisMetrics]:
     dt = run.sample_time
     if scorer.diagnosis:
         assert dt is not None, "diagnosis is scored at ticks, and ticks are scored only with a sample time"
-    return {name: verdict.metrics(dt or 0.0, run.estimators[name].kind) for name, verdict in scorer.diagnosis.items()}
+    return {
+        name: replace(
+            verdict.metrics(dt or 0.0, run.estimators[name].kind), kind_name=run.estimators[name].declared or None
+        )
+        for name, verdict in scorer.diagnosis.items()
+    }
 
 
 def _bus(run: RunFacts, scorer: Scorer, ticks: int, lost: int | None) -> BusMetrics:

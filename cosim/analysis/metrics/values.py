@@ -76,6 +76,8 @@ class EstimationMetrics:
     """``estimators.<name>``: the error |x − x̂| of one estimator."""
 
     kind: str | None = None
+    kind_name: str | None = field(default=None, metadata=OMIT_NONE)
+    """The name its kind's class declares, where ``kind`` is a module path (a plugin's)."""
     rms_pre_fault: float | None = None
     rms_post_fault: float | None = None
     final_error: float | None = None
@@ -109,6 +111,8 @@ class DiagnosisMetrics:
     fault detection and isolation."""
 
     kind: str | None = field(default=None, metadata=OMIT_NONE)
+    kind_name: str | None = field(default=None, metadata=OMIT_NONE)
+    """The name its kind's class declares, where ``kind`` is a module path (a plugin's)."""
     isolation_flags: dict[str, list[str]] = field(default_factory=dict)
     ticks_scored: int = 0
     alarm_time_s: float = 0.0
