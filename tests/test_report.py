@@ -110,6 +110,26 @@ def test_every_metric_of_the_value_gets_a_cell(log, tmp_path, monkeypatch):
     assert ">novel_scalar_s<" in text and ">0.25 s<" in text
 
 
+def test_the_page_shows_no_table_of_nothing_and_says_when_an_estimator_failed(log, tmp_path, monkeypatch):
+    """An estimator that never saturated and did not fail has no "more metrics" to show: no table
+    with no rows, none whose cells all say –; one that failed says so with its errors."""
+    values = RunMetrics(
+        status="completed",
+        estimators={
+            "calm": EstimationMetrics(kind="k", rms_post_fault=0.5, saturated={}, failed=None),
+            "broke": EstimationMetrics(kind="k", rms_post_fault=0.7, failed="tick 51: ValueError: boom"),
+        },
+    )
+    monkeypatch.setattr(report_module, "metrics", lambda path: values)
+    monkeypatch.setattr(report_module, "_figures", lambda path: ([], "", None))
+    text = report(log, tmp_path / "r.html").read_text()
+    assert "More estimator metrics" not in text and "saturated" not in text
+    assert "broke failed: tick 51: ValueError: boom; its errors cover the ticks before." in text
+    for table in re.findall(r"<table>.*?</table>", text, re.S):
+        values_shown = re.findall(r"<td[^>]*>(.*?)</td>", table, re.S)
+        assert values_shown and any(v != "–" for v in values_shown), table[:300]
+
+
 def test_a_log_of_another_program_gives_a_page_that_says_what_is_missing(tmp_path):
     foreign = write_other_log(tmp_path / "foreign.mcap", [("/other", 0, b"{}")])
     text = report(foreign, tmp_path / "foreign.html").read_text()

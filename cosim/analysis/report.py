@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 from cosim import __version__
 from cosim.analysis import report_sections as sections
 from cosim.analysis.metrics import RunMetrics
-from cosim.analysis.report_tables import Page, bitrate
+from cosim.analysis.report_tables import Page, bitrate, telling
 from cosim.errors import CosimError
 from cosim.extras import MissingExtra
 from cosim.log.metadata import LogMetadata, ScenarioRecord
@@ -110,6 +110,7 @@ def report(path: str | Path, out: str | Path) -> Path:
     page.sections["bus"] = sections.bus(values)
     page.sections["log"] = sections.log(values)
     page.sections["other"] = sections.other(values)
+    page.sections = {name: telling(tables) for name, tables in page.sections.items()}
     html = _template().render(page=page, no_run=run is None)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(html, encoding="utf-8")

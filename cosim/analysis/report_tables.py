@@ -40,6 +40,12 @@ class Page:
     footer: str = ""
 
 
+def telling(tables: list[Table]) -> list[Table]:
+    """The tables that show something: a row with a value other than –, beyond the cell naming it
+    (an empty table, or a table of nothing, says nothing)."""
+    return [t for t in tables if any(cell.text != "–" for row in t.rows for cell in row[1:])]
+
+
 def number(value: Any, unit: str = "", digits: int = 4) -> Cell:
     """A number with its unit: ``0.9185 m``; – for none."""
     if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
