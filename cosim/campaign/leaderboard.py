@@ -298,18 +298,7 @@ def leaderboard(
                 raise CosimError(f"--by {column}: the table has no such column (it has: {', '.join(table.columns)})")
     else:
         by = ["track", "case"] if bundle is not None else default_groups(table)
-    groups: dict[tuple[Any, ...], dict[tuple[str, str], Entry]] = defaultdict(dict)
-    members: dict[tuple[Any, ...], list[dict[str, Any]]] = defaultdict(list)
-    for values in table.rows:
-        row = Row.of(values)
-        if not row.estimator:  # a run that failed before it had estimators
-            continue
-        if exclude_contested and row.contested_ticks:
-            continue
-        key = (row.estimator, row.kind or "")
-        values_by = tuple(values.get(c) for c in by)
-        groups[values_by].setdefault(key, Entry(*key)).add(row, values.get("case"))
-        members[values_by].append(values)
+    groups, members = _grouped(table, by, exclude_contested)
     keys = sorted(groups, key=lambda k: tuple(str(v) for v in k))
     chains = {key: ranking.chains(groups[key]) for key in keys}
     verdicts = ranking.judged(chains, margin)
@@ -346,6 +335,25 @@ def leaderboard(
                 f"{verdicts['comparisons']} comparisons not separated); rank with the full suite"
             )
     return board
+
+
+def _grouped(
+    table: ResultsTable, by: list[str], exclude_contested: bool
+) -> tuple[dict[tuple[Any, ...], dict[tuple[str, str], Entry]], dict[tuple[Any, ...], list[dict[str, Any]]]]:
+    """The schemes of each group (by the values of ``by``), scored over their rows, and its rows."""
+    groups: dict[tuple[Any, ...], dict[tuple[str, str], Entry]] = defaultdict(dict)
+    members: dict[tuple[Any, ...], list[dict[str, Any]]] = defaultdict(list)
+    for values in table.rows:
+        row = Row.of(values)
+        if not row.estimator:  # a run that failed before it had estimators
+            continue
+        if exclude_contested and row.contested_ticks:
+            continue
+        key = (row.estimator, row.kind or "")
+        values_by = tuple(values.get(c) for c in by)
+        groups[values_by].setdefault(key, Entry(*key)).add(row, values.get("case"))
+        members[values_by].append(values)
+    return groups, members
 
 
 FORMAT = 2

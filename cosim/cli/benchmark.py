@@ -131,6 +131,7 @@ def main(args: argparse.Namespace) -> int:
     talk.print(
         f"done: {bundle['runs']} runs, {bundle['failed']} failed; digest {bundle['digest'][:12]}; "
         f"rank with: cosim leaderboard {escape(str(args.out))}"
+        + (" (the quick selection: its verdicts are indicative only)" if args.quick else "")
     )
     print(args.out)
     return 0
