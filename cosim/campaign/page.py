@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from markupsafe import Markup
 
 from cosim import __version__
 from cosim.campaign import wording
@@ -24,6 +25,13 @@ from cosim.campaign.results import Row
 
 def _ci(value: Any, pct: bool = False) -> str:
     return wording.pct_interval(value) if pct else wording.interval(value)
+
+
+def _scheme_cell(score: dict[str, Any]) -> Markup:
+    """A scheme's name and its kind, each unbroken, the line breaking between them."""
+    kind = score.get("kind_name") or score.get("kind") or ""
+    name = Markup('<span class="nb">{}</span>').format(score["estimator"])
+    return name if kind in ("", score["estimator"]) else name + Markup(' <span class="nb">({})</span>').format(kind)
 
 
 def _isolated_columns(confusion: dict[str, dict[str, int]]) -> list[str]:
@@ -135,6 +143,7 @@ def write_page(board: dict[str, Any], out: str | Path) -> Path:
         seconds=wording.seconds,
         rank=wording.rank,
         scheme=wording.scheme,
+        scheme_cell=_scheme_cell,
         verdict=wording.verdict,
         pooled=wording.pooled,
         group_title=wording.group_title,

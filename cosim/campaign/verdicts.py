@@ -293,6 +293,10 @@ def judge(comparisons: list[dict[str, Any]], margin: float = MARGIN, alpha: floa
             c["detectable"] = detectable(c["pairs"], c.get("spread"), level)
             needed = runs_needed(c.get("shift"), c.get("spread"), level)
         c["needed"] = None if separated else needed
+        # a difference seen in one run: its spread unknown, the test's fewest pairs at least
+        c["needed_at_least"] = bool(not separated and needed is None and c.get("shift") and c.get("spread") is None)
+        if c["needed_at_least"]:
+            c["needed"] = max(2, fewest_pairs(level))
     count = {v: sum(c["verdict"] == v for c in comparisons) for v in (SEPARATED, TIED, NOT_SEPARATED)}
     return {
         "alpha": alpha,

@@ -12,13 +12,21 @@ from cosim.campaign.verdicts import MOST_RUNS, SEPARATED, TIED
 
 
 def number(value: Any, digits: int = 3) -> str:
-    """A number rounded to ``digits`` significant digits, exponents short (``8.7e-5``); – for none."""
+    """A number rounded to ``digits`` significant digits, below 0.001 and from 10⁶ with a short
+    exponent (``8.75e-5``); – for none."""
     if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
         return "–"
     if isinstance(value, float) and not math.isfinite(value):
         return "–"
-    text = f"{value:.{digits}g}" if isinstance(value, float) else str(value)
+    if isinstance(value, int):
+        text = str(value)
+    elif value != 0 and not 1e-3 <= abs(value) < 1e6:
+        text = f"{value:.{digits - 1}e}"
+    else:
+        text = f"{value:.{digits}g}"
     mantissa, e, exponent = text.partition("e")
+    if e and "." in mantissa:
+        mantissa = mantissa.rstrip("0").rstrip(".")
     return f"{mantissa}e{int(exponent)}" if e else text
 
 
@@ -39,7 +47,7 @@ def pct(value: float | None) -> str:
 
 
 def pct_interval(bounds: Sequence[float] | None) -> str:
-    return "" if not bounds else f"[{number(100 * bounds[0], 2)}, {number(100 * bounds[1], 2)}]"
+    return "" if not bounds else f"[{number(100 * bounds[0])}, {number(100 * bounds[1])}]"
 
 
 def duration(value: float | None) -> str:
@@ -107,7 +115,7 @@ def detectable(comparison: dict[str, Any], level: float) -> str:
         return f"{_runs(c['pairs'])} can separate nothing at α' = {level:.2g}"
     if c["detectable"] < 1e-4:
         return "detectable ≥ 0.01 %"
-    return f"detectable ≥ {number(100 * c['detectable'], 2)} %"
+    return f"detectable ≥ {relative(1 + c['detectable']).removeprefix('+')}"
 
 
 def verdict(comparison: dict[str, Any], level: float) -> str:
@@ -134,6 +142,8 @@ def verdict(comparison: dict[str, Any], level: float) -> str:
         about = "no difference seen"
     elif needed >= MOST_RUNS:
         about = f"over {MOST_RUNS:.0e} needed"
+    elif c.get("needed_at_least"):  # one run: its spread unknown
+        about = f"at least {needed} needed"
     else:
         about = f"about {needed} needed"
     return f"~ {found}: not separated ({_runs(c['pairs'])}; {about}); {could}"
@@ -142,16 +152,15 @@ def verdict(comparison: dict[str, Any], level: float) -> str:
 def diagnosis(score: dict[str, Any]) -> str:
     """A scheme's diagnosis in one line: detection, misses, false alarms, delays, isolation."""
     s = score
-    return " · ".join(
-        [
-            f"detected {pct(s['detection_rate'])} {pct_interval(s['detection_rate_ci95'])}".rstrip(),
-            f"missed {number(s['missed_detections'])}",
-            f"false alarms/h {with_interval(s['false_alarms_per_hour'], s['false_alarms_per_hour_ci95'])}",
-            f"delay {seconds(s['detection_delay_median_s'], s['detection_delay_p90_s'])}",
-            f"isolation {seconds(s['isolation_delay_median_s'], s['isolation_delay_p90_s'])}",
-            f"isolated right {pct(s['isolation_accuracy'])} {pct_interval(s['isolation_accuracy_ci95'])}".rstrip(),
-        ]
-    )
+    parts = [
+        f"detected {pct(s['detection_rate'])} {pct_interval(s['detection_rate_ci95'])}".rstrip(),
+        f"missed {number(s['missed_detections'])}",
+        f"false alarms/h {with_interval(s['false_alarms_per_hour'], s['false_alarms_per_hour_ci95'])}",
+        f"delay {seconds(s['detection_delay_median_s'], s['detection_delay_p90_s'])}",
+        f"isolation {seconds(s['isolation_delay_median_s'], s['isolation_delay_p90_s'])}",
+        f"isolated right {pct(s['isolation_accuracy'])} {pct_interval(s['isolation_accuracy_ci95'])}".rstrip(),
+    ]
+    return " · ".join(part for part in parts if not part.endswith("–")) or "no diagnosis scored"
 
 
 def summary(board: dict[str, Any]) -> str:

@@ -133,8 +133,6 @@ def estimator_lines(group: dict[str, Any], level: float) -> list[str]:
     widths[1] = name_width
 
     columns = len(headers)
-    if sum(widths) + len(widths) - 1 > WIDTH:  # errors of many digits: final, peak and recovery stacked below
-        columns = 5
 
     def line(row: list[str]) -> str:
         rank, name = (row[0], row[1]) if len(row[1]) <= name_width else ("", "")
@@ -142,6 +140,8 @@ def estimator_lines(group: dict[str, Any], level: float) -> list[str]:
         parts += [cell.ljust(width) for cell, width in zip(row[3:columns], widths[3:columns])]
         return " ".join(parts).rstrip()
 
+    if any(len(line(row)) > WIDTH for row in [headers, *cells]):  # final, peak and recovery stacked below
+        columns = 5
     lines = [line(headers)]
     indent = widths[0] + 1
     for score, row in zip(ranked, cells):
