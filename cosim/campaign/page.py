@@ -54,24 +54,33 @@ def figures(board: dict[str, Any], table: ResultsTable) -> list[dict[str, str]]:
     return [figure for figure in made if figure is not None]
 
 
+PANELS = 12
+"""At most this many groups get a panel in the figure of errors (a grid of hundreds would not read)."""
+
+
 def _errors(board: dict[str, Any], table: ResultsTable) -> dict[str, str] | None:
-    """The distribution of the RMS error after onset per estimator, a panel per group."""
+    """The distribution of the RMS error after onset per estimator, a panel per group (the first
+    ``PANELS`` groups)."""
     import matplotlib.pyplot as plt
 
+    by = board["by"]
+    found: dict[tuple[Any, ...], dict[str, list[float]]] = {}
+    for values in table.rows:
+        row = Row.of(values)
+        error = row.rms_post_fault
+        if row.status == "completed" and isinstance(error, float) and math.isfinite(error) and error > 0:
+            found.setdefault(tuple(values.get(c) for c in by), {}).setdefault(str(row.estimator), []).append(error)
     panels = []
-    for group, unit in ((g["group"], g.get("unit", "")) for g in board["groups"]):
-        by_estimator: dict[str, list[float]] = {}
-        for values in table.rows:
-            row = Row.of(values)
-            if row.status != "completed" or any(values.get(c) != v for c, v in group.items()):
-                continue
-            error = row.rms_post_fault
-            if isinstance(error, float) and math.isfinite(error) and error > 0:
-                by_estimator.setdefault(str(row.estimator), []).append(error)
+    for group in board["groups"]:
+        by_estimator = found.get(tuple(group["group"].get(c) for c in by))
         if by_estimator:
-            panels.append((group, unit, by_estimator))
+            panels.append((group["group"], group.get("unit", ""), by_estimator))
     if not panels:
         return None
+    shown = (
+        "" if len(panels) <= PANELS else f" The first {PANELS} of {len(panels)} groups; --by fewer columns pools them."
+    )
+    panels = panels[:PANELS]
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 2.6 * len(panels) + 0.4), squeeze=False)
     for ax, (group, unit, data) in zip(axes[:, 0], panels):
         names = sorted(data, key=lambda k: float(np.median(data[k])))
@@ -89,7 +98,7 @@ def _errors(board: dict[str, Any], table: ResultsTable) -> dict[str, str] | None
         "data": _png(fig),
         "caption": "Distribution of the RMS estimation error after the fault onset, per estimator and group "
         "(box: quartiles, whiskers: 10th and 90th percentiles; log scale where they span more than a decade); "
-        "best median first.",
+        "best median first." + shown,
     }
     plt.close(fig)
     return figure
