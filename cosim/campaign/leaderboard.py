@@ -41,11 +41,9 @@ import numpy as np
 
 from cosim.campaign import ranking
 from cosim.campaign.results import Row
-from cosim.campaign.verdicts import MARGIN, bootstrap_median
+from cosim.campaign.verdicts import MARGIN, Z95, bootstrap_median
 from cosim.errors import CosimError
 from cosim.extras import require
-
-Z95 = 1.959963984540054
 
 
 @dataclass

@@ -69,6 +69,8 @@ MARGIN = 0.05
 runs on which two diagnoses may differ."""
 EFFICIENCY = 3 / math.pi
 """Asymptotic relative efficiency of the signed-rank test against the t-test for normal differences."""
+Z95 = 1.959963984540054
+"""The standard normal's 97.5th percentile."""
 MOST_RUNS = 10**7
 """Runs needed beyond this are reported as this many: no campaign separates such a difference."""
 
@@ -188,14 +190,11 @@ def hodges_lehmann(values: Sequence[float], seed: int = 0) -> tuple[float, tuple
     return estimate, (float(walsh[k - 1]), float(walsh[m - k]))
 
 
-Z95 = 1.959963984540054
-
-
 def paired_comparison(first: dict[Any, float], second: dict[Any, float], margin: float = MARGIN) -> dict[str, Any]:
     """``second`` against ``first`` on the runs both have: how many, the median difference in their
     unit and its 95 % bootstrap interval, the ratio ``second/first`` (Hodges–Lehmann) and its interval, the
     signed-rank tests' p of a difference and of equivalence within ``margin``, and the spread and
-    shift of the log ratios (for ``state``). Holm's adjustment and the verdict come later, over the
+    shift of the log ratios (for ``judge``). Holm's adjustment and the verdict come later, over the
     whole board."""
     from scipy.stats import wilcoxon
 
@@ -285,9 +284,9 @@ def judge(comparisons: list[dict[str, Any]], margin: float = MARGIN, alpha: floa
         c["margin"] = margin
         c["verdict"] = SEPARATED if separated else TIED if tied else NOT_SEPARATED
         c["separated"], c["tied"] = separated, tied
-        if c["measure"] == "diagnosis":
+        if c["measure"] == "diagnosis":  # what it detects: one scheme better on this many runs, never worse
             fewest = fewest_pairs(level)
-            c["detectable"] = None if fewest > c["pairs"] else fewest  # runs one way, none the other
+            c["detectable_runs"] = None if fewest > c["pairs"] else fewest
             needed = _sign_runs_needed(c["worse"], c["better"], c["pairs"], level)
         else:
             c["detectable"] = detectable(c["pairs"], c.get("spread"), level)

@@ -108,9 +108,9 @@ def detectable(comparison: dict[str, Any], level: float) -> str:
     """What the runs of a comparison could detect (at the board's level, power 0.8)."""
     c = comparison
     if c["measure"] == "diagnosis":
-        if c["detectable"] is None:
+        if c["detectable_runs"] is None:
             return f"{_runs(c['pairs'])} can separate nothing at α' = {level:.2g}"
-        return f"detectable: one better on {c['detectable']} runs, never worse"
+        return f"detectable: one better on {c['detectable_runs']} runs, never worse"
     if c["detectable"] is None:
         return f"{_runs(c['pairs'])} can separate nothing at α' = {level:.2g}"
     if c["detectable"] < 1e-4:
