@@ -133,7 +133,8 @@ def test_cosim_benchmark_writes_a_bundle_that_the_leaderboard_ranks(tmp_path, ca
     page = tmp_path / "board.html"  # the page: the same tables, the tracks, the confusion matrices, the digest
     assert main(["leaderboard", str(out), "--html", str(page)]) == 0
     html = page.read_text()
-    assert board["benchmark"]["digest"][:12] in html and "Tracks: mean rank over the cases that place each scheme" in html
+    assert board["benchmark"]["digest"][:12] in html
+    assert "Tracks: mean rank over the cases that place each scheme" in html
     assert "secoc</strong>: confusion matrix" in html and html.count("<img") == 2
     assert main(["benchmark", "--suite", str(suite), "--out", str(out)]) == 1  # not empty: refused
 
