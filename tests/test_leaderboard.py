@@ -171,7 +171,7 @@ def test_a_quick_bundle_is_labelled_indicative_in_text_json_markdown_and_html(tm
         assert main(["leaderboard", str(full), *form]) == 0
         assert "INDICATIVE" not in capsys.readouterr().out
     assert main(["leaderboard", str(quick), "--html", str(tmp_path / "q.html")]) == 0
-    assert "Indicative only:" in (tmp_path / "q.html").read_text()
+    assert "Indicative only:" in (tmp_path / "q.html").read_text(encoding="utf-8")
 
 
 CAMPAIGN = """
@@ -297,7 +297,7 @@ def test_the_page_needs_no_horizontal_scroll_at_1280_px(tmp_path):
         finally:
             browser.close()
     assert layout["scrollWidth"] <= 1280 and layout["wide"] == [], layout
-    html = page.read_text()
+    html = page.read_text(encoding="utf-8")
     assert "Indicative only:" in html and "not separated" in html and "only diagnose" in html
 
 

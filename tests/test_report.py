@@ -122,7 +122,7 @@ def test_the_page_shows_no_table_of_nothing_and_says_when_an_estimator_failed(lo
     )
     monkeypatch.setattr(report_module, "metrics", lambda path: values)
     monkeypatch.setattr(report_module, "_figures", lambda path: ([], "", None))
-    text = report(log, tmp_path / "r.html").read_text()
+    text = report(log, tmp_path / "r.html").read_text(encoding="utf-8")
     assert "More estimator metrics" not in text and "saturated" not in text
     assert "broke failed: tick 51: ValueError: boom; its errors cover the ticks before." in text
     for table in re.findall(r"<table>.*?</table>", text, re.S):
