@@ -7,6 +7,7 @@ and a user's plugin.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -19,6 +20,7 @@ import pytest
 from cosim import scenario
 from cosim.analysis.series import load
 from cosim.bus.codec import Codec
+from cosim.errors import CosimError
 from cosim.log.metadata import logged_dbc
 from cosim.log.reader import LogReader
 from cosim.run import run
@@ -62,6 +64,91 @@ def test_the_plant_fmu_declares_only_the_platforms_its_nested_fmu_has(vanderpol_
     assert fmpy.supported_platforms(str(vanderpol_fmu)) == ["linux64"]  # VanDerPol.fmu: Linux only
     with zipfile.ZipFile(vanderpol_fmu) as fmu:
         assert {Path(n).parts[1] for n in fmu.namelist() if n.startswith("binaries/")} == {"x86_64-linux"}
+
+
+STATE_SPACE_FMU = ROOT / "tests" / "data" / "fmus" / "fmi3" / "StateSpace.fmu"  # inputs u start at 1 2 3
+DESIGN = """
+[plant.state_space]
+A = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+B = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+C = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+states = ["x_1", "x_2", "x_3"]
+inputs = ["u_1", "u_2", "u_3"]
+outputs = ["y_1", "y_2", "y_3"]
+"""
+
+
+def state_space_scenario(folder: Path, fmu: Path, extra: str = "", fmu_table: str = "") -> scenario.LoadedScenario:
+    path = folder / "state-space.toml"
+    path.write_text(
+        f'name = "state-space"\nduration = 0.1\nsample_time = 0.01\n[plant]\nmodel = "{fmu}"\n'
+        f'[plant.fmu]\ninterface = "co-simulation"\n{fmu_table}\n{extra}'
+    )
+    return scenario.load(path)
+
+
+def co_simulation_only(fmu: Path, target: Path) -> Path:
+    """``fmu`` without its model-exchange interface (the element left out of its description)."""
+    with zipfile.ZipFile(fmu) as old, zipfile.ZipFile(target, "w") as new:
+        for item in old.infolist():
+            data = old.read(item)
+            if item.filename == "modelDescription.xml":
+                data = re.sub(rb"<ModelExchange[^>]*/>", b"", data)
+            new.writestr(item, data)
+    return target
+
+
+def test_the_plant_fmu_of_an_fmu_with_a_design_model_starts_its_inputs_at_their_start_values(tmp_path):
+    loaded = state_space_scenario(tmp_path, STATE_SPACE_FMU, extra=DESIGN, fmu_table='isolation = "none"')
+    assert fmu_export.exported(loaded)["u_op"] == [1.0, 2.0, 3.0]  # not the design model's 0
+
+
+@pytest.mark.slow  # the FMU's host processes
+def test_the_plant_fmu_of_a_co_simulation_only_fmu_starts_its_inputs_at_their_start_values(tmp_path, capsys):
+    from cosim.cli import main
+    from cosim.plant.fmu_process import _HOSTS
+
+    only = co_simulation_only(STATE_SPACE_FMU, tmp_path / "StateSpaceCS.fmu")
+    assert fmpy.read_model_description(str(only)).modelExchange is None
+    loaded = state_space_scenario(tmp_path, only)
+    out = tmp_path / "plant.fmu"
+    assert main(["fmu", str(loaded.source), "--out", str(out)]) == 0, capsys.readouterr().err
+    assert not any(host.open for hosts in _HOSTS.by_fmu.values() for host in hosts)  # its plant closed
+    inputs = [v for v in fmpy.read_model_description(str(out)).modelVariables if v.causality == "input"]
+    assert [(v.name, float(v.start)) for v in inputs] == [("u_1", 1.0), ("u_2", 2.0), ("u_3", 3.0)]
+    result = fmpy.simulate_fmu(str(out), stop_time=0.05, output_interval=0.01, output=["y_1", "y_2", "y_3"])
+    assert tuple(result[0])[1:] == (1.0, 2.0, 3.0)  # y = x + D u with x(0) = 0 and u held at 1 2 3
+    assert not any(host.open for hosts in _HOSTS.by_fmu.values() for host in hosts)  # freed at fmi3Terminate
+
+
+@pytest.mark.slow  # a Python of its own
+def test_the_plant_fmu_builds_under_an_ascii_locale(tmp_path):
+    """pythonfmu3 reads the slave in the locale's encoding: ASCII under ``LC_ALL=C`` without
+    Python's UTF-8 mode, and after an FMU's runtime called ``setlocale(LC_ALL, "C")`` in-process."""
+    probe = (
+        "import locale, sys\n"
+        "from pathlib import Path\n"
+        "from cosim import scenario\n"
+        "from cosim.run import fmu_export\n"
+        "assert locale.getpreferredencoding(False) == 'ANSI_X3.4-1968', locale.getpreferredencoding(False)\n"
+        "fmu_export.export(scenario.load('three-tank-reconciliation'), Path(sys.argv[1]))\n"
+    )
+    env = dict(os.environ, LANG="C", LC_ALL="C", PYTHONUTF8="0", PYTHONPATH=str(ROOT))
+    done = subprocess.run(
+        [sys.executable, "-c", probe, str(tmp_path / "tanks.fmu")], env=env, capture_output=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr.decode("utf-8", "replace")[-2000:]
+    assert fmpy.read_model_description(str(tmp_path / "tanks.fmu")).unitDefinitions
+
+
+def test_the_fmu_slaves_are_ascii_and_one_that_is_not_is_refused_in_one_line(tmp_path):
+    for slave in ("fmu_slave.py", "fmu_estimator_slave.py"):
+        assert fmu_export._ascii_source(Path(fmu_export.__file__).with_name(slave))
+    slave = tmp_path / "slave.py"
+    slave.write_text("# x\n# \u03c4\n", encoding="utf-8")
+    with pytest.raises(CosimError, match=r"slave\.py line 2 is not ASCII") as error:
+        fmu_export._ascii_source(slave)
+    assert "\n" not in str(error.value)
 
 
 def test_a_step_size_that_is_not_a_multiple_is_refused_at_error(vanderpol_fmu):

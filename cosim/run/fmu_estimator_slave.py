@@ -4,7 +4,7 @@ packages this file).
 The FMU's ``resources/content.json`` (``cosim.run.fmu_estimator.exported``) holds the estimator's
 kind, its parameters with the design computed at export (``node_params``: an LMI solution, a pole
 placement), the linear model it is designed on, and its signals. Each tick it does what the
-estimator's node does with a tick of the bus (``cosim.run.node.EstimatorNode``): x̂_k, diagnostics
+estimator's node does with a tick of the bus (``cosim.run.node.EstimatorNode``): xhat_k, diagnostics
 = ``estimator.step(y_k, u_k)``. Its variables:
 
 - inputs: the readings y_k as the node decodes them from the bus (NaN: no frame this tick), then
@@ -15,10 +15,12 @@ estimator's node does with a tick of the bus (``cosim.run.node.EstimatorNode``):
   that the design depends on redoes the design at initialization (on the exported linear model,
   with the design's own packages, e.g. cvxpy for an LMI); changing none runs the exported design.
 
-A step advances ``communicationStepSize`` / τ ticks (a whole number; the inputs held over it); any
-other step size is refused (``fmi3Error``, logged at [error]). The host needs a Python with cosim
-installed (e.g. FMPy in cosim's virtualenv); a user's plugin estimator is shipped in the FMU's
-``resources/plugin`` as the source file that defines it.
+A step advances ``communicationStepSize`` / tau ticks (tau: the sample time; a whole number; the
+inputs held over it); any other step size is refused (``fmi3Error``, logged at [error]). The host
+needs a Python with cosim installed (e.g. FMPy in cosim's virtualenv); a user's plugin estimator
+is shipped in the FMU's ``resources/plugin`` as the source file that defines it.
+
+This file is ASCII: pythonfmu3 reads it in the locale's encoding (``cosim.run.fmu_export.package``).
 """
 
 from __future__ import annotations

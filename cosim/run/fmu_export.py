@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree
 
+import numpy as np
+
 from cosim.bus.signals import Channel
 from cosim.errors import CosimError
 from cosim.extras import require
@@ -96,12 +98,25 @@ def fmi_units(variables: Iterable[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return {v["unit"]: fmi_unit(v["unit"]) for v in variables if v["unit"]}
 
 
+def held_commands(s: Scenario) -> np.ndarray:
+    """What the actuators hold before a command, as in a run (``cosim.run.loop.held_inputs``): an
+    FMU plant's start values (linearizing it would fail for a co-simulation-only FMU, and give its
+    design model's zero with ``[plant.state_space]``), else the operating point's inputs."""
+    plant = build_plant(s)
+    try:
+        start = getattr(plant, "start_inputs", None)
+        return np.asarray(start[: len(s.actuators)] if start is not None else plant.linearize().u_op, dtype=float)
+    finally:
+        close = getattr(plant, "close", None)
+        if close is not None:
+            close()  # an FMU plant's instance (in its host process)
+
+
 def exported(loaded: LoadedScenario) -> dict[str, Any]:
     """What the plant FMU's ``content.json`` holds: the resolved scenario, its signals and the
-    inputs' start values (the plant's operating point)."""
+    actuators' start values (what they hold before a command, as in a run)."""
     s = loaded.scenario
     sensors, actuators, states = s.channels()
-    plant = build_plant(s)
     data = json.loads(s.model_dump_json())
     if is_fmu(s.plant.model):
         data["plant"]["model"] = PLANT_FILE
@@ -114,7 +129,7 @@ def exported(loaded: LoadedScenario) -> dict[str, Any]:
         "sample_time": s.sample_time,
         "duration": s.duration,
         "seed": s.seed,
-        "u_op": plant.linearize().u_op.tolist(),
+        "u_op": held_commands(s).tolist(),
         **variables,
         "units": fmi_units(v for group in variables.values() for v in group),
     }
@@ -149,7 +164,7 @@ def package(
             shutil.copyfile(source, target)
             project.append(work / Path(name).parts[0])
         script = work / f"cosim_{slave.name}"  # its module's name in the host: one per kind of slave
-        shutil.copyfile(slave, script)
+        script.write_bytes(_ascii_source(slave))
         try:
             built = builder.FmuBuilder.build_FMU(script, dest=work / "built", project_files=set(project))
         except Exception as error:  # noqa: BLE001 (pythonfmu3 raises plain Exceptions)
@@ -157,6 +172,19 @@ def package(
         out.parent.mkdir(parents=True, exist_ok=True)
         _finish(Path(built), out, platforms, content["sample_time"])
     return out
+
+
+def _ascii_source(slave: Path) -> bytes:
+    """The slave's source, which must be ASCII: pythonfmu3 reads it (for its class name) in the
+    locale's encoding, which is ASCII where ``LC_ALL=C`` (without Python's UTF-8 mode) and in a
+    process where an FMU's runtime has called ``setlocale(LC_ALL, "C")`` (Dymola's does)."""
+    source = slave.read_bytes()
+    if not source.isascii():
+        line = next(n for n, text in enumerate(source.splitlines(), 1) if not text.isascii())
+        raise CosimError(
+            f"cosim fmu: {slave} line {line} is not ASCII; pythonfmu3 reads the slave in the locale's encoding"
+        )
+    return source
 
 
 def _fmu_platforms(fmu: Path) -> set[str]:

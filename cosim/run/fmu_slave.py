@@ -10,9 +10,11 @@ inputs. Its variables:
 - outputs: the transmitted sensors' measured readings, then ``state.<name>``, the plant's states;
 - parameter ``seed`` (fixed): the seed of the noise, the faults and the disturbance models.
 
-A step advances ``communicationStepSize`` / τ ticks (a whole number) of the scenario's sample time
-τ; any other step size is refused (``fmi3Error``, logged at [error]). The host needs a Python
+A step advances ``communicationStepSize`` / tau ticks (a whole number) of the scenario's sample time
+tau; any other step size is refused (``fmi3Error``, logged at [error]). The host needs a Python
 with cosim installed (its import path, e.g. FMPy in cosim's virtualenv).
+
+This file is ASCII: pythonfmu3 reads it in the locale's encoding (``cosim.run.fmu_export.package``).
 """
 
 from __future__ import annotations
@@ -94,6 +96,12 @@ class CosimPlant(Fmi3Slave):
         for _ in range(ticks):
             self._advance()
         return Fmi3StepResult()
+
+    def terminate(self) -> None:
+        """Free the plant (a nested FMU's instance, in its host process where it has one)."""
+        if self.source is not None:
+            self.source.close()
+            self.source = None
 
     def _advance(self) -> None:
         """Tick k's actuation (the actuator faults on the held commands, the disturbances) and the
