@@ -162,6 +162,51 @@ def test_an_fmu_that_never_returns_is_stopped_by_ctrl_c_and_sigterm(fmu, signum,
     assert result.status == "interrupted" and result.ticks == 5 and "fmi2DoStep" in result.error
 
 
+def children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def running(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_the_plan_is_made_is_one_line_and_ends_the_fmus_process(fmu, signum, tmp_path):
+    """Before the run's session (its handlers) exists: the plan's linearization hangs in the FMU."""
+    path = write(tmp_path, fmu, interface="model-exchange", fmu_table="parameters = { mode = 1, trigger = 0.0 }")
+    path.write_text(path.read_text() + KALMAN)
+    log = tmp_path / "run.mcap"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", str(path), "--interface", "virtual", "--out", str(log), "-q"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        encoding="utf-8",
+    )
+    deadline = time.monotonic() + 120
+    while not (hosts := children(process.pid)) and time.monotonic() < deadline:  # the FMU's host process
+        time.sleep(0.05)
+    time.sleep(2.0)  # which hangs in the plan's first call of fmi2GetDerivatives
+    assert process.poll() is None and hosts
+    sent = time.monotonic()
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=30)
+    assert time.monotonic() - sent < 2.0
+    assert process.returncode == 128 + signum
+    assert err.strip().splitlines() == [err.strip()] and err.startswith(
+        "interrupted while preparing the run: Misbehaving.fmu was in "
+    ), err
+    assert err.strip().endswith("its process was killed; no log was written") and not log.exists()
+    assert not any(running(host) for host in hosts)
+
+
 @pytest.mark.slow
 def test_a_crash_of_the_fmu_ends_the_run_in_one_line_with_a_valid_log(fmu, tmp_path):
     path = write(tmp_path, fmu, fmu_table="parameters = { mode = 2, trigger = 0.05 }")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
 import re
 import signal
 import subprocess
@@ -281,6 +282,18 @@ def test_sigterm_finishes_the_log_and_exits_with_143(tmp_path):
     status, stderr = signalled_run(out, signal.SIGTERM, "-q")
     assert status == 143, stderr
     assert inspect_json(out)["status"] == "interrupted"
+
+
+def test_sigterm_before_the_session_stops_like_ctrl_c():
+    """While the plan is made (no session, no deferred interrupts yet) SIGTERM raises, as Ctrl-C
+    does, instead of ending the process without a word; outside, the handler is what it was."""
+    from cosim.run.interrupts import Interrupted, terminate_like_ctrl_c
+
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(Interrupted) as stopped, terminate_like_ctrl_c():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5.0)  # the signal is handled before this ends
+    assert stopped.value.signum == signal.SIGTERM and signal.getsignal(signal.SIGTERM) is before
 
 
 @pytest.mark.slow

@@ -82,12 +82,29 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from cosim.run.interrupts import terminate_like_ctrl_c
+
     talk = common.console(stderr=True, quiet=args.quiet)
-    with common.preparing(talk) as preparation:
-        return _run(args, talk, preparation)
+    with common.preparing(talk) as preparation, terminate_like_ctrl_c():
+        try:
+            run, out = _prepared(args)
+        except KeyboardInterrupt as interrupt:  # Ctrl-C or SIGTERM before the run's session
+            return _interrupted_while_preparing(interrupt, args.json)
+        return _run(args, run, out, talk, preparation)
 
 
-def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparation | None) -> int:
+def _interrupted_while_preparing(interrupt: KeyboardInterrupt, json: bool) -> int:
+    """One line (with the call an FMU was in, if it hung), nothing else: no log was begun."""
+    detail = getattr(interrupt, "detail", "")
+    why = f": {escape(detail)}" if detail else ""
+    common.error_console().print(f"[yellow]interrupted while preparing the run[/yellow]{why}; no log was written")
+    if json:
+        common.print_json({"path": None, "status": "interrupted", "error": detail})
+    return common.exit_code(interrupt)
+
+
+def _prepared(args: argparse.Namespace) -> tuple[Run, Path]:
+    """The run as the arguments ask (its plan made) and where it will write its log."""
     from cosim.run import Run
 
     # not a progress step: a bad file's error stays one line, however slow the imports
@@ -104,6 +121,10 @@ def _run(args: argparse.Namespace, talk: Console, preparation: common.Preparatio
         allow_network=True if args.allow_network else None,
         mirror=True if args.mirror else None,
     )
+    return run, out
+
+
+def _run(args: argparse.Namespace, run: Run, out: Path, talk: Console, preparation: common.Preparation | None) -> int:
     s = run.scenario
     timing = "lockstep" if s.timing.mode == "lockstep" else f"realtime at {s.timing.speed:g}x"
     talk.print(

@@ -21,10 +21,32 @@ from cosim.errors import Interruption
 
 
 class Interrupted(Interruption):
-    """A run stopped by a signal between ticks; ``signum`` says which (the CLI exits with 128 + signum)."""
+    """A run stopped by a signal between ticks (or by SIGTERM before its session, in
+    ``terminate_like_ctrl_c``); ``signum`` says which (the CLI exits with 128 + signum)."""
 
     def __init__(self, signum: int) -> None:
         super().__init__(signum)
+
+
+@contextmanager
+def terminate_like_ctrl_c() -> Iterator[None]:
+    """In the block, SIGTERM raises ``Interrupted(SIGTERM)`` where it comes, as Ctrl-C raises
+    KeyboardInterrupt (Python's default for SIGINT): a command stopped before its run's
+    ``DeferredInterrupts`` exist (while the plan is made) goes through its ``finally`` blocks (an
+    FMU's host process is killed) and says so in one line, where SIGTERM's default ends the process
+    without a word. Only in the main thread (elsewhere a handler cannot be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handle(signum: int, frame: object) -> None:
+        raise Interrupted(signum)
+
+    previous = signal.signal(signal.SIGTERM, handle)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 class DeferredInterrupts:
