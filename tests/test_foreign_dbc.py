@@ -153,6 +153,8 @@ def write_log(frames: list[can.Message], path: Path) -> list[can.Message]:
             ".blf": can.BLFWriter,
             ".asc": can.ASCWriter,
             ".trc": can.TRCWriter,
+            ".csv": can.CSVWriter,
+            ".db": can.SqliteWriter,
         }[path.suffix]
     kept = [f for f in frames if not (path.suffix == ".trc" and f.is_fd)]
     with writer_class(path) as writer:
@@ -175,6 +177,8 @@ def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, dict]]], dict[str, 
     return topics, schemas, attachments, metadata
 
 
+#: The channel python-can's writers record a frame without one on, as the log names it.
+CHANNEL_OF = {".log": "vcan0", ".blf": "1", ".asc": "1", ".trc": "1", ".mf4": "0"}
 IMPORTED = [
     "cantools/motohawk_fd",
     "cantools/multiplex_choices",
@@ -184,7 +188,7 @@ IMPORTED = [
 ]
 
 
-@pytest.mark.parametrize("suffix", [".log", ".blf", ".asc", ".trc", ".mf4"])
+@pytest.mark.parametrize("suffix", [".log", ".blf", ".asc", ".trc", ".mf4", ".csv", ".db"])
 @pytest.mark.parametrize("name", IMPORTED)
 def test_import_decodes_a_python_can_log_exactly(tmp_path, name, suffix):
     dbc = ROOT / "tests/data/dbc" / f"{name}.dbc"
@@ -199,9 +203,11 @@ def test_import_decodes_a_python_can_log_exactly(tmp_path, name, suffix):
     assert attachments[DBC_ATTACHMENT] == dbc.read_bytes()
     assert metadata[IMPORT]["frames"] == str(len(kept)) and metadata[IMPORT]["unknown"] == "1"
     logged = topics["/can/frames"]
+    flagged = suffix not in (".csv", ".db")  # python-can's CSV and SQLite keep no FD flag: > 8 bytes is FD
     assert [(r["id"], r["extended"], r["fd"], bytes.fromhex(r["data"])) for _, r in logged] == [
-        (f.arbitration_id, f.is_extended_id, f.is_fd, bytes(f.data)) for f in kept
+        (f.arbitration_id, f.is_extended_id, f.is_fd if flagged else len(f.data) > 8, bytes(f.data)) for f in kept
     ]
+    assert {r["channel"] for _, r in logged} == ({None} if suffix in (".csv", ".db") else {CHANNEL_OF[suffix]})
     # the frames' own timestamps, as precise as the format keeps them (TRC: 1 µs; the others better)
     assert all(abs(t / 1e9 - f.timestamp) < 2e-6 for (t, _), f in zip(logged, kept))
     decoder = FrameDecoder(database)
@@ -230,6 +236,88 @@ def test_the_whole_corpus_imports(tmp_path):
         assert (result.record.frames, result.record.decoded, result.record.unknown) == (len(frames), len(frames), 0), (
             dbc
         )
+
+
+def test_one_channel_of_a_log_of_several_buses_is_imported_and_each_frame_keeps_its_channel(tmp_path, capsys):
+    from cosim.cli import main
+
+    dbc = ROOT / "tests/data/dbc/cantools/motohawk.dbc"
+    frames = frames_of(read_dbc(dbc), 20)
+    for i, frame in enumerate(frames):
+        frame.channel = i % 3 // 2  # python-can's 0 and 1: the BLF's channels 1 and 2 (CAN 1, CAN 2 in CANalyzer)
+    write_log(frames, tmp_path / "buses.blf")
+    whole = import_log(tmp_path / "buses.blf", dbc, tmp_path / "whole.mcap")
+    assert whole.warnings == [
+        "buses.blf holds frames of 2 channels (1 (14 frames), 2 (6 frames)), all decoded by the one DBC; "
+        "--channel CH imports one channel's"
+    ]
+    topics, *_ = read_mcap(tmp_path / "whole.mcap")
+    assert [r["channel"] for _, r in topics["/can/frames"]] == [str(f.channel + 1) for f in frames]
+    assert main(["import", str(tmp_path / "buses.blf"), "--dbc", str(dbc), "--channel", "2", "-q"]) == 0
+    topics, _, _, metadata = read_mcap(tmp_path / "buses.mcap")
+    on_two = [f for f in frames if f.channel == 1]
+    assert [(r["seq"], r["channel"], bytes.fromhex(r["data"])) for _, r in topics["/can/frames"]] == [
+        (i, "2", bytes(f.data)) for i, f in enumerate(on_two)
+    ]
+    assert (metadata[IMPORT]["channel"], metadata[IMPORT]["other_channels"]) == ("2", "14")
+    with LogReader(tmp_path / "buses.mcap") as reader:
+        from cosim.log.metadata import LogMetadata
+
+        assert LogMetadata.read(reader.metadata()).imported.channel == "2"
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "import",
+                str(tmp_path / "buses.blf"),
+                "--dbc",
+                str(dbc),
+                "--channel",
+                "3",
+                "--out",
+                str(tmp_path / "x.mcap"),
+            ]
+        )
+        == 1
+    )
+    assert capsys.readouterr().err.strip() == (
+        f"error: --channel 3: {tmp_path / 'buses.blf'} has no frame on it; its channels: 1 (14 frames), 2 (6 frames)"
+    )
+    write_log(frames, tmp_path / "bus.csv")
+    with pytest.raises(
+        CosimError, match=r"--channel can0: .*bus\.csv has no frame on it; its format records no channel"
+    ):
+        import_log(tmp_path / "bus.csv", dbc, tmp_path / "csv.mcap", channel="can0")
+    assert not (tmp_path / "x.mcap").exists() and not (tmp_path / "csv.mcap").exists()
+
+
+def test_a_signal_with_a_value_table_is_its_number_and_its_schema_names_the_values(tmp_path):
+    """Numbers, as every signal (plots and exports need them; a value outside the table stays
+    exact); the names are in the schema (16 at most: a DTC table may have hundreds) and the DBC."""
+    dbc = ROOT / "tests/data/dbc/cantools/choices.dbc"  # Foo: signed 8 bits, values -5 and 0 to 6 named
+    frames = [
+        can.Message(timestamp=START + i, arbitration_id=0, is_extended_id=False, data=[v & 0xFF] + [0] * 7)
+        for i, v in enumerate([0, -5, 6, 7, -1])
+    ]
+    write_log(frames, tmp_path / "bus.log")
+    import_log(tmp_path / "bus.log", dbc, tmp_path / "bus.mcap")
+    topics, schemas, *_ = read_mcap(tmp_path / "bus.mcap")
+    assert [m["Foo"] for _, m in topics["/can/Foo"]] == [0, -5, 6, 7, -1]
+    described = schemas["/can/Foo"]["properties"]["Foo"]
+    assert described["type"] == "number" and described["description"].startswith("Foo (6: reserved, 5: reserved,")
+    assert described["description"].endswith(", 0: With space, -5: A negative value)")
+    many = tmp_path / "many.dbc"
+    table = " ".join(f'{v} "state {v}"' for v in range(20))
+    many.write_text(
+        'VERSION ""\n\nBU_: ECU\n\nBO_ 1 Status: 1 ECU\n SG_ State : 0|8@1+ (1,0) [0|255] "" Vector__XXX\n\n'
+        f"VAL_ 1 State {table} ;\n"
+    )
+    write_log([can.Message(timestamp=START, arbitration_id=1, is_extended_id=False, data=[19])], tmp_path / "s.log")
+    import_log(tmp_path / "s.log", many, tmp_path / "s.mcap")
+    topics, schemas, *_ = read_mcap(tmp_path / "s.mcap")
+    assert topics["/can/Status"][0][1] == {"State": 19}
+    description = schemas["/can/Status"]["properties"]["State"]["description"]
+    assert description.endswith("15: state 15, ...)") and "16: state 16" not in description
 
 
 @pytest.fixture(scope="module")

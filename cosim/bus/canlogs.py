@@ -9,11 +9,14 @@ The formats, by the file's suffix (as python-can's ``can.LogReader`` tells them 
 - ``.trc``: PEAK's trace (PCAN-View, PCAN-Explorer), stamped from its ``$STARTTIME``;
 - ``.mf4``: ASAM MDF 4 bus logging (``CAN_DataFrame`` channel groups), through python-can's
   reader, which reads it with asammdf (the ``export`` extra);
-- ``.csv`` and ``.db``: python-can's own CSV and SQLite logs.
+- ``.csv`` and ``.db``: python-can's own CSV and SQLite logs. They record neither the channel nor
+  the CAN FD flags: a frame of more than 8 bytes is taken as CAN FD (it cannot be classic), one of
+  up to 8 bytes as classic.
 
 Every frame keeps the timestamp its log gives it, seconds since the Unix epoch where the format
 records the date (candump, BLF, ASC, TRC, MF4). A log damaged part way is read up to the damage,
 with a warning saying how many frames came before it; one that yields no frame at all is an error.
+A frame's channel is named as its log names it (``channel_name``).
 """
 
 from __future__ import annotations
@@ -41,6 +44,23 @@ FORMATS = {
 }
 
 
+#: The formats whose python-can reader counts channels from 0 where the file counts them from 1
+#: (Vector's CAN 1 is python-can's channel 0).
+COUNTED_FROM_ZERO = {"blf", "asc"}
+
+
+def channel_name(frame: can.Message, fmt: str) -> str | None:
+    """The channel a frame was recorded on, as its log (and the tool that wrote it) names it:
+    candump's interface (``can0``), Vector's channel number from 1 (BLF, ASC), PEAK's bus number
+    (TRC), MF4's bus channel; None where the format records none (python-can's CSV and SQLite)."""
+    channel = frame.channel
+    if channel is None:
+        return None
+    if fmt in COUNTED_FROM_ZERO and isinstance(channel, int):
+        return str(channel + 1)
+    return str(channel)
+
+
 def log_format(path: str | Path) -> str:
     """The format of a CAN log, by its suffix; one line naming the formats for any other file."""
     suffix = Path(path).suffix.lower()
@@ -65,6 +85,7 @@ def read_frames(path: str | Path, warnings: list[str]) -> Iterator[can.Message]:
         with can.LogReader(path, **options) as reader:
             for frame in reader:
                 count += 1
+                frame.is_fd = frame.is_fd or len(frame.data) > 8  # a format without the flag (python-can's CSV)
                 yield frame
     except Exception as error:  # noqa: BLE001 - each reader raises its own kinds on a damaged file
         reason = " ".join(str(error).split()) or type(error).__name__

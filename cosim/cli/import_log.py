@@ -5,7 +5,9 @@ bus logging, python-can's .csv and .db) and decode it by its DBC into an MCAP lo
 /can/frames, every DBC message on a topic of its own (/can/<Message>) with its signals' units in
 JSON Schemas, each message at the frame's recorded time, the DBC attached. Open it in Foxglove
 (with 'cosim layout' for a plot per message), or use it with 'cosim inspect', 'plot', 'export' and
-'replay --live'.
+'replay --live'. A log of several buses (channels) is decoded whole by the one DBC unless --channel
+picks one; each frame's channel is on /can/frames. A signal with a value table is logged as its
+number; its schema names the values.
 """
 
 from __future__ import annotations
@@ -22,12 +24,19 @@ EPILOG = """\
 examples:
   cosim import drive.blf --dbc car.dbc --out drive.mcap
   cosim import candump-2024-06-01.log --dbc car.dbc      (writes candump-2024-06-01.mcap)
+  cosim import drive.blf --channel 2 --dbc body.dbc --out body.mcap   one bus of a log of several
   cosim layout drive.mcap --out drive.layout.json        a plot per message, for Foxglove"""
 
 
 def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", metavar="LOG", help="the CAN log: .log (candump -L), .blf, .asc, .trc, .mf4, .csv or .db")
     p.add_argument("--dbc", required=True, metavar="FILE.dbc", help="the CAN database that decodes its frames")
+    p.add_argument(
+        "--channel",
+        metavar="CH",
+        help="import only the frames of this channel of a log of several buses, as the log names it: candump's "
+        "interface (can0), Vector's channel from 1 (BLF, ASC), PEAK's bus (TRC), MF4's bus channel",
+    )
     p.add_argument("--out", "-o", metavar="FILE.mcap", help="the MCAP log to write (default: LOG with .mcap)")
     common.force_option(p)
     common.quiet_option(p)
@@ -38,14 +47,16 @@ def main(args: argparse.Namespace) -> int:
 
     log = Path(args.log)
     out = common.unused(Path(args.out) if args.out else log.with_suffix(".mcap"), args.force)
-    result = import_log(log, args.dbc, out)
+    result = import_log(log, args.dbc, out, args.channel)
     talk = common.console(stderr=True, quiet=args.quiet)
     common.warn(talk, result.warnings)
     record = result.record
     span = ((record.end_time_ns or 0) - (record.start_time_ns or 0)) / 1e9
+    channel = f" of channel {escape(record.channel)}" if record.channel else ""
+    others = f"; {record.other_channels} frames of its other channels left out" if record.channel else ""
     talk.print(
-        f"imported {record.frames} frames ({span:g} s of {record.format}): {record.decoded} decoded into "
-        f"{len(result.topics)} messages by {escape(record.dbc)}"
+        f"imported {record.frames} frames{channel} ({span:g} s of {record.format}): {record.decoded} decoded into "
+        f"{len(result.topics)} messages by {escape(record.dbc)}{others}"
     )
     print(result.path)
     return 0

@@ -4,25 +4,32 @@ The log is read frame by frame (``cosim.bus.canlogs``: candump, BLF, ASC, TRC, M
 CSV and SQLite) and each frame decoded through cantools by the DBC (``cosim.bus.foreign``: by its
 id and its own extended flag). The MCAP log holds
 
-- ``/can/frames``: every data frame in the log's order, as a run logs its frames
-  (``cosim.log.topics.CanFrame``): ``tick`` and ``seq`` are the frame's position in the log (an
-  imported log has no ticks), ``t`` the seconds since its first frame, ``sender`` and ``message``
-  from the DBC (``unknown`` and null for ids it does not describe);
+- ``/can/frames``: every data frame in the log's order, as a run logs its frames, with the
+  channel the log recorded it on (``cosim.log.topics.ImportedFrame``): ``tick`` and ``seq`` are
+  the frame's position in the log (an imported log has no ticks), ``t`` the seconds since its
+  first frame, ``sender`` and ``message`` from the DBC (``unknown`` and null for ids it does not
+  describe);
 - ``/can/<Message>``: each DBC message's decoded signals, one topic per message that occurs, its
   JSON Schema naming each signal's unit (``"<comment> [<unit>]"``, as a run's do) and its value
-  table; a multiplexed message's signals are required only where they are in every frame;
+  table; a multiplexed message's signals are required only where they are in every frame. A
+  signal with a value table is its number, as every signal (plots, exports and a value outside
+  the table stay exact); its schema's description names the values (``0: Off, 1: On``; the first
+  ``CHOICES_SHOWN``), the attached DBC has them all;
 - the DBC as the ``cosim.dbc`` attachment, ``cosim.import`` metadata (``ImportRecord``) and
   ``cosim.versions``.
 
 Every message's log time is the frame's own timestamp, in ns since the Unix epoch where the
 format records the date: Foxglove shows when the bus was recorded. Error and remote frames carry
-no signals and are left out (counted). The file is written beside the output and renamed into
-place once complete: an import that fails or is interrupted leaves nothing under the name.
+no signals and are left out (counted). A log of several channels (buses) is decoded whole by the
+one DBC, with a warning, unless one ``channel`` is asked for: its frames alone are imported. The
+file is written beside the output and renamed into place once complete: an import that fails or
+is interrupted leaves nothing under the name.
 """
 
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,27 +37,45 @@ from typing import Any
 import can
 from cantools.database.can import Message
 
-from cosim.bus.canlogs import log_format, read_frames
+from cosim.bus.canlogs import channel_name, log_format, read_frames
 from cosim.bus.foreign import FrameDecoder, read_dbc
 from cosim.errors import CosimError
 from cosim.files import temporary_beside
 from cosim.log.metadata import DBC_ATTACHMENT, IMPORT, VERSIONS, ImportRecord, versions
-from cosim.log.topics import FRAMES, CanFrame, message_topic
+from cosim.log.topics import FRAMES, CanFrame, message_topic, prop, text, topic
 from cosim.log.writer import McapLog, number
 
 #: Choices shown in a signal's description, at most (a DTC table may have hundreds).
 CHOICES_SHOWN = 16
 
 
+@topic(FRAMES, "cosim.ImportedFrame", "A frame of a CAN log another tool recorded (cosim import)")
+class ImportedFrame(CanFrame):
+    """``/can/frames`` of an imported log: a run's ``CanFrame`` and the channel the log recorded the
+    frame on (``channel_name``). A run's frames keep their own record: a run has one bus."""
+
+    channel: str | None = prop(
+        text("the channel the log recorded the frame on, as the log names it (null: it records none)", nullable=True),
+        default=None,
+    )
+
+    @staticmethod
+    def payload(
+        tick: int, t: float, seq: int, frame: can.Message, sender: str, message: str | None, channel: str | None = None
+    ) -> dict[str, Any]:
+        return {**CanFrame.payload(tick, t, seq, frame, sender, message), "channel": channel}
+
+
 @dataclass
 class ImportResult:
-    """What an import wrote: the MCAP file, its record, the decoded topics and frames per id the
-    DBC does not describe, and warnings."""
+    """What an import wrote: the MCAP file, its record, the decoded topics, frames per id the DBC
+    does not describe and per channel of the log (None: not recorded), and warnings."""
 
     path: Path
     record: ImportRecord
     topics: dict[str, int] = field(default_factory=dict)
     unknown_ids: Counter[str] = field(default_factory=Counter)
+    channels: Counter[str | None] = field(default_factory=Counter)
     warnings: list[str] = field(default_factory=list)
 
 
@@ -76,8 +101,9 @@ def signals_schema(message: Message) -> dict[str, Any]:
     }
 
 
-def import_log(source: str | Path, dbc: str | Path, out: str | Path) -> ImportResult:
-    """Write the MCAP log ``out`` of the CAN log ``source`` decoded by the DBC file ``dbc``."""
+def import_log(source: str | Path, dbc: str | Path, out: str | Path, channel: str | None = None) -> ImportResult:
+    """Write the MCAP log ``out`` of the CAN log ``source`` decoded by the DBC file ``dbc``: of
+    its frames on ``channel`` only (as the log names it, ``channel_name``), or of all of them."""
     source, dbc, out = Path(source), Path(dbc), Path(out)
     fmt = log_format(source)
     decoder = FrameDecoder(read_dbc(dbc))
@@ -88,7 +114,11 @@ def import_log(source: str | Path, dbc: str | Path, out: str | Path) -> ImportRe
     part = temporary_beside(out, ".mcap")
     try:
         with McapLog(part) as log:
-            result = _write(log, source, fmt, dbc, decoder)
+            result = _write(log, source, fmt, dbc, decoder, channel)
+        if channel is not None and channel not in result.channels:
+            found = result.channels
+            where = "its format records no channel" if list(found) == [None] else f"its channels: {_channels(found)}"
+            raise CosimError(f"--channel {channel}: {source} has no frame on it; {where}")
         if result.record.frames == 0:
             raise CosimError(f"{source}: the log holds no CAN data frames")
         part.replace(out)
@@ -98,15 +128,16 @@ def import_log(source: str | Path, dbc: str | Path, out: str | Path) -> ImportRe
     return result
 
 
-def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecoder) -> ImportResult:
-    frames_channel = log.channel(FRAMES, CanFrame.schema())
+def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecoder, wanted: str | None) -> ImportResult:
+    frames_channel = log.channel(FRAMES, ImportedFrame.schema())
     channels: dict[str, int] = {}
     topics: Counter[str] = Counter()
     unknown: Counter[str] = Counter()
+    on_channel: Counter[str | None] = Counter()
     warnings: list[str] = []
     count = decoded_count = undecodable = skipped = 0
     first = last = None
-    for frame in read_frames(source, warnings):
+    for frame, recorded_on in _frames_on(source, fmt, wanted, on_channel, warnings):
         if frame.is_error_frame or frame.is_remote_frame:
             skipped += 1
             continue
@@ -118,7 +149,7 @@ def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecode
         message = decoder.message(frame)
         sender = (message.senders[0] if message.senders else "unknown") if message is not None else "unknown"
         name = message.name if message is not None else None
-        payload = CanFrame.payload(count, (time_ns - first) / 1e9, count, frame, sender, name)
+        payload = ImportedFrame.payload(count, (time_ns - first) / 1e9, count, frame, sender, name, recorded_on)
         log.write(frames_channel, time_ns, payload)
         count += 1
         if message is None:
@@ -135,23 +166,53 @@ def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecode
         log.write(channel, time_ns, decoded[1])
         topics[topic] += 1
         decoded_count += 1
-    record = ImportRecord(
-        source.name, fmt, dbc.name, count, decoded_count, sum(unknown.values()), undecodable, skipped, first, last
-    )
+    counts = (count, decoded_count, sum(unknown.values()), undecodable, skipped)
+    others = sum(n for c, n in on_channel.items() if c != wanted) if wanted is not None else 0
+    record = ImportRecord(source.name, fmt, dbc.name, *counts, first, last, wanted or "", others)
     log.metadata(IMPORT, record.to_metadata())
     log.metadata(VERSIONS, versions())
     log.attach(DBC_ATTACHMENT, "text/plain", dbc.read_bytes(), first or 0)
-    warnings += _warnings(record, unknown)
-    return ImportResult(Path(), record, dict(topics), unknown, warnings)
+    warnings += _warnings(record, unknown, on_channel)
+    return ImportResult(Path(), record, dict(topics), unknown, on_channel, warnings)
+
+
+def _frames_on(
+    source: Path, fmt: str, wanted: str | None, on_channel: Counter[str | None], warnings: list[str]
+) -> Iterator[tuple[can.Message, str | None]]:
+    """The log's frames on the ``wanted`` channel (None: all), each with its channel's name; the
+    frames of every channel counted in ``on_channel``."""
+    for frame in read_frames(source, warnings):
+        recorded_on = channel_name(frame, fmt)
+        on_channel[recorded_on] += 1
+        if wanted is None or recorded_on == wanted:
+            yield frame, recorded_on
+
+
+def _channels(counts: Counter[str | None]) -> str:
+    """The channels of a log with their frames, as a line says them."""
+    ordered = sorted(counts.items(), key=_by_name)
+    return ", ".join(f"{c if c is not None else '(none)'} ({n} frames)" for c, n in ordered)
+
+
+def _by_name(item: tuple[str | None, int]) -> tuple[int, str]:
+    """Channels in their order: numbers as numbers (2 before 10), names after."""
+    name = item[0] or ""
+    return (0, f"{int(name):020d}") if name.isdigit() else (1, name)
 
 
 def _hex_id(frame: can.Message) -> str:
     return f"0x{frame.arbitration_id:08X}" if frame.is_extended_id else f"0x{frame.arbitration_id:03X}"
 
 
-def _warnings(record: ImportRecord, unknown: Counter[str]) -> list[str]:
-    """What the DBC did not decode, said where the counts are shown."""
+def _warnings(record: ImportRecord, unknown: Counter[str], on_channel: Counter[str | None]) -> list[str]:
+    """What the DBC did not decode, said where the counts are shown, and the channels it decoded
+    as one where the log has several and no ``--channel`` picked one."""
     warnings = []
+    if not record.channel and len(on_channel) > 1:
+        warnings.append(
+            f"{record.source} holds frames of {len(on_channel)} channels ({_channels(on_channel)}), all decoded "
+            "by the one DBC; --channel CH imports one channel's"
+        )
     if record.unknown:
         ids = ", ".join(f"{frame_id} ({n})" for frame_id, n in unknown.most_common(5))
         more = f" and {len(unknown) - 5} more" if len(unknown) > 5 else ""

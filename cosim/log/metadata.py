@@ -518,7 +518,8 @@ class ImportRecord:
     """``cosim.import``: the CAN log and DBC an imported log was made of, and its frames: how many,
     how many decoded, how many on ids the DBC does not describe (``unknown``) or not decodable by
     their message (``undecodable``), error and remote frames left out (``skipped``), and the time
-    of its first and last frame (ns since the Unix epoch, as its messages' log times)."""
+    of its first and last frame (ns since the Unix epoch, as its messages' log times); with
+    ``--channel``, the ``channel`` imported and the frames of the log's other channels left out."""
 
     source: str
     format: str
@@ -530,6 +531,8 @@ class ImportRecord:
     skipped: int = 0
     start_time_ns: int | None = None
     end_time_ns: int | None = None
+    channel: str = ""
+    other_channels: int = 0
 
     def to_metadata(self) -> dict[str, str]:
         return {key: "" if value is None else str(value) for key, value in vars(self).items()}
@@ -537,11 +540,11 @@ class ImportRecord:
     @classmethod
     def from_metadata(cls, record: dict[str, str], warnings: list[str]) -> ImportRecord:
         f = _Fields(record, IMPORT, warnings)
-        frames, decoded, unknown, undecodable, skipped = (
-            f.integer(key) or 0 for key in ("frames", "decoded", "unknown", "undecodable", "skipped")
+        frames, decoded, unknown, undecodable, skipped, others = (
+            f.integer(key) or 0 for key in ("frames", "decoded", "unknown", "undecodable", "skipped", "other_channels")
         )
         start, end = (f.integer(key) if record.get(key) else None for key in ("start_time_ns", "end_time_ns"))
-        text = {key: record.get(key, "") for key in ("source", "format", "dbc")}
+        text = {key: record.get(key, "") for key in ("source", "format", "dbc", "channel")}
         return cls(
             **text,
             frames=frames,
@@ -551,6 +554,7 @@ class ImportRecord:
             skipped=skipped,
             start_time_ns=start,
             end_time_ns=end,
+            other_channels=others,
         )
 
 

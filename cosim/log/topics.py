@@ -7,7 +7,8 @@ time t_k = k τ in s; ``log_time`` is simulated time in ns):
 - ``CanFrame``, ``/can/frames``: every frame on the bus in bus order: ``seq`` (position on the
   bus), ``id``, ``extended``, ``fd``, ``brs``, ``dlc`` (the data length code), ``length`` (payload
   bytes), ``data`` (hex), ``sender`` (the DBC node that transmits this id, ``unknown`` for ids
-  outside the DBC), ``message`` (DBC name).
+  outside the DBC), ``message`` (DBC name); an imported log's frames add their ``channel``
+  (``cosim.log.can_import.ImportedFrame``).
 - ``Signals``, ``/can/<MessageName>``: the decoded physical signals of each DBC message, named as
   in the DBC (the integer fields of NMT, SYNC and heartbeats).
 - ``TruthState``, ``/truth/state``: the simulator's state, one field per state component;

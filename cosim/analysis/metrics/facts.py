@@ -33,7 +33,8 @@ class RunFacts:
         if records.imported is not None:  # a bus log of another tool (cosim import): no run to score
             i = records.imported
             self.status = "imported"
-            self.record = run = RunRecord(source=f"cosim import of {i.source} ({i.format}) by {i.dbc}")
+            of = f"{i.format}, channel {i.channel}" if i.channel else i.format
+            self.record = run = RunRecord(source=f"cosim import of {i.source} ({of}) by {i.dbc}")
             self.missing.append(
                 f"a run: an imported bus log ({i.decoded} of {i.frames} frames decoded, {i.unknown} on ids the DBC "
                 "does not describe); only channels, message counts and the time span are reported"
