@@ -213,6 +213,37 @@ def test_bus_signals_take_the_fmus_units_ranges_and_start_values():
     assert np.array_equal(model.A, [[0.0, 1.0], [0.0, 0.0]])
 
 
+def test_the_fmus_units_reach_the_dbc_the_schemas_the_figures_and_the_exports(tmp_path):
+    """BouncingBall's units come from its type definitions (``declaredType="Position"``: m)."""
+    from cosim.analysis.export import export
+    from cosim.analysis.plot import plot
+
+    kalman = '[[estimators]]\nname = "kf"\nkind = "kalman"\nparams = { measurement_std = 1e-3, process_std = 1e-2 }\n'
+    text = scenario_text(
+        FMUS / "fmi3" / "BouncingBall.fmu", "model-exchange", duration=0.2, dt=0.01, fmu_table='isolation = "none"'
+    )
+    loaded = load_text(text + kalman, tmp_path)
+    log = tmp_path / "ball.mcap"
+    assert run(loaded, log, interface="virtual").status == "completed"
+    dbc = loaded.scenario.codec().dbc
+    assert "SG_ h : " in dbc and '"m" ' in dbc and '"m/s" ' in dbc
+    with LogReader(log) as reader:
+        schemas = reader.schemas()
+    unit = {  # the unit at the end of each field's description: "<description> [<unit>]"
+        (topic, name): field["description"].rpartition("[")[2].rstrip("]")
+        for topic, schema in schemas.items()
+        for name, field in schema["properties"].items()
+        if "[" in field.get("description", "")
+    }
+    assert unit[("/truth/state", "h")] == unit[("/can/SENSOR_h", "h")] == "m"
+    assert unit[("/truth/sensors", "v")] == unit[("/can/SENSOR_v", "v")] == "m/s"
+    assert {unit[(t, n)] for t, n in unit if n.startswith("xhat_")} == {"m", "m/s"}  # the estimates' frames
+    columns = export(log, "csv", tmp_path / "ball.csv").path.read_text().splitlines()[0].split(",")
+    assert {"state.h [m]", "state.v [m/s]", "SENSOR_h.h [m]", "kf.xhat_v [m/s]"} <= set(columns)
+    figure = next(p for p in plot(log, tmp_path / "plots", "svg") if p.name == "estimates.svg").read_text()
+    assert ">h [m]</text>" in figure and ">v [m/s]</text>" in figure  # the y labels (SVG keeps text as text)
+
+
 def test_outputs_named_as_states_change_the_model_coordinates(tmp_path):
     """States s = (x1, x0) swap the continuous states: A_s = P A P⁻¹."""
     spec = FmuSpec.model_validate({"states": ["x1", "x0"], "parameters": {"mu": 1.0}})
