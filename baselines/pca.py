@@ -2,7 +2,8 @@
 
 Fitted on normal ticks' readings X (N × p), standardized z = (y − μ) / σ: the covariance's
 eigenvectors P (p × a) and eigenvalues λ₁ ≥ … ≥ λ_a of the a principal components that explain
-``variance`` of it (MacGregor & Kourti, Control Eng. Practice 1995; Qin, J. Chemometrics 2003):
+``variance`` of it, at most p − 1 so that the SPE has a subspace to live in (MacGregor & Kourti,
+Control Eng. Practice 1995; Qin, J. Chemometrics 2003):
 
     T² = Σᵢ (pᵢᵀ z)² / λᵢ         (the distance within the principal subspace)
     SPE = ‖(I − P Pᵀ) z‖²          (the residual outside it: a broken correlation between sensors)
@@ -33,7 +34,7 @@ def fit(readings: np.ndarray, variance: float = 0.95) -> dict[str, Any]:
     _, s, vt = np.linalg.svd(z, full_matrices=False)
     eigenvalues = s**2 / (len(z) - 1)
     explained = np.cumsum(eigenvalues) / eigenvalues.sum()
-    a = int(np.searchsorted(explained, variance) + 1)
+    a = min(int(np.searchsorted(explained, variance) + 1), max(1, len(mean) - 1))  # leave a residual subspace
     return {
         "mean": mean.tolist(),
         "std": std.tolist(),

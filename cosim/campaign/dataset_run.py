@@ -83,8 +83,8 @@ def read_run(log: Path, estimates: bool = False) -> RunTables:
         codec = Codec.from_dbc(logged_dbc(reader))
         columns = _decoded_columns(codec, record, estimates)
         reading = _read(reader, record.dt_ns, columns)
-        for warning in reader.warnings:
-            raise LogError(f"{log}: {warning}")
+        if reader.warnings:  # a damaged log: what it lacks would be labelled as what did not happen
+            raise LogError(f"{log}: {reader.warnings[0]}")
     ticks = sorted(reading.truth)
     if not ticks:
         raise LogError(f"{log}: the log holds no tick of truth (did the run start?)")
