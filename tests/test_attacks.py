@@ -149,3 +149,54 @@ end = 0.8
     fuzzed = [s for s, reason in labelled.items() if "fault fz" in reason]
     assert len(fuzzed) == 10 * 100 and {frames[s]["tick"] for s in fuzzed} == set(range(70, 80))
     assert np.all([0x100 <= frames[s]["id"] <= 0x1FF for s in fuzzed])
+
+
+PLUGIN = '''
+from dataclasses import dataclass
+
+from cosim.api import BusFault, FrameFate
+
+
+@dataclass
+class Stutter(BusFault):
+    """Every other frame of its messages lost, and a copy of the message with ``value`` after each."""
+
+    value: float = 0.0
+    kind = "stutter"
+    intruder = True
+    attack = "fabrication"
+
+    def reset(self, rng):
+        super().reset(rng)
+        self.seen = 0
+
+    def fate(self, message, t):
+        self.seen += 1
+        return FrameFate(lost=self.seen % 2 == 0)
+
+    def inject(self, t):
+        return [(m, (self.value,)) for m in self.messages]
+'''
+
+
+def test_a_plugins_bus_fault_acts_through_the_same_interface(tmp_path):
+    (tmp_path / "stutter.py").write_text(PLUGIN)
+    table = '[[faults]]\nname = "st"\nkind = "stutter.py:Stutter"\nstart = 0.2\nend = 0.4\n'
+    path = tmp_path / "p.toml"
+    path.write_text(
+        masses("p", 0.6, forced=True, bus='interface = "virtual"')
+        + table
+        + 'params = { messages = ["SENSOR_x1"], value = 0.3 }\n'
+    )
+    out = tmp_path / "p.mcap"
+    assert run(scenario.load(str(path)), out, 0).status == "completed"
+    with LogReader(out) as reader:
+        events = [m for _, _, m in reader.messages(["/truth/bus_faults"])]
+        foreign = [m for _, _, m in reader.messages(["/cosim/foreign"])]
+    assert sum(e["event"] == "lost" for e in events) == 10 and sum(e["event"] == "injected" for e in events) == 20
+    assert len(foreign) == 20 and {f["source"] for f in foreign} == {"st"}
+    bad = masses("p", forced=True) + table + 'params = { messages = ["SENSOR_x9"] }\n'
+    with pytest.raises(
+        ScenarioError, match=r"faults\[0\]\.params\.messages: 'SENSOR_x9' is not a message the runner sends"
+    ):
+        scenario.parse(bad, "bad.toml", tmp_path)

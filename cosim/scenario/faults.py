@@ -16,7 +16,16 @@ from typing import Annotated, Any, ClassVar, Literal, get_args
 from pydantic import BeforeValidator, Discriminator, Field, Tag, model_validator
 
 import faults as fm
-from cosim.scenario.tables import PLUGIN_TAG, Identifier, NonNegative, Probability, Strict, Vector, as_list
+from cosim.scenario.tables import (
+    PLUGIN_BUS_TAG,
+    PLUGIN_TAG,
+    Identifier,
+    NonNegative,
+    Probability,
+    Strict,
+    Vector,
+    as_list,
+)
 from cosim.scenario.waveforms import ConstantSpec, WaveformSpec, build_waveform
 
 
@@ -289,9 +298,7 @@ class PluginFaultSpec(Windowed):
     def _contract(self) -> PluginFaultSpec:
         model = fm.FAULT_MODELS[self.kind]
         if not issubclass(model, (fm.SensorFault, fm.ActuatorFault)):
-            raise ValueError(
-                f"fault {self.kind!r} is a {model.__name__}: a plugin's fault acts on sensors or actuators"
-            )
+            raise ValueError(f"fault {self.kind!r} is a {model.__name__}: not a sensor, actuator or bus fault")
         wrong, right = ("sensors", "actuators") if issubclass(model, fm.ActuatorFault) else ("actuators", "sensors")
         if getattr(self, wrong) is not None:
             raise ValueError(f"{wrong}: fault {self.kind!r} acts on {right}")
@@ -306,6 +313,39 @@ class PluginFaultSpec(Windowed):
     @property
     def acts_on(self) -> str:  # type: ignore[override]
         return "actuators" if issubclass(fm.FAULT_MODELS[self.kind], fm.ActuatorFault) else "sensors"
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        return {name: _model_value(value) for name, value in self.params.items()}
+
+
+class PluginBusFaultSpec(OnBus):
+    """A bus fault from outside cosim: a ``BusFault`` dataclass of a plugin or a file
+    (``kind = "my_attacks.py:Flipper"``), which the runner decides through the methods of
+    ``BusFault`` alone (``cosim.run.busfaults``); ``params`` are its fields (``messages``, ...)."""
+
+    kind: str
+    params: dict[str, Any] = {}
+
+    @model_validator(mode="after")
+    def _contract(self) -> PluginBusFaultSpec:
+        model = fm.FAULT_MODELS[self.kind]
+        known = {f.name for f in dataclass_fields(model) if f.init} - {"channels", "start", "end", "label"}
+        if unknown := sorted(set(self.params) - known):
+            raise ValueError(
+                f"params: {', '.join(unknown)} is not a parameter of fault {self.kind!r} "
+                f"(it has: {', '.join(sorted(known)) or 'none'})"
+            )
+        return self
+
+    @property
+    def messages(self) -> list[str]:
+        """The messages it names (``messages``, ``message``), which must be the runner's."""
+        named = self.params.get("messages") or []
+        return [*named, *([self.params["message"]] if self.params.get("message") else [])]
+
+    @property
+    def targets(self) -> list[str] | None:
+        return self.messages or None
 
     def parameters(self, channels: int) -> dict[str, Any]:
         return {name: _model_value(value) for name, value in self.params.items()}
@@ -342,7 +382,15 @@ def _table_of(value: Any) -> str | None:
     kind = value.get("kind") if isinstance(value, dict) else getattr(value, "kind", None)
     if kind is None:
         return None
-    return kind if kind in _BUILTIN_KINDS else PLUGIN_TAG
+    if kind in _BUILTIN_KINDS:
+        return str(kind)
+    from cosim.kinds import KindError
+
+    try:
+        bus = isinstance(kind, str) and issubclass(fm.FAULT_MODELS[kind], fm.BusFault)
+    except KindError:
+        bus = False  # PluginFaultSpec says what is wrong with it
+    return PLUGIN_BUS_TAG if bus else PLUGIN_TAG
 
 
 NoiseSpec = Annotated[GaussianNoiseSpec | UniformNoiseSpec, Discriminator("kind")]
@@ -367,7 +415,8 @@ FaultSpec = Annotated[
     | Annotated[SuspensionSpec, Tag("suspension")]
     | Annotated[MasqueradeSpec, Tag("masquerade")]
     | Annotated[FuzzingSpec, Tag("fuzzing")]
-    | Annotated[PluginFaultSpec, Tag(PLUGIN_TAG)],
+    | Annotated[PluginFaultSpec, Tag(PLUGIN_TAG)]
+    | Annotated[PluginBusFaultSpec, Tag(PLUGIN_BUS_TAG)],
     Discriminator(_table_of),
 ]
 

@@ -506,7 +506,7 @@ def _check_bus_fault(s: Scenario, field: str, fault: OnBus) -> list[str]:
     known = ", ".join(runner)
     problems = []
     names = list(getattr(fault, "messages", None) or []) + ([fault.message] if hasattr(fault, "message") else [])
-    key = "messages" if hasattr(fault, "messages") else "message"
+    key = ("params." if hasattr(fault, "params") else "") + ("messages" if hasattr(fault, "messages") else "message")
     for name in names:
         if name not in runner:
             close = difflib.get_close_matches(name, list(runner), n=1)

@@ -59,8 +59,10 @@ class Strict(BaseModel):
         return data
 
 
-#: The union tag of a table whose kind is a plugin's (``cosim.scenario.faults.PluginFaultSpec``).
+#: The union tag of a table whose kind is a plugin's (``cosim.scenario.faults.PluginFaultSpec``), and
+#: of one whose kind is a plugin's bus fault (``PluginBusFaultSpec``).
 PLUGIN_TAG = "plugin"
+PLUGIN_BUS_TAG = "plugin-bus"
 
 
 def problem_path(loc: tuple[Any, ...], data: Any) -> str:
@@ -74,7 +76,7 @@ def problem_path(loc: tuple[Any, ...], data: Any) -> str:
         if isinstance(item, int):
             parts.append(f"[{item}]")
             node = node[item] if isinstance(node, list) and item < len(node) else None
-        elif tag_pending and isinstance(node, dict) and item in (node.get("kind"), PLUGIN_TAG):
+        elif tag_pending and isinstance(node, dict) and item in (node.get("kind"), PLUGIN_TAG, PLUGIN_BUS_TAG):
             tag_pending = False
             continue
         else:
