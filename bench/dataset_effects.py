@@ -68,8 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'kind':44s} RMS |Δ{args.state}|  max |Δ{args.state}|  ticks without a reading  frames sent / kept off")
     for kind, e in found.items():
         print(
-            f"{kind:44s} {e['rms']:10.4f} {e['max']:12.4f} {e['missing']:14.0f} "
-            f"{e['injected']:14.0f} / {e['lost']:.0f}"
+            f"{kind:44s} {e['rms']:10.4f} {e['max']:12.4f} {e['missing']:14.0f} {e['injected']:14.0f} / {e['lost']:.0f}"
         )
     return 0
 

@@ -1,4 +1,4 @@
-"""The data-driven baselines (``baselines``): their statistics against their definitions, the alarm's
+"""The data-driven baselines (``cosim.baselines``): their statistics against their definitions, the alarm's
 persistence, a plant without a model refused at the first step, and a scheme that only diagnoses
 publishing no estimate."""
 
@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from baselines import one_class, pca
-from baselines.one_class import OneClassMonitor
-from baselines.pca import PcaMonitor
 from cosim import scenario
+from cosim.baselines import one_class, pca
+from cosim.baselines.one_class import OneClassMonitor
+from cosim.baselines.pca import PcaMonitor
 from estimators import LinearModel
 from tests.snippets import masses
 
@@ -87,7 +87,10 @@ def test_a_plant_without_a_model_fails_the_first_step_naming_it():
 
 
 def test_a_scheme_that_only_diagnoses_has_no_estimate_on_the_bus():
-    table = '[[estimators]]\nname = "oc"\nkind = "baselines.one_class:OneClassMonitor"\nparams = { model = "m.json" }\n'
+    table = (
+        '[[estimators]]\nname = "oc"\nkind = "cosim.baselines.one_class:OneClassMonitor"\n'
+        'params = { model = "m.json" }\n'
+    )
     s = scenario.parse(masses("t", forced=True) + table, "t.toml")
     assert OneClassMonitor.estimates is False
     codec = s.codec()

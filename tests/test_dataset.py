@@ -196,11 +196,11 @@ def test_it_refuses_what_it_cannot_make_in_one_line(built, tmp_path, capsys):
 
 
 def test_the_baselines_train_on_its_splits_and_enter_a_run_as_plugins(built, tmp_path):
-    """python -m baselines.train fits both baselines on the train split (limits on the validation
+    """python -m cosim.baselines.train fits both baselines on the train split (limits on the validation
     split); named by module path, they run beside the estimators, publish an alarm and no estimate,
     and the metrics score them as diagnosis schemes."""
-    from baselines.train import main as train
     from cosim.analysis.metrics import compute_metrics
+    from cosim.baselines.train import main as train
     from cosim.run import run
 
     root, _ = built
@@ -208,8 +208,8 @@ def test_the_baselines_train_on_its_splits_and_enter_a_run_as_plugins(built, tmp
     fitted = json.loads((tmp_path / "models" / "pca.json").read_text())["models"]
     assert [m["sensors"] for m in fitted] == [["x1", "x2", "x1_minus_x2"]] and fitted[0]["ticks"] == 100
     schemes = [
-        ("pca", "baselines.pca:PcaMonitor", "pca.json"),
-        ("oc", "baselines.one_class:OneClassMonitor", "one_class.json"),
+        ("pca", "cosim.baselines.pca:PcaMonitor", "pca.json"),
+        ("oc", "cosim.baselines.one_class:OneClassMonitor", "one_class.json"),
     ]
     settings = [
         ("duration", 3.0),

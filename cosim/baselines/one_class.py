@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from baselines.monitor import Monitor
 from cosim.api import Diagnostic, DiagnosticKind
+from cosim.baselines.monitor import Monitor
 
 SCORE = Diagnostic(
     "d2", "", "Mahalanobis distance² of the readings' values and changes", 1e6, 1e-3, DiagnosticKind.RESIDUAL_NORM
@@ -55,7 +55,7 @@ def scores(fitted: dict[str, Any], f: np.ndarray) -> np.ndarray:
 
 
 class OneClassMonitor(Monitor):
-    """A one-class Gaussian model of the readings' values and changes (``baselines.one_class``)."""
+    """A one-class Gaussian model of the readings' values and changes (``cosim.baselines.one_class``)."""
 
     kind = "one-class-monitor"
     kind_of_file = "one_class"

@@ -26,7 +26,7 @@ ALARM = Diagnostic(
 @dataclass(frozen=True)
 class MonitorParams:
     model: str = ""
-    """The model file of ``python -m baselines.train`` (``pca.json``, ``one_class.json``)."""
+    """The model file of ``python -m cosim.baselines.train`` (``pca.json``, ``one_class.json``)."""
     fitted: str = ""
     """The model itself, as JSON (set by the run from ``model``: what a node is built with)."""
     persistence: int = 3
@@ -57,7 +57,7 @@ class Monitor(Estimator):
         if not text:
             if not params.model:
                 raise ParameterError(
-                    "model", f"give the model file of python -m baselines.train ({self.kind_of_file}.json)"
+                    "model", f"give the model file of python -m cosim.baselines.train ({self.kind_of_file}.json)"
                 )
             try:
                 text = Path(params.model).read_text()
@@ -94,7 +94,7 @@ class Monitor(Estimator):
             source = self.params.model or "its model"
             raise LookupError(
                 f"{self.kind}: {source} has no model of a plant with the sensors {', '.join(self.model.outputs)}; "
-                "train one on a data set of this plant (python -m baselines.train)"
+                "train one on a data set of this plant (python -m cosim.baselines.train)"
             )
         values = self.statistics((dy + self.model.y_op)[self.use])
         over = any(not values[name] <= limit for name, limit in self.limits.items())  # NaN is over

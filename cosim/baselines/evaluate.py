@@ -1,7 +1,7 @@
-"""Score the baselines on a split of a data set, offline: ``python -m baselines.evaluate DATASET --models DIR``.
+"""Score the baselines on a split of a data set, offline: ``python -m cosim.baselines.evaluate DATASET --models DIR``.
 
 Per run of the split (``--split``, default test), each monitor's alarm is computed tick by tick as
-its node would (the statistics of ``baselines.pca`` and ``baselines.one_class``, the limits and the
+its node would (the statistics of ``cosim.baselines.pca`` and ``cosim.baselines.one_class``, the limits and the
 persistence of its model), then per fault or attack (the data set's ``events``): detected if the
 alarm is up on a tick of its window, with the delay from its onset tick; and per run, the alarm
 episodes that start with nothing active (false alarms). Prints a line per monitor and class.
@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from baselines import one_class, pca
+from cosim.baselines import one_class, pca
 
 
 def alarms(over: np.ndarray, persistence: int = 3) -> np.ndarray:
-    """The alarm of ``baselines.monitor``: up after ``persistence`` ticks over, down after as many under."""
+    """The alarm of ``cosim.baselines.monitor``: up after ``persistence`` ticks over, down after as many under."""
     out, up, run_over, run_under = np.zeros(len(over), dtype=bool), False, 0, 0
     for k, o in enumerate(over):
         run_over, run_under = (run_over + 1, 0) if o else (0, run_under + 1)
@@ -71,7 +71,7 @@ def evaluate(dataset: Path, models: Path, split: str) -> dict[tuple[str, str], d
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m baselines.evaluate", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m cosim.baselines.evaluate", description=__doc__.splitlines()[0])
     parser.add_argument("dataset", type=Path)
     parser.add_argument("--models", required=True, type=Path, metavar="DIR")
     parser.add_argument("--split", default="test", choices=("train", "validation", "test"))

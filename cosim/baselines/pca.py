@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from baselines.monitor import Monitor
 from cosim.api import Diagnostic, DiagnosticKind
+from cosim.baselines.monitor import Monitor
 
 T2 = Diagnostic("t2", "", "Hotelling's T² of the readings", 1e6, 1e-3, DiagnosticKind.RESIDUAL_NORM)
 SPE = Diagnostic("spe", "", "squared prediction error (Q) of the readings", 1e6, 1e-3, DiagnosticKind.RESIDUAL_NORM)
@@ -56,7 +56,7 @@ def statistics(fitted: dict[str, Any], readings: np.ndarray) -> dict[str, np.nda
 
 
 class PcaMonitor(Monitor):
-    """PCA on the readings, alarm on T² or SPE over its limit (``baselines.pca``)."""
+    """PCA on the readings, alarm on T² or SPE over its limit (``cosim.baselines.pca``)."""
 
     kind = "pca-monitor"
     kind_of_file = "pca"

@@ -1,4 +1,4 @@
-"""Fit the baselines on data sets of ``cosim dataset``: ``python -m baselines.train DATASET ... --out DIR``.
+"""Fit the baselines on data sets of ``cosim dataset``: ``python -m cosim.baselines.train DATASET ... --out DIR``.
 
 Per plant (a campaign's sensors; campaigns with the same sensors are pooled): the readings of the
 train split's ticks before any fault or attack of their run began fit the models, and the same
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines import one_class, pca
+from cosim.baselines import one_class, pca
 
 
 def normal_runs(dataset: Path, campaign: str, split: str, sensors: list[str]) -> list[np.ndarray]:
@@ -83,7 +83,7 @@ def train(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m baselines.train", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m cosim.baselines.train", description=__doc__.splitlines()[0])
     parser.add_argument("datasets", nargs="+", type=Path, metavar="DATASET", help="folders of cosim dataset")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR", help="where pca.json and one_class.json go")
     parser.add_argument("--quantile", type=float, default=0.999, help="limits: this quantile of the normal ticks")
