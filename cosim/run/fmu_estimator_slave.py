@@ -46,7 +46,7 @@ from pythonfmu3 import (
 )
 from pythonfmu3.fmi3slave import Fmi3StepResult
 
-from cosim.run.fmu_interface import REFUSED, register_units, ticks_of
+from cosim.run.fmu_interface import REFUSED, about, element, register_units, ticks_of
 
 CONTENT = "content.json"
 TYPES = {"Float64": Float64, "Int64": Int64, "Boolean": Boolean, "String": String}
@@ -82,8 +82,8 @@ class CosimEstimator(Fmi3Slave):
                     causality=Fmi3Causality.input,
                     variability=Fmi3Variability.discrete,
                     start=values[i],
-                    **_about(v),
-                    **_element(values, i),
+                    **about(v),
+                    **element(values, i),
                 )
                 self.register_variable(variable, nested=False)
         for i, v in enumerate(content["outputs"]):
@@ -92,8 +92,8 @@ class CosimEstimator(Fmi3Slave):
                 causality=Fmi3Causality.output,
                 variability=Fmi3Variability.discrete,
                 initial=Fmi3Initial.calculated,
-                **_about(v),
-                **_element(self.out, i),
+                **about(v),
+                **element(self.out, i),
             )
             self.register_variable(variable, nested=False)
 
@@ -149,17 +149,3 @@ def _state(index: int) -> Callable[[Any], float]:
 
 def _diagnostic(name: str) -> Callable[[Any], float]:
     return lambda estimate: float(estimate.diagnostics[name])
-
-
-def _about(v: dict[str, str]) -> dict[str, Any]:
-    """A signal's description and unit as a variable's keywords (a unit only where it has one)."""
-    return {"description": v["description"], **({"unit": v["unit"]} if v["unit"] else {})}
-
-
-def _element(values: np.ndarray, i: int) -> dict[str, Any]:
-    """The getter and setter of one element of an array attribute."""
-
-    def setter(value: float) -> None:
-        values[i] = value
-
-    return {"getter": lambda: float(values[i]), "setter": setter}

@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 from xml.etree.ElementTree import Element
 
+import numpy as np
 from pythonfmu3 import Fmi3Slave, Fmi3Status
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.unit import Unit
@@ -49,3 +50,17 @@ def ticks_of(slave: Fmi3Slave, step_size: float, sample_time: float) -> int | No
         status=Fmi3Status.error,
     )
     return None
+
+
+def about(v: dict[str, str]) -> dict[str, Any]:
+    """A signal's description and unit as a variable's keywords (a unit only where it has one)."""
+    return {"description": v["description"], **({"unit": v["unit"]} if v["unit"] else {})}
+
+
+def element(values: np.ndarray, i: int) -> dict[str, Any]:
+    """The getter and setter of one element of an array attribute."""
+
+    def setter(value: float) -> None:
+        values[i] = value
+
+    return {"getter": lambda: float(values[i]), "setter": setter}

@@ -27,7 +27,7 @@ import numpy as np
 from pythonfmu3 import DefaultExperiment, Float64, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Int64
 from pythonfmu3.fmi3slave import Fmi3StepResult
 
-from cosim.run.fmu_interface import REFUSED, register_units, ticks_of
+from cosim.run.fmu_interface import REFUSED, about, element, register_units, ticks_of
 
 CONTENT = "content.json"
 
@@ -63,7 +63,7 @@ class CosimPlant(Fmi3Slave):
         )
         for i, v in enumerate(exported["actuators"]):
             self.register_variable(
-                Float64(v["name"], causality=Fmi3Causality.input, start=self.u[i], **_about(v), **_element(self.u, i)),
+                Float64(v["name"], causality=Fmi3Causality.input, start=self.u[i], **about(v), **element(self.u, i)),
                 nested=False,
             )
         for prefix, group, values in (("", "sensors", self.y), ("state.", "states", self.x)):
@@ -74,8 +74,8 @@ class CosimPlant(Fmi3Slave):
                         causality=Fmi3Causality.output,
                         variability=Fmi3Variability.discrete,
                         initial=Fmi3Initial.calculated,
-                        **_about(v),
-                        **_element(values, i),
+                        **about(v),
+                        **element(values, i),
                     ),
                     nested=False,
                 )
@@ -121,17 +121,3 @@ class CosimPlant(Fmi3Slave):
         outcome = source.faults.sensors(source.plant.sensors(), source.scenario.time(self._k))
         self.y[:] = np.where(outcome.sent, outcome.measured, np.nan)
         self.x[:] = source.plant.state()
-
-
-def _about(v: dict[str, str]) -> dict[str, Any]:
-    """A signal's description and unit as a variable's keywords (a unit only where it has one)."""
-    return {"description": v["description"], **({"unit": v["unit"]} if v["unit"] else {})}
-
-
-def _element(values: np.ndarray, i: int) -> dict[str, Any]:
-    """The getter and setter of one element of an array attribute."""
-
-    def setter(value: float) -> None:
-        values[i] = value
-
-    return {"getter": lambda: float(values[i]), "setter": setter}
