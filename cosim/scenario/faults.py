@@ -302,12 +302,7 @@ class PluginFaultSpec(Windowed):
         wrong, right = ("sensors", "actuators") if issubclass(model, fm.ActuatorFault) else ("actuators", "sensors")
         if getattr(self, wrong) is not None:
             raise ValueError(f"{wrong}: fault {self.kind!r} acts on {right}")
-        known = {f.name for f in dataclass_fields(model) if f.init} - {"channels", "start", "end", "label"}
-        if unknown := sorted(set(self.params) - known):
-            raise ValueError(
-                f"params: {', '.join(unknown)} is not a parameter of fault {self.kind!r} "
-                f"(it has: {', '.join(sorted(known)) or 'none'})"
-            )
+        _check_params(self.kind, model, self.params)
         return self
 
     @property
@@ -329,12 +324,7 @@ class PluginBusFaultSpec(OnBus):
     @model_validator(mode="after")
     def _contract(self) -> PluginBusFaultSpec:
         model = fm.FAULT_MODELS[self.kind]
-        known = {f.name for f in dataclass_fields(model) if f.init} - {"channels", "start", "end", "label"}
-        if unknown := sorted(set(self.params) - known):
-            raise ValueError(
-                f"params: {', '.join(unknown)} is not a parameter of fault {self.kind!r} "
-                f"(it has: {', '.join(sorted(known)) or 'none'})"
-            )
+        _check_params(self.kind, model, self.params)
         return self
 
     @property
@@ -459,3 +449,13 @@ def build_bus_faults(scenario: Any) -> list[fm.BusFault]:
         build_fault(spec, label, (), ()) for spec, label in zip(scenario.faults, labels) if isinstance(spec, OnBus)
     ]
     return [model for model in built if isinstance(model, fm.BusFault)]
+
+
+def _check_params(kind: str, model: type, params: dict[str, Any]) -> None:
+    """A plugin's fault takes as ``params`` only the fields of its dataclass the scenario does not set."""
+    known = {f.name for f in dataclass_fields(model) if f.init} - {"channels", "start", "end", "label"}
+    if unknown := sorted(set(params) - known):
+        raise ValueError(
+            f"params: {', '.join(unknown)} is not a parameter of fault {kind!r} "
+            f"(it has: {', '.join(sorted(known)) or 'none'})"
+        )
