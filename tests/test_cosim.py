@@ -296,7 +296,7 @@ def test_realtime_mode_paces_ticks_and_counts_deadline_misses(tmp_path):
     stopped = [m for m in misses if m["node"] == "kalman" and 100 <= m["tick"] <= 200]
     sporadic = [m for m in misses if m not in stopped]  # a loaded machine may miss the odd tick
     assert 40 <= len(stopped) <= 70, misses  # stopped for 50 ticks of 10 ms, plus its catching up
-    assert len(sporadic) <= 6, sporadic
+    assert len(sporadic) <= 30, sporadic  # 10 % of the ticks: far fewer than the stopped node's
     assert int(meta["deadline_misses"]) == len(misses) == result.deadline_misses == misses[-1]["count"]
 
 

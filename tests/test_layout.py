@@ -30,6 +30,7 @@ BELOW = {
     "analysis": {"base", "bus", "log", "plant", "scenario"},
     "api": {"base", "bus", "log", "plant", "scenario", "run", "analysis"},
     "campaign": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "api"},
+    "baselines": {"base", "api"},  # plugins, as a user's: the plugin contract alone
     "top": {"base", "bus", "log", "plant", "scenario", "run", "analysis", "api", "campaign"},
 }
 OUTSIDE = {"estimators": ("cosim.kinds",), "faults": ("cosim.kinds",), "mjcf": ("cosim.kinds", "cosim.bus.signals")}
