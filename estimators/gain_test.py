@@ -7,13 +7,15 @@ from __future__ import annotations
 
 import functools
 import itertools
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import scipy.special
 
 from estimators.box_least_squares import box_least_squares
+from estimators.lmi import pseudo_inverse
 from estimators.model_window import Projection, complement_projection, reduced_system, stacked_window
 
 
@@ -50,6 +52,10 @@ class GainTestWindow:
     projection: Projection
     """W' of the whole window, the whitened equations of the N samples that the nuisance unknowns
     cannot satisfy: the test of every tick, on the whole window with nothing missing, needs no more."""
+    jumps: dict[tuple[int, int], np.ndarray] = field(default_factory=dict, compare=False, repr=False)
+    """By (L, c): an orthonormal basis of the offsets' jumps at sample c of L samples with nothing
+    missing, projected off range(Z_L), as ``window_system`` computes it (it depends on neither the
+    readings nor the inputs): filled as the splits are first tested."""
 
     @property
     def window(self) -> int:
@@ -132,10 +138,14 @@ def window_system(
     r = r - Q @ (Q.T @ r)
     dof = len(r) - Q.shape[1]
     if change is not None:
-        J = np.zeros((len(r), m))  # the offsets' jumps, whitened
-        jumped = rows // m >= change
-        J[jumped, rows[jumped] % m] = window.weight[rows[jumped] % m]
-        G = _range_basis(J - Q @ (Q.T @ J))
+        G = window.jumps.get((L, change)) if kept.all() else None
+        if G is None:
+            J = np.zeros((len(r), m))  # the offsets' jumps, whitened
+            jumped = rows // m >= change
+            J[jumped, rows[jumped] % m] = window.weight[rows[jumped] % m]
+            G = _range_basis(J - Q @ (Q.T @ J))
+            if kept.all():
+                window.jumps[L, change] = G
         Y = Y - G @ (G.T @ Y)
         r = r - G @ (G.T @ r)
         dof -= G.shape[1]
@@ -167,7 +177,8 @@ def normal_inverse(columns: np.ndarray) -> np.ndarray:
     """(XᵀX)⁺ for the fitted columns X: for one column [[1/‖x‖²]] (0 for a zero column), which is
     what ``np.linalg.pinv`` returns for a 1 × 1 matrix, bit for bit (tested), without its SVD (tens
     of µs a call, and a gain search makes thousands); else, and where LAPACK's SVD would rescale a
-    1 × 1 (near the ends of the floats' range: its last bit may then differ), ``np.linalg.pinv``."""
+    1 × 1 (near the ends of the floats' range: its last bit may then differ), ``pseudo_inverse``:
+    np.linalg.pinv's arithmetic without its checks (a third of its cost on these small matrices)."""
     gram = columns.T @ columns
     if gram.shape == (1, 1):
         g = float(gram[0, 0])
@@ -175,7 +186,7 @@ def normal_inverse(columns: np.ndarray) -> np.ndarray:
             return np.zeros((1, 1))
         if _UNSCALED[0] < g < _UNSCALED[1]:
             return np.array([[1.0 / g]])
-    return np.linalg.pinv(gram)
+    return pseudo_inverse(gram)
 
 
 #: Where a 1 × 1 SVD is |a| exactly (LAPACK scales matrices outside about 1e-146 to 1e146).
@@ -219,12 +230,17 @@ def gain_hypotheses(
     for size in range(m + 1):
         dof = system.dof - size
         threshold = _chi2_quantile(alpha, dof)
+        if system.rest > threshold:
+            # Every statistic is rest + a square, and the thresholds only fall as more gains are
+            # fitted: no hypothesis of this size or larger can be accepted.
+            return []
         accepted: list[GainHypothesis] = []
         for free in itertools.combinations(range(m), size):
             index = list(free)
             columns = R[:, index]
             covariance = normal_inverse(columns) if free else np.zeros((0, 0))
-            error = float(np.sqrt(np.max(np.diag(covariance)))) if free else 0.0
+            error = math.sqrt(max(covariance.diagonal().tolist())) if free else 0.0
+            low, high = lower[index].tolist(), upper[index].tolist()
             recovered = [j for j in range(m) if j not in free and previous[j] != 1.0]
             for back in itertools.product((False, True), repeat=len(recovered)):
                 beta = np.array(previous, dtype=float)
@@ -234,7 +250,7 @@ def gain_hypotheses(
                     rhs = c - R @ beta
                     fitted = covariance @ (columns.T @ rhs)
                     beta[index] = fitted
-                    if np.any(fitted < lower[index]) or np.any(fitted > upper[index]):
+                    if any(f < a or f > b for a, f, b in zip(low, fitted.tolist(), high, strict=True)):
                         if chi2_statistic(system, beta) > threshold:
                             continue  # the box can only make the fit worse
                         if size == 1:

@@ -174,8 +174,11 @@ def pseudo_inverse(M: np.ndarray) -> np.ndarray:
     u, s, vt, info = lapack.dgesdd(M, compute_uv=1, full_matrices=0)
     if info != 0:
         raise np.linalg.LinAlgError(f"SVD did not converge (LAPACK dgesdd info {info})")
-    # LAPACK sorts s in decreasing order: s[0] is σ_max
-    inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > 1e-15 * s[0]) if len(s) else s
+    # LAPACK sorts s in decreasing order: s[0] is σ_max, s[-1] σ_min (usually above the cut: then no mask)
+    if len(s) and s[-1] > 1e-15 * s[0]:
+        inverse = 1.0 / s
+    else:
+        inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > 1e-15 * s[0]) if len(s) else s
     return vt.T.dot(inverse[:, None] * u.T)
 
 

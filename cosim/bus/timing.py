@@ -129,29 +129,41 @@ def _fd_crc_field(length: int) -> int:
     return 4 + crc + (4 + crc + 3) // 4
 
 
+@lru_cache(maxsize=4096)  # bounded, as ``_classic_header``
+def _fd_header(can_id: int, extended: bool, brs: bool) -> tuple[int, int]:
+    """An FD frame's bits before its ESI (SOF to BRS: the arbitration field, FDF = 1, res = 0, BRS):
+    (their count with their stuff bits and the tail's, the stuffing automaton after them)."""
+    head, head_len = _arbitration(can_id, extended, True)
+    arbitration, arbitration_len = (head << 3) | (0b10 << 1) | int(brs), head_len + 3
+    stuffed, state = stuff_bits(arbitration, arbitration_len)
+    return arbitration_len + stuffed + TAIL_BITS, state
+
+
+_ESI_DLC = _CHUNKS[5]  # ESI = 0 and the 4 DLC bits: the 5 bits before an FD frame's data
+
+
 def frame_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data: bytes) -> tuple[int, int]:
     """(bits at the nominal bit rate, bits at the data bit rate) of one data frame, stuff bits
     counted exactly, intermission included. ``dlc`` is the data length code, ``data`` the payload
-    (as many bytes as the DLC codes)."""
+    (as many bytes as the DLC codes). The bits before the data depend only on the id, the flags and
+    the DLC (cached); the data go byte by byte through the stuffing automaton (and the CRC)."""
     n = len(data)
+    table = _CHUNKS[8]
     if not fd:  # the header's CRC register and stuffing state are the id's and DLC's: then byte by byte
         crc, stuffed, state, length = _classic_header(can_id, extended, dlc)
-        table = _CHUNKS[8]
         for byte in data:
             crc = ((crc << 8) & 0x7FFF) ^ _CRC15[((crc >> 7) ^ byte) & 0xFF]
             more, state = table[state][byte]
             stuffed += more
         more, _ = stuff_bits(crc, 15, state)
         return length + 8 * n + 15 + stuffed + more + TAIL_BITS, 0
-    payload = int.from_bytes(data, "big")
-    head, head_len = _arbitration(can_id, extended, fd)
-    # FD: ... FDF = 1, res = 0, BRS | ESI = 0, DLC, data
-    arbitration, arbitration_len = (head << 3) | (0b10 << 1) | int(brs), head_len + 3
-    stuffed_a, state = stuff_bits(arbitration, arbitration_len)
-    data_phase, data_len = (dlc << 8 * n) | payload, 1 + 4 + 8 * n  # ESI = 0 leads
-    stuffed_d, _ = stuff_bits(data_phase, data_len, state)
-    nominal = arbitration_len + stuffed_a + TAIL_BITS
-    fast = data_len + stuffed_d + _fd_crc_field(n)
+    # FD: ... FDF = 1, res = 0, BRS | ESI = 0, DLC, data; the CRC field is not dynamically stuffed
+    nominal, state = _fd_header(can_id, extended, brs)
+    stuffed, state = _ESI_DLC[state][dlc]
+    for byte in data:
+        more, state = table[state][byte]
+        stuffed += more
+    fast = 5 + 8 * n + stuffed + _fd_crc_field(n)
     return (nominal, fast) if brs else (nominal + fast, 0)
 
 

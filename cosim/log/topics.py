@@ -55,6 +55,9 @@ from cosim.bus.codec import CLASSIC_TICK_BITS, CLIENT, COMMAND, ESTIMATE, NMT, S
 from cosim.bus.secoc import REASONS
 from cosim.log.writer import number, object_schema
 
+#: python-can's ``len2dlc`` by payload length (every length above 48 bytes codes 15): a look-up per frame.
+_DLC = tuple(len2dlc(length) for length in range(65))
+
 # -- schemas of fields ----------------------------------------------------------------------------
 
 TICK: dict[str, Any] = {"type": "integer", "description": "tick counter k of the runner"}
@@ -231,9 +234,9 @@ class CanFrame(TickRecord):
             "extended": frame.is_extended_id,
             "fd": frame.is_fd,
             "brs": frame.bitrate_switch,
-            "dlc": len2dlc(len(data)),
+            "dlc": _DLC[min(len(data), 64)],
             "length": len(data),
-            "data": bytes(data).hex(),
+            "data": data.hex(),
             "sender": sender,
             "message": message,
         }
@@ -250,9 +253,9 @@ class CanFrame(TickRecord):
             extended=frame.is_extended_id,
             fd=frame.is_fd,
             brs=frame.bitrate_switch,
-            dlc=len2dlc(len(data)),
+            dlc=_DLC[min(len(data), 64)],
             length=len(data),
-            data=bytes(data).hex(),
+            data=data.hex(),
             sender=sender,
             message=message,
         )

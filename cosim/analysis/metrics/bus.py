@@ -44,6 +44,7 @@ class BusScore:
         self.sample_time = sample_time
         self.by_id: dict[int, IdTraffic] = {}
         self.busy = self.busy_worst = 0.0
+        self.worst_time: dict[tuple[bool, bool, bool, int], float] = {}  # a frame's shape -> its worst-case time
         self.frames = 0
         self.tick: int | None = None
         self.tick_busy, self.peak = 0.0, 0.0
@@ -75,7 +76,11 @@ class BusScore:
         busy = self._time(bits)
         self.busy += busy
         self.windows[log_time // LOAD_WINDOW_NS] += busy
-        self.busy_worst += self._time(frame_bits_worst_case(extended, fd, brs, len(data)))
+        shape = (extended, fd, brs, len(data))
+        worst = self.worst_time.get(shape)
+        if worst is None:
+            worst = self.worst_time[shape] = self._time(frame_bits_worst_case(*shape))
+        self.busy_worst += worst
         if frame.tick != self.tick:
             self.finish()
             self.tick, self.tick_busy = frame.tick, 0.0
