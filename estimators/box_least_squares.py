@@ -13,6 +13,8 @@ import numpy as np
 import scipy.optimize
 from scipy.linalg import lapack
 
+_EPS = float(np.finfo(float).eps)
+
 
 def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """argmin ‖R β − c‖² subject to lower ≤ β ≤ upper (elementwise, lower < upper).
@@ -31,8 +33,8 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     the minimum-norm least-squares solution, if that lies in the box.
     """
     k, m = R.shape
-    sv = lapack.dgesvd(R, compute_uv=0)[1]
-    if k < m or not sv[-1] > sv[0] * m * np.finfo(float).eps:
+    sv = lapack.dgesvd(R, compute_uv=0)[1].tolist()
+    if k < m or not sv[-1] > sv[0] * m * _EPS:
         beta = np.linalg.lstsq(R, c, rcond=None)[0]
         inside = np.all(beta >= lower) and np.all(beta <= upper)
         return beta if inside else _bvls(R, c, lower, upper)
@@ -44,7 +46,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     x = [min(max(v, a), b) for a, v, b in zip(lo, x, hi, strict=True)]
     held = [v in (a, b) for a, v, b in zip(lo, x, hi, strict=True)]
     # A multiplier smaller than the rounding of the gradient does not release its variable.
-    tolerance = 1e-12 * float(sv[0]) * (float(sv[0]) * max(map(abs, x)) + float(np.abs(c).max()))
+    tolerance = 1e-12 * sv[0] * (sv[0] * max(map(abs, x)) + max(map(abs, c.tolist())))
     for _ in range(3 * m + 3):
         free = [i for i in range(m) if not held[i]]
         z = list(x)

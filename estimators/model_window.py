@@ -14,6 +14,8 @@ from scipy.linalg import lapack
 
 from estimators.box_least_squares import box_least_squares
 
+_TINY = float(np.finfo(float).tiny)
+
 
 class Projection(NamedTuple):
     """W' (R, N m), an orthonormal basis of the equations of a window of N samples that its nuisance
@@ -153,7 +155,7 @@ def window_gains(
     reduced = reduced_system(projection, y * window.weight, u)
     R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2
     scale = np.sqrt(np.einsum("ij,ij->j", R, R))  # a zero column stays zero divided by the smallest float
-    sv = lapack.dgesvd(R / np.maximum(scale, np.finfo(float).tiny), compute_uv=0)[1]
+    sv = lapack.dgesvd(R / np.maximum(scale, _TINY), compute_uv=0)[1]
     beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
     misfit = R.dot(beta) - c
     size = float(c.dot(c)) + rest
