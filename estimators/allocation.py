@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike
 from estimators.base import ParameterError
 from estimators.controller import Command, Controller
 from estimators.diagnostics import Diagnostic, DiagnosticKind
+from estimators.lmi import pseudo_inverse
 from estimators.model import LinearModel
 
 
@@ -152,7 +153,8 @@ def allocate(G: np.ndarray, tau: np.ndarray, N: np.ndarray | None = None, exact:
             "cannot be met "
             "exactly (eq. (5) and (21) need rank k); keep more inputs, or relax the cluster constraints"
         )
-    return N @ (np.linalg.pinv(GN) @ tau) if N.shape[1] else np.zeros(G.shape[1])
+    # pseudo_inverse: np.linalg.pinv's numbers without its checks (the vessel allocates every tick)
+    return N @ (pseudo_inverse(GN) @ tau) if N.shape[1] else np.zeros(G.shape[1])
 
 
 def constrained_allocation(
