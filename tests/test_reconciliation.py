@@ -608,27 +608,3 @@ def test_the_gain_tests_window_system_is_its_statistics_definition():
         direct = np.sum((projector @ (Y @ beta - r)) ** 2)
         assert chi2_statistic(system, beta) == pytest.approx(direct, rel=1e-9, abs=1e-9 * (r @ r))
     np.testing.assert_allclose(gain_standard_errors(system), 1 / np.linalg.norm(projector @ Y, axis=0), rtol=1e-9)
-
-
-def test_the_gain_tests_split_systems_are_the_same_with_their_jump_bases_cached():
-    """A split's basis of the offsets' jumps depends on the window and the split alone: kept after the
-    first split (``GainTestWindow.jumps``), it gives bit for bit the system a fresh window computes,
-    for other readings too; a window with a missing reading computes its own."""
-    from estimators.gain_test import gain_test_window, window_system
-
-    sigma = np.array([0.01, 0.02, 0.01, 0.03])
-    make = lambda: gain_test_window(A, np.hstack([B, np.ones((3, 1))]), E, C, sigma, WINDOW, 10)  # noqa: E731
-    window = make()
-    before = 1.0 / np.array([1.0, 0.9, 1.0, 1.0])
-    for seed in (3, 4):
-        ys, us = linear_window(TRUE_GAINS, WINDOW, seed=seed)
-        us = np.hstack([us, np.ones((WINDOW, 1))])
-        for change in (1, 17, WINDOW - 10):
-            cached = window_system(window, ys, us, change=change, before=before)
-            fresh = window_system(make(), ys, us, change=change, before=before)
-            assert all(np.array_equal(a, b) for a, b in zip(cached, fresh, strict=True))
-    assert sorted(window.jumps) == [(WINDOW, 1), (WINDOW, 17), (WINDOW, WINDOW - 10)]
-    ys[5, 2] = np.nan
-    gapped = window_system(window, ys, us, change=17, before=before)
-    assert gapped.dof == window_system(make(), ys, us, change=17, before=before).dof
-    assert len(window.jumps) == 3
