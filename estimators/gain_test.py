@@ -103,8 +103,34 @@ class WindowSystem(NamedTuple):
     true β."""
 
 
+class WindowEquations(NamedTuple):
+    """A window's whitened equations before any projection (``window_equations``)."""
+
+    Y: np.ndarray
+    """D Y, the readings as the gains' regressor, shape (L m, m); 0 where one is missing."""
+    r: np.ndarray
+    """D r, the inputs' forced response, shape (L m,)."""
+    kept: np.ndarray
+    """The equations whose reading arrived, shape (L m,)."""
+
+
+def window_equations(window: GainTestWindow, y: np.ndarray, u: np.ndarray) -> WindowEquations:
+    """The whitened equations of the last L = len(y) samples, y (L, m) and u (L, n_u) as in
+    ``window_system``: what every split of one window shares."""
+    L, m = y.shape
+    Y = np.zeros((L * m, m))
+    Y[np.arange(L * m), np.tile(np.arange(m), L)] = (np.where(np.isnan(y), 0.0, y) * window.weight).ravel()
+    r = np.einsum("kjil,il->kj", window.forced[:L, :, : L - 1], u[:-1]).ravel()
+    return WindowEquations(Y, r, ~np.isnan(y).ravel())
+
+
 def window_system(
-    window: GainTestWindow, y: np.ndarray, u: np.ndarray, change: int | None = None, before: np.ndarray | None = None
+    window: GainTestWindow,
+    y: np.ndarray,
+    u: np.ndarray,
+    change: int | None = None,
+    before: np.ndarray | None = None,
+    equations: WindowEquations | None = None,
 ) -> WindowSystem:
     """The system of the last L = len(y) samples, min_window ≤ L ≤ N: readings y (L, m), NaN where
     one did not arrive (its equation is dropped), and inputs u (L, n_u), u(k) held from k to k + 1.
@@ -112,22 +138,21 @@ def window_system(
     With ``change`` = c (0 < c < L), the gains change at sample c: samples k < c have the known
     β = ``before`` (their terms move to the target), and the regressor holds only samples k ≥ c.
     Each sensor's offset d_j may jump at c as well (a bias step, or d_j = β_j F⁽ʲ⁾ b with a new
-    β_j): m more nuisance columns, projected out with the others."""
+    β_j): m more nuisance columns, projected out with the others. ``equations``: the window's
+    ``window_equations``, where the caller has them (it tests several splits of one window)."""
     L, m = y.shape
     if change is None and L == window.window and not np.isnan(y).any():
         reduced = reduced_system(window.projection, y * window.weight, u)
         dof = window.projection.forced.shape[0]  # the equations left: L m − rank(Z_L)
         return WindowSystem(reduced[:m, :m], reduced[:m, m], float(reduced[m, m]) ** 2, dof)
     index = L - window.min_window
-    kept = ~np.isnan(y).ravel()
+    Y, r, kept = window_equations(window, y, u) if equations is None else equations
     rows = np.arange(L * m)
-    Y = np.zeros((L * m, m))
-    Y[rows, np.tile(np.arange(m), L)] = (np.where(np.isnan(y), 0.0, y) * window.weight).ravel()
-    r = np.einsum("kjil,il->kj", window.forced[:L, :, : L - 1], u[:-1]).ravel()
     if change is not None:
         assert before is not None and 0 < change < L
         after = np.repeat(np.arange(L), m) >= change
         r = r - np.where(after, 0.0, Y @ before)
+        Y = Y.copy()
         Y[~after] = 0.0
     if kept.all():
         Q = window.bases[index]
@@ -336,8 +361,9 @@ def decide_gains(
         return GainDecision(gamma, "pending", statistic, excitation, N)
     previous, beta_lower, beta_upper = 1.0 / reference, 1.0 / upper, 1.0 / lower
     accepted = gain_hypotheses(full, alpha, beta_lower, beta_upper, previous, N)
+    equations = window_equations(window, y, u)  # shared by the splits
     for L in range(window.min_window, N if since < N else window.min_window):
-        split = window_system(window, y, u, change=N - L, before=previous)
+        split = window_system(window, y, u, change=N - L, before=previous, equations=equations)
         accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
     if accepted:
         best = _unambiguous(accepted, N, se_tol)
