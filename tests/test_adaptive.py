@@ -490,13 +490,14 @@ def test_cdc_integration_agrees_with_the_reference_through_a_fault_onset():
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "gain"), [("cdc2016-ex1", "L2_"), ("cdc2016-ex2", "L1_")])
 def test_cdc_examples_agree_with_the_reference_solution(name, gain):
-    """The example's estimators of one gain, every learning rate κ of it (the fast gain in Example
-    1, the slow one in Example 2: both gains over the two), over the whole run: x̂ and Γ within the
+    """The example's estimators of one gain with adaptation (κ > 0; the fast gain in Example 1, the
+    slow one in Example 2: both gains over the two), over the whole run: x̂ and Γ within the
     scenario's rtol of the reference solution (relative to each component's largest value). The
-    reference costs a millisecond per sample and estimator: all ten would take 3.5 minutes."""
+    reference costs a millisecond per sample and estimator: all ten would take 3.5 minutes, and
+    κ = 0 is the plain observer the other tests check."""
     scenario, ys = cdc_example(name)
-    chosen = [spec for spec in scenario["estimators"] if spec["name"].startswith(gain)]
-    assert len(chosen) >= 2
+    chosen = [s for s in scenario["estimators"] if s["name"].startswith(gain) and s["params"].get("kappa", 0.0) > 0]
+    assert len(chosen) >= 1
     for spec in chosen:
         e = estimators.create("adaptive-ct", cdc_model(), spec["params"], scenario["sample_time"])
         assert np.max(agreement_with_the_reference(e, ys)) <= 1.0, spec["name"]

@@ -376,7 +376,7 @@ def test_monitor_writes_a_line_per_message_into_a_pipe_until_the_run_stops(tmp_p
     assert monitor.returncode == 0, err
     lines = [first, *out.splitlines()]
     estimates = [line.split() for line in lines if line.startswith("EST_uniform_0 ")]
-    assert len(estimates) > 100 and all(e[1] == "uniform" and e[3].startswith("xhat_x1=") for e in estimates)
+    assert len(estimates) > 20 and all(e[1] == "uniform" and e[3].startswith("xhat_x1=") for e in estimates)
     ticks = [int(e[2]) for e in estimates]
     assert ticks == sorted(ticks) and len(set(ticks)) == len(ticks)  # one line per message, in order
     assert any(line.startswith("HEARTBEAT_kalman kalman ") for line in lines)

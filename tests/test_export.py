@@ -539,7 +539,7 @@ def test_exports_stream_in_bounded_memory(tmp_path, monkeypatch):
     monkeypatch.setattr(exporting, "MF4_BATCH_FRAMES", 1024)
     monkeypatch.setattr(exporting, "MF4_FRAGMENT_BYTES", 64 * 1024)
     monkeypatch.setattr(exporting, "ROW_WINDOW", 64)
-    logs = {ticks: long_log(tmp_path / f"{ticks}.mcap", ticks) for ticks in (1000, 4000)}
+    logs = {ticks: long_log(tmp_path / f"{ticks}.mcap", ticks) for ticks in (500, 2000)}
     for fmt in FORMATS:
         peaks = []
         for ticks, log in logs.items():
