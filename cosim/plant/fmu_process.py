@@ -58,6 +58,11 @@ POLL = 0.05
 _F_SETPIPE_SZ = 1031
 
 
+#: Ctrl-C or SIGTERM raised in a plant's ``__del__`` (its host's answer awaited), which Python would
+#: drop: kept for the next wait on a host, so that the run still stops (a plan's plants come and go).
+_DROPPED: list[KeyboardInterrupt] = []
+
+
 class FmuInterrupted(Interruption):
     """Ctrl-C or SIGTERM while the FMU did not answer: the run stops, the host is killed."""
 
@@ -139,6 +144,8 @@ class Host:
         try:
             while True:
                 if not self._answered.poll(POLL * 1000):  # the FMU is slow, chatty or hangs
+                    if _DROPPED:  # a Ctrl-C that came while a plant was freed by the garbage collector
+                        raise _DROPPED.pop()
                     self.read_output()
                     if interrupted is not None:
                         interrupted()
@@ -394,6 +401,8 @@ class IsolatedFmuPlant:
     def __del__(self) -> None:
         try:
             self.close()
+        except KeyboardInterrupt as stop:  # Python drops what __del__ raises: the next wait raises it
+            _DROPPED.append(stop)
         except Exception:  # noqa: BLE001 (interpreter shutdown)
             pass
 
