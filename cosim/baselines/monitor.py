@@ -10,6 +10,7 @@ reads the file once, where the run is planned, and carries the model in its desi
 from __future__ import annotations
 
 import json
+from abc import abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -85,9 +86,9 @@ class Monitor(Estimator):
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
         return [*cls.STATISTICS, ALARM]
 
+    @abstractmethod
     def statistics(self, y: np.ndarray) -> dict[str, float]:
         """The monitored statistics of the readings y (absolute, the model's ``use``d ones; NaN where missing)."""
-        raise NotImplementedError
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         if self.fitted is None:
