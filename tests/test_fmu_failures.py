@@ -135,17 +135,22 @@ def test_an_error_of_the_fmu_or_its_solver_is_one_line_and_the_log_keeps_it(fmu,
     assert mode == 6 or logged[-1].status in ("Error", "Fatal")
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_an_fmu_that_never_returns_is_stopped_by_ctrl_c_and_sigterm(fmu, signum, tmp_path):
-    path = write(tmp_path, fmu, fmu_table="parameters = { mode = 1, trigger = 0.05 }")
-    log = tmp_path / "run.mcap"
-    process = subprocess.Popen(
+def start_run(path, log) -> subprocess.Popen:
+    """``cosim run`` of a scenario file into ``log``, as a user starts it (to be signalled)."""
+    return subprocess.Popen(
         [sys.executable, "-m", "cosim.cli", "run", str(path), "--interface", "virtual", "--out", str(log), "-q"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         encoding="utf-8",
     )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_an_fmu_that_never_returns_is_stopped_by_ctrl_c_and_sigterm(fmu, signum, tmp_path):
+    path = write(tmp_path, fmu, fmu_table="parameters = { mode = 1, trigger = 0.05 }")
+    log = tmp_path / "run.mcap"
+    process = start_run(path, log)
     deadline = time.monotonic() + 120
     while not (log.exists() and log.stat().st_size > 0) and time.monotonic() < deadline:  # the run has started
         time.sleep(0.1)
@@ -184,12 +189,7 @@ def test_a_signal_while_the_plan_is_made_is_one_line_and_ends_the_fmus_process(f
     path = write(tmp_path, fmu, interface="model-exchange", fmu_table="parameters = { mode = 1, trigger = 0.0 }")
     path.write_text(path.read_text() + KALMAN)
     log = tmp_path / "run.mcap"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "cosim.cli", "run", str(path), "--interface", "virtual", "--out", str(log), "-q"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        encoding="utf-8",
-    )
+    process = start_run(path, log)
     deadline = time.monotonic() + 120
     while not (hosts := children(process.pid)) and time.monotonic() < deadline:  # the FMU's host process
         time.sleep(0.05)
