@@ -28,9 +28,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+# First: the tests package pins NumPy's kernels as the test suite's processes have them.
+import tests  # noqa: E402, F401
+
+# isort: split
+import numpy as np  # noqa: E402
 
 import estimators  # noqa: E402
 from bench.common import bench_parser  # noqa: E402

@@ -1,4 +1,5 @@
-"""A cache of estimator designs that are slow to compute (the LMI solutions of IJC 2018, pole placements).
+"""A cache of estimator designs that are slow to compute (the LMI solutions of IJC 2018, pole placements,
+the COFD diagnosis's thresholds).
 
 An estimator's ``node_params()`` rebuild it without redoing its design (``design_params()``, e.g. an
 LMI solution, and what spares a design redone to the same numbers, e.g. a placed observer gain, whose

@@ -46,7 +46,7 @@ from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.isolation import isolate, unisolable
 from estimators.model import LinearModel
 from estimators.rotating_frame import FrameTerms
-from estimators.thresholds import DeclaredEnvironment, residual_test
+from estimators.thresholds import DeclaredEnvironment, centred_thresholds, residual_test
 from estimators.uio import UIODesign, discretize
 
 
@@ -385,6 +385,10 @@ class COFDParams(DeclaredEnvironment):
     rotating_frame: bool = False
     """The outputs are the vessel's (x, y, ψ, u, v, r): add the body frame's kinematic terms that the
     linearization at ψ = 0 drops (estimators/rotating_frame.py)."""
+    thresholds: tuple[tuple[float, ...], ...] | None = None
+    """The thresholds as designed, one row per observer: margin × the fault-free bounds (|b| ≤ ε) and,
+    with a declared environment, margin × the centred bounds after them. None: computed (a few tenths
+    of a second of numerical integration); the design cache and the runner pass them on."""
 
 
 class COFDDiagnosis(Estimator):
@@ -424,9 +428,8 @@ class COFDDiagnosis(Estimator):
             params.pairs if params.pairs is not None else SHIP_PAIRS if cluster else ()
         )
         self.ell = max(len(J) for J in family)
-        bounds = [residual_bounds(o, model.C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
-        self.thresholds = np.array([params.margin * bound for bound in bounds])
-        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, self.sample_time)
+        self.thresholds, centred = self._thresholds(E)
+        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, self.sample_time, centred)
         self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
         self.frame = FrameTerms(model, self.observers, self.sample_time) if params.rotating_frame else None
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
@@ -440,6 +443,24 @@ class COFDDiagnosis(Estimator):
         self.candidate_since = 0.0
         self.t = 0.0
         self.isolated = np.zeros(len(self.groups), dtype=bool)
+
+    def _thresholds(self, E: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """margin × the fault-free bounds of each observer's first ℓ components, and with a declared
+        environment margin × their centred bounds (``residual_test``); as given, if they are."""
+        params, C = self.params, self.model.C
+        rows = len(self.observers) * (2 if params.declared else 1)
+        if params.thresholds is not None:
+            given = np.array(params.thresholds, dtype=float)
+            if given.shape != (rows, self.ell):
+                raise ParameterError("thresholds", f"expected {rows} rows of {self.ell} values, got {given.shape}")
+            return given[: len(self.observers)], given[len(self.observers) :] if params.declared else None
+        bounds = [residual_bounds(o, C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
+        flat = np.array([params.margin * bound for bound in bounds])
+        return flat, centred_thresholds(self.observers, C, E, params, self.sample_time, self.ell)
+
+    def node_params(self) -> dict[str, Any]:
+        test = self.test.flat if self.test.centred is None else np.vstack([self.test.flat, self.test.centred])
+        return {"thresholds": test.tolist()}
 
     def _isolable_hypotheses(self, pairs: Sequence[Sequence[Any]]) -> list[tuple[int, ...]]:
         """The single faults and the given double ones (thruster numbers), 0-based, each of which

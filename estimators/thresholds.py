@@ -245,14 +245,38 @@ def residual_test(
     params: COFDParams,
     flat: np.ndarray,
     sample_time: float,
+    centred: np.ndarray | None = None,
 ) -> ResidualTest:
     """The residual test of kind ``cofd`` (``params``: its ``COFDParams``): the flat thresholds
-    ``flat`` throughout, or, with a declared environment, margin × ``centred_bounds`` of each
-    observer's first components once the learning window is over, and margin × the inertial
-    allowance. The declared class must fit in the paper's, |b| + |d| ≤ ε (``disturbance_bound``),
-    which the flat thresholds hold for."""
+    ``flat`` throughout, or, with a declared environment, the ``centred`` thresholds (margin ×
+    ``centred_bounds`` of each observer's first components, ``centred_thresholds``; computed here
+    when not given) once the learning window is over, and margin × the inertial allowance."""
     if not params.declared:
         return ResidualTest(flat, None, params.learning, sample_time)
+    ell = flat.shape[1]
+    if centred is None:
+        centred = centred_thresholds(observers, C, E, params, sample_time, ell)
+    else:
+        _check_declared(params, E, sample_time)
+    allowance = InertialAllowance(observers, C[:ell], E, params.margin * params.model_error_ratio, sample_time)
+    return ResidualTest(flat, centred, params.learning, sample_time, allowance)
+
+
+def centred_thresholds(
+    observers: Sequence[COFDObserver], C: np.ndarray, E: np.ndarray, params: COFDParams, sample_time: float, ell: int
+) -> np.ndarray | None:
+    """margin × ``centred_bounds`` of each observer's first ``ell`` components (one row per
+    observer), or None without a declared environment."""
+    if not params.declared:
+        return None
+    _check_declared(params, E, sample_time)
+    centred = np.array([centred_bounds(o.F, C[:ell], o.R @ E, params, sample_time) for o in observers])
+    return params.margin * centred
+
+
+def _check_declared(params: COFDParams, E: np.ndarray, sample_time: float) -> None:
+    """The declared environment must act on the ship's three unknown inputs and fit in the paper's
+    class, |b| + |d| ≤ ε (``disturbance_bound``), which the flat thresholds hold for."""
     params.check(sample_time)
     if E.shape[1] != len(FORCE) + len(MOMENT):
         raise ParameterError(
@@ -266,7 +290,3 @@ def residual_test(
             f"wave_moment) + model_error) > ε = {params.disturbance_bound:g}: raise disturbance_bound or declare a "
             "calmer sea",
         )
-    ell = flat.shape[1]
-    centred = np.array([centred_bounds(o.F, C[:ell], o.R @ E, params, sample_time) for o in observers])
-    allowance = InertialAllowance(observers, C[:ell], E, params.margin * params.model_error_ratio, sample_time)
-    return ResidualTest(flat, params.margin * centred, params.learning, sample_time, allowance)

@@ -9,9 +9,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
+import estimators
 from cosim import design_cache, scenario
 from cosim.run.plan import RunPlan, estimator_record
+from estimators import ParameterError
 
 BUILD = """
 import sys
@@ -58,3 +61,30 @@ def test_create_stores_only_what_the_parameters_do_not_carry(tmp_path, monkeypat
     carried = {"poles": [0.75, 0.8, 0.85, 0.9], "gain": placed.L.tolist()}
     design_cache.create("pseudoinverse", plan.model, carried, 0.01)
     assert len(list((tmp_path / "fresh").glob("*.json"))) == 1  # the gain came with the parameters
+
+
+def test_the_ship_diagnosis_thresholds_are_cached_and_a_cached_plan_tests_residuals_as_a_fresh_one(
+    tmp_path, monkeypatch
+):
+    """COFD's thresholds (numerical integrals of each observer's response to the declared sea: a few
+    tenths of a second, every run of a vessel campaign) are kept like a design: the next plan of the
+    same problem takes them from the cache, the flat ones and the centred ones, bit for bit."""
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path))
+    fresh = RunPlan.build(scenario.load("vessel-nominal")).estimators["fdi"]
+    assert fresh.test.centred is not None and len(list(tmp_path.glob("*.json"))) == 1
+
+    def not_again(*args, **kwargs):
+        raise AssertionError("the centred bounds were integrated again")
+
+    monkeypatch.setattr(estimators.thresholds, "centred_bounds", not_again)
+    cached = RunPlan.build(scenario.load("vessel-nominal")).estimators["fdi"]
+    assert np.array_equal(cached.test.flat, fresh.test.flat) and np.array_equal(cached.test.centred, fresh.test.centred)
+    assert np.array_equal(cached.thresholds, fresh.thresholds)
+
+
+def test_thresholds_of_the_wrong_shape_are_refused_naming_the_parameter():
+    plan = RunPlan.build(scenario.load("vessel-nominal"))
+    spec = next(e for e in plan.scenario.estimators if e.name == "fdi")
+    model = plan.estimators["fdi"].model
+    with pytest.raises(ParameterError, match=r"thresholds: expected 8 rows of 3 values, got \(1, 2\)"):
+        estimators.create("cofd", model, {**spec.params, "thresholds": [[1.0, 2.0]]}, 0.1)
