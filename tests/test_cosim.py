@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -371,7 +372,15 @@ def test_monitor_writes_a_line_per_message_into_a_pipe_until_the_run_stops(tmp_p
     monitor = cli("monitor")
     first = monitor.stdout.readline()  # lines come as the messages do, not at the end
     assert runner.poll() is None and len(first.split()) >= 3  # message, sender, tick, signals
-    out, err = monitor.communicate(timeout=60)
+    # The rest through the same text stream: communicate() would read the pipe's descriptor and lose
+    # what readline() had already buffered. The watchdog bounds a monitor that never ends.
+    watchdog = threading.Timer(120, monitor.kill)
+    watchdog.start()
+    try:
+        out, err = monitor.stdout.read(), monitor.stderr.read()
+        monitor.wait(timeout=60)
+    finally:
+        watchdog.cancel()
     runner.communicate(timeout=60)
     assert monitor.returncode == 0, err
     lines = [first, *out.splitlines()]
