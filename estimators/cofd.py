@@ -46,7 +46,7 @@ from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.isolation import isolate, unisolable
 from estimators.model import LinearModel
 from estimators.rotating_frame import FrameTerms
-from estimators.thresholds import DeclaredEnvironment, centred_thresholds, residual_test
+from estimators.thresholds import DeclaredEnvironment, centred_thresholds, check_declared, residual_test
 from estimators.uio import UIODesign, discretize
 
 
@@ -429,7 +429,7 @@ class COFDDiagnosis(Estimator):
         )
         self.ell = max(len(J) for J in family)
         self.thresholds, centred = self._thresholds(E)
-        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, self.sample_time, centred)
+        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, centred, self.sample_time)
         self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
         self.frame = FrameTerms(model, self.observers, self.sample_time) if params.rotating_frame else None
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
@@ -448,6 +448,8 @@ class COFDDiagnosis(Estimator):
         """margin × the fault-free bounds of each observer's first ℓ components, and with a declared
         environment margin × their centred bounds (``residual_test``); as given, if they are."""
         params, C = self.params, self.model.C
+        if params.declared:
+            check_declared(params, E, self.sample_time)
         rows = len(self.observers) * (2 if params.declared else 1)
         if params.thresholds is not None:
             given = np.array(params.thresholds, dtype=float)

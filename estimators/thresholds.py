@@ -244,20 +244,16 @@ def residual_test(
     E: np.ndarray,
     params: COFDParams,
     flat: np.ndarray,
+    centred: np.ndarray | None,
     sample_time: float,
-    centred: np.ndarray | None = None,
 ) -> ResidualTest:
-    """The residual test of kind ``cofd`` (``params``: its ``COFDParams``): the flat thresholds
-    ``flat`` throughout, or, with a declared environment, the ``centred`` thresholds (margin ×
-    ``centred_bounds`` of each observer's first components, ``centred_thresholds``; computed here
-    when not given) once the learning window is over, and margin × the inertial allowance."""
+    """The residual test of kind ``cofd`` (``params``: its ``COFDParams``, the declared environment
+    checked by ``check_declared``): the flat thresholds ``flat`` throughout, or, with a declared
+    environment, the ``centred`` ones (``centred_thresholds``) once the learning window is over,
+    and margin × the inertial allowance."""
     if not params.declared:
         return ResidualTest(flat, None, params.learning, sample_time)
     ell = flat.shape[1]
-    if centred is None:
-        centred = centred_thresholds(observers, C, E, params, sample_time, ell)
-    else:
-        _check_declared(params, E, sample_time)
     allowance = InertialAllowance(observers, C[:ell], E, params.margin * params.model_error_ratio, sample_time)
     return ResidualTest(flat, centred, params.learning, sample_time, allowance)
 
@@ -269,12 +265,11 @@ def centred_thresholds(
     observer), or None without a declared environment."""
     if not params.declared:
         return None
-    _check_declared(params, E, sample_time)
     centred = np.array([centred_bounds(o.F, C[:ell], o.R @ E, params, sample_time) for o in observers])
     return params.margin * centred
 
 
-def _check_declared(params: COFDParams, E: np.ndarray, sample_time: float) -> None:
+def check_declared(params: COFDParams, E: np.ndarray, sample_time: float) -> None:
     """The declared environment must act on the ship's three unknown inputs and fit in the paper's
     class, |b| + |d| ≤ ε (``disturbance_bound``), which the flat thresholds hold for."""
     params.check(sample_time)
