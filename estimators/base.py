@@ -11,6 +11,7 @@ import types
 import typing
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -127,6 +128,15 @@ class Estimator(Configurable, ABC):
                 f"one value per state ({', '.join(self.model.states)})"
             )
         return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> Any:
+        """Optional: these K instances of the kind (one design, each with its own state, as a batch
+        of runs has them) as one object whose ``step(y, u)`` takes y (K, p) and u (K, m) and returns
+        an ``estimators.batched.BatchEstimate``, run for run bit for bit what each instance's
+        ``step`` returns (``estimators.batched.check_batched`` tests that). None, the default: the
+        batch steps each instance by itself (``StepEach``), which is always right."""
+        return None
 
     def design_params(self) -> dict[str, Any]:
         """Parameters that, added to the given ones, rebuild this estimator without redoing its

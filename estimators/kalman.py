@@ -9,11 +9,13 @@ stays symmetric positive semidefinite in floating point.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
+from estimators.batched import BatchEstimate, DeviationBatch, mv
 from estimators.model import LinearModel
 
 
@@ -76,3 +78,60 @@ class KalmanFilter(Estimator):
         K = np.linalg.solve(S, CkP).T  # P Cᵀ S⁻¹ (S and P symmetric)
         I_KC = self._identity - K @ Ck
         return x + K @ innovation, I_KC @ P @ I_KC.T + K @ Rk @ K.T
+
+    @classmethod
+    def batched(cls, instances: Sequence[KalmanFilter]) -> _KalmanBatch:
+        return _KalmanBatch(instances)
+
+
+class _KalmanBatch(DeviationBatch):
+    """K filters of one design: x̂ (K, n) and P (K, n, n), updated and predicted in NumPy's stacked
+    kernels; a run with a missing reading takes its own filter's step (fewer rows of C)."""
+
+    def __init__(self, instances: Sequence[KalmanFilter]) -> None:
+        super().__init__(instances)
+        first = instances[0]
+        self.R, self.Q, self._identity, self._At = first.R, first.Q, first._identity, first._At
+        self.x = np.stack([e.x_hat for e in instances])
+        self.P = np.stack([e.P for e in instances])
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
+        A, B, C, D = self.model.A, self.model.B, self.model.C, self.model.D
+        missing = np.isnan(dy)
+        whole, none = ~missing.any(axis=1), missing.all(axis=1)
+        x, P = self.x, self.P
+        if whole.all():
+            x, P = self._update(x, P, dy - mv(C, x) - mv(D, du))
+        else:
+            x, P = x.copy(), P.copy()
+            rows = np.flatnonzero(whole)
+            if rows.size:
+                x[rows], P[rows] = self._update(x[rows], P[rows], dy[rows] - mv(C, x[rows]) - mv(D, du[rows]))
+            rows = np.flatnonzero(~whole & ~none)  # some readings: each its own filter's update
+
+            def load(e: KalmanFilter, r: int) -> None:
+                e.x_hat, e.P = self.x[r].copy(), self.P[r].copy()
+
+            def store(e: KalmanFilter, r: int) -> None:
+                self.x[r], self.P[r] = e.x_hat, e.P  # predicted by its own step: taken back below as is
+
+            if rows.size:
+                predicted_x, predicted_P = self.x.copy(), self.P.copy()
+                x[rows] = self._each(rows, dy, du, load, store)
+                own_x, own_P = self.x[rows].copy(), self.P[rows].copy()
+                self.x, self.P = predicted_x, predicted_P
+        x_next = mv(A, x) + mv(B, du)
+        P_next = A @ P @ self._At + self.Q
+        if not whole.all() and rows.size:
+            x_next[rows], P_next[rows] = own_x, own_P
+        self.x, self.P = x_next, P_next
+        return BatchEstimate(x, {})
+
+    def _update(self, x: np.ndarray, P: np.ndarray, innovation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``KalmanFilter._update`` with the whole C and R, for K runs."""
+        C, R = self.model.C, self.R
+        CkP = C @ P
+        S = CkP @ C.T + R
+        K = np.linalg.solve(S, CkP).swapaxes(-1, -2)
+        I_KC = self._identity - K @ C
+        return x + mv(K, innovation), I_KC @ P @ I_KC.swapaxes(-1, -2) + K @ R @ K.swapaxes(-1, -2)

@@ -16,12 +16,14 @@ keep R(s) invertible; otherwise the tick is an open-loop prediction.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
+from estimators.batched import BatchEstimate, DeviationBatch, mv
 from estimators.design import observer_gain, output_factorization, weighted_pseudoinverse
 from estimators.model import LinearModel
 
@@ -108,3 +110,32 @@ class PseudoinverseObserver(Estimator):
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """Π(s) φ: the constant offset the bias adds to the injection (eq. (19))."""
         return self.Pi @ phi
+
+    @classmethod
+    def batched(cls, instances: Sequence[PseudoinverseObserver]) -> _PseudoinverseBatch:
+        return _PseudoinverseBatch(instances)
+
+
+class _PseudoinverseBatch(DeviationBatch):
+    """K observers (13) of one design: x̂ of shape (K, n); a run with a missing reading takes its
+    own observer's step (its weights change, ``_allocation``)."""
+
+    def __init__(self, instances: Sequence[PseudoinverseObserver]) -> None:
+        super().__init__(instances)
+        first = instances[0]
+        self.L, self.Pi = first.L, first.Pi
+        self.x = np.stack([e.x_hat for e in instances])
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
+        A, B, C = self.model.A, self.model.B, self.model.C
+        x_k = self.x
+        whole = ~np.isnan(dy).any(axis=1)
+        correction = mv(self.L, mv(self.Pi, dy - mv(C, x_k)))  # np.where(available, ., 0) is the identity here
+        x_next = mv(A, x_k) + mv(B, du) + correction  # eq. (13)
+        if not whole.all():
+            rows = np.flatnonzero(~whole)
+            # each the observer's own step; the estimate is x_k either way
+            self._each(rows, dy, du, lambda e, r: setattr(e, "x_hat", x_k[r].copy()), lambda e, r: None)
+            x_next[rows] = np.stack([self.instances[r].x_hat for r in rows])
+        self.x = x_next
+        return BatchEstimate(x_k.copy(), {})

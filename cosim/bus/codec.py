@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import can
+import numpy as np
 from cantools.database.can import Database, Message
 
 from cosim.bus.dbc import (
@@ -56,7 +57,7 @@ from cosim.bus.dbc import (
     spec_from_message,
     strip_secoc_trailer,
 )
-from cosim.bus.packing import Packer
+from cosim.bus.packing import Packer, carried_values
 from cosim.bus.signals import Channel
 from cosim.errors import CodecError
 
@@ -258,6 +259,17 @@ class Codec:
         payload = self._payload(spec, tick, values)
         data, carried = self._packers[name].encode_carried(payload)
         return self._frame(spec, data), Decoded(spec, int(payload[0]), dict(zip(spec.signals, carried[1:])))
+
+    def carried_of(self, specs: Sequence[MessageSpec]) -> Callable[[np.ndarray], np.ndarray]:
+        """The values of these messages' signals, in order, for K frames of each at once: (K,
+        signals) in, (K, signals) out as the frames carry them (what ``encode_decoded``'s Decoded
+        holds, bit for bit). The values must lie in their ranges (``encode`` checks that)."""
+        fields = []
+        for spec in specs:
+            packer = self._packers[spec.name]
+            by_name = dict(zip(packer.names, packer.fields))
+            fields += [by_name[signal] for signal in spec.signals]
+        return functools.partial(carried_values, tuple(fields))
 
     def _payload(self, spec: MessageSpec, tick: int, values: Sequence[float]) -> list[float]:
         """The tick counter and the values, each checked against its channel's range."""

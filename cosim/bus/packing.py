@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from cantools.database.conversion import IdentityConversion, LinearConversion
 
 from cosim.errors import CodecError
@@ -89,6 +90,22 @@ class Packer:
     def carried(self, values: Sequence[float]) -> list[float]:
         """What a receiver decodes from the payload ``encode(values)``: each value as the frame carries it."""
         return self.encode_carried(values)[1]
+
+
+def carried_values(fields: Sequence[Field], values: np.ndarray) -> np.ndarray:
+    """Values of K frames, (K, len(fields)), as the frames carry them: ``encode_carried``'s second
+    part for each row, bit for bit (the same IEEE operations on arrays: NumPy's ``rint`` rounds half
+    to even as Python's ``round`` does, and an integer raw value times the scale is the float's)."""
+    found = np.empty_like(values, dtype=float)
+    for i, field in enumerate(fields):
+        conversion, v = field.conversion, values[:, i]
+        if isinstance(conversion, LinearConversion) and not conversion.is_float:
+            found[:, i] = np.rint((v - conversion.offset) / conversion.scale) * conversion.scale + conversion.offset
+        elif isinstance(conversion, IdentityConversion):
+            found[:, i] = v if conversion.is_float else np.rint(v)
+        else:  # another kind: cantools' own methods, value by value
+            found[:, i] = [conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(x), False) for x in v]
+    return found
 
 
 def uncompiled(signal: Any) -> str | None:

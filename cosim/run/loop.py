@@ -154,10 +154,7 @@ class PlantSource:
             self.u_cmd = np.array(
                 [decoded.values[spec.signals[0]] for (_, decoded), spec in zip(self._commands, self.command_specs)]
             )
-        u_eff, delta = self.faults.actuators(self.u_cmd, t)
-        d = np.array([w(t) for w in self.disturbances]) + sum(
-            (b(t) for b in self.environments), np.zeros(len(self.disturbances))
-        )
+        u_eff, delta, d = self.actuate(self.u_cmd, t)
         session.recorder.truth(
             k,
             t,
@@ -173,14 +170,27 @@ class PlantSource:
             delta=delta,
             disturbance=d,
         )
+        self.step(k, u_eff, d)
+        self._log_plant_messages(k, session)
+
+    def actuate(self, u_cmd: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The commands through the actuator faults at time t: the effective inputs, the
+        effectiveness factors and the disturbance inputs (signals and disturbance models)."""
+        u_eff, delta = self.faults.actuators(u_cmd, t)
+        d = np.array([w(t) for w in self.disturbances]) + sum(
+            (b(t) for b in self.environments), np.zeros(len(self.disturbances))
+        )
+        return u_eff, delta, d
+
+    def step(self, k: int, u_eff: np.ndarray, d: np.ndarray) -> None:
+        """Advance the physics over tick k with these inputs (a non-finite one is the run's error)."""
         if not np.all(np.isfinite(u_eff)):
-            bad = s.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
+            bad = self.scenario.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
             raise CosimError(
                 f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator "
                 "faults"
             )
         self.plant.step(u_eff, d)
-        self._log_plant_messages(k, session)
 
     def _log_plant_messages(self, k: int, session: Session) -> None:
         take = getattr(self.plant, "take_messages", None)

@@ -165,6 +165,12 @@ class Scorer:
         except (KeyError, TypeError, ValueError) as error:
             self._broken(topic, log_time, error)
 
+    def tick(self, k: int, tick: Tick) -> None:
+        """A whole tick handed in order by a run that logs nothing (a batched run,
+        ``cosim.run.batch``): scored as the same complete tick read from its log."""
+        self._score(k, tick)
+        self.next_tick = k + 1
+
     def records(self, topic: str) -> bool:
         """Whether ``topic`` is one that ``feed_record`` takes."""
         return topic in self._topics

@@ -1,0 +1,254 @@
+"""Batched runs: the runs of one plan that differ only in their seed, stepped together.
+
+A campaign's replicates share a configuration (scenario and settings) and differ in their seed.
+``run_batch`` steps K of them in lockstep in one process, every per-tick array with a leading run
+axis, so that each call pays its overhead once for K runs: the estimators through their batched
+step (``estimators.batched``: one stacked NumPy call for K runs where the kind has one), the CAN
+codec's quantization as array arithmetic (``Codec.carried``), the scores fed whole ticks
+(``Scorer.tick``). Each run keeps its own plant, faults and random streams (its seed's, as alone).
+
+What a batch computes is what a run's metrics row reads, bit for bit what the run gives alone
+(``cosim run --seed``, or a campaign with ``--batch 1``): the values each estimator receives (the
+sensor and command frames' values as the frames carry them), its estimates as its node's frames
+carry them (saturated at their signal's range, quantized), and the truth they are scored against.
+On the in-process bus without bus faults, a run's frames all arrive in their tick, so this is the
+whole of what the bus does to them; frames, MACs and the bus load are not computed, and a batched
+run's ``RunMetrics`` holds its row's metrics, not the bus's (a run whose log is kept runs alone).
+
+A run that would not end as a completed run of the batch (a value outside its signal's range, an
+estimate that is not a number, an estimator that raises, a non-finite input or state) leaves the
+batch at that tick and is run again alone, through the whole run (``RunPlan``, ``Session``, nodes):
+it then ends exactly as it ends alone, and the others go on. A plan the batch cannot express
+(``refusal``: node processes, an FMU plant, a closed loop, bus faults, arbitrated timing, SecOC,
+the intrusion detector, clients, realtime) runs every run alone.
+"""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from cosim.analysis.metrics import RunMetrics
+from cosim.analysis.metrics.compute import TickScoring
+from cosim.bus.codec import estimated_state
+from cosim.errors import CosimError
+from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
+from cosim.plant.fmu_model import is_fmu
+from cosim.run.loop import PlantSource
+from cosim.run.plan import RunPlan
+from cosim.scenario import LoadedScenario
+from cosim.scenario.faults import build_bus_faults
+from estimators.batched import BatchStep, batch_of
+
+
+@dataclass(frozen=True)
+class BatchedRun:
+    """One run of a batch: its seed, and either its metrics (it ran in the batch to its end) or why
+    it left the batch (``left``: it is to be run alone, which gives its result)."""
+
+    seed: int
+    metrics: RunMetrics | None = None
+    left: str = ""
+
+
+def refusal(plan: RunPlan) -> str | None:
+    """Why the runs of ``plan`` cannot step in a batch (None: they can)."""
+    s = plan.scenario
+    reasons = [
+        (s.bus.interface != "virtual", "its nodes run in processes of their own (a batch needs the in-process bus)"),
+        (is_fmu(s.plant.model), "its plant is an FMU, which runs in a process of its own"),
+        (s.controller is not None, "it is a closed loop (the controller node is not batched)"),
+        (bool(build_bus_faults(s)), "its bus faults and attacks act on frames"),
+        (s.bus.timing != "ideal", "its bus timing is arbitrated"),
+        (s.bus.authentication != "none", "its frames are authenticated (SecOC)"),
+        (s.bus.intrusion_detector, "its intrusion detector reads frames"),
+        (bool(s.bus.traffic), "other traffic shares its bus"),
+        (bool(s.clients), "clients share its bus"),
+        (bool(plan.external_nodes), "some of its nodes are started by hand"),
+        (s.timing.mode != "lockstep", "it runs in realtime"),
+        (plan.model is None, "it has no linear model"),
+    ]
+    return next((why for refuse, why in reasons if refuse), None)
+
+
+class _Run:
+    """One run's own parts in a batch: its plan (its seed's scenario), plant and faults, scores."""
+
+    def __init__(self, plan: RunPlan, seed: int) -> None:
+        self.seed = seed
+        self.plan = replace(plan, scenario=plan.scenario.with_overrides(seed=seed))
+        self.source = PlantSource(self.plan)
+        self.scoring = TickScoring(
+            {
+                RUN: self.plan.run_record(start_time_ns=0).to_metadata(),
+                SCENARIO: self.plan.scenario_record().to_metadata(),
+            },
+            self.plan.codec.dbc,
+        )
+        self.left = ""
+
+    def leave(self, k: int, why: str) -> None:
+        if not self.left:
+            self.left = f"tick {k}: {why}"
+
+    def metrics(self, ticks: int) -> RunMetrics:
+        senders = {name: SenderCounts() for name in self.plan.senders}
+        result = ResultRecord("completed", ticks, None, 0, 0, "", senders, {"datagrams": 0, "frames": 0})
+        return self.scoring.metrics(RESULT, result.to_metadata())
+
+
+class _Estimators:
+    """One estimator of the scenario over the batch's runs: its K instances as one batched step,
+    where its inputs come from and where its values go (its node's signals)."""
+
+    def __init__(self, name: str, plans: Sequence[RunPlan], sensors: tuple[str, ...], actuators: tuple[str, ...]):
+        self.name = name
+        instances = [copy.deepcopy(plan.estimators[name]) for plan in plans]  # the plan's, never stepped
+        self.batch: BatchStep = batch_of(instances)
+        model = instances[0].model
+        self.outputs = [sensors.index(n) if n in sensors else -1 for n in model.outputs]
+        self.inputs = [actuators.index(n) if n in actuators else -1 for n in model.inputs]
+        codec = plans[0].codec
+        self.messages = codec.data_messages(name)
+        self.signals = [signal for message in self.messages for signal in message.signals]
+        self.states = {s: model.states.index(state) for s in self.signals if (state := estimated_state(s)) is not None}
+        self.diagnostics = [s for s in self.signals if s not in self.states]
+        channels = [channel for message in self.messages for channel in message.channels]
+        self.lower = np.array([c.minimum for c in channels])
+        self.upper = np.array([c.maximum for c in channels])
+        self.carried = codec.carried_of(self.messages)
+        self.u = np.zeros((len(plans), model.m))  # a command that never came is 0 (as its node holds it)
+
+    def step(self, y: np.ndarray, u_cmd: np.ndarray) -> np.ndarray:
+        """Tick k's readings (K, sensors; NaN where not sent) and commands (K, actuators) in; the
+        values its frames carry out, (K, signals), in ``signals`` order."""
+        given = [i for i in self.inputs if i >= 0]
+        self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0]] = u_cmd[:, given]
+        ys = np.stack([y[:, i] if i >= 0 else np.full(len(y), np.nan) for i in self.outputs], axis=1)
+        estimate = self.batch.step(ys, self.u.copy())
+        columns = [estimate.x[:, self.states[s]] if s in self.states else estimate.diagnostics[s] for s in self.signals]
+        values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(y), 0))
+        # sent at the bound it crossed (the node saturates), and as the frame carries it
+        return self.carried(np.minimum(np.maximum(values, self.lower), self.upper))
+
+
+def run_batch(
+    loaded: LoadedScenario, seeds: Sequence[int], on_tick: Callable[[int, int], None] | None = None
+) -> list[BatchedRun]:
+    """The runs of ``loaded`` with each of ``seeds``, stepped together on the in-process bus.
+    Raises CosimError (naming why) for a scenario whose runs cannot step in a batch (``refusal``),
+    or whose plan cannot be built; a run that leaves the batch says why in ``left``."""
+    plan = RunPlan.build(loaded, seeds[0], interface="virtual")
+    why = refusal(plan)
+    if why is not None:
+        raise CosimError(f"{loaded.source}: not batched: {why}")
+    return _Batch(plan, seeds).run(on_tick)
+
+
+class _Batch:
+    def __init__(self, plan: RunPlan, seeds: Sequence[int]) -> None:
+        s = self.scenario = plan.scenario
+        self.runs = [_Run(plan, seed) for seed in seeds]
+        plans = [run.plan for run in self.runs]
+        self.codec = plan.codec
+        self.sensor_specs = [self.codec.sensor(n) for n in s.sensors]
+        self.command_specs = [self.codec.command(n) for n in s.actuators]
+        self.sensors_carried = self.codec.carried_of(self.sensor_specs)
+        self.commands_carried = self.codec.carried_of(self.command_specs)
+        self.sensor_range = _range(self.sensor_specs)
+        self.command_range = _range(self.command_specs)
+        self.estimators = [_Estimators(name, plans, s.sensors, s.actuators) for name in plan.estimators]
+        self.state_names = plan.state_names
+
+    def run(self, on_tick: Callable[[int, int], None] | None) -> list[BatchedRun]:
+        s, runs = self.scenario, self.runs
+        ticks = s.ticks
+        alive = np.ones(len(runs), dtype=bool)
+        for k in range(ticks):
+            if not alive.any():
+                break
+            self._tick(k, alive)
+            if on_tick is not None:
+                on_tick(k + 1, ticks)
+        return [
+            BatchedRun(run.seed, left=run.left) if run.left else BatchedRun(run.seed, run.metrics(ticks))
+            for run in runs
+        ]
+
+    def _tick(self, k: int, alive: np.ndarray) -> None:
+        s, runs = self.scenario, self.runs
+        t = s.time(k)
+        live = [r for r in np.flatnonzero(alive)]
+        x = np.stack([run.source.plant.state() for run in runs])
+        outcomes = {}
+        for r in live:
+            source = runs[r].source
+            outcomes[r] = source.faults.sensors(source.plant.sensors(), t)
+        measured = np.zeros((len(runs), len(s.sensors)))
+        sent = np.zeros((len(runs), len(s.sensors)), dtype=bool)
+        for r, outcome in outcomes.items():
+            measured[r], sent[r] = outcome.measured, outcome.sent
+        self._check(
+            k,
+            alive,
+            np.where(sent, measured, 0.5 * (self.sensor_range[0] + self.sensor_range[1])),
+            self.sensor_range,
+            "a sensor reading outside its signal's range",
+        )
+        readings = np.where(sent, self.sensors_carried(np.where(sent, measured, 0.0)), np.nan)
+        commands = np.array(
+            [[w(t) for w in runs[r].source.inputs] if alive[r] else [0.0] * len(s.actuators) for r in range(len(runs))]
+        ).reshape(len(runs), len(s.actuators))
+        self._check(k, alive, commands, self.command_range, "an input signal outside its command's range")
+        u_cmd = self.commands_carried(commands)
+        self._check(k, alive, x, None, "a state that is not finite")
+        try:
+            values = [e.step(np.where(alive[:, None], readings, 0.0), u_cmd) for e in self.estimators]
+        except Exception as error:  # noqa: BLE001 (an estimator's own code: every run goes alone, as each ends alone)
+            for r in np.flatnonzero(alive):
+                runs[r].leave(k, f"an estimator raised {type(error).__name__}: {error}")
+            alive[:] = False
+            return
+        for v in values:
+            bad = alive & np.isnan(v).any(axis=1)
+            for r in np.flatnonzero(bad):
+                runs[r].leave(k, "an estimate that is not a number")
+            alive &= ~bad
+        for r in np.flatnonzero(alive):
+            run = runs[r]
+            estimates = {e.name: dict(zip(e.signals, v[r].tolist())) for e, v in zip(self.estimators, values)}
+            run.scoring.tick(k, dict(zip(self.state_names, x[r].tolist())), list(outcomes[r].active), estimates)
+            source = run.source
+            try:
+                u_eff, _, d = source.actuate(u_cmd[r], t)
+                source.step(k, u_eff, d)
+            except CosimError as error:
+                run.leave(k, str(error))
+                alive[r] = False
+
+    def _check(
+        self, k: int, alive: np.ndarray, values: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None, why: str
+    ) -> None:
+        """Runs whose ``values`` leave ``bounds`` (None: are not finite) leave the batch."""
+        ok = (
+            np.isfinite(values).all(axis=1)
+            if bounds is None
+            else ((bounds[0] <= values) & (values <= bounds[1])).all(axis=1)
+        )
+        for r in np.flatnonzero(alive & ~ok):
+            self.runs[r].leave(k, why)
+        alive &= ok
+
+
+def _range(specs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+    channels = [channel for spec in specs for channel in spec.channels]
+    return np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
+
+
+def timed(start: float) -> float:
+    return time.perf_counter() - start
