@@ -10,8 +10,8 @@ import math
 import types
 import typing
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, fields
 from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
 import numpy as np

@@ -125,6 +125,7 @@ def run_benchmark(
     resume: bool = False,
     on_case: Callable[[CaseSpec, Campaign], None] | None = None,
     on_progress: Callable[[CampaignProgress], None] | None = None,
+    batch: int | None = None,
 ) -> dict[str, Any]:
     """Run every case of the suite into the bundle ``out``; returns the bundle's record."""
     suite = load_suite(suite_path)
@@ -145,6 +146,7 @@ def run_benchmark(
             address=address,
             resume=resume and case_folder.exists(),
             on_progress=on_progress,
+            batch=batch,
         )
     bundle = {
         "suite": suite.name,

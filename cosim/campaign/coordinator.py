@@ -11,6 +11,7 @@ without a part run again.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 import time
@@ -22,12 +23,14 @@ from typing import Any
 from cosim.campaign.engine import open_engine
 from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
 from cosim.campaign.spec import Campaign, RunSpec
-from cosim.campaign.worker import execute_run
+from cosim.campaign.worker import execute_batch
 from cosim.errors import CosimError
 from cosim.extras import require
 from cosim.log.metadata import versions
 
 KEEP_LOGS = ("all", "failed", "none")
+MAX_BATCH = 32
+"""The most runs a batch holds when its size is chosen: past it a run costs hardly less (bench/campaign.py)."""
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,8 @@ class CampaignResult:
     """Wall time from the first run submitted to the last result."""
     run_time: float = 0.0
     """The runs' own wall times (measured by the workers), summed."""
+    batched: int = 0
+    """Runs of this session that ran in a batch (the others ran alone: ``cosim.run.batch.refusal``)."""
 
 
 def require_extras(engine: str) -> None:
@@ -83,8 +88,13 @@ def run_campaign(
     keep_logs: str = "failed",
     on_progress: Callable[[CampaignProgress], None] | None = None,
     on_start: Callable[[str, int], None] | None = None,
+    batch: int | None = None,
 ) -> CampaignResult:
-    """Run every run of ``campaign`` (those without a part, with ``resume``) and write the table."""
+    """Run every run of ``campaign`` (those without a part, with ``resume``) and write the table.
+    Runs of one configuration that differ in their seed step together in batches of ``batch``
+    (None: chosen, ``batches``; 1: one at a time); the table is the same whatever the batches."""
+    if batch is not None and batch < 1:
+        raise CosimError(f"--batch {batch}: give a positive number of runs per batch (1: one at a time)")
     if keep_logs not in KEEP_LOGS:
         raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
     require_extras(engine)
@@ -97,12 +107,14 @@ def run_campaign(
         loop_start = time.perf_counter()
         if on_start is not None:
             on_start(pool.description, pool.workers)
-        todo = [run for run in runs if run.index not in done]
-        for spec, outcome in pool.results(execute_run, todo, str(folder), keep_logs):
-            if isinstance(outcome, BaseException):  # the worker process died running it
-                outcome = _died(spec, outcome)
-            write_part(folder, spec.index, outcome)
-            tally.add(outcome["rows"])
+        todo = batches([run for run in runs if run.index not in done], batch, pool.workers)
+        for specs, outcomes in pool.results(execute_batch, todo, str(folder), keep_logs):
+            if isinstance(outcomes, BaseException):  # the worker process died running them
+                outcomes = [_died(spec, outcomes) for spec in specs]
+            for spec, outcome in zip(specs, outcomes):
+                tally.batched += bool(outcome.pop("batched", False))
+                write_part(folder, spec.index, outcome)
+                tally.add(outcome["rows"])
         description, count = pool.description, pool.workers
         loop_time = time.perf_counter() - loop_start
     metadata = {
@@ -122,7 +134,27 @@ def run_campaign(
         loop_start - tally.start,
         loop_time,
         tally.run_time,
+        tally.batched,
     )
+
+
+def batches(runs: list[RunSpec], size: int | None, workers: int) -> list[list[RunSpec]]:
+    """``runs`` in batches: runs of one configuration (scenario, settings, bus) in index order, at
+    most ``size`` a batch. None chooses the size: every configuration's runs in as few batches as
+    ``MAX_BATCH`` allows, cut smaller where that leaves a worker idle."""
+    groups: dict[tuple[Any, ...], list[RunSpec]] = {}
+    for run in runs:
+        key = (run.scenario_text, run.scenario_source, repr(run.settings), run.in_process)  # settings hold lists, tables
+        groups.setdefault(key, []).append(run)
+    found = []
+    for group in groups.values():
+        if size is not None:
+            count = math.ceil(len(group) / size)
+        else:
+            count = max(math.ceil(len(group) / MAX_BATCH), math.ceil(max(1, workers) / len(groups)))
+        each = math.ceil(len(group) / min(count, len(group)))
+        found += [group[i : i + each] for i in range(0, len(group), each)]
+    return sorted(found, key=lambda batch: batch[0].index)
 
 
 class _Tally:
@@ -134,6 +166,7 @@ class _Tally:
         self.start = time.perf_counter()
         self.total, self.skipped, self.finished, self.failed = total, skipped, skipped, failed
         self.run_time = 0.0
+        self.batched = 0
         self.on_progress = on_progress
 
     def add(self, rows: list[dict[str, Any]]) -> None:

@@ -10,11 +10,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cosim.campaign.results import rows_of
 from cosim.campaign.spec import RunSpec
 from cosim.errors import CosimError
+
+if TYPE_CHECKING:
+    from cosim.scenario import LoadedScenario
 
 
 def preload() -> None:
@@ -23,6 +26,7 @@ def preload() -> None:
 
     import cosim.analysis.metrics  # noqa: F401
     import cosim.api  # noqa: F401
+    import cosim.run.batch  # noqa: F401
     import cosim.run.runner  # noqa: F401
 
 
@@ -35,6 +39,46 @@ def ignore_interrupts() -> None:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dict[str, Any]]:
+    """Run ``specs``, runs of one configuration (scenario and settings) that differ in their seed,
+    together as one batch (``cosim.run.batch``); returns each run's part, in order, as
+    ``execute_run`` would return it alone, with ``batched`` saying whether it ran in the batch.
+    Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a configuration the
+    batch cannot express run alone, through ``execute_run``."""
+    start = time.perf_counter()
+    batched: dict[int, _Attempt] = {}
+    if len(specs) > 1 and keep_logs != "all" and specs[0].in_process:
+        batched = _batch_attempts(specs)
+    each = (time.perf_counter() - start) / len(specs)
+    parts = []
+    for spec in specs:
+        attempt = batched.get(spec.index)
+        if attempt is None:
+            parts.append({**execute_run(spec, folder, keep_logs), "batched": False})
+        else:
+            parts.append({**_part(spec, folder, attempt, each, None), "batched": True})
+    return parts
+
+
+def _batch_attempts(specs: list[RunSpec]) -> dict[int, _Attempt]:
+    """The runs of ``specs`` that completed in one batch, by index ({} where the batch cannot run)."""
+    from cosim.campaign.results import rows_of
+    from cosim.run.batch import run_batch
+
+    try:
+        loaded, known, state_unit = _loaded(specs[0])
+        done = run_batch(loaded, [spec.seed for spec in specs])
+    except CosimError:
+        return {}  # the runs alone say what they say
+    found = {}
+    for spec, run in zip(specs, done):
+        if run.metrics is not None:
+            attempt = _Attempt(logged=False, status="completed", known=known, state_unit=state_unit)
+            attempt.rows = rows_of(run.metrics)
+            found[spec.index] = attempt
+    return found
 
 
 def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
@@ -55,6 +99,11 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
     )
     if log.exists() and not kept:
         log.unlink()
+    return _part(spec, folder, attempt, time.perf_counter() - start, log if kept else None)
+
+
+def _part(spec: RunSpec, folder: str, attempt: _Attempt, wall_time: float, log: Path | None) -> dict[str, Any]:
+    """A run's part: its rows (one per estimator, or one describing the failure), its state unit."""
     common = {
         "run": spec.index,
         "replicate": spec.replicate,
@@ -62,8 +111,8 @@ def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:
         **dict(spec.columns),
         "status": attempt.status,
         "error": attempt.error,
-        "wall_time_s": time.perf_counter() - start,
-        "log": str(log.relative_to(folder)) if kept else "",
+        "wall_time_s": wall_time,
+        "log": str(log.relative_to(folder)) if log is not None else "",
     }
     rows = attempt.rows or [attempt.known]
     return {"rows": [{**common, **row} for row in rows], "state_unit": attempt.state_unit}
@@ -88,19 +137,10 @@ def _attempt(spec: RunSpec, log: Path | None) -> _Attempt:
     """Run ``spec`` into ``log`` (None: no log, scored as it goes); never raises for a run that fails."""
     from cosim import api
     from cosim.analysis.metrics import measure
-    from cosim.scenario import LoadedScenario, apply, parse
 
     attempt = _Attempt(logged=log is not None)
     try:
-        base = LoadedScenario(parse(spec.scenario_text, spec.scenario_source), spec.scenario_source, spec.scenario_text)
-        loaded = apply(base, spec.settings)
-        kinds = sorted({fault.kind for fault in loaded.scenario.faults})
-        attempt.known = {
-            "fault_kind": "+".join(kinds) or "none",
-            "fault_onset_s": min((f.start for f in loaded.scenario.faults), default=None),
-        }
-        units = {c.unit for c in loaded.scenario.plant_info.states}
-        attempt.state_unit = units.pop() if len(units) == 1 else "mixed units"
+        loaded, attempt.known, attempt.state_unit = _loaded(spec)
         result = api.run(loaded, log, seed=spec.seed, in_process=spec.in_process, measure=True)
         attempt.status, attempt.error = result.status, result.error
         metrics = result.metrics
@@ -116,3 +156,18 @@ def _attempt(spec: RunSpec, log: Path | None) -> _Attempt:
     except Exception as failure:  # a bug, reported in its row: the campaign goes on
         attempt.error = f"{type(failure).__name__}: {failure}"
     return attempt
+
+
+def _loaded(spec: RunSpec) -> tuple[LoadedScenario, dict[str, Any], str]:
+    """The run's scenario with its settings, what its row says without metrics, its state unit."""
+    from cosim.scenario import LoadedScenario, apply, parse
+
+    base = LoadedScenario(parse(spec.scenario_text, spec.scenario_source), spec.scenario_source, spec.scenario_text)
+    loaded = apply(base, spec.settings)
+    kinds = sorted({fault.kind for fault in loaded.scenario.faults})
+    known = {
+        "fault_kind": "+".join(kinds) or "none",
+        "fault_onset_s": min((f.start for f in loaded.scenario.faults), default=None),
+    }
+    units = {c.unit for c in loaded.scenario.plant_info.states}
+    return loaded, known, units.pop() if len(units) == 1 else "mixed units"

@@ -115,7 +115,7 @@ def main(args: argparse.Namespace) -> int:
             quick=args.quick,
             schemes=added,
             suite_path=args.suite or SUITE,
-            **common.picked(args, "engine", "workers", "address", "resume"),
+            **common.picked(args, "engine", "workers", "address", "resume", "batch"),
             on_case=on_case,
             on_progress=lambda p: displays[-1][1](p),
         )

@@ -79,7 +79,7 @@ def main(args: argparse.Namespace) -> int:
             result = run_campaign(
                 campaign,
                 args.out,
-                **common.picked(args, "engine", "workers", "address", "resume", "keep_logs"),
+                **common.picked(args, "engine", "workers", "address", "resume", "keep_logs", "batch"),
                 on_progress=update,
                 on_start=lambda description, workers: talk.print(f"engine: {escape(description)}"),
             )
@@ -94,9 +94,11 @@ def main(args: argparse.Namespace) -> int:
             else " before the campaign started",
         )
     resumed = f" ({result.resumed} from an earlier session)" if result.resumed else ""
+    ran = result.runs - result.resumed
     talk.print(
         f"done: {result.runs} runs{resumed}, {result.failed} failed, in {result.wall_time:.1f} s on "
-        f"{escape(result.engine)}"
+        f"{escape(result.engine)}; {result.batched} of {ran} ran batched"
+        + ("" if result.batched == ran else " (the others alone: see docs/architecture.md, 'Batched runs')")
     )
     print(result.path)
     return 0

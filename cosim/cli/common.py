@@ -435,3 +435,10 @@ def engine_options(p: argparse.ArgumentParser, what: str) -> None:
         "--workers", type=positive, metavar="N", help="local cluster: worker processes (default: one per core)"
     )
     p.add_argument("--resume", action="store_true", help=f"finish {what}: only the runs without results run")
+    p.add_argument(
+        "--batch",
+        type=positive,
+        metavar="K",
+        help="runs of one configuration that differ in their seed step together, K at a time, in one process "
+        "(default: chosen, up to 32; 1: one at a time); the results are the same bit for bit",
+    )
