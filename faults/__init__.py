@@ -7,6 +7,7 @@ effectiveness and additive offsets on the actuators, all seeded from the scenari
 from __future__ import annotations
 
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,6 +107,31 @@ class FaultInjector:
             sent[model.drops(t)] = False
         active = tuple(f.label for f in self.faults if f.active(t))
         return SensorOutcome(measured, sent, noisy - y_true, measured - noisy, active)
+
+    @staticmethod
+    def sensors_batch(
+        injectors: Sequence[FaultInjector], y_true: np.ndarray, t: float
+    ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, ...]]]:
+        """``sensors`` for the K injectors of a batch (one configuration, each its own random
+        streams), y_true of shape (K, p): the measured readings (K, p), which are sent (K, p) and
+        each run's active faults, row for row what each injector's ``sensors`` gives."""
+        first = injectors[0]
+        noisy = y_true
+        for i, model in enumerate(first.noise):
+            noisy = type(model).apply_batch([injector.noise[i] for injector in injectors], noisy, t)
+        measured = noisy
+        sent = np.ones(y_true.shape, dtype=bool)
+        for i, model in enumerate(first.sensor_faults):
+            models = [injector.sensor_faults[i] for injector in injectors]
+            measured = type(model).apply_batch(models, measured, t)
+            if type(model).drops is not SensorFault.drops:
+                for r, each in enumerate(models):
+                    sent[r, each.drops(t)] = False
+        if all(type(f).active is Fault.active for f in first.faults):  # the same window in every run
+            active = [tuple(f.label for f in first.faults if f.active(t))] * len(injectors)
+        else:
+            active = [tuple(f.label for f in injector.faults if f.active(t)) for injector in injectors]
+        return measured, sent, active
 
     def actuators(self, u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The effective inputs δ ∘ u + f_a and the effectiveness factors δ (δ the product of every

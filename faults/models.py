@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -96,6 +97,24 @@ class SensorFault(Fault):
         out[index] = self._affect(y[index], t - self.start)
         return out
 
+    @classmethod
+    def apply_batch(cls, models: Sequence[SensorFault], y: np.ndarray, t: float) -> np.ndarray:
+        """``apply`` for K runs at once: the K instances of one fault of a batch (one configuration,
+        each with its own random stream), y of shape (K, p); row r is, bit for bit, what
+        ``models[r].apply(y[r], t)`` returns. By default each instance applies itself; a model
+        whose effect is the same arithmetic in every run does it on the array
+        (``_affect_batch``)."""
+        first = models[0]
+        if not first.active(t):
+            return y
+        affect = getattr(first, "_affect_batch", None)
+        if affect is None or type(first).active is not Fault.active:
+            return np.stack([m.apply(row, t) for m, row in zip(models, y)])
+        out = y.copy()
+        index = list(first.channels)
+        out[:, index] = affect(models, y[:, index], t - first.start)
+        return out
+
     @abstractmethod
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         """The faulty values of this fault's channels, ``elapsed`` seconds after onset."""
@@ -125,6 +144,9 @@ class Bias(SensorFault):
     kind = "bias"
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self.amplitude(elapsed) * self._vectors["value"]
+
+    def _affect_batch(self, models: Sequence[Bias], y: np.ndarray, elapsed: float) -> np.ndarray:
         return y + self.amplitude(elapsed) * self._vectors["value"]
 
 
@@ -160,6 +182,9 @@ class GaussianNoise(SensorFault):
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         return y + self._vectors["std"] * self._rng.standard_normal(len(self.channels))
 
+    def _affect_batch(self, models: Sequence[GaussianNoise], y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self._vectors["std"] * np.stack([m._rng.standard_normal(len(m.channels)) for m in models])
+
 
 @dataclass
 class UniformNoise(SensorFault):
@@ -170,6 +195,9 @@ class UniformNoise(SensorFault):
 
     def _affect(self, y: np.ndarray, elapsed: float) -> np.ndarray:
         return y + self._vectors["bound"] * self._rng.uniform(-1.0, 1.0, len(self.channels))
+
+    def _affect_batch(self, models: Sequence[UniformNoise], y: np.ndarray, elapsed: float) -> np.ndarray:
+        return y + self._vectors["bound"] * np.stack([m._rng.uniform(-1.0, 1.0, len(m.channels)) for m in models])
 
 
 @dataclass

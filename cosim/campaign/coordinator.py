@@ -144,7 +144,12 @@ def batches(runs: list[RunSpec], size: int | None, workers: int) -> list[list[Ru
     ``MAX_BATCH`` allows, cut smaller where that leaves a worker idle."""
     groups: dict[tuple[Any, ...], list[RunSpec]] = {}
     for run in runs:
-        key = (run.scenario_text, run.scenario_source, repr(run.settings), run.in_process)  # settings hold lists, tables
+        key = (
+            run.scenario_text,
+            run.scenario_source,
+            repr(run.settings),
+            run.in_process,
+        )  # settings hold lists, tables
         groups.setdefault(key, []).append(run)
     found = []
     for group in groups.values():

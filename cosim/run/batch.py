@@ -26,6 +26,7 @@ the intrusion detector, clients, realtime) runs every run alone.
 from __future__ import annotations
 
 import copy
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -33,8 +34,10 @@ from typing import Any
 
 import numpy as np
 
+import faults as fm
 from cosim.analysis.metrics import RunMetrics
 from cosim.analysis.metrics.compute import TickScoring
+from cosim.analysis.metrics.scorer import TickBatch
 from cosim.bus.codec import estimated_state
 from cosim.errors import CosimError
 from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
@@ -163,7 +166,9 @@ class _Batch:
         self.sensor_range = _range(self.sensor_specs)
         self.command_range = _range(self.command_specs)
         self.estimators = [_Estimators(name, plans, s.sensors, s.actuators) for name in plan.estimators]
-        self.state_names = plan.state_names
+        self.scores = TickBatch(
+            [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
+        )
 
     def run(self, on_tick: Callable[[int, int], None] | None) -> list[BatchedRun]:
         s, runs = self.scenario, self.runs
@@ -183,16 +188,9 @@ class _Batch:
     def _tick(self, k: int, alive: np.ndarray) -> None:
         s, runs = self.scenario, self.runs
         t = s.time(k)
-        live = [r for r in np.flatnonzero(alive)]
         x = np.stack([run.source.plant.state() for run in runs])
-        outcomes = {}
-        for r in live:
-            source = runs[r].source
-            outcomes[r] = source.faults.sensors(source.plant.sensors(), t)
-        measured = np.zeros((len(runs), len(s.sensors)))
-        sent = np.zeros((len(runs), len(s.sensors)), dtype=bool)
-        for r, outcome in outcomes.items():
-            measured[r], sent[r] = outcome.measured, outcome.sent
+        y_true = np.stack([run.source.plant.sensors() for run in runs])  # a run that left: its last, unused
+        measured, sent, active = fm.FaultInjector.sensors_batch([run.source.faults for run in runs], y_true, t)
         self._check(
             k,
             alive,
@@ -219,16 +217,21 @@ class _Batch:
             for r in np.flatnonzero(bad):
                 runs[r].leave(k, "an estimate that is not a number")
             alive &= ~bad
-        for r in np.flatnonzero(alive):
-            run = runs[r]
-            estimates = {e.name: dict(zip(e.signals, v[r].tolist())) for e, v in zip(self.estimators, values)}
-            run.scoring.tick(k, dict(zip(self.state_names, x[r].tolist())), list(outcomes[r].active), estimates)
-            source = run.source
+        rows = np.flatnonzero(alive)
+        self.scores.tick(k, rows, x, active, values)
+        u_eff, d = {}, {}
+        for r in rows:
+            u_eff[r], _, d[r] = runs[r].source.actuate(u_cmd[r], t)
+        finite = {r for r in rows if all(math.isfinite(u) for u in u_eff[r].tolist())}
+        for r in rows:
+            source = runs[r].source
+            if r in finite:
+                source.plant.step(u_eff[r], d[r])
+                continue
             try:
-                u_eff, _, d = source.actuate(u_cmd[r], t)
-                source.step(k, u_eff, d)
+                source.step(k, u_eff[r], d[r])  # its own error, as alone
             except CosimError as error:
-                run.leave(k, str(error))
+                runs[r].leave(k, str(error))
                 alive[r] = False
 
     def _check(

@@ -14,7 +14,7 @@ from cantools.database.can import Database
 
 from cosim.analysis import names
 from cosim.analysis.metrics.facts import RunFacts
-from cosim.analysis.metrics.scorer import Scorer, Tick
+from cosim.analysis.metrics.scorer import Scorer
 from cosim.analysis.metrics.values import (
     BusMetrics,
     DiagnosisMetrics,
@@ -136,18 +136,14 @@ class LiveMeasurement:
 
 class TickScoring:
     """The scores of a run that logs nothing and hands them whole ticks (a batched run,
-    ``cosim.run.batch``): the same ``Scorer`` as ``measure``'s, fed the values its log would have
-    given it, from its metadata records and its DBC text."""
+    ``cosim.run.batch``, through ``scorer.TickBatch``): the same ``Scorer`` as ``measure``'s, fed
+    the values its log would have given it, from its metadata records and its DBC text."""
 
     def __init__(self, meta: dict[str, dict[str, str]], dbc: str) -> None:
         self._meta = dict(meta)
         run = _facts(self._meta)
         database = _parse_dbc(dbc.encode())
         self.scorer = Scorer(run, _estimate_bounds(database, run), _authenticated(database))
-
-    def tick(self, k: int, x: dict[str, float], active: list[str], estimates: dict[str, dict[str, float]]) -> None:
-        """Tick k: the truth, the faults active, each estimator's signals as its frames carry them."""
-        self.scorer.tick(k, Tick(x=x, active=active, estimates=estimates))
 
     def metrics(self, name: str, record: dict[str, str]) -> RunMetrics:
         """The metrics once every tick is in, with the run's last metadata record (its result)."""

@@ -14,6 +14,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from cosim.analysis.metrics.bus import BusScore
 from cosim.analysis.metrics.diagnosis import DiagnosisScore
 from cosim.analysis.metrics.estimation import EstimationScore
@@ -310,3 +312,70 @@ class Scorer:
         for diagnosis in (*self.diagnosis.values(), *self.ids.values(), *([self.secoc] if self.secoc else [])):
             diagnosis.close(self.segment, dt)
         self.segment = None
+
+
+class TickBatch:
+    """The scorers of K runs of one plan, fed whole ticks together by a batched run
+    (``cosim.run.batch``): ``Scorer.tick``'s scores, with what is the same arithmetic for every
+    run done on arrays (the differences x − x̂, the bounds) and what is each run's own done per run
+    (its error's exact sum, its sums and segments, its diagnosis). ``signals``: each estimator's
+    signals, in the order of the columns it is given."""
+
+    def __init__(self, scorers: Sequence[Scorer], signals: Mapping[str, Sequence[str]], states: Sequence[str]) -> None:
+        self.scorers = list(scorers)
+        run = self.scorers[0].run
+        self.x_columns = [list(states).index(s) for s in run.states]
+        self.estimators = []
+        for name, names in signals.items():
+            column = {signal: i for i, signal in enumerate(names)}
+            scored = name in run.estimators and all(estimate_signal(s) in column for s in run.states)
+            bounds = self.scorers[0].bounds.get(name, {})
+            checked = [(column[signal], signal, lo, hi) for signal, (lo, hi) in bounds.items() if signal in column]
+            self.estimators.append(
+                (
+                    name,
+                    [column[estimate_signal(s)] for s in run.states] if scored else None,
+                    [c for c, _, _, _ in checked],
+                    np.array([lo for _, _, lo, _ in checked]),
+                    np.array([hi for _, _, _, hi in checked]),
+                    [signal for _, signal, _, _ in checked],
+                    self.scorers[0].alarms.get(name) in column,
+                    list(names),
+                )
+            )
+        self._active: list[tuple[str, ...]] = [() for _ in self.scorers]
+
+    def tick(
+        self, k: int, rows: np.ndarray, x: np.ndarray, active: Sequence[tuple[str, ...]], values: Sequence[np.ndarray]
+    ) -> None:
+        """Tick k of the runs ``rows``: the truth x (K, states), each run's active faults (by run),
+        each estimator's signals as its frames carry them (K, signals)."""
+        scorers = self.scorers
+        for r in rows:
+            scorer = scorers[r]
+            scorer.ticks = max(scorer.ticks, k + 1)
+            if active[r] != self._active[r]:
+                self._active[r] = active[r]
+                scorer._segments(k, set(active[r]))
+            scorer.next_tick = k + 1
+        truth = x[rows][:, self.x_columns]
+        for (name, states, checked, lo, hi, names, alarm, signals), v in zip(self.estimators, values):
+            v = v[rows]
+            if states is not None:
+                differences = (truth - v[:, states]).tolist()
+                for r, d in zip(rows, differences):
+                    scorer = scorers[r]
+                    scorer.estimators[name].add(k, math.sqrt(math.fsum(e**2 for e in d)), scorer.segment)
+            if checked:
+                out = ~((lo < v[:, checked]) & (v[:, checked] < hi))
+                for i, j in zip(*np.nonzero(out)):
+                    scorers[rows[i]].estimators[name].saturation(k, names[j])
+            if alarm:
+                for r, row in zip(rows, v.tolist()):
+                    scorer = scorers[r]
+                    outputs = dict(zip(signals, row))
+                    if name not in scorer.diagnosis:
+                        scorer.diagnosis[name] = DiagnosisScore.of(
+                            scorer.alarms[name], scorer.run.estimators[name], scorer.run.faults
+                        )
+                    scorer.diagnosis[name].add(k, outputs, scorer.active, scorer.segment)
