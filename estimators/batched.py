@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -32,6 +32,8 @@ class BatchEstimate:
 
     x: np.ndarray
     diagnostics: dict[str, np.ndarray]
+    failed: dict[int, str] = field(default_factory=dict)
+    """Runs whose estimator raised at this tick (or before), with what it raised: their rows are NaN."""
 
 
 class BatchStep(Protocol):
@@ -52,14 +54,28 @@ class StepEach:
 
     def __init__(self, instances: Sequence[Estimator]) -> None:
         self.instances = list(instances)
+        self.failed: dict[int, str] = {}
+        model = self.instances[0].model
+        self.signals = [d.name for d in type(self.instances[0]).diagnostic_channels(model.states, model.outputs)]
 
     def step(self, y: np.ndarray, u: np.ndarray) -> BatchEstimate:
-        estimates = [e.step(y[r], u[r]) for r, e in enumerate(self.instances)]
-        names = list(estimates[0].diagnostics) if estimates else []
-        return BatchEstimate(
-            np.stack([np.asarray(e.x, dtype=float) for e in estimates]),
-            {name: np.array([float(e.diagnostics[name]) for e in estimates]) for name in names},
-        )
+        """Each instance's step; one that raises (or returns what is no estimate) is out from then
+        on, its row NaN, and the others go on, as its run goes on alone without its node."""
+        runs, n = len(self.instances), self.instances[0].model.n
+        x = np.full((runs, n), np.nan)
+        diagnostics = {name: np.full(runs, np.nan) for name in self.signals}
+        for r, estimator in enumerate(self.instances):
+            if r in self.failed:
+                continue
+            try:
+                estimate = estimator.step(y[r], u[r])
+                x[r] = np.asarray(estimate.x, dtype=float)
+                for name in self.signals:
+                    diagnostics[name][r] = float(estimate.diagnostics[name])
+            except Exception as error:  # noqa: BLE001 (the estimator's own code, a plugin's maybe)
+                self.failed[r] = f"{type(error).__name__}: {error}"
+                x[r] = np.nan
+        return BatchEstimate(x, diagnostics, dict(self.failed))
 
 
 class DeviationBatch(ABC):

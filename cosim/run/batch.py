@@ -126,6 +126,7 @@ class _Estimators:
         self.upper = np.array([c.maximum for c in channels])
         self.carried = codec.carried_of(self.messages)
         self.u = np.zeros((len(plans), model.m))  # a command that never came is 0 (as its node holds it)
+        self.failed: dict[int, str] = {}
 
     def step(self, y: np.ndarray, u_cmd: np.ndarray) -> np.ndarray:
         """Tick k's readings (K, sensors; NaN where not sent) and commands (K, actuators) in; the
@@ -134,6 +135,7 @@ class _Estimators:
         self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0]] = u_cmd[:, given]
         ys = np.stack([y[:, i] if i >= 0 else np.full(len(y), np.nan) for i in self.outputs], axis=1)
         estimate = self.batch.step(ys, self.u.copy())
+        self.failed = estimate.failed
         columns = [estimate.x[:, self.states[s]] if s in self.states else estimate.diagnostics[s] for s in self.signals]
         values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(y), 0))
         # sent at the bound it crossed (the node saturates), and as the frame carries it
@@ -212,10 +214,16 @@ class _Batch:
                 runs[r].leave(k, f"an estimator raised {type(error).__name__}: {error}")
             alive[:] = False
             return
-        for v in values:
+        for e, v in zip(self.estimators, values):
             bad = alive & np.isnan(v).any(axis=1)
             for r in np.flatnonzero(bad):
-                runs[r].leave(k, "an estimate that is not a number")
+                failed = e.failed.get(r)
+                runs[r].leave(
+                    k,
+                    f"estimator {e.name} raised {failed}"
+                    if failed
+                    else f"estimator {e.name}: an estimate that is not a number",
+                )
             alive &= ~bad
         rows = np.flatnonzero(alive)
         self.scores.tick(k, rows, x, active, values)

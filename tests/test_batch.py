@@ -1,0 +1,218 @@
+"""Batched runs (cosim.run.batch): the runs of one configuration stepped together give, run for run,
+exactly the metrics row each gives alone; what cannot be batched runs alone and says why."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from cosim import api
+from cosim.campaign.coordinator import batches, run_campaign
+from cosim.campaign.results import NONDETERMINISTIC, rows_of
+from cosim.campaign.spec import builtin_names as builtin_campaigns
+from cosim.campaign.spec import load_campaign
+from cosim.errors import CosimError
+from cosim.run.batch import refusal, run_batch
+from cosim.run.plan import RunPlan
+from cosim.scenario import apply, parse_setting
+from cosim.scenario.load import builtin_names
+from estimators.batched import StepEach, batch_of, check_batched
+
+SEEDS = [3, 4, 5]
+
+
+def alone(loaded, seed):
+    return rows_of(api.run(loaded, None, seed=seed, in_process=True, measure=True).metrics)
+
+
+@pytest.mark.parametrize("name", builtin_names())
+def test_every_builtin_scenario_batched_gives_each_runs_row_alone_or_says_why_not(name):
+    loaded = apply(api.load(name), [("duration", 1.0)])
+    why = refusal(RunPlan.build(loaded, SEEDS[0], interface="virtual"))
+    if why is not None:
+        with pytest.raises(CosimError, match=f"^.*{name}.*: not batched: "):
+            run_batch(loaded, SEEDS)
+        assert "\n" not in why
+        return
+    runs = run_batch(loaded, SEEDS)
+    assert [run.left for run in runs] == ["", "", ""]
+    for seed, run in zip(SEEDS, runs):
+        assert rows_of(run.metrics) == alone(loaded, seed), seed  # exact: every float, every status
+
+
+def test_the_papers_scenarios_are_batched():
+    batched = {
+        name
+        for name in builtin_names()
+        if refusal(RunPlan.build(apply(api.load(name), [("duration", 2.0)]), 0, interface="virtual")) is None
+    }
+    assert {"masses-bias", "masses-faults-fd", "three-tank-reconciliation", "cdc2016-ex1", "tac2024-s2-p4"} <= batched
+    assert "uio-fault-detection" in batched
+
+
+@pytest.mark.parametrize("scenario", ["masses-bias", "three-tank-reconciliation"])
+def test_the_builtin_batched_steps_equal_their_single_steps_with_readings_missing(scenario):
+    plan = RunPlan.build(apply(api.load(scenario), [("duration", 2.0)]), 0, interface="virtual")
+    rng = np.random.default_rng(1)
+    for estimator in plan.estimators.values():
+        if estimator.batched([estimator]) is None:
+            continue
+        p, m = estimator.model.p, estimator.model.m
+        y = estimator.model.y_op + 0.01 * rng.standard_normal((60, 8, p))
+        u = estimator.model.u_op + rng.standard_normal((60, 8, m))
+        y[10:20, 3, 0] = np.nan  # one run loses a reading for a while
+        y[25, 5, :] = np.nan  # one run loses every reading for a tick
+        y[30:35, :, -1] = np.nan  # every run loses one
+        check_batched(lambda e=estimator: copy.deepcopy(e), y, u)
+
+
+def test_check_batched_names_the_first_difference():
+    plan = RunPlan.build(api.load("masses-bias"), 0, interface="virtual")
+    kalman = plan.estimators["kalman"]
+
+    class Off(type(kalman)):
+        @classmethod
+        def batched(cls, instances):
+            batch = super().batched(instances)
+            batch.x = batch.x + 1e-12  # a wrong initial state in one bit
+            return batch
+
+    def make():
+        wrong = copy.deepcopy(kalman)
+        wrong.__class__ = Off
+        return wrong
+
+    y = np.zeros((3, 2, kalman.model.p))
+    u = np.zeros((3, 2, kalman.model.m))
+    with pytest.raises(AssertionError, match=r"tick 0, run 0: x̂ .* batched, .* alone"):
+        check_batched(make, y, u)
+
+
+PLUGIN = '''
+import numpy as np
+from estimators import Estimate, Estimator
+from estimators.kalman import KalmanFilter, KalmanParams
+
+
+class Mine(KalmanFilter):
+    """A plugin written for one run (no batched step of its own): a Kalman filter that raises at
+    tick 40 where the first reading of its run was above 0.2 (so in some runs and not others)."""
+
+    kind = "mine"
+    Params = KalmanParams
+    batched = Estimator.batched
+    k = 0
+    high = None
+
+    def _step(self, dy, du):
+        self.k += 1
+        if self.high is None:
+            self.high = dy[0] + self.model.y_op[0] > 0.2
+        if self.high and self.k > 40:
+            raise ZeroDivisionError("my bug")
+        return super()._step(dy, du)
+'''
+
+
+def test_a_plugin_without_a_batched_step_runs_in_a_batch_and_a_run_whose_plugin_raises_ends_as_alone(tmp_path):
+    (tmp_path / "mine.py").write_text(PLUGIN)
+    text = (api.load("masses-bias").text).replace("duration = 30.0", "duration = 1.0")
+    (tmp_path / "s.toml").write_text(text + '[[estimators]]\nname = "mine"\nkind = "mine.py:Mine"\n')
+    loaded = api.load_scenario(tmp_path / "s.toml")
+    plan = RunPlan.build(loaded, 0, interface="virtual")
+    assert isinstance(batch_of([plan.estimators["mine"]]), StepEach)
+    seeds = list(range(8))
+    runs = run_batch(loaded, seeds)
+    left = [run for run in runs if run.left]
+    assert 0 < len(left) < len(seeds)  # some runs' plugin raised, the others went on
+    assert all("estimator mine raised ZeroDivisionError: my bug" in run.left for run in left)
+    for seed, run in zip(seeds, runs):
+        if not run.left:
+            assert rows_of(run.metrics) == alone(loaded, seed)
+    # in a campaign, the runs that left are run alone: their rows say the node failed, as alone
+    campaign_file = tmp_path / "c.toml"
+    campaign_file.write_text(f'name = "c"\nscenario = "s.toml"\nseed = 0\nseeds = {len(seeds)}\nbus = "in-process"\n')
+    campaign = load_campaign(campaign_file)
+    tables = {b: run_campaign(campaign, tmp_path / f"b{b}", engine="inline", keep_logs="none", batch=b) for b in (1, 8)}
+    assert 0 < tables[8].batched < len(seeds) and tables[1].batched == 0
+    one, eight = (metrics(tables[b].path) for b in (1, 8))
+    assert one.equals(eight)
+    failed = [f for f in eight.column("estimator_failed").to_pylist() if f]
+    assert len(failed) == len(seeds) - tables[8].batched and all("my bug" in f for f in failed)
+
+
+def metrics(path):
+    table = pq.read_table(path)
+    return table.drop([c for c in (*NONDETERMINISTIC, "log") if c in table.column_names])
+
+
+SWEEP = """
+name = "sweep"
+scenario = "masses-bias"
+seed = 11
+seeds = 5
+bus = "in-process"
+[set]
+duration = 1.0
+"faults[0].start" = 0.5
+[[axes]]
+key = "faults[0].value"
+values = [0.2, 0.5]
+name = "bias"
+"""
+
+
+def test_batches_group_runs_of_one_configuration_in_index_order(tmp_path):
+    (tmp_path / "c.toml").write_text(SWEEP)
+    runs = load_campaign(tmp_path / "c.toml").runs()
+    found = batches(runs, None, 2)
+    assert sorted(r.index for batch in found for r in batch) == [r.index for r in runs]
+    for batch in found:
+        assert len({(r.settings, r.scenario_text) for r in batch}) == 1
+        assert [r.index for r in batch] == sorted(r.index for r in batch)
+    assert [len(b) for b in batches(runs, 2, 2)] == [2, 2, 1, 2, 2, 1]
+    assert all(len(b) == 1 for b in batches(runs, 1, 2))
+
+
+def test_a_batched_campaign_resumed_after_losing_runs_gives_the_same_table(tmp_path):
+    (tmp_path / "c.toml").write_text(SWEEP)
+    campaign = load_campaign(tmp_path / "c.toml")
+    whole = run_campaign(campaign, tmp_path / "whole", engine="inline", keep_logs="none")
+    assert whole.batched == whole.runs == 10
+    parts = sorted((tmp_path / "whole" / "parts").glob("run-*.json"))
+    for part in parts[3:8]:  # a coordinator killed mid-way: these runs never came back
+        part.unlink()
+    (tmp_path / "whole" / "results.parquet").unlink()
+    resumed = run_campaign(campaign, tmp_path / "whole", engine="inline", keep_logs="none", resume=True)
+    assert resumed.resumed == 5 and resumed.batched == 5
+    one = run_campaign(campaign, tmp_path / "one", engine="inline", keep_logs="none", batch=1)
+    assert metrics(resumed.path).equals(metrics(one.path))
+
+
+@pytest.mark.slow
+def test_a_dask_cluster_of_two_workers_with_batches_gives_the_table_of_one_worker(tmp_path):
+    (tmp_path / "c.toml").write_text(SWEEP)
+    campaign = load_campaign(tmp_path / "c.toml")
+    two = run_campaign(campaign, tmp_path / "two", engine="dask", workers=2, keep_logs="none")
+    one = run_campaign(campaign, tmp_path / "one", engine="dask", workers=1, keep_logs="none", batch=1)
+    assert two.batched == 10 and one.batched == 0
+    assert metrics(two.path).equals(metrics(one.path))
+
+
+def test_runs_whose_log_is_kept_run_alone(tmp_path):
+    (tmp_path / "c.toml").write_text(SWEEP.replace("seeds = 5", "seeds = 2"))
+    result = run_campaign(load_campaign(tmp_path / "c.toml"), tmp_path / "o", engine="inline", keep_logs="all")
+    assert result.batched == 0 and len(list((tmp_path / "o" / "logs").glob("*.mcap"))) == 4
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", builtin_campaigns())
+def test_every_builtin_campaign_batched_gives_the_table_of_its_runs_one_at_a_time(tmp_path, name):
+    campaign = load_campaign(name, seeds=2, settings=[parse_setting("duration=0.5")])
+    tables = {
+        b: run_campaign(campaign, tmp_path / f"b{b}", engine="inline", keep_logs="none", batch=b) for b in (1, None)
+    }
+    assert metrics(tables[1].path).equals(metrics(tables[None].path))
