@@ -1,32 +1,34 @@
-"""Campaign throughput on the local Dask cluster: runs per hour, the speedup of 2 workers over 1,
-and the engine's overhead per run, measured in one invocation on the same campaign.
+"""Campaign throughput on the local Dask cluster: runs per hour batched and one at a time, the
+speedup of batching, of 2 workers over 1, and the engine's overhead per run, in one invocation.
 
-Workload: the default scenario (``masses-bias``, 30 s of simulated time, two estimators) on the
-in-process bus, ``--runs`` replicates. The same campaign runs once on a local cluster of one worker
-and once on all workers (default: one per core); each time the loop time is taken from the first
-run submitted to the last result (the cluster's start-up, reported apart, is paid once per
-campaign). Figures:
+Workload: ``--scenario`` (default ``masses-bias``), ``--duration`` simulated seconds (default 30),
+on the in-process bus, ``--runs`` replicates. The same campaign runs batched (``--batch``, default
+chosen: ``cosim.campaign.coordinator.batches``) on all workers, one at a time (``--batch 1``) on all
+workers, and batched on one worker; each time the loop time is taken from the first run submitted
+to the last result (the cluster's start-up, reported apart, is paid once per campaign). Figures:
 
-- ``runs_per_hour``: runs / loop time with all workers, × 3600;
-- ``workers``: the workers of that cluster;
-- ``speedup``: loop time with 1 worker / loop time with all;
-- ``overhead_per_run_s``: (loop time × workers − the runs' own wall times) / runs: what the
-  engine costs per run beyond the run itself (submission, transfer, writing the run's part);
-- ``overhead_fraction``: that over the mean run time;
+- ``runs_per_hour``: runs / loop time, batched, all workers, × 3600; ``runs_per_hour_unbatched``:
+  the same one at a time; ``batch_speedup``: their ratio; ``batch``: the runs per batch (largest);
+  ``batched_runs``: how many ran in a batch;
+- ``identical``: the three tables' metrics columns are equal (batched, one at a time, one worker);
+- ``workers``; ``speedup``: batched loop time with 1 worker / with all;
+- ``overhead_per_run_s``: (loop time × workers − the runs' own wall times) / runs, one at a time:
+  what the engine costs per run beyond the run itself; ``overhead_fraction``: that over the mean run;
 - ``startup_s``: time to start the local cluster (all workers);
-- ``identical``: the two tables' metrics columns are equal;
-- ``logged_run_s``: the same scenario run once in this process, in-process bus, writing its log and
-  not scored (``cosim run --in-process``'s work, start-up of the interpreter aside), the median of
-  ``--logged`` runs after one to warm up, measured before the campaigns;
-- ``campaign_run_cost_s``: a campaign run's cost per worker, loop time × workers / runs (with all
-  workers; ``campaign_run_cost_1w_s`` with one), and ``cost_over_logged_run``: that over
-  ``logged_run_s`` (a campaign run writes no log and is scored as it goes).
+- ``logged_run_s``: the scenario run once in this process, in-process bus, writing its log and not
+  scored, the median of ``--logged`` runs after one to warm up; ``campaign_run_cost_s``: a batched
+  campaign run's cost per worker, loop time × workers / runs, and ``cost_over_logged_run``: that
+  over ``logged_run_s``.
+
+With ``--sweep 1,8,32,64`` it also times the batch alone in this process (``cosim.run.batch``, no
+engine) at each K and reports ``sweep``: K → runs per hour of one process.
 
 With ``--memory-runs N`` it also runs a campaign of N runs of 0.05 s (so that the engine, not the
 runs, is what grows) and reports the coordinator's resident memory after the first tenth of the
 runs and at the end (``memory_rss_mb_at_10pct``, ``memory_rss_mb_at_end``, ``memory_runs``).
 
-Usage: python bench/campaign.py [--json] [--runs N] [--duration S] [--workers N] [--logged N] [--memory-runs N]
+Usage: python bench/campaign.py [--json] [--scenario NAME] [--runs N] [--duration S] [--workers N]
+       [--batch K] [--logged N] [--sweep K,K,...] [--memory-runs N]
 """
 
 from __future__ import annotations
@@ -44,10 +46,11 @@ from cosim.campaign.coordinator import run_campaign  # noqa: E402
 from cosim.campaign.spec import load_campaign  # noqa: E402
 
 
-def campaign_file(folder: Path, runs: int, duration: float) -> Path:
+def campaign_file(folder: Path, runs: int, duration: float, scenario: str = "masses-bias") -> Path:
     path = folder / "bench.toml"
     path.write_text(
-        f'name = "bench"\nscenario = "masses-bias"\nseed = 1\nseeds = {runs}\n[set]\nduration = {duration}\n'
+        f'name = "bench"\nscenario = "{scenario}"\nseed = 1\nseeds = {runs}\nbus = "in-process"\n'
+        f"[set]\nduration = {duration}\n"
     )
     return path
 
@@ -58,20 +61,39 @@ def rss_mb() -> float:
     return pages * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def logged_run(folder: Path, duration: float, count: int) -> float:
+def logged_run(folder: Path, duration: float, count: int, scenario: str) -> float:
     """Median wall time of ``count`` logged in-process runs of the campaign's scenario (one more first, to warm up)."""
     import time
 
     from cosim import api
     from cosim.scenario import apply
 
-    loaded = apply(api.load("masses-bias"), [("duration", duration)])
+    loaded = apply(api.load(scenario), [("duration", duration)])
     times = []
     for i in range(count + 1):
         start = time.perf_counter()
         api.run(loaded, folder / f"logged-{i}.mcap", seed=i, in_process=True)
         times.append(time.perf_counter() - start)
     return sorted(times[1:])[count // 2]
+
+
+def sweep(sizes: list[int], duration: float, scenario: str) -> dict[str, float]:
+    """Runs per hour of one process stepping batches of each size (no engine)."""
+    import time
+
+    from cosim import api
+    from cosim.run.batch import run_batch
+    from cosim.scenario import apply
+
+    loaded = apply(api.load(scenario), [("duration", duration)])
+    found = {}
+    for size in sizes:
+        start = time.perf_counter()
+        runs = run_batch(loaded, list(range(size))) if size > 1 else None
+        if runs is None:
+            api.run(loaded, None, seed=0, in_process=True, measure=True)
+        found[str(size)] = round(3600 * size / (time.perf_counter() - start), 1)
+    return found
 
 
 def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
@@ -93,10 +115,13 @@ def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
 
 def main() -> int:
     parser = bench_parser(__doc__)
+    parser.add_argument("--scenario", default="masses-bias", help="the built-in scenario (default masses-bias)")
     parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")
+    parser.add_argument("--batch", type=int, default=None, help="runs per batch (default: chosen)")
     parser.add_argument("--logged", type=int, default=3, help="logged in-process runs to compare with (default 3)")
+    parser.add_argument("--sweep", default="", help="also time batches of these sizes in one process: 1,8,32,64")
     parser.add_argument(
         "--memory-runs", type=int, default=0, help="also measure the coordinator over this many tiny runs"
     )
@@ -104,19 +129,32 @@ def main() -> int:
     import pyarrow.parquet as pq
 
     with tempfile.TemporaryDirectory() as folder:
-        logged = logged_run(Path(folder), args.duration, args.logged)
-        campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration))
+        logged = logged_run(Path(folder), args.duration, args.logged, args.scenario)
+        campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration, args.scenario))
         results = {}
-        for workers in (1, args.workers):
-            results[workers] = run_campaign(
-                campaign, Path(folder) / f"w{workers}", engine="dask", workers=workers, keep_logs="none"
+        for key, workers, batch in (
+            ("batched", args.workers, args.batch),
+            ("alone", args.workers, 1),
+            ("one", 1, args.batch),
+        ):
+            results[key] = run_campaign(
+                campaign, Path(folder) / key, engine="dask", workers=workers, keep_logs="none", batch=batch
             )
-        one, many = results[1], results[args.workers]
-        tables = [pq.read_table(r.path).drop(["wall_time_s"]) for r in (one, many)]
-        mean_run = many.run_time / many.runs
-        overhead = (many.loop_time * many.workers - many.run_time) / many.runs
+        many, alone, one = results["batched"], results["alone"], results["one"]
+        tables = [pq.read_table(r.path).drop(["wall_time_s"]) for r in (many, alone, one)]
+        mean_run = alone.run_time / alone.runs
+        overhead = (alone.loop_time * alone.workers - alone.run_time) / alone.runs
+        from cosim.campaign.coordinator import batches
+
+        largest = max(len(b) for b in batches(campaign.runs(), args.batch, args.workers))
         figures = {
+            "scenario": args.scenario,
             "runs_per_hour": round(3600 * many.runs / many.loop_time, 1),
+            "runs_per_hour_unbatched": round(3600 * alone.runs / alone.loop_time, 1),
+            "batch_speedup": round(alone.loop_time / many.loop_time, 3),
+            "batch": largest,
+            "batched_runs": many.batched,
+            "identical": tables[0].equals(tables[1]) and tables[0].equals(tables[2]),
             "workers": many.workers,
             "speedup": round(one.loop_time / many.loop_time, 3),
             "overhead_per_run_s": round(overhead, 4),
@@ -128,45 +166,50 @@ def main() -> int:
             "campaign_run_cost_1w_s": round(one.loop_time / one.runs, 3),
             "cost_over_logged_run": round(many.loop_time * many.workers / many.runs / logged, 3),
             "runs": many.runs,
-            "failed": one.failed + many.failed,
-            "identical": tables[0].equals(tables[1]),
+            "failed": one.failed + many.failed + alone.failed,
         }
+        if args.sweep:
+            figures["sweep"] = sweep([int(k) for k in args.sweep.split(",")], args.duration, args.scenario)
         if args.memory_runs:
             figures |= memory(Path(folder), args.memory_runs, args.workers)
     if args.json:
         print(json.dumps(figures))
         return 0
     print(
-        f"campaign of {figures['runs']} default-scenario runs ({args.duration:g} s each), in-process bus, local Dask "
+        f"campaign of {figures['runs']} {args.scenario} runs ({args.duration:g} s each), in-process bus, local Dask "
         "cluster"
     )
     rows = [
-        ("runs per hour", f"{figures['runs_per_hour']:.0f}", f"{figures['workers']} workers"),
-        ("speedup", f"{figures['speedup']:.2f}", f"{figures['workers']} workers against 1"),
-        ("mean run", f"{figures['mean_run_s']:.2f} s", "as the workers measure it"),
+        (
+            "runs per hour",
+            f"{figures['runs_per_hour']:.0f}",
+            f"batched (K up to {figures['batch']}), {figures['workers']} workers",
+        ),
+        ("  one at a time", f"{figures['runs_per_hour_unbatched']:.0f}", "--batch 1"),
+        (
+            "batch speedup",
+            f"{figures['batch_speedup']:.2f}",
+            f"{figures['batched_runs']} of {figures['runs']} runs batched",
+        ),
+        ("speedup", f"{figures['speedup']:.2f}", f"{figures['workers']} workers against 1, batched"),
+        ("mean run", f"{figures['mean_run_s']:.2f} s", "one at a time, as the workers measure it"),
         (
             "overhead per run",
             f"{figures['overhead_per_run_s'] * 1000:.1f} ms",
-            f"{100 * figures['overhead_fraction']:.1f} % of a run",
+            f"{100 * figures['overhead_fraction']:.1f} % of a run (one at a time)",
         ),
         ("cluster start-up", f"{figures['startup_s']:.2f} s", "once per campaign"),
         ("logged run", f"{figures['logged_run_s']:.2f} s", "in this process, in-process bus, log written, not scored"),
         (
             "campaign run cost",
             f"{figures['campaign_run_cost_s']:.2f} s",
-            f"per worker ({figures['campaign_run_cost_1w_s']:.2f} s with 1): "
+            f"per worker, batched ({figures['campaign_run_cost_1w_s']:.2f} s with 1): "
             f"{figures['cost_over_logged_run']:.2f} × the logged run",
         ),
-        ("tables identical", str(figures["identical"]), "1 worker against all, metrics columns"),
+        ("tables identical", str(figures["identical"]), "batched, one at a time, one worker: metrics columns"),
     ]
-    if args.memory_runs:
-        rows += [
-            (
-                "coordinator memory",
-                f"{figures['memory_rss_mb_at_10pct']:.0f} → {figures['memory_rss_mb_at_end']:.0f} MB",
-                f"after {args.memory_runs // 10} and {args.memory_runs} tiny runs",
-            )
-        ]
+    for size, rate in figures.get("sweep", {}).items():
+        rows.append((f"  K = {size}", f"{rate:.0f}", "runs per hour of one process (no engine)"))
     for name, value, note in rows:
         print(f"{name:<20}{value:>14}   {note}")
     return 0

@@ -211,7 +211,7 @@ def test_runs_whose_log_is_kept_run_alone(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", builtin_campaigns())
 def test_every_builtin_campaign_batched_gives_the_table_of_its_runs_one_at_a_time(tmp_path, name):
-    campaign = load_campaign(name, seeds=2, settings=[parse_setting("duration=0.5")])
+    campaign = load_campaign(name, seeds=2, settings=[parse_setting("duration=2.0")])
     tables = {
         b: run_campaign(campaign, tmp_path / f"b{b}", engine="inline", keep_logs="none", batch=b) for b in (1, None)
     }

@@ -38,7 +38,7 @@ import faults as fm
 from cosim.analysis.metrics import RunMetrics
 from cosim.analysis.metrics.compute import TickScoring
 from cosim.analysis.metrics.scorer import TickBatch
-from cosim.bus.codec import estimated_state
+from cosim.bus.codec import COMMAND, CONTROLLER, estimated_state
 from cosim.errors import CosimError
 from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
 from cosim.plant.fmu_model import is_fmu
@@ -65,7 +65,7 @@ def refusal(plan: RunPlan) -> str | None:
     reasons = [
         (s.bus.interface != "virtual", "its nodes run in processes of their own (a batch needs the in-process bus)"),
         (is_fmu(s.plant.model), "its plant is an FMU, which runs in a process of its own"),
-        (s.controller is not None, "it is a closed loop (the controller node is not batched)"),
+        (s.controller is not None and plan.controller is None, "its controller has no linear model"),
         (bool(build_bus_faults(s)), "its bus faults and attacks act on frames"),
         (s.bus.timing != "ideal", "its bus timing is arbitrated"),
         (s.bus.authentication != "none", "its frames are authenticated (SecOC)"),
@@ -128,11 +128,12 @@ class _Estimators:
         self.u = np.zeros((len(plans), model.m))  # a command that never came is 0 (as its node holds it)
         self.failed: dict[int, str] = {}
 
-    def step(self, y: np.ndarray, u_cmd: np.ndarray) -> np.ndarray:
-        """Tick k's readings (K, sensors; NaN where not sent) and commands (K, actuators) in; the
-        values its frames carry out, (K, signals), in ``signals`` order."""
-        given = [i for i in self.inputs if i >= 0]
-        self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0]] = u_cmd[:, given]
+    def step(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> np.ndarray:
+        """Tick k's readings (K, sensors; NaN where not sent) and commands (K, actuators; those
+        ``commanded`` arrived, the others its node holds) in; the values its frames carry out,
+        (K, signals), in ``signals`` order."""
+        given = [i for i in self.inputs if i >= 0 and commanded[i]]
+        self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0 and commanded[i]]] = u_cmd[:, given]
         ys = np.stack([y[:, i] if i >= 0 else np.full(len(y), np.nan) for i in self.outputs], axis=1)
         estimate = self.batch.step(ys, self.u.copy())
         self.failed = estimate.failed
@@ -140,6 +141,62 @@ class _Estimators:
         values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(y), 0))
         # sent at the bound it crossed (the node saturates), and as the frame carries it
         return self.carried(np.minimum(np.maximum(values, self.lower), self.upper))
+
+
+class _Controller:
+    """The controller node over the batch's runs: its K instances, each stepped by itself on its
+    run's readings and the diagnosis node's report of the tick before (as its node's upstream lag
+    of 1 has it), its commands as their frames carry them."""
+
+    def __init__(self, plans: Sequence[RunPlan], sensors: tuple[str, ...], actuators: tuple[str, ...]) -> None:
+        self.instances = [copy.deepcopy(plan.controller) for plan in plans]
+        model = self.instances[0].model
+        s, codec = plans[0].scenario, plans[0].codec
+        assert s.controller is not None
+        self.diagnosis = s.controller.diagnosis
+        self.outputs = [sensors.index(n) if n in sensors else -1 for n in model.outputs]
+        messages = codec.data_messages(CONTROLLER)
+        commands = [m for m in messages if m.role == COMMAND]
+        self.status = [m for m in messages if m.role != COMMAND]
+        channels = [c for m in commands for c in m.channels]
+        self.command_inputs = [list(model.inputs).index(c.name) for c in channels]  # the node's _inputs
+        self.columns = [actuators.index(c.name) for c in channels]
+        self.status_signals = [signal for m in self.status for signal in m.signals]
+        self.carried = codec.carried_of(commands)
+        self.command_range = _range(commands)
+        self.status_range = _range(self.status)
+        self.commanded = np.zeros(len(actuators), dtype=bool)
+        self.commanded[self.columns] = True
+        self.t = s.sample_time
+
+    def step(
+        self,
+        k: int,
+        readings: np.ndarray,
+        report: tuple[list[str], np.ndarray] | None,
+        runs: Sequence[_Run],
+        alive: np.ndarray,
+    ) -> np.ndarray:
+        """Tick k's commands by actuator (K, actuators; the others NaN); a run whose controller
+        raises or asks for what its frames cannot carry leaves the batch."""
+        found = np.full((len(runs), len(self.commanded)), np.nan)
+        u = np.zeros((len(runs), len(self.columns)))
+        status = np.zeros((len(runs), len(self.status_signals)))
+        t = k * self.t  # the tick's time as its node has it (the tick counter times the sample time)
+        for r in np.flatnonzero(alive):
+            y = np.array([readings[r, i] if i >= 0 else np.nan for i in self.outputs])
+            given = {} if report is None else dict(zip(report[0], report[1][r].tolist()))
+            try:
+                command = self.instances[r].step(y, t, given)
+                u[r] = [float(command.u[i]) for i in self.command_inputs]
+                status[r] = [command.diagnostics[signal] for signal in self.status_signals]
+            except Exception as error:  # noqa: BLE001 (a bug of the controller's: its run ends with it, alone)
+                runs[r].leave(k, f"the controller raised {type(error).__name__}: {error}")
+                alive[r] = False
+        _leave_outside(k, alive, u, self.command_range, runs, "a command outside its signal's range")
+        _leave_outside(k, alive, status, self.status_range, runs, "a controller status outside its signal's range")
+        found[:, self.columns] = self.carried(np.where(alive[:, None], u, 0.0))
+        return found
 
 
 def run_batch(
@@ -168,6 +225,9 @@ class _Batch:
         self.sensor_range = _range(self.sensor_specs)
         self.command_range = _range(self.command_specs)
         self.estimators = [_Estimators(name, plans, s.sensors, s.actuators) for name in plan.estimators]
+        self.controller = _Controller(plans, s.sensors, s.actuators) if plan.controller is not None else None
+        self.report: tuple[list[str], np.ndarray] | None = None  # the diagnosis node's last values
+        self.held = np.stack([run.source.u_cmd for run in self.runs])  # what the actuators hold
         self.scores = TickBatch(
             [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
         )
@@ -201,19 +261,29 @@ class _Batch:
             "a sensor reading outside its signal's range",
         )
         readings = np.where(sent, self.sensors_carried(np.where(sent, measured, 0.0)), np.nan)
-        commands = np.array(
-            [[w(t) for w in runs[r].source.inputs] if alive[r] else [0.0] * len(s.actuators) for r in range(len(runs))]
-        ).reshape(len(runs), len(s.actuators))
-        self._check(k, alive, commands, self.command_range, "an input signal outside its command's range")
-        u_cmd = self.commands_carried(commands)
         self._check(k, alive, x, None, "a state that is not finite")
+        if self.controller is None:  # the scenario's input signals, as the runner's command frames carry them
+            commands = np.array(
+                [
+                    [w(t) for w in run.source.inputs] if alive[r] else [0.0] * len(s.actuators)
+                    for r, run in enumerate(runs)
+                ]
+            ).reshape(len(runs), len(s.actuators))
+            self._check(k, alive, commands, self.command_range, "an input signal outside its command's range")
+            u_cmd, commanded = self.commands_carried(commands), np.ones(len(s.actuators), dtype=bool)
+        else:
+            u_cmd, commanded = self.controller.step(k, readings, self.report, runs, alive), self.controller.commanded
+        self.held = u_cmd = np.where(commanded, u_cmd, self.held)
         try:
-            values = [e.step(np.where(alive[:, None], readings, 0.0), u_cmd) for e in self.estimators]
+            values = [e.step(np.where(alive[:, None], readings, 0.0), u_cmd, commanded) for e in self.estimators]
         except Exception as error:  # noqa: BLE001 (an estimator's own code: every run goes alone, as each ends alone)
             for r in np.flatnonzero(alive):
                 runs[r].leave(k, f"an estimator raised {type(error).__name__}: {error}")
             alive[:] = False
             return
+        if self.controller is not None and self.controller.diagnosis:
+            e, v = next((e, v) for e, v in zip(self.estimators, values) if e.name == self.controller.diagnosis)
+            self.report = (e.signals, v)
         for e, v in zip(self.estimators, values):
             bad = alive & np.isnan(v).any(axis=1)
             for r in np.flatnonzero(bad):
@@ -245,15 +315,26 @@ class _Batch:
     def _check(
         self, k: int, alive: np.ndarray, values: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None, why: str
     ) -> None:
-        """Runs whose ``values`` leave ``bounds`` (None: are not finite) leave the batch."""
-        ok = (
-            np.isfinite(values).all(axis=1)
-            if bounds is None
-            else ((bounds[0] <= values) & (values <= bounds[1])).all(axis=1)
-        )
-        for r in np.flatnonzero(alive & ~ok):
-            self.runs[r].leave(k, why)
-        alive &= ok
+        _leave_outside(k, alive, values, bounds, self.runs, why)
+
+
+def _leave_outside(
+    k: int,
+    alive: np.ndarray,
+    values: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray] | None,
+    runs: Sequence[_Run],
+    why: str,
+) -> None:
+    """Runs whose ``values`` leave ``bounds`` (None: are not finite) leave the batch at tick k."""
+    ok = (
+        np.isfinite(values).all(axis=1)
+        if bounds is None
+        else ((bounds[0] <= values) & (values <= bounds[1])).all(axis=1)
+    )
+    for r in np.flatnonzero(alive & ~ok):
+        runs[r].leave(k, why)
+    alive &= ok
 
 
 def _range(specs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
