@@ -20,7 +20,7 @@ to the last result (the cluster's start-up, reported apart, is paid once per cam
   campaign run's cost per worker, loop time × workers / runs, and ``cost_over_logged_run``: that
   over ``logged_run_s``.
 
-With ``--sweep 1,8,32,64`` it also times the batch alone in this process (``cosim.run.batch``, no
+With ``--sweep 1,8,32,64`` it also times the batch alone in this process (``cosim.campaign.batch``, no
 engine) at each K and reports ``sweep``: K → runs per hour of one process.
 
 With ``--memory-runs N`` it also runs a campaign of N runs of 0.05 s (so that the engine, not the
@@ -82,7 +82,7 @@ def sweep(sizes: list[int], duration: float, scenario: str) -> dict[str, float]:
     import time
 
     from cosim import api
-    from cosim.run.batch import run_batch
+    from cosim.campaign.batch import run_batch
     from cosim.scenario import apply
 
     loaded = apply(api.load(scenario), [("duration", duration)])

@@ -17,7 +17,12 @@ The plugin path: ``kalman_as_plugin`` is the Kalman filter as a user's file name
 plugin; its ratio to ``kalman`` is what a plugin costs per step over a built-in. ``residual_observer``
 is the plugin template's observer (``examples/plugin``), for scale.
 
-Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R]
+Batched: ``<kind>_batched_K`` is the cost per run of one step of K instances stepped together
+(``estimators.batched.batch_of``: the kind's own batched step where it has one, else each instance
+by itself), and ``<kind>_batched_over_single`` that over the kind's single step (goal at K = 32:
+at most 1/3). The K runs see the same readings, each its own instance.
+
+Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R] [--batch K]
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import numpy as np  # noqa: E402
 import estimators  # noqa: E402
 from bench.common import bench_parser  # noqa: E402
 from estimators import LinearModel  # noqa: E402
+from estimators.batched import StepEach, batch_of  # noqa: E402
 from estimators.design import zoh_discretize  # noqa: E402
 from mjcf import three_tank  # noqa: E402
 from tests.linear_masses import masses_model  # noqa: E402
@@ -146,9 +152,23 @@ def time_steps(make, ys: np.ndarray, us: np.ndarray, warmup: int, repeat: int) -
     return best * 1e6
 
 
+def time_batched(make, ys: np.ndarray, us: np.ndarray, warmup: int, size: int) -> tuple[float, bool]:
+    """µs per run of one batched step of ``size`` instances (the kind's own batched step?)."""
+    batch = batch_of([make() for _ in range(size)])
+    Y = np.repeat(ys[:, None, :], size, axis=1)
+    U = np.repeat(us[:, None, :], size, axis=1)
+    for k in range(warmup):
+        batch.step(Y[k], U[k])
+    start = time.perf_counter()
+    for k in range(warmup, len(ys)):
+        batch.step(Y[k], U[k])
+    return (time.perf_counter() - start) / (len(ys) - warmup) / size * 1e6, not isinstance(batch, StepEach)
+
+
 def main() -> int:
     parser = bench_parser(__doc__, repeat=3)
     parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--batch", type=int, default=32, help="instances stepped together (default 32)")
     args = parser.parse_args()
 
     m3 = masses_model(SENSORS)
@@ -215,19 +235,32 @@ def main() -> int:
     for _ in range(args.repeat):  # round by round: a load that comes and goes slows every estimator alike
         for name, (make, ys, us) in cases.items():
             figures[name] = min(figures[name], time_steps(make, ys, us, warmup, 1))
+    batched, native = {}, {}
+    for name, (make, ys, us) in cases.items():
+        if name == "numpy_kalman":
+            continue
+        batched[name], native[name] = time_batched(make, ys[: warmup + 300], us[: warmup + 300], warmup, args.batch)
     base = figures["kalman"]
     ratios = {
         f"{name}_over_kalman": us / base for name, us in figures.items() if name not in ("kalman", "numpy_kalman")
     }
     ratios["kalman_over_numpy_kalman"] = base / figures["numpy_kalman"]
+    for name, us in batched.items():
+        figures[f"{name}_batched_{args.batch}"] = us
+        ratios[f"{name}_batched_over_single"] = us / figures[name]
     if args.json:
         print(
             json.dumps({name: round(v, 2) for name, v in figures.items()} | {k: round(v, 3) for k, v in ratios.items()})
         )
         return 0
-    print(f"{'estimator':<24}{'µs/step':>10}{'× kalman':>10}")
-    for name, us in figures.items():
-        print(f"{name:<24}{us:>10.1f}{us / base:>10.2f}")
+    print(f"{'estimator':<24}{'µs/step':>10}{'× kalman':>10}{f'batched K={args.batch}':>16}{'× single':>10}")
+    for name in cases:
+        us = figures[name]
+        if name in batched:
+            how = "" if native[name] else " (each)"
+            print(f"{name:<24}{us:>10.1f}{us / base:>10.2f}{batched[name]:>10.1f}{how:>6}{batched[name] / us:>10.2f}")
+        else:
+            print(f"{name:<24}{us:>10.1f}{us / base:>10.2f}")
     print(f"kalman / numpy_kalman (target <= 1.5): {ratios['kalman_over_numpy_kalman']:.2f}")
     return 0
 

@@ -1,6 +1,6 @@
 """K estimators of one design stepped together, with a leading run axis (the runs of a batch).
 
-A batch (``cosim.run.batch``) steps the runs of a campaign that share a configuration in lockstep:
+A batch (``cosim.campaign.batch``) steps the runs of a campaign that share a configuration in lockstep:
 each run has its own estimator instance, built from the same design, with its own state. Where the
 kind implements ``Estimator.batched``, the K instances become one object whose ``step`` takes
 y of shape (K, p) and u of shape (K, m) and returns x̂ of shape (K, n) with each diagnostic of
@@ -19,7 +19,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -107,8 +107,8 @@ class DeviationBatch(ABC):
         rows: np.ndarray,
         dy: np.ndarray,
         du: np.ndarray,
-        load: Callable[[Estimator, int], None],
-        store: Callable[[Estimator, int], None],
+        load: Callable[[Any, int], None],
+        store: Callable[[Any, int], None],
     ) -> np.ndarray:
         """Rows stepped by their instance's own ``_step``: ``load`` puts row r's state into the
         instance, ``store`` takes it back after; returns their estimates, (len(rows), n)."""

@@ -1,4 +1,4 @@
-"""Batched runs (cosim.run.batch): the runs of one configuration stepped together give, run for run,
+"""Batched runs (cosim.campaign.batch): the runs of one configuration stepped together give, run for run,
 exactly the metrics row each gives alone; what cannot be batched runs alone and says why."""
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from cosim import api
+from cosim.campaign.batch import refusal, run_batch
 from cosim.campaign.coordinator import batches, run_campaign
 from cosim.campaign.results import NONDETERMINISTIC, rows_of
 from cosim.campaign.spec import builtin_names as builtin_campaigns
 from cosim.campaign.spec import load_campaign
 from cosim.errors import CosimError
-from cosim.run.batch import refusal, run_batch
 from cosim.run.plan import RunPlan
 from cosim.scenario import apply, parse_setting
 from cosim.scenario.load import builtin_names
@@ -50,7 +50,8 @@ def test_the_papers_scenarios_are_batched():
         if refusal(RunPlan.build(apply(api.load(name), [("duration", 2.0)]), 0, interface="virtual")) is None
     }
     assert {"masses-bias", "masses-faults-fd", "three-tank-reconciliation", "cdc2016-ex1", "tac2024-s2-p4"} <= batched
-    assert "uio-fault-detection" in batched
+    assert {"uio-fault-detection", "vessel-nominal", "vessel-fault-T1-T3"} <= batched  # open and closed loops
+    assert "masses-spoofing" not in batched and "masses-bus-overload" not in batched  # the bus does more
 
 
 @pytest.mark.parametrize("scenario", ["masses-bias", "three-tank-reconciliation"])

@@ -67,7 +67,7 @@ class CampaignResult:
     run_time: float = 0.0
     """The runs' own wall times (measured by the workers), summed."""
     batched: int = 0
-    """Runs of this session that ran in a batch (the others ran alone: ``cosim.run.batch.refusal``)."""
+    """Runs of this session that ran in a batch (the others ran alone: ``cosim.campaign.batch.refusal``)."""
 
 
 def require_extras(engine: str) -> None:

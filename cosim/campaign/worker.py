@@ -26,7 +26,7 @@ def preload() -> None:
 
     import cosim.analysis.metrics  # noqa: F401
     import cosim.api  # noqa: F401
-    import cosim.run.batch  # noqa: F401
+    import cosim.campaign.batch  # noqa: F401
     import cosim.run.runner  # noqa: F401
 
 
@@ -43,7 +43,7 @@ def ignore_interrupts() -> None:
 
 def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dict[str, Any]]:
     """Run ``specs``, runs of one configuration (scenario and settings) that differ in their seed,
-    together as one batch (``cosim.run.batch``); returns each run's part, in order, as
+    together as one batch (``cosim.campaign.batch``); returns each run's part, in order, as
     ``execute_run`` would return it alone, with ``batched`` saying whether it ran in the batch.
     Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a configuration the
     batch cannot express run alone, through ``execute_run``."""
@@ -64,8 +64,8 @@ def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dic
 
 def _batch_attempts(specs: list[RunSpec]) -> dict[int, _Attempt]:
     """The runs of ``specs`` that completed in one batch, by index ({} where the batch cannot run)."""
+    from cosim.campaign.batch import run_batch
     from cosim.campaign.results import rows_of
-    from cosim.run.batch import run_batch
 
     try:
         loaded, known, state_unit = _loaded(specs[0])

@@ -136,7 +136,7 @@ class LiveMeasurement:
 
 class TickScoring:
     """The scores of a run that logs nothing and hands them whole ticks (a batched run,
-    ``cosim.run.batch``, through ``scorer.TickBatch``): the same ``Scorer`` as ``measure``'s, fed
+    ``cosim.campaign.batch``, through ``scorer.TickBatch``): the same ``Scorer`` as ``measure``'s, fed
     the values its log would have given it, from its metadata records and its DBC text."""
 
     def __init__(self, meta: dict[str, dict[str, str]], dbc: str) -> None:

@@ -169,7 +169,7 @@ class Scorer:
 
     def tick(self, k: int, tick: Tick) -> None:
         """A whole tick handed in order by a run that logs nothing (a batched run,
-        ``cosim.run.batch``): scored as the same complete tick read from its log."""
+        ``cosim.campaign.batch``): scored as the same complete tick read from its log."""
         self._score(k, tick)
         self.next_tick = k + 1
 
@@ -316,7 +316,7 @@ class Scorer:
 
 class TickBatch:
     """The scorers of K runs of one plan, fed whole ticks together by a batched run
-    (``cosim.run.batch``): ``Scorer.tick``'s scores, with what is the same arithmetic for every
+    (``cosim.campaign.batch``): ``Scorer.tick``'s scores, with what is the same arithmetic for every
     run done on arrays (the differences x − x̂, the bounds) and what is each run's own done per run
     (its error's exact sum, its sums and segments, its diagnosis). ``signals``: each estimator's
     signals, in the order of the columns it is given."""

@@ -149,7 +149,7 @@ class _Controller:
     of 1 has it), its commands as their frames carry them."""
 
     def __init__(self, plans: Sequence[RunPlan], sensors: tuple[str, ...], actuators: tuple[str, ...]) -> None:
-        self.instances = [copy.deepcopy(plan.controller) for plan in plans]
+        self.instances = [copy.deepcopy(plan.controller) for plan in plans if plan.controller is not None]
         model = self.instances[0].model
         s, codec = plans[0].scenario, plans[0].codec
         assert s.controller is not None
@@ -183,7 +183,7 @@ class _Controller:
         u = np.zeros((len(runs), len(self.columns)))
         status = np.zeros((len(runs), len(self.status_signals)))
         t = k * self.t  # the tick's time as its node has it (the tick counter times the sample time)
-        for r in np.flatnonzero(alive):
+        for r in map(int, np.flatnonzero(alive)):
             y = np.array([readings[r, i] if i >= 0 else np.nan for i in self.outputs])
             given = {} if report is None else dict(zip(report[0], report[1][r].tolist()))
             try:
@@ -286,9 +286,9 @@ class _Batch:
             self.report = (e.signals, v)
         for e, v in zip(self.estimators, values):
             bad = alive & np.isnan(v).any(axis=1)
-            for r in np.flatnonzero(bad):
-                failed = e.failed.get(r)
-                runs[r].leave(
+            for row in map(int, np.flatnonzero(bad)):
+                failed = e.failed.get(row)
+                runs[row].leave(
                     k,
                     f"estimator {e.name} raised {failed}"
                     if failed
@@ -332,7 +332,7 @@ def _leave_outside(
         if bounds is None
         else ((bounds[0] <= values) & (values <= bounds[1])).all(axis=1)
     )
-    for r in np.flatnonzero(alive & ~ok):
+    for r in map(int, np.flatnonzero(alive & ~ok)):
         runs[r].leave(k, why)
     alive &= ok
 
