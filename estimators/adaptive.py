@@ -29,11 +29,13 @@ Ticks with a missing reading are open-loop predictions: no correction, optimizer
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
+from estimators.batched import BatchEstimate, DeviationBatch, mv
 from estimators.design import (
     AssumptionError,
     assumption2_factorization,
@@ -393,3 +395,40 @@ class InjectionObserver(Estimator):
         """Y†(φ − φ̂): what the bias leaves in the injection of (56)."""
         phi_hat = PHI_HAT.read(diagnostics, self.model.outputs)
         return self.bias.P_Y @ (phi - phi_hat)
+
+    @classmethod
+    def batched(cls, instances: Sequence[InjectionObserver]) -> _InjectionBatch:
+        return _InjectionBatch(instances)
+
+
+class _InjectionBatch(DeviationBatch):
+    """K observers (56) with their bias estimators (7) of one design: x̂, ξ and the injected φ̂ of
+    shape (K, ·) in the stacked kernels; a run with a missing reading predicts, as its step does."""
+
+    def __init__(self, instances: Sequence[InjectionObserver]) -> None:
+        super().__init__(instances)
+        self.first = instances[0]
+        self.x = np.stack([e.x_hat for e in instances])
+        self.xi = np.stack([e.bias.xi for e in instances])
+        self.phi_used = np.stack([e.phi_used for e in instances])
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
+        A, B = self.model.A, self.model.B
+        first, bias, tau = self.first, self.first.bias, self.first.params.filter
+        x_k, xi = self.x, self.xi
+        whole = ~np.isnan(dy).any(axis=1)
+        phi_hat = mv(bias.output_gain, mv(bias.P_Y, dy) - mv(bias.H, xi)) + mv(bias.complement, dy)  # (7b)-(7c)
+        phi_used = phi_hat if tau is None else (1.0 - tau) * self.phi_used + tau * phi_hat
+        injected = mv(first.L, mv(bias.P_Y, dy - phi_used) - mv(first.H, x_k))
+        x_next = mv(A, x_k) + mv(B, du) + injected  # (56)
+        xi_next = mv(bias.A, xi) + mv(bias.B, du) + mv(bias.M, mv(bias.P_Y, dy - mv(bias.C, xi)))  # (7a)
+        if not whole.all():  # a missing reading: predict x̂ and ξ, keep φ̂, inject nothing
+            rows = ~whole
+            x_next[rows] = mv(A, x_k[rows]) + mv(B, du[rows])
+            xi_next[rows] = mv(bias.A, xi[rows]) + mv(bias.B, du[rows])
+            phi_used = np.where(rows[:, None], self.phi_used, phi_used)
+            injected[rows] = 0.0
+        self.x, self.xi, self.phi_used = x_next, xi_next, phi_used
+        diagnostics = {PHI_HAT.named(o): phi_used[:, i] for i, o in enumerate(self.model.outputs)}
+        diagnostics |= {INJECTION.named(x): injected[:, i] for i, x in enumerate(self.model.states)}
+        return BatchEstimate(x_k.copy(), diagnostics)
