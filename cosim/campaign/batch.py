@@ -59,6 +59,13 @@ class BatchedRun:
     left: str = ""
 
 
+UNBUILT = (
+    "the frames, which a batched run does not build: no bus figures (frames per id, load); the same run alone "
+    "(cosim run --seed) has them"
+)
+"""What a batched run's metrics say they lack: everything of its row is there."""
+
+
 def refusal(plan: RunPlan) -> str | None:
     """Why the runs of ``plan`` cannot step in a batch (None: they can)."""
     s = plan.scenario
@@ -102,7 +109,10 @@ class _Run:
     def metrics(self, ticks: int) -> RunMetrics:
         senders = {name: SenderCounts() for name in self.plan.senders}
         result = ResultRecord("completed", ticks, None, 0, 0, "", senders, {"datagrams": 0, "frames": 0})
-        return self.scoring.metrics(RESULT, result.to_metadata())
+        found = self.scoring.metrics(RESULT, result.to_metadata())
+        # No frames were built: say so rather than report none (the topics' counts come from a log)
+        missing = [m for m in found.missing if not m.startswith("/")] + [UNBUILT]
+        return replace(found, bus=None, channels={}, missing=missing)
 
 
 class _Estimators:
