@@ -258,21 +258,28 @@ class _Batch:
         ]
 
     def _tick(self, k: int, alive: np.ndarray) -> None:
-        s, runs = self.scenario, self.runs
-        t = s.time(k)
+        """Tick k of the runs still ``alive`` (a run that leaves is taken out of it)."""
+        runs, t = self.runs, self.scenario.time(k)
         x = np.stack([run.source.plant.state() for run in runs])
         y_true = np.stack([run.source.plant.sensors() for run in runs])  # a run that left: its last, unused
         measured, sent, active = fm.FaultInjector.sensors_batch([run.source.faults for run in runs], y_true, t)
-        self._check(
-            k,
-            alive,
-            np.where(sent, measured, 0.5 * (self.sensor_range[0] + self.sensor_range[1])),
-            self.sensor_range,
-            "a sensor reading outside its signal's range",
-        )
+        middle = 0.5 * (self.sensor_range[0] + self.sensor_range[1])
+        self._check(k, alive, np.where(sent, measured, middle), self.sensor_range, "a sensor reading outside its range")
         readings = np.where(sent, self.sensors_carried(np.where(sent, measured, 0.0)), np.nan)
         self._check(k, alive, x, None, "a state that is not finite")
-        if self.controller is None:  # the scenario's input signals, as the runner's command frames carry them
+        u_cmd, commanded = self._commands(k, t, readings, alive)
+        values = self._estimates(k, readings, u_cmd, commanded, alive)
+        if values is None:
+            return
+        rows = np.flatnonzero(alive)
+        self.scores.tick(k, rows, x, active, values)
+        self._advance(k, t, rows, u_cmd, alive)
+
+    def _commands(self, k: int, t: float, readings: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tick k's commands by actuator (what the actuators hold where none came) and which came:
+        the input signals as the runner's frames carry them, or the controller node's."""
+        s, runs = self.scenario, self.runs
+        if self.controller is None:
             commands = np.array(
                 [
                     [w(t) for w in run.source.inputs] if alive[r] else [0.0] * len(s.actuators)
@@ -283,14 +290,21 @@ class _Batch:
             u_cmd, commanded = self.commands_carried(commands), np.ones(len(s.actuators), dtype=bool)
         else:
             u_cmd, commanded = self.controller.step(k, readings, self.report, runs, alive), self.controller.commanded
-        self.held = u_cmd = np.where(commanded, u_cmd, self.held)
+        self.held = np.where(commanded, u_cmd, self.held)
+        return self.held, commanded
+
+    def _estimates(
+        self, k: int, readings: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray, alive: np.ndarray
+    ) -> list[np.ndarray] | None:
+        """Each estimator's signals of tick k as its frames carry them (None: every run left)."""
+        runs = self.runs
         try:
             values = [e.step(np.where(alive[:, None], readings, 0.0), u_cmd, commanded) for e in self.estimators]
         except Exception as error:  # noqa: BLE001 (an estimator's own code: every run goes alone, as each ends alone)
             for r in np.flatnonzero(alive):
                 runs[r].leave(k, f"an estimator raised {type(error).__name__}: {error}")
             alive[:] = False
-            return
+            return None
         if self.controller is not None and self.controller.diagnosis:
             e, v = next((e, v) for e, v in zip(self.estimators, values) if e.name == self.controller.diagnosis)
             self.report = (e.signals, v)
@@ -298,22 +312,24 @@ class _Batch:
             bad = alive & np.isnan(v).any(axis=1)
             for row in map(int, np.flatnonzero(bad)):
                 failed = e.failed.get(row)
-                runs[row].leave(
-                    k,
+                why = (
                     f"estimator {e.name} raised {failed}"
                     if failed
-                    else f"estimator {e.name}: an estimate that is not a number",
+                    else f"estimator {e.name}: an estimate that is not a number"
                 )
+                runs[row].leave(k, why)
             alive &= ~bad
-        rows = np.flatnonzero(alive)
-        self.scores.tick(k, rows, x, active, values)
+        return values
+
+    def _advance(self, k: int, t: float, rows: np.ndarray, u_cmd: np.ndarray, alive: np.ndarray) -> None:
+        """Each run's commands through its actuator faults into its physics, over tick k."""
+        runs = self.runs
         u_eff, d = {}, {}
         for r in rows:
             u_eff[r], _, d[r] = runs[r].source.actuate(u_cmd[r], t)
-        finite = {r for r in rows if all(math.isfinite(u) for u in u_eff[r].tolist())}
         for r in rows:
             source = runs[r].source
-            if r in finite:
+            if all(math.isfinite(u) for u in u_eff[r].tolist()):
                 source.plant.step(u_eff[r], d[r])
                 continue
             try:
