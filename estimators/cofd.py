@@ -502,6 +502,12 @@ class COFDDiagnosis(Estimator):
         projection = self.N @ np.linalg.lstsq(self.N, u, rcond=None)[0]
         return bool(np.abs(u - projection).max() <= 1e-3 * max(np.abs(u).max(), 1e-9))
 
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> Any:
+        from estimators.cofd_batch import COFDBatch
+
+        return COFDBatch(instances)
+
     def isolation_targets(self) -> dict[str, list[str]]:
         """isolated_T<j> names the inputs of thruster j (the columns of B in its group)."""
         return {ISOLATED.named(j + 1): [self.model.inputs[c] for c in group] for j, group in enumerate(self.groups)}
