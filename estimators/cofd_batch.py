@@ -12,7 +12,7 @@ it latches them.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,7 +32,8 @@ class COFDBatch(DeviationBatch):
         first = self.first = instances[0]
         self.z: list[np.ndarray] | None = None
         if any(e.z is not None for e in instances):
-            self.z = [np.stack([e.z[h] for e in instances]) for h in range(len(first.observers))]  # type: ignore[index]
+            states: list[Any] = [e.z for e in instances]
+            self.z = [np.stack([z[h] for z in states]) for h in range(len(first.observers))]
         self.y_prev = np.stack([e.y_prev for e in instances])
         self.u_prev = np.stack([e.u_prev for e in instances])
         self.t = first.t
@@ -40,13 +41,14 @@ class COFDBatch(DeviationBatch):
         self.candidate_since = [e.candidate_since for e in instances]
         self.isolated = np.stack([e.isolated for e in instances])
         test = first.test
-        self.total = np.stack([e.test.total for e in instances])
+        tests: list[Any] = [e.test for e in instances]
+        self.total = np.stack([t.total for t in tests])
         self.count = test.count
-        self.mean = None if test.mean is None else np.stack([e.test.mean for e in instances])  # type: ignore[misc]
-        allowance = test.allowance
-        if allowance is not None:
-            self.q = [np.stack([e.test.allowance.q[h] for e in instances]) for h in range(len(allowance.q))]  # type: ignore[union-attr]
-            self.a_prev = None if allowance.y_prev is None else np.stack([e.test.allowance.y_prev for e in instances])  # type: ignore[union-attr]
+        self.mean = None if test.mean is None else np.stack([t.mean for t in tests])
+        allowances: list[Any] = [t.allowance for t in tests]
+        if test.allowance is not None:
+            self.q = [np.stack([a.q[h] for a in allowances]) for h in range(len(test.allowance.q))]
+            self.a_prev = None if test.allowance.y_prev is None else np.stack([a.y_prev for a in allowances])
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
         from estimators.cofd import (

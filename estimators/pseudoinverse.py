@@ -122,6 +122,7 @@ class _PseudoinverseBatch(DeviationBatch):
 
     def __init__(self, instances: Sequence[PseudoinverseObserver]) -> None:
         super().__init__(instances)
+        self.observers = list(instances)
         first = instances[0]
         self.L, self.Pi = first.L, first.Pi
         self.x = np.stack([e.x_hat for e in instances])
@@ -136,6 +137,6 @@ class _PseudoinverseBatch(DeviationBatch):
             rows = np.flatnonzero(~whole)
             # each the observer's own step; the estimate is x_k either way
             self._each(rows, dy, du, lambda e, r: setattr(e, "x_hat", x_k[r].copy()), lambda e, r: None)
-            x_next[rows] = np.stack([self.instances[r].x_hat for r in rows])
+            x_next[rows] = np.stack([self.observers[r].x_hat for r in rows])
         self.x = x_next
         return BatchEstimate(x_k.copy(), {})
