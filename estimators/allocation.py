@@ -461,3 +461,66 @@ class ThrustAllocationController(Controller):
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         u, diagnostics = self.law.step(np.asarray(y, dtype=float)[self._rows], t, int(report.get(FAULT_MASK.name, 0)))
         return Command(u, diagnostics)
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> _VesselBatch:
+        return _VesselBatch(instances)
+
+
+class _VesselBatch:
+    """K ``ThrustAllocationController`` instances of one design (``Controller.batched``). Each run's
+    state stays in its own law; the runs on the nominal law (no fault reported, no thrust limits:
+    one allocation basis for all) are stepped on arrays, the others by their own law's step."""
+
+    def __init__(self, instances: Sequence[ThrustAllocationController]) -> None:
+        self.controllers = list(instances)
+        self.laws = [c.law for c in instances]
+        first = self.laws[0]
+        self.rows = instances[0]._rows
+        self.N = first.cluster_basis if first.cluster_basis is not None else allocation_basis(first.m)
+        self.allocation = pseudo_inverse(first.G @ self.N)  # what allocate() forms each call, the same numbers
+
+    def step(self, y: np.ndarray, t: float, reports: Sequence[Mapping[str, float]]) -> tuple[np.ndarray, dict]:
+        laws, first = self.laws, self.laws[0]
+        y = np.asarray(y, dtype=float)[:, self.rows]
+        masks = [int(report.get(FAULT_MASK.name, 0)) for report in reports]
+        nominal = np.array(
+            [first.limits is None and not (law.reported or law.active_mask or mask) for law, mask in zip(laws, masks)]
+        )
+        u = np.zeros((len(laws), first.m))
+        values = np.zeros((len(laws), len(VESSEL_DIAGNOSTICS)))
+        if nominal.any():
+            rows = np.flatnonzero(nominal)
+            u[rows], values[rows] = self._nominal([laws[r] for r in rows], y[rows])
+        for r in np.flatnonzero(~nominal):
+            u[r], found = laws[r].step(y[r], t, masks[r])
+            values[r] = [found[d.name] for d in VESSEL_DIAGNOSTICS]
+        return u, {d.name: values[:, i] for i, d in enumerate(VESSEL_DIAGNOSTICS)}
+
+    def _nominal(self, laws: list[VesselController], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``VesselController.step`` of runs without a fault report, on arrays (the same operations)."""
+        first = laws[0]
+        y = np.where(np.isfinite(y), y, np.stack([law.y_last for law in laws]))
+        psi, nu = y[:, 2], y[:, 3:]
+        for law, row in zip(laws, y):
+            law.y_last = row
+            if law.heading_ref is None:
+                law.heading_ref = float(row[2])
+            if law.speed_ref is None:
+                law.speed_ref = row[3:5].copy()
+        error = (psi - np.array([law.heading_ref for law in laws]) + np.pi) % (2 * np.pi) - np.pi  # _wrap
+        heading_integral = np.array([law.heading_integral for law in laws]) + first.sample_time * error
+        a_psi = -(first.kp * error + first.ki * heading_integral + first.kd * nu[:, 2])
+        tau = np.matmul(first.D, nu[..., None])[..., 0]
+        tau[:, 2] = tau[:, 2] + a_psi
+        tau[:, :2] = tau[:, :2] + 0.0  # as + [0, 0, a_ψ] adds to every component
+        u = np.matmul(self.N, np.matmul(self.allocation, tau[..., None]))[..., 0]
+        unmet = np.matmul(first.G, u[..., None])[..., 0] - tau
+        tau_error = np.array([float(np.linalg.norm(row)) for row in unmet])
+        for law, e, integral, bound in zip(laws, tau_error, heading_integral.tolist(), tau.tolist()):
+            if e <= 1e-6 * np.linalg.norm(bound):  # anti-windup: integrate only while τ_c is met
+                law.heading_integral = integral
+        clustered = float(first.cluster_basis is not None)
+        zeros = np.zeros(len(laws))
+        values = np.column_stack([tau, a_psi, error, tau_error, zeros + clustered, zeros, zeros])
+        return u, values

@@ -11,7 +11,7 @@ in tests and in replay.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -61,6 +61,14 @@ class Controller(Configurable, ABC):
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         """u_k from y_k (shape (p,), absolute, NaN where a reading did not arrive), t_k and the
         diagnosis node's latest report (empty before its first one)."""
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> Any:
+        """Optional: these K instances (one design, each its own state) as one object whose
+        ``step(y, t, reports)`` takes y (K, p), t_k and each run's report, and returns u (K, m) and
+        each diagnostic as (K,), run for run bit for bit each instance's ``step``. None, the
+        default: a batch steps each instance by itself."""
+        return None
 
 
 def _indices(names: tuple[str, ...], known: tuple[str, ...], parameter: str, what: str) -> list[int]:

@@ -160,6 +160,7 @@ class _Controller:
 
     def __init__(self, plans: Sequence[RunPlan], sensors: tuple[str, ...], actuators: tuple[str, ...]) -> None:
         self.instances = [copy.deepcopy(plan.controller) for plan in plans if plan.controller is not None]
+        self.batch = type(self.instances[0]).batched(self.instances)  # its own batched step, or None
         model = self.instances[0].model
         s, codec = plans[0].scenario, plans[0].codec
         assert s.controller is not None
@@ -193,11 +194,24 @@ class _Controller:
         u = np.zeros((len(runs), len(self.columns)))
         status = np.zeros((len(runs), len(self.status_signals)))
         t = k * self.t  # the tick's time as its node has it (the tick counter times the sample time)
-        for r in map(int, np.flatnonzero(alive)):
-            y = np.array([readings[r, i] if i >= 0 else np.nan for i in self.outputs])
-            given = {} if report is None else dict(zip(report[0], report[1][r].tolist()))
+        ys = np.stack([readings[:, i] if i >= 0 else np.full(len(runs), np.nan) for i in self.outputs], axis=1)
+        ys = np.where(alive[:, None], ys, 0.0)
+        given: list[dict[str, float]] = (
+            [{} for _ in runs] if report is None else [dict(zip(report[0], row)) for row in report[1].tolist()]
+        )
+        if self.batch is not None:
             try:
-                command = self.instances[r].step(y, t, given)
+                commands, diagnostics = self.batch.step(ys, t, given)
+                u[:] = commands[:, self.command_inputs]
+                for i, signal in enumerate(self.status_signals):
+                    status[:, i] = diagnostics[signal]
+            except Exception as error:  # noqa: BLE001 (a bug of the controller's: each run ends with it, alone)
+                for r in map(int, np.flatnonzero(alive)):
+                    runs[r].leave(k, f"the controller raised {type(error).__name__}: {error}")
+                alive[:] = False
+        for r in map(int, np.flatnonzero(alive)) if self.batch is None else ():
+            try:
+                command = self.instances[r].step(ys[r], t, given[r])
                 u[r] = [float(command.u[i]) for i in self.command_inputs]
                 status[r] = [command.diagnostics[signal] for signal in self.status_signals]
             except Exception as error:  # noqa: BLE001 (a bug of the controller's: its run ends with it, alone)
