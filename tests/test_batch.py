@@ -233,3 +233,25 @@ def test_every_builtin_campaign_batched_gives_the_table_of_its_runs_one_at_a_tim
         b: run_campaign(campaign, tmp_path / f"b{b}", engine="inline", keep_logs="none", batch=b) for b in (1, None)
     }
     assert metrics(tables[1].path).equals(metrics(tables[None].path))
+
+
+def test_the_thrust_allocations_batched_step_equals_its_single_steps_through_a_fault_report():
+    plan = RunPlan.build(apply(api.load("vessel-fault-T1"), [("duration", 2.0)]), 0, interface="virtual")
+    controller = plan.controller
+    runs = 4
+    alone = [copy.deepcopy(controller) for _ in range(runs)]
+    batch = type(controller).batched([copy.deepcopy(controller) for _ in range(runs)])
+    rng = np.random.default_rng(2)
+    model = controller.model
+    for k in range(120):
+        y = model.y_op + 0.05 * rng.standard_normal((runs, model.p))
+        y[1, 2] = np.nan if k % 7 == 3 else y[1, 2]  # a heading reading that did not arrive
+        t = 170.0 + k * controller.sample_time  # reconfigurations are allowed from 180 s
+        reports = [{"fault_mask": float(1 if r == 2 and k >= 40 else 0)} for r in range(runs)]
+        u, diagnostics = batch.step(y, t, reports)
+        for r, single in enumerate(alone):
+            command = single.step(y[r], t, reports[r])
+            assert np.array_equal(u[r], command.u), (k, r)
+            for name, value in command.diagnostics.items():
+                assert diagnostics[name][r] == value, (k, r, name)
+    assert alone[2].law.active_mask == 1 and alone[0].law.active_mask == 0  # run 2 reconfigured, the others not
