@@ -4,6 +4,7 @@ exactly the metrics row each gives alone; what cannot be batched runs alone and 
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -255,3 +256,29 @@ def test_the_thrust_allocations_batched_step_equals_its_single_steps_through_a_f
             for name, value in command.diagnostics.items():
                 assert diagnostics[name][r] == value, (k, r, name)
     assert alone[2].law.active_mask == 1 and alone[0].law.active_mask == 0  # run 2 reconfigured, the others not
+
+
+def test_a_plugins_faults_and_observer_from_the_template_run_in_a_batch_as_alone(tmp_path):
+    """The plugin template (examples/plugin): its observer and its sensor fault, and an actuator
+    fault of a user's file, written for one run, in a batch (each instance by itself)."""
+    import shutil
+
+    shutil.copy(Path(__file__).resolve().parent.parent / "examples" / "plugin" / "my_observer.py", tmp_path)
+    (tmp_path / "my_faults.py").write_text(
+        "from dataclasses import dataclass\n\nimport numpy as np\n\nfrom cosim.api import ActuatorFault\n\n\n"
+        "@dataclass\nclass Reversed(ActuatorFault):\n    kind = 'reversed'\n\n    def factors(self, t, n):\n"
+        "        delta = np.ones(n)\n        if self.active(t):\n            delta[list(self.channels)] = -1.0\n"
+        "        return delta\n"
+    )
+    text = api.load("masses-bias").text.replace("duration = 30.0", "duration = 1.5")
+    text += (
+        '[[faults]]\nkind = "my_observer.py:Quantized"\nsensors = ["x2"]\nstart = 0.5\nparams = { step = 0.01 }\n'
+        '[[faults]]\nkind = "my_faults.py:Reversed"\nactuators = ["force"]\nstart = 0.8\n'
+        '[[estimators]]\nname = "template"\nkind = "my_observer.py:ResidualObserver"\n'
+    )
+    (tmp_path / "s.toml").write_text(text)
+    loaded = api.load_scenario(tmp_path / "s.toml")
+    runs = run_batch(loaded, SEEDS)
+    assert [run.left for run in runs] == ["", "", ""]
+    for seed, run in zip(SEEDS, runs):
+        assert rows_of(run.metrics) == alone(loaded, seed)
