@@ -327,6 +327,10 @@ class AdaptivePseudoinverseObserver(Estimator):
         diagnostics |= INJECTION.values(self.model.states, injected)
         return Estimate(x_k.copy(), diagnostics)
 
+    @classmethod
+    def batched(cls, instances: Sequence[AdaptivePseudoinverseObserver]) -> _AdaptiveBatch:
+        return _AdaptiveBatch(instances)
+
     def bias_effect(self, diagnostics: dict[str, float], phi: np.ndarray) -> np.ndarray:
         """The bias's effect on the injection, Π(s)(Σφ − h Σφ̂) (R(s)⁻¹Γ(φ)s of eq. (19)–(20), (54))."""
         s = SELECTOR.read(diagnostics, self.model.outputs)
@@ -334,6 +338,62 @@ class AdaptivePseudoinverseObserver(Estimator):
         if self.params.injection and diagnostics.get(LOGIC.name):
             residual = residual - self.Sigma @ PHI_HAT.read(diagnostics, self.model.outputs)
         return weighted_pseudoinverse(self.Y, s) @ residual
+
+
+class _AdaptiveBatch(DeviationBatch):
+    """K adaptive observers of one design: the observer (13), the bias estimator (7) and Π(s) of
+    each run's own selector (14) in the stacked kernels; each run's optimizer step (37e), selector
+    (17)/(52) and Algorithm 1's scaling by its own calls, as alone."""
+
+    def __init__(self, instances: Sequence[AdaptivePseudoinverseObserver]) -> None:
+        super().__init__(instances)
+        self.first = instances[0]
+        self.x = np.stack([e.x_hat for e in instances])
+        self.xi = np.stack([e.bias.xi for e in instances])
+        self.z = np.stack([e.z for e in instances])
+        self.s = np.stack([e.s for e in instances])
+        self.h = [e.h for e in instances]
+        self.phi_hat = np.stack([e.phi_hat for e in instances])
+        self.phi_filtered = np.stack([e.phi_filtered for e in instances])
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
+        A, B = self.model.A, self.model.B
+        first, bias, params = self.first, self.first.bias, self.first.params
+        x_k, xi, z, s, h = self.x, self.xi, self.z, self.s, self.h
+        whole = np.flatnonzero(~np.isnan(dy).any(axis=1))
+        x_next = mv(A, x_k) + mv(B, du)
+        xi_next = mv(bias.A, xi) + mv(bias.B, du)  # (7a) without a measurement: a run with a missing reading
+        injected = np.zeros_like(x_k)
+        z_next, s_next, h_next = z.copy(), s.copy(), list(h)
+        if whole.size:
+            y = mv(first.Sigma, dy[whole])
+            phi_hat = mv(bias.output_gain, mv(bias.P_Y, y) - mv(bias.H, xi[whole])) + mv(bias.complement, y)  # (7c)
+            self.phi_hat[whole] = phi_hat
+            logic = np.array([h[r] for r in whole])[:, None]
+            innovation = y - mv(first.C, x_k[whole]) - (logic * phi_hat if params.injection else 0.0)
+            gamma = first.Y.T * s[whole][:, None, :]  # Π(s) = (Γ(s) Y)⁻¹ Γ(s), each run's s (14)
+            allocation = np.linalg.solve(gamma @ first.Y, gamma)
+            injected[whole] = mv(first.L, np.matmul(allocation, innovation[..., None])[..., 0])
+            x_next[whole] = x_next[whole] + injected[whole]  # (13) / (53)
+            xi_next[whole] = xi_next[whole] + mv(bias.M, mv(bias.P_Y, y - mv(bias.C, xi[whole])))  # (7a)
+            for i, r in enumerate(whole):  # each run's own logic, by the same calls as alone
+                if params.filter is not None:  # Algorithm 1
+                    self.phi_filtered[r] = scale_and_filter(
+                        phi_hat[i], self.phi_filtered[r], params.filter, params.eps_phi
+                    )
+                driving = phi_hat[i] if params.filter is None else self.phi_filtered[r]
+                if np.linalg.norm(phi_hat[i]) >= params.dead_zone:
+                    z_next[r] = optimizer_step(z[r], driving, first.Y)  # (16), (37e)
+                s_next[r], h_next[r] = select(s[r], z[r], first.Y, params.epsilon)  # (17) / (52)
+        outputs, states = self.model.outputs, self.model.states
+        phi_shown = mv(first.Sigma.T, self.phi_hat)
+        diagnostics = {PHI_HAT.named(o): phi_shown[:, i] for i, o in enumerate(outputs)}
+        diagnostics |= {OPTIMIZER.named(o): z[:, i] for i, o in enumerate(outputs)}
+        diagnostics |= {SELECTOR.named(o): s[:, i] for i, o in enumerate(outputs)}
+        diagnostics[LOGIC.name] = np.array(h, dtype=float)
+        diagnostics |= {INJECTION.named(x): injected[:, i] for i, x in enumerate(states)}
+        self.x, self.xi, self.z, self.s, self.h = x_next, xi_next, z_next, s_next, h_next
+        return BatchEstimate(x_k.copy(), diagnostics)
 
 
 @dataclass(frozen=True)

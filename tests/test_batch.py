@@ -57,7 +57,15 @@ def test_the_papers_scenarios_are_batched():
 
 
 @pytest.mark.parametrize(
-    "scenario", ["masses-bias", "uio-fault-detection", "tac2024-s1-timevarying", "vessel-nominal", "vessel-fault-T2-T5"]
+    "scenario",
+    [
+        "masses-bias",
+        "uio-fault-detection",
+        "tac2024-s1-timevarying",
+        "tac2024-s2-p4",
+        "vessel-nominal",
+        "vessel-fault-T2-T5",
+    ],
 )
 def test_the_builtin_batched_steps_equal_their_single_steps_with_readings_missing(scenario):
     plan = RunPlan.build(apply(api.load(scenario), [("duration", 2.0)]), 0, interface="virtual")
