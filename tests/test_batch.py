@@ -215,10 +215,15 @@ def test_a_dask_cluster_of_two_workers_with_batches_gives_the_table_of_one_worke
     assert metrics(two.path).equals(metrics(one.path))
 
 
-def test_runs_whose_log_is_kept_run_alone(tmp_path):
+def test_runs_whose_log_is_kept_run_alone_and_the_campaign_says_why(tmp_path):
     (tmp_path / "c.toml").write_text(SWEEP.replace("seeds = 5", "seeds = 2"))
     result = run_campaign(load_campaign(tmp_path / "c.toml"), tmp_path / "o", engine="inline", keep_logs="all")
     assert result.batched == 0 and len(list((tmp_path / "o" / "logs").glob("*.mcap"))) == 4
+    assert result.alone == {"its log is kept (--keep-logs all)": 4}
+    spoofed = SWEEP.replace('"masses-bias"', '"masses-spoofing"').replace("seeds = 5", "seeds = 2")
+    (tmp_path / "s.toml").write_text(spoofed.split("[[axes]]")[0])
+    result = run_campaign(load_campaign(tmp_path / "s.toml"), tmp_path / "s", engine="inline", keep_logs="none")
+    assert result.alone == {"its bus faults and attacks act on frames": 2}
 
 
 def smaller(name, folder):

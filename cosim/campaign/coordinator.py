@@ -16,7 +16,7 @@ import os
 import shlex
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +68,8 @@ class CampaignResult:
     """The runs' own wall times (measured by the workers), summed."""
     batched: int = 0
     """Runs of this session that ran in a batch (the others ran alone: ``cosim.campaign.batch.refusal``)."""
+    alone: dict[str, int] = field(default_factory=dict)
+    """Why the others ran alone, with how many runs each reason sent alone."""
 
 
 def require_extras(engine: str) -> None:
@@ -113,6 +115,8 @@ def run_campaign(
                 outcomes = [_died(spec, outcomes) for spec in specs]
             for spec, outcome in zip(specs, outcomes):
                 tally.batched += bool(outcome.pop("batched", False))
+                if (why := outcome.pop("alone", None)) is not None:
+                    tally.alone[why] = tally.alone.get(why, 0) + 1
                 write_part(folder, spec.index, outcome)
                 tally.add(outcome["rows"])
         description, count = pool.description, pool.workers
@@ -135,6 +139,7 @@ def run_campaign(
         loop_time,
         tally.run_time,
         tally.batched,
+        dict(sorted(tally.alone.items(), key=lambda item: -item[1])),
     )
 
 
@@ -172,6 +177,7 @@ class _Tally:
         self.total, self.skipped, self.finished, self.failed = total, skipped, skipped, failed
         self.run_time = 0.0
         self.batched = 0
+        self.alone: dict[str, int] = {}
         self.on_progress = on_progress
 
     def add(self, rows: list[dict[str, Any]]) -> None:

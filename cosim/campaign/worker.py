@@ -44,41 +44,50 @@ def ignore_interrupts() -> None:
 def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dict[str, Any]]:
     """Run ``specs``, runs of one configuration (scenario and settings) that differ in their seed,
     together as one batch (``cosim.campaign.batch``); returns each run's part, in order, as
-    ``execute_run`` would return it alone, with ``batched`` saying whether it ran in the batch.
-    Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a configuration the
-    batch cannot express run alone, through ``execute_run``."""
+    ``execute_run`` would return it alone, with ``batched`` saying whether it ran in the batch and
+    ``alone`` why not. Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a
+    configuration the batch cannot express run alone, through ``execute_run``."""
     start = time.perf_counter()
     batched: dict[int, _Attempt] = {}
-    if len(specs) > 1 and keep_logs != "all" and specs[0].in_process:
-        batched = _batch_attempts(specs)
+    why = {spec.index: "a batch of one (--batch 1, or the only run of its configuration)" for spec in specs}
+    if keep_logs == "all":
+        why = dict.fromkeys(why, "its log is kept (--keep-logs all)")
+    elif not specs[0].in_process:
+        why = dict.fromkeys(why, "its nodes run in processes (bus = processes)")
+    elif len(specs) > 1:
+        batched, why = _batch_attempts(specs)
     each = (time.perf_counter() - start) / len(specs)
     parts = []
     for spec in specs:
         attempt = batched.get(spec.index)
         if attempt is None:
-            parts.append({**execute_run(spec, folder, keep_logs), "batched": False})
+            parts.append({**execute_run(spec, folder, keep_logs), "batched": False, "alone": why[spec.index]})
         else:
             parts.append({**_part(spec, folder, attempt, each, None), "batched": True})
     return parts
 
 
-def _batch_attempts(specs: list[RunSpec]) -> dict[int, _Attempt]:
-    """The runs of ``specs`` that completed in one batch, by index ({} where the batch cannot run)."""
+def _batch_attempts(specs: list[RunSpec]) -> tuple[dict[int, _Attempt], dict[int, str]]:
+    """The runs of ``specs`` that completed in one batch, by index, and why each other one did not."""
     from cosim.campaign.batch import run_batch
     from cosim.campaign.results import rows_of
 
     try:
         loaded, known, state_unit = _loaded(specs[0])
         done = run_batch(loaded, [spec.seed for spec in specs])
-    except Exception:  # noqa: BLE001 (refused, or a bug of the batch's: the runs alone say what they say)
-        return {}
-    found = {}
+    except CosimError as refused:  # a configuration the batch cannot express: one line, its why last
+        return {}, {spec.index: str(refused).rpartition("not batched: ")[2] for spec in specs}
+    except Exception as error:  # noqa: BLE001 (a bug of the batch's: the runs alone say what they say)
+        return {}, {spec.index: f"the batch failed ({type(error).__name__}: {error})" for spec in specs}
+    found, why = {}, {}
     for spec, run in zip(specs, done):
-        if run.metrics is not None:
-            attempt = _Attempt(logged=False, status="completed", known=known, state_unit=state_unit)
-            attempt.rows = rows_of(run.metrics)
-            found[spec.index] = attempt
-    return found
+        if run.metrics is None:
+            why[spec.index] = f"it left the batch at {run.left}"
+            continue
+        attempt = _Attempt(logged=False, status="completed", known=known, state_unit=state_unit)
+        attempt.rows = rows_of(run.metrics)
+        found[spec.index] = attempt
+    return found, why
 
 
 def execute_run(spec: RunSpec, folder: str, keep_logs: str) -> dict[str, Any]:

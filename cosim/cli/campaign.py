@@ -98,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
     talk.print(
         f"done: {result.runs} runs{resumed}, {result.failed} failed, in {result.wall_time:.1f} s on "
         f"{escape(result.engine)}; {result.batched} of {ran} ran batched"
-        + ("" if result.batched == ran else " (the others alone: see docs/architecture.md, 'Batched runs')")
+        + "".join(f"\n  {count} alone: {escape(why)}" for why, count in list(result.alone.items())[:3])
     )
     print(result.path)
     return 0
