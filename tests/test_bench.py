@@ -87,6 +87,8 @@ def test_estimator_step_benchmark_times_every_kind_against_kalman():
     } <= set(figures)
     assert all(v > 0 for v in figures.values())
     assert abs(figures["kalman_over_numpy_kalman"] - figures["kalman"] / figures["numpy_kalman"]) < 0.01
+    # each kind's batched step per run (32 instances), and its ratio to the single step
+    assert figures["kalman_batched_32"] > 0 and figures["adaptive-ct_batched_over_single"] > 0
 
 
 def test_lmi_design_benchmark_reports_its_figures():
@@ -113,6 +115,10 @@ def test_campaign_benchmark_reports_runs_per_hour_speedup_and_overhead():
     figures = bench("campaign.py", "--runs", "4", "--duration", "0.5", "--memory-runs", "20", "--logged", "1")
     assert figures["workers"] >= 1 and figures["runs_per_hour"] > 0 and figures["speedup"] > 0
     assert figures["overhead_per_run_s"] >= 0 and figures["identical"] is True, figures
+    assert figures["batched_runs"] == figures["runs"] == 4 and figures["batch"] >= 2  # the default scenario batches
+    assert figures["batch_speedup"] == pytest.approx(
+        figures["runs_per_hour"] / figures["runs_per_hour_unbatched"], rel=0.01
+    )
     assert figures["logged_run_s"] > 0 and figures["campaign_run_cost_s"] > 0
     cost = figures["campaign_run_cost_s"] / figures["logged_run_s"]
     assert figures["cost_over_logged_run"] == pytest.approx(cost, rel=0.01)

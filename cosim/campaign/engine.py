@@ -65,6 +65,7 @@ class DaskEngine(Engine):
         distributed = require("distributed", "cosim campaign --engine dask", "campaign")
         Client, LocalCluster = distributed.Client, distributed.LocalCluster
         self._stack = ExitStack()
+        self._local = not address
         if address:
             try:
                 self.client = self._stack.enter_context(Client(address, timeout=15))
@@ -128,9 +129,19 @@ class DaskEngine(Engine):
         if isinstance(exc[1] if len(exc) > 1 else None, KeyboardInterrupt):
             # Stopping a cluster in the middle of its tasks makes Dask log every cancelled
             # coroutine; the user asked for the stop, and the coordinator says what was kept.
-            for name in ("distributed", "tornado", "asyncio"):
-                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+            quiet_logs()
+            if self._local:  # and so should the workers, busy in a batch, whose heartbeat outlives the scheduler
+                try:
+                    self.client.run(quiet_logs)
+                except Exception:  # noqa: BLE001 (a worker already gone has nothing more to say)
+                    pass
         self._stack.close()
+
+
+def quiet_logs() -> None:
+    """Silence Dask's loggers (and those of its event loop) in this process."""
+    for name in ("distributed", "tornado", "asyncio"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 def open_engine(name: str, workers: int | None = None, address: str | None = None) -> Engine:
