@@ -90,6 +90,7 @@ class _KalmanBatch(DeviationBatch):
 
     def __init__(self, instances: Sequence[KalmanFilter]) -> None:
         super().__init__(instances)
+        self.filters = list(instances)
         first = instances[0]
         self.R, self.Q, self._identity, self._At = first.R, first.Q, first._identity, first._At
         self.x = np.stack([e.x_hat for e in instances])
@@ -98,32 +99,26 @@ class _KalmanBatch(DeviationBatch):
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
         A, B, C, D = self.model.A, self.model.B, self.model.C, self.model.D
         missing = np.isnan(dy)
-        whole, none = ~missing.any(axis=1), missing.all(axis=1)
+        whole = ~missing.any(axis=1)
         x, P = self.x, self.P
         if whole.all():
             x, P = self._update(x, P, dy - mv(C, x) - mv(D, du))
-        else:
+            own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        else:  # rows with every reading updated here; with some, each by its own filter's step (fewer rows of C)
             x, P = x.copy(), P.copy()
             rows = np.flatnonzero(whole)
             if rows.size:
                 x[rows], P[rows] = self._update(x[rows], P[rows], dy[rows] - mv(C, x[rows]) - mv(D, du[rows]))
-            rows = np.flatnonzero(~whole & ~none)  # some readings: each its own filter's update
-
-            def load(e: KalmanFilter, r: int) -> None:
-                e.x_hat, e.P = self.x[r].copy(), self.P[r].copy()
-
-            def store(e: KalmanFilter, r: int) -> None:
-                self.x[r], self.P[r] = e.x_hat, e.P  # predicted by its own step: taken back below as is
-
-            if rows.size:
-                predicted_x, predicted_P = self.x.copy(), self.P.copy()
-                x[rows] = self._each(rows, dy, du, load, store)
-                own_x, own_P = self.x[rows].copy(), self.P[rows].copy()
-                self.x, self.P = predicted_x, predicted_P
+            own = {}
+            for r in map(int, np.flatnonzero(~whole & ~missing.all(axis=1))):
+                single = self.filters[r]
+                single.x_hat, single.P = self.x[r].copy(), self.P[r].copy()
+                x[r] = single._step(dy[r], du[r]).x
+                own[r] = single.x_hat, single.P  # already predicted
         x_next = mv(A, x) + mv(B, du)
         P_next = A @ P @ self._At + self.Q
-        if not whole.all() and rows.size:
-            x_next[rows], P_next[rows] = own_x, own_P
+        for row, (predicted_x, predicted_P) in own.items():
+            x_next[row], P_next[row] = predicted_x, predicted_P
         self.x, self.P = x_next, P_next
         return BatchEstimate(x, {})
 

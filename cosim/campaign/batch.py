@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import copy
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -380,7 +379,3 @@ def _leave_outside(
 def _range(specs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
     channels = [channel for spec in specs for channel in spec.channels]
     return np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
-
-
-def timed(start: float) -> float:
-    return time.perf_counter() - start
