@@ -295,3 +295,17 @@ def test_a_plugins_faults_and_observer_from_the_template_run_in_a_batch_as_alone
     assert [run.left for run in runs] == ["", "", ""]
     for seed, run in zip(SEEDS, runs):
         assert rows_of(run.metrics) == alone(loaded, seed)
+
+
+def test_a_campaign_on_a_reference_fmu_plant_runs_alone_and_says_why(tmp_path):
+    """The Modelica Association's VanDerPol (FMI 3.0) as the plant runs in a process of its own: the
+    batch refuses it in one line and the campaign's runs go alone, with the table of --batch 1."""
+    scenario = Path(__file__).resolve().parent / "data" / "fmus" / "vanderpol-bias.toml"
+    (tmp_path / "c.toml").write_text(
+        f'name = "vdp"\nscenario = "{scenario}"\nseed = 2\nseeds = 2\nbus = "in-process"\n[set]\nduration = 1.0\n'
+    )
+    campaign = load_campaign(tmp_path / "c.toml")
+    chosen = run_campaign(campaign, tmp_path / "chosen", engine="inline", keep_logs="none")
+    assert chosen.batched == 0 and chosen.alone == {"its plant is an FMU, which runs in a process of its own": 2}
+    one = run_campaign(campaign, tmp_path / "one", engine="inline", keep_logs="none", batch=1)
+    assert metrics(chosen.path).equals(metrics(one.path))
