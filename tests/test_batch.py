@@ -11,8 +11,9 @@ import pyarrow.parquet as pq
 import pytest
 import tomlkit
 
+import cosim.campaign.batch as batch_module
 from cosim import api
-from cosim.campaign.batch import refusal, run_batch
+from cosim.campaign.batch import refusal, run_batch, run_together
 from cosim.campaign.coordinator import batches, run_campaign
 from cosim.campaign.results import NONDETERMINISTIC, rows_of
 from cosim.campaign.spec import builtin_names as builtin_campaigns
@@ -178,16 +179,52 @@ name = "bias"
 """
 
 
-def test_batches_group_runs_of_one_configuration_in_index_order(tmp_path):
-    (tmp_path / "c.toml").write_text(SWEEP)
+def test_batches_group_runs_that_differ_in_their_plants_faults_in_index_order(tmp_path):
+    (tmp_path / "c.toml").write_text(SWEEP + THRESHOLDS)
     runs = load_campaign(tmp_path / "c.toml").runs()
     found = batches(runs, None, 2)
     assert sorted(r.index for batch in found for r in batch) == [r.index for r in runs]
-    for batch in found:
-        assert len({(r.settings, r.scenario_text) for r in batch}) == 1
+    for batch in found:  # the bias is the plant's own: one group per threshold (a design of the estimator)
+        assert len({(repr(r.settings[-1]), r.scenario_text) for r in batch}) == 1
+        assert len({repr(r.settings) for r in batch}) == 2
         assert [r.index for r in batch] == sorted(r.index for r in batch)
-    assert [len(b) for b in batches(runs, 2, 2)] == [2, 2, 1, 2, 2, 1]
+    assert [len(b) for b in found] == [10, 10]
+    assert sorted(len(b) for b in batches(runs, 4, 2)) == [2, 2, 4, 4, 4, 4]
     assert all(len(b) == 1 for b in batches(runs, 1, 2))
+
+
+THRESHOLDS = """
+[[axes]]
+key = "estimators[0].params.poles"
+values = [[0.75, 0.8, 0.85, 0.9], [0.5, 0.55, 0.6, 0.65]]
+name = "poles"
+"""
+
+
+def test_runs_of_other_faults_noise_and_inputs_step_together_each_as_alone(monkeypatch):
+    sizes = []
+    init = batch_module._Batch.__init__
+    monkeypatch.setattr(
+        batch_module._Batch, "__init__", lambda self, plans: sizes.append(len(plans)) or init(self, plans)
+    )
+    base = apply(api.load("masses-bias"), [("duration", 1.0), ("faults[0].start", 0.3)])
+    members = [
+        (base, 3),
+        (apply(base, [("faults[0].value", 0.5)]), 3),
+        (apply(base, [("faults[0].start", 0.6), ("noise[0].std", 0.01)]), 4),
+        (apply(base, [("inputs[0].signal.amplitude", 2.0)]), 5),
+        (apply(base, [("estimators[0].params.poles", [0.5, 0.55, 0.6, 0.65])]), 6),  # another design
+        (apply(base, [("bus.timing", "arbitrated")]), 7),  # refused: it runs alone
+        (base, 8),
+    ]
+    runs = run_together(members)
+    assert sizes == [5, 1]  # the poles are a design of the estimator's: another batch
+    assert [bool(run.refused) for run in runs] == [False] * 5 + [True, False]
+    assert runs[5].refused == "its bus timing is arbitrated"
+    for (loaded, seed), run in zip(members, runs):
+        if not run.refused:
+            assert run.seed == seed and not run.left
+            assert rows_of(run.metrics) == alone(loaded, seed), seed
 
 
 def test_a_batched_campaign_resumed_after_losing_runs_gives_the_same_table(tmp_path):

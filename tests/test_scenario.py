@@ -236,3 +236,10 @@ def test_fault_onset_is_the_first_tick_at_or_after_start_even_when_kτ_rounds_be
     assert first_tick_at(s, 0.33) == 11
     injector = build_faults(s)
     assert not injector.sensor_faults[0].active(s.time(10)) and injector.sensor_faults[0].active(s.time(11))
+
+
+def test_settings_applied_in_turn_all_hold():
+    once = scenario.apply(scenario.load("masses-bias"), [("duration", 1.0)])
+    twice = scenario.apply(once, [("faults[0].value", 0.5)])
+    assert twice.scenario.duration == 1.0 and list(twice.scenario.faults[0].value) == [0.5]
+    assert twice.settings == (("duration", 1.0), ("faults[0].value", 0.5))

@@ -1,11 +1,16 @@
 """Batched runs: the runs of one plan that differ only in their seed, stepped together.
 
-A campaign's replicates share a configuration (scenario and settings) and differ in their seed.
-``run_batch`` steps K of them in lockstep in one process, every per-tick array with a leading run
-axis, so that each call pays its overhead once for K runs: the estimators through their batched
+A campaign's replicates share a configuration (scenario and settings) and differ in their seed;
+the runs of its axes and samples often differ only in what acts on each run's own plant (its faults,
+noise, disturbances, inputs, initial state). ``run_batch`` steps K runs of one configuration, and
+``run_together`` K runs of any configurations, in lockstep in one process wherever their designs
+agree (``_shared``: the estimators and controller as designed, the sensors, actuators, bus and
+ticks), every per-tick array with a leading run axis, so that each call pays its overhead once for
+K runs: the estimators through their batched
 step (``estimators.batched``: one stacked NumPy call for K runs where the kind has one), the CAN
 codec's quantization as array arithmetic (``Codec.carried``), the scores fed whole ticks
-(``Scorer.tick``). Each run keeps its own plant, faults and random streams (its seed's, as alone).
+(``Scorer.tick``). Each run keeps its own plant, inputs, faults and random streams (its seed's, as
+alone); the sensor faults of runs configured alike act on arrays (``FaultInjector.sensors_batch``).
 
 What a batch computes is what a run's metrics row reads, bit for bit what the run gives alone
 (``cosim run --seed``, or a campaign with ``--batch 1``): the values each estimator receives (the
@@ -26,7 +31,9 @@ the intrusion detector, clients, realtime) runs every run alone.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
+import pickle
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -56,6 +63,8 @@ class BatchedRun:
     seed: int
     metrics: RunMetrics | None = None
     left: str = ""
+    refused: str = ""
+    """Why it did not step in a batch at all (``refusal``, or its plan's error): to be run alone."""
 
 
 UNBUILT = (
@@ -88,9 +97,10 @@ def refusal(plan: RunPlan) -> str | None:
 class _Run:
     """One run's own parts in a batch: its plan (its seed's scenario), plant and faults, scores."""
 
-    def __init__(self, plan: RunPlan, seed: int) -> None:
-        self.seed = seed
-        self.plan = replace(plan, scenario=plan.scenario.with_overrides(seed=seed))
+    def __init__(self, plan: RunPlan) -> None:
+        assert plan.scenario.seed is not None
+        self.seed = plan.scenario.seed
+        self.plan = plan
         self.source = PlantSource(self.plan)
         self.scoring = TickScoring(
             {
@@ -232,14 +242,75 @@ def run_batch(
     why = refusal(plan)
     if why is not None:
         raise CosimError(f"{loaded.source}: not batched: {why}")
-    return _Batch(plan, seeds).run(on_tick)
+    return _Batch([_seeded(plan, seed) for seed in seeds]).run(on_tick)
+
+
+def run_together(
+    members: Sequence[tuple[LoadedScenario, int]], on_tick: Callable[[int, int], None] | None = None
+) -> list[BatchedRun]:
+    """Runs of any configurations (each a scenario with its settings, and a seed), in order: those
+    whose designs agree (``_shared``) step together, one batch after another; a run the batch
+    cannot express, or whose plan cannot be built, says why in ``refused`` (alone, it says the same
+    or runs). ``on_tick(k, ticks)`` follows each batch in turn."""
+    found: dict[int, BatchedRun] = {}
+    configured: dict[tuple[str, str], tuple[RunPlan, Any] | str] = {}  # one plan per configuration, then seeded
+    groups: dict[Any, list[tuple[int, RunPlan]]] = {}
+    for i, (loaded, seed) in enumerate(members):
+        key = (loaded.text, repr(loaded.settings))
+        if key not in configured:
+            built = _plan_or_why(loaded, seed)
+            configured[key] = built if isinstance(built, str) else (built, _shared(built))
+        known = configured[key]
+        if isinstance(known, str):
+            found[i] = BatchedRun(seed, refused=known)
+        else:
+            groups.setdefault(known[1], []).append((i, _seeded(known[0], seed)))
+    for group in groups.values():
+        rows, plans = zip(*group)
+        found.update(zip(rows, _Batch(plans).run(on_tick)))
+    return [found[i] for i in range(len(members))]
+
+
+def _plan_or_why(loaded: LoadedScenario, seed: int) -> RunPlan | str:
+    """The plan of ``loaded``, or why its runs step alone (its refusal, or why it cannot be built)."""
+    try:
+        plan = RunPlan.build(loaded, seed, interface="virtual")
+    except CosimError as error:
+        return f"its plan cannot be built ({error})"
+    return refusal(plan) or plan
+
+
+def _seeded(plan: RunPlan, seed: int) -> RunPlan:
+    return replace(plan, scenario=plan.scenario.with_overrides(seed=seed))
+
+
+def _shared(plan: RunPlan) -> Any:
+    """What the runs of one batch have in common, as one comparable value: everything but each
+    run's plant, inputs, disturbances, faults and seed (its ``_Run``). Each estimator counts as its
+    node would build it (kind, model, parameters with its design's, sample time: the same whether
+    designed or taken from the design cache), the controller as designed (pickled). One that does
+    not pickle batches only with runs of its own configuration."""
+    s = plan.scenario
+    try:
+        return pickle.dumps(
+            (s.ticks, s.sample_time, s.sensors, s.actuators, s.bus, s.timing, s.controller, plan.state_names)
+            + tuple((name, *_as_built(e)) for name, e in plan.estimators.items())
+            + (plan.controller,)
+        )
+    except Exception:  # noqa: BLE001 (a plugin's state may hold anything)
+        return (plan.loaded.text, repr(plan.loaded.settings))
+
+
+def _as_built(estimator: Any) -> tuple[Any, ...]:
+    params = {**dataclasses.asdict(estimator.params), **estimator.node_params()}
+    return type(estimator).__qualname__, estimator.model, sorted(params.items()), estimator.sample_time
 
 
 class _Batch:
-    def __init__(self, plan: RunPlan, seeds: Sequence[int]) -> None:
+    def __init__(self, plans: Sequence[RunPlan]) -> None:
+        plan = plans[0]
         s = self.scenario = plan.scenario
-        self.runs = [_Run(plan, seed) for seed in seeds]
-        plans = [run.plan for run in self.runs]
+        self.runs = [_Run(each) for each in plans]
         self.codec = plan.codec
         self.sensor_specs = [self.codec.sensor(n) for n in s.sensors]
         self.command_specs = [self.codec.command(n) for n in s.actuators]
@@ -254,6 +325,10 @@ class _Batch:
         self.scores = TickBatch(
             [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
         )
+        alike: dict[str, list[int]] = {}  # runs whose sensor faults and noise are configured alike
+        for r, run in enumerate(self.runs):
+            alike.setdefault(repr((run.plan.scenario.noise, run.plan.scenario.faults)), []).append(r)
+        self.alike = [np.array(rows) for rows in alike.values()]
 
     def run(self, on_tick: Callable[[int, int], None] | None) -> list[BatchedRun]:
         s, runs = self.scenario, self.runs
@@ -275,7 +350,7 @@ class _Batch:
         runs, t = self.runs, self.scenario.time(k)
         x = np.stack([run.source.plant.state() for run in runs])
         y_true = np.stack([run.source.plant.sensors() for run in runs])  # a run that left: its last, unused
-        measured, sent, active = fm.FaultInjector.sensors_batch([run.source.faults for run in runs], y_true, t)
+        measured, sent, active = self._sensors(y_true, t)
         middle = 0.5 * (self.sensor_range[0] + self.sensor_range[1])
         self._check(k, alive, np.where(sent, measured, middle), self.sensor_range, "a sensor reading outside its range")
         readings = np.where(sent, self.sensors_carried(np.where(sent, measured, 0.0)), np.nan)
@@ -287,6 +362,21 @@ class _Batch:
         rows = np.flatnonzero(alive)
         self.scores.tick(k, rows, x, active, values)
         self._advance(k, t, rows, u_cmd, alive)
+
+    def _sensors(self, y_true: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, list[tuple[str, ...]]]:
+        """Each run's readings through its sensor faults and noise (``FaultInjector.sensors``): the
+        measured values, which are sent, and its active faults; runs configured alike on arrays."""
+        runs = self.runs
+        if len(self.alike) == 1:
+            return fm.FaultInjector.sensors_batch([run.source.faults for run in runs], y_true, t)
+        measured, sent = np.empty_like(y_true), np.empty(y_true.shape, dtype=bool)
+        active: list[tuple[str, ...]] = [()] * len(runs)
+        for rows in self.alike:
+            injectors = [runs[r].source.faults for r in rows]
+            measured[rows], sent[rows], found = fm.FaultInjector.sensors_batch(injectors, y_true[rows], t)
+            for r, labels in zip(rows.tolist(), found):
+                active[r] = labels
+        return measured, sent, active
 
     def _commands(self, k: int, t: float, readings: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tick k's commands by actuator (what the actuators hold where none came) and which came:

@@ -143,18 +143,20 @@ def run_campaign(
     )
 
 
+#: Settings that act on a run's own plant (its faults, noise, disturbances, inputs, initial state): runs
+#: that differ only in these (and their seed) go to one batch, where ``batch.run_together`` steps together
+#: those whose designs agree.
+PER_RUN_SETTINGS = ("faults", "noise", "disturbances", "inputs", "plant.initial_state")
+
+
 def batches(runs: list[RunSpec], size: int | None, workers: int) -> list[list[RunSpec]]:
-    """``runs`` in batches: runs of one configuration (scenario, settings, bus) in index order, at
-    most ``size`` a batch. None chooses the size: every configuration's runs in as few batches as
-    ``MAX_BATCH`` allows, cut smaller where that leaves a worker idle."""
+    """``runs`` in batches: runs of one scenario whose settings differ at most in ``PER_RUN_SETTINGS``,
+    in index order, at most ``size`` a batch. None chooses the size: every such group's runs in as
+    few batches as ``MAX_BATCH`` allows, cut smaller where that leaves a worker idle."""
     groups: dict[tuple[Any, ...], list[RunSpec]] = {}
     for run in runs:
-        key = (
-            run.scenario_text,
-            run.scenario_source,
-            repr(run.settings),
-            run.in_process,
-        )  # settings hold lists, tables
+        shared = [(path, value) for path, value in run.settings if not path.startswith(PER_RUN_SETTINGS)]
+        key = (run.scenario_text, run.scenario_source, repr(shared), run.in_process)  # settings hold lists, tables
         groups.setdefault(key, []).append(run)
     found = []
     for group in groups.values():

@@ -42,10 +42,10 @@ def ignore_interrupts() -> None:
 
 
 def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dict[str, Any]]:
-    """Run ``specs``, runs of one configuration (scenario and settings) that differ in their seed,
-    together as one batch (``cosim.campaign.batch``); returns each run's part, in order, as
-    ``execute_run`` would return it alone, with ``batched`` saying whether it ran in the batch and
-    ``alone`` why not. Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a
+    """Run ``specs``, runs of one scenario that differ in their seed or in what acts on each run's
+    plant (``coordinator.batches``), together (``cosim.campaign.batch.run_together``); returns each
+    run's part, in order, as ``execute_run`` would return it alone, with ``batched`` saying whether
+    it ran in a batch and ``alone`` why not. Runs whose log is kept (``keep_logs`` all), runs that leave the batch and a
     configuration the batch cannot express run alone, through ``execute_run``."""
     start = time.perf_counter()
     batched: dict[int, _Attempt] = {}
@@ -68,21 +68,27 @@ def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dic
 
 
 def _batch_attempts(specs: list[RunSpec]) -> tuple[dict[int, _Attempt], dict[int, str]]:
-    """The runs of ``specs`` that completed in one batch, by index, and why each other one did not."""
-    from cosim.campaign.batch import run_batch
+    """The runs of ``specs`` that completed in a batch, by index, and why each other one did not."""
+    from cosim.campaign.batch import run_together
     from cosim.campaign.results import rows_of
 
+    found, why = {}, {}
+    members, described = [], []
+    for spec in specs:
+        try:
+            loaded, known, state_unit = _loaded(spec)
+        except CosimError as error:  # alone, it fails with the same error
+            why[spec.index] = f"its settings do not apply ({error})"
+            continue
+        members.append((loaded, spec.seed))
+        described.append((spec, known, state_unit))
     try:
-        loaded, known, state_unit = _loaded(specs[0])
-        done = run_batch(loaded, [spec.seed for spec in specs])
-    except CosimError as refused:  # a configuration the batch cannot express: one line, its why last
-        return {}, {spec.index: str(refused).rpartition("not batched: ")[2] for spec in specs}
+        done = run_together(members)
     except Exception as error:  # noqa: BLE001 (a bug of the batch's: the runs alone say what they say)
         return {}, {spec.index: f"the batch failed ({type(error).__name__}: {error})" for spec in specs}
-    found, why = {}, {}
-    for spec, run in zip(specs, done):
+    for (spec, known, state_unit), run in zip(described, done):
         if run.metrics is None:
-            why[spec.index] = f"it left the batch at {run.left}"
+            why[spec.index] = run.refused or f"it left the batch at {run.left}"
             continue
         attempt = _Attempt(logged=False, status="completed", known=known, state_unit=state_unit)
         attempt.rows = rows_of(run.metrics)

@@ -135,12 +135,13 @@ def set_path(data: dict[str, Any], key: str, value: Any) -> None:
 
 
 def apply(loaded: LoadedScenario, settings: Mapping[str, Any] | Iterable[tuple[str, Any]]) -> LoadedScenario:
-    """The scenario with ``settings`` (path → value) applied to its file's data, validated like a file."""
+    """The scenario with ``settings`` (path → value) applied to its file's data after those it has
+    already, validated like a file."""
     items = list(settings.items() if isinstance(settings, Mapping) else settings)
     if not items:
         return loaded
-    scenario = _validated(loaded.text, loaded.source, items)
-    return replace(loaded, scenario=scenario, settings=(*loaded.settings, *items))
+    every = (*loaded.settings, *items)
+    return replace(loaded, scenario=_validated(loaded.text, loaded.source, list(every)), settings=every)
 
 
 def load_with(name_or_path: str | Path | None, settings: Iterable[tuple[str, Any]]) -> LoadedScenario:
