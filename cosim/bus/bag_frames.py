@@ -57,9 +57,10 @@ def bag_format(path: str | Path) -> str:
     return "rosbag2 " + ("/".join(sorted(storages)) or "(no storage file)")
 
 
-def read_bag(path: str | Path, warnings: list[str]) -> Iterator[BagFrame]:
-    """The frames of a bag's CAN topics in the bag's order. Damage part way ends them with a
-    warning in ``warnings``; a bag that cannot be read, or holds no CAN topic, is one CosimError line."""
+def read_bag(path: str | Path, warnings: list[str], topic: str | None = None) -> Iterator[BagFrame]:
+    """The frames of a bag's CAN topics in the bag's order (``topic``: the one whose frames are
+    kept, which the warnings speak of). Damage part way ends them with a warning in ``warnings``;
+    a bag that cannot be read, or holds no CAN topic, is one CosimError line."""
     require("rosbags", FEATURE)
     from rosbags.rosbag2 import Reader
 
@@ -74,12 +75,12 @@ def read_bag(path: str | Path, warnings: list[str]) -> Iterator[BagFrame]:
     except Exception as error:  # noqa: BLE001 - rosbags, sqlite and YAML raise their own kinds
         raise CosimError(f"{path}: cannot read it as a ROS 2 bag ({_reason(error)})") from None
     try:
-        yield from _frames(path, reader, warnings)
+        yield from _frames(path, reader, warnings, topic)
     finally:
         reader.close()
 
 
-def _frames(path: Path, reader: Any, warnings: list[str]) -> Iterator[BagFrame]:
+def _frames(path: Path, reader: Any, warnings: list[str], topic: str | None) -> Iterator[BagFrame]:
     connections = [c for c in reader.connections if c.msgtype in DEFINITIONS]
     if not connections:
         raise CosimError(
@@ -97,7 +98,7 @@ def _frames(path: Path, reader: Any, warnings: list[str]) -> Iterator[BagFrame]:
             except ValueError as error:
                 raise CosimError(f"{path}: message {count} on {connection.topic} holds no CAN frame: {error}") from None
             frame.timestamp = time_ns / 1e9
-            fd += connection.msgtype == FD_FRAME
+            fd += connection.msgtype == FD_FRAME and topic in (None, connection.topic)
             count += 1
             yield BagFrame(frame, connection.topic, time_ns, stamp_ns(message.header))
     except CosimError:

@@ -215,17 +215,17 @@ def _frames_on(
 ) -> Iterator[Recorded]:
     """The log's frames on the ``wanted`` channel (None: all), each with its channel's name; the
     frames of every channel counted in ``on_channel``."""
-    for recorded in _recorded(source, fmt, warnings):
+    for recorded in _recorded(source, fmt, warnings, wanted):
         on_channel[recorded.channel] += 1
         if wanted is None or recorded.channel == wanted:
             yield recorded
 
 
-def _recorded(source: Path, fmt: str, warnings: list[str]) -> Iterator[Recorded]:
+def _recorded(source: Path, fmt: str, warnings: list[str], wanted: str | None) -> Iterator[Recorded]:
     """Every frame of a log or bag as recorded: a bag's times are its own integer ns, a log's
     seconds (python-can's) rounded to the ns."""
     if is_bag(source):
-        for found in read_bag(source, warnings):
+        for found in read_bag(source, warnings, wanted):
             yield Recorded(found.frame, found.topic, found.time_ns, found.stamp_ns)
         return
     for frame in read_frames(source, warnings):
