@@ -52,9 +52,9 @@ FRAME_ID = "can"
 LAST_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
 
 
-@cache
-def typestore() -> Typestore:
-    """rosbags' store of the ROS 2 types (the newest distribution's) with the two CAN frames."""
+def new_typestore() -> Typestore:
+    """A store of rosbags' with the ROS 2 types (the newest distribution's) and the two CAN frames,
+    to which a bag's writer adds its own types."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.LATEST)
@@ -63,24 +63,30 @@ def typestore() -> Typestore:
     return store
 
 
+@cache
+def typestore() -> Typestore:
+    """The store that reads bags: ``new_typestore``'s types, never added to."""
+    return new_typestore()
+
+
 def stamp_ns(header: Any) -> int:
     """A ``std_msgs/Header``'s stamp in ns since the epoch, exactly."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def ros_time(time_ns: int) -> Any:
+def ros_time(store: Typestore, time_ns: int) -> Any:
     """``builtin_interfaces/msg/Time`` of ns since the epoch; one line for a time it cannot hold."""
     if not 0 <= time_ns <= LAST_STAMP_NS:
         raise CosimError(
             f"time {time_ns} ns since the Unix epoch does not fit a ROS 2 time (int32 seconds: 1970 to 2038-01-19)"
         )
     seconds, nanoseconds = divmod(time_ns, 1_000_000_000)
-    return typestore().types["builtin_interfaces/msg/Time"](sec=seconds, nanosec=nanoseconds)
+    return store.types["builtin_interfaces/msg/Time"](sec=seconds, nanosec=nanoseconds)
 
 
-def header(time_ns: int, frame_id: str) -> Any:
+def header(store: Typestore, time_ns: int, frame_id: str) -> Any:
     """A ``std_msgs/msg/Header`` stamped ``time_ns``."""
-    return typestore().types["std_msgs/msg/Header"](stamp=ros_time(time_ns), frame_id=frame_id)
+    return store.types["std_msgs/msg/Header"](stamp=ros_time(store, time_ns), frame_id=frame_id)
 
 
 def frame_of(message: Any, msgtype: str) -> can.Message:
@@ -105,14 +111,14 @@ def frame_of(message: Any, msgtype: str) -> can.Message:
     )
 
 
-def ros_frame(frame: dict[str, Any], time_ns: int, frame_id: str) -> tuple[str, Any]:
+def ros_frame(store: Typestore, frame: dict[str, Any], time_ns: int, frame_id: str) -> tuple[str, Any]:
     """(message type, message) of a ``/can/frames`` record: a classic frame as ``can_msgs/msg/Frame``
     (its data padded to 8 bytes), a CAN FD frame as ``ros2_socketcan_msgs/msg/FdFrame``."""
     import numpy as np
 
     data = bytes.fromhex(frame["data"])
-    types = typestore().types
-    stamped = header(time_ns, frame_id)
+    types = store.types
+    stamped = header(store, time_ns, frame_id)
     if frame["fd"]:
         payload = np.frombuffer(data, dtype=np.uint8)
         return FD_FRAME, types[FD_FRAME](
