@@ -69,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     log = common.latest_log(args.log)
     out = common.unused(Path(args.out) if args.out else default_output(log, args.to), args.force)
     if args.to == "rosbag2" and out.exists() and not args.force:
-        raise CosimError(f"{out} exists: choose another --out, or pass --force to replace the bag")
+        raise CosimError(f"{out} exists: choose another --out, or pass --force to replace it")
     start = None if args.start_time is None else parse_start_time(args.start_time)
     result = export(log, args.to, out, dbc=args.dbc, start_ns=start)
     talk = common.error_console()
