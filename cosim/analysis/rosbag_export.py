@@ -29,7 +29,7 @@ import shutil
 import tempfile
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Literal
 
 from cosim.analysis.ros_messages import RosType, definition, register, ros_type
 from cosim.bus.ros_can import DEFINITIONS, FD_FRAME, FRAME_ID, header, new_typestore, ros_frame
@@ -39,7 +39,7 @@ from cosim.log.reader import LogReader
 from cosim.log.topics import FRAMES
 
 FD_FRAMES = FRAMES + "_fd"
-VERSION = 9
+VERSION: Final[Literal[9]] = 9  # the bag version rosbag2 writes since Jazzy
 
 
 def write_bag(reader: LogReader, out: Path, start_ns: int, base_ns: int) -> Counter[str]:

@@ -92,7 +92,7 @@ def _frames(path: Path, reader: Any, warnings: list[str], topic: str | None) -> 
     count = fd = 0
     try:
         for connection, time_ns, data in reader.messages(connections):
-            message = store.deserialize_cdr(data, connection.msgtype)
+            message: Any = store.deserialize_cdr(data, connection.msgtype)
             try:
                 frame = frame_of(message, connection.msgtype)
             except ValueError as error:

@@ -232,9 +232,11 @@ def _recorded(source: Path, fmt: str, warnings: list[str], wanted: str | None) -
         yield Recorded(frame, channel_name(frame, fmt), round(frame.timestamp * 1e9))
 
 
-def _option(fmt: str) -> str:
-    """The option that picks one channel of a log of this format: a bag's channels are its topics."""
-    return "--topic" if fmt.startswith("rosbag2") else "--channel"
+def _option(fmt: str, metavar: bool = False) -> str:
+    """The option that picks one channel of a log of this format (a bag's channels are its
+    topics), with its argument's name where ``metavar``."""
+    option, name = ("--topic", "TOPIC") if fmt.startswith("rosbag2") else ("--channel", "CH")
+    return f"{option} {name}" if metavar else option
 
 
 def _kind(fmt: str) -> str:
@@ -264,8 +266,7 @@ def _warnings(record: ImportRecord, unknown: Counter[str], on_channel: Counter[s
     if not record.channel and len(on_channel) > 1:
         warnings.append(
             f"{record.source} holds frames of {len(on_channel)} {_kind(record.format)} ({_channels(on_channel)}), "
-            f"all decoded by the one DBC; {_option(record.format)} {_kind(record.format)[:-1].upper()} imports "
-            f"one {_kind(record.format)[:-1]}'s"
+            f"all decoded by the one DBC; {_option(record.format, True)} imports one {_kind(record.format)[:-1]}'s"
         )
     if record.unknown:
         ids = ", ".join(f"{frame_id} ({n})" for frame_id, n in unknown.most_common(5))
