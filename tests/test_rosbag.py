@@ -23,7 +23,16 @@ from cosim.errors import CosimError
 from cosim.log.can_import import import_log
 from cosim.log.metadata import IMPORT
 from cosim.log.reader import LogReader
-from tests.ros2_socketcan_bags import FD_FRAME, FRAME, FRAME_MSG, LATENCY_NS, store, write_bag, write_old_sqlite_bag
+from tests.ros2_socketcan_bags import (
+    FD_FRAME,
+    FRAME,
+    FRAME_MSG,
+    LATENCY_NS,
+    recorded,
+    store,
+    write_bag,
+    write_old_sqlite_bag,
+)
 from tests.test_export import run_short
 from tests.test_foreign_dbc import ROOT, frames_of, read_mcap, write_log
 
@@ -193,6 +202,20 @@ def test_a_bag_cut_short_is_one_line_and_writes_nothing(tmp_path, storage):
         import_log(bag, DBC, tmp_path / "cut.mcap")
     assert str(error.value).startswith(f"{bag}: cannot read it as a ROS 2 bag (") and "\n" not in str(error.value)
     assert not (tmp_path / "cut.mcap").exists()
+
+
+def test_a_message_that_holds_no_frame_ends_the_import_with_a_warning(tmp_path):
+    """A message cut short (its CDR ends inside the frame): the frames before it are imported, as
+    a damaged log's are, and the warning says where it stopped."""
+    frames = [f for f in bus_frames() if not f.is_fd]
+    typestore = store()
+    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        topic = writer.add_connection("/from_can_bus", FRAME, typestore=typestore)
+        for i, (_, _, time_ns, data) in enumerate(recorded(frames)):
+            writer.write(topic, time_ns, data if i != 5 else data[:20])
+    result = import_log(tmp_path / "bag", DBC, tmp_path / "bag.mcap")
+    assert result.record.frames == 5
+    assert any(w.startswith(f"{tmp_path / 'bag'}: damaged after 5 frames (") for w in result.warnings)
 
 
 # -- out: cosim export LOG --to rosbag2 -----------------------------------------------------------
