@@ -46,6 +46,11 @@ uint8 len
 uint8[<=64] data
 """,
 }
+#: The standard types the frames use (builtin_interfaces', std_msgs'), as their packages define them.
+STANDARD = {
+    "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+    "std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+}
 #: ros2_socketcan's ``header.frame_id``, for a frame whose log names no channel.
 FRAME_ID = "can"
 #: The last instant a ROS 2 time (int32 seconds since the epoch) holds, in ns.
@@ -53,12 +58,12 @@ LAST_STAMP_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
 
 
 def new_typestore() -> Typestore:
-    """A store of rosbags' with the ROS 2 types (the newest distribution's) and the two CAN frames,
-    to which a bag's writer adds its own types."""
+    """A store of rosbags' with the two CAN frames and the standard types they use, to which a
+    bag's writer adds its own types (the store of a whole distribution takes seconds to build)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    store = get_typestore(Stores.LATEST)
-    for msgtype, text in DEFINITIONS.items():
+    store = get_typestore(Stores.EMPTY)
+    for msgtype, text in {**STANDARD, **DEFINITIONS}.items():
         store.register(get_types_from_msg(text, msgtype))
     return store
 
