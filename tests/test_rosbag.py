@@ -17,6 +17,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 
 from cosim.analysis.export import export
+from cosim.analysis.ros_messages import register, ros_types
 from cosim.bus.foreign import read_dbc
 from cosim.cli import main
 from cosim.errors import CosimError
@@ -364,3 +365,35 @@ def test_a_bag_export_is_deterministic_and_replaces_only_a_bag(run_log, tmp_path
     assert "exists and is no ROS 2 bag folder" in capsys.readouterr().err
     assert list((tmp_path / "folder").iterdir()) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "folder"]  # no temporary folder left
+
+
+def test_topics_and_signals_get_ros_names_that_never_collide():
+    """ROS 2's rules (a type: CamelCase; a field: lower case, single underscores, a letter first),
+    each name once: two topics or two keys that would share one are numbered, never merged."""
+    number = {"type": "number", "description": "speed [m/s]"}
+    schema = {
+        "type": "object",
+        "properties": {"Speed": number, "speed": number, "header": number, "ABSActive": {"type": "boolean"}},
+        "required": ["Speed"],
+        "description": "a message",
+    }
+    nested = {"type": "object", "properties": {"o": {"type": "object", "properties": {"x": {"type": "integer"}}}}}
+    types = ros_types({"/can/ESP_21": schema, "/can/ESP21": schema, "/can/ESP_21_o": nested, "/can/ESP21O": nested})
+    assert [[t.name.removeprefix("cosim_msgs/msg/") for t in types[topic].every()] for topic in types] == [
+        ["CanESP21"],
+        ["CanESP212"],
+        ["CanESP21O", "CanESP21OO"],
+        ["CanESP21O2", "CanESP21O2O"],
+    ]
+    text = types["/can/ESP_21"].text
+    fields = ("float64 speed  # Speed: speed [m/s]", "float64 speed_2  # speed: speed [m/s]", "float64 header_2  # header:")
+    assert "\n".join(fields) in text
+    assert "\nbool[<=1] abs_active  # ABSActive\n" in text  # not required: ROS 2's optional
+    typestore = store()
+    register(typestore, list(types.values()))
+    header = typestore.types["std_msgs/msg/Header"](typestore.types["builtin_interfaces/msg/Time"](0, 5), "")
+    message = types["/can/ESP_21"].message(typestore, {"Speed": 1.5, "speed": None}, header)
+    assert (message.speed, math.isnan(message.speed_2), list(message.abs_active)) == (1.5, True, [])
+    msgtype = "cosim_msgs/msg/CanESP21"
+    again = typestore.deserialize_cdr(typestore.serialize_cdr(message, msgtype), msgtype)
+    assert again.speed == 1.5 and again.header.stamp.nanosec == 5

@@ -108,13 +108,32 @@ def field_name(key: str) -> str:
     return name if name[:1].isalpha() else f"f_{name}".rstrip("_")
 
 
-def ros_type(topic: str, schema: dict[str, Any]) -> RosType:
-    """The type of a topic with its JSON Schema: a header, then a field per property."""
+def ros_types(schemas: dict[str, dict[str, Any]]) -> dict[str, RosType]:
+    """The type of each topic of a log with its JSON Schema; where two topics would give one name
+    (``/a/b_c`` and ``/a/bC``), the later one's is numbered (``ABC2``), its nested types too."""
+    types: dict[str, RosType] = {}
+    used: set[str] = set()
+    for topic, schema in schemas.items():
+        name, n = type_name(topic), 1
+        while True:
+            made = ros_type(topic, schema, name if n == 1 else f"{name}{n}")
+            names = {t.name for t in made.every()}
+            if not names & used:
+                break
+            n += 1
+        types[topic] = made
+        used |= names
+    return types
+
+
+def ros_type(topic: str, schema: dict[str, Any], name: str | None = None) -> RosType:
+    """The type of a topic with its JSON Schema (named ``name``, or after the topic): a header,
+    then a field per property."""
     title = " ".join(str(schema.get("description") or schema.get("title") or "").split())
     intro = f"# {topic}: {title}\n" if title else f"# {topic}\n"
     intro += "# made by cosim export --to rosbag2 of the topic's JSON Schema: units in [brackets]; where the log\n"
     intro += "# has null, a float64 is NaN and an optional (T[<=1]) empty\n"
-    return _object(type_name(topic), topic, schema, intro, header=True)
+    return _object(name or type_name(topic), topic, schema, intro, header=True)
 
 
 def _object(name: str, where: str, schema: dict[str, Any], intro: str, header: bool = False) -> RosType:

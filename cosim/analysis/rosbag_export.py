@@ -31,7 +31,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Final, Literal
 
-from cosim.analysis.ros_messages import RosType, definition, register, ros_type
+from cosim.analysis.ros_messages import RosType, definition, register, ros_types
 from cosim.bus.ros_can import DEFINITIONS, FD_FRAME, FRAME_ID, header, new_typestore, ros_frame
 from cosim.errors import CosimError
 from cosim.extras import require
@@ -64,7 +64,7 @@ def _write(reader: LogReader, path: Path, offset_ns: int) -> Counter[str]:
 
     store = new_typestore()
     schemas = reader.schemas()
-    types = {topic: ros_type(topic, schema) for topic, schema in schemas.items() if topic != FRAMES}
+    types = ros_types({topic: schema for topic, schema in schemas.items() if topic != FRAMES})
     register(store, list(types.values()))
     texts = {**DEFINITIONS, **{t.name: t.text for top in types.values() for t in top.every()}}
     writer = Writer(path, version=VERSION, storage_plugin=StoragePlugin.MCAP)
