@@ -386,7 +386,7 @@ def test_topics_and_signals_get_ros_names_that_never_collide():
         ["CanESP21O2", "CanESP21O2O"],
     ]
     text = types["/can/ESP_21"].text
-    fields = ("float64 speed  # Speed: speed [m/s]", "float64 speed_2  # speed: speed [m/s]", "float64 header_2  # header:")
+    fields = ("float64 speed  # Speed: speed [m/s]", "float64 speed_2  # speed: speed [m/s]", "float64 header_2  #")
     assert "\n".join(fields) in text
     assert "\nbool[<=1] abs_active  # ABSActive\n" in text  # not required: ROS 2's optional
     typestore = store()
