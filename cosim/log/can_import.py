@@ -136,7 +136,7 @@ def import_log(source: str | Path, dbc: str | Path, out: str | Path, channel: st
     ``dbc``: of its frames on ``channel`` only (as the log names it, ``channel_name``; a bag's
     topic), or of all of them."""
     source, dbc, out = Path(source), Path(dbc), Path(out)
-    fmt = bag_format(source) if is_bag(source) else log_format(source)
+    fmt = _format(source)
     decoder = FrameDecoder(read_dbc(dbc))
     if any(message_topic(m.name) == FRAMES for m in decoder.database.messages):
         raise CosimError(f"{dbc}: a message named 'frames' would share the topic {FRAMES} with the frames")
@@ -230,6 +230,16 @@ def _recorded(source: Path, fmt: str, warnings: list[str], wanted: str | None) -
         return
     for frame in read_frames(source, warnings):
         yield Recorded(frame, channel_name(frame, fmt), round(frame.timestamp * 1e9))
+
+
+def _format(source: Path) -> str:
+    """The format of a CAN log or bag; one line naming what cosim reads for any other file."""
+    if is_bag(source):
+        return bag_format(source)
+    try:
+        return log_format(source)
+    except CosimError as error:
+        raise CosimError(f"{error}; and ROS 2 bags (a rosbag2 folder, or its .mcap or .db3)") from None
 
 
 def _option(fmt: str, metavar: bool = False) -> str:
