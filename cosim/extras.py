@@ -2,10 +2,10 @@
 
 ``pip install .`` (or ``cosim``) installs what a run needs; each heavy feature is an extra of
 pyproject.toml: ``lmi`` (cvxpy, Clarabel: the LMI designs of IJC 2018), ``export`` (pyarrow,
-asammdf: Parquet and MF4 exports), ``campaign`` (distributed, pyarrow: the campaign engine and its
-results table), ``plot`` (matplotlib: figures), ``live``
-(foxglove-sdk: the Foxglove WebSocket server), ``fmi`` (FMPy, pythonfmu3, pint: FMU plants and
-``cosim fmu``); ``all`` is every one of them.
+asammdf, rosbags: Parquet, MF4 and ROS 2 bag exports; MF4 logs and ROS 2 bags imported),
+``campaign`` (distributed, pyarrow: the campaign engine and its results table), ``plot``
+(matplotlib: figures), ``live`` (foxglove-sdk: the Foxglove WebSocket server), ``fmi`` (FMPy,
+pythonfmu3, pint: FMU plants and ``cosim fmu``); ``all`` is every one of them.
 
 ``require`` imports a package of an extra or raises ``MissingExtra`` naming the extra;
 ``missing_extra`` turns an ImportError raised deeper down (a lazy import in an estimator's design,
@@ -22,7 +22,7 @@ from cosim.errors import CosimError
 #: Extra → the top-level modules of its packages.
 EXTRAS: dict[str, tuple[str, ...]] = {
     "lmi": ("cvxpy", "clarabel"),
-    "export": ("pyarrow", "asammdf"),
+    "export": ("pyarrow", "asammdf", "rosbags"),
     "campaign": ("distributed", "pyarrow"),
     "plot": ("matplotlib",),
     "live": ("foxglove", "websockets"),

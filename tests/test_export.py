@@ -14,6 +14,8 @@ import can
 import cantools
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from cosim.analysis import export as exporting
 from cosim.analysis.export import export, parse_start_time, table_columns
@@ -412,6 +414,11 @@ def test_every_builtin_scenario_log_inspects_and_exports_to_every_format(name, t
         if fmt in ("candump", "mf4", "blf"):
             assert result.start_ns == round(start * 1000) * 1_000_000, fmt  # the run's date
     assert (tmp_path / "out.candump").read_text().startswith(f"({start:.6f}) ")
+    # a ROS 2 bag of every topic, each message decoded by the definition in the file (mcap_ros2)
+    bag = export(log, "rosbag2", tmp_path / "bag")
+    with open(tmp_path / "bag" / "bag.mcap", "rb") as stream, LogReader(log) as reader:
+        decoded = make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages()
+        assert sum(1 for _ in decoded) == bag.count == sum(1 for _ in reader.messages()) and bag.warnings == []
 
     # the same scenario on the other bus (classic CAN for CAN FD, and back): the same table columns
     other = run_short(

@@ -30,6 +30,10 @@ loaded whole):
   asammdf's ``extract_bus_logging`` and CANalyzer decode it; its header's start time is the start,
   its timestamps simulated time.
 
+- **A ROS 2 bag** (``rosbag2``): a rosbag2 folder (MCAP storage, CDR) of the frames as
+  ros2_socketcan's messages and every other topic as a ROS message, stamped as the frame logs
+  (``cosim.analysis.rosbag_export``).
+
 Output goes to a temporary file beside the output (``cosim.files``) renamed into place at the
 end, so a failed export leaves no half-written file under the final name.
 """
@@ -67,9 +71,11 @@ FORMATS = {
     "candump": ".log",
     "asc": ".asc",
     "trc": ".trc",
+    "rosbag2": "",  # a folder named as the log
 }
 TABLE_FORMATS = ("csv", "parquet")
-FRAME_FORMATS = ("blf", "mf4", "candump", "asc", "trc")
+#: The formats stamped from the run's start (``--start-time``).
+FRAME_FORMATS = ("blf", "mf4", "candump", "asc", "trc", "rosbag2")
 TRUTH_TOPICS = (STATE, SENSORS, INPUTS, FAULTS)
 #: Decoded topics that are bus control, not signals.
 CONTROL_MESSAGES = re.compile(r"^/can/(NMT|SYNC|HEARTBEAT_.*)$")
@@ -133,6 +139,8 @@ def export(
     if out.resolve() == Path(log).resolve():
         raise CosimError(f"{out}: the output would overwrite the log; choose another --out")
     with LogReader(log) as reader:
+        if fmt == "rosbag2":
+            return _export_bag(reader, out, start_ns)
         part = temporary_beside(out, FORMATS[fmt])  # asammdf insists on its suffix
         warnings: list[str] = []
         start = None
@@ -146,6 +154,22 @@ def export(
         finally:
             part.unlink(missing_ok=True)
         return ExportResult(out, fmt, count, reader.warnings + warnings, start)
+
+
+def _export_bag(reader: LogReader, out: Path, start_ns: int | None) -> ExportResult:
+    """The log as a ROS 2 bag folder (``cosim.analysis.rosbag_export``), stamped as the frame logs."""
+    from cosim.analysis.rosbag_export import write_bag
+
+    warnings: list[str] = []
+    start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
+    written = write_bag(reader, out, start, _log_base(reader))
+    return ExportResult(out, "rosbag2", sum(written.values()), reader.warnings + warnings, start)
+
+
+def _log_base(reader: LogReader) -> int:
+    """What a log time is counted from: an imported log's are its frames' own (since the epoch,
+    from its start to the millisecond), a run's simulated time (from 0)."""
+    return run_start_ns(reader, []) if LogMetadata.read(reader.metadata()).imported is not None else 0
 
 
 def run_start_ns(reader: LogReader, warnings: list[str]) -> int:
@@ -395,8 +419,7 @@ def _export_frames(reader: LogReader, fmt: str, path: Path, dbc: str | Path | No
             f"{reader.path}: the log has no {FRAMES} topic, so no CAN frames to export; "
             f"tables of its messages come with --to csv or parquet"
         )
-    # an imported log's log times are its frames' own (since the epoch), a run's simulated time
-    base = run_start_ns(reader, []) if LogMetadata.read(reader.metadata()).imported is not None else 0
+    base = _log_base(reader)
     if fmt == "mf4":
         require("asammdf", "cosim export --to mf4")
         return _write_mf4(path, frames(reader, base), _dbc_text(reader, dbc), start_ns)

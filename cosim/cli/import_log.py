@@ -1,13 +1,15 @@
-"""Import another tool's CAN log, decoded by its DBC, as an MCAP log.
+"""Import another tool's CAN log or a ROS 2 bag, decoded by its DBC, as an MCAP log.
 
 Import a CAN log written by another tool (candump -L .log, Vector BLF and ASC, PEAK TRC, ASAM MF4
-bus logging, python-can's .csv and .db) and decode it by its DBC into an MCAP log: every frame on
+bus logging, python-can's .csv and .db), or the CAN topics of a ROS 2 bag (a rosbag2 folder, MCAP
+or SQLite, or one .mcap or .db3 of one: can_msgs/msg/Frame and ros2_socketcan_msgs/msg/FdFrame, as
+ros2_socketcan records them), and decode it by its DBC into an MCAP log: every frame on
 /can/frames, every DBC message on a topic of its own (/can/<Message>) with its signals' units in
 JSON Schemas, each message at the frame's recorded time, the DBC attached. Open it in Foxglove
 (with 'cosim layout' for a plot per message), or use it with 'cosim inspect', 'plot', 'export' and
 'replay --live'. A log of several buses (channels) is decoded whole by the one DBC unless --channel
-picks one; each frame's channel is on /can/frames. A signal with a value table is logged as its
-number; its schema names the values.
+picks one (a bag's: --topic); each frame's channel (a bag's topic) is on /can/frames, with a bag's
+header stamp. A signal with a value table is logged as its number; its schema names the values.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 from rich.markup import escape
 
 from cosim.cli import common
+from cosim.errors import CosimError
 
 NAME = "import"
 EPILOG = """\
@@ -25,11 +28,18 @@ examples:
   cosim import drive.blf --dbc car.dbc --out drive.mcap
   cosim import candump-2024-06-01.log --dbc car.dbc      (writes candump-2024-06-01.mcap)
   cosim import drive.blf --channel 2 --dbc body.dbc --out body.mcap   one bus of a log of several
+  cosim import rosbag2_2024_06_01/ --dbc car.dbc --out drive.mcap      a ROS 2 bag (ros2_socketcan)
+  cosim import rosbag2_2024_06_01/ --topic /from_can_bus --dbc car.dbc   one topic of the bag
   cosim layout drive.mcap --out drive.layout.json        a plot per message, for Foxglove"""
 
 
 def arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", metavar="LOG", help="the CAN log: .log (candump -L), .blf, .asc, .trc, .mf4, .csv or .db")
+    p.add_argument(
+        "log",
+        metavar="LOG",
+        help="the CAN log: .log (candump -L), .blf, .asc, .trc, .mf4, .csv or .db; or a ROS 2 bag: a rosbag2 "
+        "folder, or one .mcap or .db3 of one",
+    )
     p.add_argument("--dbc", required=True, metavar="FILE.dbc", help="the CAN database that decodes its frames")
     p.add_argument(
         "--channel",
@@ -37,26 +47,50 @@ def arguments(p: argparse.ArgumentParser) -> None:
         help="import only the frames of this channel of a log of several buses, as the log names it: candump's "
         "interface (can0), Vector's channel from 1 (BLF, ASC), PEAK's bus (TRC), MF4's bus channel",
     )
-    p.add_argument("--out", "-o", metavar="FILE.mcap", help="the MCAP log to write (default: LOG with .mcap)")
+    p.add_argument(
+        "--topic",
+        metavar="TOPIC",
+        help="a ROS 2 bag: import only the frames of this topic (/from_can_bus, ...), as the bag names it",
+    )
+    p.add_argument(
+        "--out",
+        "-o",
+        metavar="FILE.mcap",
+        help="the MCAP log to write (default: LOG with .mcap; a bag's own .mcap file: .cosim.mcap)",
+    )
     common.force_option(p)
     common.quiet_option(p)
 
 
 def main(args: argparse.Namespace) -> int:
+    from cosim.bus.bag_frames import is_bag
     from cosim.log.can_import import import_log
 
     log = Path(args.log)
-    out = common.unused(Path(args.out) if args.out else log.with_suffix(".mcap"), args.force)
-    result = import_log(log, args.dbc, out, args.channel)
+    bag = is_bag(log)
+    if args.topic is not None and not bag:
+        raise CosimError(f"--topic picks a topic of a ROS 2 bag; {log} is a CAN log, whose buses --channel picks")
+    if args.channel is not None and bag:
+        raise CosimError(f"--channel: the buses of a ROS 2 bag are its topics; pick one with --topic ({log})")
+    out = common.unused(Path(args.out) if args.out else default_output(log), args.force)
+    result = import_log(log, args.dbc, out, args.topic if bag else args.channel)
     talk = common.console(stderr=True, quiet=args.quiet)
     common.warn(talk, result.warnings)
     record = result.record
     span = ((record.end_time_ns or 0) - (record.start_time_ns or 0)) / 1e9
-    channel = f" of channel {escape(record.channel)}" if record.channel else ""
-    others = f"; {record.other_channels} frames of its other channels left out" if record.channel else ""
+    kind = "topic" if bag else "channel"
+    channel = f" of {kind} {escape(record.channel)}" if record.channel else ""
+    others = f"; {record.other_channels} frames of its other {kind}s left out" if record.channel else ""
     talk.print(
         f"imported {record.frames} frames{channel} ({span:g} s of {record.format}): {record.decoded} decoded into "
         f"{len(result.topics)} messages by {escape(record.dbc)}{others}"
     )
     print(result.path)
     return 0
+
+
+def default_output(log: Path) -> Path:
+    """LOG with .mcap: a bag folder's name with .mcap beside it, a bag's own .mcap file with .cosim.mcap."""
+    if log.is_dir():
+        return log.parent / f"{log.resolve().name}.mcap"
+    return log.with_suffix(".cosim.mcap" if log.suffix.lower() == ".mcap" else ".mcap")

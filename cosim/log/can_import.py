@@ -1,14 +1,15 @@
 """A CAN log from another tool, with its DBC, as an MCAP log: what ``cosim import`` writes.
 
 The log is read frame by frame (``cosim.bus.canlogs``: candump, BLF, ASC, TRC, MF4, python-can's
-CSV and SQLite) and each frame decoded through cantools by the DBC (``cosim.bus.foreign``: by its
-id and its own extended flag). The MCAP log holds
+CSV and SQLite; ``cosim.bus.bag_frames``: a ROS 2 bag's ``can_msgs/msg/Frame`` and
+``ros2_socketcan_msgs/msg/FdFrame`` topics) and each frame decoded through cantools by the DBC
+(``cosim.bus.foreign``: by its id and its own extended flag). The MCAP log holds
 
 - ``/can/frames``: every data frame in the log's order, as a run logs its frames, with the
-  channel the log recorded it on (``cosim.log.topics.ImportedFrame``): ``tick`` and ``seq`` are
-  the frame's position in the log (an imported log has no ticks), ``t`` the seconds since its
-  first frame, ``sender`` and ``message`` from the DBC (``unknown`` and null for ids it does not
-  describe);
+  channel the log recorded it on (``cosim.log.topics.ImportedFrame``; a bag's: the frame's ROS
+  topic): ``tick`` and ``seq`` are the frame's position in the log (an imported log has no
+  ticks), ``t`` the seconds since its first frame, ``sender`` and ``message`` from the DBC
+  (``unknown`` and null for ids it does not describe), ``stamp`` a bag's header stamp;
 - ``/can/<Message>``: each DBC message's decoded signals, one topic per message that occurs, its
   JSON Schema naming each signal's unit (``"<comment> [<unit>]"``, as a run's do) and its value
   table; a multiplexed message's signals are required only where they are in every frame. A
@@ -19,10 +20,11 @@ id and its own extended flag). The MCAP log holds
   ``cosim.versions``.
 
 Every message's log time is the frame's own timestamp, in ns since the Unix epoch where the
-format records the date: Foxglove shows when the bus was recorded. Error and remote frames carry
+format records the date (a bag's: the time rosbag2 recorded it, exact to the ns): Foxglove shows
+when the bus was recorded. Error and remote frames carry
 no signals and are left out (counted). A log of several channels (buses) is decoded whole by the
-one DBC, with a warning, unless one ``channel`` is asked for: its frames alone are imported. The
-file is written beside the output and renamed into place once complete: an import that fails or
+one DBC, with a warning, unless one ``channel`` is asked for (a bag's topic): its frames alone are
+imported. The file is written beside the output and renamed into place once complete: an import that fails or
 is interrupted leaves nothing under the name.
 """
 
@@ -32,17 +34,18 @@ from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 from cantools.database.can import Message
 
+from cosim.bus.bag_frames import bag_format, is_bag, read_bag
 from cosim.bus.canlogs import channel_name, log_format, read_frames
 from cosim.bus.foreign import FrameDecoder, read_dbc
 from cosim.errors import CosimError
 from cosim.files import temporary_beside
 from cosim.log.metadata import DBC_ATTACHMENT, IMPORT, VERSIONS, ImportRecord, versions
-from cosim.log.topics import FRAMES, CanFrame, message_topic, prop, text, topic
+from cosim.log.topics import FRAMES, CanFrame, integer, message_topic, prop, text, topic
 from cosim.log.writer import McapLog, number
 
 #: Choices shown in a signal's description, at most (a DTC table may have hundreds).
@@ -55,15 +58,42 @@ class ImportedFrame(CanFrame):
     frame on (``channel_name``). A run's frames keep their own record: a run has one bus."""
 
     channel: str | None = prop(
-        text("the channel the log recorded the frame on, as the log names it (null: it records none)", nullable=True),
+        text(
+            "the channel the log recorded the frame on, as the log names it (a ROS 2 bag: its topic; null: it records "
+            "none)",
+            nullable=True,
+        ),
+        default=None,
+    )
+    stamp: int | None = prop(
+        integer(
+            "a ROS 2 bag's frame: its header stamp, ns since the Unix epoch (null: the log has none)", nullable=True
+        ),
         default=None,
     )
 
     @staticmethod
     def payload(
-        tick: int, t: float, seq: int, frame: can.Message, sender: str, message: str | None, channel: str | None = None
+        tick: int,
+        t: float,
+        seq: int,
+        frame: can.Message,
+        sender: str,
+        message: str | None,
+        channel: str | None = None,
+        stamp: int | None = None,
     ) -> dict[str, Any]:
-        return {**CanFrame.payload(tick, t, seq, frame, sender, message), "channel": channel}
+        return {**CanFrame.payload(tick, t, seq, frame, sender, message), "channel": channel, "stamp": stamp}
+
+
+class Recorded(NamedTuple):
+    """A frame as its log recorded it: on which channel (a bag's topic), when (ns since the epoch),
+    and a bag's header stamp."""
+
+    frame: can.Message
+    channel: str | None
+    time_ns: int
+    stamp_ns: int | None = None
 
 
 @dataclass
@@ -102,23 +132,28 @@ def signals_schema(message: Message) -> dict[str, Any]:
 
 
 def import_log(source: str | Path, dbc: str | Path, out: str | Path, channel: str | None = None) -> ImportResult:
-    """Write the MCAP log ``out`` of the CAN log ``source`` decoded by the DBC file ``dbc``: of
-    its frames on ``channel`` only (as the log names it, ``channel_name``), or of all of them."""
+    """Write the MCAP log ``out`` of the CAN log or ROS 2 bag ``source`` decoded by the DBC file
+    ``dbc``: of its frames on ``channel`` only (as the log names it, ``channel_name``; a bag's
+    topic), or of all of them."""
     source, dbc, out = Path(source), Path(dbc), Path(out)
-    fmt = log_format(source)
+    fmt = _format(source)
     decoder = FrameDecoder(read_dbc(dbc))
     if any(message_topic(m.name) == FRAMES for m in decoder.database.messages):
         raise CosimError(f"{dbc}: a message named 'frames' would share the topic {FRAMES} with the frames")
     if out.suffix != ".mcap":
         raise CosimError(f"--out {out}: an MCAP file (.mcap)")
+    if out.resolve() == source.resolve():
+        raise CosimError(f"--out {out}: the output would overwrite the bag; choose another --out")
     part = temporary_beside(out, ".mcap")
     try:
         with McapLog(part) as log:
             result = _write(log, source, fmt, dbc, decoder, channel)
         if channel is not None and channel not in result.channels:
             found = result.channels
-            where = "its format records no channel" if list(found) == [None] else f"its channels: {_channels(found)}"
-            raise CosimError(f"--channel {channel}: {source} has no frame on it; {where}")
+            where = (
+                "its format records no channel" if list(found) == [None] else f"its {_kind(fmt)}: {_channels(found)}"
+            )
+            raise CosimError(f"{_option(fmt)} {channel}: {source} has no frame on it; {where}")
         if result.record.frames == 0:
             raise CosimError(f"{source}: the log holds no CAN data frames")
         part.replace(out)
@@ -137,19 +172,18 @@ def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecode
     warnings: list[str] = []
     count = decoded_count = undecodable = skipped = 0
     first = last = None
-    for frame, recorded_on in _frames_on(source, fmt, wanted, on_channel, warnings):
+    for frame, recorded_on, time_ns, stamp in _frames_on(source, fmt, wanted, on_channel, warnings):
         if frame.is_error_frame or frame.is_remote_frame:
             skipped += 1
             continue
-        time_ns = round(frame.timestamp * 1e9)
         if time_ns < 0:
-            raise CosimError(f"{source}: frame {count} is stamped before the Unix epoch ({frame.timestamp:g} s)")
+            raise CosimError(f"{source}: frame {count} is stamped before the Unix epoch ({time_ns / 1e9:g} s)")
         first = time_ns if first is None else first
         last = time_ns
         message = decoder.message(frame)
         sender = (message.senders[0] if message.senders else "unknown") if message is not None else "unknown"
         name = message.name if message is not None else None
-        payload = ImportedFrame.payload(count, (time_ns - first) / 1e9, count, frame, sender, name, recorded_on)
+        payload = ImportedFrame.payload(count, (time_ns - first) / 1e9, count, frame, sender, name, recorded_on, stamp)
         log.write(frames_channel, time_ns, payload)
         count += 1
         if message is None:
@@ -178,14 +212,45 @@ def _write(log: McapLog, source: Path, fmt: str, dbc: Path, decoder: FrameDecode
 
 def _frames_on(
     source: Path, fmt: str, wanted: str | None, on_channel: Counter[str | None], warnings: list[str]
-) -> Iterator[tuple[can.Message, str | None]]:
+) -> Iterator[Recorded]:
     """The log's frames on the ``wanted`` channel (None: all), each with its channel's name; the
     frames of every channel counted in ``on_channel``."""
+    for recorded in _recorded(source, fmt, warnings, wanted):
+        on_channel[recorded.channel] += 1
+        if wanted is None or recorded.channel == wanted:
+            yield recorded
+
+
+def _recorded(source: Path, fmt: str, warnings: list[str], wanted: str | None) -> Iterator[Recorded]:
+    """Every frame of a log or bag as recorded: a bag's times are its own integer ns, a log's
+    seconds (python-can's) rounded to the ns."""
+    if is_bag(source):
+        for found in read_bag(source, warnings, wanted):
+            yield Recorded(found.frame, found.topic, found.time_ns, found.stamp_ns)
+        return
     for frame in read_frames(source, warnings):
-        recorded_on = channel_name(frame, fmt)
-        on_channel[recorded_on] += 1
-        if wanted is None or recorded_on == wanted:
-            yield frame, recorded_on
+        yield Recorded(frame, channel_name(frame, fmt), round(frame.timestamp * 1e9))
+
+
+def _format(source: Path) -> str:
+    """The format of a CAN log or bag; one line naming what cosim reads for any other file."""
+    if is_bag(source):
+        return bag_format(source)
+    try:
+        return log_format(source)
+    except CosimError as error:
+        raise CosimError(f"{error}; and ROS 2 bags (a rosbag2 folder, or its .mcap or .db3)") from None
+
+
+def _option(fmt: str, metavar: bool = False) -> str:
+    """The option that picks one channel of a log of this format (a bag's channels are its
+    topics), with its argument's name where ``metavar``."""
+    option, name = ("--topic", "TOPIC") if fmt.startswith("rosbag2") else ("--channel", "CH")
+    return f"{option} {name}" if metavar else option
+
+
+def _kind(fmt: str) -> str:
+    return "topics" if fmt.startswith("rosbag2") else "channels"
 
 
 def _channels(counts: Counter[str | None]) -> str:
@@ -210,8 +275,8 @@ def _warnings(record: ImportRecord, unknown: Counter[str], on_channel: Counter[s
     warnings = []
     if not record.channel and len(on_channel) > 1:
         warnings.append(
-            f"{record.source} holds frames of {len(on_channel)} channels ({_channels(on_channel)}), all decoded "
-            "by the one DBC; --channel CH imports one channel's"
+            f"{record.source} holds frames of {len(on_channel)} {_kind(record.format)} ({_channels(on_channel)}), "
+            f"all decoded by the one DBC; {_option(record.format, True)} imports one {_kind(record.format)[:-1]}'s"
         )
     if record.unknown:
         ids = ", ".join(f"{frame_id} ({n})" for frame_id, n in unknown.most_common(5))
