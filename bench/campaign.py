@@ -2,10 +2,12 @@
 speedup of batching, of 2 workers over 1, and the engine's overhead per run, in one invocation.
 
 Workload: ``--scenario`` (default ``masses-bias``), ``--duration`` simulated seconds (default 30),
-on the in-process bus, ``--runs`` replicates. The same campaign runs batched (``--batch``, default
-chosen: ``cosim.campaign.coordinator.batches``) on all workers, one at a time (``--batch 1``) on all
-workers, and batched on one worker; each time the loop time is taken from the first run submitted
-to the last result (the cluster's start-up, reported apart, is paid once per campaign). Figures:
+on the in-process bus, ``--runs`` replicates; or ``--campaign NAME``, a built-in campaign (its
+grid and seeds, ``--duration`` set on every run, ``--runs`` ignored), e.g. a fault sweep. The same
+campaign runs batched (``--batch``, default chosen: ``cosim.campaign.coordinator.batches``) on all
+workers, one at a time (``--batch 1``) on all workers, and batched on one worker; each time the
+loop time is taken from the first run submitted to the last result (the cluster's start-up,
+reported apart, is paid once per campaign). Figures:
 
 - ``runs_per_hour``: runs / loop time, batched, all workers, × 3600; ``runs_per_hour_unbatched``:
   the same one at a time; ``batch_speedup``: their ratio; ``batch``: the runs per batch (largest);
@@ -27,7 +29,7 @@ With ``--memory-runs N`` it also runs a campaign of N runs of 0.05 s (so that th
 runs, is what grows) and reports the coordinator's resident memory after the first tenth of the
 runs and at the end (``memory_rss_mb_at_10pct``, ``memory_rss_mb_at_end``, ``memory_runs``).
 
-Usage: python bench/campaign.py [--json] [--scenario NAME] [--runs N] [--duration S] [--workers N]
+Usage: python bench/campaign.py [--json] [--scenario NAME | --campaign NAME] [--runs N] [--duration S] [--workers N]
        [--batch K] [--logged N] [--sweep K,K,...] [--memory-runs N]
 """
 
@@ -116,6 +118,7 @@ def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
 def main() -> int:
     parser = bench_parser(__doc__)
     parser.add_argument("--scenario", default="masses-bias", help="the built-in scenario (default masses-bias)")
+    parser.add_argument("--campaign", help="a built-in campaign instead (its grid and seeds; --duration set)")
     parser.add_argument("--runs", type=int, default=16, help="runs per campaign (default 16)")
     parser.add_argument("--duration", type=float, default=30.0, help="simulated seconds per run (default 30)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="workers of the larger cluster")
@@ -129,8 +132,12 @@ def main() -> int:
     import pyarrow.parquet as pq
 
     with tempfile.TemporaryDirectory() as folder:
+        if args.campaign:
+            campaign = load_campaign(args.campaign, settings=[("duration", args.duration)])
+            args.scenario = campaign.spec.scenario
+        else:
+            campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration, args.scenario))
         logged = logged_run(Path(folder), args.duration, args.logged, args.scenario)
-        campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration, args.scenario))
         results = {}
         for key, workers, batch in (
             ("batched", args.workers, args.batch),
@@ -149,6 +156,7 @@ def main() -> int:
         largest = max(len(b) for b in batches(campaign.runs(), args.batch, args.workers))
         figures = {
             "scenario": args.scenario,
+            "campaign": args.campaign or "",
             "runs_per_hour": round(3600 * many.runs / many.loop_time, 1),
             "runs_per_hour_unbatched": round(3600 * alone.runs / alone.loop_time, 1),
             "batch_speedup": round(alone.loop_time / many.loop_time, 3),
