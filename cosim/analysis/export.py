@@ -13,6 +13,8 @@ loaded whole):
   not measured. Lists (the active faults, the dropped sensors) are comma-joined text. Decoded
   frames go to the row of the tick they carry (their ``tick`` signal), which is the tick they were
   logged at in lockstep; control messages (NMT, SYNC, heartbeats) are in the frame exports only.
+  An imported log (``cosim import``) has a row per decoded frame instead: ``time [ns]``, ``t [s]``,
+  its ``message`` (one without signals too), then every message's signals.
 - **Frame logs** (``blf``, ``mf4``, ``candump``, ``asc``, ``trc``): every frame of ``/can/frames`` in bus order,
   stamped at the run's wall-clock start plus simulated time (the frames of one tick share t_k),
   so tools show the date the run happened. The start is the log's ``cosim.run`` ``start_time_ns``
@@ -47,6 +49,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cosim.analysis import names
+from cosim.bus.log_clock import times_caveat
 from cosim.errors import CosimError, LogError
 from cosim.extras import require
 from cosim.files import temporary_beside
@@ -80,6 +83,8 @@ PARQUET_BATCH_ROWS = 8192
 MF4_BATCH_FRAMES = 16384
 MF4_FRAGMENT_BYTES = 1 << 20  # asammdf's data blocks: what it holds in memory while saving
 
+#: The column of an imported log's table that names each row's message.
+MESSAGE_COLUMN = "message"
 _UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.writer.number writes "<description> [<unit>]"
 
 
@@ -93,6 +98,10 @@ class ExportResult:
     warnings: list[str] = field(default_factory=list)
     start_ns: int | None = None
     """Frame logs: the wall-clock time (ns since the epoch, UTC) their frames are stamped from."""
+    what: str = "frames"
+    """What ``count`` counts, as the command says it: frames, rows (ticks), rows (decoded frames)."""
+    start_of: str = "tick 0"
+    """What is stamped at ``start_ns``: tick 0 of a run, the first frame of an imported log."""
 
 
 @dataclass(frozen=True)
@@ -134,18 +143,22 @@ def export(
         raise CosimError(f"{out}: the output would overwrite the log; choose another --out")
     with LogReader(log) as reader:
         part = temporary_beside(out, FORMATS[fmt])  # asammdf insists on its suffix
-        warnings: list[str] = []
-        start = None
+        imported = LogMetadata.read(reader.metadata()).imported
+        caveat = times_caveat(imported.time_zone) if imported is not None else None
+        warnings = [caveat] if caveat is not None else []
+        start, what = None, "frames"
         try:
             if fmt in TABLE_FORMATS:
                 count = _export_table(reader, fmt, part, warnings)
+                what = "rows (ticks)" if imported is None else "rows (decoded frames)"
             else:
                 start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
                 count = _export_frames(reader, fmt, part, dbc, start, out.name)
             part.replace(out)
         finally:
             part.unlink(missing_ok=True)
-        return ExportResult(out, fmt, count, reader.warnings + warnings, start)
+        start_of = "tick 0" if imported is None else "the first frame"
+        return ExportResult(out, fmt, count, reader.warnings + warnings, start, what, start_of)
 
 
 def run_start_ns(reader: LogReader, warnings: list[str]) -> int:
@@ -202,6 +215,7 @@ def table_columns(
         columns = [
             Column("time [ns]", "", (), "int", "ns", "the frame's timestamp, ns since the Unix epoch"),
             Column("t [s]", "", (), "float", "s", "time since the log's first frame"),
+            Column(MESSAGE_COLUMN, "", (), "text", "", "the DBC message the frame decoded as"),
         ]
     else:
         columns = [
@@ -293,14 +307,17 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
 
 def imported_rows(reader: LogReader, columns: list[Column], start_ns: int) -> Iterator[list[Any]]:
     """Rows of an imported log's table (``cosim import``), one per decoded frame in the log's
-    order: its time, then its message's signals (the other messages' cells empty)."""
-    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
+    order, a message without signals included: its time, its message, then its message's
+    signals (the other messages' cells empty)."""
+    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {
+        topic: [] for topic in reader.schemas() if topic.startswith("/can/") and topic != FRAMES
+    }
     for i, column in enumerate(columns):
         if column.topic:
-            fields.setdefault(column.topic, []).append((i, column.path, column.kind))
+            fields[column.topic].append((i, column.path, column.kind))
     for topic, log_time, message in reader.messages(list(fields)):
         row: list[Any] = [None] * len(columns)
-        row[0], row[1] = log_time, (log_time - start_ns) / 1e9
+        row[0], row[1], row[2] = log_time, (log_time - start_ns) / 1e9, topic.removeprefix("/can/")
         for i, path, kind in fields[topic]:
             row[i] = _cell(message, path, kind)
         yield row

@@ -7,7 +7,15 @@ JSON Schemas, each message at the frame's recorded time, the DBC attached. Open 
 (with 'cosim layout' for a plot per message), or use it with 'cosim inspect', 'plot', 'export' and
 'replay --live'. A log of several buses (channels) is decoded whole by the one DBC unless --channel
 picks one; each frame's channel is on /can/frames. A signal with a value table is logged as its
-number; its schema names the values.
+number; its schema names the values. A J1939 DBC's parameter groups decode frames of any source
+address by their PGN, the address kept in each message's source_address.
+
+Times are kept exactly as the log writes them. candump, MF4 and python-can's logs record UTC;
+Vector's ASC and BLF and PEAK's TRC record the local time of the PC that recorded them, with no
+zone: they are logged as they read, as if they were UTC, and the log and its figures say that the
+zone is unknown, unless --timezone names it (then they are converted to UTC). A line of a text log
+(candump, ASC, TRC, CSV) that is not a frame is skipped and counted, the first named by its line
+number; a file that is mostly not a log is refused.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ examples:
   cosim import drive.blf --dbc car.dbc --out drive.mcap
   cosim import candump-2024-06-01.log --dbc car.dbc      (writes candump-2024-06-01.mcap)
   cosim import drive.blf --channel 2 --dbc body.dbc --out body.mcap   one bus of a log of several
+  cosim import trace.trc --dbc car.dbc --timezone Europe/Berlin   a PEAK trace recorded in Germany
   cosim layout drive.mcap --out drive.layout.json        a plot per message, for Foxglove"""
 
 
@@ -37,26 +46,34 @@ def arguments(p: argparse.ArgumentParser) -> None:
         help="import only the frames of this channel of a log of several buses, as the log names it: candump's "
         "interface (can0), Vector's channel from 1 (BLF, ASC), PEAK's bus (TRC), MF4's bus channel",
     )
+    p.add_argument(
+        "--timezone",
+        metavar="ZONE",
+        help="the time zone an ASC, TRC or BLF log was recorded in (an IANA name: Europe/Berlin; or UTC), for "
+        "times in UTC (default: its local times logged as they read, the zone said to be unknown)",
+    )
     p.add_argument("--out", "-o", metavar="FILE.mcap", help="the MCAP log to write (default: LOG with .mcap)")
     common.force_option(p)
     common.quiet_option(p)
 
 
 def main(args: argparse.Namespace) -> int:
+    from cosim.bus.log_clock import date_text
     from cosim.log.can_import import import_log
 
     log = Path(args.log)
     out = common.unused(Path(args.out) if args.out else log.with_suffix(".mcap"), args.force)
-    result = import_log(log, args.dbc, out, args.channel)
+    result = import_log(log, args.dbc, out, args.channel, args.timezone)
     talk = common.console(stderr=True, quiet=args.quiet)
     common.warn(talk, result.warnings)
     record = result.record
     span = ((record.end_time_ns or 0) - (record.start_time_ns or 0)) / 1e9
     channel = f" of channel {escape(record.channel)}" if record.channel else ""
     others = f"; {record.other_channels} frames of its other channels left out" if record.channel else ""
+    when = date_text(record.start_time_ns or 0, record.time_zone) or "no date recorded"
     talk.print(
-        f"imported {record.frames} frames{channel} ({span:g} s of {record.format}): {record.decoded} decoded into "
-        f"{len(result.topics)} messages by {escape(record.dbc)}{others}"
+        f"imported {record.frames} frames{channel} ({span:g} s of {record.format} from {when}): {record.decoded} "
+        f"decoded into {len(result.topics)} messages by {escape(record.dbc)}{others}"
     )
     print(result.path)
     return 0
