@@ -224,6 +224,13 @@ _READERS: dict[str, Any] = {
     "python-can csv": can.CSVReader,
 }
 TEXT_FORMATS = tuple(_CLOCKS)
+#: A frame's line in each text format, as a refusal shows it.
+_LOOKS = {
+    "candump": "(1718000000.000200) can0 123#DEADBEEF",
+    "asc": "0.000200 1  123  Rx   d 4 DE AD BE EF",
+    "trc": "1  17535.400 DT 1  0123 Rx -  4  DE AD BE EF",
+    "python-can csv": "1718000000.0002,0x123,0,0,0,4,3q2+7w==",
+}
 
 
 class TextLog:
@@ -256,7 +263,8 @@ class TextLog:
         if self.skipped > self.frames_read:
             raise CosimError(
                 f"{self.path}: {self.skipped} of its lines are not {self.fmt} frames, against {self.frames_read} that "
-                f"are (the first, {self.first_skipped}): not a {self.fmt} log cosim can read"
+                f"are (the first, {self.first_skipped}): not a {self.fmt} log cosim can read (its frames read like "
+                f"{_LOOKS[self.fmt]!r})"
             )
 
     def _read(self, lines: _Lines) -> Iterator[tuple[can.Message, int]]:
@@ -284,7 +292,7 @@ class TextLog:
         if self.frames_read == 0 and self.skipped >= NOT_A_LOG_AFTER:
             raise CosimError(
                 f"{self.path}: its first {self.skipped} lines hold no {self.fmt} frame ({self.first_skipped}): "
-                f"not a {self.fmt} log cosim can read"
+                f"not a {self.fmt} log cosim can read (its frames read like {_LOOKS[self.fmt]!r})"
             )
 
     def warning(self) -> str | None:
