@@ -14,7 +14,7 @@ its line as a decimal (``cosim.bus.log_clock.nanoseconds``), from the date the h
 - ASC: the seconds of the line from the header's ``date`` (or the latest ``Begin Triggerblock``
   date; ``timestamps relative``: from the previous event), the recording's local time;
 - TRC: the ms offset of the line (the ``O`` column of version 2) from ``$STARTTIME`` (days since
-  1899-12-30, the recording's local time); a TRC 1.0 trace records no date;
+  1899-12-30, the recording's local time, to the µs); a TRC 1.0 trace records no date;
 - python-can's CSV: the first column, seconds since the epoch (UTC).
 
 A file whose lines are mostly not frames is refused in one line.
@@ -190,7 +190,8 @@ class _TrcClock(_Clock):
                 days = Decimal(value.strip()) - _OLE_EPOCH_DAYS
             except InvalidOperation:
                 raise _BadHeader(f"line {number} {line.strip()!r}: $STARTTIME is not a number of days") from None
-            self.base, self.kind = int((days * 86_400_000_000_000).to_integral_value()), LOCAL
+            # days to about 10 decimals (9 µs): taken to the µs, as PEAK's "Start time" line says it
+            self.base, self.kind = int((days * 86_400_000_000).to_integral_value()) * 1000, LOCAL
         elif key == "COLUMNS" and "O" in value.strip().split(","):
             self.column = value.strip().split(",").index("O")
 
