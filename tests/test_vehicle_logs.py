@@ -337,3 +337,34 @@ def test_the_import_metadata_names_the_zone(tmp_path):
     import_log(tmp_path / "drive.log", MOTOHAWK, tmp_path / "drive.mcap")
     *_, metadata = read_mcap(tmp_path / "drive.mcap")
     assert metadata[IMPORT]["time_zone"] == "UTC"
+
+
+def test_asc_dates_as_canoe_writes_them_and_times_relative_to_the_previous_event(tmp_path):
+    from datetime import datetime
+
+    from cosim.bus.log_lines import asc_date
+
+    assert asc_date("Jun 10 02:13:20.250 pm 2024") == datetime(2024, 6, 10, 14, 13, 20, 250000)
+    assert asc_date("Mär 3 09:00:01 2017") == datetime(2017, 3, 3, 9, 0, 1)  # CANoe in German
+    assert asc_date("Foo 3 09:00:01 2017") is None
+    write_log(motohawk_frames(10), tmp_path / "absolute.asc")
+    relative, previous = [], 0.0
+    for line in (tmp_path / "absolute.asc").read_text().splitlines():
+        head, _, rest = line.strip().partition(" ")
+        if head[:1].isdigit():  # Vector's "timestamps relative": each event's time from the one before
+            line, previous = f"{float(head) - previous:.6f} {rest}", float(head)
+        relative.append(line.replace("timestamps absolute", "timestamps relative"))
+    (tmp_path / "relative.asc").write_text("\n".join(relative) + "\n")
+    import_log(tmp_path / "absolute.asc", MOTOHAWK, tmp_path / "absolute.mcap")
+    import_log(tmp_path / "relative.asc", MOTOHAWK, tmp_path / "relative.mcap")
+    assert logged_times(tmp_path / "relative.mcap") == logged_times(tmp_path / "absolute.mcap")
+
+
+def test_an_asc_date_cosim_cannot_read_is_one_line_naming_it(tmp_path):
+    write_log(motohawk_frames(2), tmp_path / "drive.asc")
+    text = (tmp_path / "drive.asc").read_text().replace("Begin Triggerblock Mon Jun", "Begin Triggerblock Mon Xyz")
+    (tmp_path / "drive.asc").write_text(text)
+    with pytest.raises(
+        CosimError, match=r"drive\.asc: line 4 'Begin Triggerblock Mon Xyz 10 .*': not a date of an ASC log"
+    ):
+        import_log(tmp_path / "drive.asc", MOTOHAWK, tmp_path / "drive.mcap")

@@ -209,7 +209,7 @@ class _TrcParseFailures(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         if record.getMessage().startswith("TRCReader: Failed to parse"):
-            self.log.skip(self.lines, "too few columns")
+            self.log.count_skipped(self.lines, "too few columns")  # a handler must not raise: refused at the end
 
 
 _CLOCKS: dict[str, type[_Clock]] = {
@@ -283,13 +283,17 @@ class TextLog:
                 self.skip(lines, _reason(error))
                 lines.replay()
 
-    def skip(self, lines: _Lines, reason: str) -> None:
-        """The current line is not a frame: counted; the first named; too many before any frame: refused."""
+    def count_skipped(self, lines: _Lines, reason: str) -> None:
+        """The current line is not a frame: counted, the first named."""
         self.skipped += 1
         if self.skipped == 1:
             text = lines.text.strip()
             shown = text if len(text) <= 60 else text[:57] + "..."
             self.first_skipped = f"line {lines.number} {shown!r}: {reason}"
+
+    def skip(self, lines: _Lines, reason: str) -> None:
+        """The current line is not a frame: counted; too many before any frame: refused."""
+        self.count_skipped(lines, reason)
         if self.frames_read == 0 and self.skipped >= NOT_A_LOG_AFTER:
             raise CosimError(
                 f"{self.path}: its first {self.skipped} lines hold no {self.fmt} frame ({self.first_skipped}): "
