@@ -10,7 +10,8 @@ picks one; each frame's channel is on /can/frames. A signal with a value table i
 number; its schema names the values. A J1939 DBC's parameter groups decode frames of any source
 address by their PGN, the address kept in each message's source_address.
 
-Times are kept exactly as the log writes them. candump, MF4 and python-can's logs record UTC;
+Times are kept as the log writes them (a text log's to the last digit; BLF, MF4 and SQLite to the
+microsecond, as python-can reads them). candump, MF4 and python-can's logs record UTC;
 Vector's ASC and BLF and PEAK's TRC record the local time of the PC that recorded them, with no
 zone: they are logged as they read, as if they were UTC, and the log and its figures say that the
 zone is unknown, unless --timezone names it (then they are converted to UTC). A line of a text log
