@@ -167,10 +167,11 @@ def test_a_log_without_a_date_says_so_and_a_zone_is_refused_where_it_means_nothi
     assert not (tmp_path / "x.mcap").exists()
 
 
-def test_an_import_said_before_its_zone_was_recorded_reads_as_of_unknown_zone():
-    record = ImportRecord("a.asc", "asc", "car.dbc", 1, 1, start_time_ns=5)
-    old = {k: v for k, v in record.to_metadata().items() if k != "time_zone"}
-    assert ImportRecord.from_metadata(old, []).time_zone == "unknown"
+def test_an_import_made_before_its_zone_was_recorded_reads_as_its_format_says():
+    for fmt, zone in (("asc", "unknown"), ("trc", "unknown"), ("candump", "UTC"), ("mf4", "UTC")):
+        record = ImportRecord("a.x", fmt, "car.dbc", 1, 1, start_time_ns=5)
+        old = {k: v for k, v in record.to_metadata().items() if k != "time_zone"}
+        assert ImportRecord.from_metadata(old, []).time_zone == zone
 
 
 def import_public(tmp_path: Path, dbc: Path, per_message: int, only: str | None = None) -> Path:
@@ -368,3 +369,10 @@ def test_an_asc_date_cosim_cannot_read_is_one_line_naming_it(tmp_path):
         CosimError, match=r"drive\.asc: line 4 'Begin Triggerblock Mon Xyz 10 .*': not a date of an ASC log"
     ):
         import_log(tmp_path / "drive.asc", MOTOHAWK, tmp_path / "drive.mcap")
+
+
+def test_a_text_log_saved_with_a_byte_order_mark_reads_from_its_first_line(tmp_path):
+    write_log(motohawk_frames(3), tmp_path / "drive.log")
+    (tmp_path / "drive.log").write_text("\ufeff" + (tmp_path / "drive.log").read_text(), encoding="utf-8")
+    result = import_log(tmp_path / "drive.log", MOTOHAWK, tmp_path / "drive.mcap")
+    assert result.record.frames == 3 and result.warnings == []

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import can
 
-from cosim.bus.log_clock import LOCAL, UNKNOWN, UTC, local_to_utc_ns, zone_name
+from cosim.bus.log_clock import CLOCKS, LOCAL, UNKNOWN, UTC, local_to_utc_ns, zone_name
 from cosim.bus.log_lines import TEXT_FORMATS, TextLog
 from cosim.errors import CosimError
 from cosim.extras import require
@@ -50,18 +50,6 @@ FORMATS = {
     ".mf4": "mf4",
     ".csv": "python-can csv",
     ".db": "python-can sqlite",
-}
-
-
-#: The clock of each format's times (``cosim.bus.log_clock``); a text log may turn out to have no date.
-CLOCKS = {
-    "candump": UTC,
-    "blf": LOCAL,
-    "asc": LOCAL,
-    "trc": LOCAL,
-    "mf4": UTC,
-    "python-can csv": UTC,
-    "python-can sqlite": UTC,
 }
 
 

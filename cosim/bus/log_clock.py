@@ -31,6 +31,18 @@ LOCAL = "local"
 UNKNOWN = "unknown"
 NO_DATE = "none"
 
+#: The clock of each format's times (by ``cosim.bus.canlogs.FORMATS``' names); a text log of a
+#: local clock may turn out to have no date.
+CLOCKS = {
+    "candump": UTC,
+    "blf": LOCAL,
+    "asc": LOCAL,
+    "trc": LOCAL,
+    "mf4": UTC,
+    "python-can csv": UTC,
+    "python-can sqlite": UTC,
+}
+
 _EPOCH = datetime(1970, 1, 1)
 _NS = 1_000_000_000
 

@@ -250,7 +250,7 @@ class TextLog:
         return self._clock.kind
 
     def frames(self) -> Iterator[tuple[can.Message, int]]:
-        with open(self.path, encoding="utf-8", errors="replace") as stream:
+        with open(self.path, encoding="utf-8-sig", errors="replace") as stream:
             lines = _Lines(stream, self._clock)
             failures = _TrcParseFailures(self, lines)
             logger = logging.getLogger("can.io.trc")

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, overload
 
 from cosim import __version__
-from cosim.bus.log_clock import UNKNOWN
+from cosim.bus.log_clock import CLOCKS, UNKNOWN, UTC
 from cosim.errors import LogError
 from cosim.log.reader import LogReader
 from cosim.log.topics import decoded_topics
@@ -536,7 +536,7 @@ class ImportRecord:
     end_time_ns: int | None = None
     channel: str = ""
     other_channels: int = 0
-    time_zone: str = UNKNOWN  # an import older than the field did not record its zone
+    time_zone: str = UNKNOWN
 
     def to_metadata(self) -> dict[str, str]:
         return {key: "" if value is None else str(value) for key, value in vars(self).items()}
@@ -551,7 +551,8 @@ class ImportRecord:
         text = {key: record.get(key, "") for key in ("source", "format", "dbc", "channel")}
         return cls(
             **text,
-            time_zone=record.get("time_zone") or UNKNOWN,
+            # an import older than the field: UTC where its format records UTC (candump, MF4), else unknown
+            time_zone=record.get("time_zone") or (UTC if CLOCKS.get(text["format"]) == UTC else UNKNOWN),
             frames=frames,
             decoded=decoded,
             unknown=unknown,
