@@ -12,9 +12,10 @@ message's signals against time, on pages of a bounded size.
 - The time axis counts seconds from the log's first frame and names its date in the zone the log
   records (``cosim.bus.log_clock.date_text``: UTC, a named zone, or "local time, zone unknown").
 
-Signals are drawn as the steps a bus holds a value in. A curve of more samples than the figure
-has pixels across is drawn from the first, lowest, highest and last sample of each stretch of
-about a pixel (``envelope``): what shows is the same, the drawing takes a fraction of the time.
+Signals are drawn as the steps a bus holds a value in. A curve of more than SAMPLES_PER_PIXEL
+samples a pixel of the figure's width is drawn from the first, lowest, highest and last sample of
+each stretch of about a pixel (``envelope``): what shows is the same, the drawing takes a
+fraction of the time.
 Work that takes seconds says what it is doing (``cosim.progress``): reading the log, then each
 message's figure.
 """
