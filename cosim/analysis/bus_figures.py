@@ -14,8 +14,8 @@ message's signals against time, on pages of a bounded size.
 
 Signals are drawn as the steps a bus holds a value in. A curve of more than SAMPLES_PER_PIXEL
 samples a pixel of the figure's width is drawn from the first, lowest, highest and last sample of
-each stretch of about a pixel (``envelope``): what shows is the same, the drawing takes a
-fraction of the time.
+each stretch of about a pixel (``envelope``): what shows is the same at the figure's
+resolution, and the drawing's work stays bounded however long the log.
 Work that takes seconds says what it is doing (``cosim.progress``): reading the log, then each
 message's figure.
 """
