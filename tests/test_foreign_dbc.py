@@ -16,6 +16,7 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+from cantools.j1939 import frame_id_unpack
 from mcap.reader import make_reader
 
 from cosim.analysis import bus_layout, names
@@ -214,7 +215,10 @@ def test_import_decodes_a_python_can_log_exactly(tmp_path, name, suffix):
     expected: dict[str, list[tuple[int, dict]]] = {}
     for (t, _), frame in zip(logged, kept):
         if (found := decoder.decode(frame)) is not None:
-            expected.setdefault(f"/can/{found[0].name}", []).append((t, found[1]))
+            message, values = found
+            if message.protocol == "j1939":  # a parameter group keeps the address its frame came from
+                values = {**values, "source_address": frame_id_unpack(frame.arbitration_id).source_address}
+            expected.setdefault(f"/can/{message.name}", []).append((t, values))
     assert {topic: messages for topic, messages in topics.items() if topic != "/can/frames"} == expected
     assert result.record.decoded == sum(len(m) for m in expected.values())
     for topic in expected:
@@ -249,7 +253,7 @@ def test_one_channel_of_a_log_of_several_buses_is_imported_and_each_frame_keeps_
     whole = import_log(tmp_path / "buses.blf", dbc, tmp_path / "whole.mcap")
     assert whole.warnings == [
         "buses.blf holds frames of 2 channels (1 (14 frames), 2 (6 frames)), all decoded by the one DBC; "
-        "--channel CH imports one channel's"
+        "--channel CH imports the frames of one channel alone"
     ]
     topics, *_ = read_mcap(tmp_path / "whole.mcap")
     assert [r["channel"] for _, r in topics["/can/frames"]] == [str(f.channel + 1) for f in frames]

@@ -122,7 +122,7 @@ def test_one_topic_of_a_bag_is_imported_with_topic(tmp_path, capsys):
     whole = import_log(bag, DBC, tmp_path / "whole.mcap")
     assert (
         f"bag holds frames of 2 topics (/from_can_bus ({len(received)} frames), /to_can_bus (3 frames)), all decoded "
-        "by the one DBC; --topic TOPIC imports one topic's"
+        "by the one DBC; --topic TOPIC imports the frames of one topic alone"
     ) in whole.warnings
     assert main(["import", str(bag), "--dbc", str(DBC), "--topic", "/to_can_bus", "-q"]) == 0
     topics, _, _, metadata = read_mcap(tmp_path / "bag.mcap")

@@ -1,7 +1,6 @@
 """Exports of run logs for the tools engineers already use.
 
-Two kinds of output, both streamed through the log in bounded memory (a one-hour run is never
-loaded whole):
+Three kinds of output, each streamed through the log in bounded memory (a one-hour run is never loaded whole):
 
 - **Tidy tables** (``csv``, ``parquet``): one row per tick k, columns ``tick``, ``t [s]``
   (simulated time t_k), then the truth topics and the decoded data messages of the bus, one column
@@ -13,6 +12,8 @@ loaded whole):
   not measured. Lists (the active faults, the dropped sensors) are comma-joined text. Decoded
   frames go to the row of the tick they carry (their ``tick`` signal), which is the tick they were
   logged at in lockstep; control messages (NMT, SYNC, heartbeats) are in the frame exports only.
+  An imported log (``cosim import``) has a row per decoded frame instead: ``time [ns]``, ``t [s]``,
+  its ``message`` (one without signals too), then every message's signals.
 - **Frame logs** (``blf``, ``mf4``, ``candump``, ``asc``, ``trc``): every frame of ``/can/frames`` in bus order,
   stamped at the run's wall-clock start plus simulated time (the frames of one tick share t_k),
   so tools show the date the run happened. The start is the log's ``cosim.run`` ``start_time_ns``
@@ -29,14 +30,12 @@ loaded whole):
   ``DataBytes``, ``EDL``, ``BRS``, ...) with a CAN bus acquisition source and the DBC attached, so
   asammdf's ``extract_bus_logging`` and CANalyzer decode it; its header's start time is the start,
   its timestamps simulated time.
+- **A ROS 2 bag** (``rosbag2``, ``cosim.analysis.rosbag_export``): a rosbag2 folder (MCAP storage,
+  CDR) of the frames as ros2_socketcan's messages and every other topic as a ROS message, stamped
+  as the frame logs.
 
-- **A ROS 2 bag** (``rosbag2``): a rosbag2 folder (MCAP storage, CDR) of the frames as
-  ros2_socketcan's messages and every other topic as a ROS message, stamped as the frame logs
-  (``cosim.analysis.rosbag_export``).
-
-Output goes to a temporary file beside the output (``cosim.files``) renamed into place at the
-end, so a failed export leaves no half-written file under the final name.
-"""
+A file goes to a temporary file beside it (``cosim.files``) renamed into place at the end: a
+failed export leaves no half-written file under the final name."""
 
 from __future__ import annotations
 
@@ -51,6 +50,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cosim.analysis import names
+from cosim.bus.log_clock import times_caveat
 from cosim.errors import CosimError, LogError
 from cosim.extras import require
 from cosim.files import temporary_beside
@@ -86,6 +86,8 @@ PARQUET_BATCH_ROWS = 8192
 MF4_BATCH_FRAMES = 16384
 MF4_FRAGMENT_BYTES = 1 << 20  # asammdf's data blocks: what it holds in memory while saving
 
+#: The column of an imported log's table that names each row's message.
+MESSAGE_COLUMN = "message"
 _UNIT = re.compile(r"\[([^\[\]]*)\]\s*$")  # cosim.log.writer.number writes "<description> [<unit>]"
 
 
@@ -99,6 +101,10 @@ class ExportResult:
     warnings: list[str] = field(default_factory=list)
     start_ns: int | None = None
     """Frame logs: the wall-clock time (ns since the epoch, UTC) their frames are stamped from."""
+    what: str = "frames"
+    """What ``count`` counts, as the command says it: frames, rows (ticks), rows (decoded frames)."""
+    start_of: str = "tick 0"
+    """What is stamped at ``start_ns``: tick 0 of a run, the first frame of an imported log."""
 
 
 @dataclass(frozen=True)
@@ -142,18 +148,22 @@ def export(
         if fmt == "rosbag2":
             return _export_bag(reader, out, start_ns)
         part = temporary_beside(out, FORMATS[fmt])  # asammdf insists on its suffix
-        warnings: list[str] = []
-        start = None
+        imported = LogMetadata.read(reader.metadata()).imported
+        caveat = times_caveat(imported.time_zone) if imported is not None else None
+        warnings = [caveat] if caveat is not None else []
+        start, what = None, "frames"
         try:
             if fmt in TABLE_FORMATS:
                 count = _export_table(reader, fmt, part, warnings)
+                what = "rows (ticks)" if imported is None else "rows (decoded frames)"
             else:
                 start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
                 count = _export_frames(reader, fmt, part, dbc, start, out.name)
             part.replace(out)
         finally:
             part.unlink(missing_ok=True)
-        return ExportResult(out, fmt, count, reader.warnings + warnings, start)
+        start_of = "tick 0" if imported is None else "the first frame"
+        return ExportResult(out, fmt, count, reader.warnings + warnings, start, what, start_of)
 
 
 def _export_bag(reader: LogReader, out: Path, start_ns: int | None) -> ExportResult:
@@ -162,8 +172,9 @@ def _export_bag(reader: LogReader, out: Path, start_ns: int | None) -> ExportRes
 
     warnings: list[str] = []
     start = start_ns if start_ns is not None else run_start_ns(reader, warnings)
-    written = write_bag(reader, out, start, _log_base(reader))
-    return ExportResult(out, "rosbag2", sum(written.values()), reader.warnings + warnings, start)
+    count = sum(write_bag(reader, out, start, _log_base(reader)).values())
+    start_of = "tick 0" if LogMetadata.read(reader.metadata()).imported is None else "the first frame"
+    return ExportResult(out, "rosbag2", count, reader.warnings + warnings, start, "messages", start_of)
 
 
 def _log_base(reader: LogReader) -> int:
@@ -226,6 +237,7 @@ def table_columns(
         columns = [
             Column("time [ns]", "", (), "int", "ns", "the frame's timestamp, ns since the Unix epoch"),
             Column("t [s]", "", (), "float", "s", "time since the log's first frame"),
+            Column(MESSAGE_COLUMN, "", (), "text", "", "the DBC message the frame decoded as"),
         ]
     else:
         columns = [
@@ -317,14 +329,17 @@ def table_rows(reader: LogReader, columns: list[Column], warnings: list[str]) ->
 
 def imported_rows(reader: LogReader, columns: list[Column], start_ns: int) -> Iterator[list[Any]]:
     """Rows of an imported log's table (``cosim import``), one per decoded frame in the log's
-    order: its time, then its message's signals (the other messages' cells empty)."""
-    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {}
+    order, a message without signals included: its time, its message, then its message's
+    signals (the other messages' cells empty)."""
+    fields: dict[str, list[tuple[int, tuple[str, ...], str]]] = {
+        topic: [] for topic in reader.schemas() if topic.startswith("/can/") and topic != FRAMES
+    }
     for i, column in enumerate(columns):
         if column.topic:
-            fields.setdefault(column.topic, []).append((i, column.path, column.kind))
+            fields[column.topic].append((i, column.path, column.kind))
     for topic, log_time, message in reader.messages(list(fields)):
         row: list[Any] = [None] * len(columns)
-        row[0], row[1] = log_time, (log_time - start_ns) / 1e9
+        row[0], row[1], row[2] = log_time, (log_time - start_ns) / 1e9, topic.removeprefix("/can/")
         for i, path, kind in fields[topic]:
             row[i] = _cell(message, path, kind)
         yield row

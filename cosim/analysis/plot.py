@@ -48,13 +48,15 @@ show draws nothing. The series are read by ``cosim.analysis.series``.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cosim.analysis import bus_layout
+from cosim.analysis import bus_figures, bus_layout
 from cosim.analysis.canvas import FORMATS, GAP, PALETTE, TIME, Canvas, Style, gapped, log_floor
 from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, load, true_gains, virtual_output
 from cosim.errors import LogError
@@ -457,20 +459,36 @@ def plot(
     if bus_layout.is_imported(path):  # a bus log of another tool (cosim import): a figure per message
         if estimators is not None:
             raise LogError(f"{path}: a bus log of another tool has no estimators to choose (--estimators)")
-        Path(out).mkdir(parents=True, exist_ok=True)
-        return bus_layout.plot(path, Path(out), fmt, dpi, look, title, FORMATS[fmt])
+        return _written_whole(
+            Path(out), lambda part: bus_figures.plot(path, part, fmt, dpi, look, title, FORMATS[fmt], warnings)
+        )
     series = load(path)
     if warnings is not None:
         warnings.extend(series.warnings)
     if estimators is not None:
         series = series.only(estimators)
-    with plt.rc_context(look.rc):
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        canvas = Canvas(series, out, fmt, dpi, look, title)
-        for draw in FIGURES:
-            draw(canvas)
-        return canvas.written
+
+    def draw_all(part: Path) -> list[Path]:
+        with plt.rc_context(look.rc):
+            canvas = Canvas(series, part, fmt, dpi, look, title)
+            for draw in FIGURES:
+                draw(canvas)
+            return canvas.written
+
+    return _written_whole(Path(out), draw_all)
+
+
+def _written_whole(out: Path, draw: Callable[[Path], list[Path]]) -> list[Path]:
+    """The figures ``draw`` writes into a new folder beside ``out``, moved into ``out`` once every
+    one is drawn: a plot that fails part way leaves ``out`` as it was."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        written = draw(part)
+        out.mkdir(exist_ok=True)
+        return [figure.replace(out / figure.name) for figure in written]
+    finally:
+        shutil.rmtree(part, ignore_errors=True)
 
 
 def _fault_panels(series: RunSeries) -> list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]], bool]]:

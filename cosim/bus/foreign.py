@@ -9,6 +9,14 @@ it (numbers, not choice names).
 A frame is looked up by its own identifier *and* its own flag: a DBC may hold a standard message
 on 0x123 and an extended one on 0x123 (a J1939 or a UDS id), and an extended frame whose id is at
 most 0x7FF is still an extended frame (cantools' ``get_message_by_frame_id`` takes the number alone).
+
+A J1939 DBC's messages are parameter groups (``VFrameFormat`` ``J1939PG``, cantools' protocol
+``j1939``): their ids carry a priority and the address of the ECU that sent them, which a bus's
+frames need not share with the DBC. As J1939 tools do, a frame that no message's id matches is
+decoded by the message of its parameter group number (cantools' ``j1939.pgn_from_frame_id``: the
+priority, the source address and a PDU1 group's destination left out), and its source address is
+kept (``source_address``). A PGN that several of the DBC's messages share (one per sender) is
+matched by the PGN and the source address: a frame of it from another address is not the DBC's.
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ from typing import Any
 import can
 import cantools
 from cantools.database.can import Database, Message
+from cantools.j1939 import frame_id_unpack, pgn_from_frame_id
 
 from cosim.bus.dbc import refusal
 from cosim.errors import CodecError
@@ -38,16 +47,47 @@ def read_dbc(path: str | Path) -> Database:
     return database
 
 
+#: Ids looked up by their parameter group number that a decoder remembers (a fuzzed log has many).
+PGN_LOOKUPS_KEPT = 65536
+
+
+def is_j1939(message: Message) -> bool:
+    """Whether a DBC message is a J1939 parameter group (an extended id with a source address)."""
+    return message.protocol == "j1939" and message.is_extended_frame
+
+
+def source_address(frame_id: int) -> int:
+    """The address of the ECU that sends a J1939 frame of this id (its low byte)."""
+    return int(frame_id_unpack(frame_id).source_address)
+
+
 class FrameDecoder:
-    """The messages of a database by (extended, id), and frames decoded by them."""
+    """The messages of a database by (extended, id), J1939 ones also by their parameter group
+    number, and frames decoded by them."""
 
     def __init__(self, database: Database) -> None:
         self.database = database
         self._messages = {(m.is_extended_frame, m.frame_id): m for m in database.messages}
+        groups: dict[int, list[Message]] = {}
+        for message in filter(is_j1939, database.messages):
+            groups.setdefault(pgn_from_frame_id(message.frame_id), []).append(message)
+        self._by_pgn = {pgn: found[0] for pgn, found in groups.items() if len(found) == 1}
+        self._by_sender = {(pgn, source_address(m.frame_id)): m for pgn, found in groups.items() for m in found}
+        self._by_id: dict[int, Message | None] = {}
 
     def message(self, frame: can.Message) -> Message | None:
-        """The DBC message of a frame, by its id and its own extended flag (None: not in the DBC)."""
-        return self._messages.get((bool(frame.is_extended_id), frame.arbitration_id))
+        """The DBC message of a frame, by its id and its own extended flag, or a J1939 frame's by
+        its parameter group number (None: not in the DBC)."""
+        found = self._messages.get((bool(frame.is_extended_id), frame.arbitration_id))
+        if found is not None or not frame.is_extended_id or not self._by_sender:
+            return found
+        frame_id = frame.arbitration_id
+        if frame_id not in self._by_id:
+            if len(self._by_id) >= PGN_LOOKUPS_KEPT:
+                self._by_id.clear()
+            pgn = pgn_from_frame_id(frame_id)
+            self._by_id[frame_id] = self._by_sender.get((pgn, source_address(frame_id)), self._by_pgn.get(pgn))
+        return self._by_id[frame_id]
 
     def decode(self, frame: can.Message) -> tuple[Message, dict[str, Any]] | None:
         """The frame's message and its signals as cantools decodes them (numbers; a multiplexed

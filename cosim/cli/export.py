@@ -4,7 +4,8 @@ Export a run log for the tools engineers already use. The log is streamed: any l
 memory.
 
 tables, one row per tick, columns tick, 't [s]' (simulated time), then '<topic>.<field> [unit]' for the
-truth and the decoded bus signals (state.x1 [m], faults.measured.x2 [m], EST_kalman.xhat_v1 [m/s], ...):
+truth and the decoded bus signals (state.x1 [m], faults.measured.x2 [m], EST_kalman.xhat_v1 [m/s], ...);
+of a log 'cosim import' wrote, one row per decoded frame: 'time [ns]', 't [s]', message, its signals:
   csv       text; floats as the shortest decimal that reads back exactly
   parquet   columnar, units and source topic in each field's metadata
 raw CAN frames, every frame on the bus, timestamped with simulated time:
@@ -74,12 +75,11 @@ def main(args: argparse.Namespace) -> int:
     result = export(log, args.to, out, dbc=args.dbc, start_ns=start)
     talk = common.error_console()
     common.warn(talk, result.warnings)
-    what = {"csv": "rows (ticks)", "parquet": "rows (ticks)", "rosbag2": "messages"}.get(args.to, "frames")
     stamped = ""
     if args.to in FRAME_FORMATS and result.start_ns is not None:
         when = datetime.fromtimestamp(result.start_ns / 1e9, UTC)
-        stamped = f", tick 0 at {when.isoformat(timespec='milliseconds').replace('+00:00', 'Z')}"
-    talk.print(f"wrote {result.count} {what} as {args.to}{stamped}")
+        stamped = f", {result.start_of} at {when.isoformat(timespec='milliseconds').replace('+00:00', 'Z')}"
+    talk.print(f"wrote {result.count} {result.what} as {args.to}{stamped}")
     print(result.path)
     return 0
 

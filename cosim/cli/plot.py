@@ -8,6 +8,11 @@ clipped); legends sit outside the data and name estimators, sensors and faults a
 does. Every series has its colour (colour-blind safe), dash pattern and marker, so that seven stay
 apart, also in grey print.
 
+A bus log 'cosim import' wrote gets a figure per DBC message instead: its signals against the
+time since the first frame (the axis names the date and its zone, or says it is unknown), a panel
+per unit, at most 6 panels a page (a message of many signals gets pages MSG-1.png, MSG-2.png, ...);
+messages without signals get none (a warning names them).
+
 --style paper draws for a two-column paper: a column wide (3.5 in; --width double: 7.16 in, or
 --width INCHES), 8 pt text, fonts embedded in PDFs (TrueType); with --no-title and --format pdf the
 figures go into a paper as they are.

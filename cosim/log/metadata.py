@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, overload
 
 from cosim import __version__
+from cosim.bus.log_clock import CLOCKS, UNKNOWN, UTC
 from cosim.errors import LogError
 from cosim.log.reader import LogReader
 from cosim.log.topics import decoded_topics
@@ -518,8 +519,10 @@ class ImportRecord:
     """``cosim.import``: the CAN log and DBC an imported log was made of, and its frames: how many,
     how many decoded, how many on ids the DBC does not describe (``unknown``) or not decodable by
     their message (``undecodable``), error and remote frames left out (``skipped``), and the time
-    of its first and last frame (ns since the Unix epoch, as its messages' log times); with
-    ``--channel``, the ``channel`` imported and the frames of the log's other channels left out."""
+    of its first and last frame (ns since the Unix epoch, as its messages' log times) and the zone
+    they are in (``time_zone``, ``cosim.bus.log_clock``: UTC, an IANA zone, ``unknown`` for a local
+    time logged as if UTC, ``none`` for a log with no date); with ``--channel``, the ``channel``
+    imported and the frames of the log's other channels left out."""
 
     source: str
     format: str
@@ -533,6 +536,7 @@ class ImportRecord:
     end_time_ns: int | None = None
     channel: str = ""
     other_channels: int = 0
+    time_zone: str = UNKNOWN
 
     def to_metadata(self) -> dict[str, str]:
         return {key: "" if value is None else str(value) for key, value in vars(self).items()}
@@ -547,6 +551,8 @@ class ImportRecord:
         text = {key: record.get(key, "") for key in ("source", "format", "dbc", "channel")}
         return cls(
             **text,
+            # an import older than the field: UTC where its format records UTC (candump, MF4), else unknown
+            time_zone=record.get("time_zone") or (UTC if CLOCKS.get(text["format"]) == UTC else UNKNOWN),
             frames=frames,
             decoded=decoded,
             unknown=unknown,

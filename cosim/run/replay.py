@@ -35,7 +35,7 @@ import can
 
 import estimators
 from cosim import design_cache
-from cosim.bus.canlogs import read_frames
+from cosim.bus.canlogs import LogReading, read_frames
 from cosim.bus.codec import COMMAND, CONTROL, CONTROLLER, HEARTBEAT, OPERATIONAL, SENSOR, SYNC, Codec, Decoded
 from cosim.bus.transport import BusConfig, allocate, open_bus
 from cosim.errors import CosimError, LogError
@@ -512,8 +512,9 @@ def _recorded_frames(
     as its bus did; any other log's may hold FD frames). An MCAP log's reader's warnings join
     ``warnings`` once the frames are read."""
     if log.suffix.lower() != ".mcap":
-        frames = read_frames(log, warnings)
-        return ((round(f.timestamp * 1e9), f) for f in frames if not f.is_error_frame), True
+        reading = LogReading()
+        stack.callback(lambda: warnings.extend(reading.warnings))
+        return ((t, f) for f, t in read_frames(log, reading) if not f.is_error_frame), True
     reader = stack.enter_context(LogReader(log))
     stack.callback(lambda: warnings.extend(reader.warnings))
     meta = LogMetadata.read(reader.metadata())
