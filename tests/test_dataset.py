@@ -147,11 +147,15 @@ def test_the_hcrl_and_road_forms_hold_the_same_frames(built):
     assert [int(r[1], 16) for r in rows] == list(train.id)
     assert [bytes(int(b, 16) for b in r[3:-1]) for r in rows] == list(train.data)
     assert [r[-1] for r in rows] == ["T" if label else "R" for label in train.label]
-    logged = list(can.LogReader(root / "ds" / "road" / "train" / "tiny-run-000000.log"))
+    road = root / "ds" / "road" / "train" / "attacks"
+    logged = list(can.LogReader(road / "tiny-run-000000.log"))
     assert [(m.arbitration_id, bytes(m.data)) for m in logged] == list(zip(train.id, train.data))
     assert [m.timestamp for m in logged] == pytest.approx(list(train.timestamp), abs=1e-6)
-    capture = json.loads((root / "ds" / "road" / "train" / "tiny-run-000000.json").read_text())["tiny-run-000000"]
-    assert capture["injection_id"] == "0x101" and capture["injection_interval"] == [1.0, 1.6]
+    capture = json.loads((road / "capture_metadata.json").read_text())["tiny-run-000000"]
+    forged = train[train.label == 1].timestamp
+    assert capture["injection_id"] == "0x101" and capture["road_rule_exact"] is True
+    assert capture["injection_interval"] == [round(forged.min() - 5e-7, 7), round(forged.max() + 5e-7, 7)]
+    assert 1.0 <= forged.min() and forged.max() < 1.6
 
 
 def test_a_masquerade_moves_the_plant_unseen_by_timing_and_seen_in_the_residuals(built):
@@ -193,6 +197,17 @@ def test_it_refuses_what_it_cannot_make_in_one_line(built, tmp_path, capsys):
     assert "is not empty" in capsys.readouterr().err
     assert main(["dataset", str(root / "campaigns" / "tiny"), "--out", str(tmp_path / "x"), "--split", "1,1"]) == 1
     assert "three shares" in capsys.readouterr().err
+
+
+def test_a_split_left_empty_is_said_before_the_runs_are_read_and_kept_in_the_card(built, tmp_path, capsys):
+    root, _ = built
+    assert main(["dataset", str(root / "campaigns" / "tiny"), "--out", str(tmp_path / "ds")]) == 0
+    said = "tiny: test will be empty: 2 replicates cut at the shares 0.6,0.2,0.2; --seeds 4 or more fills every split"
+    err = capsys.readouterr().err
+    assert f"warning: {said}" in " ".join(err.split()) and err.index("warning") < err.index("run 1 of 2")
+    card = json.loads((tmp_path / "ds" / "card.json").read_text())
+    assert card["warnings"] == [said] and card["splits"]["test"]["runs"] == 0
+    assert f"- **warning**: {said}" in (tmp_path / "ds" / "README.md").read_text()
 
 
 def test_the_baselines_train_on_its_splits_and_enter_a_run_as_plugins(built, tmp_path):

@@ -93,8 +93,10 @@ def main(args: argparse.Namespace) -> int:
         address=args.address,
         on_campaign=told,
         on_run=progress,
+        on_warning=lambda line: common.warn(talk, [line]),
     )
     splits = ", ".join(f"{s} {card['splits'][s]['runs']}" for s in ("train", "validation", "test"))
     talk.print(f"done: {len(card['runs'])} runs ({splits}), {len(card['files'])} files, digest {card['digest'][:16]}")
+    common.warn(talk, (f"ROAD's form, {c['capture']}: {c['why']}" for c in card["road"]["not_exact"]))
     print(Path(args.out) / "card.json")
     return 0
