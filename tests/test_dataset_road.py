@@ -110,7 +110,8 @@ def test_every_attack_that_roads_fields_can_express_is_labelled_exactly_by_roads
         assert sum(labels) == capture["road_rule_frames"] and run.label.sum() == capture["attack_frames"], name
         if kind == "replay":  # its frames are genuine payloads on the genuine id: no pattern tells them apart
             assert sum(labels) > run.label.sum() > 0
-            assert capture["road_rule_exact"] is False and "replay resends genuine payloads" in capture["road_rule_note"]
+            assert capture["road_rule_exact"] is False
+            assert "replay resends genuine payloads" in capture["road_rule_note"]
             assert inexact.pop(f"road/train/attacks/{name}.log")["attacks"] == ["replay"]
         else:
             assert labels == list(run.label), (kind, sum(labels), run.label.sum())
