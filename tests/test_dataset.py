@@ -251,3 +251,28 @@ def scenario_apply(settings):
     from cosim import scenario
 
     return scenario.apply(scenario.load("masses-pid-can"), settings)
+
+
+def test_the_docs_loading_example_runs_with_the_extra_the_docs_name(built, tmp_path, monkeypatch):
+    """docs/datasets.md tells a user to install the dataset extra; its loading example, run as printed
+    on a data set, imports nothing that extra does not bring."""
+    import re
+    import tomllib
+
+    from tests.conftest import ROOT
+
+    docs = (ROOT / "docs" / "datasets.md").read_text()
+    assert "pip install '.[dataset]'" in docs
+    code = re.search(r"### Loading\n.*?```python\n(.*?)```", docs, re.S).group(1)
+    imported = set(re.findall(r"^(?:import|from) (\w+)", code, re.M))
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    brought = {re.split(r"[<>=\[ ]", r)[0] for r in extras["dataset"] + extras["campaign"]}
+    assert imported == {"pandas", "datasets"} and imported <= brought
+    root, _ = built
+    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
+    monkeypatch.setenv("HF_DATASETS_CACHE", str(tmp_path / "hf"))
+    here = str(root / "ds")
+    code = code.replace("/abs/path/runs/ds-attacks", here).replace("runs/ds-attacks", here)
+    names: dict[str, object] = {}
+    exec(code.replace("signals-dataset-attacks", "signals-tiny"), names)  # the docs' own example, as printed
+    assert len(names["frames"]) and len(names["ticks"]) == 600 and names["labels"]["train"].num_rows == 300

@@ -79,6 +79,15 @@ def group_title(group: dict[str, Any]) -> str:
     return ", ".join(f"{key} = {value}" for key, value in group["group"].items()) or "all runs"
 
 
+def not_run(group: dict[str, Any]) -> str:
+    """A group no scheme was scored in, and why: ``not run: its 4 runs failed before any scheme ran: ...``."""
+    why = group.get("not_run")
+    if not why:
+        return ""
+    runs = "its run" if why["runs"] == 1 else f"its {why['runs']} runs"
+    return f"not run: {runs} failed before any scheme ran: {why['why']}"
+
+
 def pooled(group: dict[str, Any]) -> str:
     """What a group pooled: ``pooled over bias_m (2 values), sensor (3); sampled onset (12)``."""
     axes = [p for p in group.get("pooled", []) if not p["sampled"]]

@@ -85,14 +85,18 @@ def schemes(estimators: list[str], params: list[str]) -> list[Scheme]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from cosim.campaign.benchmark import SUITE, load_suite, run_benchmark
-    from cosim.campaign.coordinator import require_extras
+    from cosim.campaign.benchmark import SUITE, case_campaign, load_suite, run_benchmark
+    from cosim.campaign.coordinator import engine_extras
     from cosim.cli.campaign import progress_display
+    from cosim.run.needs import Needs
 
     added = schemes(args.estimator, args.params)
     suite = load_suite(args.suite or SUITE)
-    require_extras(args.engine)
     talk = common.console(stderr=True, quiet=args.quiet)
+    needs = Needs("cosim benchmark", engine_extras(args.engine))
+    for case in suite.cases:
+        needs.add_campaign(case.name, case_campaign(case, args.quick, added))
+    common.check_needs(talk, needs)
     selection = "quick" if args.quick else "full"
     talk.print(
         f"[bold]{escape(suite.name)} v{suite.version}[/bold] ({selection}): {len(suite.cases)} cases into "
@@ -128,6 +132,13 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if displays:
             displays[-1][0].stop()
+    for case, failed in bundle["failures"].items():
+        others = (
+            f" (and {failed['other_errors']} other errors: cosim leaderboard lists them)"
+            if failed["other_errors"]
+            else ""
+        )
+        common.warn(talk, [f"{case}: {failed['failed']} of {failed['runs']} runs failed: {failed['why']}{others}"])
     talk.print(
         f"done: {bundle['runs']} runs, {bundle['failed']} failed; digest {bundle['digest'][:12]}; "
         f"rank with: cosim leaderboard {escape(str(args.out))}"
