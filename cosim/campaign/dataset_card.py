@@ -254,8 +254,9 @@ def _road_section(road: dict[str, Any]) -> list[str]:
     lines = [
         "## ROAD's form",
         "",
-        f"`road/<split>/ambient/` holds the {counts[AMBIENT]} captures without an attack, `road/<split>/attacks/` the "
-        f"{counts[ATTACKS]} with one, each folder with ROAD's `capture_metadata.json`. ROAD's rule ({road['rule']}) "
+        f"`road/<split>/ambient/` holds the {_captures(counts[AMBIENT])} without an attack, `road/<split>/attacks/` "
+        f"the {_captures(counts[ATTACKS])} with one, each folder with ROAD's `capture_metadata.json`. ROAD's rule "
+        f"({road['rule']}) "
         f"gives exactly this data set's frame labels on {road['exact']} of the {counts[ATTACKS]} attack captures.",
         "",
     ]
@@ -264,3 +265,7 @@ def _road_section(road: dict[str, Any]) -> list[str]:
         lines += [f"- `{c['capture']}` ({', '.join(c['attacks'])}): {c['why']}" for c in road["not_exact"]]
         lines.append("")
     return lines
+
+
+def _captures(n: int) -> str:
+    return f"{n} capture{'' if n == 1 else 's'}"
