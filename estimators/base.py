@@ -91,6 +91,15 @@ class Estimator(Configurable, ABC):
     """Parameters that do not change what ``design_params()`` returns: estimators that differ only
     in them share one cached design."""
 
+    design_extras: ClassVar[tuple[str, ...]] = ()
+    """The optional extras of cosim its design needs (``lmi``: the LMI solvers), unless the
+    parameters give what the design would compute (``needs_extras``)."""
+
+    @classmethod
+    def needs_extras(cls, params: dict[str, Any]) -> tuple[str, ...]:
+        """The extras designing it with ``params`` needs."""
+        return cls.design_extras
+
     def __init__(self, model: LinearModel, params: Any, sample_time: float | None = None) -> None:
         if self.continuous:
             if model.dt is not None:

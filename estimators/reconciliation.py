@@ -482,6 +482,11 @@ class LpvUioReconciliator(UioReconciliator):
 
     kind = "lpv-uio-sr"
     form = "pinv"
+    design_extras = ("lmi",)
+
+    @classmethod
+    def needs_extras(cls, params: dict[str, Any]) -> tuple[str, ...]:
+        return () if params.get("G") is not None and params.get("Y") is not None else cls.design_extras
 
     def _design(self) -> None:
         p = self.params
@@ -515,6 +520,11 @@ class LftUioReconciliator(UioReconciliator):
 
     kind = "lft-uio-sr"
     form = "lft"
+    design_extras = ("lmi",)
+
+    @classmethod
+    def needs_extras(cls, params: dict[str, Any]) -> tuple[str, ...]:
+        return () if params.get("L") is not None else cls.design_extras
 
     def _design(self) -> None:
         if self.params.L is not None:

@@ -80,14 +80,16 @@ def _per_signal(given: tuple[float, ...] | float, signals: int, what: str) -> np
 class Fuzzing(BusFault):
     """An intruder sends frames of random ids in [``low``, ``high``] with ``length`` random bytes
     every ``period`` seconds (the fuzzy attack of the HCRL car-hacking data set: random ids and
-    payloads every 0.5 ms). A frame that lands on a message of the run is decoded as one: on a
-    reading's id a receiver takes it for a second copy (or a frame of another tick), on a control
-    frame's id its MAC fails."""
+    payloads every 0.5 ms), or with the same ``payload`` in every frame (ROAD's fuzzing: random ids,
+    every byte 0xFF). A frame that lands on a message of the run is decoded as one: on a reading's
+    id a receiver takes it for a second copy (or a frame of another tick), on a control frame's id
+    its MAC fails."""
 
     low: int = 0x000
     high: int = 0x7FF
     period: float = 0.0005
     length: int = 8
+    payload: bytes | None = None
     kind = "fuzzing"
     intruder = True
     attack = "fabrication"
@@ -100,6 +102,8 @@ class Fuzzing(BusFault):
             raise ValueError("fuzzing period must be positive")
         if not 0 <= self.length <= 8:
             raise ValueError("fuzzing length must be 0 to 8 bytes")
+        if self.payload is not None and len(self.payload) > 8:
+            raise ValueError("fuzzing payload must be 0 to 8 bytes")
 
     def targets(self) -> list[str]:
         return [f"0x{self.low:03X}-0x{self.high:03X}"]
@@ -111,6 +115,9 @@ class Fuzzing(BusFault):
         n = first
         while (when := self.start + n * self.period) < min(t + dt, self.end) - 1e-12:
             frame_id = int(self._rng.integers(self.low, self.high + 1))
-            out.append((when, frame_id, self._rng.integers(0, 256, self.length, dtype=np.uint8).tobytes()))
+            payload = self.payload
+            if payload is None:
+                payload = self._rng.integers(0, 256, self.length, dtype=np.uint8).tobytes()
+            out.append((when, frame_id, payload))
             n += 1
         return out

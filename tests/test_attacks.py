@@ -14,6 +14,7 @@ from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
 from cosim.run import run
 from cosim.run.busfaults import BusFaultStage, counted_by_receivers
+from cosim.scenario.faults import build_bus_faults
 from faults.attacks import Fuzzing, Masquerade, Suspension
 from tests.snippets import masses
 
@@ -83,6 +84,22 @@ def test_fuzzing_draws_ids_in_its_range_at_its_period_from_its_own_stream():
     assert [bytes(f[0].data) for f in frames(8)[1]] != again
 
 
+def test_fuzzing_with_a_payload_sends_it_in_every_frame_at_random_ids_as_roads_fuzzing():
+    def forged(payload):
+        model = Fuzzing(channels=(), start=0.0, label="fz", period=0.001, payload=payload)
+        codec, stage = _stage([model], arbitrated=True)
+        stage.__init__(codec, [model], 7, DT_NS, 500_000, True)
+        applied = stage.apply(0, _tick(codec, 0))
+        return [(f[0].arbitration_id, bytes(f[0].data)) for f in applied.frames if id(f) in applied.intruders]
+
+    road = forged(b"\xff" * 8)
+    assert len(road) == 10 and {data for _, data in road} == {b"\xff" * 8} and len({i for i, _ in road}) > 1
+    spec = scenario.parse(
+        masses("a", forced=True, kalman=True) + '[[faults]]\nkind = "fuzzing"\npayload = "ff00FF"\n', "f.toml"
+    )
+    assert build_bus_faults(spec)[0].payload == bytes.fromhex("ff00ff")
+
+
 def test_receivers_count_the_frames_of_the_tick_they_take():
     codec, _ = _stage([])
     tick = _tick(codec, 9)[1:]
@@ -98,6 +115,8 @@ def test_the_attack_tables_are_checked(tmp_path):
         'kind = "masquerade"\nmessage = "SENSOR_x9"': "is not a message the runner sends",
         'kind = "masquerade"\nmessage = "SENSOR_x2"\noffset = [0.1, 0.2]': r"offset: SENSOR_x2 carries 1 signal",
         'kind = "fuzzing"\nlow = 0x200\nhigh = 0x100': "must not exceed high",
+        'kind = "fuzzing"\npayload = "FFF"': "'FFF' is not up to 8 bytes of two hex digits each",
+        'kind = "fuzzing"\npayload = "' + "00" * 9 + '"': "is not up to 8 bytes",
         'kind = "suspension"\nmessages = []': "messages",
     }
     for table, message in bad.items():

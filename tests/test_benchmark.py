@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import html
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -197,3 +199,43 @@ def test_secoc_is_a_scheme_of_its_own_detecting_and_isolating_by_the_rejected_me
     # 5 s of spoofing and 1 s of replay, one forged frame a tick: the alarm is up exactly then
     assert metrics.bus.secoc_detection.alarm_time_s == pytest.approx(6.0)
     assert SECOC not in {row["estimator"] for row in rows_of(measure(tmp_path / "none.mcap"))}
+
+
+def test_without_the_lmi_extra_its_case_is_named_at_once_failed_with_why_and_on_the_board_as_not_run(
+    tmp_path, capsys, monkeypatch
+):
+    """A new user without the lmi extra: cosim benchmark says before it runs which case needs it, each
+    failed run says the extra in one line, and the leaderboard shows the case as not run and why."""
+    suite = small_suite(tmp_path)
+    suite.write_text(
+        suite.read_text()
+        + '\n[[cases]]\nname = "three-tank-gains"\ntrack = "faults"\ncampaign = "three-tank-gains"\n'
+        + 'quick = { only = { gain = ["0.6"], onset_s = ["400.0"] } }\n'
+    )
+    for module in ("cvxpy", "clarabel"):  # as if the lmi extra were not installed
+        monkeypatch.setitem(sys.modules, module, None)
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path / "cache"))  # no design made before
+    out = tmp_path / "bundle"
+    assert main(["benchmark", "--quick", "--suite", str(suite), "--out", str(out), "--engine", "inline"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    needs = "pip install 'cosim[lmi]'"
+    assert (
+        "warning: three-tank-gains (lpv-uio-sr, lft-uio-sr) needs the 'lmi' extra (cvxpy, clarabel are not "
+        f"installed): {needs}" in err
+    )
+    assert err.index("needs the 'lmi' extra") < err.index("faults / three-tank-gains")
+    why = "builtin:three-tank-reconciliation: estimators[0] (lpv, lpv-uio-sr) needs the 'lmi' extra"
+    assert f"warning: three-tank-gains: 4 of 4 runs failed: {why} (clarabel is not installed): {needs}" in err
+    record, _ = read_bundles([out])
+    assert record["failures"]["three-tank-gains"]["failed"] == 4 and "attacks" not in record["failures"]
+    assert main(["leaderboard", str(out), "--json"]) == 0
+    board = json.loads(capsys.readouterr().out)
+    by_case = {g["group"]["case"]: g for g in board["groups"]}
+    assert set(by_case) == {"attacks", "three-tank-gains"} and by_case["attacks"]["ranking"]
+    assert by_case["three-tank-gains"]["ranking"] == [] and by_case["three-tank-gains"]["not_run"]["runs"] == 4
+    assert main(["leaderboard", str(out)]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"track = faults, case = three-tank-gains not run: its 4 runs failed before any scheme ran: {why}" in text
+    page = tmp_path / "board.html"
+    assert main(["leaderboard", str(out), "--html", str(page)]) == 0
+    assert f"<strong>not run: its 4 runs failed before any scheme ran: {why}" in html.unescape(page.read_text())

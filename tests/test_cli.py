@@ -156,6 +156,33 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path, capsys, monkeypatch):
     assert missing_extra(ModuleNotFoundError("x", name="somethingelse"), "cosim run") is None
 
 
+def test_a_command_names_every_extra_it_lacks_at_once(tmp_path, capsys, monkeypatch):
+    """Not one extra per attempt: the engine's, the figures', an FMU plant's and an estimator design's
+    in one line, before anything runs."""
+    for module in ("pyarrow", "pyarrow.parquet", "matplotlib", "cvxpy", "clarabel", "fmpy"):
+        monkeypatch.setitem(sys.modules, module, None)
+    assert main(["leaderboard", str(tmp_path / "results.parquet"), "--html", str(tmp_path / "b.html")]) == 1
+    assert capsys.readouterr().err.strip() == (
+        "error: cosim leaderboard --html needs the 'campaign' and 'plot' extras (pyarrow, matplotlib are not "
+        "installed): pip install 'cosim[campaign,plot]'"
+    )
+    out = tmp_path / "campaign"
+    assert main(["campaign", "three-tank-gains", "--out", str(out), "--engine", "inline", "-q"]) == 1
+    assert " ".join(capsys.readouterr().err.split()) == (
+        "error: cosim campaign (three-tank-gains (lpv-uio-sr, lft-uio-sr)) needs the 'campaign' and 'lmi' extras "
+        "(pyarrow, cvxpy, clarabel are not installed): pip install 'cosim[campaign,lmi]'"
+    )
+    assert not out.exists()
+    monkeypatch.setitem(sys.modules, "foxglove", None)
+    run = ["run", "three-tank-reconciliation", "--foxglove", "0", "-q", "--out", str(tmp_path / "r.mcap")]
+    assert main(run) == 1
+    assert " ".join(capsys.readouterr().err.split()) == (
+        "error: cosim run (three-tank-reconciliation (lpv-uio-sr, lft-uio-sr)) needs the 'live' and 'lmi' extras "
+        "(foxglove-sdk, cvxpy, clarabel are not installed): pip install 'cosim[live,lmi]'"
+    )
+    assert not (tmp_path / "r.mcap").exists()
+
+
 def test_monitor_with_two_runs_names_the_option_that_chooses(tmp_path, capsys, monkeypatch):
     from cosim.bus.registry import Registration
 

@@ -147,11 +147,15 @@ def test_the_hcrl_and_road_forms_hold_the_same_frames(built):
     assert [int(r[1], 16) for r in rows] == list(train.id)
     assert [bytes(int(b, 16) for b in r[3:-1]) for r in rows] == list(train.data)
     assert [r[-1] for r in rows] == ["T" if label else "R" for label in train.label]
-    logged = list(can.LogReader(root / "ds" / "road" / "train" / "tiny-run-000000.log"))
+    road = root / "ds" / "road" / "train" / "attacks"
+    logged = list(can.LogReader(road / "tiny-run-000000.log"))
     assert [(m.arbitration_id, bytes(m.data)) for m in logged] == list(zip(train.id, train.data))
     assert [m.timestamp for m in logged] == pytest.approx(list(train.timestamp), abs=1e-6)
-    capture = json.loads((root / "ds" / "road" / "train" / "tiny-run-000000.json").read_text())["tiny-run-000000"]
-    assert capture["injection_id"] == "0x101" and capture["injection_interval"] == [1.0, 1.6]
+    capture = json.loads((road / "capture_metadata.json").read_text())["tiny-run-000000"]
+    forged = train[train.label == 1].timestamp
+    assert capture["injection_id"] == "0x101" and capture["road_rule_exact"] is True
+    assert capture["injection_interval"] == [round(forged.min() - 5e-7, 7), round(forged.max() + 5e-7, 7)]
+    assert 1.0 <= forged.min() and forged.max() < 1.6
 
 
 def test_a_masquerade_moves_the_plant_unseen_by_timing_and_seen_in_the_residuals(built):
@@ -195,6 +199,17 @@ def test_it_refuses_what_it_cannot_make_in_one_line(built, tmp_path, capsys):
     assert "three shares" in capsys.readouterr().err
 
 
+def test_a_split_left_empty_is_said_before_the_runs_are_read_and_kept_in_the_card(built, tmp_path, capsys):
+    root, _ = built
+    assert main(["dataset", str(root / "campaigns" / "tiny"), "--out", str(tmp_path / "ds")]) == 0
+    said = "tiny: test will be empty: 2 replicates cut at the shares 0.6,0.2,0.2; --seeds 4 or more fills every split"
+    err = capsys.readouterr().err
+    assert f"warning: {said}" in " ".join(err.split()) and err.index("warning") < err.index("run 1 of 2")
+    card = json.loads((tmp_path / "ds" / "card.json").read_text())
+    assert card["warnings"] == [said] and card["splits"]["test"]["runs"] == 0
+    assert f"- **warning**: {said}" in (tmp_path / "ds" / "README.md").read_text()
+
+
 def test_the_baselines_train_on_its_splits_and_enter_a_run_as_plugins(built, tmp_path):
     """python -m cosim.baselines.train fits both baselines on the train split (limits on the validation
     split); named by module path, they run beside the estimators, publish an alarm and no estimate,
@@ -236,3 +251,28 @@ def scenario_apply(settings):
     from cosim import scenario
 
     return scenario.apply(scenario.load("masses-pid-can"), settings)
+
+
+def test_the_docs_loading_example_runs_with_the_extra_the_docs_name(built, tmp_path, monkeypatch):
+    """docs/datasets.md tells a user to install the dataset extra; its loading example, run as printed
+    on a data set, imports nothing that extra does not bring."""
+    import re
+    import tomllib
+
+    from tests.conftest import ROOT
+
+    docs = (ROOT / "docs" / "datasets.md").read_text()
+    assert "pip install '.[dataset]'" in docs
+    code = re.search(r"### Loading\n.*?```python\n(.*?)```", docs, re.S).group(1)
+    imported = set(re.findall(r"^(?:import|from) (\w+)", code, re.M))
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    brought = {re.split(r"[<>=\[ ]", r)[0] for r in extras["dataset"] + extras["campaign"]}
+    assert imported == {"pandas", "datasets"} and imported <= brought
+    root, _ = built
+    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
+    monkeypatch.setenv("HF_DATASETS_CACHE", str(tmp_path / "hf"))
+    here = str(root / "ds")
+    code = code.replace("/abs/path/runs/ds-attacks", here).replace("runs/ds-attacks", here)
+    names: dict[str, object] = {}
+    exec(code.replace("signals-dataset-attacks", "signals-tiny"), names)  # the docs' own example, as printed
+    assert len(names["frames"]) and len(names["ticks"]) == 600 and names["labels"]["train"].num_rows == 300

@@ -311,3 +311,20 @@ def test_no_scheme_ranks_above_one_its_runs_show_better(tmp_path):
     assert [s["estimator"] for s in group["ranking"]] == ["B", "A"]
     c = group["ranking"][0]["vs_next"]
     assert c["verdict"] == "separated" and c["ratio"] > 1 and [s["rank"] for s in group["ranking"]] == [1, 2]
+
+
+def test_a_verdict_line_says_every_ratio_in_one_form():
+    """Not ``error ×0.17 [×0.14, +25 %]``: where one ratio of a line reads as a factor (from ×2 or to
+    ×0.5) all of them do, the detectable size too; else all are percentages."""
+    from cosim.campaign import wording
+    from cosim.campaign.verdicts import NOT_SEPARATED, SEPARATED
+
+    base = {"estimator": "uio", "measure": "estimation", "pairs": 4, "needed": 12, "needed_at_least": False}
+    wide = base | {"ratio": 0.17, "ratio_ci95": [0.14, 1.25], "detectable": 0.08, "verdict": NOT_SEPARATED}
+    line = wording.verdict(wide, 0.05)
+    assert line == "~ uio: error ×0.17 [×0.14, ×1.2]: not separated (4 runs; about 12 needed); detectable ≥ ×1.1"
+    assert "%" not in line.replace("±", "")
+    big = base | {"ratio": 1.2, "ratio_ci95": [1.1, 1.3], "detectable": 1.5, "verdict": SEPARATED, "p_holm": 0.01}
+    assert wording.verdict(big, 0.05) == "> uio: error ×1.2 [×1.1, ×1.3], p 0.01: separated; detectable ≥ ×2.5"
+    near = big | {"detectable": 0.05}
+    assert wording.verdict(near, 0.05) == "> uio: error +20 % [+10 %, +30 %], p 0.01: separated; detectable ≥ 5 %"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cosim.cli import main
@@ -238,3 +239,74 @@ def test_a_start_up_transient_far_off_the_scale_does_not_flatten_the_rest_and_is
     in_view(whole, [np.r_[15.0, np.linspace(0.0, 2.0, 999)]], np.ones(1000))  # nothing far off: as drawn
     assert whole.get_title(loc="right") == "" and whole.get_ylim() == (0.0, 1.0)  # (limits left to matplotlib)
     plt.close(fig)
+
+
+@pytest.fixture(scope="module")
+def cdc_log(tmp_path_factory) -> Path:
+    """cdc2016-ex1 for 6 s, its bias from 3 s: |h_Γ| is 0 before the fault."""
+    from cosim import scenario
+
+    log = tmp_path_factory.mktemp("cdc") / "run.mcap"
+    loaded = scenario.apply(load("cdc2016-ex1"), [("duration", 6.0), ("faults[0].start", 3.0)])
+    Run(loaded, log, interface="virtual").execute()
+    return log
+
+
+@pytest.mark.slow
+def test_paper_figures_have_one_line_titles_the_shading_in_the_legend_zeros_on_the_axis_and_h_gamma_set(
+    cdc_log: Path, tmp_path: Path
+):
+    """At 3.5 in: each title on one line (the scenario's name dropped, then smaller type, where it
+    would wrap); the faults' shaded windows named in the legend; |h_Γ|, 0 before the fault, on a
+    symmetric log axis that draws the zeros (a log axis left them out); h_Γ with Γ as a subscript."""
+    import re
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cosim.analysis.plot import plot
+
+    written = plot(cdc_log, tmp_path / "svg", fmt="svg", style="paper")
+    svgs = {path.stem: path.read_text() for path in written}
+    assert {"error", "bias_effect", "faults"} <= set(svgs)
+    for name, svg in svgs.items():
+        texts = re.findall(r"<text [^>]*>([^<]*)</text>", svg)
+        shaded = "fault_active" in svg or "fault active" in texts
+        assert shaded == (name != "weights"), name  # every figure that shades the faults names the shading
+    assert "estimation error norm |x − x̂| over the whole state" in re.findall(r">([^<]*)</text>", svgs["error"])
+    texts = [t.strip() for t in re.findall(r">([^<>]+)</(?:text|tspan)>", svgs["bias_effect"])]
+    assert texts and not any("h_" in text for text in texts)  # mathtext: Γ a subscript, no underscore shown
+    assert "Γ" in texts and "h" in texts  # h and its subscript Γ, each a text of its own
+    figures = plot(cdc_log, tmp_path / "png", fmt="png", style="paper")
+    assert all(path.exists() for path in figures)
+
+    from cosim.analysis.canvas import SMALLEST_TITLE, Canvas, Style, log_scale
+    from cosim.analysis.series import RunSeries
+
+    look = Style.of("paper")
+    with plt.rc_context(look.rc):
+        canvas = Canvas(
+            RunSeries("a-scenario-with-a-long-name", "", 1.0, [], [], {}, {}, {}), tmp_path, "png", 300, look
+        )
+        for heading in ("estimation error norm |x − x̂| over the whole state", "a heading " * 12):
+            fig, _ = canvas.figure(1)
+            canvas.titled(fig, f"a-scenario-with-a-long-name: {heading}", heading)
+            title = fig.get_suptitle()
+            size = fig._suptitle.get_fontsize()  # type: ignore[attr-defined]
+            box = fig._suptitle.get_window_extent(fig.canvas.get_renderer())  # type: ignore[attr-defined]
+            if heading.startswith("estimation"):  # fits without the scenario's name, at full size or a little less
+                assert title == heading and size >= SMALLEST_TITLE and box.width <= fig.bbox.width
+            else:  # too long at any size: wrapped, at the smallest size
+                assert size == SMALLEST_TITLE
+            plt.close(fig)
+        fig, axes = canvas.figure(1)
+        ax = axes[0, 0]
+        zero_then_decaying = np.concatenate([np.zeros(50), 2.0 * np.exp(-np.arange(50.0) / 5)])
+        ax.plot(np.arange(100.0), zero_then_decaying)
+        assert log_scale(ax, [zero_then_decaying]) == " (log scale, linear below 1e-4)"  # 2 e^{-49/5} = 1.1e-4
+        assert ax.get_yscale() == "symlog" and ax.get_ylim()[0] == 0.0  # the zeros are drawn, at 0
+        ax2 = fig.add_subplot(2, 1, 2)
+        assert log_scale(ax2, [zero_then_decaying[50:]]) == " (log scale)" and ax2.get_yscale() == "log"
+        plt.close(fig)

@@ -42,6 +42,11 @@ WIDTHS = {"single": 3.5, "double": 7.16}
 DECADES = 6  # a log axis shows this many decades below its largest value
 GAP = 3  # a curve is broken where more ticks than this are missing
 TIME = "time t [s]"
+#: The legend's name of the shaded windows of the faults, and their colour (grey, 6 % opaque).
+SHADED = "fault active"
+SHADE = (0.5, 0.5, 0.5, 0.06)
+#: A paper's title is made smaller down to this size (pt) before it is allowed a second line.
+SMALLEST_TITLE = 6.5
 
 #: Okabe & Ito (2008), "Color Universal Design": apart for protan, deutan and tritan vision (black,
 #: the eighth, is left to the truth and the events).
@@ -217,15 +222,31 @@ class Canvas:
         return self.plt.subplots(rows, columns, figsize=(s.width, tall), squeeze=False, layout="constrained", **kw)
 
     def save(self, fig: Figure, name: str, heading: str) -> None:
-        """Written with its title (wrapped to the width); a paper's figure exactly as wide as its
-        column (its layout keeps everything inside), a screen's to its drawn extent."""
+        """Written with its title; a paper's figure exactly as wide as its column (its layout keeps
+        everything inside), a screen's to its drawn extent."""
         if self.title:
-            fig.suptitle(f"{self.series.scenario}: {heading}", wrap=True)
+            self.titled(fig, f"{self.series.scenario}: {heading}", heading)
         target = self.out / f"{name}.{self.fmt}"
         tight: dict[str, Any] = {"bbox_inches": "tight", "pad_inches": 0.08} if self.style.name == "screen" else {}
         fig.savefig(target, dpi=self.dpi, metadata=FORMATS[self.fmt], **tight)
         self.plt.close(fig)
         self.written.append(target)
+
+    def titled(self, fig: Figure, full: str, short: str) -> None:
+        """The figure's title: on screen ``full``, wrapped to the width; in a paper on one line, as
+        measured: ``full``, else ``short`` (without the scenario's name), else ``short`` in smaller
+        type down to ``SMALLEST_TITLE`` (a column is 3.5 in), and only then on two lines."""
+        if self.style.name == "screen":
+            fig.suptitle(full, wrap=True)
+            return
+        renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+        size = float(self.style.rc["figure.titlesize"])
+        sizes = [size - 0.5 * i for i in range(int((size - SMALLEST_TITLE) / 0.5) + 1)]
+        for text, points in [(full, size), *((short, p) for p in sizes)]:
+            title = fig.suptitle(text, fontsize=points)
+            if title.get_window_extent(renderer).width <= 0.98 * fig.bbox.width:
+                return
+        fig.suptitle(short, fontsize=SMALLEST_TITLE, wrap=True)
 
     def state_grid(self, names: list[str]) -> tuple[Figure, list[Axes]]:
         """A panel per state, in two columns when there are more than three and room for two."""
@@ -258,12 +279,18 @@ class Canvas:
             legend.remove()
 
     def legend(self, fig: Figure, cells: Sequence[Axes], leave: Sequence[str] = ()) -> None:
-        """One legend under the panels: each curve's name once (but those of ``leave``)."""
+        """One legend under the panels: each curve's name once (but those of ``leave``), the faults'
+        shaded windows too."""
+        from matplotlib.patches import Patch
+
         found: dict[str, Artist] = {}
         for ax in cells:
             for handle, text in zip(*ax.get_legend_handles_labels()):
                 if text not in leave:
                     found.setdefault(text, handle)
+        if SHADED in found:  # as the windows look, with an edge: a patch as light as they are is not seen
+            found[SHADED] = Patch(facecolor=SHADE, edgecolor="0.6", linewidth=0.4 * self.style.line)
+            found[SHADED] = found.pop(SHADED)  # last, after the curves and the onsets
         if found:
 
             def make(ncol: int) -> Legend:
@@ -293,10 +320,11 @@ class Canvas:
     # -- faults and events ------------------------------------------------------------------------
 
     def faults_shaded(self, ax: Axes) -> None:
-        """Every fault's window shaded, its onset dotted (in the legend once: "fault onset")."""
+        """Every fault's window shaded (in the legend once: "fault active"), its onset dotted (in
+        the legend once: "fault onset")."""
         for f in self.series.faults:
             stop = self.end if f.get("end") is None else f["end"]
-            ax.axvspan(f["start"], stop, color="0.5", alpha=0.06, lw=0)
+            ax.axvspan(f["start"], stop, facecolor=SHADE, lw=0, label=SHADED)
         self.onsets(ax)
 
     def onsets(self, ax: Axes) -> None:
@@ -350,3 +378,24 @@ def log_floor(ax: Axes, curves: Sequence[np.ndarray]) -> None:
         ax.set_ylim(top * 10.0**-DECADES, top * 2.0)
     else:  # nothing above zero (a fault rejected exactly): an axis of its own, not matplotlib's complaint
         ax.set_ylim(10.0**-DECADES, 1.0)
+
+
+def log_scale(ax: Axes, curves: Sequence[np.ndarray]) -> str:
+    """A log axis for ``curves`` (drawn on a linear one), ``DECADES`` below the largest value; where
+    a curve is zero for a while (|h_Γ| before the fault), a log axis would leave those values out
+    and draw the curve from nowhere: a symmetric log axis instead, linear below the smallest decade
+    it shows, with 0 at its foot. Returns what the axis's label says of its scale."""
+    values = [v[np.isfinite(v)] for v in (np.asarray(c, dtype=float) for c in curves)]
+    top = max((float(v.max()) for v in values if v.size), default=0.0)
+    if top <= 0:  # nothing above zero: a linear axis says it best
+        return ""
+    floor = top * 10.0**-DECADES
+    if not any((v <= 0).any() for v in values):
+        ax.set_yscale("log")
+        ax.set_ylim(floor, top * 2.0)
+        return " (log scale)"
+    smallest = min(float(v[v > 0].min()) for v in values if (v > 0).any())
+    decade = int(np.floor(np.log10(max(floor, smallest))))
+    ax.set_yscale("symlog", linthresh=10.0**decade, linscale=0.5)
+    ax.set_ylim(0.0, top * 2.0)
+    return f" (log scale, linear below 1e{decade})"

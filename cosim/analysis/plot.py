@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cosim.analysis import bus_figures, bus_layout
-from cosim.analysis.canvas import FORMATS, GAP, PALETTE, TIME, Canvas, Style, gapped, log_floor
+from cosim.analysis.canvas import FORMATS, GAP, PALETTE, TIME, Canvas, Style, gapped, log_floor, log_scale
 from cosim.analysis.series import RunSeries, bias_effect, cofd_directions, load, true_gains, virtual_output
 from cosim.errors import LogError
 from cosim.extras import require
@@ -73,12 +73,10 @@ def one_panel(
     """One panel of one curve per estimator against time."""
     fig, axes = c.figure(1, height=3.0)
     ax = axes[0, 0]
-    log = log and any(np.size(v) and np.max(v) > 0 for _, v in named.values())  # all zeros: linear
-    ylabel += " (log scale)" if log else ""
     for est, (t, v) in named.items():
-        c.estimator(ax, est, t, v, log)
-    if log:
-        log_floor(ax, [v for _, v in named.values()])
+        c.estimator(ax, est, t, v)
+    if log:  # a log axis, or where the curves are zero for a while (before the fault) a symmetric one
+        ylabel += log_scale(ax, [v for _, v in named.values()])
     ax.set_xlabel(TIME)
     c.faults_shaded(ax)
     c.onsets_named(ax)
@@ -200,8 +198,8 @@ def effect_of_the_bias(c: Canvas) -> None:
     if effects:
         units = set(s.units.get(sensor, "") for sensor in s.sensors)
         unit = f" [{units.pop()}]" if len(units) == 1 and "" not in units else ""
-        what = "the fault's effect on the output injection, |h_Γ|"
-        one_panel(c, effects, f"|h_Γ|{unit}", what, "bias_effect", log=True)
+        what = r"the fault's effect on the output injection, $|h_\Gamma|$"  # mathtext: Γ as a subscript
+        one_panel(c, effects, rf"$|h_\Gamma|${unit}", what, "bias_effect", log=True)
 
 
 def gamma_norm(c: Canvas) -> None:

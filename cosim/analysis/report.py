@@ -57,8 +57,8 @@ CAPTIONS = {
     "frames that were not sent, and each actuator's effectiveness δ, with every fault's onset marked.",
     "weights": "The pseudoinverse weights per sensor: the selector s and optimizer z (TAC 2024) or the weights Γ "
     "(CDC 2016); a weight going to 0 discards its sensor.",
-    "bias_effect": "|h_Γ|: the part of each observer's output injection due to the true fault (logarithmic); it "
-    "vanishes when the weights reject the fault.",
+    "bias_effect": "|h_Γ|: the part of each observer's output injection due to the true fault (logarithmic; "
+    "linear near 0, where it is 0 before the fault); it vanishes when the weights reject the fault.",
     "gamma_norm": "|Γ|: the norm of the weights of the continuous-time observers (CDC 2016).",
     "bias_estimate": "The bias estimates φ̂ against the true fault φ added to each sensor.",
     "residual": "The residual r = y − C x̂ per output and its norm (logarithmic), with every fault's window shaded.",

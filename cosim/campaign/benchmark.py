@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import tomllib
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -160,11 +161,29 @@ def run_benchmark(
         "versions": versions(),
     }
     bundle["units"] = {name: _rms_unit(result.path) for name, result in results.items()}
+    bundle["failures"] = {
+        name: why for name, result in results.items() if result.failed and (why := failures(result.path)) is not None
+    }
     merge_tables(
         [(case.name, case.track, results[case.name].path) for case in suite.cases], folder / "results.parquet", bundle
     )
     (folder / BUNDLE).write_text(json.dumps(bundle, indent=2) + "\n")
     return bundle
+
+
+def failures(path: Path) -> dict[str, Any] | None:
+    """A campaign table's failed runs: how many of how many, and why in the words of the most
+    frequent error (and how many other errors); None where every run completed."""
+    import pyarrow.parquet as pq
+
+    rows = pq.read_table(path, columns=["run", "status", "error"]).to_pylist()
+    runs = {row["run"] for row in rows}
+    errors = {row["run"]: row["error"] or row["status"] for row in rows if row["status"] != "completed"}
+    if not errors:
+        return None
+    counts = Counter(errors.values())
+    why, _ = counts.most_common(1)[0]
+    return {"failed": len(errors), "runs": len(runs), "why": why, "other_errors": len(counts) - 1}
 
 
 def _rms_unit(path: Path) -> str:

@@ -25,7 +25,7 @@ from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
 from cosim.campaign.spec import Campaign, RunSpec
 from cosim.campaign.worker import execute_batch
 from cosim.errors import CosimError
-from cosim.extras import require
+from cosim.extras import require_all
 from cosim.log.metadata import versions
 
 KEEP_LOGS = ("all", "failed", "none")
@@ -72,11 +72,14 @@ class CampaignResult:
     """Why the others ran alone, with how many runs each reason sent alone."""
 
 
+def engine_extras(engine: str) -> dict[str, list[str]]:
+    """What the campaign engine needs of the extras: the table's writer, and Dask for ``dask``."""
+    return {"campaign": ["pyarrow", *(["distributed"] if engine == "dask" else [])]}
+
+
 def require_extras(engine: str) -> None:
     """MissingExtra now, before any run, if the table's writer (or the engine) is not installed."""
-    require("pyarrow.parquet", "cosim campaign", "campaign")
-    if engine == "dask":
-        require("distributed", "cosim campaign", "campaign")
+    require_all("cosim campaign", engine_extras(engine))
 
 
 def run_campaign(

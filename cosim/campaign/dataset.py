@@ -6,9 +6,10 @@ runs itself with every log kept, and writes, per run, under ``DIR``:
 - ``frames/<split>/<campaign>-run-<i>.parquet``: every frame on the bus in bus order, as CAN
   intrusion detection works on them: timestamp, id, dlc, data, label (1: an attack's frame), the
   attack's kind and label (``cosim.campaign.dataset_run``);
-- ``hcrl/<split>/...csv`` and ``road/<split>/...log`` + ``.json``: the same frames as the HCRL
-  car-hacking CSV and as ROAD's candump logs with their capture metadata
-  (``cosim.campaign.dataset_formats``);
+- ``hcrl/<split>/...csv`` and ``road/<split>/{ambient,attacks}/...log`` with each folder's
+  ``capture_metadata.json``: the same frames as the HCRL car-hacking CSV and as ROAD's candump
+  logs, labelled by ROAD's rule exactly as here where ROAD's fields can say it
+  (``cosim.campaign.dataset_formats``, ``cosim.campaign.dataset_road``);
 - ``signals/<campaign>/<split>/run-<i>.parquet``: per tick, the readings and commands as their
   receivers took them (and the estimates, with ``estimates``);
 - ``truth/<campaign>/<split>/...``: per tick, the plant's states, true sensors, inputs, and what the
@@ -70,6 +71,9 @@ class Written:
     skipped: list[dict[str, Any]] = field(default_factory=list)
     balance: dict[str, dict[str, Counter[str]]] = field(default_factory=dict)
     plants: dict[str, dict[str, Any]] = field(default_factory=dict)
+    road: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    """ROAD's folders (``<split>/ambient``, ``<split>/attacks``) → capture → its metadata."""
+    warnings: list[str] = field(default_factory=list)
 
 
 def split_of(replicates: Sequence[int], fractions: Sequence[float] = FRACTIONS) -> dict[int, str]:
@@ -80,6 +84,25 @@ def split_of(replicates: Sequence[int], fractions: Sequence[float] = FRACTIONS) 
     n = len(replicates)
     cuts = [round(n * fractions[0]), round(n * (fractions[0] + fractions[1]))]
     return {r: SPLITS[(i >= cuts[0]) + (i >= cuts[1])] for i, r in enumerate(replicates)}
+
+
+def empty_splits(replicates: int, fractions: Sequence[float] = FRACTIONS) -> list[str]:
+    """The splits with a share that ``replicates`` replicates leave without a run."""
+    taken = set(split_of(list(range(replicates)), fractions).values())
+    return [split for split, share in zip(SPLITS, fractions) if share > 0 and split not in taken]
+
+
+def split_warning(campaign: Campaign, fractions: Sequence[float]) -> str | None:
+    """One line when a campaign's replicates leave a split empty: which, and how many fill every one."""
+    empty = empty_splits(len(campaign.spec.replicates), fractions)
+    if not empty:
+        return None
+    enough = next(n for n in range(1, 10_000) if not empty_splits(n, fractions))
+    count = len(campaign.spec.replicates)
+    return (
+        f"{campaign.spec.name}: {' and '.join(empty)} will be empty: {count} replicate{'' if count == 1 else 's'} "
+        f"cut at the shares {','.join(f'{f:g}' for f in fractions)}; --seeds {enough} or more fills every split"
+    )
 
 
 def build_dataset(
@@ -95,21 +118,34 @@ def build_dataset(
     address: str | None = None,
     on_campaign: Callable[[Campaign, bool], None] | None = None,
     on_run: Callable[[DatasetRun, int, int], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """Write the data set of ``sources`` (campaign folders; campaigns, built-in or files, to run) into
     ``out``; returns its card. A campaign to run goes into ``campaigns_dir`` (kept) or a temporary
-    folder."""
+    folder. What the data set will lack (an empty split) goes to ``on_warning`` as soon as it is
+    known, and into the card."""
     require("pyarrow.parquet", "cosim dataset", "campaign")
     folder = Path(out).resolve()
     if folder.exists() and any(folder.iterdir()):
         raise CosimError(f"--out {folder}: the folder is not empty; choose a new or empty folder")
     with ExitStack() as stack:
         where = Path(campaigns_dir) if campaigns_dir else Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        campaigns = [_campaign_folder(source, where, engine, workers, address, on_campaign) for source in sources]
+        warnings: list[str] = []
+
+        def told(campaign: Campaign, running: bool) -> None:
+            warning = split_warning(campaign, fractions)
+            if warning is not None:
+                warnings.append(warning)
+                if on_warning is not None:
+                    on_warning(warning)
+            if on_campaign is not None:
+                on_campaign(campaign, running)
+
+        campaigns = [_campaign_folder(source, where, engine, workers, address, told) for source in sources]
         names = [campaign.spec.name for campaign, _ in campaigns]
         if len(set(names)) != len(names):
             raise CosimError(f"two sources are the same campaign ({', '.join(names)}): give each once")
-        written = Written(folder, campaigns)
+        written = Written(folder, campaigns, warnings=warnings)
         runs = [run for campaign, path in campaigns for run in _runs(campaign, path, fractions, written)]
         folder.mkdir(parents=True, exist_ok=True)
         for i, run in enumerate(runs):
@@ -118,6 +154,10 @@ def build_dataset(
             _write_run(folder, run, read_run(run.log, estimates), written)
             written.runs.append(run)
     from cosim.campaign.dataset_card import write_card
+    from cosim.campaign.dataset_formats import write_road_metadata
+
+    for road_folder, captures in written.road.items():
+        write_road_metadata(folder / "road" / road_folder, captures)
 
     return write_card(written, fractions, estimates, license)
 
@@ -176,7 +216,8 @@ def _runs(campaign: Campaign, folder: Path, fractions: Sequence[float], written:
 
 def _write_run(folder: Path, run: DatasetRun, tables: RunTables, written: Written) -> None:
     """Every file of one run, and its share of the class balance."""
-    from cosim.campaign.dataset_formats import write_hcrl, write_road
+    from cosim.campaign.dataset_formats import write_hcrl, write_road_log
+    from cosim.campaign.dataset_road import capture
 
     keys = {"campaign": run.campaign, "run": run.spec.index}
     split, stem = run.split, run.stem
@@ -189,7 +230,9 @@ def _write_run(folder: Path, run: DatasetRun, tables: RunTables, written: Writte
     )
     _parquet(folder / "truth" / run.campaign / split / per_campaign, {**_repeat(keys, tables.truth), **tables.truth})
     write_hcrl(folder / "hcrl" / split / f"{stem}.csv", tables.frames)
-    write_road(folder / "road" / split, stem, tables)
+    kind, metadata = capture(tables)
+    write_road_log(folder / "road" / split / kind / f"{stem}.log", tables.frames)
+    written.road.setdefault(f"{split}/{kind}", {})[stem] = metadata
     balance = written.balance.setdefault(split, {"ticks": Counter(), "frames": Counter(), "runs": Counter()})
     balance["ticks"].update(tables.ticks["class"])
     balance["frames"].update(tables.frames["attack"])
@@ -239,6 +282,8 @@ def _arrow_type(name: str, values: list[Any]) -> Any:
         "frames_injected": pa.int32(),
         "frames_lost": pa.int32(),
         "data": pa.binary(),
+        "start": pa.float64(),
+        "end": pa.float64(),
         "active": pa.list_(pa.string()),
         "kinds": pa.list_(pa.string()),
         "targets": pa.list_(pa.string()),

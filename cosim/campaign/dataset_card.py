@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from cosim.campaign.dataset import SPLITS, Written
+from cosim.campaign.dataset_road import AMBIENT, ATTACKS
 from cosim.log.metadata import versions
 
 #: What each table's columns hold (docs/datasets.md says the same, with the forms side by side).
@@ -98,6 +99,8 @@ def write_card(written: Written, fractions: Sequence[float], estimates: bool, li
             for run in written.runs
         ],
         "skipped": written.skipped,
+        "warnings": written.warnings,
+        "road": _road(written),
         "balance": {
             split: {group: dict(sorted(counts.items())) for group, counts in written.balance[split].items()}
             for split in SPLITS
@@ -129,6 +132,30 @@ def _splits(written: Written, fractions: Sequence[float]) -> dict[str, Any]:
             "replicates": {c: sorted({r.spec.replicate for r in runs if r.campaign == c}) for c in _names(written)},
         }
     return out
+
+
+def _road(written: Written) -> dict[str, Any]:
+    """How ROAD's form holds the runs: how many captures in each folder, and which ones ROAD's rule
+    does not label as the data set does (and why)."""
+    captures = {kind: 0 for kind in (AMBIENT, ATTACKS)}
+    inexact = []
+    for where, metadata in sorted(written.road.items()):
+        split, kind = where.split("/")
+        captures[kind] += len(metadata)
+        for name, capture in sorted(metadata.items()):
+            if kind == ATTACKS and not capture["road_rule_exact"]:
+                kinds = sorted({e["kind"] for e in capture["events"] if e["category"] == "attack"})
+                inexact.append(
+                    {"capture": f"road/{where}/{name}.log", "attacks": kinds, "why": capture["road_rule_note"]}
+                )
+    return {
+        "rule": "a frame is an attack's when its time from the capture's first frame is in injection_interval (ends "
+        "included), its id is injection_id (XXX: any) and its payload, 16 hex digits left-padded with zeros, matches "
+        "injection_data_str (X: any)",
+        "captures": captures,
+        "exact": captures[ATTACKS] - len(inexact),
+        "not_exact": inexact,
+    }
 
 
 def _names(written: Written) -> list[str]:
@@ -188,6 +215,9 @@ def readme(card: dict[str, Any]) -> str:
         f"- splits by replicate (seed), shares {card['splits']['fractions']}: "
         + ", ".join(f"{s} {card['splits'][s]['runs']} runs" for s in SPLITS),
         "",
+        *(f"- **warning**: {warning}" for warning in card["warnings"]),
+        "",
+        *_road_section(card["road"]),
         "## Campaigns",
         "",
     ]
@@ -216,3 +246,26 @@ def readme(card: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _road_section(road: dict[str, Any]) -> list[str]:
+    """The README's words on ROAD's form: its layout, its rule, and where the rule is not exact."""
+    counts = road["captures"]
+    lines = [
+        "## ROAD's form",
+        "",
+        f"`road/<split>/ambient/` holds the {_captures(counts[AMBIENT])} without an attack, `road/<split>/attacks/` "
+        f"the {_captures(counts[ATTACKS])} with one, each folder with ROAD's `capture_metadata.json`. ROAD's rule "
+        f"({road['rule']}) "
+        f"gives exactly this data set's frame labels on {road['exact']} of the {counts[ATTACKS]} attack captures.",
+        "",
+    ]
+    if road["not_exact"]:
+        lines += ["Where it does not, take the labels of the Parquet (`frames/`) or HCRL (`hcrl/`) form:", ""]
+        lines += [f"- `{c['capture']}` ({', '.join(c['attacks'])}): {c['why']}" for c in road["not_exact"]]
+        lines.append("")
+    return lines
+
+
+def _captures(n: int) -> str:
+    return f"{n} capture{'' if n == 1 else 's'}"

@@ -6,13 +6,11 @@ CSV and ROAD's candump logs with their capture metadata.
   DATA[DLC-1],Flag``, the timestamp in seconds (six decimals), the id as four hex digits, the data
   bytes as two hex digits each (as many as the frame has: lines are ragged, as in HCRL's files),
   the flag ``T`` for an injected frame and ``R`` for a genuine one.
-- **ROAD** (Verma et al., PLOS ONE 2024): one candump log per capture (``candump -L``'s text,
-  ``(timestamp) can0 ID#DATA``, written by python-can's ``CanutilsLogWriter``, which ``can.LogReader``
-  and can-utils read) and its metadata as ROAD's ``capture_metadata.json`` gives it per capture:
-  ``description``, ``elapsed_sec``, ``injection_id``, ``injection_interval`` (s, from the capture's
-  start) and ``injection_data_str``; ours adds every fault and attack of the run (``events``), since a
-  run may hold more than one. ROAD labels frames by that interval and id; the exact label of every
-  frame is in the Parquet and HCRL forms.
+- **ROAD** (Verma et al., PLOS ONE 2024): one log per capture in ``candump -L``'s text as ROAD's
+  logs hold it, ``(timestamp) can0 ID#DATA`` and nothing after (python-can's writer adds a
+  direction flag, `` R``, that ROAD's logs do not have; ``can.LogReader`` and can-utils read both),
+  in ``ambient/`` or ``attacks/`` beside that folder's ``capture_metadata.json``
+  (``cosim.campaign.dataset_road`` says what goes where and why ROAD's rule labels it right).
 
 Timestamps are simulated time from the run's start (tick 0 at 0 s), the same in every form.
 """
@@ -24,7 +22,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from cosim.campaign.dataset_run import RunTables
+from cosim.campaign.dataset_road import METADATA
 
 CHANNEL = "can0"
 
@@ -40,50 +38,22 @@ def write_hcrl(path: Path, frames: dict[str, list[Any]]) -> None:
             )
 
 
-def write_road(folder: Path, stem: str, tables: RunTables) -> None:
-    """The frames as a ROAD capture: ``<stem>.log`` (candump -L) and ``<stem>.json`` (its metadata)."""
-    import can
-    from can.io.canutils import CanutilsLogWriter
+def candump_line(timestamp: float, frame_id: int, extended: bool, fd: bool, brs: bool, data: bytes) -> str:
+    """One frame as a line of ``candump -L`` (can-utils' log format), without a direction flag."""
+    ident = f"{frame_id:08X}" if extended else f"{frame_id:03X}"
+    body = f"#{int(brs):X}{data.hex().upper()}" if fd else data.hex().upper()  # CAN FD: ##<flags>, BRS is bit 0
+    return f"({timestamp:.6f}) {CHANNEL} {ident}#{body}\n"
 
+
+def write_road_log(path: Path, frames: dict[str, list[Any]]) -> None:
+    """The frames as a ROAD capture's log."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    columns = ("timestamp", "id", "extended", "fd", "brs", "data")
+    with path.open("w", newline="\n") as handle:
+        handle.writelines(candump_line(*frame) for frame in zip(*(frames[c] for c in columns)))
+
+
+def write_road_metadata(folder: Path, captures: dict[str, dict[str, Any]]) -> None:
+    """A ROAD folder's ``capture_metadata.json``: each capture's metadata by its name."""
     folder.mkdir(parents=True, exist_ok=True)
-    frames = tables.frames
-    writer = CanutilsLogWriter(folder / f"{stem}.log", channel=CHANNEL)
-    try:
-        for timestamp, frame_id, extended, fd, brs, data in zip(
-            frames["timestamp"], frames["id"], frames["extended"], frames["fd"], frames["brs"], frames["data"]
-        ):
-            writer.on_message_received(
-                can.Message(
-                    timestamp=timestamp,
-                    arbitration_id=frame_id,
-                    is_extended_id=extended,
-                    is_fd=fd,
-                    bitrate_switch=brs,
-                    data=data,
-                )
-            )
-    finally:
-        writer.stop()
-    metadata = {stem: road_metadata(tables)}
-    (folder / f"{stem}.json").write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-
-
-def road_metadata(tables: RunTables) -> dict[str, Any]:
-    """A capture's metadata in ROAD's fields (its first attack's injection), and every event of the run."""
-    events = tables.events
-    rows = [dict(zip(events, values)) for values in zip(*events.values())] if events else []
-    injected: dict[str, set[int]] = {}
-    for frame_id, fault in zip(tables.frames["id"], tables.frames["fault"]):
-        if fault:
-            injected.setdefault(fault, set()).add(frame_id)
-    first = next((row for row in rows if row["category"] == "attack"), None)
-    ids = sorted(injected.get(first["fault"], ())) if first else []
-    described = "; ".join(f"{r['kind']} ({r['fault']}) on {', '.join(r['targets']) or 'the bus'}" for r in rows)
-    return {
-        "description": described or "ambient: no fault, no attack",
-        "elapsed_sec": tables.duration,
-        "injection_id": (f"0x{ids[0]:X}" if len(ids) == 1 else [f"0x{i:X}" for i in ids]) if ids else None,
-        "injection_interval": [first["start"], first["end"]] if first else None,
-        "injection_data_str": None,
-        "events": rows,
-    }
+    (folder / METADATA).write_text(json.dumps(captures, indent=2, sort_keys=True) + "\n")

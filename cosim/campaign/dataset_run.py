@@ -2,15 +2,18 @@
 truth, and its labels per frame, per tick and per fault, as columns.
 
 Every label comes from the records the metrics score (``cosim.analysis.metrics``): a tick's faults
-and attacks are the labels ``/truth/faults`` lists as ``active`` in it (the bus faults' too), what
-a bus fault did to frames is ``/truth/bus_faults``, and a frame is an attack's when
-``/cosim/foreign`` holds a record naming its ``seq`` (every frame a simulated intruder sends has one,
-with its fault's label as ``source``). What a fault or attack is (its kind, targets, window) is the
+and attacks are the labels ``/truth/faults`` lists as ``active`` in it (the bus faults' too), and
+the attacks whose frames are on the bus in it (a flood's last frame, queued in its window, may win
+the wire in the tick after: its tick is the attack's as the frame is); what a bus fault did to
+frames is ``/truth/bus_faults``, and a frame is an attack's when ``/cosim/foreign`` holds a record
+naming its ``seq`` (every frame a simulated intruder sends has one, with its fault's label as
+``source``). What a fault or attack is (its kind, targets, window) is the
 log's ``cosim.run`` record; its class in the taxonomy of attacks, its kind's (``BusFault.attack``).
 
 A frame's bytes are as on the bus but for the MACs a run draws anew (its key is random): the
 control frames' (NMT, SYNC, heartbeats) and SecOC's are zeroed, so that a campaign gives the same
-bytes every time it is run.
+bytes every time it is run; in a genuine frame, or one a replay copied from one. An intruder's own
+bytes are drawn from the run's seed and stay as sent (a fuzzing frame of 0xFF on a heartbeat's id).
 """
 
 from __future__ import annotations
@@ -29,6 +32,12 @@ from cosim.log.reader import LogReader
 from cosim.log.topics import BUS_FAULTS, FAULTS, FOREIGN, FRAMES, INPUTS, SENSORS, STATE, carried_tick
 
 NORMAL = "normal"
+#: The events table's columns: every run's file has all of them, a run without a fault too (a
+#: folder of files is one table only when their columns agree).
+EVENT_COLUMNS = (
+    "fault", "kind", "category", "attack_class", "targets", "start", "end",
+    "onset_tick", "end_tick", "ticks_active", "frames_injected", "frames_lost",
+)  # fmt: skip
 
 
 @dataclass
@@ -89,6 +98,7 @@ def read_run(log: Path, estimates: bool = False) -> RunTables:
     if not ticks:
         raise LogError(f"{log}: the log holds no tick of truth (did the run start?)")
     classes = fault_classes(record)
+    reading.active = _with_frames_on_the_bus(reading)
     return RunTables(
         frames=_frames(reading, codec, classes),
         signals=_signals(reading, ticks, record, columns),
@@ -98,6 +108,17 @@ def read_run(log: Path, estimates: bool = False) -> RunTables:
         record=record,
         duration=len(ticks) * record.dt_ns / 1e9,
     )
+
+
+def _with_frames_on_the_bus(reading: _Reading) -> dict[int, list[str]]:
+    """Each tick's active labels: those ``/truth/faults`` lists, and the attacks with a frame in it."""
+    active = {k: list(labels) for k, labels in reading.active.items()}
+    for _, m in reading.frames:
+        source = reading.intruders.get(int(m["seq"]))
+        labels = active.setdefault(int(m["tick"]), [])
+        if source and source not in labels:
+            labels.append(source)
+    return active
 
 
 def _decoded_columns(codec: Codec, record: RunRecord, estimates: bool) -> dict[str, dict[str, str]]:
@@ -175,7 +196,8 @@ def _frames(reading: _Reading, codec: Codec, classes: dict[str, tuple[str, str]]
         seq = int(m["seq"])
         fault = reading.intruders.get(seq, "")
         data = bytes.fromhex(m["data"])
-        if not m.get("extended"):
+        copied = not fault or classes.get(fault, ("", ""))[1] == "replay"  # bytes a genuine sender signed
+        if copied and not m.get("extended"):
             data = unsigned_data(codec, int(m["id"]), data)
         out["timestamp"].append(log_time / 1e9)
         out["tick"].append(int(m["tick"]))
@@ -269,7 +291,7 @@ def _events(
     lost: Counter[str] = Counter()
     for (_, label), n in reading.lost.items():
         lost[label] += n
-    out: dict[str, list[Any]] = defaultdict(list)
+    out: dict[str, list[Any]] = {column: [] for column in EVENT_COLUMNS}
     for fault in record.faults:
         on = [k for k in ticks if fault.label in reading.active.get(k, ())]
         kind, attack = classes.get(fault.label, (fault.kind or "", ""))
@@ -285,4 +307,4 @@ def _events(
         out["ticks_active"].append(len(on))
         out["frames_injected"].append(injected.get(fault.label, 0))
         out["frames_lost"].append(lost.get(fault.label, 0))
-    return dict(out)
+    return out

@@ -31,7 +31,7 @@ mean rank counts a case only where the comparisons that place the scheme are con
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -305,6 +305,9 @@ def leaderboard(
         scores = [score for chain in chains[key] for score, _ in chain]
         ranking.place(scores)
         ranked.append({"group": dict(zip(by, key)), "pooled": table.pooled(members[key], by), "ranking": scores})
+    for key, why in _not_run(table.rows, by, groups).items():
+        ranked.append({"group": dict(zip(by, key)), "pooled": [], "ranking": [], "not_run": why})
+    ranked.sort(key=lambda g: tuple(str(v) for v in g["group"].values()))
     case_units = (bundle or {}).get("units", {})
     for group in ranked:
         case = group["group"].get("case")
@@ -352,6 +355,24 @@ def _grouped(
         groups[values_by].setdefault(key, Entry(*key)).add(row, values.get("case"))
         members[values_by].append(values)
     return groups, members
+
+
+def _not_run(rows: list[dict[str, Any]], by: list[str], scored: Any) -> dict[tuple[Any, ...], dict[str, Any]]:
+    """The groups no scheme was scored in: every run failed before its schemes ran (a missing extra,
+    a scenario that cannot start). Each with its runs and why, in the words of its most frequent error."""
+    errors: dict[tuple[Any, ...], dict[Any, str]] = defaultdict(dict)
+    for values in rows:
+        key = tuple(values.get(c) for c in by)
+        if key not in scored:
+            errors[key][(values.get("case"), values.get("run"))] = str(values.get("error") or values.get("status"))
+    out = {}
+    for key, by_run in errors.items():
+        counts = Counter(by_run.values())
+        why, _ = counts.most_common(1)[0]
+        others = len(counts) - 1
+        more = f" (and {others} other error{'s' if others > 1 else ''}: see the outliers)" if others else ""
+        out[key] = {"runs": len(by_run), "why": why + more}
+    return out
 
 
 FORMAT = 2

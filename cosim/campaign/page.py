@@ -155,6 +155,7 @@ def write_page(board: dict[str, Any], out: str | Path) -> Path:
         scheme_cell=_scheme_cell,
         verdict=wording.verdict,
         pooled=wording.pooled,
+        not_run=wording.not_run,
         group_title=wording.group_title,
         summary=wording.summary,
         isolated_columns=_isolated_columns,

@@ -79,6 +79,15 @@ def group_title(group: dict[str, Any]) -> str:
     return ", ".join(f"{key} = {value}" for key, value in group["group"].items()) or "all runs"
 
 
+def not_run(group: dict[str, Any]) -> str:
+    """A group no scheme was scored in, and why: ``not run: its 4 runs failed before any scheme ran: ...``."""
+    why = group.get("not_run")
+    if not why:
+        return ""
+    runs = "its run" if why["runs"] == 1 else f"its {why['runs']} runs"
+    return f"not run: {runs} failed before any scheme ran: {why['why']}"
+
+
 def pooled(group: dict[str, Any]) -> str:
     """What a group pooled: ``pooled over bias_m (2 values), sensor (3); sampled onset (12)``."""
     axes = [p for p in group.get("pooled", []) if not p["sampled"]]
@@ -91,21 +100,31 @@ def pooled(group: dict[str, Any]) -> str:
     return "; ".join(parts)
 
 
-def relative(ratio: float) -> str:
-    """A ratio of errors as a change: ``+3.1 %``, ``−12 %``, ``×70``."""
-    if ratio >= 2 or ratio <= 0.5:
+def relative(ratio: float, times: bool | None = None) -> str:
+    """A ratio of errors as a change: ``+3.1 %``, ``−12 %``, or as a factor, ``×70``, ``×0.17``;
+    ``times`` chooses the form (None: a factor from ×2 or to ×0.5)."""
+    if times is None:
+        times = as_factors([ratio])
+    if times:
         return f"×{number(ratio, 2)}"
     change = 100 * (ratio - 1)
     text = number(abs(change), 2)
     return f"{'+' if change >= 0 else '−'}{text} %"
 
 
+def as_factors(ratios: Sequence[float | None]) -> bool:
+    """Whether ratios shown together read as factors (one of them from ×2 or to ×0.5) rather than as
+    percentages: one form for a line, never ``×0.17 [×0.14, +25 %]``."""
+    return any(r is not None and (r >= 2 or r <= 0.5) for r in ratios)
+
+
 def _runs(n: int) -> str:
     return f"{n} run{'' if n == 1 else 's'}"
 
 
-def detectable(comparison: dict[str, Any], level: float) -> str:
-    """What the runs of a comparison could detect (at the board's level, power 0.8)."""
+def detectable(comparison: dict[str, Any], level: float, times: bool | None = None) -> str:
+    """What the runs of a comparison could detect (at the board's level, power 0.8), as a factor or
+    a percentage as ``times`` says (None: as its size asks)."""
     c = comparison
     if c["measure"] == "diagnosis":
         if c["detectable_runs"] is None:
@@ -113,25 +132,31 @@ def detectable(comparison: dict[str, Any], level: float) -> str:
         return f"detectable: one better on {c['detectable_runs']} runs, never worse"
     if c["detectable"] is None:
         return f"{_runs(c['pairs'])} can separate nothing at α' = {level:.2g}"
-    if c["detectable"] < 1e-4:
+    if c["detectable"] < 1e-4 and not times:
         return "detectable ≥ 0.01 %"
-    return f"detectable ≥ {relative(1 + c['detectable']).removeprefix('+')}"
+    return f"detectable ≥ {relative(1 + c['detectable'], times).removeprefix('+')}"
 
 
 def verdict(comparison: dict[str, Any], level: float) -> str:
     """A comparison with the next scheme in words: the next's difference, the verdict, and what the
-    runs could tell: ``> kalman: error +21 % [+15, +30 %], p 0.001: separated; detectable ≥ 8 %``."""
+    runs could tell: ``> kalman: error +21 % [+15, +30 %], p 0.001: separated; detectable ≥ 8 %``;
+    every ratio of the line in one form, factors where one of them is from ×2 or to ×0.5
+    (``error ×5.6 [×4.1, ×7.5] ...; detectable ≥ ×1.2``)."""
     c, following = comparison, comparison["estimator"]
+    ratios = [c.get("ratio"), *(c.get("ratio_ci95") or [])]
+    if c["measure"] != "diagnosis" and c.get("detectable") is not None:
+        ratios.append(1 + c["detectable"])
+    times = as_factors(ratios)
     if c["measure"] == "diagnosis":
         found = f"{following}: worse on {c['worse']}, better on {c['better']} of {_runs(c['pairs'])}"
     elif c.get("ratio") is None:
         found = f"{following}: no runs in common"
     else:
-        found = f"{following}: error {relative(c['ratio'])}"
+        found = f"{following}: error {relative(c['ratio'], times)}"
         if c.get("ratio_ci95"):
             low, high = c["ratio_ci95"]
-            found += f" [{relative(low)}, {relative(high)}]"
-    could = detectable(c, level)
+            found += f" [{relative(low, times)}, {relative(high, times)}]"
+    could = detectable(c, level, times)
     if c["verdict"] == SEPARATED:
         return f"> {found}, p {c['p_holm']:.2g}: separated; {could}"
     if c["verdict"] == TIED:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 import tomllib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
 
@@ -24,9 +24,10 @@ if TYPE_CHECKING:
 
     from rich.progress import Progress
 
-    from cosim.campaign.benchmark import CaseSpec, Scheme
+    from cosim.campaign.benchmark import CaseSpec, Scheme, SuiteSpec
     from cosim.campaign.coordinator import CampaignProgress
     from cosim.campaign.spec import Campaign
+    from cosim.run.needs import Needs
 
 EPILOG = """\
 examples:
@@ -86,13 +87,12 @@ def schemes(estimators: list[str], params: list[str]) -> list[Scheme]:
 
 def main(args: argparse.Namespace) -> int:
     from cosim.campaign.benchmark import SUITE, load_suite, run_benchmark
-    from cosim.campaign.coordinator import require_extras
     from cosim.cli.campaign import progress_display
 
     added = schemes(args.estimator, args.params)
     suite = load_suite(args.suite or SUITE)
-    require_extras(args.engine)
     talk = common.console(stderr=True, quiet=args.quiet)
+    common.check_needs(talk, suite_needs(suite, args.quick, added, args.engine))
     selection = "quick" if args.quick else "full"
     talk.print(
         f"[bold]{escape(suite.name)} v{suite.version}[/bold] ({selection}): {len(suite.cases)} cases into "
@@ -128,6 +128,7 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if displays:
             displays[-1][0].stop()
+    common.warn(talk, failed_cases(bundle))
     talk.print(
         f"done: {bundle['runs']} runs, {bundle['failed']} failed; digest {bundle['digest'][:12]}; "
         f"rank with: cosim leaderboard {escape(str(args.out))}"
@@ -135,3 +136,25 @@ def main(args: argparse.Namespace) -> int:
     )
     print(args.out)
     return 0
+
+
+def suite_needs(suite: SuiteSpec, quick: bool, added: list[Scheme], engine: str) -> Needs:
+    """What the suite's runs need of the extras: the engine's, and every case's (its plants, its designs)."""
+    from cosim.campaign.benchmark import case_campaign
+    from cosim.campaign.coordinator import engine_extras
+    from cosim.run.needs import Needs
+
+    needs = Needs("cosim benchmark", engine_extras(engine))
+    for case in suite.cases:
+        needs.add_campaign(case.name, case_campaign(case, quick, added))
+    return needs
+
+
+def failed_cases(bundle: dict[str, Any]) -> list[str]:
+    """A line per case with failed runs: how many, and why (its most frequent error)."""
+    lines = []
+    for case, failed in bundle["failures"].items():
+        others = failed["other_errors"]
+        more = f" (and {others} other error{'s' if others > 1 else ''}: cosim leaderboard lists them)" if others else ""
+        lines.append(f"{case}: {failed['failed']} of {failed['runs']} runs failed: {failed['why']}{more}")
+    return lines

@@ -60,13 +60,16 @@ def arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from cosim import scenario
-    from cosim.campaign.coordinator import require_extras, resume_command, run_campaign
+    from cosim.campaign.coordinator import engine_extras, resume_command, run_campaign
     from cosim.campaign.spec import load_campaign
+    from cosim.run.needs import Needs
 
     settings = [scenario.parse_setting(text) for text in args.set or []]
     campaign = load_campaign(args.file, seeds=args.seeds, settings=settings)
-    require_extras(args.engine)
     talk = common.console(stderr=True, quiet=args.quiet)
+    needs = Needs("cosim campaign", engine_extras(args.engine))
+    needs.add_campaign(campaign.spec.name, campaign)
+    common.check_needs(talk, needs)
     spec = campaign.spec
     talk.print(
         f"[bold]{escape(spec.name)}[/bold]: {campaign.size} runs of {escape(campaign.base.source)} "

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from cosim.bus.transport import BusConfig
     from cosim.log.live import FoxgloveSink
     from cosim.run import Run
+    from cosim.run.needs import Needs
     from cosim.run.outcome import Progress as RunProgress
     from cosim.run.outcome import RunResult
     from cosim.run.replay import Replay
@@ -57,6 +58,14 @@ def print_json(value: Any) -> None:
 def warn(talk: Console, warnings: Iterable[str]) -> None:
     for warning in warnings:
         talk.print(f"[yellow]warning:[/yellow] {escape(warning)}")
+
+
+def check_needs(talk: Console, needs: Needs) -> None:
+    """Every extra a command needs, checked at once before it starts: one error line naming all
+    that are missing, or the warning of a design's extra its runs would fail without."""
+    warning = needs.check()
+    if warning is not None:
+        warn(talk, [warning])
 
 
 def check_scenario_name(name: str | None) -> None:

@@ -58,9 +58,11 @@ def main(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cosim import scenario
+    from cosim.campaign.coordinator import engine_extras
     from cosim.campaign.dataset import build_dataset
     from cosim.campaign.spec import Campaign, load_campaign
     from cosim.errors import CosimError
+    from cosim.run.needs import Needs
 
     try:
         fractions = [float(x) for x in args.split.split(",")]
@@ -72,6 +74,11 @@ def main(args: argparse.Namespace) -> int:
         source if Path(source).is_dir() else load_campaign(source, seeds=args.seeds, settings=settings)
         for source in args.sources
     ]
+    to_run = [source for source in sources if isinstance(source, Campaign)]
+    needs = Needs("cosim dataset", engine_extras(args.engine) if to_run else {"campaign": ["pyarrow"]})
+    for campaign in to_run:
+        needs.add_campaign(campaign.spec.name, campaign)
+    common.check_needs(talk, needs)
 
     def told(campaign: Campaign, running: bool) -> None:
         what = f"running its {campaign.size} runs with their logs" if running else "reading its logs"
@@ -93,8 +100,10 @@ def main(args: argparse.Namespace) -> int:
         address=args.address,
         on_campaign=told,
         on_run=progress,
+        on_warning=lambda line: common.warn(talk, [line]),
     )
     splits = ", ".join(f"{s} {card['splits'][s]['runs']}" for s in ("train", "validation", "test"))
     talk.print(f"done: {len(card['runs'])} runs ({splits}), {len(card['files'])} files, digest {card['digest'][:16]}")
+    common.warn(talk, (f"ROAD's form, {c['capture']}: {c['why']}" for c in card["road"]["not_exact"]))
     print(Path(args.out) / "card.json")
     return 0

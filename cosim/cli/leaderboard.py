@@ -62,7 +62,12 @@ def arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from cosim.campaign.leaderboard import leaderboard
     from cosim.errors import CosimError
+    from cosim.extras import require_all
 
+    require_all(
+        "cosim leaderboard" + (" --html" if args.html else ""),
+        {"campaign": ["pyarrow"]} | ({"plot": ["matplotlib"]} if args.html else {}),
+    )
     if not 0 < args.margin < 100:
         raise CosimError(f"--margin {args.margin:g}: give a percentage between 0 and 100, e.g. --margin 5")
     results = args.results[0] if len(args.results) == 1 else args.results
@@ -204,6 +209,7 @@ def text_lines(board: dict[str, Any]) -> list[str]:
     for group in board["groups"]:
         title = wording.group_title(group)
         lines += ["", *_wrapped(title + (f" · {wording.pooled(group)}" if group.get("pooled") else ""), 0)]
+        lines += _wrapped(wording.not_run(group), 1, 4) if group.get("not_run") else []
         lines += estimator_lines(group, level) + diagnosis_lines(group, level) + confusion_lines(group)
     lines += track_lines(board)
     lines += ["", *_wrapped(wording.LEGEND, 0, 0)]
@@ -224,6 +230,9 @@ def markdown(board: dict[str, Any]) -> str:
     lines = [line + "  " for line in lines[:-1]] + lines[-1:]
     for group in board["groups"]:
         lines += ["", f"*{wording.group_title(group)}*" + (f" ({wording.pooled(group)})" if group["pooled"] else "")]
+        if group.get("not_run"):
+            lines += ["", wording.not_run(group)]
+            continue
         unit = f" [{group['unit']}]" if group.get("unit") else ""
         diagnoses = any(s["diagnoses"] for s in group["ranking"])
         headers = ["#", "scheme", "runs", f"RMS p50 [95 %]{unit}", "p90", "final", "peak", "recovery [s]"]

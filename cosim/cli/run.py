@@ -105,10 +105,15 @@ def _interrupted_while_preparing(interrupt: KeyboardInterrupt, json: bool) -> in
 
 def _prepared(args: argparse.Namespace) -> tuple[Run, Path]:
     """The run as the arguments ask (its plan made) and where it will write its log."""
+    from cosim.extras import EXTRAS
     from cosim.run import Run
+    from cosim.run.needs import Needs
 
     # not a progress step: a bad file's error stays one line, however slow the imports
     loaded = common.load_scenario(args.scenario, args.set, no_validate=args.no_validate)
+    needs = Needs("cosim run", {"live": list(EXTRAS["live"])} if args.foxglove is not None else {})
+    needs.add(loaded.scenario.name, loaded.scenario)
+    needs.check()  # every missing extra at once where one the run cannot start without is among them
     seed = loaded.scenario.seed if args.seed is None else args.seed
     default = Path("runs") / f"{loaded.scenario.name}-seed{seed}-{common.stamp()}.mcap"
     out = common.new_output(args.out, default, args.force)

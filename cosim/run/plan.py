@@ -28,6 +28,7 @@ from cosim.bus.registry import Registration
 from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig
 from cosim.errors import ModelError, ScenarioError
+from cosim.extras import missing_extra
 from cosim.log.metadata import (
     ControllerRecord,
     DiagnosticRecord,
@@ -69,6 +70,13 @@ def build_estimators(
         except ParameterError as error:
             raise ScenarioError(f"{source}: estimators[{i}] ({spec.name}): params.{error}") from None
         except Exception as error:  # noqa: BLE001 (a plugin's design may raise anything: one line, not its traceback)
+            missing = (
+                missing_extra(error, f"{source}: estimators[{i}] ({spec.name}, {spec.kind})")
+                if isinstance(error, ImportError)
+                else None
+            )
+            if missing is not None:  # its design needs an extra's package (the LMI solvers)
+                raise missing from None
             if estimators.ESTIMATORS.origin(spec.kind).source == "built-in":
                 raise  # a bug of ours: its traceback
             raise ScenarioError(

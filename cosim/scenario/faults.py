@@ -9,11 +9,12 @@ keyword arguments beside its channels and window.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import fields as dataclass_fields
 from typing import Annotated, Any, ClassVar, Literal, get_args
 
-from pydantic import BeforeValidator, Discriminator, Field, Tag, model_validator
+from pydantic import BeforeValidator, Discriminator, Field, Tag, field_validator, model_validator
 
 import faults as fm
 from cosim.scenario.tables import (
@@ -251,13 +252,29 @@ class MasqueradeSpec(OnMessage):
 
 
 class FuzzingSpec(OnBus):
-    """Random ids in [``low``, ``high``] with random payloads every ``period`` (``faults.attacks.Fuzzing``)."""
+    """Random ids in [``low``, ``high``] every ``period``, with ``length`` random bytes or the
+    ``payload`` given in hex (``"FFFFFFFFFFFFFFFF"``, ROAD's fuzzing) (``faults.attacks.Fuzzing``)."""
 
     kind: Literal["fuzzing"]
     low: Annotated[int, Field(ge=0, le=0x7FF)] = 0x000
     high: Annotated[int, Field(ge=0, le=0x7FF)] = 0x7FF
     period: Annotated[float, Field(gt=0.0)] = 0.0005
     length: Annotated[int, Field(ge=0, le=8)] = 8
+    payload: str | None = None
+    """Every frame's bytes, two hex digits each (up to 8 bytes); none: ``length`` random bytes."""
+
+    @field_validator("payload")
+    @classmethod
+    def _payload(cls, value: str | None) -> str | None:
+        if value is not None and not re.fullmatch(r"([0-9A-Fa-f]{2}){0,8}", value):
+            raise ValueError(f"{value!r} is not up to 8 bytes of two hex digits each (e.g. 'FFFFFFFFFFFFFFFF')")
+        return value
+
+    def parameters(self, channels: int) -> dict[str, Any]:
+        parameters = super().parameters(channels)
+        if self.payload is not None:
+            parameters["payload"] = bytes.fromhex(self.payload)
+        return parameters
 
     @model_validator(mode="after")
     def _ids(self) -> FuzzingSpec:
