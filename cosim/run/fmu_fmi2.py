@@ -87,7 +87,9 @@ class CosimSlave(Fmi2Slave):
         self.slave.initialize()
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        return self.slave.step(current_time, step_size)
+        if not self.slave.step(current_time, step_size):
+            raise StepRefused("the step was refused (the message before says why)")
+        return True
 
     def terminate(self) -> None:
         self.slave.terminate()
@@ -125,3 +127,10 @@ def _element_of(v: Variable, flat: int) -> tuple[Callable[[], Any], Callable[[An
         v.setter(values)
 
     return get, set_
+
+
+class StepRefused(Exception):
+    """Raised out of ``do_step`` when the slave refused the step or a tick failed (its message is
+    logged at [error] first). pythonfmu's library returns fmi2Fatal for any exception, and has no
+    fmi2Error; a False would be fmi2Discard, a step done in part, which FMPy takes as the end of
+    the simulation without a word."""

@@ -6,8 +6,8 @@ of ``SystemStructure.ssd`` and the FMUs under ``resources/``) and the Open Simul
 Both name each FMU as a component (the plant, the estimators, the controller), wire its outputs to
 inputs, and give the system's fixed step: in the SSD as OSP's annotation of the default
 experiment (``osp:FixedStepAlgorithm baseStepSize``, which libcosim reads), in the OSP file as its
-``BaseStepSize``. SSP's connectors are declared for the connected variables only (FMPy's SSP
-reader needs every declared input connected).
+``BaseStepSize``. A component's connectors in the SSD are its connected inputs (FMPy's SSP reader
+needs every declared input connected) and all its outputs.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 
 from lxml import etree  # FMPy's XML library (the fmi extra): each document declares its own prefixes
 
-from cosim.run.fmu_system import System
+from cosim.run.fmu_system import Component, System
 
 SubElement = etree.SubElement
 
@@ -51,7 +51,7 @@ def ssd(system: System, folder: str = "resources/") -> bytes:
         attributes = {"name": component.name, "type": FMU_MIME, "source": folder + fmu_file(component.name)}
         element = SubElement(elements, f"{{{SSD}}}Component", attributes)
         connectors = SubElement(element, f"{{{SSD}}}Connectors")
-        for name, kind in _connectors(system, component.name):
+        for name, kind in _connectors(system, component):
             connector = SubElement(connectors, f"{{{SSD}}}Connector", {"name": name, "kind": kind})
             SubElement(connector, f"{{{SSC}}}Real")
     connections = SubElement(top, f"{{{SSD}}}Connections")
@@ -69,15 +69,11 @@ def ssd(system: System, folder: str = "resources/") -> bytes:
     return _document(root)
 
 
-def _connectors(system: System, component: str) -> list[tuple[str, str]]:
-    """A component's connected variables, each once, with their kind, in the order of the connections."""
-    found: dict[str, str] = {}
-    for c in system.connections:
-        if c.source == component:
-            found.setdefault(c.output, "output")
-        if c.target == component:
-            found.setdefault(c.input, "input")
-    return list(found.items())
+def _connectors(system: System, component: Component) -> list[tuple[str, str]]:
+    """A component's connectors: its connected inputs, in the order of the connections, then all
+    its outputs (an engine records them: the estimates, the states)."""
+    inputs = [c.input for c in system.connections if c.target == component.name]
+    return [(name, "input") for name in inputs] + [(name, "output") for name in component.outputs]
 
 
 def osp_system_structure(system: System) -> bytes:

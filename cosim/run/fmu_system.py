@@ -51,6 +51,18 @@ class Component:
     files: dict[str, Path] = field(default_factory=dict)
     platforms: set[str] | None = None
 
+    @property
+    def outputs(self) -> list[str]:
+        """Its outputs' names: the plant's readings (and an open loop's commands) and states, an
+        estimator's estimate and diagnostics, the controller's commands and diagnostics."""
+        c = self.content
+        if c["slave"] == "plant":
+            commands = c["actuators"] if not c["system"]["closed_loop"] else []
+            return [v["name"] for v in [*commands, *c["sensors"]]] + [f"state.{v['name']}" for v in c["states"]]
+        if c["slave"] == "controller":
+            return [v["name"] for v in [*c["commands"], *c["diagnostics"]]]
+        return [v["name"] for v in c["outputs"]]
+
 
 @dataclass(frozen=True)
 class Connection:
