@@ -18,6 +18,7 @@ import pytest
 from cosim import scenario
 from cosim.cli import main
 from cosim.run import fmu_system, run
+from tests.conftest import ROOT
 from tests.osp_systems import differences, logged_estimates, run_libcosim
 from tests.test_fmu import truth
 
@@ -35,7 +36,7 @@ def exported(tmp_path_factory):
     def get(name: str, duration: float, estimators: tuple[str, ...] = ()) -> tuple[scenario.LoadedScenario, Path, Path]:
         if (name, duration) not in made:
             loaded = scenario.apply(scenario.load(name), [("duration", duration)])
-            folder = tmp_path_factory.mktemp(name)
+            folder = tmp_path_factory.mktemp(Path(name).stem)
             log, system = folder / "run.mcap", folder / "system"
             if estimators:
                 kept = [e for e in loaded.scenario.estimators if e.name in estimators]
@@ -89,6 +90,14 @@ def test_three_tank_in_libcosim(exported):
     loaded, log, system = exported("three-tank-reconciliation", 202.0, ("lft", "lft_test", "raw"))
     assert sorted(p.name for p in system.glob("*.fmu")) == ["lft.fmu", "lft_test.fmu", "plant.fmu", "raw.fmu"]
     assert_reproduces_the_run(loaded, log, system, 1)
+
+
+@pytest.mark.slow  # the plant's FMU runs the scenario's FMU in a host process of its own
+def test_a_scenario_with_an_fmu_plant_in_libcosim(exported):
+    """The plant an FMU (the Reference FMUs' FMI 3.0 VanDerPol, which libcosim could not run
+    itself), inside the system's FMI 2.0 plant FMU."""
+    loaded, log, system = exported(str(ROOT / "tests" / "data" / "fmus" / "vanderpol-bias.toml"), 5.0)
+    assert_reproduces_the_run(loaded, log, system / "fmu-vanderpol-bias.ssp", 1)
 
 
 @pytest.mark.slow  # a closed loop: the controller's FMU, the system at half the sample time
