@@ -209,3 +209,29 @@ def test_the_system_options_are_checked_in_one_line(tmp_path, capsys):
         assert main(["fmu", "masses-bias", *arguments, *out]) == 1
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and message in lines[0]
+
+
+@pytest.mark.slow  # two exports of the system
+def test_an_fmi3_system_holds_the_fmi2_systems_fmus_in_fmi_3(tmp_path, capsys):
+    """The default, FMI 3.0 (which neither libcosim nor FMPy's SSP support runs, as the note says):
+    the same components, variables and wiring, and its plant gives what the FMI 2.0 one gives."""
+    import fmpy
+
+    from tests.test_fmu_export import declared
+
+    folders = {fmi: tmp_path / f"fmi{fmi}" for fmi in (2, 3)}
+    for fmi, folder in folders.items():
+        assert (
+            main(["fmu", "masses-bias", "--set", "duration=1.0", "--system", "--fmi", str(fmi), "--out", str(folder)])
+            == 0
+        )
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "note: libcosim (the Open Simulation Platform) runs FMI 2.0 FMUs only: export with --fmi 2 for it"
+    )
+    assert (folders[2] / "OspSystemStructure.xml").read_text() == (folders[3] / "OspSystemStructure.xml").read_text()
+    for name in ("plant", "uniform", "kalman"):
+        fmus = {fmi: folder / f"{name}.fmu" for fmi, folder in folders.items()}
+        assert fmpy.read_model_description(str(fmus[3])).fmiVersion == "3.0"
+        assert declared(fmus[2]) == declared(fmus[3])
+    results = [fmpy.simulate_fmu(str(f / "plant.fmu"), stop_time=1.0, output_interval=0.01) for f in folders.values()]
+    assert all(np.array_equal(results[0][n], results[1][n]) for n in results[0].dtype.names)
