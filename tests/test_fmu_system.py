@@ -203,6 +203,10 @@ def test_the_system_options_are_checked_in_one_line(tmp_path, capsys):
             "--system exports every estimator of the scenario: leave out --estimator",
         ),
         (["--system", "--out", str(taken)], f"--out {taken} is a file: with --system it is the folder to write"),
+        (
+            ["--system", "--set", 'estimators[0].name="plant"'],
+            "estimator 'plant' has the name of the system's plant component: rename it",
+        ),
     ]
     for arguments, message in cases:
         out = [] if "--out" in arguments else ["--out", str(tmp_path / "x")]

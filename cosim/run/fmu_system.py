@@ -123,7 +123,7 @@ def build(loaded: LoadedScenario) -> System:
     s = loaded.scenario
     if (why := refusal(s)) is not None:
         raise CosimError(f"cosim fmu --system: {loaded.source} cannot be a system of FMUs: {why}")
-    _check_controller(s)
+    _check_components(s)
     plan = RunPlan.build(loaded)
     closed = s.controller is not None
     step = s.sample_time / 2 if closed else s.sample_time
@@ -144,9 +144,17 @@ def build(loaded: LoadedScenario) -> System:
     return System(s.name, s.description, step, s.duration, components, connections(components))
 
 
-def _check_controller(s: Scenario) -> None:
-    """A plugin controller does not travel in the system (only built-in kinds do)."""
+def _check_components(s: Scenario) -> None:
+    """Each component has a name of its own (an estimator named like the plant would overwrite its
+    FMU), and a plugin controller does not travel in the system (only built-in kinds do)."""
     from estimators.controller import CONTROLLERS
+
+    for i, e in enumerate(s.estimators):
+        if e.name in (PLANT, CONTROLLER):
+            raise CosimError(
+                f"cosim fmu --system: estimator {e.name!r} has the name of the system's {e.name} component: rename it "
+                f"(--set 'estimators[{i}].name=\"...\"')"
+            )
 
     if s.controller is not None and CONTROLLERS.origin(s.controller.kind).source != "built-in":
         raise CosimError(
