@@ -142,7 +142,7 @@ def test_the_plant_fmu_builds_under_an_ascii_locale(tmp_path):
 
 
 def test_the_fmu_slaves_are_ascii_and_one_that_is_not_is_refused_in_one_line(tmp_path):
-    for slave in ("fmu_slave.py", "fmu_estimator_slave.py"):
+    for slave in ("fmu_fmi3.py", "fmu_fmi2.py"):  # the adapters the FMUs carry
         assert fmu_export._ascii_source(Path(fmu_export.__file__).with_name(slave))
     slave = tmp_path / "slave.py"
     slave.write_text("# x\n# \u03c4\n", encoding="utf-8")
@@ -367,3 +367,129 @@ def test_cosim_fmu_estimator_writes_the_fmu_and_its_inputs_and_refuses_in_one_li
     assert capsys.readouterr().err.strip().splitlines() == [
         "error: --inputs-from needs --estimator NAME: the inputs are those of an estimator's node"
     ]
+
+
+def declared(fmu: Path) -> dict[str, tuple]:
+    """An FMU's variables, as FMI 2.0 names them (an FMI 3.0 array: one name per element, ``name[i]``,
+    ``name[i,j]``), with what both versions declare of them: causality, variability, initial, unit,
+    description and start values (as numbers; FMI 3.0's ``time`` left out, which FMI 2.0 does not require)."""
+    description = fmpy.read_model_description(str(fmu))
+    found = {}
+    for v in description.modelVariables:
+        if v.causality == "independent":
+            continue
+        starts = str(v.start).split() if v.start is not None else [None]
+        shape = [int(d.start) for d in v.dimensions] if v.dimensions else []
+        names = [f"{v.name}[{','.join(str(j + 1) for j in i)}]" for i in np.ndindex(*shape)] if shape else [v.name]
+        for name, start in zip(names, starts):
+            number = {"true": 1.0, "false": 0.0}.get(start, start)
+            value = repr(float(number)) if start is not None and v.type != "String" else start  # NaN == NaN
+            found[name] = (v.causality, v.variability, v.initial, v.unit, v.description, value)
+    return found
+
+
+def unit_definitions(fmu: Path) -> list[tuple]:
+    """An FMU's unit definitions: each name with its SI form (None: by its name alone)."""
+    fields = ("kg", "m", "s", "A", "K", "mol", "cd", "rad", "factor", "offset")
+    return [
+        (u.name, None if u.baseUnit is None else [getattr(u.baseUnit, f) for f in fields])
+        for u in fmpy.read_model_description(str(fmu)).unitDefinitions
+    ]
+
+
+def test_the_fmi2_exports_declare_what_the_fmi3_ones_do_and_give_the_same_outputs_bit_for_bit(tmp_path):
+    """The plant with its faults (dropouts: NaN readings) and an estimator with array parameters,
+    exported as FMI 2.0 and 3.0: the same variables, units and start values, and FMPy gives the same
+    outputs from both, bit for bit, with the same inputs and with a changed parameter."""
+    from fmpy.validation import validate_fmu
+
+    loaded = scenario.apply(scenario.load("masses-faults-fd"), [("duration", 2.0), ("faults[3].start", 1.0)])
+    bias = scenario.load("masses-bias")
+    fmus = {}
+    for fmi in (2, 3):
+        fmus["plant", fmi] = fmu_export.export(loaded, tmp_path / f"plant{fmi}.fmu", fmi)
+        fmus["uniform", fmi] = fmu_estimator.export(bias, "uniform", tmp_path / f"uniform{fmi}.fmu", fmi)
+    for name in ("plant", "uniform"):
+        assert fmpy.read_model_description(str(fmus[name, 2])).fmiVersion == "2.0"
+        assert validate_fmu(str(fmus[name, 2])) == [] and validate_fmu(str(fmus[name, 3])) == []
+        assert declared(fmus[name, 2]) == declared(fmus[name, 3])
+        assert unit_definitions(fmus[name, 2]) == unit_definitions(fmus[name, 3])
+    assert "params.poles[4]" in declared(fmus["uniform", 2])  # FMI 3.0's array, element by element
+    t = np.arange(0.0, 2.0, 0.01)
+    force = np.rec.fromarrays([t, np.sin(3 * t)], names=["time", "force"])
+    plant = {
+        fmi: fmpy.simulate_fmu(str(fmus["plant", fmi]), stop_time=2.0, output_interval=0.01, input=force)
+        for fmi in (2, 3)
+    }
+    readings = np.rec.fromarrays(
+        [t, plant[3]["x1"][:-1], plant[3]["x2"][:-1], plant[3]["x1_minus_x2"][:-1], np.sin(3 * t)],
+        names=["time", "x1", "x2", "x1_minus_x2", "force"],
+    )
+    poles = [0.5, 0.55, 0.6, 0.65]
+    runs = {
+        (fmi, changed): fmpy.simulate_fmu(
+            str(fmus["uniform", fmi]),
+            stop_time=2.0,
+            output_interval=0.01,
+            input=readings,
+            start_values=(
+                {f"params.poles[{i + 1}]": p for i, p in enumerate(poles)} if fmi == 2 else {"params.poles": poles}
+            )
+            if changed
+            else {},
+        )
+        for fmi in (2, 3)
+        for changed in (False, True)
+    }
+    assert np.isnan(plant[3]["x2_minus_x1"]).any()  # the dropouts
+    for a, b in [(plant[2], plant[3]), (runs[2, False], runs[3, False]), (runs[2, True], runs[3, True])]:
+        assert a.dtype.names == b.dtype.names
+        assert all(np.array_equal(a[n], b[n], equal_nan=True) for n in a.dtype.names)
+    assert not np.array_equal(runs[2, False]["xhat_x1"], runs[2, True]["xhat_x1"], equal_nan=True)  # redesigned
+
+
+@pytest.mark.slow  # libcosim instantiates the FMU's Python
+def test_libcosim_runs_the_fmi2_plant_as_fmpy_does(tmp_path):
+    """libcosim (the Open Simulation Platform) loads the FMI 2.0 plant and steps it as FMPy does,
+    bit for bit; an FMI 3.0 FMU it cannot run."""
+    from cosim.run.fmu_ssp import osp_system_structure
+    from cosim.run.fmu_system import Component, System
+    from tests.osp_systems import run_libcosim
+
+    loaded = scenario.apply(scenario.load("masses-faults-fd"), [("duration", 1.0)])
+    fmu = fmu_export.export(loaded, tmp_path / "plant.fmu", 2)
+    folder = tmp_path / "alone"
+    folder.mkdir()
+    shutil.copy(fmu, folder / "plant.fmu")
+    alone = System("alone", "", 0.01, 1.0, [Component("plant", {})], [])  # the plant, on its own
+    (folder / "OspSystemStructure.xml").write_bytes(osp_system_structure(alone))
+    s = loaded.scenario
+    names = [*s.sensors, *(f"state.{n}" for n in s.states)]
+    computed = run_libcosim(folder, s.ticks, 1, {"plant": names})["plant"]
+    expected = fmpy.simulate_fmu(str(fmu), stop_time=1.0, output_interval=0.01, output=names)
+    for name in names:
+        assert np.array_equal(computed[name], expected[name][1:], equal_nan=True), name
+
+
+def test_an_fmi2_export_refuses_a_step_and_an_integer_it_cannot_hold_in_one_line(tmp_path):
+    out = fmu_export.export(scenario.load(str(VANDERPOL_SCENARIO)), tmp_path / "vdp2.fmu", 2)
+    messages = []
+    with pytest.raises(Exception, match=r"fmi2DoStep failed with status 4 \(fatal\)"):  # pythonfmu has no fmi2Error
+        fmpy.simulate_fmu(
+            str(out),
+            stop_time=0.1,
+            output_interval=0.015,
+            debug_logging=True,
+            logger=lambda _, __, status, category, message: messages.append((status, category, message.decode())),
+        )
+    assert messages[-2] == (
+        3,
+        b"logStatusError",
+        "the step size 0.015 s is not a whole multiple of the sample time 0.01 s: refused",
+    )
+    with pytest.raises(CosimError) as error:
+        fmu_export.export(scenario.apply(scenario.load("masses-bias"), [("seed", 2**31)]), tmp_path / "big.fmu", 2)
+    assert str(error.value) == (
+        "cosim fmu --fmi 2: seed = 2147483648 does not fit FMI 2.0's Integer (32 bits): give a smaller value "
+        "(--seed, --set), or export FMI 3.0"
+    )

@@ -46,6 +46,7 @@ from cosim.bus.codec import (
     SYNC,
     Codec,
     Decoded,
+    saturated,
 )
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import SecOC
@@ -388,7 +389,7 @@ class Client:
                 raise CosimError(f"publish: no value for {', '.join(missing)} (message {spec.name})")
             payload = [values[s] for s in spec.signals]
             if saturate:
-                payload = [min(max(v, c.minimum), c.maximum) if v == v else v for v, c in zip(payload, spec.channels)]
+                payload = saturated(payload, spec.channels)
             frame = self.codec.encode(spec.name, k, payload)
             if self.secoc is not None:
                 self.secoc.sign(frame, k)

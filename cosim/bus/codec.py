@@ -86,6 +86,7 @@ __all__ = [  # the database's names a codec's users need, with the codec
     "estimate_signal",
     "estimated_state",
     "load_dbc",
+    "saturated",
     "signal_bits",
 ]
 
@@ -316,6 +317,12 @@ class Codec:
         if at is None:  # NMT
             return Decoded(spec, 0, dict(zip(others, values)))
         return Decoded(spec, int(values[at]), dict(zip(others, values[:at] + values[at + 1 :])))
+
+
+def saturated(values: Sequence[float], channels: Sequence[Channel]) -> list[float]:
+    """Each value at the bound of its channel's range it crossed (±inf included; NaN stays NaN, which
+    ``encode`` refuses): what a node's signal sends for a value outside its range."""
+    return [min(max(v, c.minimum), c.maximum) if v == v else v for v, c in zip(values, channels)]
 
 
 @functools.lru_cache(maxsize=16)

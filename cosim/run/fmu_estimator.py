@@ -1,5 +1,6 @@
 """``cosim fmu --estimator NAME``: one estimator of a scenario, as its node runs it on the bus,
-packaged as an FMI 3.0 co-simulation FMU (``cosim.run.fmu_estimator_slave`` is the FMU's Python).
+packaged as an FMI 3.0 or 2.0 co-simulation FMU (``cosim.run.fmu_estimator_slave`` is the slave
+its Python runs).
 
 The FMU is the estimator's node without the bus: its inputs are what the node's estimator gets
 each tick (``cosim.run.node.EstimatorNode``: the readings as decoded from their frames, NaN for a
@@ -40,8 +41,6 @@ DIGITS = "{:.16g}"
 def exported(loaded: Any, name: str) -> tuple[dict[str, Any], dict[str, Path]]:
     """What the FMU of estimator ``name`` of a loaded scenario holds: its ``content.json`` and the
     files beside it (a plugin's source, by its name in the resources)."""
-    from cosim.bus.codec import estimated_state
-    from cosim.run.fmu_export import fmi_units, model_identifier, variable
     from cosim.run.plan import RunPlan
     from cosim.scenario import LoadedScenario
 
@@ -51,7 +50,17 @@ def exported(loaded: Any, name: str) -> tuple[dict[str, Any], dict[str, Path]]:
         known = ", ".join(e.name for e in s.estimators) or "none"
         raise ScenarioError(f"{loaded.source}: no estimator {name!r} (its estimators: {known})")
     alone = s.model_copy(update={"estimators": [spec], "controller": None, "clients": []})
-    plan = RunPlan.build(LoadedScenario(alone, loaded.source, loaded.text))
+    return content_of(RunPlan.build(LoadedScenario(alone, loaded.source, loaded.text)), name)
+
+
+def content_of(plan: Any, name: str) -> tuple[dict[str, Any], dict[str, Path]]:
+    """``exported``'s content of estimator ``name`` of a plan (``cosim.run.plan.RunPlan``), its
+    outputs named as the plan's DBC names them, and the files beside it."""
+    from cosim.bus.codec import estimated_state
+    from cosim.run.fmu_export import fmi_units, model_identifier, variable
+
+    s = plan.scenario
+    spec = next(e for e in s.estimators if e.name == name)
     estimator = plan.estimators[name]
     model = estimator.model
     sensors, actuators, _ = s.channels()
@@ -66,6 +75,7 @@ def exported(loaded: Any, name: str) -> tuple[dict[str, Any], dict[str, Path]]:
     given = {**spec.params, **estimator.node_params()}
     kind, files = _shipped(spec.kind, type(estimator))
     content = {
+        "slave": "estimator",
         "model_identifier": model_identifier(f"{s.name}_{name}"),
         "description": f"cosim estimator {name} ({spec.kind}) of scenario {s.name}, sample time {s.sample_time:g} s",
         "cosim_version": __version__,
@@ -181,12 +191,12 @@ def _spelled(value: Any) -> Any:
     return value
 
 
-def export(loaded: Any, name: str, out: Path) -> Path:
-    """Write estimator ``name`` of a loaded scenario as an FMU to ``out``; returns ``out``."""
+def export(loaded: Any, name: str, out: Path, fmi: int = 3) -> Path:
+    """Write estimator ``name`` of a loaded scenario as an FMI ``fmi`` FMU to ``out``; returns ``out``."""
     from cosim.run.fmu_export import package
 
     content, files = exported(loaded, name)
-    return package(content, Path(__file__).with_name("fmu_estimator_slave.py"), out, files)
+    return package(content, out, fmi, files)
 
 
 def bus_inputs(log: Path, name: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:

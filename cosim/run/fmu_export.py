@@ -1,19 +1,21 @@
 """``cosim fmu``: a scenario's plant with its sensor and actuator faults, noise and disturbances,
-packaged as an FMI 3.0 co-simulation FMU; and the packaging that the estimator's FMU
-(``cosim.run.fmu_estimator``) shares with it.
+packaged as an FMI 3.0 or 2.0 co-simulation FMU; and the packaging that the other FMUs (an
+estimator's, ``cosim.run.fmu_estimator``; a system's, ``cosim.run.fmu_system``) share with it.
 
-The FMU is Python-backed (pythonfmu3, the ``fmi`` extra): its binary is pythonfmu3's prebuilt
-library, which runs a slave module (``cosim.run.fmu_slave`` here) in the host's Python, so
-exporting needs no compiler; running it needs a Python with cosim installed. Its resources hold
-``content.json`` (what the slave builds itself from: the resolved scenario, the signal names and
-units) and, for an FMU plant, that FMU. The bus (frames, bus faults, estimators, controller) is not
-part of the plant's FMU: it is the plant side of a run, whose outputs are the sensor stream
-``cosim run`` logs (/truth/faults ``measured``) given the same commands (docs/fmi.md).
+The FMU is Python-backed (the ``fmi`` extra): its binary is pythonfmu3's prebuilt library (FMI
+3.0) or pythonfmu's (FMI 2.0), which runs the adapter of its version (``cosim.run.fmu_fmi3``,
+``cosim.run.fmu_fmi2``) in the host's Python, and that the slave its content names (the plant's:
+``cosim.run.fmu_slave``), so exporting needs no compiler; running it needs a Python with cosim
+installed. Its resources hold ``content.json`` (what the slave builds itself from: the resolved
+scenario, the signal names and units) and, for an FMU plant, that FMU. The bus (frames, bus
+faults, estimators, controller) is not part of the plant's FMU: it is the plant side of a run,
+whose outputs are the sensor stream ``cosim run`` logs (/truth/faults ``measured``) given the same
+commands (docs/fmi.md).
 
-What the packaging adds to pythonfmu3's: the variables' units as FMI units (``fmi_units``, their SI
-form from pint), only the binaries of the platforms every part of the FMU runs on (a nested FMU
+What the packaging adds to the libraries': the variables' units as FMI units (``fmi_units``, their
+SI form from pint), only the binaries of the platforms every part of the FMU runs on (a nested FMU
 plant's included), and a model description that FMI's schema accepts (NaN start values as
-``NaN``, the sample time as the fixed internal step size).
+``NaN``; FMI 3.0: the sample time as the fixed internal step size; FMI 2.0: the initial unknowns).
 """
 
 from __future__ import annotations
@@ -36,13 +38,17 @@ from cosim.errors import CosimError
 from cosim.extras import require
 from cosim.plant import build_plant
 from cosim.plant.fmu_model import is_fmu
+from cosim.run.fmu_interface import CONTENT
 from cosim.scenario import LoadedScenario, Scenario
 
-#: The file in the FMU's resources that its slave is built from.
-CONTENT = "content.json"
 PLANT_FILE = "plant.fmu"
-#: pythonfmu3's binary folders and the FMI platforms they are (as ``fmpy.supported_platforms`` names them).
+#: The FMI versions ``cosim fmu`` writes: the adapter each FMU carries, and the library that builds it.
+ADAPTERS = {3: ("fmu_fmi3.py", "pythonfmu3.builder"), 2: ("fmu_fmi2.py", "pythonfmu.builder")}
+#: pythonfmu3's binary folders and the FMI platforms they are (as ``fmpy.supported_platforms`` names
+#: them); pythonfmu's folders (FMI 2.0) are named as the platforms.
 BINARY_PLATFORMS = {"x86_64-linux": "linux64", "x86_64-windows": "win64", "x86_64-darwin": "darwin64"}
+#: FMI 2.0's Integer: 32 bits.
+INT32 = range(-(2**31), 2**31)
 #: pint's base units and FMI's names of them (FMI 3.0, 2.4.3: the exponents of a BaseUnit).
 FMI_BASE_UNITS = {
     "kilogram": "kg",
@@ -123,6 +129,7 @@ def exported(loaded: LoadedScenario) -> dict[str, Any]:
     signals = {"actuators": actuators, "sensors": sensors, "states": states}
     variables = {group: [variable(c) for c in channels] for group, channels in signals.items()}
     return {
+        "slave": "plant",
         "model_identifier": model_identifier(s.name),
         "description": f"cosim scenario {s.name}: {s.description}" if s.description else f"cosim scenario {s.name}",
         "scenario": data,
@@ -135,25 +142,35 @@ def exported(loaded: LoadedScenario) -> dict[str, Any]:
     }
 
 
-def export(loaded: LoadedScenario, out: Path) -> Path:
-    """Write the scenario's plant as an FMU to ``out``; returns ``out``."""
-    model = loaded.scenario.plant.model
-    nested = {PLANT_FILE: Path(model)} if is_fmu(model) else {}
-    platforms = _fmu_platforms(Path(model)) if is_fmu(model) else None
-    return package(exported(loaded), Path(__file__).with_name("fmu_slave.py"), out, nested, platforms)
+def export(loaded: LoadedScenario, out: Path, fmi: int = 3) -> Path:
+    """Write the scenario's plant as an FMI ``fmi`` FMU to ``out``; returns ``out``."""
+    return package(exported(loaded), out, fmi, *plant_files(loaded.scenario))
+
+
+def plant_files(s: Scenario) -> tuple[dict[str, Path], set[str] | None]:
+    """The files the plant's FMU carries (an FMU plant's FMU) and the platforms it can run on
+    (None: all of the library's; an FMU plant's platforms)."""
+    model = s.plant.model
+    if not is_fmu(model):
+        return {}, None
+    return {PLANT_FILE: Path(model)}, _fmu_platforms(Path(model))
 
 
 def package(
     content: dict[str, Any],
-    slave: Path,
     out: Path,
+    fmi: int = 3,
     files: dict[str, Path] | None = None,
     platforms: set[str] | None = None,
 ) -> Path:
-    """Build the FMU of ``slave`` (a pythonfmu3 slave module, packaged under its own name) with
-    ``content`` and ``files`` (name → file) in its resources, keeping the binaries of ``platforms``
-    only (None: all of pythonfmu3's); returns ``out``."""
-    builder = require("pythonfmu3.builder", "cosim fmu", "fmi")
+    """Build the FMI ``fmi`` FMU of the slave ``content`` names, with ``content`` and ``files``
+    (name → file) in its resources, keeping the binaries of ``platforms`` only (None: all of the
+    library's); returns ``out``."""
+    adapter, library = ADAPTERS[fmi]
+    builder = require(library, "cosim fmu", "fmi")
+    if fmi == 2:
+        _check_fmi2(content)
+    slave = Path(__file__).with_name(adapter)
     with tempfile.TemporaryDirectory(prefix="cosim-fmu-") as folder:
         work = Path(folder)
         (work / CONTENT).write_text(json.dumps(content), encoding="utf-8")
@@ -163,15 +180,28 @@ def package(
             target.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(source, target)
             project.append(work / Path(name).parts[0])
-        script = work / f"cosim_{slave.name}"  # its module's name in the host: one per kind of slave
+        script = work / f"cosim_{slave.name}"  # its module's name in the host: one per FMI version
         script.write_bytes(_ascii_source(slave))
         try:
             built = builder.FmuBuilder.build_FMU(script, dest=work / "built", project_files=set(project))
-        except Exception as error:  # noqa: BLE001 (pythonfmu3 raises plain Exceptions)
-            raise CosimError(f"cosim fmu: pythonfmu3 could not build the FMU: {error}") from None
+        except Exception as error:  # noqa: BLE001 (pythonfmu3 and pythonfmu raise plain Exceptions)
+            raise CosimError(f"cosim fmu: {library.partition('.')[0]} could not build the FMU: {error}") from None
         out.parent.mkdir(parents=True, exist_ok=True)
-        _finish(Path(built), out, platforms, content["sample_time"])
+        system = content.get("system")
+        _finish(Path(built), out, platforms, float(system["step"]) if system else content["sample_time"])
     return out
+
+
+def _check_fmi2(content: dict[str, Any]) -> None:
+    """Refuse, in one line, an integer FMI 2.0's 32-bit Integer cannot hold (the seed, a parameter)."""
+    integers = {"seed": content.get("seed", 0)}
+    integers |= {p["name"]: p["value"] for p in content.get("parameters", []) if p["type"] == "Int64"}
+    for name, value in integers.items():
+        if value not in INT32:
+            raise CosimError(
+                f"cosim fmu --fmi 2: {name} = {value} does not fit FMI 2.0's Integer (32 bits): give a smaller "
+                "value (--seed, --set), or export FMI 3.0"
+            )
 
 
 def _ascii_source(slave: Path) -> bytes:
@@ -194,24 +224,26 @@ def _fmu_platforms(fmu: Path) -> set[str]:
     return set(supported_platforms(str(fmu)))
 
 
-def _finish(built: Path, out: Path, platforms: set[str] | None, sample_time: float) -> None:
-    """Copy pythonfmu3's FMU to ``out`` without the binaries of the platforms not in ``platforms``
+def _finish(built: Path, out: Path, platforms: set[str] | None, step: float) -> None:
+    """Copy the built FMU to ``out`` without the binaries of the platforms not in ``platforms``
     and with its model description fixed (``_fixed``)."""
     with zipfile.ZipFile(built) as source, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as target:
         for item in source.infolist():
             parts = Path(item.filename).parts
-            if parts[0] == "binaries" and platforms is not None and BINARY_PLATFORMS.get(parts[1]) not in platforms:
+            platform = BINARY_PLATFORMS.get(parts[1], parts[1]) if parts[0] == "binaries" else None
+            if platform is not None and platforms is not None and platform not in platforms:
                 continue
             data = source.read(item)
             if item.filename == "modelDescription.xml":
-                data = _fixed(data, sample_time)
+                data = _fixed(data, step)
             target.writestr(item, data)
 
 
-def _fixed(xml: bytes, sample_time: float) -> bytes:
-    """pythonfmu3's model description with ``nan``/``inf`` start values spelled as XML Schema's
-    doubles (``NaN``, ``INF``, ``-INF``), and the sample time as the co-simulation's fixed internal
-    step size (FMI 3.0: a ``doStep`` spans whole multiples of it)."""
+def _fixed(xml: bytes, step: float) -> bytes:
+    """pythonfmu3's or pythonfmu's model description with ``nan``/``inf`` start values spelled as
+    XML Schema's doubles (``NaN``, ``INF``, ``-INF``), and in FMI 3.0 the step (the sample time, or
+    the system's) as the co-simulation's fixed internal step size (a ``doStep`` spans whole
+    multiples of it; FMI 2.0 has no such attribute)."""
     root = ElementTree.fromstring(xml)
     spelled = {"nan": "NaN", "inf": "INF", "-inf": "-INF"}
     for element in root.iter():
@@ -219,8 +251,8 @@ def _fixed(xml: bytes, sample_time: float) -> bytes:
         if start is not None:
             element.set("start", " ".join(spelled.get(token, token) for token in start.split()))
     cosimulation = root.find("CoSimulation")
-    if cosimulation is not None:
-        cosimulation.set("fixedInternalStepSize", repr(sample_time))
+    if cosimulation is not None and root.get("fmiVersion", "").startswith("3"):
+        cosimulation.set("fixedInternalStepSize", repr(step))
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ElementTree.tostring(root, encoding="unicode").encode()
 
 

@@ -1,4 +1,5 @@
-"""The Python inside the plant's FMU that ``cosim fmu`` exports (pythonfmu3 packages this file).
+"""The plant inside the FMU that ``cosim fmu`` exports, for FMI 2.0 and 3.0 alike (the adapters
+``cosim.run.fmu_fmi2`` and ``cosim.run.fmu_fmi3`` drive it).
 
 The FMU's ``resources/content.json`` holds the scenario (its resolved JSON,
 ``cosim.run.fmu_export.exported``); its plant, sensor and actuator faults, noise and disturbances
@@ -6,96 +7,83 @@ run here as in ``cosim run``, through the same ``PlantSource``, so the outputs a
 stream a run logs (``measured`` of /truth/faults, NaN for a dropped frame) given the same commanded
 inputs. Its variables:
 
-- inputs: the actuators' commands (start: the operating point's), held over a step;
+- inputs: the actuators' commands (start: what they hold before a command), held over a step;
 - outputs: the transmitted sensors' measured readings, then ``state.<name>``, the plant's states;
 - parameter ``seed`` (fixed): the seed of the noise, the faults and the disturbance models.
 
-A step advances ``communicationStepSize`` / tau ticks (a whole number) of the scenario's sample time
-tau; any other step size is refused (``fmi3Error``, logged at [error]). The host needs a Python
-with cosim installed (its import path, e.g. FMPy in cosim's virtualenv).
-
-This file is ASCII: pythonfmu3 reads it in the locale's encoding (``cosim.run.fmu_export.package``).
+In a system (``cosim fmu --system``) it is the runner's side of the bus: its outputs are the
+readings as the sensor frames carry them (``PlantSource.frames``: quantized on classic CAN, NaN
+for a frame not sent), and in an open loop it drives its actuators itself with the scenario's
+inputs, as the runner does, and outputs those commands as their frames carry them (outputs named
+by the actuators, in place of the inputs).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pythonfmu3 import DefaultExperiment, Float64, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Variability, Int64
-from pythonfmu3.fmi3slave import Fmi3StepResult
 
-from cosim.run.fmu_interface import REFUSED, about, element, register_units, ticks_of
-
-CONTENT = "content.json"
+from cosim.bus.codec import COMMAND, SENSOR
+from cosim.run.fmu_interface import Log, Slave, Variable, signals
 
 
-class CosimPlant(Fmi3Slave):
-    """A scenario's plant with its faults as an FMI 3.0 co-simulation slave."""
+class PlantSlave(Slave):
+    """A scenario's plant with its faults."""
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**kwargs)
-        exported = json.loads((Path(self.resources) / CONTENT).read_text(encoding="utf-8"))
-        self.exported = exported
-        self.modelName = exported["model_identifier"]
-        self.description = exported["description"]
-        self.sample_time = float(exported["sample_time"])
-        self.default_experiment = DefaultExperiment(0.0, exported["duration"], self.sample_time)
-        self.seed = int(exported["seed"])
-        self.u = np.array(exported["u_op"], dtype=float)
-        self.y = np.full(len(exported["sensors"]), np.nan)
-        self.x = np.zeros(len(exported["states"]))
-        self.time = 0.0
-        register_units(self, exported["units"])
-        self.register_variable(
-            Float64("time", causality=Fmi3Causality.independent, variability=Fmi3Variability.continuous)
+    def __init__(self, content: dict[str, Any], resources: Path, log: Log) -> None:
+        super().__init__(content, resources, log)
+        self.seed = int(content["seed"])
+        self.u = np.array(content["u_op"], dtype=float)
+        self.y = np.full(len(content["sensors"]), np.nan)
+        self.x = np.zeros(len(content["states"]))
+        self.drives_itself = self.system is not None and not self.system["closed_loop"]
+        """An open loop's system: the scenario's inputs drive the actuators, which are outputs."""
+
+        def set_seed(value: int) -> None:
+            self.seed = int(value)
+
+        seed = Variable(
+            "seed",
+            "Int64",
+            "parameter",
+            "fixed",
+            lambda: self.seed,
+            set_seed,
+            start=self.seed,
+            initial="exact",
+            description="seed of the noise, the faults and the disturbance models",
         )
-        self.register_variable(
-            Int64(
-                "seed",
-                causality=Fmi3Causality.parameter,
-                variability=Fmi3Variability.fixed,
-                initial=Fmi3Initial.exact,
-                description="seed of the noise, the faults and the disturbance models",
-            )
-        )
-        for i, v in enumerate(exported["actuators"]):
-            self.register_variable(
-                Float64(v["name"], causality=Fmi3Causality.input, start=self.u[i], **about(v), **element(self.u, i)),
-                nested=False,
-            )
-        for prefix, group, values in (("", "sensors", self.y), ("state.", "states", self.x)):
-            for i, v in enumerate(exported[group]):
-                self.register_variable(
-                    Float64(
-                        prefix + v["name"],
-                        causality=Fmi3Causality.output,
-                        variability=Fmi3Variability.discrete,
-                        initial=Fmi3Initial.calculated,
-                        **about(v),
-                        **element(values, i),
-                    ),
-                    nested=False,
-                )
+        if self.drives_itself:
+            actuators = signals(content["actuators"], self.u, "output")
+        else:
+            actuators = signals(content["actuators"], self.u, "input", variability="continuous")
+        self.variables = [
+            seed,
+            *actuators,
+            *signals(content["sensors"], self.y, "output"),
+            *signals(content["states"], self.x, "output", prefix="state."),
+        ]
         self.source: Any = None
 
-    def exit_initialization_mode(self) -> None:
+    def initialize(self) -> None:
         from cosim.run.fmu_export import plant_source
 
-        self.source = plant_source(self.exported, Path(self.resources), self.seed)
-        self._k = 0
-        self._sense()
+        self.source = plant_source(self.content, self.resources, self.seed)
+        if self.system is not None:
+            self.source.closed_loop = self.system["closed_loop"]  # no command frames of its own in a closed loop
+            self._where = {name: i for i, name in enumerate(self.source.scenario.sensors)}
+            self._where_command = {name: i for i, name in enumerate(self.source.scenario.actuators)}
+        self._sense(0)
 
-    def do_step(self, current_time: float, step_size: float) -> Fmi3StepResult:
-        ticks = ticks_of(self, step_size, self.sample_time)
-        if ticks is None:
-            return REFUSED
-        self._k = round(current_time / self.sample_time)
-        for _ in range(ticks):
-            self._advance()
-        return Fmi3StepResult()
+    def tick(self, k: int) -> None:
+        """Tick k's actuation (the actuator faults on the commands, the disturbances) and the
+        plant's step, then tick k+1's sensing: the order of ``PlantSource``."""
+        source = self.source
+        u_eff, _, d = source.actuate(self.u.copy(), source.scenario.time(k))
+        source.step(k, u_eff, d)
+        self._sense(k + 1)
 
     def terminate(self) -> None:
         """Free the plant (a nested FMU's instance, in its host process where it has one)."""
@@ -103,21 +91,17 @@ class CosimPlant(Fmi3Slave):
             self.source.close()
             self.source = None
 
-    def _advance(self) -> None:
-        """Tick k's actuation (the actuator faults on the held commands, the disturbances) and the
-        plant's step, then tick k+1's sensing: the order of ``PlantSource``."""
-        source, s = self.source, self.source.scenario
-        t = s.time(self._k)
-        u_eff, _ = source.faults.actuators(self.u.copy(), t)
-        d = np.array([w(t) for w in source.disturbances]) + sum(
-            (b(t) for b in source.environments), np.zeros(len(source.disturbances))
-        )
-        source.plant.step(u_eff, d)
-        self._k += 1
-        self._sense()
-
-    def _sense(self) -> None:
+    def _sense(self, k: int) -> None:
         source = self.source
-        outcome = source.faults.sensors(source.plant.sensors(), source.scenario.time(self._k))
-        self.y[:] = np.where(outcome.sent, outcome.measured, np.nan)
         self.x[:] = source.plant.state()
+        if self.system is None:
+            outcome = source.faults.sensors(source.plant.sensors(), source.scenario.time(k))
+            self.y[:] = np.where(outcome.sent, outcome.measured, np.nan)
+            return
+        self.y[:] = np.nan  # a frame not sent
+        for _, decoded in source.frames(k)[1:]:  # after SYNC: the sensor frames, then an open loop's commands
+            channel, value = decoded.spec.channels[0].name, decoded.values[decoded.spec.signals[0]]
+            if decoded.spec.role == SENSOR:
+                self.y[self._where[channel]] = value
+            elif decoded.spec.role == COMMAND:
+                self.u[self._where_command[channel]] = value
