@@ -53,7 +53,7 @@ from pydantic import Field, ValidationError, model_validator
 
 import scenarios
 from cosim.errors import ScenarioError
-from cosim.scenario import LoadedScenario, apply, load
+from cosim.scenario import LoadedScenario, Scenario, apply, load
 from cosim.scenario.load import builtin_names as scenario_files
 from cosim.scenario.load import read_toml_file
 from cosim.scenario.tables import Strict, loads_toml, problem_message, problem_path
@@ -208,6 +208,12 @@ class Campaign:
     @property
     def size(self) -> int:
         return len(self.grid) * len(self.spec.replicates)
+
+    def point_scenarios(self) -> list[Scenario]:
+        """The scenario of every grid point (its first replicate's settings: an axis may change
+        the plant or the estimators; a sample, drawn per run, is taken as drawn for run 0)."""
+        replicate = self.spec.replicates[0]
+        return [apply(self.base, list(self.run(0, point, replicate).settings)).scenario for point in self.grid]
 
     def runs(self) -> list[RunSpec]:
         """Every run of the campaign, in index order."""

@@ -146,7 +146,7 @@ def suite_needs(suite: SuiteSpec, quick: bool, added: list[Scheme], engine: str)
 
     needs = Needs("cosim benchmark", engine_extras(engine))
     for case in suite.cases:
-        needs.add_campaign(case.name, case_campaign(case, quick, added))
+        needs.add_each(case.name, case_campaign(case, quick, added).point_scenarios())
     return needs
 
 

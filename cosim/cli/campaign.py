@@ -68,7 +68,7 @@ def main(args: argparse.Namespace) -> int:
     campaign = load_campaign(args.file, seeds=args.seeds, settings=settings)
     talk = common.console(stderr=True, quiet=args.quiet)
     needs = Needs("cosim campaign", engine_extras(args.engine))
-    needs.add_campaign(campaign.spec.name, campaign)
+    needs.add_each(campaign.spec.name, campaign.point_scenarios())
     common.check_needs(talk, needs)
     spec = campaign.spec
     talk.print(

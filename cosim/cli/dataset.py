@@ -77,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
     to_run = [source for source in sources if isinstance(source, Campaign)]
     needs = Needs("cosim dataset", engine_extras(args.engine) if to_run else {"campaign": ["pyarrow"]})
     for campaign in to_run:
-        needs.add_campaign(campaign.spec.name, campaign)
+        needs.add_each(campaign.spec.name, campaign.point_scenarios())
     common.check_needs(talk, needs)
 
     def told(campaign: Campaign, running: bool) -> None:

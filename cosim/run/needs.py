@@ -9,16 +9,12 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import estimators
 from cosim.extras import EXTRAS, MissingExtra, missing_words, not_installed
 from cosim.kinds import KindError
 from cosim.plant.fmu_model import is_fmu
 from cosim.scenario import Scenario
-
-if TYPE_CHECKING:
-    from cosim.campaign.spec import Campaign
 
 
 def scenario_extras(s: Scenario) -> dict[str, list[str]]:
@@ -53,13 +49,10 @@ class Needs:
             self.scenarios[extra].setdefault(where, [])
             self.scenarios[extra][where] += [w for w in why if w not in self.scenarios[extra][where]]
 
-    def add_campaign(self, where: str, campaign: Campaign) -> None:
-        """The extras of every grid point of ``campaign`` (an axis may change the plant or the estimators)."""
-        from cosim.scenario import apply
-
-        for point in campaign.grid:
-            settings = campaign.run(0, point, campaign.spec.replicates[0]).settings
-            self.add(where, apply(campaign.base, list(settings)).scenario)
+    def add_each(self, where: str, scenarios: Iterable[Scenario]) -> None:
+        """``add`` for each of ``scenarios`` (a campaign's grid points: ``Campaign.point_scenarios``)."""
+        for s in scenarios:
+            self.add(where, s)
 
     def check(self) -> str | None:
         """MissingExtra naming every missing extra at once if the command itself cannot work (its
