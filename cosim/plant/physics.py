@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from cosim.errors import ModelError
+from cosim.plant import equilibrium
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
 from mjcf import PlantInfo
@@ -124,6 +125,8 @@ class Plant:
         self._known = actuator_ids(self.model, self.actuator_names)
         self._unknown = actuator_ids(self.model, self.disturbance_names)
         self.state_names = tuple(s.name for s in info.states)
+        self.operating_point = ""
+        """What the last linearization found where its point is no equilibrium ("" where it is)."""
         # State tendons: lengths = T @ qpos (fixed tendons); T⁺ places qpos for requested lengths.
         self._tendons = state_tendon_matrix(self.model, info)
         self._tendons_pinv = None if self._tendons is None else np.linalg.pinv(self._tendons)
@@ -436,11 +439,20 @@ def _linearize_joint_state(
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
     A, BE = jac_x[:ndx], jac_u[:ndx]
     C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
+    A_c, BE_c = A, BE
     if f is continuous and dt is not None:
         A, BE = zoh_discretize(A, BE, dt)
     B, E = BE[:, plant._known], BE[:, plant._unknown]
     set_point(np.zeros(ndx), np.zeros(nu))
     mujoco.mj_forward(m, d)
+    y_op = d.sensordata[sensors] - plant.sensor_zero
+    x_op = np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None
+    point = np.zeros(ndx) if x_op is None else x_op
+    drift = (  # ẋ at the point (the data's, just computed), or its change over one step
+        equilibrium.declared(plant, np.concatenate([d.qvel, d.qacc, d.act_dot]), A_c, BE_c, point, ctrl0, dt)
+        if f is continuous
+        else equilibrium.declared(plant, f(np.zeros(ndx), np.zeros(nu))[:ndx], A, BE, point, ctrl0, dt, stepped=True)
+    )
     state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
     return LinearModel(
         A,
@@ -451,11 +463,12 @@ def _linearize_joint_state(
         state_names,
         plant.actuator_names,
         plant.sensor_names,
-        x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
+        x_op=x_op,
         u_op=ctrl0[plant._known],
-        y_op=d.sensordata[sensors] - plant.sensor_zero,
+        y_op=y_op,
         E=E,
         disturbances=plant.disturbance_names,
+        drift=drift,
     )
 
 
@@ -524,6 +537,7 @@ def _linearize_tendon_state(
         C = jac_h[nv:] + jac_v[nv:] @ dv_dh
         D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
         h0 = T @ qpos0
+        drift = equilibrium.declared(plant, T @ qvel0, A, BE, h0, ctrl0, dt)  # ḣ = T v* at the point
         if dt is not None and method == "step":
             A, BE = _stepped_tendon_model(plant, d, (qpos0, qvel0, ctrl0), dt)
         elif dt is not None:
@@ -547,6 +561,7 @@ def _linearize_tendon_state(
         y_op=y0 - plant.sensor_zero,
         E=BE[:, plant._unknown],
         disturbances=plant.disturbance_names,
+        drift=drift,
     )
 
 
