@@ -92,7 +92,10 @@ class LinearModel:
                 raise ValueError(f"LinearModel.{name} has shape {array.shape}, expected {shape}")
             object.__setattr__(self, name, array)
         for name, op, size in (("x_op", x_op, n), ("u_op", u_op, m), ("y_op", y_op, p), ("drift", drift, n)):
-            object.__setattr__(self, name, np.zeros(size) if op is None else np.asarray(op, dtype=float).reshape(size))
+            vector = np.zeros(size) if op is None else np.asarray(op, dtype=float)
+            if vector.size != size:
+                raise ValueError(f"LinearModel.{name} has {vector.size} values, expected {size}")
+            object.__setattr__(self, name, vector.reshape(size))
 
     @property
     def affine(self) -> bool:
