@@ -199,7 +199,9 @@ class OperatingPoint:
                 self._free = model.A, model.drift
             else:
                 if sample_time is None:
-                    raise ValueError("an affine continuous-time model needs the sample time to move its operating point")
+                    raise ValueError(
+                        "an affine continuous-time model needs the sample time to move its operating point"
+                    )
                 from estimators.design import zoh_discretize
 
                 A_d, c_d = zoh_discretize(model.A, model.drift[:, None], sample_time)

@@ -1,7 +1,8 @@
 """The oscillator test FMU (tests/data/fmus/oscillator/oscillator.c), built with gcc against FMPy's
 FMI 2.0 headers: a mass on a spring and damper, or a pendulum, or a free mass pushed by a constant
 force (its parameters choose), whose states x, v start wherever the scenario puts them, with
-co-simulation and model exchange and, on request, exact directional derivatives."""
+co-simulation and model exchange and, on request, exact directional derivatives; with ``x_max``
+its derivatives fail beyond |x| = x_max (a Modelica assert)."""
 
 from __future__ import annotations
 
@@ -52,6 +53,8 @@ DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
       <Real start="0"/></ScalarVariable>
     <ScalarVariable name="force" valueReference="11" causality="parameter" variability="fixed" initial="exact">
       <Real start="0"/></ScalarVariable>
+    <ScalarVariable name="x_max" valueReference="12" causality="parameter" variability="fixed" initial="exact">
+      <Real start="0"/></ScalarVariable>
   </ModelVariables>
   <ModelStructure>
     <Outputs>
@@ -79,11 +82,23 @@ def build(
     (what the input holds undriven)."""
     import fmpy
 
-    library = folder / "oscillator.so"
+    library = folder / f"oscillator-{x:g}-{v:g}-{u:g}.so"  # its start values compiled in, as an exporter's are
     if not library.exists():
         headers = Path(fmpy.__file__).parent / "c-code"
+        starts = [f"-DX_START={x!r}", f"-DV_START={v!r}", f"-DU_START={u!r}"]
         subprocess.run(
-            [compiler() or "gcc", "-shared", "-fPIC", "-O1", "-I", str(headers), "-o", str(library), str(SOURCE)],
+            [
+                compiler() or "gcc",
+                "-shared",
+                "-fPIC",
+                "-O1",
+                *starts,
+                "-I",
+                str(headers),
+                "-o",
+                str(library),
+                str(SOURCE),
+            ],
             check=True,
             capture_output=True,
         )

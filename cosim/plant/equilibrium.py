@@ -95,7 +95,7 @@ def values(names: Sequence[str], x: np.ndarray) -> str:
 
 
 def stability(A: np.ndarray) -> str:
-    """"" where the continuous-time A has no eigenvalue in the right half-plane, else what a
+    """ "" where the continuous-time A has no eigenvalue in the right half-plane, else what a
     reader needs to know about such an equilibrium."""
     eigenvalues = np.linalg.eigvals(A) if A.size else np.zeros(0)
     largest = float(np.abs(eigenvalues).max(initial=0.0))

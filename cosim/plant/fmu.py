@@ -164,8 +164,9 @@ class FmuPlant:
         self.operating_point = ""
         """Where the last linearization was taken, where that is not the start point as it stands: the
         equilibrium reached from it, or an affine model about it ("" at an equilibrium)."""
-        self.equilibria: dict[tuple[str, bytes, bytes], np.ndarray | None] = {}
-        """Where the search for an equilibrium ended from each start point searched from."""
+        self.equilibria: dict[tuple[str, bytes, bytes], np.ndarray | str] = {}
+        """Where the search for an equilibrium ended from each start point searched from (or what
+        stopped it)."""
         self.info = model.info()
         self.sample_time, self.duration = float(sample_time), float(duration)
         experiment = model.description.defaultExperiment

@@ -14,6 +14,12 @@ T = S_x square and invertible, and the model is taken in s:
     A = T F_x T⁻¹, [B E] = T F_u, C = Y_x T⁻¹, D = Y_u,
 
 then discretized at the sample time by the exact zero-order hold (``zoh_discretize``).
+
+The point is the start point (the FMU's start values, as the run sets them) where that is an
+equilibrium of the held inputs. Where it is not (a spring stretched, a mass moving), the model is
+taken at the equilibrium that ``cosim.plant.equilibrium.search`` reaches from it, in a
+model-exchange instance of its own; where it reaches none, the model stays at the start point as
+an affine model with its drift ẋ₀ (``LinearModel.drift``). ``plant.operating_point`` says which.
 """
 
 from __future__ import annotations
@@ -52,21 +58,30 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
     if point.at_rest(plant):
         return _model(plant, point, dt)
     found = _equilibrium(plant, point, u) if x is None else None
-    if found is not None and found.at_rest(plant):
+    if isinstance(found, _Linearization) and found.at_rest(plant):
         plant.operating_point = (
             f"{model.path.name}: its start values ({equilibrium.values(plant.state_names, point.s)}) are no "
-            f"equilibrium (the derivatives there: {equilibrium.values(point.derivative_names(model), point.f)}): "
+            f"equilibrium (the derivatives there: {_derivatives(model, point)}): "
             f"linearized at the equilibrium {equilibrium.values(plant.state_names, found.s)} reached from them"
             + equilibrium.stability(found.state_matrix(plant))
         )
         return _model(plant, found, dt)
-    where = "its start values" if x is None else "the point given"
-    searched = "" if found is None else f"; the search from them ended at {_derivatives(model, found)}"
-    plant.operating_point = (
-        f"{model.path.name}: no equilibrium near {where} ({equilibrium.values(plant.state_names, point.s)}){searched}: "
-        f"affine model with drift {equilibrium.values(['d' + name + '/dt' for name in plant.state_names], point.drift(plant))} "
-        "about them"
-    )
+    at = equilibrium.values(plant.state_names, point.s)
+    drift = equilibrium.values(equilibrium.rates_of(plant.state_names), point.drift(plant))
+    if x is not None:
+        plant.operating_point = (
+            f"{model.path.name}: the point given ({at}) is no equilibrium: affine model with drift {drift} about it"
+        )
+    else:
+        searched = (
+            f"; the search from them ended at {_derivatives(model, found)}"
+            if isinstance(found, _Linearization)
+            else f"; {found}"
+        )
+        plant.operating_point = (
+            f"{model.path.name}: no equilibrium near its start values ({at}){searched}: affine model with drift "
+            f"{drift} about them"
+        )
     return _model(plant, point, dt, affine=True)
 
 
@@ -86,13 +101,13 @@ class _Linearization:
     y: np.ndarray
     f: np.ndarray
 
-    def blocks(self, plant: FmuPlant) -> tuple[np.ndarray, np.ndarray]:
+    def blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """∂ẋ/∂x and ∂ẋ/∂v."""
         nx = len(self.x)
         return self.jacobian[:nx, :nx], self.jacobian[:nx, nx:]
 
     def at_rest(self, plant: FmuPlant) -> bool:
-        F_x, F_v = self.blocks(plant)
+        F_x, F_v = self.blocks()
         return equilibrium.at_rest(self.f, F_x, F_v, self.x, self.v, nominals(plant.model))
 
     def transform(self, plant: FmuPlant) -> np.ndarray | None:
@@ -105,7 +120,7 @@ class _Linearization:
 
     def state_matrix(self, plant: FmuPlant) -> np.ndarray:
         """The continuous-time A in the model's states."""
-        F_x = self.blocks(plant)[0]
+        F_x = self.blocks()[0]
         T = self.transform(plant)
         return F_x if T is None else T @ F_x @ np.linalg.inv(T)
 
@@ -116,7 +131,7 @@ class _Linearization:
 
     @staticmethod
     def derivative_names(model: Any) -> list[str]:
-        return ["d" + e.name + "/dt" for e in model.continuous_states]
+        return equilibrium.rates_of([e.name for e in model.continuous_states])
 
 
 def nominals(model: Any) -> np.ndarray:
@@ -210,19 +225,18 @@ def _directional(model: Any, sensors: Access) -> bool:
     return bool(model.directional) and not any(e.variable.shape for e in continuous)
 
 
-def _equilibrium(plant: FmuPlant, start: _Linearization, u: np.ndarray | None) -> _Linearization | None:
+def _equilibrium(plant: FmuPlant, start: _Linearization, u: np.ndarray | None) -> _Linearization | str:
     """The FMU at the point where the search from ``start`` ends (an equilibrium if it is at rest
-    there), or None where the FMU failed on the way (an error: the search's own instance is freed,
-    the plant's is untouched)."""
-    model = plant.model
+    there), or what stopped the search: an error of the FMU (its own instance is freed, the plant's
+    is untouched)."""
     key = (repr(plant._start), start.x.tobytes(), start.v.tobytes())
     if key not in plant.equilibria:  # the plan linearizes twice (in discrete and in continuous time)
         plant.equilibria[key] = _search(plant, start)
     reached = plant.equilibria[key]
-    return None if reached is None else _jacobian(plant, reached, u)
+    return reached if isinstance(reached, str) else _jacobian(plant, reached, u)
 
 
-def _search(plant: FmuPlant, start: _Linearization) -> np.ndarray | None:
+def _search(plant: FmuPlant, start: _Linearization) -> np.ndarray | str:
     """Where ``equilibrium.search`` from ``start`` ends, in an instance of its own."""
     model = plant.model
     watch = CallWatch(model.path.name, model.version, plant.watch.slot)
@@ -245,14 +259,14 @@ def _search(plant: FmuPlant, start: _Linearization) -> np.ndarray | None:
                 return _directional_jacobian(fmu, version, [derivatives], states)
             return point.differences(states)
 
-        F_x, F_v = start.blocks(plant)
+        F_x, F_v = start.blocks()
         scale = nominals(model)
         rates = equilibrium.rate_scales(F_x, F_v, equilibrium.scales(start.x, scale), equilibrium.scales(start.v))
         return equilibrium.search(f, jacobian, start.x, rates, scale)
-    except FmuCallError:
+    except FmuCallError as error:
         if watch.fatal:
             raise
-        return None
+        return f"the search from them stopped: {error}"
     finally:
         release(fmu, watch)
 

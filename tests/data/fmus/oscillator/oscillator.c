@@ -10,7 +10,8 @@
  * spring (k = 0: every position is an equilibrium), a Duffing oscillator (k3), a pendulum (g_l = g/l,
  * x the angle), a free mass pushed by a constant force (k = 0, force != 0: no equilibrium).
  * Co-simulation integrates the same equations by classic Runge-Kutta, 100 steps per communication
- * step; model exchange leaves that to the importer. The directional derivatives are exact.
+ * step; model exchange leaves that to the importer. The directional derivatives are exact. With
+ * x_max > 0, fmi2GetDerivatives fails where |x| > x_max, as a Modelica assert does.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -18,11 +19,24 @@
 
 #include "fmi2Functions.h"
 
-enum { X, DER_X, V, DER_V, U, POSITION, M, K, K3, C, G_L, FORCE, N_REAL };
+/* The start values of the states and the input (the modelDescription.xml's): compiled in. */
+#ifndef X_START
+#define X_START 0.0
+#endif
+#ifndef V_START
+#define V_START 0.0
+#endif
+#ifndef U_START
+#define U_START 0.0
+#endif
+
+enum { X, DER_X, V, DER_V, U, POSITION, M, K, K3, C, G_L, FORCE, X_MAX, N_REAL };
 
 typedef struct {
     fmi2Real r[N_REAL];
     fmi2Real time;
+    fmi2CallbackFunctions cb;
+    fmi2String name;
 } Model;
 
 static fmi2Real acceleration(const Model *m, fmi2Real x, fmi2Real v) {
@@ -62,6 +76,11 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const 
 fmi2Component fmi2Instantiate(fmi2String name, fmi2Type type, fmi2String guid, fmi2String resources,
                               const fmi2CallbackFunctions *cb, fmi2Boolean visible, fmi2Boolean logging) {
     Model *m = calloc(1, sizeof(Model));
+    m->cb = *cb;
+    m->name = name;
+    m->r[X] = X_START;
+    m->r[V] = V_START;
+    m->r[U] = U_START;
     m->r[M] = 1.0;
     m->r[K] = 4.0;
     m->r[C] = 0.4;
@@ -159,6 +178,10 @@ fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n
 }
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t n) {
     Model *m = c;
+    if (m->r[X_MAX] > 0 && fabs(m->r[X]) > m->r[X_MAX]) {
+        if (m->cb.logger) m->cb.logger(m->cb.componentEnvironment, m->name, fmi2Error, "logStatusError", "x out of range");
+        return fmi2Error;
+    }
     dx[0] = m->r[V];
     dx[1] = acceleration(m, m->r[X], m->r[V]);
     return fmi2OK;
