@@ -75,9 +75,9 @@ class Estimator(Configurable, ABC):
     ``step(y, u)`` receives the measurements y_k (shape (p,), NaN where a sensor's frame did not
     arrive) and the commanded inputs u_k (shape (m,)) of tick k, and returns the estimate of x_k.
     Subclasses implement ``_step`` in deviation coordinates about the model's operating point
-    (``point``: fixed, or moving along the free response of a model with drift, which keeps the
-    deviations linear: ``estimators.model.OperatingPoint``).
-    Each subclass declares its parameters as a dataclass ``Params``.
+    (``operating_point``: fixed, or moving along the free response of a model with drift, which
+    keeps the deviations linear: ``estimators.model.OperatingPoint``). Each subclass declares its
+    parameters as a dataclass ``Params``.
     """
 
     continuous: ClassVar[bool] = False
@@ -108,7 +108,7 @@ class Estimator(Configurable, ABC):
             self.sample_time = float(sample_time) if sample_time is not None else model.dt
         self.model = model
         self.params = params
-        self.point = OperatingPoint(model, self.sample_time)
+        self.operating_point = OperatingPoint(model, self.sample_time)
         """The operating point at the current tick (x_op, y_op where the model has no drift)."""
 
     @classmethod
@@ -123,7 +123,7 @@ class Estimator(Configurable, ABC):
             raise ValueError(
                 f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}"
             )
-        point = self.point
+        point = self.operating_point
         estimate = self._step(y - point.y, u - self.model.u_op)
         if not isinstance(estimate, Estimate):
             raise TypeError(f"{self.kind}: _step returned {type(estimate).__name__}, not an Estimate(x, diagnostics)")

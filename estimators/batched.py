@@ -88,7 +88,7 @@ class DeviationBatch(ABC):
     def __init__(self, instances: Sequence[Estimator]) -> None:
         self.instances = list(instances)
         self.model = self.instances[0].model
-        self.point = OperatingPoint(self.model, self.instances[0].sample_time)  # the same tick for every run
+        self.operating_point = OperatingPoint(self.model, self.instances[0].sample_time)  # the same tick for every run
 
     def step(self, y: np.ndarray, u: np.ndarray) -> BatchEstimate:
         model, k = self.model, len(self.instances)
@@ -97,7 +97,7 @@ class DeviationBatch(ABC):
             raise ValueError(
                 f"expected y of shape ({k}, {model.p}) and u of shape ({k}, {model.m}), got {y.shape} and {u.shape}"
             )
-        point = self.point
+        point = self.operating_point
         estimate = self._step(y - point.y, u - model.u_op)
         x = estimate.x + point.x
         point.advance()

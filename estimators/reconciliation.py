@@ -145,7 +145,7 @@ class _Reconciliator(Estimator):
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         # Gain faults act on the readings as transmitted: work on y and u themselves.
-        point = self.point
+        point = self.operating_point
         estimate = self._absolute_step(dy + point.y, du + self.model.u_op)
         return Estimate(estimate.x - point.x, estimate.diagnostics)
 
@@ -169,7 +169,7 @@ class NoReconciliation(_Reconciliator):
         x = (
             np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] + self.x_s
             if available.any()
-            else self.point.x
+            else self.operating_point.x
         )
         return Estimate(x, {"zhat": float(self.Hz @ y0)})
 

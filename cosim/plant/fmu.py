@@ -15,7 +15,8 @@ time and the same inputs, so that a run's plant trajectory is the reference impo
   restart it, as does an input that changes at t_k (FMPy's input event: a step in its input table).
 
 The design model of the estimators is the FMU linearized about its start point (its start values
-with the scenario's parameters and initial state, the inputs at their start values): with the
+with the scenario's parameters and initial state, the inputs at their start values), or about the
+equilibrium reached from it where it is none (``cosim.plant.fmu_linear``): with the
 model-exchange interface, by the FMU's directional derivatives where it provides them (FMI 2
 ``providesDirectionalDerivative``, FMI 3 ``providesDirectionalDerivatives``) and central finite
 differences otherwise, then discretized by the exact zero-order hold like the other plants; or the
