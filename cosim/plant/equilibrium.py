@@ -110,7 +110,7 @@ def declared(
     change: np.ndarray,
     A: np.ndarray,
     BE: np.ndarray,
-    x: np.ndarray,
+    x: np.ndarray | None,
     u: np.ndarray,
     dt: float | None,
     *,
@@ -120,7 +120,10 @@ def declared(
     where that is an equilibrium of its inputs or the plant leaves the drift out
     (``PlantInfo.drift_left_out``); ``plant.operating_point`` says which. ``change``: ẋ there, with
     A, [B E] the continuous-time Jacobians (``dt``: the model's sample time, None for a continuous
-    model); or, ``stepped``, the change over one simulated step of dt, A and [B E] the step's."""
+    model); or, ``stepped``, the change over one simulated step of dt, A and [B E] the step's.
+    ``x``: the point (None where it has no vector of its own: MuJoCo's quaternions, 0 in the
+    tangent space)."""
+    x = np.zeros(len(change)) if x is None else x
     if stepped:
         assert dt is not None
         f0, F_x, F_u = change / dt, (A - np.eye(len(A))) / dt, BE / dt

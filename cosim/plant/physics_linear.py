@@ -97,20 +97,12 @@ def _linearize_joint_state(
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
     A, BE = jac_x[:ndx], jac_u[:ndx]
     C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
-    A_c, BE_c = A, BE
     if f is continuous and dt is not None:
         A, BE = zoh_discretize(A, BE, dt)
     B, E = BE[:, plant._known], BE[:, plant._unknown]
-    set_point(np.zeros(ndx), np.zeros(nu))
-    mujoco.mj_forward(m, d)
-    y_op = d.sensordata[sensors] - plant.sensor_zero
+    at = f(np.zeros(ndx), np.zeros(nu))  # ẋ at the point (or its change over one step), and the sensors
     x_op = np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None
-    point = np.zeros(ndx) if x_op is None else x_op
-    drift = (  # ẋ at the point (the data's, just computed), or its change over one step
-        equilibrium.declared(plant, np.concatenate([d.qvel, d.qacc, d.act_dot]), A_c, BE_c, point, ctrl0, dt)
-        if f is continuous
-        else equilibrium.declared(plant, f(np.zeros(ndx), np.zeros(nu))[:ndx], A, BE, point, ctrl0, dt, stepped=True)
-    )
+    drift = equilibrium.declared(plant, at[:ndx], jac_x[:ndx], jac_u[:ndx], x_op, ctrl0, dt, stepped=f is stepped)
     state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
     return LinearModel(
         A,
@@ -123,7 +115,7 @@ def _linearize_joint_state(
         plant.sensor_names,
         x_op=x_op,
         u_op=ctrl0[plant._known],
-        y_op=y_op,
+        y_op=at[ndx:] - plant.sensor_zero,
         E=E,
         disturbances=plant.disturbance_names,
         drift=drift,
