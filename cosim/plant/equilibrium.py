@@ -95,14 +95,17 @@ def values(names: Sequence[str], x: np.ndarray) -> str:
 
 
 def stability(A: np.ndarray) -> str:
-    """ "" where the continuous-time A has no eigenvalue in the right half-plane, else what a
-    reader needs to know about such an equilibrium."""
+    """What a reader needs to know about an equilibrium with the continuous-time A: that the plant
+    leaves it (an eigenvalue in the right half-plane), or that it is one of many (A singular: a
+    mass with a damper and no spring rests anywhere); "" otherwise."""
     eigenvalues = np.linalg.eigvals(A) if A.size else np.zeros(0)
     largest = float(np.abs(eigenvalues).max(initial=0.0))
     growing = float(eigenvalues.real.max(initial=0.0))
-    if growing <= 1e-6 * largest:
-        return ""
-    return f"; it is unstable (an eigenvalue with real part {growing:.3g}/s): the plant leaves it unless controlled"
+    if growing > 1e-6 * largest:
+        return f"; it is unstable (an eigenvalue with real part {growing:.3g}/s): the plant leaves it unless controlled"
+    if eigenvalues.size and float(np.abs(eigenvalues).min()) <= 1e-9 * largest:
+        return "; one of a continuum (A is singular there): the plant may come to rest at another"
+    return ""
 
 
 def declared(
