@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from estimators.diagnostics import Diagnostic, DiagnosticKind
-from estimators.model import LinearModel
+from estimators.model import LinearModel, OperatingPoint
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,10 @@ class Estimator(Configurable, ABC):
 
     ``step(y, u)`` receives the measurements y_k (shape (p,), NaN where a sensor's frame did not
     arrive) and the commanded inputs u_k (shape (m,)) of tick k, and returns the estimate of x_k.
-    Subclasses implement ``_step`` in deviation coordinates about the model's operating point.
-    Each subclass declares its parameters as a dataclass ``Params``.
+    Subclasses implement ``_step`` in deviation coordinates about the model's operating point
+    (``operating_point``: fixed, or moving along the free response of a model with drift, which
+    keeps the deviations linear: ``estimators.model.OperatingPoint``). Each subclass declares its
+    parameters as a dataclass ``Params``.
     """
 
     continuous: ClassVar[bool] = False
@@ -115,6 +117,8 @@ class Estimator(Configurable, ABC):
             self.sample_time = float(sample_time) if sample_time is not None else model.dt
         self.model = model
         self.params = params
+        self.operating_point = OperatingPoint(model, self.sample_time)
+        """The operating point at the current tick (x_op, y_op where the model has no drift)."""
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
@@ -128,7 +132,8 @@ class Estimator(Configurable, ABC):
             raise ValueError(
                 f"expected y of shape ({self.model.p},) and u of shape ({self.model.m},), got {y.shape} and {u.shape}"
             )
-        estimate = self._step(y - self.model.y_op, u - self.model.u_op)
+        point = self.operating_point
+        estimate = self._step(y - point.y, u - self.model.u_op)
         if not isinstance(estimate, Estimate):
             raise TypeError(f"{self.kind}: _step returned {type(estimate).__name__}, not an Estimate(x, diagnostics)")
         if np.shape(estimate.x) != (self.model.n,):
@@ -136,7 +141,9 @@ class Estimator(Configurable, ABC):
                 f"{self.kind}: _step returned an estimate of shape {np.shape(estimate.x)}, not ({self.model.n},): "
                 f"one value per state ({', '.join(self.model.states)})"
             )
-        return Estimate(estimate.x + self.model.x_op, estimate.diagnostics)
+        x = estimate.x + point.x
+        point.advance()
+        return Estimate(x, estimate.diagnostics)
 
     @classmethod
     def batched(cls, instances: Sequence[Any]) -> Any:

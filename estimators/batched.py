@@ -24,6 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from estimators.base import Estimator
+from estimators.model import OperatingPoint
 
 
 @dataclass(frozen=True)
@@ -87,6 +88,7 @@ class DeviationBatch(ABC):
     def __init__(self, instances: Sequence[Estimator]) -> None:
         self.instances = list(instances)
         self.model = self.instances[0].model
+        self.operating_point = OperatingPoint(self.model, self.instances[0].sample_time)  # the same tick for every run
 
     def step(self, y: np.ndarray, u: np.ndarray) -> BatchEstimate:
         model, k = self.model, len(self.instances)
@@ -95,8 +97,11 @@ class DeviationBatch(ABC):
             raise ValueError(
                 f"expected y of shape ({k}, {model.p}) and u of shape ({k}, {model.m}), got {y.shape} and {u.shape}"
             )
-        estimate = self._step(y - model.y_op, u - model.u_op)
-        return BatchEstimate(estimate.x + model.x_op, estimate.diagnostics)
+        point = self.operating_point
+        estimate = self._step(y - point.y, u - model.u_op)
+        x = estimate.x + point.x
+        point.advance()
+        return BatchEstimate(x, estimate.diagnostics)
 
     @abstractmethod
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:

@@ -14,7 +14,8 @@ holds in the coordinates where the healthy readings are linear in the state with
 x_p = x − x_s with C x_s = −(y_op − C x_op) (x_s = 0 for sensors that read absolute values; the
 operating point for transmitters zeroed there, like the three-tank's y1…y4, which makes x_p the
 paper's deviation state). The linearization about (x_op, u_op) is then the affine model
-x_p⁺ = A x_p + B u + c, c = (I − A)(x_op − x_s) − B u_op, a known input; x̂ = x̂_p + x_s is published.
+x_p⁺ = A x_p + B u + c, c = (I − A)(x_op − x_s) − B u_op (plus the model's drift where x_op is no
+equilibrium), a known input; x̂ = x̂_p + x_s is published.
 
 Algorithm 1 step 5 and Algorithm 2 step 4 print Q_γ̂(t) next to T_γ̂(t−1); γ̂(t) is computed only
 later (step 6), and T Ē = 0 needs T and Q at the same γ̂, so both use γ̂(t−1), as in eq. (10).
@@ -135,6 +136,8 @@ class _Reconciliator(Estimator):
             )
         shifted = model.x_op - self.x_s
         self.c = shifted - model.A @ shifted - model.B @ model.u_op  # x_p⁺ = A x_p + B u + c
+        if model.affine:  # an operating point that is no equilibrium: its drift is part of c
+            self.c = self.c + model.drift
 
     @classmethod
     def diagnostic_channels(cls, states: tuple[str, ...], outputs: tuple[str, ...]) -> list[Diagnostic]:
@@ -142,9 +145,9 @@ class _Reconciliator(Estimator):
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> Estimate:
         # Gain faults act on the readings as transmitted: work on y and u themselves.
-        m = self.model
-        estimate = self._absolute_step(dy + m.y_op, du + m.u_op)
-        return Estimate(estimate.x - m.x_op, estimate.diagnostics)
+        point = self.operating_point
+        estimate = self._absolute_step(dy + point.y, du + self.model.u_op)
+        return Estimate(estimate.x - point.x, estimate.diagnostics)
 
     @abstractmethod
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
@@ -166,7 +169,7 @@ class NoReconciliation(_Reconciliator):
         x = (
             np.linalg.lstsq(self.model.C[available], y[available], rcond=None)[0] + self.x_s
             if available.any()
-            else self.model.x_op
+            else self.operating_point.x
         )
         return Estimate(x, {"zhat": float(self.Hz @ y0)})
 

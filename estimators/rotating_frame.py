@@ -60,6 +60,12 @@ class FrameTerms:
                 "rotating_frame",
                 f"needs the vessel's outputs {', '.join(OUTPUTS)} with C = I; the model has {', '.join(model.outputs)}",
             )
+        if model.affine:
+            raise ParameterError(
+                "rotating_frame",
+                "the body frame's terms are added to the linearization at an equilibrium (the vessel at rest); this "
+                "model's operating point is none (it has a drift)",
+            )
         self.y_op = np.asarray(model.y_op, dtype=float)
         self.gains = [sampled_gains(o.H, o.R, o.F, sample_time) for o in observers]
 

@@ -50,6 +50,10 @@ class PlantInfo:
     model is taken (its state and ctrl are the operating point), where it differs from the initial
     state ``keyframe``: the vessel cruises from its initial state but is designed on, as the paper
     does, the linearization at rest (ν = 0, no Coriolis terms, body and earth frames aligned).
+    ``drift_left_out``, when given, says why the design model is the plain linearization at the
+    operating point although that is no equilibrium of its inputs (the three-tank's, which the paper
+    linearizes there); by default such a point gets an affine model, its drift kept
+    (``cosim.plant.equilibrium``). The run says which, either way.
     ``disturbance_models`` are the plant's random environments by name (a sea state): each is called
     as ``model(rng, **params)`` with a seeded numpy Generator and returns b(t), a function of time
     giving all the ``disturbances`` at once (shape (len(disturbances),)); it raises ValueError
@@ -69,6 +73,7 @@ class PlantInfo:
     passive_forces: Callable[[Any], Callable[[Any, Any], None] | None] | None = None
     disturbance_models: dict[str, Callable[..., Callable[[float], Any]]] = field(default_factory=dict)
     design_keyframe: str = ""
+    drift_left_out: str = ""
 
     @property
     def model_path(self) -> Path:

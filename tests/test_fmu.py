@@ -173,18 +173,25 @@ def vanderpol(version: int, interface: str = "model-exchange", mu: float = 1.5, 
 
 @pytest.mark.parametrize("version", [2, 3])
 def test_the_linearization_is_van_der_pols_jacobian_by_directional_derivatives_and_by_differences(version):
-    """ẋ0 = x1, ẋ1 = μ (1 − x0²) x1 − x0 at the start point (2, 0): A = [[0, 1], [−1, −3μ]]."""
+    """ẋ0 = x1, ẋ1 = μ (1 − x0²) x1 − x0 at the start point (2, 0): A = [[0, 1], [−1, −3μ]], and
+    the drift ẋ = (0, −2) there (no equilibrium); by default the model is taken at the equilibrium
+    (0, 0) reached from it, A = [[0, 1], [−1, μ]]."""
     mu = 1.5
     exact = np.array([[0.0, 1.0], [-1.0, -3.0 * mu]])
     plant = vanderpol(version, mu=mu)
+    start = plant.state()
     assert plant.model.directional  # both Reference FMUs declare them (FMI 2 and FMI 3 spellings)
-    by_derivatives = plant.linearize(continuous=True)
-    by_differences = vanderpol(version, mu=mu, directional=False).linearize(continuous=True)
+    by_derivatives = plant.linearize(start, continuous=True)
+    by_differences = vanderpol(version, mu=mu, directional=False).linearize(start, continuous=True)
     assert np.array_equal(by_derivatives.A, exact)
     assert np.abs(by_differences.A - exact).max() < 1e-8
     assert np.array_equal(by_derivatives.C, np.eye(2)) and by_derivatives.x_op.tolist() == [2.0, 0.0]
-    discrete = plant.linearize()
+    assert by_derivatives.drift.tolist() == [0.0, -2.0]
+    discrete = plant.linearize(start)
     assert discrete.dt == 0.01 and np.allclose(discrete.A, np.eye(2) + 0.01 * exact, atol=1e-3)
+    at_rest = plant.linearize(continuous=True)
+    assert np.array_equal(at_rest.A, [[0.0, 1.0], [-1.0, mu]]) and not at_rest.affine
+    assert np.abs(at_rest.x_op).max() < 1e-12
 
 
 def test_a_linear_fmu_linearizes_to_its_own_matrices():
@@ -245,19 +252,21 @@ def test_the_fmus_units_reach_the_dbc_the_schemas_the_figures_and_the_exports(tm
 
 
 def test_outputs_named_as_states_change_the_model_coordinates(tmp_path):
-    """States s = (x1, x0) swap the continuous states: A_s = P A P⁻¹."""
+    """States s = (x1, x0) swap the continuous states: A_s = P A P⁻¹, at the equilibrium (0, 0)
+    reached from the start values (2, 0), where A = [[0, 1], [−1, μ]]."""
     spec = FmuSpec.model_validate({"states": ["x1", "x0"], "parameters": {"mu": 1.0}})
     plant = FmuPlant(fmu_model.read(FMUS / "fmi3" / "VanDerPol.fmu", spec), 0.01, 1.0)
     model = plant.linearize(continuous=True)
     assert plant.state_names == ("x1", "x0") and plant.state().tolist() == [0.0, 2.0]
-    assert np.array_equal(model.A, [[-3.0, -1.0], [1.0, 0.0]])
+    assert np.array_equal(model.A, [[1.0, -1.0], [1.0, 0.0]])
     assert np.array_equal(model.C, [[0.0, 1.0], [1.0, 0.0]])
+    assert "linearized at the equilibrium x1 = 0, x0 = 0 reached from them" in plant.operating_point
 
 
 def test_parameters_come_from_the_scenario_and_from_set(tmp_path):
     loaded = scenario.apply(scenario.load(VANDERPOL_SCENARIO), [("plant.fmu.parameters.mu", 2.5)])
     plant = build_plant(loaded.scenario)
-    assert plant.linearize(continuous=True).A[1, 1] == -3.0 * 2.5
+    assert plant.linearize(continuous=True).A[1, 1] == 2.5  # μ (1 − x0²) at the equilibrium x0 = 0
     assert Path(loaded.scenario.plant.model).is_absolute() and Path(loaded.scenario.plant.model).is_file()
 
 

@@ -275,7 +275,7 @@ def test_actuator_moment_matrix_is_G_turned_with_the_hull(plant, psi):
 
 
 def test_linearization_at_rest_is_eq_23(plant):
-    """cosim.plant.physics.linearize (MuJoCo finite differences) at ψ = 0, ν = 0, u = 0 gives the paper's A
+    """cosim.plant.physics_linear.linearize (MuJoCo finite differences) at ψ = 0, ν = 0, u = 0 gives the paper's A
     and B_u = [0; M⁻¹G]; B_u G⁺ is the paper's B (input τ); C = I₆; E = [0; M⁻¹Pᵀ]."""
     lin = plant.linearize(np.zeros(6), np.zeros(plant.model.nu), continuous=True)
     A, B_tau, B_u, C = vessel.paper_model()

@@ -152,6 +152,8 @@ def _facts(meta: LogMetadata, values: RunMetrics) -> list[tuple[str, str]]:
     ]
     if run.disturbances:
         facts.append(("unknown inputs", ", ".join(run.disturbances)))
+    if run.operating_point:
+        facts.append(("design model", run.operating_point))
     rate = bitrate(bus.get("bitrate")).text
     data = f", data phase {bitrate(bus.get('data_bitrate')).text}" if bus.get("fd") else ""
     facts.append(

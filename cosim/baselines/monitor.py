@@ -97,7 +97,7 @@ class Monitor(Estimator):
                 f"{self.kind}: {source} has no model of a plant with the sensors {', '.join(self.model.outputs)}; "
                 "train one on a data set of this plant (python -m cosim.baselines.train)"
             )
-        values = self.statistics((dy + self.model.y_op)[self.use])
+        values = self.statistics((dy + self.operating_point.y)[self.use])
         over = any(not values[name] <= limit for name, limit in self.limits.items())  # NaN is over
         self._over, self._under = (self._over + 1, 0) if over else (0, self._under + 1)
         if self._over >= self.params.persistence:

@@ -136,6 +136,8 @@ def _run(args: argparse.Namespace, run: Run, out: Path, talk: Console, preparati
         f"[bold]{escape(s.name)}[/bold]: {s.plant.model}, {s.ticks} ticks of {s.sample_time:g} s, seed {s.seed}, "
         f"{timing}; estimators: {', '.join(run.estimators) or 'none'} ({'CAN FD' if s.bus.fd else 'classic CAN'})"
     )
+    if run.plan.operating_point:
+        talk.print(f"design model: {escape(run.plan.operating_point)}")
     common.warn(common.error_console() if args.quiet else talk, run.warnings)
     sink = common.foxglove_sink(args, "cosim run --foxglove") if args.foxglove is not None else None
     try:

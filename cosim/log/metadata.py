@@ -298,6 +298,9 @@ class RunRecord:
     """When the run started (its log was opened), wall clock, UTC, in ns since the Unix epoch; None in
     logs older than this field. The one wall-clock value of a log: exports stamp frames at this
     start plus simulated time."""
+    operating_point: str | None = None
+    """Where the linear ``model`` was taken when the plant's operating point is no equilibrium of its
+    inputs (``RunPlan.operating_point``); None (and not written) where it is one."""
 
     @property
     def dt_ns(self) -> int | None:
@@ -332,6 +335,7 @@ class RunRecord:
             "bus": json.dumps(self.bus),
             "timing": json.dumps(self.timing),
             "start_time_ns": json.dumps(self.start_time_ns),
+            **({"operating_point": self.operating_point} if self.operating_point else {}),
         }
 
     @classmethod
@@ -373,6 +377,7 @@ class RunRecord:
             bus=f.json("bus", {}),
             timing=f.json("timing", {}),
             start_time_ns=start if isinstance(start, int) and not isinstance(start, bool) else None,
+            operating_point=record.get("operating_point") or None,
         )
 
     def with_only(self, name: str, estimator: EstimatorRecord) -> RunRecord:

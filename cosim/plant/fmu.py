@@ -15,7 +15,8 @@ time and the same inputs, so that a run's plant trajectory is the reference impo
   restart it, as does an input that changes at t_k (FMPy's input event: a step in its input table).
 
 The design model of the estimators is the FMU linearized about its start point (its start values
-with the scenario's parameters and initial state, the inputs at their start values): with the
+with the scenario's parameters and initial state, the inputs at their start values), or about the
+equilibrium reached from it where it is none (``cosim.plant.fmu_linear``): with the
 model-exchange interface, by the FMU's directional derivatives where it provides them (FMI 2
 ``providesDirectionalDerivative``, FMI 3 ``providesDirectionalDerivatives``) and central finite
 differences otherwise, then discretized by the exact zero-order hold like the other plants; or the
@@ -161,6 +162,12 @@ class FmuPlant:
         self.watch.on_message = on_message
         self.warnings: list[str] = []
         """What the linearization found doubtful (directional derivatives against differences)."""
+        self.operating_point = ""
+        """Where the last linearization was taken, where that is not the start point as it stands: the
+        equilibrium reached from it, or an affine model about it ("" at an equilibrium)."""
+        self.equilibria: dict[tuple[str, bytes, bytes], np.ndarray | str] = {}
+        """Where the search for an equilibrium ended from each start point searched from (or what
+        stopped it)."""
         self.info = model.info()
         self.sample_time, self.duration = float(sample_time), float(duration)
         experiment = model.description.defaultExperiment

@@ -110,11 +110,11 @@ class Host:
         plant.set_state(x)
         return self._reading(plant)
 
-    def linearize(self, key: int, x: Any, u: Any, continuous: bool) -> tuple[Any, list[str]]:
+    def linearize(self, key: int, x: Any, u: Any, continuous: bool) -> tuple[Any, list[str], str]:
         plant = self.plants[key]
         model = plant.linearize(x, u, continuous=continuous)
         warnings, plant.warnings = plant.warnings, []
-        return model, warnings
+        return model, warnings, plant.operating_point
 
     def close(self, key: int) -> None:
         plant = self.plants.pop(key, None)

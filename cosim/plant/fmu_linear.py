@@ -14,38 +14,141 @@ T = S_x square and invertible, and the model is taken in s:
     A = T F_x T⁻¹, [B E] = T F_u, C = Y_x T⁻¹, D = Y_u,
 
 then discretized at the sample time by the exact zero-order hold (``zoh_discretize``).
+
+The point is the start point (the FMU's start values, as the run sets them) where that is an
+equilibrium of the held inputs. Where it is not (a spring stretched, a mass moving), the model is
+taken at the equilibrium that ``cosim.plant.equilibrium.search`` reaches from it, in a
+model-exchange instance of its own; where it reaches none, the model stays at the start point as
+an affine model with its drift ẋ₀ (``LinearModel.drift``). ``plant.operating_point`` says which.
 """
 
 from __future__ import annotations
 
 import ctypes
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from cosim.errors import ModelError
+from cosim.plant import equilibrium
 from cosim.plant.fmu import FD_STEP, Access, FmuPlant, initialize, instantiate, release, set_continuous_states
+from cosim.plant.fmu_calls import CallWatch, FmuCallError
 from cosim.plant.fmu_model import Element
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
 
 
 def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: float | None) -> LinearModel:
-    """The FMU's linear model at its start point (or at states ``x``, actuator inputs ``u``)."""
+    """The FMU's linear model at its start point (or at states ``x``, actuator inputs ``u``).
+
+    Where the start point is no equilibrium of its inputs, the model is taken at the equilibrium
+    reached from it (``cosim.plant.equilibrium.search``), else kept there as an affine model with
+    its drift; at a given point, always the latter. ``plant.operating_point`` says which."""
     model = plant.model
     if not model.has_model_exchange:
         raise ModelError(
             f"{model.path.name} has no model-exchange interface to linearize (it is co-simulation only): give the "
             "design model as [plant.state_space], or use a build of the FMU with model exchange"
         )
-    renamed = model.states != model.continuous_states
-    if x is not None and renamed:
+    if x is not None and model.states != model.continuous_states:
         raise ModelError(f"{model.path.name}: linearize at given states only where they are the continuous states")
-    jacobian, v_op, s_op, y_op = _jacobian(plant, x, u)
+    point = _jacobian(plant, x, u)
+    plant.operating_point = ""
+    if point.at_rest(plant):
+        return _model(plant, point, dt)
+    found = _equilibrium(plant, point, u) if x is None else None
+    if isinstance(found, _Linearization) and found.at_rest(plant):
+        plant.operating_point = (
+            f"{model.path.name}: its start values ({equilibrium.values(plant.state_names, point.s)}) are no "
+            f"equilibrium (the derivatives there: {_derivatives(model, point)}): "
+            f"linearized at the equilibrium {equilibrium.values(plant.state_names, found.s)} reached from them"
+            + equilibrium.stability(found.state_matrix(plant))
+        )
+        return _model(plant, found, dt)
+    at = equilibrium.values(plant.state_names, point.s)
+    drift = equilibrium.values(equilibrium.rates_of(plant.state_names), point.drift(plant))
+    if x is not None:
+        plant.operating_point = (
+            f"{model.path.name}: the point given ({at}) is no equilibrium: affine model with drift {drift} about it"
+        )
+    else:
+        searched = (
+            f"; the search from them ended at {_derivatives(model, found)}"
+            if isinstance(found, _Linearization)
+            else f"; {found}"
+        )
+        plant.operating_point = (
+            f"{model.path.name}: no equilibrium near its start values ({at}){searched}: affine model with drift "
+            f"{drift} about them"
+        )
+    return _model(plant, point, dt, affine=True)
+
+
+def _derivatives(model: Any, point: _Linearization) -> str:
+    return equilibrium.values(point.derivative_names(model), point.f)
+
+
+@dataclass(frozen=True)
+class _Linearization:
+    """The FMU at a point: its continuous states x, inputs v, named states s, sensors y, the
+    derivatives f = ẋ, and the Jacobian ∂[ẋ; s; y]/∂[x; v] there."""
+
+    jacobian: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    s: np.ndarray
+    y: np.ndarray
+    f: np.ndarray
+
+    def blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """∂ẋ/∂x and ∂ẋ/∂v."""
+        nx = len(self.x)
+        return self.jacobian[:nx, :nx], self.jacobian[:nx, nx:]
+
+    def at_rest(self, plant: FmuPlant) -> bool:
+        F_x, F_v = self.blocks()
+        return equilibrium.at_rest(self.f, F_x, F_v, self.x, self.v, nominals(plant.model))
+
+    def transform(self, plant: FmuPlant) -> np.ndarray | None:
+        """T = ∂s/∂x where the named states are not the continuous states (None where they are)."""
+        model = plant.model
+        if model.states == model.continuous_states:
+            return None
+        nx = len(self.x)
+        return self.jacobian[nx : nx + len(model.states), :nx]
+
+    def state_matrix(self, plant: FmuPlant) -> np.ndarray:
+        """The continuous-time A in the model's states."""
+        F_x = self.blocks()[0]
+        T = self.transform(plant)
+        return F_x if T is None else T @ F_x @ np.linalg.inv(T)
+
+    def drift(self, plant: FmuPlant) -> np.ndarray:
+        """The derivative in the model's states: ẋ, or ṡ = T ẋ."""
+        T = self.transform(plant)
+        return self.f if T is None else T @ self.f
+
+    @staticmethod
+    def derivative_names(model: Any) -> list[str]:
+        return equilibrium.rates_of([e.name for e in model.continuous_states])
+
+
+def nominals(model: Any) -> np.ndarray:
+    """The continuous states' nominal values (1 where the FMU declares none)."""
+    return np.array(
+        [float(e.variable.nominal) if e.variable.nominal is not None else 1.0 for e in model.continuous_states]
+    )
+
+
+def _model(plant: FmuPlant, point: _Linearization, dt: float | None, affine: bool = False) -> LinearModel:
+    """The linear model of the FMU at ``point``; ``affine``: with its drift."""
+    model = plant.model
     nx, ns = len(model.continuous_states), len(model.states)
+    jacobian = point.jacobian
     F, S, Y = jacobian[:nx], jacobian[nx : nx + ns], jacobian[nx + ns :]
     F_x, F_v, S_x, Y_x, Y_v = F[:, :nx], F[:, nx:], S[:, :nx], Y[:, :nx], Y[:, nx:]
-    if renamed:
+    if model.states != model.continuous_states:
         if ns != nx or np.linalg.matrix_rank(S_x) < nx or np.abs(S[:, nx:]).max(initial=0.0) > 1e-9:
             raise ModelError(
                 f"{model.path.name}: the states named in [plant.fmu] states ({', '.join(plant.state_names)}) do not "
@@ -55,6 +158,7 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
         A, BE, C = S_x @ F_x @ T_inv, S_x @ F_v, Y_x @ T_inv
     else:
         A, BE, C = F_x, F_v, Y_x
+    drift = equilibrium.drift_model(A, point.drift(plant), dt) if affine else None
     if dt is not None:
         A, BE = zoh_discretize(A, BE, dt)
     m = len(model.actuators)
@@ -67,20 +171,20 @@ def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: f
         plant.state_names,
         plant.actuator_names,
         plant.sensor_names,
-        x_op=s_op,
-        u_op=v_op[:m],
-        y_op=y_op,
+        x_op=point.s,
+        u_op=point.v[:m],
+        y_op=point.y,
         E=BE[:, m:],
         disturbances=plant.disturbance_names,
+        drift=drift,
     )
 
 
-def _jacobian(
-    plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """∂[ẋ; s; y]/∂[x; v] at the point, and there the inputs v, the named states s and the sensors y,
-    from a fresh model-exchange instance. Where the FMU provides directional derivatives they are
-    the Jacobian, checked against central differences (``plant.warnings`` says where they disagree)."""
+def _jacobian(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None) -> _Linearization:
+    """The FMU at the point, from a fresh model-exchange instance: its start point, or the
+    continuous states ``x``, actuator inputs ``u``. Where the FMU provides directional derivatives
+    they are the Jacobian, checked against central differences (``plant.warnings`` says where they
+    disagree)."""
     model = plant.model
     fmu = instantiate(model, plant._unzipped, "model-exchange", plant.watch)
     try:
@@ -97,16 +201,74 @@ def _jacobian(
         x0, s_op, y_op = states.get(fmu), named.get(fmu), sensors.get(fmu)
         knowns = model.continuous_states + model.actuators + model.disturbances
         directional = None  # at the point itself, before the differences move the instance's states
-        continuous = [e for e in (*knowns, *model.derivatives, *model.states, *sensors.elements) if not e.discrete]
-        if model.directional and not any(e.variable.shape for e in continuous):
+        if _directional(model, sensors):
             directional = _directional_jacobian(fmu, version, [derivatives, named, sensors], knowns)
-        differences = _Point(fmu, model, x0, v0, inputs, named, sensors).differences(knowns)
-        if directional is None:
-            return differences, v0, s_op, y_op
-        plant.warnings += disagreements(model.path.name, plant, directional, differences)
-        return directional, v0, s_op, y_op
+        point = _Point(fmu, model, x0, v0, inputs, named, sensors)
+        jacobian = point.differences(knowns)
+        if directional is not None:
+            found = disagreements(model.path.name, plant, directional, jacobian)
+            plant.warnings += [w for w in found if w not in plant.warnings]
+            jacobian = directional
+        at = point.at(np.zeros(len(x0)), np.zeros(len(v0)))  # as a solver's step ends there
+        nx, ns = len(x0), len(named.elements)
+        if x is not None:  # the outputs of a point set by hand, as a step ends there
+            s_op, y_op = at[nx : nx + ns], at[nx + ns :]
+        return _Linearization(jacobian, x0, v0, s_op, y_op, at[:nx])
     finally:
         release(fmu, plant.watch)
+
+
+def _directional(model: Any, sensors: Access) -> bool:
+    """Whether the Jacobian comes from the FMU's directional derivatives (scalar variables only)."""
+    knowns = model.continuous_states + model.actuators + model.disturbances
+    continuous = [e for e in (*knowns, *model.derivatives, *model.states, *sensors.elements) if not e.discrete]
+    return bool(model.directional) and not any(e.variable.shape for e in continuous)
+
+
+def _equilibrium(plant: FmuPlant, start: _Linearization, u: np.ndarray | None) -> _Linearization | str:
+    """The FMU at the point where the search from ``start`` ends (an equilibrium if it is at rest
+    there), or what stopped the search: an error of the FMU (its own instance is freed, the plant's
+    is untouched)."""
+    key = (repr(plant._start), start.x.tobytes(), start.v.tobytes())
+    if key not in plant.equilibria:  # the plan linearizes twice (in discrete and in continuous time)
+        plant.equilibria[key] = _search(plant, start)
+    reached = plant.equilibria[key]
+    return reached if isinstance(reached, str) else _jacobian(plant, reached, u)
+
+
+def _search(plant: FmuPlant, start: _Linearization) -> np.ndarray | str:
+    """Where ``equilibrium.search`` from ``start`` ends, in an instance of its own."""
+    model = plant.model
+    watch = CallWatch(model.path.name, model.version, plant.watch.slot)
+    fmu = instantiate(model, plant._unzipped, "model-exchange", watch)
+    try:
+        initialize(model, fmu, "model-exchange", plant._start, plant.tolerance, plant.duration)
+        version = model.version
+        inputs, none = Access(model.actuators + model.disturbances, version), Access((), version)
+        derivatives, states = Access(model.derivatives, version), model.continuous_states
+        directional = _directional(model, plant._sensors)
+        nx, zero = len(start.x), np.zeros(len(start.v))
+
+        def f(x: np.ndarray) -> np.ndarray:
+            return _Point(fmu, model, x, start.v, inputs, none, none).at(np.zeros(nx), zero)
+
+        def jacobian(x: np.ndarray) -> np.ndarray:
+            point = _Point(fmu, model, x, start.v, inputs, none, none)
+            if directional:
+                point.at(np.zeros(nx), zero)
+                return _directional_jacobian(fmu, version, [derivatives], states)
+            return point.differences(states)
+
+        F_x, F_v = start.blocks()
+        scale = nominals(model)
+        rates = equilibrium.rate_scales(F_x, F_v, equilibrium.scales(start.x, scale), equilibrium.scales(start.v))
+        return equilibrium.search(f, jacobian, start.x, rates, scale)
+    except FmuCallError as error:
+        if watch.fatal:
+            raise
+        return f"the search from them stopped: {error}"
+    finally:
+        release(fmu, watch)
 
 
 class _Point:
@@ -141,7 +303,7 @@ class _Point:
         steps = FD_STEP * np.where(point != 0, np.abs(point), 1.0)
         columns = []
         for j, (h, known) in enumerate(zip(steps, knowns)):
-            e = np.zeros(len(knowns))
+            e = np.zeros(len(point))
             if not known.discrete:
                 e[j] = h
                 columns.append((self.at(e[:nx], e[nx:]) - self.at(-e[:nx], -e[nx:])) / (2.0 * h))

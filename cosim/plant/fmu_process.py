@@ -313,6 +313,8 @@ class IsolatedFmuPlant:
         self.design = None if design is None else StateSpacePlant(design, self.info, sample_time, self.sensor_names)
         self.interrupted = interrupted
         self.warnings: list[str] = []
+        self.operating_point = ""
+        """As ``FmuPlant.operating_point``."""
         self.messages: list[FmuMessage] = []
         self._k = 0
         self._key = next(_KEYS)
@@ -380,7 +382,7 @@ class IsolatedFmuPlant:
             return self.design.linearize(continuous=continuous)
         if method != "zoh":
             raise ValueError(f"an FMU plant is linearized by the zero-order hold only, not {method!r}")
-        model, warnings = self._call("linearize", x, u, continuous)
+        model, warnings, self.operating_point = self._call("linearize", x, u, continuous)
         self.warnings += [w for w in warnings if w not in self.warnings]
         return model
 

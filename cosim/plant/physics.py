@@ -1,4 +1,4 @@
-"""A MuJoCo plant sampled at the scenario's tick, and its linearization from MuJoCo itself.
+"""A MuJoCo plant sampled at the scenario's tick (its linearization: ``cosim.plant.physics_linear``).
 
 The dynamics come from ``mj_step`` only. The state is MuJoCo's [qpos, qvel, act], or, for a plant
 that declares ``state_tendons`` (the three-tank system: levels), the lengths of those fixed tendons;
@@ -23,15 +23,12 @@ import mujoco
 import numpy as np
 
 from cosim.errors import ModelError
-from estimators.design import zoh_discretize
 from estimators.model import LinearModel
 from mjcf import PlantInfo
 
 #: Finite-difference step for linearization: a power of two, so that perturbing a coordinate that
 #: is 0 (or any value whose last bits are clear) and differencing are exact in floating point.
 FD_STEP = 2.0**-20
-#: Relative size of the length steps in the linearization of a tendon-state plant (× FD_STEP).
-H_STEP = 2.0**10
 
 #: Held by every MuJoCo call of a plant (``Plant.physics``), by a ``PassiveForces`` block, and while
 #: ``load_model`` compiles (which must run with no Python callback installed): plants in several
@@ -124,6 +121,8 @@ class Plant:
         self._known = actuator_ids(self.model, self.actuator_names)
         self._unknown = actuator_ids(self.model, self.disturbance_names)
         self.state_names = tuple(s.name for s in info.states)
+        self.operating_point = ""
+        """What the last linearization found where its point is no equilibrium ("" where it is)."""
         # State tendons: lengths = T @ qpos (fixed tendons); T⁺ places qpos for requested lengths.
         self._tendons = state_tendon_matrix(self.model, info)
         self._tendons_pinv = None if self._tendons is None else np.linalg.pinv(self._tendons)
@@ -209,7 +208,9 @@ class Plant:
         self, x: np.ndarray | None = None, u: np.ndarray | None = None, *, continuous: bool = False, method: str = "zoh"
     ) -> LinearModel:
         """The plant linearized at (x, u) (default: the current state and ctrl), in discrete time at
-        the sample time or in continuous time; see ``linearize``."""
+        the sample time or in continuous time; see ``cosim.plant.physics_linear``."""
+        from cosim.plant.physics_linear import linearize
+
         return linearize(self, x, u, dt=None if continuous else self.sample_time, method=method)
 
 
@@ -358,245 +359,3 @@ def substeps(sample_time: float, timestep: float, where: str) -> int:
             f"choose a multiple such as {max(n, 1) * timestep:g} s"
         )
     return n
-
-
-def linearize(
-    plant: Plant, x: np.ndarray | None = None, u: np.ndarray | None = None, *, dt: float | None, method: str = "zoh"
-) -> LinearModel:
-    """Linearize a MuJoCo plant at the operating point (x, u), from MuJoCo itself.
-
-    The continuous-time Jacobians ∂ẋ/∂x, ∂ẋ/∂u (with ẋ = [qvel, qacc, act_dot] from
-    ``mj_forward``; disturbance actuators give the columns of E) and the sensor Jacobians
-    C = ∂y/∂x, D = ∂y/∂u are central finite differences in MuJoCo's tangent space (positions
-    perturbed with ``mj_integratePos``, so ball and free joints are handled). Then, with ``dt`` given:
-
-    - ``method="zoh"``: exact zero-order-hold discretization A = exp(A_c dt),
-      B = ∫₀^dt exp(A_c s) ds B_c — the discrete model of the linearized physics, as the papers use;
-    - ``method="step"``: central differences of the simulator's own step over dt (``mj_step`` with
-      the model's integrator and substeps), i.e. the linearization of what the simulation does.
-
-    ``mjd_transitionFD`` is not used: it refuses RK4 and is first order with Euler. For a linear
-    plant both methods agree with the exact discretization to ~1e-10 (FD rounding), and C is exact.
-    With ``dt=None`` the continuous-time model is returned.
-
-    A plant with state tendons (``PlantInfo.state_tendons``) is linearized in those lengths, x = h:
-    see ``_linearize_tendon_state``.
-    """
-    if method not in ("zoh", "step"):
-        raise ValueError(f"unknown linearization method {method!r}; use 'zoh' or 'step'")
-    with plant.physics():
-        if plant._tendons is not None:
-            return _linearize_tendon_state(plant, x, u, dt=dt, method=method)
-        return _linearize_joint_state(plant, x, u, dt=dt, method=method)
-
-
-def _linearize_joint_state(
-    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
-) -> LinearModel:
-    """``linearize`` of a plant whose state is [qpos, qvel, act]."""
-    m = plant.model
-    d = mujoco.MjData(m)
-    d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = plant.data.qpos, plant.data.qvel, plant.data.act, plant.data.ctrl
-    if x is not None:
-        d.qpos[:] = x[: m.nq]
-        d.qvel[:] = x[m.nq : m.nq + m.nv]
-        d.act[:] = x[m.nq + m.nv :]
-    if u is not None:
-        d.ctrl[:] = u
-    qpos0, qvel0, act0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy()
-    sensors = plant.sensor_index
-    nv, na, nu = m.nv, m.na, m.nu
-    ndx = 2 * nv + na
-
-    def set_point(dx: np.ndarray, du: np.ndarray) -> None:
-        d.qpos[:] = qpos0
-        mujoco.mj_integratePos(m, d.qpos, dx[:nv], 1.0)
-        d.qvel[:] = qvel0 + dx[nv : 2 * nv]
-        d.act[:] = act0 + dx[2 * nv :]
-        d.ctrl[:] = ctrl0 + du
-        d.time = 0.0
-
-    def continuous(dx: np.ndarray, du: np.ndarray) -> np.ndarray:
-        set_point(dx, du)
-        mujoco.mj_forward(m, d)
-        return np.concatenate([d.qvel, d.qacc, d.act_dot, d.sensordata[sensors]])
-
-    def stepped(dx: np.ndarray, du: np.ndarray) -> np.ndarray:
-        set_point(dx, du)
-        mujoco.mj_forward(m, d)
-        y = d.sensordata[sensors].copy()
-        mujoco.mj_step(m, d, nstep=nstep)
-        dq = np.zeros(nv)
-        mujoco.mj_differentiatePos(m, dq, 1.0, qpos0, d.qpos)
-        return np.concatenate([dq, d.qvel - qvel0, d.act - act0, y])
-
-    nstep = substeps(dt, m.opt.timestep, plant.info.model_file) if dt is not None else 0
-    f = stepped if method == "step" and dt is not None else continuous
-    jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
-    jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
-    A, BE = jac_x[:ndx], jac_u[:ndx]
-    C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
-    if f is continuous and dt is not None:
-        A, BE = zoh_discretize(A, BE, dt)
-    B, E = BE[:, plant._known], BE[:, plant._unknown]
-    set_point(np.zeros(ndx), np.zeros(nu))
-    mujoco.mj_forward(m, d)
-    state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
-    return LinearModel(
-        A,
-        B,
-        C,
-        D,
-        dt,
-        state_names,
-        plant.actuator_names,
-        plant.sensor_names,
-        x_op=np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None,
-        u_op=ctrl0[plant._known],
-        y_op=d.sensordata[sensors] - plant.sensor_zero,
-        E=E,
-        disturbances=plant.disturbance_names,
-    )
-
-
-def _linearize_tendon_state(
-    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
-) -> LinearModel:
-    """Linearization in the state tendons' lengths h = T qpos, the other coordinates eliminated.
-
-    The joint velocities v are fast: they settle (within ~1 ms for the three-tank flows) to the
-    values v*(h, u) where the smooth forces balance, f(h, v*, u) = 0 (``quasi_static_velocities``),
-    and ḣ = T v. This is the singular-perturbation (quasi-static) limit of MuJoCo's dynamics, the
-    limit of a vanishing inertance, which is exactly the paper's model (57):
-
-        A_c = T ∂v*/∂h = −T f_v⁻¹ f_h,   [B_c E_c] = −T f_v⁻¹ f_u,
-        C = y_h + y_v ∂v*/∂h,   D = y_u + y_v ∂v*/∂u,
-
-    with f = ``qfrc_smooth`` (integrator-independent, unlike qacc under the ``discrete``
-    integrator) and central differences: positions moved along T⁺ (changing h only), velocities by
-    relative steps (exact for the quadratic orifice loss). The slow invariant subspace of the full
-    linearization [qpos, qvel] would instead keep the inertance's O(τ_fast/τ_slow) corrections
-    (its slow eigenvalues differ by < 1e-5 relative for the three-tank system,
-    tests/test_three_tank.py); that is a numerical device's footprint, not the paper's model, so it
-    is left out. f_v must be invertible: a flow at zero head (where Torricelli's law has an infinite
-    slope) cannot be linearized.
-
-    ``method="zoh"`` discretizes (A_c, B_c, E_c) exactly; ``method="step"`` differentiates the
-    simulation itself over dt (levels perturbed, velocities quasi-steady, ``mj_step``).
-    Control clamping is off while differencing (a pump linearized at zero flow).
-    """
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
-    assert T is not None and T_pinv is not None
-    d = mujoco.MjData(m)
-    d.qpos[:], d.ctrl[:], d.qvel[:] = plant.data.qpos, plant.data.ctrl, plant.data.qvel
-    if u is not None:
-        d.ctrl[:] = u
-    if x is not None:
-        d.qpos[:] += T_pinv @ (np.asarray(x, dtype=float) - T @ d.qpos)
-    flags = m.opt.disableflags
-    m.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL
-    try:
-        d.qvel[:] = quasi_static_velocities(m, d)
-        qpos0, qvel0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.ctrl.copy()
-        sensors, ns, nv, nu = plant.sensor_index, T.shape[0], m.nv, m.nu
-
-        def forces(dh: np.ndarray, dv: np.ndarray, du: np.ndarray) -> np.ndarray:
-            d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + T_pinv @ dh, qvel0 + dv, ctrl0 + du
-            mujoco.mj_forward(m, d)
-            return np.concatenate([d.qfrc_smooth, d.sensordata[sensors]])
-
-        vscale = np.maximum(np.abs(qvel0), 1e-3 * max(np.max(np.abs(qvel0)), FD_STEP))  # relative steps
-        zs, zv, zu = np.zeros(ns), np.zeros(nv), np.zeros(nu)
-        # Lengths are sums of large coordinates: a step of 2⁻¹⁰ length units keeps qpos rounding out
-        # of the differences (tendon springs and gauges are linear in the lengths).
-        jac_h = _central_difference(lambda dh: forces(dh * H_STEP, zv, zu), ns) / H_STEP
-        jac_v = _central_difference(lambda dv: forces(zs, dv * vscale, zu), nv) / vscale
-        jac_u = _central_difference(lambda du: forces(zs, zv, du), nu)
-        _require_tendon_state(plant, d, (qpos0, qvel0, ctrl0), jac_h[:nv])
-        f_v = jac_v[:nv]
-        if np.linalg.cond(f_v) > 1e12:
-            raise ModelError(
-                f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)"
-            )
-        dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
-        dv_du = -np.linalg.solve(f_v, jac_u[:nv])
-        A, BE = T @ dv_dh, T @ dv_du
-        C = jac_h[nv:] + jac_v[nv:] @ dv_dh
-        D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
-        h0 = T @ qpos0
-        if dt is not None and method == "step":
-            A, BE = _stepped_tendon_model(plant, d, (qpos0, qvel0, ctrl0), dt)
-        elif dt is not None:
-            A, BE = zoh_discretize(A, BE, dt)
-        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0, qvel0, ctrl0
-        mujoco.mj_forward(m, d)
-        y0 = d.sensordata[sensors].copy()
-    finally:
-        m.opt.disableflags = flags
-    return LinearModel(
-        A,
-        BE[:, plant._known],
-        C,
-        D,
-        dt,
-        plant.state_names,
-        plant.actuator_names,
-        plant.sensor_names,
-        x_op=h0,
-        u_op=ctrl0[plant._known],
-        y_op=y0 - plant.sensor_zero,
-        E=BE[:, plant._unknown],
-        disturbances=plant.disturbance_names,
-    )
-
-
-def _require_tendon_state(plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], f_h: np.ndarray) -> None:
-    """Positions off the state tendons (the null space of T) must not change the forces, or the
-    tendon lengths h are not a state; ``f_h`` is ∂f/∂h at ``point`` = (qpos, qvel, ctrl)."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
-    assert T is not None and T_pinv is not None
-    qpos0, qvel0, ctrl0 = point
-    null = np.linalg.svd(T)[2][T.shape[0] :].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
-    if not null.size:
-        return
-
-    def moved(dq: np.ndarray) -> np.ndarray:
-        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + null @ dq, qvel0, ctrl0
-        mujoco.mj_forward(m, d)
-        return d.qfrc_smooth.copy()
-
-    if np.abs(_central_difference(moved, null.shape[1])).max() > 1e-6 * np.abs(f_h).max():  # > FD rounding
-        raise ModelError(f"{plant.info.model_file}: forces depend on coordinates other than the state tendons")
-
-
-def _stepped_tendon_model(
-    plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], dt: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(A, [B E]) of the simulation itself over dt about ``point`` = (qpos, qvel, ctrl): levels
-    perturbed, velocities quasi-steady, ``mj_step``."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
-    assert T is not None and T_pinv is not None
-    qpos0, qvel0, ctrl0 = point
-    nstep = substeps(dt, m.opt.timestep, plant.info.model_file)
-
-    def stepped(dh: np.ndarray, du: np.ndarray) -> np.ndarray:
-        d.qpos[:], d.ctrl[:], d.qvel[:], d.time = qpos0 + T_pinv @ dh, ctrl0 + du, qvel0, 0.0
-        d.qvel[:] = quasi_static_velocities(m, d)
-        mujoco.mj_step(m, d, nstep=nstep)
-        return T @ d.qpos
-
-    zs, zu = np.zeros(T.shape[0]), np.zeros(m.nu)
-    A = _central_difference(lambda dh: stepped(dh * H_STEP, zu), T.shape[0]) / H_STEP
-    return A, _central_difference(lambda du: stepped(zs, du), m.nu)
-
-
-def _central_difference(f: Callable[[np.ndarray], np.ndarray], size: int) -> np.ndarray:
-    """∂f/∂v at v = 0 by central differences, shape (len(f(0)), size)."""
-    if size == 0:
-        return np.zeros((len(f(np.zeros(0))), 0))
-    columns = []
-    for i in range(size):
-        e = np.zeros(size)
-        e[i] = FD_STEP
-        columns.append((f(e) - f(-e)) / (2.0 * FD_STEP))
-    return np.array(columns).T

@@ -159,6 +159,8 @@ def _linearizations(s: Scenario, plant: Any, source: str) -> tuple[LinearModel |
         if not isinstance(plant, Plant):  # keyframes are MuJoCo's: a state-space plant has none
             raise ScenarioError(f"{source}: a state-space plant has no design keyframe")
         plant.reset(keyframe=s.plant_info.design_keyframe)
+    elif is_fmu(s.plant.model) and s.plant.initial_state:  # an FMU's start point: its start values as the run sets them
+        plant.reset(s.plant.initial_state)
     try:
         with progress.step("linearizing the plant at its operating point"):
             model = plant.linearize()
@@ -276,6 +278,10 @@ class RunPlan:
     faults: tuple[FaultRecord, ...]
     onset_tick: int | None
     units: dict[str, dict[str, str]]
+    operating_point: str = ""
+    """Where the plant's linear model is taken, where that is not simply its operating point as it
+    stands (that is no equilibrium of its inputs): the equilibrium reached from it, an affine model
+    with its drift, or why the drift is left out (``cosim.plant.equilibrium``); "" otherwise."""
     plant_messages: tuple[Any, ...] = ()
     """What an FMU plant logged or printed while the plan was made (``fmu_calls.FmuMessage``)."""
     secret: bytes = field(default_factory=run_secret, repr=False)
@@ -308,6 +314,7 @@ class RunPlan:
             scenario=s,
             state_names=tuple(plant.state_names),
             plant_messages=tuple(said),
+            operating_point=getattr(plant, "operating_point", "") if model is not None else "",
             model=model,
             continuous_model=continuous,
             estimators=built,
@@ -500,6 +507,7 @@ class RunPlan:
             bus=bus_record(s),
             timing=s.timing.model_dump(),
             start_time_ns=start_time_ns,
+            operating_point=self.operating_point or None,
         )
 
     def scenario_record(self) -> ScenarioRecord:
