@@ -106,7 +106,7 @@ def test_log_io_benchmark_reports_write_inspect_and_export_ratios():
     )
     assert abs(figures["write_ratio"] - figures["write_frames_per_s"] / figures["bare_write_frames_per_s"]) < 1e-9
     assert figures["export_ratio"] == min(
-        figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump")
+        figures[f"export_{f}_ratio"] for f in ("csv", "parquet", "blf", "mf4", "candump", "asc", "trc", "rosbag2")
     )
 
 

@@ -214,7 +214,10 @@ def session_ended(session: int, within: float) -> bool:
 def test_resume_after_the_coordinator_is_killed_loses_nothing_and_duplicates_nothing(tmp_path, inline_table):
     path = write(tmp_path, TINY.replace("seeds = 2", "seeds = 6"))
     folder = tmp_path / "killed"
-    command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2", "-q"]
+    # batches of 2, so that parts come in a few at a time (by default the 12 runs, alike but for their
+    # faults and noise, are 2 batches of 6: killed after 3 parts, all 12 could be there)
+    command = [sys.executable, "-m", "cosim.cli", "campaign", str(path), "--out", str(folder), "--workers", "2"]
+    command += ["--batch", "2", "-q"]
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and len(list((folder / "parts").glob("run-*.json"))) < 3:
