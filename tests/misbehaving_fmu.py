@@ -125,22 +125,27 @@ def compiler() -> str | None:
     return shutil.which("gcc") or shutil.which("cc")
 
 
+def packaged(folder: Path, name: str, source: Path, description: str, defines: tuple[str, ...] = ()) -> Path:
+    """``folder/<name>.fmu``: ``description`` with the library of the C ``source`` (compiled into
+    ``folder`` with gcc against FMPy's FMI 2.0 headers and ``defines``, once per distinct library),
+    its model identifier the source's stem."""
+    import fmpy
+
+    identifier = source.stem
+    library = folder / ("-".join([identifier, *(d.split("=", 1)[1] for d in defines)]) + ".so")
+    if not library.exists():
+        headers = Path(fmpy.__file__).parent / "c-code"
+        command = [compiler() or "gcc", "-shared", "-fPIC", "-O1", *defines, "-I", str(headers)]
+        subprocess.run([*command, "-o", str(library), str(source)], check=True, capture_output=True)
+    fmu = folder / f"{name}.fmu"
+    with zipfile.ZipFile(fmu, "w") as archive:
+        archive.writestr("modelDescription.xml", description)
+        archive.write(library, f"binaries/linux64/{identifier}.so")
+    return fmu
+
+
 def build(folder: Path, *, directional: bool = False, discrete: bool = False, name: str = "Misbehaving") -> Path:
     """The FMU at ``folder/<name>.fmu`` (its library compiled there); ``directional``: it declares
     directional derivatives; ``discrete``: described with its integer and Boolean variables only."""
-    import fmpy
-
-    library = folder / "misbehaving.so"
-    if not library.exists():
-        headers = Path(fmpy.__file__).parent / "c-code"
-        subprocess.run(
-            [compiler() or "gcc", "-shared", "-fPIC", "-O1", "-I", str(headers), "-o", str(library), str(SOURCE)],
-            check=True,
-            capture_output=True,
-        )
     flag = 'providesDirectionalDerivative="true"' if directional else ""
-    fmu = folder / f"{name}.fmu"
-    with zipfile.ZipFile(fmu, "w") as archive:
-        archive.writestr("modelDescription.xml", DISCRETE if discrete else DESCRIPTION.format(directional=flag))
-        archive.write(library, "binaries/linux64/misbehaving.so")
-    return fmu
+    return packaged(folder, name, SOURCE, DISCRETE if discrete else DESCRIPTION.format(directional=flag))

@@ -6,12 +6,10 @@ its derivatives fail beyond |x| = x_max (a Modelica assert)."""
 
 from __future__ import annotations
 
-import subprocess
-import zipfile
 from pathlib import Path
 
 from tests.conftest import ROOT
-from tests.misbehaving_fmu import compiler
+from tests.misbehaving_fmu import packaged
 
 SOURCE = ROOT / "tests" / "data" / "fmus" / "oscillator" / "oscillator.c"
 
@@ -80,31 +78,6 @@ def build(
     """The FMU at ``folder/<name>.fmu`` (its library compiled there); ``directional``: it declares
     its directional derivatives; ``x``, ``v``, ``u``: the start values of its states and its input
     (what the input holds undriven)."""
-    import fmpy
-
-    library = folder / f"oscillator-{x:g}-{v:g}-{u:g}.so"  # its start values compiled in, as an exporter's are
-    if not library.exists():
-        headers = Path(fmpy.__file__).parent / "c-code"
-        starts = [f"-DX_START={x!r}", f"-DV_START={v!r}", f"-DU_START={u!r}"]
-        subprocess.run(
-            [
-                compiler() or "gcc",
-                "-shared",
-                "-fPIC",
-                "-O1",
-                *starts,
-                "-I",
-                str(headers),
-                "-o",
-                str(library),
-                str(SOURCE),
-            ],
-            check=True,
-            capture_output=True,
-        )
+    starts = (f"-DX_START={x!r}", f"-DV_START={v!r}", f"-DU_START={u!r}")  # compiled in, as an exporter's are
     flag = 'providesDirectionalDerivative="true"' if directional else ""
-    fmu = folder / f"{name}.fmu"
-    with zipfile.ZipFile(fmu, "w") as archive:
-        archive.writestr("modelDescription.xml", DESCRIPTION.format(directional=flag, x=x, v=v, u=u))
-        archive.write(library, "binaries/linux64/oscillator.so")
-    return fmu
+    return packaged(folder, name, SOURCE, DESCRIPTION.format(directional=flag, x=x, v=v, u=u), starts)

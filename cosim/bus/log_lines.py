@@ -102,8 +102,8 @@ class _Clock:
     def see(self, line: str, number: int) -> None:
         self.line = line
 
-    def time_ns(self) -> int:
-        raise NotImplementedError
+    def time_ns(self) -> int:  # each format's own
+        raise NotImplementedError(f"{type(self).__name__} reads no time")
 
 
 class _CandumpClock(_Clock):
