@@ -9,7 +9,9 @@ settled; the continuous-time observer of CDC 2016 runs on its own 3-state exampl
 of Example 1 and output noise, at its scenarios' sample time 0.02 s; the IJC 2018 reconciliators run
 on the paper's three-tank model (58)-(59) (T = 1 s) with a bias and the gain faults of its scenario:
 LFT-UIO-SR with the paper's gain estimator (53), with the model window (N = 50) and with the gain
-test, LPV-UIO-SR with (53) (its Theorem 1 design, about 8 s, is solved once), and no reconciliation.
+test, LPV-UIO-SR with (53) (its Theorem 1 design, about 8 s, is solved once), and no reconciliation;
+the UIO of uio-fault-detection and the COFD diagnosis of vessel-nominal are taken as their scenarios'
+plans build them (``scenario_case``), on readings about their operating point with sensor noise.
 Each figure is the best of ``--repeat`` timings of ``--steps`` consecutive steps.
 
 The plugin path: ``kalman_as_plugin`` is the Kalman filter as a user's file names it (``kind =
@@ -27,6 +29,7 @@ Usage: python bench/estimator_step.py [--json] [--steps N] [--repeat R] [--batch
 
 from __future__ import annotations
 
+import copy
 import json
 import sys
 import tempfile
@@ -43,6 +46,8 @@ import numpy as np  # noqa: E402
 
 import estimators  # noqa: E402
 from bench.common import bench_parser  # noqa: E402
+from cosim import api  # noqa: E402
+from cosim.run.plan import RunPlan  # noqa: E402
 from estimators import LinearModel  # noqa: E402
 from estimators.batched import StepEach, batch_of  # noqa: E402
 from estimators.design import zoh_discretize  # noqa: E402
@@ -139,6 +144,18 @@ def workload(
     return ys, us
 
 
+def scenario_case(scenario: str, name: str, steps: int, noise: float):
+    """Estimator ``name`` as ``scenario``'s plan builds it (design included, once), and ``steps``
+    readings about its model's operating point with white noise of ``noise`` times its scale, at the
+    operating point's inputs: a steady state, every reading arriving."""
+    estimator = RunPlan.build(api.load(scenario), 0, interface="virtual").estimators[name]
+    model, rng = estimator.model, np.random.default_rng(0)
+    scale = np.maximum(np.abs(model.y_op), 1.0)
+    ys = model.y_op + noise * scale * rng.standard_normal((steps, model.p))
+    us = np.repeat(np.atleast_2d(model.u_op), steps, axis=0)
+    return (lambda: copy.deepcopy(estimator)), ys, us
+
+
 def time_steps(make, ys: np.ndarray, us: np.ndarray, warmup: int, repeat: int) -> float:
     best = np.inf
     for _ in range(repeat):
@@ -230,6 +247,8 @@ def main() -> int:
         ust,
     )
     cases["no-reconciliation"] = (lambda: estimators.create("no-reconciliation", tank, {"Hz": hz}), yst, ust)
+    cases["uio"] = scenario_case("uio-fault-detection", "uio", args.steps, 1e-3)
+    cases["cofd"] = scenario_case("vessel-nominal", "fdi", args.steps, 1e-4)
     warmup = args.steps // 3
     figures = dict.fromkeys(cases, np.inf)
     for _ in range(args.repeat):  # round by round: a load that comes and goes slows every estimator alike
