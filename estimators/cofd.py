@@ -168,7 +168,9 @@ class COFDDiagnosis(Estimator):
         )
         self.ell = max(len(J) for J in family)
         self.thresholds, centred = self._thresholds(E)
-        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, centred, self.sample_time)
+        self.test = residual_test(
+            self.observers, model.C, E, params, self.thresholds, centred, self.sample_time, params.margin
+        )
         self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
         self.frame = FrameTerms(model, self.observers, self.sample_time) if params.rotating_frame else None
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
@@ -197,7 +199,7 @@ class COFDDiagnosis(Estimator):
             return given[: len(self.observers)], given[len(self.observers) :] if params.declared else None
         bounds = [residual_bounds(o, C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
         flat = np.array([params.margin * bound for bound in bounds])
-        return flat, centred_thresholds(self.observers, C, E, params, self.sample_time, self.ell)
+        return flat, centred_thresholds(self.observers, C, E, params, self.sample_time, self.ell, params.margin)
 
     def node_params(self) -> dict[str, Any]:
         test = self.test.flat if self.test.centred is None else np.vstack([self.test.flat, self.test.centred])

@@ -246,15 +246,16 @@ def residual_test(
     flat: np.ndarray,
     centred: np.ndarray | None,
     sample_time: float,
+    margin: float,
 ) -> ResidualTest:
     """The residual test of kind ``cofd`` (``params``: its ``COFDParams``, the declared environment
     checked by ``cofd.check_declared``): the flat thresholds ``flat`` throughout, or, with a declared
     environment, the ``centred`` ones (``centred_thresholds``) once the learning window is over,
-    and margin × the inertial allowance."""
+    and ``margin`` × the inertial allowance."""
     if not params.declared:
         return ResidualTest(flat, None, params.learning, sample_time)
     ell = flat.shape[1]
-    allowance = InertialAllowance(observers, C[:ell], E, params.margin * params.model_error_ratio, sample_time)
+    allowance = InertialAllowance(observers, C[:ell], E, margin * params.model_error_ratio, sample_time)
     return ResidualTest(flat, centred, params.learning, sample_time, allowance)
 
 
@@ -265,10 +266,11 @@ def centred_thresholds(
     params: DeclaredEnvironment,
     sample_time: float,
     ell: int,
+    margin: float,
 ) -> np.ndarray | None:
-    """margin × ``centred_bounds`` of each observer's first ``ell`` components (one row per
+    """``margin`` × ``centred_bounds`` of each observer's first ``ell`` components (one row per
     observer), or None without a declared environment."""
     if not params.declared:
         return None
     centred = np.array([centred_bounds(o.F, C[:ell], o.R @ E, params, sample_time) for o in observers])
-    return params.margin * centred
+    return margin * centred
