@@ -27,7 +27,7 @@ import tests  # noqa: F401, I001 (first: it pins NumPy's kernels, as in the test
 import numpy as np
 
 from cosim import scenario
-from cosim.run import fmu_system, run
+from cosim.run import fmu_ssp, run
 from tests.osp_systems import logged_estimates, run_libcosim
 
 
@@ -38,7 +38,7 @@ def compare(name: str, duration: float, folder: Path) -> dict:
     started = time.perf_counter()
     assert run(loaded, log, interface="virtual").status == "completed"
     ran = time.perf_counter()
-    fmu_system.export(loaded, system, 2)
+    fmu_ssp.export(loaded, system, 2)
     exported = time.perf_counter()
     logged = logged_estimates(log)
     steps = 2 if s.controller is not None else 1

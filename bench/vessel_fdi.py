@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' linea
 
 from estimators import create
 from estimators.allocation import VesselController, VesselControllerParams, cluster_ratios, pseudo_inverse_allocation
-from estimators.cofd import SHIP_PAIRS
+from estimators.cofd_design import SHIP_PAIRS
 from estimators.isolation import isolate
 from tests.linear_vessel import X0, D, G, M, W, disturbance, exponential_faults, model, simulate
 

@@ -29,7 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' linear ship model
 
 from cosim import scenario
-from cosim.campaign.leaderboard import poisson_rate, read_table
+from cosim.campaign.leaderboard import read_table
+from cosim.campaign.scores import poisson_rate
 from estimators import create
 from estimators.allocation import pseudo_inverse_allocation
 from estimators.isolation import isolate

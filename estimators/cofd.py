@@ -20,306 +20,45 @@ residuals (Sec. 3.3): with the inputs constrained to u_b = ζ u_a in each cluste
 cluster acts through the single column W_{j} = W N_j (22), (25) and the design is run on
 W* = [W_{1} … W_{q}].
 
-Plain functions: ``output_directions`` (10), ``uniform_subrank`` (12), ``cofd_observer`` (13)–(17)
-with every condition of Theorem 3.1 checked, ``cofd_family``, ``cluster_directions`` (21)–(22),
-``residual_bounds`` (the fault-free bound under |b| ≤ ε; estimators/thresholds.py has the bounds
-for a declared environment), ``fault_signatures`` / ``isolate`` (the isolation logic).
-``COFDDiagnosis`` is the estimator node (kind ``cofd``). docs/vessel-fdi.md has the derivations
+The design's plain functions are ``estimators.cofd_design`` (``cofd_observer``, ``cofd_family``,
+``cluster_directions``, ``residual_bounds``, ``fault_signatures``); the isolation logic is
+``estimators.isolation``. ``COFDDiagnosis`` is the estimator node (kind ``cofd``), ``COFDBatch``
+K of them stepped together. docs/vessel-fdi.md has the derivations
 and the choices the paper leaves open.
 """
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import scipy.integrate
-import scipy.linalg
 
-from estimators.allocation import FAULT_MASK, MAX_THRUSTERS, AllocationError, cluster_matrix, input_groups, whole
+from estimators.allocation import FAULT_MASK, MAX_THRUSTERS, cluster_matrix, input_groups, whole
 from estimators.base import Estimate, Estimator, ParameterError
-from estimators.design import AssumptionError
+from estimators.batched import BatchEstimate, DeviationBatch, mv
+from estimators.cofd_design import (
+    SHIP_CLUSTER_FAMILY,
+    SHIP_F,
+    SHIP_FAMILY,
+    SHIP_GROUPS,
+    SHIP_PAIRS,
+    DesignError,
+    cluster_directions,
+    cofd_family,
+    fault_signatures,
+    residual_bounds,
+)
 from estimators.diagnostics import Diagnostic, DiagnosticKind
 from estimators.isolation import isolate, unisolable
 from estimators.model import LinearModel
 from estimators.rotating_frame import FrameTerms
-from estimators.thresholds import DeclaredEnvironment, centred_thresholds, check_declared, residual_test
-from estimators.uio import UIODesign, discretize
-
-
-class DesignError(AssumptionError):
-    """A design condition of Sec. 3 fails; ``parameter`` names what to change."""
-
-    def __init__(self, parameter: str, message: str) -> None:
-        super().__init__(message)
-        self.parameter = parameter
-
-
-def _tol(M: np.ndarray) -> float:
-    """Relative: the vessel's W has entries of order 1/mass, 1e-7."""
-    return 1e-9 * (float(np.abs(M).max()) if M.size else 0.0)
-
-
-def _rank(M: np.ndarray) -> int:
-    return int(np.linalg.matrix_rank(M, tol=_tol(M))) if M.size else 0
-
-
-def _left_inverse(M: np.ndarray) -> np.ndarray:
-    """(·)^{-L} = (MᵀM)⁻¹Mᵀ for M of full column rank."""
-    return np.linalg.solve(M.T @ M, M.T)
-
-
-def output_directions(C: np.ndarray, S_star: np.ndarray | None = None) -> np.ndarray:
-    """S with C S = I_p, eq. (10): S = Cᵀ(CCᵀ)⁻¹ + [I − Cᵀ(CCᵀ)⁻¹C] S_* (S_* arbitrary, default 0).
-    C (p, n) must have full row rank; returns (n, p)."""
-    C = np.asarray(C, dtype=float)
-    p, n = C.shape
-    if _rank(C) < p:
-        raise DesignError(
-            "C", f"rank(C) = {_rank(C)} < p = {p}: no S with C S = I exists (eq. (10)); drop the redundant outputs"
-        )
-    right = C.T @ np.linalg.inv(C @ C.T)
-    S_star = np.zeros((n, p)) if S_star is None else np.asarray(S_star, dtype=float)
-    return right + (np.eye(n) - right @ C) @ S_star
-
-
-def uniform_subrank(W: np.ndarray) -> int:
-    """k0 of eq. (12): the largest ℓ ≤ rank W such that every ℓ columns of W are independent
-    (0 if W has a zero column)."""
-    W = np.asarray(W, dtype=float)
-    k0 = 0
-    for length in range(1, _rank(W) + 1):
-        if all(_rank(W[:, list(J)]) == length for J in itertools.combinations(range(W.shape[1]), length)):
-            k0 = length
-        else:
-            break
-    return k0
-
-
-@dataclass(frozen=True)
-class COFDObserver(UIODesign):
-    """One COFD unknown input observer O_h: ż = F z + R W u + K y, x̂ = z + H y, the UIO (2) with
-    T = R (so ``estimators.uio.discretize`` integrates it)."""
-
-    J: tuple[int, ...]
-    """The columns of W (0-based, in order) assigned the output directions e_1 … e_ℓ, eq. (13)."""
-    S_hat: np.ndarray
-    """Ŝ = [S_1 … S_ℓ] (n, ℓ), eq. (13)."""
-
-    @property
-    def R(self) -> np.ndarray:
-        """R = I − H C, eq. (6)."""
-        return self.T
-
-
-def cofd_observer(
-    A: np.ndarray,
-    W: np.ndarray,
-    C: np.ndarray,
-    J: Sequence[int],
-    F: np.ndarray,
-    S: np.ndarray | None = None,
-    H_star: np.ndarray | None = None,
-) -> COFDObserver:
-    """The COFD observer with R W_J = Ŝ (13) and observer matrix F, eq. (15)–(17), (6)–(8).
-
-    A (n, n), W (n, m), C (p, n), J: ℓ distinct columns of W (0-based, order = output direction),
-    F (n, n) the wanted observer matrix, S from (10) (default Cᵀ(CCᵀ)⁻¹), H_* of (15) (default 0).
-
-    1. Theorem 3.1, condition 1: rank(W_J) = rank(C W_J) = ℓ.
-    2. H = (W_J − Ŝ)(C W_J)^{-L} + H_*(I_p − C W_J (C W_J)^{-L}) (15) (the paper prints C for I_p in
-       the second bracket, see docs/errata.md), R = I − H C (6); then R W_J = Ŝ.
-    3. Theorem 3.1, condition 2: F Hurwitz (7).
-    4. Condition (14): each S_j (j ≤ ℓ) an eigenvector of F, F Ŝ = Ŝ M with M diagonal, as (16) needs.
-    5. F = R A − K1 C must be solvable: K1 = (R A − F) C⁺, which then satisfies (16) and is of the
-       form (17) (every solution of (16) is).
-    6. K2 = F H (8).
-    Raises DesignError naming the argument to change.
-    """
-    A, W, C, F = (np.asarray(X, dtype=float) for X in (A, W, C, F))
-    n, p = A.shape[0], C.shape[0]
-    J = tuple(int(j) for j in J)
-    _check_shapes(A, W, C, F, J)
-    S = output_directions(C) if S is None else np.asarray(S, dtype=float)
-    if S.shape != (n, p) or not np.allclose(C @ S, np.eye(p), atol=1e-9):
-        raise DesignError("S", "S must satisfy C S = I (eq. (10))")
-    S_hat = S[:, : len(J)]
-    H = _direction_gain(W[:, list(J)], C, S_hat, J, H_star)
-    R = np.eye(n) - H @ C  # eq. (6)
-    _check_observer_matrix(F, S_hat, J)
-    K1 = _injection_gain(R @ A, C, F)
-    return COFDObserver(H=H, T=R, F=F, K1=K1, K2=F @ H, J=J, S_hat=S_hat)
-
-
-def _check_shapes(A: np.ndarray, W: np.ndarray, C: np.ndarray, F: np.ndarray, J: tuple[int, ...]) -> None:
-    n, p = A.shape[0], C.shape[0]
-    if A.shape != (n, n) or W.shape[0] != n or C.shape[1] != n:
-        raise DesignError("model", f"inconsistent shapes A {A.shape}, W {W.shape}, C {C.shape}")
-    if F.shape != (n, n):
-        raise DesignError("F", f"expected an ({n}, {n}) observer matrix, got {F.shape}")
-    if not J or len(set(J)) != len(J) or not all(0 <= j < W.shape[1] for j in J):
-        raise DesignError("family", f"multi-index {[j + 1 for j in J]} must list distinct columns 1…{W.shape[1]} of W")
-    if len(J) > p:
-        raise DesignError(
-            "family",
-            f"multi-index {[j + 1 for j in J]} has {len(J)} columns but there are only p = {p} output directions",
-        )
-
-
-def _direction_gain(
-    WJ: np.ndarray, C: np.ndarray, S_hat: np.ndarray, J: tuple[int, ...], H_star: np.ndarray | None
-) -> np.ndarray:
-    """H of eq. (15), which makes R W_J = Ŝ, after Theorem 3.1's condition 1."""
-    ell, p = len(J), C.shape[0]
-    CWJ = C @ WJ
-    if _rank(WJ) != ell or _rank(CWJ) != ell:
-        raise DesignError(
-            "family",
-            f"columns {[j + 1 for j in J]} of W: rank(W_J) = {_rank(WJ)}, rank(C W_J) = {_rank(CWJ)}, but Theorem "
-            f"3.1 (condition 1) needs both = {ell}: these inputs' faults cannot be given independent output "
-            "directions. Choose columns of W that are linearly independent (and stay so through C)",
-        )
-    CWJ_left = _left_inverse(CWJ)
-    H = (WJ - S_hat) @ CWJ_left  # eq. (15)
-    if H_star is not None:
-        H = H + np.asarray(H_star, dtype=float) @ (np.eye(p) - CWJ @ CWJ_left)
-    return H
-
-
-def _check_observer_matrix(F: np.ndarray, S_hat: np.ndarray, J: tuple[int, ...]) -> None:
-    """Theorem 3.1's condition 2 (F Hurwitz) and condition (14) (each S_j an eigenvector of F)."""
-    eig = np.linalg.eigvals(F)
-    if np.max(eig.real) >= 0:
-        raise DesignError(
-            "F",
-            f"F has eigenvalues {np.round(eig, 6).tolist()}: Theorem 3.1 (condition 2) needs F Hurwitz, every real "
-            "part negative",
-        )
-    for j in range(len(J)):
-        s = S_hat[:, j]
-        lam = s @ F @ s / (s @ s)
-        if np.linalg.norm(F @ s - lam * s) > 1e-9 * max(1.0, np.abs(F).max()) * np.linalg.norm(s):
-            raise DesignError(
-                "F",
-                f"S_{j + 1} is not an eigenvector of F: condition (14) fails, so a fault on input {J[j] + 1} would "
-                f"not keep the output direction e_{j + 1}. Choose F with F S_j = λ_j S_j for j ≤ {len(J)} (with "
-                f"C = I: F diagonal in its first {len(J)} rows and columns)",
-            )
-
-
-def _injection_gain(RA: np.ndarray, C: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """K1 = (R A − F) C⁺, the solution of F = R A − K1 C (7) when there is one; it is then of the
-    form (17)."""
-    K1 = (RA - F) @ (C.T @ np.linalg.inv(C @ C.T))
-    if not np.allclose(RA - K1 @ C, F, atol=1e-9 * max(1.0, np.abs(RA).max(), np.abs(F).max())):
-        raise DesignError(
-            "F",
-            "F = R A − K1 C (eq. (7)) has no solution K1: R A − F must vanish on the kernel of C. "
-            "Choose F from the reachable ones, R A − K1 C for some K1 (eq. (17))",
-        )
-    return K1
-
-
-def cofd_family(
-    A: np.ndarray,
-    W: np.ndarray,
-    C: np.ndarray,
-    family: Sequence[Sequence[int]],
-    F: np.ndarray,
-    S: np.ndarray | None = None,
-) -> list[COFDObserver]:
-    """The observers {O_h} of eq. (13), one per multi-index of ``family`` (0-based columns of W),
-    all with the same F and Ŝ (the paper's simplification after (13)). DesignError names the observer."""
-    observers = []
-    for h, J in enumerate(family, 1):
-        try:
-            observers.append(cofd_observer(A, W, C, J, F, S))
-        except DesignError as error:
-            raise DesignError(error.parameter, f"observer {h}: {error}") from None
-    return observers
-
-
-def cluster_directions(W: np.ndarray, groups: Sequence[Sequence[int]], zeta: Sequence[float]) -> np.ndarray:
-    """W* = [W_{1} … W_{q}] = W N (n, q), eq. (22), (25): the input direction of each cluster of
-    inputs under the constraints u_b = ζ u_a (20), (24) (``estimators.allocation.cluster_matrix``).
-
-    Checks eq. (19) generalized to q clusters (at most m − k constraints, so that τ = G u can still
-    be met) and eq. (21) (rank W* = rank W, so every effect stays reachable); DesignError("zeta")."""
-    W = np.asarray(W, dtype=float)
-    try:
-        N = cluster_matrix(groups, zeta, W.shape[1])
-    except AllocationError as error:
-        raise DesignError("zeta", str(error)) from None
-    k, m = _rank(W), W.shape[1]
-    constraints = m - N.shape[1]
-    if constraints > m - k:
-        raise DesignError(
-            "zeta",
-            f"{constraints} cluster constraints exceed the redundancy m − k = {m - k} (eq. (19)): merge fewer inputs",
-        )
-    W_star = W @ N
-    if _rank(W_star) < k:
-        raise DesignError(
-            "zeta",
-            f"rank [W_{{1}} … W_{{q}}] = {_rank(W_star)} < rank W = {k} (eq. (21)): with these ratios ζ some effect "
-            "can no longer be produced; choose other ratios",
-        )
-    return W_star
-
-
-def residual_bounds(observer: COFDObserver, C: np.ndarray, E: np.ndarray, epsilon: float) -> np.ndarray:
-    """The least upper bound on |r_i(t)| = |(C e(t))_i| without faults, for every unknown input with
-    |b(t)|₂ ≤ ε and e(0) = 0 (p values):
-
-        sup |r_i| = ε ∫₀^∞ |c_iᵀ e^{F s} R E|₂ ds
-
-    (the error is e(t) = ∫ e^{F s} R E b(t − s) ds; the bound is reached by the constant b along
-    the integrand's direction when that direction is constant). For C = I and diagonal F it is
-    ε |row_i(R E)|₂ / |f_i|. Integrated numerically up to where e^{F s} has decayed by e^(−40)."""
-    C, E = np.asarray(C, dtype=float), np.asarray(E, dtype=float)
-    F, RE = observer.F, observer.R @ E
-    if E.shape[1] == 0:
-        return np.zeros(C.shape[0])
-    decay = -np.max(np.linalg.eigvals(F).real)
-    horizon = 40.0 / decay
-
-    def integrand(s: float) -> np.ndarray:
-        return np.linalg.norm(C @ scipy.linalg.expm(F * s) @ RE, axis=1)
-
-    value, _ = scipy.integrate.quad_vec(integrand, 0.0, horizon, epsrel=1e-10, epsabs=0.0)
-    return epsilon * value
-
-
-def fault_signatures(
-    observers: list[COFDObserver], C: np.ndarray, W: np.ndarray, groups: Sequence[Sequence[int]]
-) -> np.ndarray:
-    """Which residual components a fault can move: s[h, i, j] is True when a fault of group j
-    (a thruster: columns ``groups[j]`` of W) enters component i < ℓ of r^(h) = C e^(h), i.e. row i of
-    C R^(h) W_{group j} is not zero; shape (observers, ℓ, groups). A False entry is a structural
-    zero: that fault never moves that component (the paper's "negligible projection")."""
-    C, W = np.asarray(C, dtype=float), np.asarray(W, dtype=float)
-    ell = max(len(o.J) for o in observers)
-    signatures = np.zeros((len(observers), ell, len(groups)), dtype=bool)
-    for h, o in enumerate(observers):
-        effect = C @ o.R @ W
-        tol = _tol(effect)
-        for j, g in enumerate(groups):
-            signatures[h, : len(o.J), j] = np.abs(effect[: len(o.J), list(g)]).max(axis=1) > tol
-    return signatures
-
+from estimators.thresholds import FORCE, MOMENT, DeclaredEnvironment, centred_thresholds, residual_test
+from estimators.uio import discretize
 
 # -- the diagnosis node ---------------------------------------------------------------------------
 
-#: The paper's ship (Sec. 4): thrusters T1 … T5 as columns of W (1-based), the single-fault family
-#: R^(h)[W_j …] = [e1 e2 e3], the cluster family (26) over W*, F, and the common-mode pairs of Table 1.
-SHIP_GROUPS = ((1, 2), (3, 4), (5, 6), (7,), (8,))
-SHIP_FAMILY = ((1, 2, 3), (3, 4, 1), (5, 6, 1), (7, 8, 1))
-SHIP_CLUSTER_FAMILY = ((1, 2, 3), (1, 4, 5), (2, 3, 4), (2, 3, 5))
-SHIP_F = (-1.0, -1.0, -2.0, -5.0, -6.0, -7.0)
-SHIP_PAIRS = ((1, 3), (1, 4), (2, 3), (2, 5), (3, 4))
 MAX_OBSERVERS, MAX_COMPONENTS = 4, 3
 """The residual components declared on the bus: r<h>_<i> for h ≤ 4, i ≤ 3 (and thrusters T1 … T5:
 ``estimators.allocation.MAX_THRUSTERS``, the bits of ``FAULT_MASK``)."""
@@ -429,7 +168,9 @@ class COFDDiagnosis(Estimator):
         )
         self.ell = max(len(J) for J in family)
         self.thresholds, centred = self._thresholds(E)
-        self.test = residual_test(self.observers, model.C, E, params, self.thresholds, centred, self.sample_time)
+        self.test = residual_test(
+            self.observers, model.C, E, params, self.thresholds, centred, self.sample_time, params.margin
+        )
         self.discrete = [discretize(o, model.B, self.sample_time) for o in self.observers]
         self.frame = FrameTerms(model, self.observers, self.sample_time) if params.rotating_frame else None
         self.x_init = None if params.x0 is None else np.asarray(params.x0, dtype=float) - model.x_op
@@ -458,7 +199,7 @@ class COFDDiagnosis(Estimator):
             return given[: len(self.observers)], given[len(self.observers) :] if params.declared else None
         bounds = [residual_bounds(o, C, E, params.disturbance_bound)[: self.ell] for o in self.observers]
         flat = np.array([params.margin * bound for bound in bounds])
-        return flat, centred_thresholds(self.observers, C, E, params, self.sample_time, self.ell)
+        return flat, centred_thresholds(self.observers, C, E, params, self.sample_time, self.ell, params.margin)
 
     def node_params(self) -> dict[str, Any]:
         test = self.test.flat if self.test.centred is None else np.vstack([self.test.flat, self.test.centred])
@@ -503,9 +244,7 @@ class COFDDiagnosis(Estimator):
         return bool(np.abs(u - projection).max() <= 1e-3 * max(np.abs(u).max(), 1e-9))
 
     @classmethod
-    def batched(cls, instances: Sequence[Any]) -> Any:
-        from estimators.cofd_batch import COFDBatch
-
+    def batched(cls, instances: Sequence[Any]) -> COFDBatch:
         return COFDBatch(instances)
 
     def isolation_targets(self) -> dict[str, list[str]]:
@@ -548,6 +287,24 @@ class COFDDiagnosis(Estimator):
         # effects (tens of metres for a 100 N current), so the state this node publishes is the
         # measured one, C⁺ y (C = I for the ship).
         return Estimate(self._measured @ y, diagnostics)
+
+
+def check_declared(params: COFDParams, E: np.ndarray, sample_time: float) -> None:
+    """The declared environment must act on the ship's three unknown inputs and fit in the paper's
+    class, |b| + |d| ≤ ε (``disturbance_bound``), which the flat thresholds hold for."""
+    params.check(sample_time)
+    if E.shape[1] != len(FORCE) + len(MOMENT):
+        raise ParameterError(
+            "current",
+            f"the declared environment acts on three unknown inputs (b_x, b_y, b_n); the model's E has {E.shape[1]}",
+        )
+    if params.bound > params.disturbance_bound:
+        raise ParameterError(
+            "disturbance_bound",
+            f"the declared environment reaches |b| + |d| ≤ {params.bound:g} (current + hypot(wave_force, "
+            f"wave_moment) + model_error) > ε = {params.disturbance_bound:g}: raise disturbance_bound or declare a "
+            "calmer sea",
+        )
 
 
 def _check_params(params: COFDParams, n: int) -> None:
@@ -598,3 +355,126 @@ def _family(params: COFDParams, columns: int) -> list[tuple[int, ...]]:
 
 def _names(hypothesis: Sequence[int]) -> str:
     return " + ".join(f"T{j + 1}" for j in hypothesis)
+
+
+# -- K runs at once ---------------------------------------------------------------------------------
+
+
+class COFDBatch(DeviationBatch):
+    """K ``COFDDiagnosis`` instances of one design (``COFDDiagnosis.batched``): its observers,
+    residual test and rotating-frame terms on arrays with a leading run axis, bit for bit each run's
+    own step.
+
+    The observers' recursions, the thresholds' inertial allowance and the residual test are the same
+    arithmetic in every run (``estimators.batched.mv``, elementwise operations, NumPy's ``cos`` and
+    ``sin`` on columns); what is each run's own logic stays per run, through the same calls as alone:
+    the norm of the inertial force (``np.linalg.norm`` of the run's vector), the constraint (24) on
+    its commands (a least-squares fit), the isolation of its fired components and the persistence
+    before it latches them."""
+
+    def __init__(self, instances: Sequence[COFDDiagnosis]) -> None:
+        super().__init__(instances)
+        first = self.first = instances[0]
+        self.z: list[np.ndarray] | None = None
+        if any(e.z is not None for e in instances):
+            states: list[Any] = [e.z for e in instances]
+            self.z = [np.stack([z[h] for z in states]) for h in range(len(first.observers))]
+        self.y_prev = np.stack([e.y_prev for e in instances])
+        self.u_prev = np.stack([e.u_prev for e in instances])
+        self.t = first.t
+        self.candidate = [e.candidate for e in instances]
+        self.candidate_since = [e.candidate_since for e in instances]
+        self.isolated = np.stack([e.isolated for e in instances])
+        test = first.test
+        tests: list[Any] = [e.test for e in instances]
+        self.total = np.stack([t.total for t in tests])
+        self.count = test.count
+        self.mean = None if test.mean is None else np.stack([t.mean for t in tests])
+        allowances: list[Any] = [t.allowance for t in tests]
+        if test.allowance is not None:
+            self.q = [np.stack([a.q[h] for a in allowances]) for h in range(len(test.allowance.q))]
+            self.a_prev = None if test.allowance.y_prev is None else np.stack([a.y_prev for a in allowances])
+
+    def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
+        model, first = self.model, self.first
+        runs = len(dy)
+        y = np.where(np.isnan(dy), self.y_prev, dy)
+        if self.z is None:
+            x0 = mv(np.linalg.pinv(model.C), y) if first.x_init is None else first.x_init
+            self.z = [x0 - mv(o.H, y) for o in first.observers]
+        else:
+            self.t += first.sample_time
+            frame = self._frame(self.y_prev, y) if first.frame else [0.0] * len(self.z)
+            self.z = [
+                mv(Phi, z) + mv(Gu, self.u_prev) + mv(Gy0, self.y_prev) + mv(Gy1, y) + kinematics
+                for z, (Phi, Gu, Gy0, Gy1), kinematics in zip(self.z, first.discrete, frame)
+            ]
+        x_hats = [z + mv(o.H, y) for z, o in zip(self.z, first.observers)]
+        r = np.stack([(y - mv(model.C, x))[:, : first.ell] for x in x_hats], axis=1)
+        residuals, thresholds = self._test(r, y)
+        fired = np.abs(residuals) > thresholds
+        met = np.zeros(runs)
+        for k in range(runs):  # each run's own logic, as its step has it
+            met[k] = constraints_met = first._constraints_met(self.u_prev[k] + model.u_op)
+            found = isolate(fired[k], first.signatures, first.hypotheses) if constraints_met else None
+            if found != self.candidate[k]:
+                self.candidate[k], self.candidate_since[k] = found, self.t
+            if found is not None and self.t - self.candidate_since[k] >= first.params.persistence - 1e-9:
+                self.isolated[k, list(found)] = True
+        self.y_prev, self.u_prev = y, du
+        shown = np.zeros((runs, 2, MAX_OBSERVERS, MAX_COMPONENTS))
+        shown[:, 0, : len(first.observers), : first.ell] = residuals
+        shown[:, 1, : len(first.observers), : first.ell] = thresholds
+        groups = self.isolated.shape[1]
+        isolated = np.zeros((runs, MAX_THRUSTERS))
+        isolated[:, :groups] = self.isolated
+        flat = shown.reshape(runs, 2, -1)
+        diagnostics = {RESIDUAL.named(c): flat[:, 0, i] for i, c in enumerate(COMPONENTS)}
+        diagnostics |= {THRESHOLD.named(c): flat[:, 1, i] for i, c in enumerate(COMPONENTS)}
+        diagnostics[ALARM.name] = fired.any(axis=(1, 2)).astype(float)
+        diagnostics |= {ISOLATED.named(j): isolated[:, i] for i, j in enumerate(THRUSTERS)}
+        diagnostics[FAULT_MASK.name] = (self.isolated * (1 << np.arange(groups))).sum(axis=1).astype(float)
+        diagnostics[CONSTRAINTS_MET.name] = met
+        return BatchEstimate(mv(first._measured, y), diagnostics)
+
+    def _frame(self, y_prev: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+        """``FrameTerms.__call__`` for K runs."""
+        frame = self.first.frame
+        assert frame is not None
+        before, after = _kinematic_terms(y_prev + frame.y_op), _kinematic_terms(y + frame.y_op)
+        return [mv(G0, before) + mv(G1, after) for G0, G1 in frame.gains]
+
+    def _test(self, r: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``ResidualTest.__call__`` for K runs: r of shape (K, observers, components)."""
+        test = self.first.test
+        extra = self._allowance(y) if test.allowance is not None else np.zeros_like(r)
+        if test.centred is None:
+            return r, test.flat + extra
+        if self.mean is None and self.t >= test.end:
+            self.mean = self.total / max(self.count, 1)
+        if self.mean is None:
+            if self.t >= test.start:
+                self.total += np.stack((r, extra), axis=1)
+                self.count += 1
+            return r, test.flat + extra
+        return r - self.mean[:, 0], test.centred + extra + self.mean[:, 1]
+
+    def _allowance(self, y: np.ndarray) -> np.ndarray:
+        """``InertialAllowance.__call__`` for K runs (each run's force norm as its own)."""
+        allowance = self.first.test.allowance
+        assert allowance is not None
+        if self.a_prev is None:
+            a = np.zeros(len(y))
+        else:
+            a = np.array([float(np.linalg.norm(row)) for row in mv(allowance.rate, y - self.a_prev)])
+        self.a_prev = y
+        self.q = [d * q + g * a[:, None] for q, d, g in zip(self.q, allowance.decay, allowance.step)]
+        return np.stack([mv(w, q) for w, q in zip(allowance.weights, self.q)], axis=1)
+
+
+def _kinematic_terms(y: np.ndarray) -> np.ndarray:
+    """``rotating_frame.kinematic_terms`` of each row y = [x, y, ψ, u, v, r]."""
+    psi, u, v, r = y[:, 2], y[:, 3], y[:, 4], y[:, 5]
+    c, s = np.cos(psi), np.sin(psi)
+    zero = np.zeros(len(y))
+    return np.stack([(c - 1.0) * u - s * v, s * u + (c - 1.0) * v, zero, r * v, -r * u, zero], axis=1)

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
-from estimators.gain_test import GainDecision, GainTestWindow, decide_gains, gain_test_window
+from estimators.gain_identification import GainDecision, GainTestWindow, decide_gains, gain_test_window
 from estimators.lft_design import LftDesign, lft_uio_design
 from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, uio_matrices
 from estimators.lpv_design import LpvDesign, lpv_uio_design

@@ -30,7 +30,7 @@ from estimators.base import ParameterError
 from estimators.uio import UIODesign, discretize
 
 if TYPE_CHECKING:
-    from estimators.cofd import COFDObserver
+    from estimators.cofd_design import COFDObserver
     from estimators.model import LinearModel
 
 OUTPUTS = ("x", "y", "psi", "u", "v", "r")

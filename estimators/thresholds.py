@@ -32,7 +32,7 @@ import scipy.linalg
 from estimators.base import ParameterError
 
 if TYPE_CHECKING:
-    from estimators.cofd import COFDObserver, COFDParams
+    from estimators.cofd_design import COFDObserver
 
 FORCE, MOMENT = (0, 1), (2,)
 """The environment's inputs among E's columns: the horizontal force (b_x, b_y), the yaw moment b_n."""
@@ -242,46 +242,35 @@ def residual_test(
     observers: Sequence[COFDObserver],
     C: np.ndarray,
     E: np.ndarray,
-    params: COFDParams,
+    params: DeclaredEnvironment,
     flat: np.ndarray,
     centred: np.ndarray | None,
     sample_time: float,
+    margin: float,
 ) -> ResidualTest:
     """The residual test of kind ``cofd`` (``params``: its ``COFDParams``, the declared environment
-    checked by ``check_declared``): the flat thresholds ``flat`` throughout, or, with a declared
+    checked by ``cofd.check_declared``): the flat thresholds ``flat`` throughout, or, with a declared
     environment, the ``centred`` ones (``centred_thresholds``) once the learning window is over,
-    and margin × the inertial allowance."""
+    and ``margin`` × the inertial allowance."""
     if not params.declared:
         return ResidualTest(flat, None, params.learning, sample_time)
     ell = flat.shape[1]
-    allowance = InertialAllowance(observers, C[:ell], E, params.margin * params.model_error_ratio, sample_time)
+    allowance = InertialAllowance(observers, C[:ell], E, margin * params.model_error_ratio, sample_time)
     return ResidualTest(flat, centred, params.learning, sample_time, allowance)
 
 
 def centred_thresholds(
-    observers: Sequence[COFDObserver], C: np.ndarray, E: np.ndarray, params: COFDParams, sample_time: float, ell: int
+    observers: Sequence[COFDObserver],
+    C: np.ndarray,
+    E: np.ndarray,
+    params: DeclaredEnvironment,
+    sample_time: float,
+    ell: int,
+    margin: float,
 ) -> np.ndarray | None:
-    """margin × ``centred_bounds`` of each observer's first ``ell`` components (one row per
+    """``margin`` × ``centred_bounds`` of each observer's first ``ell`` components (one row per
     observer), or None without a declared environment."""
     if not params.declared:
         return None
     centred = np.array([centred_bounds(o.F, C[:ell], o.R @ E, params, sample_time) for o in observers])
-    return params.margin * centred
-
-
-def check_declared(params: COFDParams, E: np.ndarray, sample_time: float) -> None:
-    """The declared environment must act on the ship's three unknown inputs and fit in the paper's
-    class, |b| + |d| ≤ ε (``disturbance_bound``), which the flat thresholds hold for."""
-    params.check(sample_time)
-    if E.shape[1] != len(FORCE) + len(MOMENT):
-        raise ParameterError(
-            "current",
-            f"the declared environment acts on three unknown inputs (b_x, b_y, b_n); the model's E has {E.shape[1]}",
-        )
-    if params.bound > params.disturbance_bound:
-        raise ParameterError(
-            "disturbance_bound",
-            f"the declared environment reaches |b| + |d| ≤ {params.bound:g} (current + hypot(wave_force, "
-            f"wave_moment) + model_error) > ε = {params.disturbance_bound:g}: raise disturbance_bound or declare a "
-            "calmer sea",
-        )
+    return margin * centred

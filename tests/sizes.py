@@ -2,7 +2,7 @@
 
 A room a newcomer can read in one sitting is a file of a few hundred lines whose functions fit on
 a screen. ``python -m tests.sizes`` prints the offenders, longest first; ``tests/test_layout.py``
-holds the product to at most ``MAX_LONG_FUNCTIONS`` and ``MAX_LONG_FILES`` of them.
+allows none but those listed in ``LONG_FUNCTIONS_KEPT``, each with the reason it is kept whole.
 
 Lines are counted as they stand in the file (docstrings and comments included): what a reader
 scrolls through. A function's lines are those of its ``def`` statement to its last line, nested
@@ -17,25 +17,41 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PRODUCT = ("cosim", "estimators", "faults", "mjcf")
+PRODUCT = ("cosim", "estimators", "faults", "mjcf", "bench")
 LONG_FUNCTION = 60
 LONG_FILE = 600
-MAX_LONG_FUNCTIONS = 5
-MAX_LONG_FILES = 2
+#: The functions over ``LONG_FUNCTION`` lines kept whole (``path:name``), and why.
+LONG_FUNCTIONS_KEPT: dict[str, str] = {
+    "cosim/analysis/layout.py:_diagnosis_panels": "one Foxglove panel per diagnosis signal group, declared in the "
+    "layout's order; not yet split",
+    "cosim/campaign/coordinator.py:run_campaign": "the campaign's steps in order (resume, batches, engine, table); "
+    "two lines over, not yet split",
+    "estimators/continuous.py:integrate": "one exact integration step of the CDC 2016 observer, its equations in "
+    "the paper's order; two lines over, not yet split",
+    "bench/campaign.py:main": "a benchmark script's steps in order; not yet split",
+    "bench/estimator_step.py:main": "a benchmark script's steps in order; not yet split",
+    "bench/lmi_design.py:main": "a benchmark script's steps in order; not yet split",
+    "bench/masquerade_figure.py:main": "a figure script's steps in order; not yet split",
+    "bench/vessel_fdi.py:report": "a benchmark's report table; not yet split",
+    "bench/codec_log.py:bench_logger": "a benchmark's timed loops; not yet split",
+    "bench/vessel_isolability.py:draw": "a figure's panels; not yet split",
+}
 
 
 @dataclass(frozen=True)
 class Size:
     where: str
+    """The file, and for a function ``file:name``."""
     lines: int
+    line: int = 1
 
 
-def product_files(root: Path = ROOT) -> list[Path]:
-    return sorted(path for package in PRODUCT for path in (root / package).rglob("*.py"))
+def product_files(root: Path = ROOT, packages: tuple[str, ...] = PRODUCT) -> list[Path]:
+    return sorted(path for package in packages for path in (root / package).rglob("*.py"))
 
 
-def long_files(root: Path = ROOT) -> list[Size]:
-    sizes = [Size(str(p.relative_to(root)), len(p.read_text().splitlines())) for p in product_files(root)]
+def long_files(root: Path = ROOT, packages: tuple[str, ...] = PRODUCT) -> list[Size]:
+    sizes = [Size(str(p.relative_to(root)), len(p.read_text().splitlines())) for p in product_files(root, packages)]
     return sorted((s for s in sizes if s.lines > LONG_FILE), key=lambda s: -s.lines)
 
 
@@ -48,18 +64,19 @@ def long_functions(root: Path = ROOT) -> list[Size]:
                 start = min([node.lineno, *(d.lineno for d in node.decorator_list)])
                 lines = node.end_lineno - start + 1
                 if lines > LONG_FUNCTION:
-                    found.append(Size(f"{path.relative_to(root)}:{node.lineno} {node.name}", lines))
+                    found.append(Size(f"{path.relative_to(root)}:{node.name}", lines, node.lineno))
     return sorted(found, key=lambda s: -s.lines)
 
 
 def main() -> int:
-    for title, sizes, limit in (
-        (f"files over {LONG_FILE} lines", long_files(), MAX_LONG_FILES),
-        (f"functions over {LONG_FUNCTION} lines", long_functions(), MAX_LONG_FUNCTIONS),
+    for title, sizes in (
+        (f"files over {LONG_FILE} lines", long_files()),
+        (f"functions over {LONG_FUNCTION} lines", long_functions()),
     ):
-        print(f"{title}: {len(sizes)} (at most {limit})")
+        print(f"{title}: {len(sizes)}")
         for size in sizes:
-            print(f"  {size.lines:5d}  {size.where}")
+            kept = f"  (kept: {LONG_FUNCTIONS_KEPT[size.where]})" if size.where in LONG_FUNCTIONS_KEPT else ""
+            print(f"  {size.lines:5d}  {size.where} (line {size.line}){kept}")
     return 0
 
 

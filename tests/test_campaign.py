@@ -20,9 +20,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from cosim.campaign.coordinator import run_campaign
-from cosim.campaign.leaderboard import bootstrap_median, leaderboard, poisson_rate, wilson
+from cosim.campaign.leaderboard import leaderboard
 from cosim.campaign.results import NONDETERMINISTIC
+from cosim.campaign.scores import poisson_rate, wilson
 from cosim.campaign.spec import builtin_names, load_campaign
+from cosim.campaign.verdicts import bootstrap_median
 from cosim.cli import main
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader

@@ -17,12 +17,12 @@ from estimators.allocation import (
     cluster_ratios,
     pseudo_inverse_allocation,
 )
-from estimators.cofd import (
+from estimators.cofd import COFDDiagnosis
+from estimators.cofd_design import (
     SHIP_CLUSTER_FAMILY,
     SHIP_F,
     SHIP_FAMILY,
     SHIP_PAIRS,
-    COFDDiagnosis,
     DesignError,
     cluster_directions,
     cofd_family,

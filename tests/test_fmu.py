@@ -26,6 +26,7 @@ from cosim.plant.fmu import FmuPlant
 from cosim.run import run
 from cosim.scenario.spec import FmuSpec
 from tests.conftest import ROOT
+from tests.fmu_scenario import scenario_text
 
 fmpy = pytest.importorskip("fmpy", reason="the 'fmi' extra (FMPy) is not installed")
 
@@ -33,24 +34,6 @@ FMUS = ROOT / "tests" / "data" / "fmus"
 VANDERPOL_SCENARIO = FMUS / "vanderpol-bias.toml"
 INTERFACES = ("co-simulation", "model-exchange")
 TOLERANCE = 1e-12
-
-
-def scenario_text(
-    fmu: Path, interface: str, *, duration: float, dt: float, extra: str = "", fmu_table: str = ""
-) -> str:
-    return f"""
-name = "fmu-{fmu.stem}"
-duration = {duration}
-sample_time = {dt}
-{extra}
-
-[plant]
-model = "{fmu}"
-
-[plant.fmu]
-interface = "{interface}"
-{fmu_table}
-"""
 
 
 def load_text(text: str, folder: Path) -> scenario.LoadedScenario:

@@ -26,6 +26,7 @@ from cosim.plant import fmu_model
 from cosim.run import run
 from cosim.scenario.spec import FmuSpec
 from tests.conftest import ROOT
+from tests.fmu_scenario import scenario_text
 from tests.test_fmu import staircase
 
 fmpy = pytest.importorskip("fmpy", reason="the 'fmi' extra (FMPy) is not installed")
@@ -74,19 +75,7 @@ def scenario_for(name: str, interface: str, folder: Path) -> scenario.LoadedScen
     )
     path = folder / "scenario.toml"
     path.write_text(
-        f"""
-name = "corpus"
-duration = {DURATION}
-sample_time = {DT}
-{inputs}
-
-[plant]
-model = "{CORPUS / name}"
-
-[plant.fmu]
-interface = "{interface}"
-{table}
-"""
+        scenario_text(CORPUS / name, interface, duration=DURATION, dt=DT, extra=inputs, fmu_table=table, name="corpus")
     )
     return scenario.load(path)
 

@@ -29,6 +29,7 @@ from cosim.plant.fmu_process import IsolatedFmuPlant
 from cosim.run import run
 from cosim.scenario.spec import FmuSpec
 from tests import misbehaving_fmu
+from tests.fmu_scenario import scenario_text
 
 fmpy = pytest.importorskip("fmpy", reason="the 'fmi' extra (FMPy) is not installed")
 pytestmark = pytest.mark.skipif(misbehaving_fmu.compiler() is None, reason="no C compiler to build the test FMU")
@@ -49,19 +50,7 @@ def fmu(tmp_path_factory) -> Path:
 def write(folder: Path, fmu: Path, *, interface: str = "co-simulation", fmu_table: str = "", extra: str = "") -> Path:
     path = folder / "misbehaving.toml"
     path.write_text(
-        f"""
-name = "misbehaving"
-duration = 0.2
-sample_time = 0.01
-{extra}
-
-[plant]
-model = "{fmu}"
-
-[plant.fmu]
-interface = "{interface}"
-{fmu_table}
-"""
+        scenario_text(fmu, interface, duration=0.2, dt=0.01, extra=extra, fmu_table=fmu_table, name="misbehaving")
     )
     return path
 

@@ -17,7 +17,7 @@ import pytest
 
 from cosim import scenario
 from cosim.cli import main
-from cosim.run import fmu_system, run
+from cosim.run import fmu_ssp, fmu_system, run
 from tests.conftest import ROOT
 from tests.osp_systems import differences, logged_estimates, run_libcosim
 from tests.test_fmu import truth
@@ -43,7 +43,7 @@ def exported(tmp_path_factory):
                 loaded = scenario.LoadedScenario(
                     loaded.scenario.model_copy(update={"estimators": kept}), loaded.source, loaded.text
                 )
-                fmu_system.export(loaded, system, 2)
+                fmu_ssp.export(loaded, system, 2)
             else:
                 command = ["fmu", name, "--set", f"duration={duration}", "--system", "--fmi", "2", "--out", str(system)]
                 assert main(command) == 0

@@ -8,7 +8,8 @@ import pytest
 
 import mjcf
 from cosim import scenario
-from cosim.plant.physics import Plant, load_model
+from cosim.plant.mujoco_model import load_model
+from cosim.plant.physics import Plant
 from cosim.run import run
 from tests.snippets import plant_only
 

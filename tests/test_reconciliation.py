@@ -590,7 +590,7 @@ def test_the_gain_tests_window_system_is_its_statistics_definition():
     """The tick's window system (the whole window, every reading there) reduced by the complement
     of the nuisance columns gives, for any β, T(β) = ‖P⊥ D (Y β − r)‖² with P⊥ = I − Q Qᵀ, Q a basis
     of range(Z), its degrees of freedom N m − rank Z, and the standard errors 1/‖P⊥ D Y_j‖."""
-    from estimators.gain_test import chi2_statistic, gain_standard_errors, gain_test_window, window_system
+    from estimators.gain_identification import chi2_statistic, gain_standard_errors, gain_test_window, window_system
 
     sigma = np.array([0.01, 0.02, 0.01, 0.03])
     window = gain_test_window(A, np.hstack([B, np.ones((3, 1))]), E, C, sigma, WINDOW, 10)

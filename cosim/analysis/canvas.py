@@ -317,6 +317,21 @@ class Canvas:
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
 
+    def finish_pair(
+        self, fig: Figure, axes: tuple[Axes, Axes], ylabels: tuple[str, str], name: str, heading: str
+    ) -> None:
+        """A figure of two panels over time, the values above, their error (log scale) below: the
+        faults shaded in both and named above, the labels, the legend, saved as ``name``."""
+        upper, lower = axes
+        for ax in axes:
+            self.faults_shaded(ax)
+        self.onsets_named(upper)
+        self.finish(upper, ylabels[0])
+        self.finish(lower, ylabels[1])
+        lower.set_xlabel(TIME)
+        self.legend(fig, [upper, lower])
+        self.save(fig, name, heading)
+
     # -- faults and events ------------------------------------------------------------------------
 
     def faults_shaded(self, ax: Axes) -> None:

@@ -130,14 +130,8 @@ def error(c: Canvas) -> None:
             c.estimator(log, name, t, err, log=True)
             errors.append(err)
     log_floor(log, errors)
-    for ax in (linear, log):
-        c.faults_shaded(ax)
-    c.onsets_named(linear)
-    c.finish(linear, f"|x − x̂|{s.norm_unit()}")
-    c.finish(log, "|x − x̂| (log scale)")
-    log.set_xlabel(TIME)
-    c.legend(fig, [linear, log])
-    c.save(fig, "error", "estimation error norm |x − x̂| over the whole state")
+    labels = (f"|x − x̂|{s.norm_unit()}", "|x − x̂| (log scale)")
+    c.finish_pair(fig, (linear, log), labels, "error", "estimation error norm |x − x̂| over the whole state")
 
 
 def faults(c: Canvas) -> None:
@@ -316,14 +310,8 @@ def reconciled_output(c: Canvas) -> None:
         c.estimator(values, name, t, zhat)
         c.estimator(errors, name, t, np.maximum(np.abs(zhat - z), 1e-12), log=True)
     log_floor(errors, [np.abs(zhat - z) for _, zhat, z in outputs.values()])
-    for ax in (values, errors):
-        c.faults_shaded(ax)
-    c.onsets_named(values)
-    c.finish(values, f"virtual output ẑ{s.norm_unit_of(s.sensors)}")
-    c.finish(errors, "|ẑ − z| (log scale)")
-    errors.set_xlabel(TIME)
-    c.legend(fig, [values, errors])
-    c.save(fig, "virtual_output", "reconciled virtual output ẑ against the true z")
+    labels = (f"virtual output ẑ{s.norm_unit_of(s.sensors)}", "|ẑ − z| (log scale)")
+    c.finish_pair(fig, (values, errors), labels, "virtual_output", "reconciled virtual output ẑ against the true z")
 
 
 def cofd_residuals(c: Canvas) -> None:

@@ -268,7 +268,7 @@ def cofd_directions(series: RunSeries, name: str) -> dict[str, str]:
         params = estimators.ESTIMATORS[e.kind].check_params(e.params)
         family = params.family
         if family is None:
-            from estimators.cofd import SHIP_CLUSTER_FAMILY, SHIP_FAMILY
+            from estimators.cofd_design import SHIP_CLUSTER_FAMILY, SHIP_FAMILY
 
             family = SHIP_CLUSTER_FAMILY if getattr(params, "zeta", None) else SHIP_FAMILY
     except Exception:  # another kind, or parameters this version reads differently: plain names

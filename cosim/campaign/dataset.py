@@ -31,49 +31,19 @@ import tempfile
 from collections import Counter
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cosim.campaign.dataset_run import RunTables, read_run
-from cosim.campaign.spec import Campaign, RunSpec, load_campaign
+from cosim.campaign.dataset_card import Written, write_card
+from cosim.campaign.dataset_run import SPLITS, DatasetRun, RunTables, read_run
+from cosim.campaign.spec import Campaign, load_campaign
 from cosim.errors import CosimError
 from cosim.extras import require
 
-SPLITS = ("train", "validation", "test")
 #: The default shares of the replicates in each split.
 FRACTIONS = (0.6, 0.2, 0.2)
 #: Parquet files are written with these settings (the same bytes for the same table).
 PARQUET = {"compression": "zstd", "compression_level": 9, "use_dictionary": True, "write_statistics": True}
-
-
-@dataclass(frozen=True)
-class DatasetRun:
-    """A run of a data set: its campaign, index, replicate, seed, settings columns, split and log."""
-
-    campaign: str
-    spec: RunSpec
-    split: str
-    log: Path
-
-    @property
-    def stem(self) -> str:
-        return f"{self.campaign}-run-{self.spec.index:06d}"
-
-
-@dataclass
-class Written:
-    """What ``build_dataset`` wrote, for the card."""
-
-    folder: Path
-    campaigns: list[tuple[Campaign, Path]] = field(default_factory=list)
-    runs: list[DatasetRun] = field(default_factory=list)
-    skipped: list[dict[str, Any]] = field(default_factory=list)
-    balance: dict[str, dict[str, Counter[str]]] = field(default_factory=dict)
-    plants: dict[str, dict[str, Any]] = field(default_factory=dict)
-    road: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
-    """ROAD's folders (``<split>/ambient``, ``<split>/attacks``) → capture → its metadata."""
-    warnings: list[str] = field(default_factory=list)
 
 
 def split_of(replicates: Sequence[int], fractions: Sequence[float] = FRACTIONS) -> dict[int, str]:
@@ -153,7 +123,6 @@ def build_dataset(
                 on_run(run, i, len(runs))
             _write_run(folder, run, read_run(run.log, estimates), written)
             written.runs.append(run)
-    from cosim.campaign.dataset_card import write_card
     from cosim.campaign.dataset_formats import write_road_metadata
 
     for road_folder, captures in written.road.items():

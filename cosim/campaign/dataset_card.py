@@ -13,13 +13,32 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cosim.campaign.dataset import SPLITS, Written
 from cosim.campaign.dataset_road import AMBIENT, ATTACKS
+from cosim.campaign.dataset_run import SPLITS, DatasetRun
+from cosim.campaign.spec import Campaign
 from cosim.log.metadata import versions
+
+
+@dataclass
+class Written:
+    """What ``build_dataset`` wrote, for the card."""
+
+    folder: Path
+    campaigns: list[tuple[Campaign, Path]] = field(default_factory=list)
+    runs: list[DatasetRun] = field(default_factory=list)
+    skipped: list[dict[str, Any]] = field(default_factory=list)
+    balance: dict[str, dict[str, Counter[str]]] = field(default_factory=dict)
+    plants: dict[str, dict[str, Any]] = field(default_factory=dict)
+    road: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    """ROAD's folders (``<split>/ambient``, ``<split>/attacks``) → capture → its metadata."""
+    warnings: list[str] = field(default_factory=list)
+
 
 #: What each table's columns hold (docs/datasets.md says the same, with the forms side by side).
 COLUMNS: dict[str, dict[str, str]] = {

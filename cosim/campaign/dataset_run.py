@@ -26,10 +26,29 @@ from typing import Any
 from cosim.bus.codec import Codec, estimate_signal
 from cosim.bus.dbc import control_mac_start
 from cosim.bus.secoc import FV_BYTES, MAC_BYTES
+from cosim.campaign.spec import RunSpec
 from cosim.errors import LogError
 from cosim.log.metadata import LogMetadata, RunRecord, logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import BUS_FAULTS, FAULTS, FOREIGN, FRAMES, INPUTS, SENSORS, STATE, carried_tick
+
+#: The splits of a data set, in order.
+SPLITS = ("train", "validation", "test")
+
+
+@dataclass(frozen=True)
+class DatasetRun:
+    """A run of a data set: its campaign, index, replicate, seed, settings columns, split and log."""
+
+    campaign: str
+    spec: RunSpec
+    split: str
+    log: Path
+
+    @property
+    def stem(self) -> str:
+        return f"{self.campaign}-run-{self.spec.index:06d}"
+
 
 NORMAL = "normal"
 #: The events table's columns: every run's file has all of them, a run without a fault too (a

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 from cosim.campaign.verdicts import NOT_SEPARATED, SEPARATED, TIED, judge, paired_comparison, sign_comparison
 
 if TYPE_CHECKING:
-    from cosim.campaign.leaderboard import Entry
+    from cosim.campaign.scores import Entry
 
 Chain = list[tuple[dict[str, Any], "Entry"]]
 """Schemes in ranked order, each with its scores (``vs_next``: its comparison with the next)."""

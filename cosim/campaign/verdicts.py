@@ -21,7 +21,7 @@ The difference is shown as a ratio ``exp(θ̂)`` with θ̂ the Hodges–Lehmann 
 way θ̂ does) and its distribution-free 95 % interval.
 
 Diagnoses (schemes with no estimation error of their own): per run, which of the two diagnosed
-better (``leaderboard.diagnosis_outcome``); the difference by the two-sided sign test (exact
+better (``scores.diagnosis_outcome``); the difference by the two-sided sign test (exact
 binomial, ``scipy.stats.binomtest``) over the runs where they differ, and equivalence by the
 one-sided binomial test that they differ on fewer than a share δ of the runs.
 

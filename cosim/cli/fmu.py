@@ -78,14 +78,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _system(args: argparse.Namespace) -> int:
-    from cosim.run import fmu_system
+    from cosim.run import fmu_ssp
 
     folder = Path(args.out)
     if folder.exists() and not folder.is_dir():
         raise CosimError(f"--out {folder} is a file: with --system it is the folder to write the system into")
     loaded = common.load_scenario(args.scenario, args.set, args.seed)
     talk = common.error_console()
-    for path in fmu_system.export(loaded, folder, args.fmi, args.force):
+    for path in fmu_ssp.export(loaded, folder, args.fmi, args.force):
         talk.print(f"wrote {path}")
     if args.fmi == 3:
         talk.print("note: libcosim (the Open Simulation Platform) runs FMI 2.0 FMUs only: export with --fmi 2 for it")

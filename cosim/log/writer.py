@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 import struct
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, Any, Protocol, Self
 
 import orjson
 from mcap.opcode import Opcode
@@ -156,7 +156,31 @@ class _Writer(Writer):
             self._Writer__finalize_chunk()  # type: ignore[attr-defined]
 
 
-class McapLog:
+class _Log:
+    """What a run's two logs share: a ``with`` block closes it, a topic is registered once."""
+
+    _channels: dict[str, int]
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def channel(self, topic: str, schema: dict[str, Any]) -> int:
+        """Register a topic with its JSON Schema (once); returns its channel id."""
+        if topic not in self._channels:
+            self._channels[topic] = self._register(topic, schema)
+        return self._channels[topic]
+
+    def _register(self, topic: str, schema: dict[str, Any]) -> int:
+        raise NotImplementedError
+
+
+class McapLog(_Log):
     """Writes JSON messages on named topics, each with a JSON Schema, into one MCAP file (and, with
     ``sink``, to the sink too)."""
 
@@ -175,16 +199,7 @@ class McapLog:
         self._sink = sink
         self._teed: dict[int, Any] = {}  # channel id -> the sink's channel
 
-    def __enter__(self) -> McapLog:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def channel(self, topic: str, schema: dict[str, Any]) -> int:
-        """Register a topic with its JSON Schema (once); returns its channel id."""
-        if topic in self._channels:
-            return self._channels[topic]
+    def _register(self, topic: str, schema: dict[str, Any]) -> int:
         title = schema.get("title", topic)
         schema_id = self._writer.register_schema(
             name=title, encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode()
@@ -192,7 +207,6 @@ class McapLog:
         channel_id = self._writer.register_channel(
             topic=topic, message_encoding=MessageEncoding.JSON, schema_id=schema_id
         )
-        self._channels[topic] = channel_id
         self._sequence[channel_id] = 0
         if self._sink is not None:
             self._teed[channel_id] = self._sink.channel(topic, schema)
@@ -243,7 +257,7 @@ class McapLog:
             self._stream.close()
 
 
-class SinkLog:
+class SinkLog(_Log):
     """A run's log that writes no file: what ``McapLog`` would write goes to ``sink`` alone, in the
     same order, as objects rather than JSON bytes (a campaign run whose log is not kept is scored
     so: ``cosim.analysis.metrics.LiveMeasurement``). ``reads(channel)`` tells a writer whether the
@@ -263,16 +277,8 @@ class SinkLog:
         self.messages = 0
         self.closed = False
 
-    def __enter__(self) -> SinkLog:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def channel(self, topic: str, schema: dict[str, Any]) -> int:
-        if topic in self._channels:
-            return self._channels[topic]
-        channel_id = self._channels[topic] = len(self._handles)
+    def _register(self, topic: str, schema: dict[str, Any]) -> int:
+        channel_id = len(self._handles)
         self._topics.append(topic)
         self._handles.append(self._sink.channel(topic, schema))
         self._reads.append(None)

@@ -26,20 +26,44 @@ from __future__ import annotations
 
 import ctypes
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from cosim.errors import ModelError
 from cosim.plant import equilibrium
-from cosim.plant.fmu import FD_STEP, Access, FmuPlant, initialize, instantiate, release, set_continuous_states
 from cosim.plant.fmu_calls import CallWatch, FmuCallError
-from cosim.plant.fmu_model import Element
+from cosim.plant.fmu_instance import Access, initialize, instantiate, release, set_continuous_states
+from cosim.plant.fmu_model import Element, FmuModel
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
 
+#: Relative finite-difference step of the linearization (a power of two: exact perturbations).
+FD_STEP = 2.0**-20
 
-def linearize(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None, dt: float | None) -> LinearModel:
+
+class FmuPlantParts(Protocol):
+    """What the linearization reads of an FMU plant (``cosim.plant.fmu.FmuPlant``), and what it
+    sets: ``warnings``, ``operating_point``, ``equilibria`` (the private parts too, for the
+    linearization is the plant's own: ``FmuPlant.linearize``)."""
+
+    model: FmuModel
+    watch: CallWatch
+    tolerance: float | None
+    duration: float
+    state_names: tuple[str, ...]
+    actuator_names: tuple[str, ...]
+    sensor_names: tuple[str, ...]
+    disturbance_names: tuple[str, ...]
+    warnings: list[str]
+    operating_point: str
+    equilibria: dict[tuple[str, bytes, bytes], np.ndarray | str]
+    _sensors: Access
+    _start: dict[str, Any]
+    _unzipped: str
+
+
+def linearize(plant: FmuPlantParts, x: np.ndarray | None, u: np.ndarray | None, dt: float | None) -> LinearModel:
     """The FMU's linear model at its start point (or at states ``x``, actuator inputs ``u``).
 
     Where the start point is no equilibrium of its inputs, the model is taken at the equilibrium
@@ -106,11 +130,11 @@ class _Linearization:
         nx = len(self.x)
         return self.jacobian[:nx, :nx], self.jacobian[:nx, nx:]
 
-    def at_rest(self, plant: FmuPlant) -> bool:
+    def at_rest(self, plant: FmuPlantParts) -> bool:
         F_x, F_v = self.blocks()
         return equilibrium.at_rest(self.f, F_x, F_v, self.x, self.v, nominals(plant.model))
 
-    def transform(self, plant: FmuPlant) -> np.ndarray | None:
+    def transform(self, plant: FmuPlantParts) -> np.ndarray | None:
         """T = ∂s/∂x where the named states are not the continuous states (None where they are)."""
         model = plant.model
         if model.states == model.continuous_states:
@@ -118,13 +142,13 @@ class _Linearization:
         nx = len(self.x)
         return self.jacobian[nx : nx + len(model.states), :nx]
 
-    def state_matrix(self, plant: FmuPlant) -> np.ndarray:
+    def state_matrix(self, plant: FmuPlantParts) -> np.ndarray:
         """The continuous-time A in the model's states."""
         F_x = self.blocks()[0]
         T = self.transform(plant)
         return F_x if T is None else T @ F_x @ np.linalg.inv(T)
 
-    def drift(self, plant: FmuPlant) -> np.ndarray:
+    def drift(self, plant: FmuPlantParts) -> np.ndarray:
         """The derivative in the model's states: ẋ, or ṡ = T ẋ."""
         T = self.transform(plant)
         return self.f if T is None else T @ self.f
@@ -141,7 +165,7 @@ def nominals(model: Any) -> np.ndarray:
     )
 
 
-def _model(plant: FmuPlant, point: _Linearization, dt: float | None, affine: bool = False) -> LinearModel:
+def _model(plant: FmuPlantParts, point: _Linearization, dt: float | None, affine: bool = False) -> LinearModel:
     """The linear model of the FMU at ``point``; ``affine``: with its drift."""
     model = plant.model
     nx, ns = len(model.continuous_states), len(model.states)
@@ -180,7 +204,7 @@ def _model(plant: FmuPlant, point: _Linearization, dt: float | None, affine: boo
     )
 
 
-def _jacobian(plant: FmuPlant, x: np.ndarray | None, u: np.ndarray | None) -> _Linearization:
+def _jacobian(plant: FmuPlantParts, x: np.ndarray | None, u: np.ndarray | None) -> _Linearization:
     """The FMU at the point, from a fresh model-exchange instance: its start point, or the
     continuous states ``x``, actuator inputs ``u``. Where the FMU provides directional derivatives
     they are the Jacobian, checked against central differences (``plant.warnings`` says where they
@@ -225,7 +249,7 @@ def _directional(model: Any, sensors: Access) -> bool:
     return bool(model.directional) and not any(e.variable.shape for e in continuous)
 
 
-def _equilibrium(plant: FmuPlant, start: _Linearization, u: np.ndarray | None) -> _Linearization | str:
+def _equilibrium(plant: FmuPlantParts, start: _Linearization, u: np.ndarray | None) -> _Linearization | str:
     """The FMU at the point where the search from ``start`` ends (an equilibrium if it is at rest
     there), or what stopped the search: an error of the FMU (its own instance is freed, the plant's
     is untouched)."""
@@ -236,7 +260,7 @@ def _equilibrium(plant: FmuPlant, start: _Linearization, u: np.ndarray | None) -
     return reached if isinstance(reached, str) else _jacobian(plant, reached, u)
 
 
-def _search(plant: FmuPlant, start: _Linearization) -> np.ndarray | str:
+def _search(plant: FmuPlantParts, start: _Linearization) -> np.ndarray | str:
     """Where ``equilibrium.search`` from ``start`` ends, in an instance of its own."""
     model = plant.model
     watch = CallWatch(model.path.name, model.version, plant.watch.slot)
@@ -322,7 +346,7 @@ class _Point:
 RTOL, ATOL = 1e-4, 1e-6
 
 
-def disagreements(name: str, plant: FmuPlant, directional: np.ndarray, differences: np.ndarray) -> list[str]:
+def disagreements(name: str, plant: FmuPlantParts, directional: np.ndarray, differences: np.ndarray) -> list[str]:
     """One warning per matrix (in the FMU's coordinates: A = ∂ẋ/∂x, B = ∂ẋ/∂u, E = ∂ẋ/∂d, C = ∂y/∂x,
     D = ∂y/∂u, and S = ∂s/∂x for named states) whose entries disagree beyond the tolerance, with
     its three worst entries."""

@@ -72,7 +72,7 @@ def is_mjcf(model: str) -> bool:
 
 def compile_model(path: Path) -> mujoco.MjModel:
     """The compiled model; MuJoCo's own message (with the file and line) as a ModelError otherwise."""
-    from cosim.plant.physics import CALLBACKS
+    from cosim.plant.mujoco_model import CALLBACKS
 
     with CALLBACKS:  # the compiler must run without someone else's passive-force callback
         outer = mujoco.get_mjcb_passive()

@@ -6,23 +6,31 @@ inputs, with the drift ``cosim.plant.equilibrium`` decides on (``PlantInfo.drift
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
 
 from cosim.errors import ModelError
 from cosim.plant import equilibrium
-from cosim.plant.physics import FD_STEP, Plant, quasi_static_velocities, substeps
+from cosim.plant.mujoco_model import FD_STEP, quasi_static_velocities, substeps
 from estimators.design import zoh_discretize
 from estimators.model import LinearModel
+from mjcf import PlantInfo
 
 #: Relative size of the length steps in the linearization of a tendon-state plant (× FD_STEP).
 H_STEP = 2.0**10
 
 
 def linearize(
-    plant: Plant, x: np.ndarray | None = None, u: np.ndarray | None = None, *, dt: float | None, method: str = "zoh"
+    plant: MujocoPlant,
+    x: np.ndarray | None = None,
+    u: np.ndarray | None = None,
+    *,
+    dt: float | None,
+    method: str = "zoh",
 ) -> LinearModel:
     """Linearize a MuJoCo plant at the operating point (x, u), from MuJoCo itself.
 
@@ -51,62 +59,113 @@ def linearize(
         return _linearize_joint_state(plant, x, u, dt=dt, method=method)
 
 
-def _linearize_joint_state(
-    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
-) -> LinearModel:
-    """``linearize`` of a plant whose state is [qpos, qvel, act]."""
-    m = plant.model
-    d = mujoco.MjData(m)
-    d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = plant.data.qpos, plant.data.qvel, plant.data.act, plant.data.ctrl
-    if x is not None:
-        d.qpos[:] = x[: m.nq]
-        d.qvel[:] = x[m.nq : m.nq + m.nv]
-        d.act[:] = x[m.nq + m.nv :]
-    if u is not None:
-        d.ctrl[:] = u
-    qpos0, qvel0, act0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy()
-    sensors = plant.sensor_index
-    nv, na, nu = m.nv, m.na, m.nu
-    ndx = 2 * nv + na
+class MujocoPlant(Protocol):
+    """What the linearization reads of a sampled MuJoCo plant (``cosim.plant.physics.Plant``), and
+    ``operating_point``, which it sets (``cosim.plant.equilibrium.declared``): the private parts too,
+    for the linearization is the plant's own (``Plant.linearize``)."""
 
-    def set_point(dx: np.ndarray, du: np.ndarray) -> None:
-        d.qpos[:] = qpos0
+    info: PlantInfo
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    sensor_index: np.ndarray
+    sensor_zero: np.ndarray
+    _known: np.ndarray
+    _unknown: np.ndarray
+    _tendons: np.ndarray | None
+    _tendons_pinv: np.ndarray | None
+    state_names: tuple[str, ...]
+    actuator_names: tuple[str, ...]
+    sensor_names: tuple[str, ...]
+    disturbance_names: tuple[str, ...]
+    operating_point: str
+
+    def physics(self) -> contextlib.AbstractContextManager[Any]: ...
+
+
+class _JointPoint:
+    """A copy of the plant's data at the point (x, u) of its joint state [qpos, qvel, act], moved
+    from there along MuJoCo's tangent space (positions with ``mj_integratePos``)."""
+
+    def __init__(self, plant: MujocoPlant, x: np.ndarray | None, u: np.ndarray | None, dt: float | None) -> None:
+        m = self.model = plant.model
+        d = self.data = mujoco.MjData(m)
+        d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = plant.data.qpos, plant.data.qvel, plant.data.act, plant.data.ctrl
+        if x is not None:
+            d.qpos[:] = x[: m.nq]
+            d.qvel[:] = x[m.nq : m.nq + m.nv]
+            d.act[:] = x[m.nq + m.nv :]
+        if u is not None:
+            d.ctrl[:] = u
+        self.qpos, self.qvel, self.act, self.ctrl = d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy()
+        self.sensors = plant.sensor_index
+        self.ndx = 2 * m.nv + m.na
+        self.nstep = substeps(dt, m.opt.timestep, plant.info.model_file) if dt is not None else 0
+
+    def _set(self, dx: np.ndarray, du: np.ndarray) -> None:
+        m, d, nv = self.model, self.data, self.model.nv
+        d.qpos[:] = self.qpos
         mujoco.mj_integratePos(m, d.qpos, dx[:nv], 1.0)
-        d.qvel[:] = qvel0 + dx[nv : 2 * nv]
-        d.act[:] = act0 + dx[2 * nv :]
-        d.ctrl[:] = ctrl0 + du
+        d.qvel[:] = self.qvel + dx[nv : 2 * nv]
+        d.act[:] = self.act + dx[2 * nv :]
+        d.ctrl[:] = self.ctrl + du
         d.time = 0.0
 
-    def continuous(dx: np.ndarray, du: np.ndarray) -> np.ndarray:
-        set_point(dx, du)
+    def continuous(self, dx: np.ndarray, du: np.ndarray) -> np.ndarray:
+        """ẋ and the sensors at the point moved by (dx, du)."""
+        m, d = self.model, self.data
+        self._set(dx, du)
         mujoco.mj_forward(m, d)
-        return np.concatenate([d.qvel, d.qacc, d.act_dot, d.sensordata[sensors]])
+        return np.concatenate([d.qvel, d.qacc, d.act_dot, d.sensordata[self.sensors]])
 
-    def stepped(dx: np.ndarray, du: np.ndarray) -> np.ndarray:
-        set_point(dx, du)
+    def stepped(self, dx: np.ndarray, du: np.ndarray) -> np.ndarray:
+        """The change of the state over one simulated step from the point moved by (dx, du), and the
+        sensors there."""
+        m, d = self.model, self.data
+        self._set(dx, du)
         mujoco.mj_forward(m, d)
-        y = d.sensordata[sensors].copy()
-        mujoco.mj_step(m, d, nstep=nstep)
-        dq = np.zeros(nv)
-        mujoco.mj_differentiatePos(m, dq, 1.0, qpos0, d.qpos)
-        return np.concatenate([dq, d.qvel - qvel0, d.act - act0, y])
+        y = d.sensordata[self.sensors].copy()
+        mujoco.mj_step(m, d, nstep=self.nstep)
+        dq = np.zeros(m.nv)
+        mujoco.mj_differentiatePos(m, dq, 1.0, self.qpos, d.qpos)
+        return np.concatenate([dq, d.qvel - self.qvel, d.act - self.act, y])
 
-    nstep = substeps(dt, m.opt.timestep, plant.info.model_file) if dt is not None else 0
-    f = stepped if method == "step" and dt is not None else continuous
+
+def _linearize_joint_state(
+    plant: MujocoPlant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
+) -> LinearModel:
+    """``linearize`` of a plant whose state is [qpos, qvel, act]."""
+    point = _JointPoint(plant, x, u, dt)
+    m, ndx, nu = plant.model, point.ndx, plant.model.nu
+    stepped = method == "step" and dt is not None
+    f = point.stepped if stepped else point.continuous
     jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
     A, BE = jac_x[:ndx], jac_u[:ndx]
     C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
-    if f is continuous and dt is not None:
+    if not stepped and dt is not None:
         A, BE = zoh_discretize(A, BE, dt)
-    B, E = BE[:, plant._known], BE[:, plant._unknown]
     at = f(np.zeros(ndx), np.zeros(nu))  # ẋ at the point (or its change over one step), and the sensors
-    x_op = np.concatenate([qpos0, qvel0, act0]) if m.nq == nv else None
-    drift = equilibrium.declared(plant, at[:ndx], jac_x[:ndx], jac_u[:ndx], x_op, ctrl0, dt, stepped=f is stepped)
+    x_op = np.concatenate([point.qpos, point.qvel, point.act]) if m.nq == m.nv else None
+    drift = equilibrium.declared(plant, at[:ndx], jac_x[:ndx], jac_u[:ndx], x_op, point.ctrl, dt, stepped=stepped)
     state_names = plant.state_names if len(plant.state_names) == ndx else tuple(f"dx{i}" for i in range(ndx))
+    return _linear_model(plant, (A, BE, C, D), dt, state_names, (x_op, point.ctrl, at[ndx:]), drift)
+
+
+def _linear_model(
+    plant: MujocoPlant,
+    matrices: tuple[np.ndarray, ...],
+    dt: float | None,
+    state_names: tuple[str, ...],
+    point: tuple[np.ndarray | None, np.ndarray, np.ndarray],
+    drift: np.ndarray | None,
+) -> LinearModel:
+    """The model of ``matrices`` = (A, [B E], C, D) about ``point`` = (x, every actuator's ctrl,
+    the sensors' readings there)."""
+    A, BE, C, D = matrices
+    x_op, ctrl, y = point
     return LinearModel(
         A,
-        B,
+        BE[:, plant._known],
         C,
         D,
         dt,
@@ -114,16 +173,16 @@ def _linearize_joint_state(
         plant.actuator_names,
         plant.sensor_names,
         x_op=x_op,
-        u_op=ctrl0[plant._known],
-        y_op=at[ndx:] - plant.sensor_zero,
-        E=E,
+        u_op=ctrl[plant._known],
+        y_op=y - plant.sensor_zero,
+        E=BE[:, plant._unknown],
         disturbances=plant.disturbance_names,
         drift=drift,
     )
 
 
 def _linearize_tendon_state(
-    plant: Plant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
+    plant: MujocoPlant, x: np.ndarray | None, u: np.ndarray | None, *, dt: float | None, method: str
 ) -> LinearModel:
     """Linearization in the state tendons' lengths h = T qpos, the other coordinates eliminated.
 
@@ -160,62 +219,59 @@ def _linearize_tendon_state(
     m.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL
     try:
         d.qvel[:] = quasi_static_velocities(m, d)
-        qpos0, qvel0, ctrl0 = d.qpos.copy(), d.qvel.copy(), d.ctrl.copy()
-        sensors, ns, nv, nu = plant.sensor_index, T.shape[0], m.nv, m.nu
-
-        def forces(dh: np.ndarray, dv: np.ndarray, du: np.ndarray) -> np.ndarray:
-            d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + T_pinv @ dh, qvel0 + dv, ctrl0 + du
-            mujoco.mj_forward(m, d)
-            return np.concatenate([d.qfrc_smooth, d.sensordata[sensors]])
-
-        vscale = np.maximum(np.abs(qvel0), 1e-3 * max(np.max(np.abs(qvel0)), FD_STEP))  # relative steps
-        zs, zv, zu = np.zeros(ns), np.zeros(nv), np.zeros(nu)
-        # Lengths are sums of large coordinates: a step of 2⁻¹⁰ length units keeps qpos rounding out
-        # of the differences (tendon springs and gauges are linear in the lengths).
-        jac_h = _central_difference(lambda dh: forces(dh * H_STEP, zv, zu), ns) / H_STEP
-        jac_v = _central_difference(lambda dv: forces(zs, dv * vscale, zu), nv) / vscale
-        jac_u = _central_difference(lambda du: forces(zs, zv, du), nu)
-        _require_tendon_state(plant, d, (qpos0, qvel0, ctrl0), jac_h[:nv])
-        f_v = jac_v[:nv]
-        if np.linalg.cond(f_v) > 1e12:
-            raise ModelError(
-                f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)"
-            )
-        dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
-        dv_du = -np.linalg.solve(f_v, jac_u[:nv])
-        A, BE = T @ dv_dh, T @ dv_du
-        C = jac_h[nv:] + jac_v[nv:] @ dv_dh
-        D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
+        point = d.qpos.copy(), d.qvel.copy(), d.ctrl.copy()
+        qpos0, qvel0, ctrl0 = point
+        A, BE, C, D = _quasi_static_jacobians(plant, d, point)
         h0 = T @ qpos0
         drift = equilibrium.declared(plant, T @ qvel0, A, BE, h0, ctrl0, dt)  # ḣ = T v* at the point
         if dt is not None and method == "step":
-            A, BE = _stepped_tendon_model(plant, d, (qpos0, qvel0, ctrl0), dt)
+            A, BE = _stepped_tendon_model(plant, d, point, dt)
         elif dt is not None:
             A, BE = zoh_discretize(A, BE, dt)
         d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0, qvel0, ctrl0
         mujoco.mj_forward(m, d)
-        y0 = d.sensordata[sensors].copy()
+        y0 = d.sensordata[plant.sensor_index].copy()
     finally:
         m.opt.disableflags = flags
-    return LinearModel(
-        A,
-        BE[:, plant._known],
-        C,
-        D,
-        dt,
-        plant.state_names,
-        plant.actuator_names,
-        plant.sensor_names,
-        x_op=h0,
-        u_op=ctrl0[plant._known],
-        y_op=y0 - plant.sensor_zero,
-        E=BE[:, plant._unknown],
-        disturbances=plant.disturbance_names,
-        drift=drift,
-    )
+    return _linear_model(plant, (A, BE, C, D), dt, plant.state_names, (h0, ctrl0, y0), drift)
 
 
-def _require_tendon_state(plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], f_h: np.ndarray) -> None:
+def _quasi_static_jacobians(
+    plant: MujocoPlant, d: mujoco.MjData, point: tuple[np.ndarray, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A_c, [B_c E_c], C, D) of a tendon-state plant at ``point`` = (qpos, qvel, ctrl), its
+    velocities quasi-steady there: see ``_linearize_tendon_state``."""
+    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    assert T is not None and T_pinv is not None
+    qpos0, qvel0, ctrl0 = point
+    sensors, ns, nv, nu = plant.sensor_index, T.shape[0], m.nv, m.nu
+
+    def forces(dh: np.ndarray, dv: np.ndarray, du: np.ndarray) -> np.ndarray:
+        d.qpos[:], d.qvel[:], d.ctrl[:] = qpos0 + T_pinv @ dh, qvel0 + dv, ctrl0 + du
+        mujoco.mj_forward(m, d)
+        return np.concatenate([d.qfrc_smooth, d.sensordata[sensors]])
+
+    vscale = np.maximum(np.abs(qvel0), 1e-3 * max(np.max(np.abs(qvel0)), FD_STEP))  # relative steps
+    zs, zv, zu = np.zeros(ns), np.zeros(nv), np.zeros(nu)
+    # Lengths are sums of large coordinates: a step of 2⁻¹⁰ length units keeps qpos rounding out
+    # of the differences (tendon springs and gauges are linear in the lengths).
+    jac_h = _central_difference(lambda dh: forces(dh * H_STEP, zv, zu), ns) / H_STEP
+    jac_v = _central_difference(lambda dv: forces(zs, dv * vscale, zu), nv) / vscale
+    jac_u = _central_difference(lambda du: forces(zs, zv, du), nu)
+    _require_tendon_state(plant, d, point, jac_h[:nv])
+    f_v = jac_v[:nv]
+    if np.linalg.cond(f_v) > 1e12:
+        raise ModelError(
+            f"{plant.info.model_file}: cannot eliminate the velocities at this point (a flow at zero head?)"
+        )
+    dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
+    dv_du = -np.linalg.solve(f_v, jac_u[:nv])
+    C = jac_h[nv:] + jac_v[nv:] @ dv_dh
+    D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
+    return T @ dv_dh, T @ dv_du, C, D
+
+
+def _require_tendon_state(plant: MujocoPlant, d: mujoco.MjData, point: tuple[np.ndarray, ...], f_h: np.ndarray) -> None:
     """Positions off the state tendons (the null space of T) must not change the forces, or the
     tendon lengths h are not a state; ``f_h`` is ∂f/∂h at ``point`` = (qpos, qvel, ctrl)."""
     m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
@@ -235,7 +291,7 @@ def _require_tendon_state(plant: Plant, d: mujoco.MjData, point: tuple[np.ndarra
 
 
 def _stepped_tendon_model(
-    plant: Plant, d: mujoco.MjData, point: tuple[np.ndarray, ...], dt: float
+    plant: MujocoPlant, d: mujoco.MjData, point: tuple[np.ndarray, ...], dt: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """(A, [B E]) of the simulation itself over dt about ``point`` = (qpos, qvel, ctrl): levels
     perturbed, velocities quasi-steady, ``mj_step``."""

@@ -1,7 +1,8 @@
-"""A system of FMUs (``cosim.run.fmu_system.System``) as the files co-simulation engines read: an
-SSP archive (the Modelica Association's System Structure and Parameterization 1.0: ``.ssp``, a zip
-of ``SystemStructure.ssd`` and the FMUs under ``resources/``) and the Open Simulation Platform's
-``OspSystemStructure.xml`` (libcosim's own format, version 0.1) beside the FMUs.
+"""A system of FMUs (``cosim.run.fmu_system.System``) as the files co-simulation engines read, written
+with its FMUs by ``export`` (``cosim fmu --system``): an SSP archive (the Modelica Association's
+System Structure and Parameterization 1.0: ``.ssp``, a zip of ``SystemStructure.ssd`` and the FMUs
+under ``resources/``) and the Open Simulation Platform's ``OspSystemStructure.xml`` (libcosim's own
+format, version 0.1) beside the FMUs.
 
 Both name each FMU as a component (the plant, the estimators, the controller), wire its outputs to
 inputs, and give the system's fixed step: in the SSD as OSP's annotation of the default
@@ -18,7 +19,10 @@ from typing import Any
 
 from lxml import etree  # FMPy's XML library (the fmi extra): each document declares its own prefixes
 
-from cosim.run.fmu_system import Component, System
+from cosim.errors import CosimError
+from cosim.run.fmu_export import package
+from cosim.run.fmu_system import Component, System, build
+from cosim.scenario import LoadedScenario
 
 SubElement = etree.SubElement
 
@@ -106,3 +110,20 @@ def write_ssp(system: System, fmus: dict[str, Path], out: Path) -> Path:
         for component, path in fmus.items():
             archive.write(path, f"resources/{fmu_file(component)}")
     return out
+
+
+def export(loaded: LoadedScenario, folder: Path, fmi: int = 3, force: bool = False) -> list[Path]:
+    """Write the scenario's system to ``folder``: each component's FMU, ``OspSystemStructure.xml``
+    beside them and the SSP archive ``<scenario>.ssp``; returns the files written. A file that is
+    there already is refused unless ``force``."""
+    system = build(loaded)
+    fmus = {c.name: folder / fmu_file(c.name) for c in system.components}
+    osp, ssp = folder / OSP_FILE, folder / f"{system.name}.ssp"
+    taken = [str(p) for p in [*fmus.values(), osp, ssp] if p.exists()]
+    if taken and not force:
+        raise CosimError(f"{', '.join(taken)} exist: choose another folder, or pass --force to replace them")
+    folder.mkdir(parents=True, exist_ok=True)
+    for component in system.components:
+        package(component.content, fmus[component.name], fmi, component.files, component.platforms)
+    osp.write_bytes(osp_system_structure(system))
+    return [*fmus.values(), osp, write_ssp(system, fmus, ssp)]

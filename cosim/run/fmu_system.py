@@ -225,23 +225,3 @@ def connections(components: list[Component]) -> list[Connection]:
         else:
             wires += [Connection(commander, v["name"], component.name, v["name"]) for v in content["commands"]]
     return wires
-
-
-def export(loaded: LoadedScenario, folder: Path, fmi: int = 3, force: bool = False) -> list[Path]:
-    """Write the scenario's system to ``folder``: each component's FMU, ``OspSystemStructure.xml``
-    beside them and the SSP archive ``<scenario>.ssp``; returns the files written. A file that is
-    there already is refused unless ``force``."""
-    from cosim.run.fmu_export import package
-    from cosim.run.fmu_ssp import OSP_FILE, fmu_file, osp_system_structure, write_ssp
-
-    system = build(loaded)
-    fmus = {c.name: folder / fmu_file(c.name) for c in system.components}
-    osp, ssp = folder / OSP_FILE, folder / f"{system.name}.ssp"
-    taken = [str(p) for p in [*fmus.values(), osp, ssp] if p.exists()]
-    if taken and not force:
-        raise CosimError(f"{', '.join(taken)} exist: choose another folder, or pass --force to replace them")
-    folder.mkdir(parents=True, exist_ok=True)
-    for component in system.components:
-        package(component.content, fmus[component.name], fmi, component.files, component.platforms)
-    osp.write_bytes(osp_system_structure(system))
-    return [*fmus.values(), osp, write_ssp(system, fmus, ssp)]

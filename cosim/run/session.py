@@ -18,7 +18,6 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from collections import Counter
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
@@ -36,21 +35,21 @@ from cosim.bus.transport import BusConfig, drain, drain_silent, open_bus, send_a
 from cosim.bus.udp import ForeignDatagram
 from cosim.bus.wire import Transmission, bits_of
 from cosim.errors import CosimError
-from cosim.log.metadata import BUS, RESULT, ResultRecord, SenderCounts
+from cosim.log.metadata import BUS, RESULT, ResultRecord
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog, RecordSink, SinkLog
 from cosim.run.arbitration import Arbitration
 from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
+from cosim.run.foreign_traffic import ForeignTraffic
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant, remove_stale_workdirs
-from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, flood_report, kernel_drops, last_words
+from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, kernel_drops, last_words
 from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
 _HEALTH = 0.25  # s: how often it asks its participants whether they are still alive
 _LEFT_GRACE = 1.0  # s: a participant whose stopped heartbeat is this old and that answers no more has left
-_FOREIGN_RECORDS = 64  # foreign arrivals logged one by one per tick; the rest as counts
 _STOP, _STOP_HURRY = 5.0, 0.5  # s: how long a node may take to exit after the stop command (hurried: 2nd Ctrl-C)
 _FLUSH_SIMULATED, _FLUSH_TICKS = 1.0, 50  # chunks put on disk every 1 s of simulated time and 50 ticks, at least
 _PENDING = 20_000  # frames held unlogged at most, whatever floods the bus
@@ -127,10 +126,6 @@ class Session:
         self.tick_start: float | None = None
         self._marker = (0, 0.0, 0)  # the tick whose received frames are still to be logged
         self._stack = ExitStack()
-        self.foreign = {"datagrams": 0, "frames": 0}
-        self._foreign_this_tick = 0  # foreign records written in the current tick (at most _FOREIGN_RECORDS)
-        self._foreign_more: Counter[tuple[str, str]] = Counter()  # (kind, reason) -> not written one by one
-        self._last_foreign: str | None = None  # the latest foreign frame, for the error that follows it
         self._flushed = 0  # the tick at which the log last put its chunk on disk
 
     def __enter__(self) -> Session:
@@ -150,6 +145,7 @@ class Session:
             if self._registration is not None:
                 stack.enter_context(self._registration)
             self.recorder = RunRecorder(self.log, self.codec, **self._recorder_args)
+            self.foreign = ForeignTraffic(self.recorder, self.codec, lambda: self._marker[0], self.time)
             self.traffic = Traffic(
                 self.codec,
                 self.recorder,
@@ -196,41 +192,7 @@ class Session:
     # -- what does not belong -------------------------------------------------------------------
 
     def _foreign_datagram(self, datagram: ForeignDatagram) -> None:
-        self.foreign["datagrams"] += 1
-        self._record_foreign("datagram", datagram.reason, datagram.source, datagram.length, datagram.data)
-
-    def _foreign_frame(self, frame: can.Message, reason: str, seq: int | None = None, source: str = "") -> None:
-        self.foreign["frames"] += 1
-        spec = self.codec.spec_of(frame)
-        name = spec.name if spec is not None else f"0x{frame.arbitration_id:03X}"
-        self._last_foreign = f"{name} (id 0x{frame.arbitration_id:03X}, data {bytes(frame.data).hex() or '-'})"
-        self._record_foreign("frame", reason, source, len(frame.data), bytes(frame.data), frame.arbitration_id, seq)
-
-    def _record_foreign(
-        self,
-        kind: str,
-        reason: str,
-        source: str,
-        length: int,
-        data: bytes,
-        frame_id: int | None = None,
-        seq: int | None = None,
-    ) -> None:
-        """Log it, one record each up to _FOREIGN_RECORDS per tick, then as counts at the tick's end;
-        a frame logged on /can/frames (``seq``: an intruder's) always gets its record, which labels it."""
-        k = self._marker[0]
-        if seq is not None or self._foreign_this_tick < _FOREIGN_RECORDS:
-            self._foreign_this_tick += seq is None
-            self.recorder.foreign(k, *self.time(k), kind, reason, source, length, data[:64], frame_id, seq=seq)
-        else:
-            self._foreign_more[(kind, reason)] += 1
-
-    def _close_foreign(self) -> None:
-        k = self._marker[0]
-        for (kind, reason), count in self._foreign_more.items():
-            self.recorder.foreign(k, *self.time(k), kind, reason, "", 0, b"", None, count)
-        self._foreign_more.clear()
-        self._foreign_this_tick = 0
+        self.foreign.datagram(datagram)
 
     # -- waiting --------------------------------------------------------------------------------
 
@@ -290,18 +252,7 @@ class Session:
         return getattr(self.bus, "kernel_dropped", 0)
 
     def _after_foreign(self, reason: str) -> str:
-        """A failure's report, naming the foreign frame that came before it, if one did, and the flood
-        when what the run did not send came fast (or overflowed the kernel's buffer)."""
-        if self._last_foreign is None:
-            return reason
-        flood = flood_report(
-            self.foreign["frames"] + self.foreign["datagrams"],
-            time.perf_counter() - self.start,
-            self.kernel_dropped,
-            self._last_foreign,
-        )
-        before = flood or f"a frame the run did not send came before: {self._last_foreign}"
-        return f"{reason}\n({before}; see /cosim/foreign in the log)"
+        return self.foreign.report(reason, time.perf_counter() - self.start, self.kernel_dropped)
 
     def join(self) -> None:
         """Wait for the participants: every one must join (its boot-up heartbeat) before tick 0."""
@@ -330,7 +281,7 @@ class Session:
         if self.traffic.own_foreign:  # frames on other ids before tick 0 are a flood's or a program's, counted
             raise CosimError(
                 f"another co-simulation sends on {self.config.describe()} (frames on this run's SYNC, sensor or "
-                f"command ids arrive that this run did not send: {self._last_foreign}); give this run another port, or "
+                f"command ids arrive that this run did not send: {self.foreign.last}); give this run another port, or "
                 f"leave port and channel empty for fresh ones"
             )
 
@@ -381,7 +332,7 @@ class Session:
         self.traffic.sent([frame for frame, _ in frames])
         send_all(self.bus, [frame for frame, _ in frames])
         self.traffic.flush(*self._marker)
-        self._close_foreign()
+        self.foreign.close_tick()
         t, t_ns = self.time(k)
         if k - self._flushed >= _FLUSH_TICKS and t - self.time(self._flushed)[0] >= _FLUSH_SIMULATED:
             self._flushed = k  # on disk whatever kills the runner later; at ticks, not wall time: deterministic
@@ -428,7 +379,7 @@ class Session:
         detector must find by itself)."""
         if self.detector is not None:
             self.detector.foreign(self.traffic.current, frame)
-        self._foreign_frame(frame, reason)
+        self.foreign.frame(frame, reason)
 
     def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
         """A frame SecOC dropped, on /cosim/security at the tick the runner is in."""
@@ -449,7 +400,7 @@ class Session:
         """An intruder's frame, just logged: foreign, whatever its id (the run knows it did not come
         from the id's owner), its record naming the fault (``source``) and the frame's place on /can/frames."""
         reason = f"sent by an intruder (fault {label}), not by the owner of its id"
-        self._foreign_frame(frame, reason, self.recorder.frames - 1, label)
+        self.foreign.frame(frame, reason, self.recorder.frames - 1, label)
 
     def _send_arbitrated(
         self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None
@@ -459,7 +410,7 @@ class Session:
         assert self.arbitration is not None
         self.traffic.current = k
         self.traffic.flush(*self._marker)
-        self._close_foreign()
+        self.foreign.close_tick()
         step = self.arbitration.tick(
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
@@ -563,7 +514,7 @@ class Session:
         if self.arbitration is not None:
             self._log_passages(self.arbitration.finish())
         self._verdicts(k)
-        self._close_foreign()
+        self.foreign.close_tick()
         contested, dropped = len(self.traffic.contested), self.kernel_dropped
         achieved = t_end / loop if loop > 0 else float("inf")
         self.warnings += self.traffic.contested_warning() + [
@@ -572,7 +523,7 @@ class Session:
         ]
         for warning in self.warnings:
             self.event(k, "warning", warning, "warning")
-        counts = self._sender_counts(k, senders)
+        counts = self.traffic.sender_counts(k, senders, {p.name for p in self.participants if p.lockstep})
         lost = sum(c.lost + c.runner_frames_missed for c in counts.values())
         self.event(
             k, "stop", status if not error else f"{status}: {error}", "info" if status == "completed" else "error"
@@ -587,7 +538,7 @@ class Session:
                 self.misses,
                 error,
                 counts,
-                self.foreign,
+                self.foreign.counts,
                 self.failed,
                 self.late_ticks,
                 contested,
@@ -644,18 +595,3 @@ class Session:
             for frame in drain(self.bus, min(0.02, end - now)):
                 traffic(frame)
                 quiet_until = time.perf_counter() + 0.1
-
-    def _sender_counts(self, k: int, senders: list[str]) -> dict[str, SenderCounts]:
-        """Per sender: frames received, lost on the way (of a node answering every tick: every
-        frame of k ticks not received), the runner's frames it missed, and those logged late."""
-        traffic = self.traffic
-        answering = {p.name for p in self.participants if p.lockstep}
-        return {
-            name: SenderCounts(
-                traffic.received[name],
-                traffic.missing(name, k) if name in answering else traffic.lost[name],
-                traffic.missed_by.get(name, 0),
-                traffic.late[name],
-            )
-            for name in senders
-        }

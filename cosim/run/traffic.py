@@ -13,6 +13,7 @@ from cosim.bus.codec import BOOTUP, CLIENT, COMMAND, CONTROL, ESTIMATE, HEARTBEA
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import Rejection, SecOC
 from cosim.errors import CodecError
+from cosim.log.metadata import SenderCounts
 from cosim.log.recorder import RunRecorder
 
 
@@ -225,3 +226,16 @@ class Traffic(can.Listener):
         """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
         expected = ticks * len(self.codec.data_messages(sender))
         return max(self.lost[sender], expected - self.data[sender])
+
+    def sender_counts(self, k: int, senders: list[str], answering: set[str]) -> dict[str, SenderCounts]:
+        """Per sender: frames received, lost on the way (of a node ``answering`` every tick: every
+        frame of k ticks not received), the runner's frames it missed, and those logged late."""
+        return {
+            name: SenderCounts(
+                self.received[name],
+                self.missing(name, k) if name in answering else self.lost[name],
+                self.missed_by.get(name, 0),
+                self.late[name],
+            )
+            for name in senders
+        }

@@ -1,6 +1,7 @@
-"""The gain test (ours: γ̂ changes only on evidence; docs/three-tank.md, "The gain test"): the
-model window's consistency equations (50), whitened by the readings' noise, as a χ² test of the
-current gains and of the hypotheses of what changed, over the last N samples.
+"""Which sensor gains changed, identified by the gain test (ours: γ̂ changes only on evidence;
+docs/three-tank.md, "The gain test"): the model window's consistency equations (50), whitened by
+the readings' noise, as a χ² test of the current gains and of the hypotheses of what changed, over
+the last N samples.
 """
 
 from __future__ import annotations

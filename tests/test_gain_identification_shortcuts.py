@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.gain_test import gain_test_window, normal_inverse, window_system
+from estimators.gain_identification import gain_test_window, normal_inverse, window_system
 from tests.test_reconciliation import TRUE_GAINS, WINDOW, A, B, C, E, linear_window
 
 
