@@ -18,6 +18,7 @@ from tests.doc_blocks import ROOT, Block, all_blocks, problems, shown_lines_matc
 pytestmark = pytest.mark.xdist_group("docs")  # the run blocks share one folder: one worker runs them in order
 
 
+@pytest.mark.slow
 def test_the_site_builds_strictly_with_its_api_reference_and_search(tmp_path):
     site = tmp_path / "site"
     command = ["mkdocs", "build", "--strict", "--config-file", str(ROOT / "mkdocs.yml"), "-d", str(site)]
@@ -71,6 +72,7 @@ def run_block(block: Block, folder: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_the_run_blocks_run_and_print_what_they_show(tmp_path):
     """In the order of the pages, in one folder (a block may read what an earlier one wrote), which
     holds links to the repository's examples/ and scenarios/ as a checkout does; a block that
