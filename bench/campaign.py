@@ -35,15 +35,16 @@ Usage: python bench/campaign.py [--json] [--scenario NAME | --campaign NAME] [--
 
 from __future__ import annotations
 
-import json
+import argparse
 import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import bench_parser  # noqa: E402
+from bench.common import bench_parser, print_figures  # noqa: E402
 from cosim.campaign.coordinator import run_campaign  # noqa: E402
 from cosim.campaign.spec import load_campaign  # noqa: E402
 
@@ -115,7 +116,8 @@ def memory(folder: Path, runs: int, workers: int) -> dict[str, float]:
     }
 
 
-def main() -> int:
+def parser() -> argparse.ArgumentParser:
+    """The benchmark's command line (the workload, the clusters, and the optional figures)."""
     parser = bench_parser(__doc__)
     parser.add_argument("--scenario", default="masses-bias", help="the built-in scenario (default masses-bias)")
     parser.add_argument("--campaign", help="a built-in campaign instead (its grid and seeds; --duration set)")
@@ -128,61 +130,51 @@ def main() -> int:
     parser.add_argument(
         "--memory-runs", type=int, default=0, help="also measure the coordinator over this many tiny runs"
     )
-    args = parser.parse_args()
+    return parser
+
+
+def throughput(campaign, folder: Path, args: argparse.Namespace, logged: float) -> dict[str, Any]:
+    """The campaign batched on all workers, one at a time on all workers, and batched on one worker:
+    its rates, speedups, the engine's overhead per run, and whether the three tables agree."""
     import pyarrow.parquet as pq
 
-    with tempfile.TemporaryDirectory() as folder:
-        if args.campaign:
-            campaign = load_campaign(args.campaign, settings=[("duration", args.duration)])
-            args.scenario = campaign.spec.scenario
-        else:
-            campaign = load_campaign(campaign_file(Path(folder), args.runs, args.duration, args.scenario))
-        logged = logged_run(Path(folder), args.duration, args.logged, args.scenario)
-        results = {}
-        for key, workers, batch in (
-            ("batched", args.workers, args.batch),
-            ("alone", args.workers, 1),
-            ("one", 1, args.batch),
-        ):
-            results[key] = run_campaign(
-                campaign, Path(folder) / key, engine="dask", workers=workers, keep_logs="none", batch=batch
-            )
-        many, alone, one = results["batched"], results["alone"], results["one"]
-        tables = [pq.read_table(r.path).drop(["wall_time_s"]) for r in (many, alone, one)]
-        mean_run = alone.run_time / alone.runs
-        overhead = (alone.loop_time * alone.workers - alone.run_time) / alone.runs
-        from cosim.campaign.coordinator import batches
+    from cosim.campaign.coordinator import batches
 
-        largest = max(len(b) for b in batches(campaign.runs(), args.batch, args.workers))
-        figures = {
-            "scenario": args.scenario,
-            "campaign": args.campaign or "",
-            "runs_per_hour": round(3600 * many.runs / many.loop_time, 1),
-            "runs_per_hour_unbatched": round(3600 * alone.runs / alone.loop_time, 1),
-            "batch_speedup": round(alone.loop_time / many.loop_time, 3),
-            "batch": largest,
-            "batched_runs": many.batched,
-            "identical": tables[0].equals(tables[1]) and tables[0].equals(tables[2]),
-            "workers": many.workers,
-            "speedup": round(one.loop_time / many.loop_time, 3),
-            "overhead_per_run_s": round(overhead, 4),
-            "overhead_fraction": round(overhead / mean_run, 4),
-            "mean_run_s": round(mean_run, 3),
-            "startup_s": round(many.startup_time, 2),
-            "logged_run_s": round(logged, 3),
-            "campaign_run_cost_s": round(many.loop_time * many.workers / many.runs, 3),
-            "campaign_run_cost_1w_s": round(one.loop_time / one.runs, 3),
-            "cost_over_logged_run": round(many.loop_time * many.workers / many.runs / logged, 3),
-            "runs": many.runs,
-            "failed": one.failed + many.failed + alone.failed,
-        }
-        if args.sweep:
-            figures["sweep"] = sweep([int(k) for k in args.sweep.split(",")], args.duration, args.scenario)
-        if args.memory_runs:
-            figures |= memory(Path(folder), args.memory_runs, args.workers)
-    if args.json:
-        print(json.dumps(figures))
-        return 0
+    ways = (("batched", args.workers, args.batch), ("alone", args.workers, 1), ("one", 1, args.batch))
+    many, alone, one = (
+        run_campaign(campaign, folder / key, engine="dask", workers=workers, keep_logs="none", batch=batch)
+        for key, workers, batch in ways
+    )
+    tables = [pq.read_table(r.path).drop(["wall_time_s"]) for r in (many, alone, one)]
+    mean_run = alone.run_time / alone.runs
+    overhead = (alone.loop_time * alone.workers - alone.run_time) / alone.runs
+    largest = max(len(b) for b in batches(campaign.runs(), args.batch, args.workers))
+    return {
+        "scenario": args.scenario,
+        "campaign": args.campaign or "",
+        "runs_per_hour": round(3600 * many.runs / many.loop_time, 1),
+        "runs_per_hour_unbatched": round(3600 * alone.runs / alone.loop_time, 1),
+        "batch_speedup": round(alone.loop_time / many.loop_time, 3),
+        "batch": largest,
+        "batched_runs": many.batched,
+        "identical": tables[0].equals(tables[1]) and tables[0].equals(tables[2]),
+        "workers": many.workers,
+        "speedup": round(one.loop_time / many.loop_time, 3),
+        "overhead_per_run_s": round(overhead, 4),
+        "overhead_fraction": round(overhead / mean_run, 4),
+        "mean_run_s": round(mean_run, 3),
+        "startup_s": round(many.startup_time, 2),
+        "logged_run_s": round(logged, 3),
+        "campaign_run_cost_s": round(many.loop_time * many.workers / many.runs, 3),
+        "campaign_run_cost_1w_s": round(one.loop_time / one.runs, 3),
+        "cost_over_logged_run": round(many.loop_time * many.workers / many.runs / logged, 3),
+        "runs": many.runs,
+        "failed": one.failed + many.failed + alone.failed,
+    }
+
+
+def print_table(figures: dict[str, Any], args: argparse.Namespace) -> None:
+    """The figures for a reader: a row each, its value and what it means."""
     print(
         f"campaign of {figures['runs']} {args.scenario} runs ({args.duration:g} s each), in-process bus, local Dask "
         "cluster"
@@ -220,6 +212,23 @@ def main() -> int:
         rows.append((f"  K = {size}", f"{rate:.0f}", "runs per hour of one process (no engine)"))
     for name, value, note in rows:
         print(f"{name:<20}{value:>14}   {note}")
+
+
+def main() -> int:
+    args = parser().parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        if args.campaign:
+            campaign = load_campaign(args.campaign, settings=[("duration", args.duration)])
+            args.scenario = campaign.spec.scenario
+        else:
+            campaign = load_campaign(campaign_file(folder, args.runs, args.duration, args.scenario))
+        figures = throughput(campaign, folder, args, logged_run(folder, args.duration, args.logged, args.scenario))
+        if args.sweep:
+            figures["sweep"] = sweep([int(k) for k in args.sweep.split(",")], args.duration, args.scenario)
+        if args.memory_runs:
+            figures |= memory(folder, args.memory_runs, args.workers)
+    print_figures(figures, args.json, lambda figures: print_table(figures, args))
     return 0
 
 

@@ -15,18 +15,18 @@ Usage: python bench/codec_log.py [--json] [--frames N] [--repeat R]
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from mcap.writer import CompressionType, IndexType, Writer
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import bench_parser, best_of, best_run  # noqa: E402
+from bench.common import bench_parser, best_of, best_run, print_figures  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.codec import signal_bits  # noqa: E402
 from cosim.log.recorder import RunRecorder  # noqa: E402
@@ -87,10 +87,50 @@ def bench_codec(run: Run, items, repeat: int) -> dict[str, float]:
     }
 
 
+def bare_payloads(frames, decoded) -> list[bytes]:
+    """The records the recorder writes per frame (its /can/frames record and its decoded record),
+    pre-serialized: the same number, with the same payload sizes."""
+    payloads = []
+    for i, (frame, d) in enumerate(zip(frames, decoded)):
+        payloads.append(
+            dumps(
+                {
+                    "tick": i,
+                    "t": i * 0.01,
+                    "seq": i,
+                    "id": frame.arbitration_id,
+                    "extended": False,
+                    "fd": False,
+                    "brs": False,
+                    "dlc": len(frame.data),
+                    "data": bytes(frame.data).hex(),
+                    "sender": d.spec.sender,
+                    "message": d.spec.name,
+                }
+            )
+        )
+        payloads.append(dumps({"tick": d.tick, **d.values}))
+    return payloads
+
+
+def write_bare(path: Path, payloads: list[bytes]) -> None:
+    """The bare mcap writer: ``payloads`` on two channels, with the recorder's chunks and compression."""
+    with open(path, "wb") as stream:
+        writer = Writer(stream, chunk_size=512 * 1024, compression=CompressionType.ZSTD, index_types=IndexType.ALL)
+        writer.start()
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        channels = [writer.register_channel("/a", "json", schema), writer.register_channel("/b", "json", schema)]
+        for i, payload in enumerate(payloads):
+            writer.add_message(channels[i % 2], (i // 2) * 10_000_000, payload, (i // 2) * 10_000_000, i // 2)
+        writer.finish()
+
+
 def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
+    """The recorder logging frames and their decoded records, against the bare writer."""
     codec = run.codec
     frames = [codec.encode(name, tick, values) for name, tick, values in items]
     decoded = [codec.decode(f) for f in frames]
+    payloads = bare_payloads(frames, decoded)
     s = run.scenario
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
@@ -108,44 +148,7 @@ def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
                 for i, (frame, d) in enumerate(zip(frames, decoded)):
                     recorder.frame(i, i * 0.01, i * 10_000_000, frame, d)
 
-        # The bare writer: the same number of records with the same payload sizes, pre-serialized.
-        payloads = []
-        for i, (frame, d) in enumerate(zip(frames, decoded)):
-            payloads.append(
-                dumps(
-                    {
-                        "tick": i,
-                        "t": i * 0.01,
-                        "seq": i,
-                        "id": frame.arbitration_id,
-                        "extended": False,
-                        "fd": False,
-                        "brs": False,
-                        "dlc": len(frame.data),
-                        "data": bytes(frame.data).hex(),
-                        "sender": d.spec.sender,
-                        "message": d.spec.name,
-                    }
-                )
-            )
-            payloads.append(dumps({"tick": d.tick, **d.values}))
-
-        def bare() -> None:
-            with open(path, "wb") as stream:
-                writer = Writer(
-                    stream, chunk_size=512 * 1024, compression=CompressionType.ZSTD, index_types=IndexType.ALL
-                )
-                writer.start()
-                schema = writer.register_schema("s", "jsonschema", b"{}")
-                channels = [
-                    writer.register_channel("/a", "json", schema),
-                    writer.register_channel("/b", "json", schema),
-                ]
-                for i, payload in enumerate(payloads):
-                    writer.add_message(channels[i % 2], (i // 2) * 10_000_000, payload, (i // 2) * 10_000_000, i // 2)
-                writer.finish()
-
-        ours_s, bare_s = best_of(repeat, ours), best_of(repeat, bare)
+        ours_s, bare_s = best_of(repeat, ours), best_of(repeat, lambda: write_bare(path, payloads))
     return {
         "logger_frames_per_s": len(frames) / ours_s,
         "logger_baseline_frames_per_s": len(frames) / bare_s,
@@ -153,20 +156,8 @@ def bench_logger(run: Run, items, repeat: int) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    parser = bench_parser(__doc__, repeat=3)
-    parser.add_argument("--frames", type=int, default=20000, help="frames per codec/logger measurement")
-    args = parser.parse_args()
-    loaded = scenario.load()
-    run = Run(loaded, os.devnull)
-    items = workload(run, args.frames)
-    figures = {"scenario": loaded.scenario.name, "frames": args.frames}
-    figures |= bench_codec(run, items, args.repeat)
-    figures |= bench_logger(run, items, args.repeat)
-    figures |= bench_run(loaded, args.repeat)
-    if args.json:
-        print(json.dumps(figures))
-        return
+def print_table(figures: dict[str, Any]) -> None:
+    """The table: the codec and the logger against their baselines, and a whole run."""
     rows = [
         ("codec: encode + decode (DBC, compiled packers)", figures["codec_frames_per_s"], "frames/s"),
         ("  baseline: same layout packed by hand", figures["codec_baseline_frames_per_s"], "frames/s"),
@@ -182,6 +173,20 @@ def main() -> None:
     width = max(len(r[0]) for r in rows)
     for label, value, unit in rows:
         print(f"{label:<{width}}  {value:>12,.2f} {unit}")
+
+
+def main() -> None:
+    parser = bench_parser(__doc__, repeat=3)
+    parser.add_argument("--frames", type=int, default=20000, help="frames per codec/logger measurement")
+    args = parser.parse_args()
+    loaded = scenario.load()
+    run = Run(loaded, os.devnull)
+    items = workload(run, args.frames)
+    figures = {"scenario": loaded.scenario.name, "frames": args.frames}
+    figures |= bench_codec(run, items, args.repeat)
+    figures |= bench_logger(run, items, args.repeat)
+    figures |= bench_run(loaded, args.repeat)
+    print_figures(figures, args.json, print_table)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,10 @@
-"""What the benchmark scripts share: their command line, and timing a workload as the best of
-several repetitions."""
+"""What the benchmark scripts share: their command line, their output (a table, or one JSON object of
+their figures), and timing a workload as the best of several repetitions."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from collections.abc import Callable
@@ -41,3 +42,12 @@ def bench_parser(doc: str, repeat: int | None = None) -> argparse.ArgumentParser
             "--repeat", type=int, default=repeat, help=f"repetitions of each measurement; the best is kept ({repeat})"
         )
     return parser
+
+
+def print_figures(figures: dict[str, Any], as_json: bool, table: Callable[[dict[str, Any]], object]) -> None:
+    """A benchmark's output: its figures as one JSON object (``--json``, what tests and CI read), or
+    the table ``table(figures)`` prints for a reader."""
+    if as_json:
+        print(json.dumps(figures))
+    else:
+        table(figures)

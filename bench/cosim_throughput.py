@@ -30,19 +30,20 @@ Usage: python bench/cosim_throughput.py [--json] [--interface udp_multicast] [--
 
 from __future__ import annotations
 
-import json
+import argparse
 import multiprocessing
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import can  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench.common import bench_parser, best_run  # noqa: E402
+from bench.common import bench_parser, best_run, print_figures  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus.transport import BusConfig, allocate, open_bus, send_all  # noqa: E402
 from cosim.run import Run, launcher, traffic  # noqa: E402
@@ -242,32 +243,9 @@ def arithmetic_floor(repeat: int) -> dict[str, float]:
     return {"arithmetic_tick_us": best * 1e6, "arithmetic_realtime_factor": s.sample_time / best}
 
 
-def main() -> None:
-    parser = bench_parser(__doc__, repeat=3)
-    parser.add_argument("--interface", default="udp_multicast", choices=("udp_multicast", "socketcan"))
-    parser.add_argument("--channel", default="", help="socketcan interface (default vcan0)")
-    parser.add_argument("--frames", type=int, default=50_000, help="frames for the raw measurement")
-    parser.add_argument("--window", type=int, default=128, help="frames per acknowledged window (raw)")
-    args = parser.parse_args()
-    config = allocate(args.interface, args.channel)
-    raw = max(
-        (raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"]
-    )
-    floor = max((lockstep_floor(config, 3000) for _ in range(args.repeat)), key=lambda f: f["floor_ticks_per_s"])
-    figures = (
-        {"interface": args.interface}
-        | raw
-        | floor
-        | pipeline(args.interface, args.repeat)
-        | in_process(args.repeat)
-        | arithmetic_floor(args.repeat)
-    )
-    figures["inprocess_over_arithmetic"] = figures["arithmetic_realtime_factor"] / figures["inprocess_realtime_factor"]
-    figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
-    figures["floor_ratio"] = figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]
-    if args.json:
-        print(json.dumps(figures))
-        return
+def print_table(figures: dict[str, Any], args: argparse.Namespace) -> None:
+    """The table: the raw bus, the pipeline against it and the same-wire floor, the in-process run
+    against the arithmetic floor."""
     rows = [
         (f"raw {args.interface}, two processes, send -> receive", f"{figures['raw_frames_per_s']:,.0f} frames/s"),
         ("  frames lost", f"{figures['raw_lost_frames']}"),
@@ -292,6 +270,32 @@ def main() -> None:
     width = max(len(label) for label, _ in rows)
     for label, value in rows:
         print(f"{label:<{width}}  {value:>18}")
+
+
+def main() -> None:
+    parser = bench_parser(__doc__, repeat=3)
+    parser.add_argument("--interface", default="udp_multicast", choices=("udp_multicast", "socketcan"))
+    parser.add_argument("--channel", default="", help="socketcan interface (default vcan0)")
+    parser.add_argument("--frames", type=int, default=50_000, help="frames for the raw measurement")
+    parser.add_argument("--window", type=int, default=128, help="frames per acknowledged window (raw)")
+    args = parser.parse_args()
+    config = allocate(args.interface, args.channel)
+    raw = max(
+        (raw_rate(config, args.frames, args.window) for _ in range(args.repeat)), key=lambda r: r["raw_frames_per_s"]
+    )
+    floor = max((lockstep_floor(config, 3000) for _ in range(args.repeat)), key=lambda f: f["floor_ticks_per_s"])
+    figures = (
+        {"interface": args.interface}
+        | raw
+        | floor
+        | pipeline(args.interface, args.repeat)
+        | in_process(args.repeat)
+        | arithmetic_floor(args.repeat)
+    )
+    figures["inprocess_over_arithmetic"] = figures["arithmetic_realtime_factor"] / figures["inprocess_realtime_factor"]
+    figures["ratio"] = figures["pipeline_frames_per_s"] / figures["raw_frames_per_s"]
+    figures["floor_ratio"] = figures["pipeline_ticks_per_s"] / figures["floor_ticks_per_s"]
+    print_figures(figures, args.json, lambda figures: print_table(figures, args))
 
 
 if __name__ == "__main__":

@@ -16,17 +16,18 @@ Usage: python bench/inprocess_bus.py [--json] [--frames N] [--receivers R] [--re
 
 from __future__ import annotations
 
-import json
+import argparse
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import bench_parser  # noqa: E402
+from bench.common import bench_parser, print_figures  # noqa: E402
 from cosim.bus.transport import allocate, open_bus  # noqa: E402
 
 BATCH = 100
@@ -72,18 +73,8 @@ def rates(frames: int, receivers: int, rounds: int) -> dict[str, float]:
     return best
 
 
-def main() -> None:
-    parser = bench_parser(__doc__, repeat=5)
-    parser.add_argument("--frames", type=int, default=200_000, help="frames per measurement")
-    parser.add_argument("--receivers", type=int, default=1, help="receivers of every frame")
-    args = parser.parse_args()
-    best = rates(args.frames, args.receivers, args.repeat)
-    figures = {"receivers": args.receivers} | {f"{name}_frames_per_s": value for name, value in best.items()}
-    figures["cosim_virtual_over_virtual"] = figures["cosim_virtual_frames_per_s"] / figures["virtual_frames_per_s"]
-    figures["cosim_own_over_virtual"] = figures["cosim_own_frames_per_s"] / figures["virtual_frames_per_s"]
-    if args.json:
-        print(json.dumps(figures))
-        return
+def print_table(figures: dict[str, Any], args: argparse.Namespace) -> None:
+    """The table: python-can's virtual bus against cosim_virtual, as a program opens it and as a run does."""
     rows = [
         (f"python-can virtual, 1 sender -> {args.receivers} receiver(s)", figures["virtual_frames_per_s"], "frames/s"),
         ("cosim_virtual, opened by a python-can program", figures["cosim_virtual_frames_per_s"], "frames/s"),
@@ -94,6 +85,18 @@ def main() -> None:
     width = max(len(label) for label, _, _ in rows)
     for label, value, unit in rows:
         print(f"{label:<{width}}  {value:>14,.1f} {unit}")
+
+
+def main() -> None:
+    parser = bench_parser(__doc__, repeat=5)
+    parser.add_argument("--frames", type=int, default=200_000, help="frames per measurement")
+    parser.add_argument("--receivers", type=int, default=1, help="receivers of every frame")
+    args = parser.parse_args()
+    best = rates(args.frames, args.receivers, args.repeat)
+    figures = {"receivers": args.receivers} | {f"{name}_frames_per_s": value for name, value in best.items()}
+    figures["cosim_virtual_over_virtual"] = figures["cosim_virtual_frames_per_s"] / figures["virtual_frames_per_s"]
+    figures["cosim_own_over_virtual"] = figures["cosim_own_frames_per_s"] / figures["virtual_frames_per_s"]
+    print_figures(figures, args.json, lambda figures: print_table(figures, args))
 
 
 if __name__ == "__main__":

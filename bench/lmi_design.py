@@ -22,7 +22,6 @@ Usage: python bench/lmi_design.py [--json] [--gamma-min G] [--skip-lpv] [--refer
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -31,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.common import bench_parser  # noqa: E402
+from bench.common import bench_parser, print_figures  # noqa: E402
 from estimators.lft_design import lft_uio_design  # noqa: E402
 from estimators.lmi import SensorFaultModel, max_spectral_radius  # noqa: E402
 from estimators.lpv_design import lpv_uio_design  # noqa: E402
@@ -47,20 +46,13 @@ def timed(design):
     return result, time.perf_counter() - start
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = bench_parser(__doc__)
-    parser.add_argument("--gamma-min", type=float, default=0.5, help="lower corner of Γ (default 0.5)")
-    parser.add_argument("--skip-lpv", action="store_true", help="leave out the LPV design")
-    parser.add_argument("--reference", action="store_true", help="also the LPV design through cvxpy (about 100 s)")
-    args = parser.parse_args(argv)
-    model = SensorFaultModel(PAPER_A, PAPER_B, PAPER_E, PAPER_C, np.ones((4, 1)))
-    low, high = np.full(4, args.gamma_min), np.ones(4)
+def lti_and_lft(model: SensorFaultModel, low: np.ndarray, high: np.ndarray) -> dict[str, float]:
+    """The LTI baseline and the LFT designs (Theorem 2, scalar and diagonal multipliers): time and σ."""
     lft_uio_design(model, low, high)  # warm-up: imports and solver start-up
     lti, lti_s = timed(lambda: lpv_uio_design(model, high, high, vertices=high[None, :]))
     lft, lft_s = timed(lambda: lft_uio_design(model, low, high))
     lft_diag, lft_diag_s = timed(lambda: lft_uio_design(model, low, high, multiplier="diagonal"))
-    figures = {
-        "gamma_min": args.gamma_min,
+    return {
         "lti_design_s": lti_s,
         "lti_sigma": lti.sigma,
         "lft_design_s": lft_s,
@@ -71,55 +63,65 @@ def main(argv: list[str] | None = None) -> int:
         "lft_ratio": lft_s / lti_s,
         "lft_speedup_vs_paper": PAPER_SECONDS["lft"] / lft_s,
     }
-    if not args.skip_lpv:
-        lpv, lpv_s = timed(lambda: lpv_uio_design(model, low, high))
-        figures |= {
-            "lpv_design_s": lpv_s,
-            "lpv_sigma": lpv.sigma,
-            "lpv_rho": max_spectral_radius(model, lpv.gain, low, high),
-            "lpv_min_eigenvalue": lpv.min_eigenvalue,
-            "lpv_ratio": lpv_s / lti_s,
-            "lpv_speedup_vs_paper": PAPER_SECONDS["lpv"] / lpv_s,
-        }
-    if args.reference and not args.skip_lpv:
+
+
+def lpv(model: SensorFaultModel, low: np.ndarray, high: np.ndarray, lti_s: float, reference: bool) -> dict[str, float]:
+    """The LPV design (Theorem 1, direct to Clarabel), and with ``reference`` the same through cvxpy."""
+    design, lpv_s = timed(lambda: lpv_uio_design(model, low, high))
+    figures = {
+        "lpv_design_s": lpv_s,
+        "lpv_sigma": design.sigma,
+        "lpv_rho": max_spectral_radius(model, design.gain, low, high),
+        "lpv_min_eigenvalue": design.min_eigenvalue,
+        "lpv_ratio": lpv_s / lti_s,
+        "lpv_speedup_vs_paper": PAPER_SECONDS["lpv"] / lpv_s,
+    }
+    if reference:
         ref, ref_s = timed(lambda: lpv_uio_design(model, low, high, backend="cvxpy"))
         figures |= {
             "lpv_cvxpy_design_s": ref_s,
             "lpv_cvxpy_sigma": ref.sigma,
             "lpv_cvxpy_ratio": ref_s / lti_s,
-            "lpv_sigma_rel_diff": abs(lpv.sigma - ref.sigma) / ref.sigma,
+            "lpv_sigma_rel_diff": abs(design.sigma - ref.sigma) / ref.sigma,
         }
-    if args.json:
-        print(json.dumps(figures))
-        return 0
-    print(f"LMI designs on the three-tank model (59), Γ = [{args.gamma_min:g}, 1]^4\n")
+    return figures
+
+
+def print_table(figures: dict[str, float]) -> None:
+    """Each design's time, its ratio to the LTI baseline's, σ, the target and the paper's time."""
+    print(f"LMI designs on the three-tank model (59), Γ = [{figures['gamma_min']:g}, 1]^4\n")
     print(f"{'design':<28}{'time (s)':>10}{'× LTI':>9}{'σ':>10}{'target (s)':>12}{'paper (s)':>11}")
     rows = [
-        ("LTI (γ = 1, baseline)", lti_s, lti.sigma, None, None),
-        ("LFT, Theorem 2", lft_s, lft.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
-        ("LFT, diagonal multipliers", lft_diag_s, lft_diag.sigma, TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+        ("LTI (γ = 1, baseline)", "lti", None, None),
+        ("LFT, Theorem 2", "lft", TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+        ("LFT, diagonal multipliers", "lft_diagonal", TARGET_SECONDS["lft"], PAPER_SECONDS["lft"]),
+        ("LPV, Theorem 1", "lpv", TARGET_SECONDS["lpv"], PAPER_SECONDS["lpv"]),
+        ("LPV, as printed, via cvxpy", "lpv_cvxpy", None, None),
     ]
-    if not args.skip_lpv:
-        rows.append(
-            (
-                "LPV, Theorem 1",
-                figures["lpv_design_s"],
-                figures["lpv_sigma"],
-                TARGET_SECONDS["lpv"],
-                PAPER_SECONDS["lpv"],
-            )
-        )
-    if "lpv_cvxpy_design_s" in figures:
-        rows.append(
-            ("LPV, as printed, via cvxpy", figures["lpv_cvxpy_design_s"], figures["lpv_cvxpy_sigma"], None, None)
-        )
-    for name, seconds, sigma, target, paper in rows:
+    for name, key, target, paper in rows:
+        if f"{key}_design_s" not in figures:
+            continue
+        seconds, sigma = figures[f"{key}_design_s"], figures[f"{key}_sigma"]
         print(
-            f"{name:<28}{seconds:>10.2f}{seconds / lti_s:>9.1f}{sigma:>10.3f}"
+            f"{name:<28}{seconds:>10.2f}{seconds / figures['lti_design_s']:>9.1f}{sigma:>10.3f}"
             f"{'' if target is None else f'{target:>12g}'}{'' if paper is None else f'{paper:>11g}'}"
         )
     if "lpv_sigma_rel_diff" in figures:
         print(f"\nLPV σ, direct against cvxpy: relative difference {figures['lpv_sigma_rel_diff']:.1e}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = bench_parser(__doc__)
+    parser.add_argument("--gamma-min", type=float, default=0.5, help="lower corner of Γ (default 0.5)")
+    parser.add_argument("--skip-lpv", action="store_true", help="leave out the LPV design")
+    parser.add_argument("--reference", action="store_true", help="also the LPV design through cvxpy (about 100 s)")
+    args = parser.parse_args(argv)
+    model = SensorFaultModel(PAPER_A, PAPER_B, PAPER_E, PAPER_C, np.ones((4, 1)))
+    low, high = np.full(4, args.gamma_min), np.ones(4)
+    figures = {"gamma_min": args.gamma_min} | lti_and_lft(model, low, high)
+    if not args.skip_lpv:
+        figures |= lpv(model, low, high, figures["lti_design_s"], args.reference)
+    print_figures(figures, args.json, print_table)
     return 0
 
 

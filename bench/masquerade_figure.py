@@ -70,27 +70,34 @@ def read(log: Path) -> dict[str, np.ndarray]:
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="docs/figures/datasets/masquerade.png")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def attacked_run(seed: int) -> dict[str, np.ndarray]:
+    """masses-pid-can for 24 s with the masquerade, in process, read back from its log."""
     settings = [scenario.parse_setting("duration=24.0"), scenario.parse_setting(f"faults=[{ATTACK}]")]
     loaded = scenario.apply(scenario.load("masses-pid-can"), settings)
     with tempfile.TemporaryDirectory() as folder:
         log = Path(folder) / "masquerade.mcap"
-        result = run(loaded, log, args.seed, interface="virtual")
+        result = run(loaded, log, seed, interface="virtual")
         assert result.status == "completed", result.error
-        data = read(log)
-    t, gaps = data["arrivals"][1:], np.diff(data["arrivals"]) * 1e3
+        return read(log)
+
+
+def inter_arrivals(data: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The arrival time of each frame on SENSOR_x2's id after the first, and its gap to the one before (ms)."""
+    return data["arrivals"][1:], np.diff(data["arrivals"]) * 1e3
+
+
+def set_point(t: np.ndarray) -> np.ndarray:
+    """masses-pid-can's set point for x2."""
+    return 0.5 + 0.3 * np.sin(2 * np.pi * 0.1 * t)
+
+
+def print_numbers(data: dict[str, np.ndarray]) -> None:
+    """The numbers the figure shows: the gaps before and during the attack, the detector's alarms,
+    how far x2 strays from its set point, the Kalman filter's residuals."""
+    t, gaps = inter_arrivals(data)
     window = (t >= 8.0) & (t < 16.0)
     alarms = data["alarms"]
-    reference = 0.5 + 0.3 * np.sin(2 * np.pi * 0.1 * data["t"])
+    reference = set_point(data["t"])
     during, before = (data["t"] >= 12) & (data["t"] < 16), (data["t"] >= 4) & (data["t"] < 8)
     print(
         f"SENSOR_x2 inter-arrival, ms: before {gaps[~window].min():.3f}-{gaps[~window].max():.3f}, "
@@ -110,6 +117,15 @@ def main(argv: list[str] | None = None) -> int:
         f"-{residual[during].max():.4f}"
     )
 
+
+def draw(data: dict[str, np.ndarray], out: Path) -> None:
+    """The three panels (inter-arrival times, x2, the Kalman residuals), the attack shaded, into ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t, gaps = inter_arrivals(data)
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True, constrained_layout=True)
     for ax in axes:
         ax.axvspan(8, 16, color="tab:red", alpha=0.08, lw=0)
@@ -119,11 +135,11 @@ def main(argv: list[str] | None = None) -> int:
     ax.set_ylim(9.0, 11.0)
     ax.set_title(
         f"Masquerade of SENSOR_x2 (8–16 s, shaded): the frames keep their period; intrusion detector alarms: "
-        f"{int(alarms[:, 1].sum())}",
+        f"{int(data['alarms'][:, 1].sum())}",
         fontsize=10,
     )
     ax = axes[1]
-    ax.plot(data["t"], reference, "--", color="gray", lw=1, label="set point")
+    ax.plot(data["t"], set_point(data["t"]), "--", color="gray", lw=1, label="set point")
     ax.plot(data["t"], data["y"][:, 1], color="tab:orange", lw=1, label="x2 as received (the controller's)")
     ax.plot(data["t"], data["x2"], color="tab:blue", lw=1.2, label="x2, true")
     ax.set_ylabel("x2 [m]")
@@ -134,10 +150,19 @@ def main(argv: list[str] | None = None) -> int:
     ax.set_ylabel("Kalman residual y − C x̂ [m]")
     ax.set_xlabel("t [s]")
     ax.legend(loc="upper right", fontsize=8, title="sensor", title_fontsize=8)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
-    print(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/figures/datasets/masquerade.png")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    data = attacked_run(args.seed)
+    print_numbers(data)
+    draw(data, Path(args.out))
+    print(args.out)
     return 0
 
 

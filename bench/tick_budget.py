@@ -23,7 +23,6 @@ Usage: python bench/tick_budget.py [--json] [--scenario NAME] [--duration S] [--
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 import time
@@ -37,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import can  # noqa: E402
 
 import faults  # noqa: E402
-from bench.common import bench_parser  # noqa: E402
+from bench.common import bench_parser, print_figures  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.bus import client as client_module  # noqa: E402
 from cosim.bus.codec import Codec  # noqa: E402
@@ -179,21 +178,14 @@ def udp_costs(frames: int = 20_000) -> dict[str, float]:
     return {"udp_send_us_per_frame": best_send, "udp_recv_us_per_frame": best_recv}
 
 
-def main() -> None:
-    parser = bench_parser(__doc__, repeat=3)
-    parser.add_argument("--scenario", default="masses-bias")
-    parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
-    parser.add_argument("--udp-frames", type=int, default=20_000, help="frames of the transport measurement")
-    args = parser.parse_args()
-    figures = in_process(args.scenario, args.duration, args.repeat)
-    figures |= udp_costs(args.udp_frames)
-    processes = 1 + sum(1 for owner in figures["us_per_tick"] if owner.startswith("node "))
+def receivers(figures: dict[str, Any]) -> int:
+    """The processes that receive every frame on UDP: the runner and each estimator node."""
+    return 1 + sum(1 for owner in figures["us_per_tick"] if owner.startswith("node "))
+
+
+def print_table(figures: dict[str, Any]) -> None:
+    """The table: where a tick's time goes, per process and phase, and the UDP transport's share."""
     per_tick = figures["frames_per_tick"]
-    transport = per_tick * (figures["udp_send_us_per_frame"] + processes * figures["udp_recv_us_per_frame"])
-    figures["udp_transport_us_per_tick"] = transport
-    if args.json:
-        print(json.dumps(figures))
-        return
     print(
         f"{figures['scenario']}: {figures['ticks']} ticks in-process, {per_tick:.1f} frames per tick, "
         f"tick loop {figures['loop_us_per_tick']:.0f} µs per tick (real-time factor {figures['realtime_factor']:.1f})"
@@ -205,9 +197,22 @@ def main() -> None:
             print(f"    {phase:<18} {spent:8.1f}")
     print(
         f"udp_multicast per frame: send {figures['udp_send_us_per_frame']:.1f} µs, receive "
-        f"{figures['udp_recv_us_per_frame']:.1f} µs; {processes} processes x {per_tick:.1f} frames: "
-        f"{transport:.0f} µs of transport per tick"
+        f"{figures['udp_recv_us_per_frame']:.1f} µs; {receivers(figures)} processes x {per_tick:.1f} frames: "
+        f"{figures['udp_transport_us_per_tick']:.0f} µs of transport per tick"
     )
+
+
+def main() -> None:
+    parser = bench_parser(__doc__, repeat=3)
+    parser.add_argument("--scenario", default="masses-bias")
+    parser.add_argument("--duration", type=float, default=None, help="simulated seconds (default: the scenario's)")
+    parser.add_argument("--udp-frames", type=int, default=20_000, help="frames of the transport measurement")
+    args = parser.parse_args()
+    figures = in_process(args.scenario, args.duration, args.repeat)
+    figures |= udp_costs(args.udp_frames)
+    per_frame = figures["udp_send_us_per_frame"] + receivers(figures) * figures["udp_recv_us_per_frame"]
+    figures["udp_transport_us_per_tick"] = figures["frames_per_tick"] * per_frame
+    print_figures(figures, args.json, print_table)
 
 
 if __name__ == "__main__":

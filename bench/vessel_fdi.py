@@ -91,7 +91,12 @@ def report(epsilon: float, figures: dict) -> None:
         H = tuple(j - 1 for j in pair)
         figures["largest_epsilon"][f"T{pair[0]}+T{pair[1]}"] = largest_epsilon(cluster, u0, H)
         print(f"  T{pair[0]}+T{pair[1]}: cluster family {largest_epsilon(cluster, u0, H):9.0f} N")
+    closed_loop_table(epsilon, tau, zeta, figures)
 
+
+def closed_loop_table(epsilon: float, tau: float, zeta: tuple[float, ...], figures: dict) -> None:
+    """The closed loop on (23) for 120 s, nominal and with each fault and pair: when the fault is
+    detected and isolated, and whether the isolation is right."""
     print(f"\nclosed loop on (23), ε = {epsilon:g} N, τ = {tau} s, 120 s, δ = e^(−rate t) from t = 0")
     print("| scenario | family | detected at (s) | first isolation (s) | complete at (s) | isolated | correct |")
     print("|---|---|---|---|---|---|---|")
@@ -102,36 +107,39 @@ def report(epsilon: float, figures: dict) -> None:
         *((f"T{a}+T{b}", {a: 0.03, b: 0.03}, True) for a, b in SHIP_PAIRS if (a, b) != (2, 5)),
     ]
     for label, faults, clustered in runs:
-        params = {"disturbance_bound": epsilon, **({"zeta": list(zeta)} if clustered else {})}
-        controller = VesselController(M, D, G, tau, VesselControllerParams(zeta=zeta if clustered else None))
-        trajectory = simulate(
-            120.0,
-            tau,
-            controller,
-            create("cofd", model(), params, tau),
-            exponential_faults(faults),
-            disturbance(epsilon, seed=1),
-        )
-        alarm, mask = trajectory.series("alarm"), trajectory.series("fault_mask")
-        detected = trajectory.t[np.flatnonzero(alarm)[0]] if alarm.any() else None
-        isolated = trajectory.t[np.flatnonzero(mask)[0]] if mask.any() else None
-        found = [j + 1 for j in range(5) if int(mask[-1]) >> j & 1]
-        complete = trajectory.t[np.flatnonzero(mask == mask[-1])[0]] if mask.any() else None
-        ever = int(np.bitwise_or.reduce(mask.astype(int)))
-        correct = found == sorted(faults) and ever == int(
-            mask[-1]
-        )  # never a healthy thruster, all faulty ones in the end
-        figures["closed_loop"][label] = {
-            "detected_s": None if detected is None else float(detected),
-            "isolated_s": None if complete is None else float(complete),
-            "isolated": [f"T{j}" for j in found],
-            "correct": bool(correct),
-        }
-        print(
-            f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
-            f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | "
-            f"{', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |"
-        )
+        figures["closed_loop"][label] = closed_loop_row(label, faults, clustered, epsilon, tau, zeta)
+
+
+def closed_loop_row(label: str, faults: dict, clustered: bool, epsilon: float, tau: float, zeta: tuple) -> dict:
+    """One closed-loop run, printed as a row of the table; its figures."""
+    params = {"disturbance_bound": epsilon, **({"zeta": list(zeta)} if clustered else {})}
+    controller = VesselController(M, D, G, tau, VesselControllerParams(zeta=zeta if clustered else None))
+    trajectory = simulate(
+        120.0,
+        tau,
+        controller,
+        create("cofd", model(), params, tau),
+        exponential_faults(faults),
+        disturbance(epsilon, seed=1),
+    )
+    alarm, mask = trajectory.series("alarm"), trajectory.series("fault_mask")
+    detected = trajectory.t[np.flatnonzero(alarm)[0]] if alarm.any() else None
+    isolated = trajectory.t[np.flatnonzero(mask)[0]] if mask.any() else None
+    found = [j + 1 for j in range(5) if int(mask[-1]) >> j & 1]
+    complete = trajectory.t[np.flatnonzero(mask == mask[-1])[0]] if mask.any() else None
+    ever = int(np.bitwise_or.reduce(mask.astype(int)))
+    correct = found == sorted(faults) and ever == int(mask[-1])  # never a healthy thruster, all faulty ones in the end
+    print(
+        f"| {label} | {'cluster' if clustered else 'single'} | {'—' if detected is None else f'{detected:.1f}'} | "
+        f"{'—' if isolated is None else f'{isolated:.1f}'} | {'—' if complete is None else f'{complete:.1f}'} | "
+        f"{', '.join(f'T{j}' for j in found) or 'none'} | {'yes' if correct else 'NO'} |"
+    )
+    return {
+        "detected_s": None if detected is None else float(detected),
+        "isolated_s": None if complete is None else float(complete),
+        "isolated": [f"T{j}" for j in found],
+        "correct": bool(correct),
+    }
 
 
 if __name__ == "__main__":

@@ -162,53 +162,48 @@ def figures(isolability: Path, nominal: Path) -> dict:
     return result
 
 
-def draw(result: dict, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def draw_edges(ax, result: dict, kind: str, scale: float, label: str, note: str) -> None:
+    """A panel of the smallest fault each thruster's isolation catches (``kind``: abrupt or fade) per sea
+    state, below the grid's smallest shaded, with the prediction of the steady signature for losses."""
     seas = result["sea_states"]
     x = np.arange(len(seas))
-    fig, axes = plt.subplots(1, 3, figsize=(14.5, 4.6), constrained_layout=True)
-    panels = (
-        ("abrupt", 100.0, "smallest abrupt loss isolated ≤ 10 s [%]", "abrupt loss at 20 s; lower is better"),
-        ("fade", 1.0, "slowest fade to 0 isolated ≤ 10 s [1/s]", "δ = e^(−rate (t − 20 s)); lower is better"),
-    )
-    for ax, (kind, scale, label, note) in zip(axes, panels):
-        floor = result["grid"][kind][0] * scale if result["grid"][kind] else 0.0  # a grid may lack fades
-        ax.axhspan(floor * 1e-3, floor, color="0.92", zorder=0)
-        for number, thruster in enumerate(THRUSTERS):
-            at = x + 0.06 * (number - 2)  # side by side where thrusters share a value
-            shown = np.array(
-                [e * scale if e is not None else np.nan for e in (result[kind][thruster][s] for s in seas)]
-            )
-            ax.semilogy(at, shown, color=f"C{number}", label=thruster)
-            below = shown <= floor
-            ax.semilogy(at[~below], shown[~below], "o", color=f"C{number}")
-            ax.semilogy(at[below], shown[below], "v", color=f"C{number}")
-            if kind == "abrupt":
-                guess = [result["predicted"][s][thruster] for s in seas]
-                ax.semilogy(x, [g * scale if g else np.nan for g in guess], color=f"C{number}", ls=":", lw=1)
-        ax.plot([], [], "v", color="0.4", label="▼ at the grid's smallest: lies lower")
+    floor = result["grid"][kind][0] * scale if result["grid"][kind] else 0.0  # a grid may lack fades
+    ax.axhspan(floor * 1e-3, floor, color="0.92", zorder=0)
+    for number, thruster in enumerate(THRUSTERS):
+        at = x + 0.06 * (number - 2)  # side by side where thrusters share a value
+        shown = np.array([e * scale if e is not None else np.nan for e in (result[kind][thruster][s] for s in seas)])
+        ax.semilogy(at, shown, color=f"C{number}", label=thruster)
+        below = shown <= floor
+        ax.semilogy(at[~below], shown[~below], "o", color=f"C{number}")
+        ax.semilogy(at[below], shown[below], "v", color=f"C{number}")
         if kind == "abrupt":
-            ax.plot([], [], color="k", ls=":", lw=1, label="steady signature at u0 = threshold")
-            ax.axhline(50.0, color="k", lw=0.8, ls="--", label="50 %: required in every sea")
-            ax.set_ylim(3e-3, 150)
-        else:
-            ax.set_ylim(1e-3, 0.5)
-        ax.set_xticks(x, seas)
-        ax.set_xlabel("sea state: |b| ≤ current + waves")
-        ax.set_ylabel(label)
-        ax.set_title(note, fontsize=9)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7.5, loc="lower right" if kind == "abrupt" else "upper left")
+            guess = [result["predicted"][s][thruster] for s in seas]
+            ax.semilogy(x, [g * scale if g else np.nan for g in guess], color=f"C{number}", ls=":", lw=1)
+    ax.plot([], [], "v", color="0.4", label="▼ at the grid's smallest: lies lower")
+    if kind == "abrupt":
+        ax.plot([], [], color="k", ls=":", lw=1, label="steady signature at u0 = threshold")
+        ax.axhline(50.0, color="k", lw=0.8, ls="--", label="50 %: required in every sea")
+        ax.set_ylim(3e-3, 150)
+    else:
+        ax.set_ylim(1e-3, 0.5)
+    ax.set_xticks(x, seas)
+    ax.set_xlabel("sea state: |b| ≤ current + waves")
+    ax.set_ylabel(label)
+    ax.set_title(note, fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7.5, loc="lower right" if kind == "abrupt" else "upper left")
+
+
+def draw_false_alarms(ax, result: dict) -> None:
+    """The panel of false alarms per fault-free hour per sea state, with its 95 % upper bound."""
+    seas = result["sea_states"]
+    x = np.arange(len(seas))
     alarms = result["false_alarms"]
     rates = [alarms[sea]["rate_per_hour"] for sea in seas]
     highs = [alarms[sea]["high"] - alarms[sea]["rate_per_hour"] for sea in seas]
-    axes[2].bar(list(x), rates, yerr=[[0.0] * len(seas), highs], color="C7", capsize=4)
+    ax.bar(list(x), rates, yerr=[[0.0] * len(seas), highs], color="C7", capsize=4)
     for i, sea in enumerate(seas):
-        axes[2].annotate(
+        ax.annotate(
             f"{alarms[sea]['false_alarms']} in {alarms[sea]['hours']:.2g} h",
             (i, 0.0),
             textcoords="offset points",
@@ -216,10 +211,27 @@ def draw(result: dict, out: Path) -> None:
             ha="center",
             fontsize=8,
         )
-    axes[2].set_xticks(x, seas)
-    axes[2].set_xlabel("sea state: |b| ≤ current + waves")
-    axes[2].set_ylabel("false alarms per fault-free hour")
-    axes[2].set_title("bars: rate; whiskers: 95 % upper bound (exact Poisson)", fontsize=9)
+    ax.set_xticks(x, seas)
+    ax.set_xlabel("sea state: |b| ≤ current + waves")
+    ax.set_ylabel("false alarms per fault-free hour")
+    ax.set_title("bars: rate; whiskers: 95 % upper bound (exact Poisson)", fontsize=9)
+
+
+def draw(result: dict, out: Path) -> None:
+    """The figure: the abrupt losses and the fades each isolated, and the false alarms, per sea state."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14.5, 4.6), constrained_layout=True)
+    panels = (
+        ("abrupt", 100.0, "smallest abrupt loss isolated ≤ 10 s [%]", "abrupt loss at 20 s; lower is better"),
+        ("fade", 1.0, "slowest fade to 0 isolated ≤ 10 s [1/s]", "δ = e^(−rate (t − 20 s)); lower is better"),
+    )
+    for ax, (kind, scale, label, note) in zip(axes, panels):
+        draw_edges(ax, result, kind, scale, label, note)
+    draw_false_alarms(axes[2], result)
     fig.suptitle(f"COFD isolability on the MJCF ship ({result['seeds']} seeds per point; ε = 300 N)", fontsize=11)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=120)

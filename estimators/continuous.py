@@ -357,6 +357,21 @@ _SOLUTION_AND_ERROR = np.array(
 )
 
 
+def _rosenbrock_step(
+    ode: ObserverODE, w: np.ndarray, f: np.ndarray, J: np.ndarray, h: float, stages: np.ndarray
+) -> np.ndarray:
+    """One step of length h from w (f = f(w), J = ∂f/∂w there): its four stages U_i, solved into
+    ``stages`` with one LU factorisation, and the rows Σ m_i U_i (the step) and Σ e_i U_i (its error)."""
+    lu, pivots, _ = lapack.dgetrf(ode.identity * (1.0 / (_GAMMA * h)) - J)
+    c = _C34 * (1.0 / h)
+    U1 = stages[0] = lapack.dgetrs(lu, pivots, f)[0]
+    stages[1] = lapack.dgetrs(lu, pivots, ode(w + _A21 * U1) + (_C21 / h) * U1)[0]
+    f3 = ode(w + _A3.dot(stages[:2]))
+    stages[2] = lapack.dgetrs(lu, pivots, f3 + c[0, :2].dot(stages[:2]))[0]
+    stages[3] = lapack.dgetrs(lu, pivots, f3 + c[1].dot(stages[:3]))[0]
+    return _SOLUTION_AND_ERROR.dot(stages)
+
+
 def integrate(
     ode: ObserverODE,
     w: np.ndarray,
@@ -389,19 +404,11 @@ def integrate(
     """
     t = 0.0
     f, J = linearized
-    identity = ode.identity
     stages = np.empty((4, w.size))
     while True:
         remaining = span - t
         h = remaining / max(1, math.ceil(remaining / h - 1e-9))  # (− 1e-9: no extra step for a rounding error)
-        lu, pivots, _ = lapack.dgetrf(identity * (1.0 / (_GAMMA * h)) - J)
-        c = _C34 * (1.0 / h)
-        U1 = stages[0] = lapack.dgetrs(lu, pivots, f)[0]
-        stages[1] = lapack.dgetrs(lu, pivots, ode(w + _A21 * U1) + (_C21 / h) * U1)[0]
-        f3 = ode(w + _A3.dot(stages[:2]))
-        stages[2] = lapack.dgetrs(lu, pivots, f3 + c[0, :2].dot(stages[:2]))[0]
-        stages[3] = lapack.dgetrs(lu, pivots, f3 + c[1].dot(stages[:3]))[0]
-        step_and_error = _SOLUTION_AND_ERROR.dot(stages)
+        step_and_error = _rosenbrock_step(ode, w, f, J, h, stages)
         w_new = w + step_and_error[0]
         ratios = [
             abs(e) / (atol + rtol * max(s, abs(v)))

@@ -9,67 +9,48 @@ from __future__ import annotations
 from pathlib import Path
 
 from tests.conftest import ROOT
+from tests.fmi2_description import Variable, model_description
 from tests.misbehaving_fmu import packaged
 
 SOURCE = ROOT / "tests" / "data" / "fmus" / "oscillator" / "oscillator.c"
 
-DESCRIPTION = """<?xml version="1.0" encoding="UTF-8"?>
-<fmiModelDescription fmiVersion="2.0" modelName="oscillator" guid="{{5d0c1f6e-7a43-4f6b-9a77-0c5e2d1b3a90}}"
-  description="A mass-spring-damper, pendulum or pushed free mass (cosim's tests)" generationTool="cosim tests (gcc)"
-  variableNamingConvention="structured" numberOfEventIndicators="0">
-  <ModelExchange modelIdentifier="oscillator" {directional}/>
-  <CoSimulation modelIdentifier="oscillator" canHandleVariableCommunicationStepSize="true" {directional}/>
-  <UnitDefinitions>
+#: The FMU's variables, numbered as oscillator.c numbers them; the start values of the states and
+#: the input are the scenario's (``build``).
+PARAMETERS = {"m": 1, "k": 4, "k3": 0, "c": 0.4, "g_l": 0, "force": 0, "x_max": 0}
+DEFINITIONS = """  <UnitDefinitions>
     <Unit name="m"><BaseUnit m="1"/></Unit>
     <Unit name="m/s"><BaseUnit m="1" s="-1"/></Unit>
     <Unit name="m/s2"><BaseUnit m="1" s="-2"/></Unit>
     <Unit name="N"><BaseUnit kg="1" m="1" s="-2"/></Unit>
   </UnitDefinitions>
   <DefaultExperiment startTime="0" stopTime="10" stepSize="0.01"/>
-  <ModelVariables>
-    <ScalarVariable name="x" valueReference="0" causality="local" variability="continuous" initial="exact">
-      <Real start="{x}" unit="m" min="-100" max="100"/></ScalarVariable>
-    <ScalarVariable name="der(x)" valueReference="1" causality="local" variability="continuous">
-      <Real derivative="1" unit="m/s"/></ScalarVariable>
-    <ScalarVariable name="v" valueReference="2" causality="local" variability="continuous" initial="exact">
-      <Real start="{v}" unit="m/s" min="-100" max="100"/></ScalarVariable>
-    <ScalarVariable name="der(v)" valueReference="3" causality="local" variability="continuous">
-      <Real derivative="3" unit="m/s2"/></ScalarVariable>
-    <ScalarVariable name="u" valueReference="4" causality="input" variability="continuous">
-      <Real start="{u}" unit="N" min="-100" max="100"/></ScalarVariable>
-    <ScalarVariable name="position" valueReference="5" causality="output" variability="continuous" initial="calculated">
-      <Real unit="m" min="-100" max="100"/></ScalarVariable>
-    <ScalarVariable name="m" valueReference="6" causality="parameter" variability="fixed" initial="exact">
-      <Real start="1"/></ScalarVariable>
-    <ScalarVariable name="k" valueReference="7" causality="parameter" variability="fixed" initial="exact">
-      <Real start="4"/></ScalarVariable>
-    <ScalarVariable name="k3" valueReference="8" causality="parameter" variability="fixed" initial="exact">
-      <Real start="0"/></ScalarVariable>
-    <ScalarVariable name="c" valueReference="9" causality="parameter" variability="fixed" initial="exact">
-      <Real start="0.4"/></ScalarVariable>
-    <ScalarVariable name="g_l" valueReference="10" causality="parameter" variability="fixed" initial="exact">
-      <Real start="0"/></ScalarVariable>
-    <ScalarVariable name="force" valueReference="11" causality="parameter" variability="fixed" initial="exact">
-      <Real start="0"/></ScalarVariable>
-    <ScalarVariable name="x_max" valueReference="12" causality="parameter" variability="fixed" initial="exact">
-      <Real start="0"/></ScalarVariable>
-  </ModelVariables>
-  <ModelStructure>
-    <Outputs>
-      <Unknown index="6" dependencies="1"/>
-    </Outputs>
-    <Derivatives>
-      <Unknown index="2" dependencies="3"/>
-      <Unknown index="4" dependencies="1 3 5"/>
-    </Derivatives>
-    <InitialUnknowns>
-      <Unknown index="2"/>
-      <Unknown index="4"/>
-      <Unknown index="6"/>
-    </InitialUnknowns>
-  </ModelStructure>
-</fmiModelDescription>
 """
+
+
+def variables(x: float, v: float, u: float) -> list[Variable]:
+    """The table, with the start values ``x``, ``v`` and ``u``."""
+    bounds = 'min="-100" max="100"'
+    return [
+        Variable("x", 0, "Real", "local", "continuous", "exact", f'start="{x}" unit="m" {bounds}'),
+        Variable("der(x)", 1, "Real", "local", "continuous", attributes='unit="m/s"', derivative="x", depends=("v",)),
+        Variable("v", 2, "Real", "local", "continuous", "exact", f'start="{v}" unit="m/s" {bounds}'),
+        Variable(
+            "der(v)",
+            3,
+            "Real",
+            "local",
+            "continuous",
+            attributes='unit="m/s2"',
+            derivative="v",
+            depends=("x", "v", "u"),
+        ),
+        Variable("u", 4, "Real", "input", "continuous", attributes=f'start="{u}" unit="N" {bounds}'),
+        Variable("position", 5, "Real", "output", "continuous", "calculated", f'unit="m" {bounds}', depends=("x",)),
+        *(
+            Variable(name, vr, "Real", "parameter", "fixed", "exact", f'start="{start}"')
+            for vr, (name, start) in enumerate(PARAMETERS.items(), 6)
+        ),
+    ]
 
 
 def build(
@@ -79,5 +60,13 @@ def build(
     its directional derivatives; ``x``, ``v``, ``u``: the start values of its states and its input
     (what the input holds undriven)."""
     starts = (f"-DX_START={x!r}", f"-DV_START={v!r}", f"-DU_START={u!r}")  # compiled in, as an exporter's are
-    flag = 'providesDirectionalDerivative="true"' if directional else ""
-    return packaged(folder, name, SOURCE, DESCRIPTION.format(directional=flag, x=x, v=v, u=u), starts)
+    description = model_description(
+        "oscillator",
+        "{5d0c1f6e-7a43-4f6b-9a77-0c5e2d1b3a90}",
+        variables(x, v, u),
+        header='description="A mass-spring-damper, pendulum or pushed free mass (cosim\'s tests)" '
+        'variableNamingConvention="structured" ',
+        interfaces='providesDirectionalDerivative="true"' if directional else "",
+        definitions=DEFINITIONS,
+    )
+    return packaged(folder, name, SOURCE, description, starts)

@@ -26,6 +26,7 @@ from cosim.log.reader import LogReader
 from cosim.run import Run, run
 from tests.conftest import ROOT
 from tests.frame_digests import unsigned
+from tests.monitor_process import start_monitor, stop_monitor
 from tests.snippets import short_scenario
 
 pytestmark = pytest.mark.slow  # every test here runs node processes or long scenarios
@@ -458,17 +459,7 @@ def test_monitor_decodes_any_bus_with_a_dbc(tmp_path):
     assert subprocess.run([sys.executable, "-m", "cosim.cli", "dbc", "--out", str(dbc)]).returncode == 0
     codec = scenario.load().scenario.codec()
     config = allocate("udp_multicast")
-    monitor = cli(
-        "monitor",
-        "--dbc",
-        str(dbc),
-        "--channel",
-        config.channel,
-        "--port",
-        str(config.port),
-        env={**os.environ, "COLUMNS": "200"},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as in a terminal, not a background job
-    )
+    monitor = start_monitor(dbc, config)
     time.sleep(1.0)  # its socket joins the group
     bus = open_bus(config)
     try:
@@ -478,9 +469,7 @@ def test_monitor_decodes_any_bus_with_a_dbc(tmp_path):
             time.sleep(0.05)
     finally:
         bus.shutdown()
-    monitor.send_signal(signal.SIGINT)
-    out, err = monitor.communicate(timeout=30)
-    assert monitor.returncode == 0, err
+    out, err = stop_monitor(monitor)
     lines = [line.split() for line in out.splitlines()]  # a line per decoded frame: time since the start (s),
     assert 20 <= len(lines) <= 40  # message, id, sender, signals (a monitor that joins late misses the first)
     assert all(line[1:] == ["SENSOR_x1", "100", "plant", f"tick={int(line[4][5:])}", "x1=0.25", "m"] for line in lines)

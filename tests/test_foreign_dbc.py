@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import signal
 import subprocess
 import sys
 import time
@@ -29,6 +28,7 @@ from cosim.log.can_import import import_log
 from cosim.log.metadata import DBC_ATTACHMENT, IMPORT
 from cosim.log.reader import LogReader
 from cosim.run.replay import play
+from tests.monitor_process import start_monitor, stop_monitor
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = sorted((ROOT / "tests" / "data" / "dbc").glob("*/*.dbc"))
@@ -441,25 +441,7 @@ def test_monitor_decodes_extended_frames_by_their_flag_on_a_bus(tmp_path):
     dbc = ROOT / "tests/data/dbc/cantools/motohawk_fd.dbc"
     message = read_dbc(dbc).get_message_by_name("ExampleMessage")
     config = allocate("udp_multicast")
-    monitor = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "cosim.cli",
-            "monitor",
-            "--dbc",
-            str(dbc),
-            "--channel",
-            config.channel,
-            "--port",
-            str(config.port),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "200"},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    monitor = start_monitor(dbc, config)
     time.sleep(3.0)  # it starts and its socket joins the group
     data = message.encode({"Enable": 1, "AverageRadius": 1.5, "Temperature": 250.5})
     bus = open_bus(config)
@@ -470,9 +452,7 @@ def test_monitor_decodes_extended_frames_by_their_flag_on_a_bus(tmp_path):
             time.sleep(0.05)
     finally:
         bus.shutdown()
-    monitor.send_signal(signal.SIGINT)
-    out, err = monitor.communicate(timeout=30)
-    assert monitor.returncode == 0, err
+    out, err = stop_monitor(monitor)
     assert (
         "ExampleMessage" in out
         and "000001F0" in out

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.gain_identification import gain_test_window, normal_inverse, thin_qr, window_system
-from tests.test_reconciliation import TRUE_GAINS, WINDOW, A, B, C, E, linear_window
+from tests.paper_three_tank import TRUE_GAINS, WINDOW, A, B, C, E, linear_window
 
 
 def test_one_column_is_pinv_bit_for_bit_and_more_columns_are_pinv():

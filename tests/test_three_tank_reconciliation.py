@@ -61,7 +61,7 @@ def test_the_bias_is_rejected_where_hz_y_is_falsified(series):
 def test_with_the_model_window_the_gains_converge_after_the_window_fills(series):
     """γ̂ once the N = 50 window holds only samples after a fault onset: γ1 = 0.6 from 400 s, then
     γ2 = 0.75 from 700 s. Tolerance reached on the MJCF plant (model mismatch of the linearization;
-    exact on the linear model, tests/test_reconciliation.py): |γ̂ − γ| at most 0.030, RMS per
+    exact on the linear model, tests/test_model_window.py): |γ̂ − γ| at most 0.030, RMS per
     sensor at most 0.007. Windows across an onset do not fit (``fit`` > fit_tol) and keep γ̂."""
     _, _, gamma, _ = series
     for name in OURS:

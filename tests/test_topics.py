@@ -76,7 +76,8 @@ def recorded(tmp_path_factory, codec):
             disturbance=np.array([0.7]),
         )
         recorder.deadline_miss(3, 0.03, 30_000_000, "kalman", 2)
-        recorder.foreign(3, 0.03, 30_000_000, "frame", "not sent by its owner", "10.0.0.2", 8, b"\x01\x02", 0x100, 4)
+        foreign = {"kind": "frame", "reason": "not sent by its owner", "source": "10.0.0.2", "id": 0x100, "length": 8}
+        recorder.foreign(30_000_000, topics.Foreign(tick=3, t=0.03, **foreign, data="0102", count=4))
         recorder.event(3, 0.03, 30_000_000, "frames_lost", "SENSOR_x1", "warning", 5)
         bus_off = {"label": "b", "kind": "bus_off", "message": "plant", "event": "bus_off", "errors": 256}
         recorder.bus_fault(3, 0.03, 30_000_000, bus_off)

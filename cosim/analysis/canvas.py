@@ -317,6 +317,13 @@ class Canvas:
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
 
+    def finish_column(self, fig: Figure, axes: np.ndarray, name: str, heading: str, leave: Sequence[str] = ()) -> None:
+        """A column of panels over time (``figure``'s axes): the time axis named under the last, one
+        legend under them all (but the curves of ``leave``), saved as ``name``."""
+        axes[-1, 0].set_xlabel(TIME)
+        self.legend(fig, list(axes[:, 0]), leave)
+        self.save(fig, name, heading)
+
     def finish_pair(
         self, fig: Figure, axes: tuple[Axes, Axes], ylabels: tuple[str, str], name: str, heading: str
     ) -> None:

@@ -286,82 +286,102 @@ def _fault_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:
 
 
 def _diagnosis_panels(signals: RunSignals, color: dict[str, str]) -> list[tuple[str, dict[str, Any]]]:
-    run = signals.run
+    """The diagnosis: a state-transitions panel of every flag (alarms, isolations, constraints, the
+    controller's reconfiguration) first, then each estimator's residuals and estimates, then the
+    controller's status."""
     panels: list[tuple[str, dict[str, Any]]] = []
     flags: list[tuple[str, str]] = []
-    for name, e in run.estimators.items():
+    for name, e in signals.run.estimators.items():
         by_kind: dict[str, list[tuple[str, str]]] = {}
         for signal, d in e.diagnostics.items():
             if signals.path(name, signal) is not None:
                 by_kind.setdefault(d.kind, []).append((signal, d.target))
         for kind in (DiagnosticKind.ALARM, DiagnosticKind.ISOLATION, DiagnosticKind.CONSTRAINT):
             flags += [(p, signals.label(name, s)) for s, _ in by_kind.get(kind, []) if (p := signals.path(name, s))]
-        thresholds = {target: signal for signal, target in by_kind.get(DiagnosticKind.THRESHOLD, [])}
-        residuals = by_kind.get(DiagnosticKind.RESIDUAL, [])
-        groups: dict[str, list[tuple[str, str]]] = {}
-        for signal, target in residuals:  # COFD: per observer; UIO: one panel
-            groups.setdefault(target if thresholds else "", []).append((signal, target))
-        for group, members in groups.items():
-            series = []
-            for i, (signal, _) in enumerate(members):
-                series.append(
-                    _series(signals.path(name, signal) or "", signals.label(name, signal), COLORS[i % len(COLORS)])
-                )
-                if signal in thresholds and (p := signals.path(name, thresholds[signal])):
-                    series.append(_series(p, signals.label(name, thresholds[signal]), COLORS[i % len(COLORS)], 0.8))
-            what = f"{group} residual components and their thresholds" if group else "residual r = y − C x̂"
-            panels.append((f"Plot!{name}-residual-{group}", _plot(f"{name}: {what}", series)))
-        for kind, what, truth in (
-            (DiagnosticKind.BIAS_ESTIMATE, "bias estimates φ̂ against the true fault", f"{FAULTS}.fault"),
-            (DiagnosticKind.GAIN_ESTIMATE, "sensor effectiveness estimates γ̂", None),
-            (DiagnosticKind.VIRTUAL_OUTPUT, "reconciled virtual output ẑ", None),
-        ):
-            members = by_kind.get(kind, [])
-            if not members:
-                continue
-            series = []
-            for i, (signal, target) in enumerate(members):
-                series.append(
-                    _series(signals.path(name, signal) or "", signals.label(name, signal), COLORS[i % len(COLORS)])
-                )
-                if truth is not None and target in signals.sensors:
-                    series.append(
-                        _series(f"{truth}.{target}", f"faults.fault.{target} (true)", COLORS[i % len(COLORS)], 0.8)
-                    )
-            panels.append((f"Plot!{name}-{kind}", _plot(f"{name}: {what}", series)))
-    controller = run.controller
-    if controller is not None:
-        status = [
-            (signal, d)
-            for signal, d in controller.diagnostics.items()
-            if signals.path("controller", signal) is not None
-        ]
-        for signal, d in status:
-            if d.kind == DiagnosticKind.RECONFIGURATION:
-                flags.append((signals.path("controller", signal) or "", signals.label("controller", signal)))
-        efforts = [(s, d) for s, d in status if d.kind != DiagnosticKind.RECONFIGURATION]
-        if efforts:
-            panels.append(
-                (
-                    "Plot!controller",
-                    _plot(
-                        "controller status",
-                        [
-                            _series(
-                                signals.path("controller", s) or "",
-                                signals.label("controller", s) + (f" [{d.unit}]" if d.unit else ""),
-                                COLORS[i % len(COLORS)],
-                            )
-                            for i, (s, d) in enumerate(efforts)
-                        ],
-                    ),
-                )
-            )
+        panels += _residual_panels(signals, name, by_kind) + _estimate_panels(signals, name, by_kind)
+    controller_panels, controller_flags = _controller_panels(signals)
+    panels += controller_panels
+    flags += controller_flags
     if flags:
         panels.insert(
             0, ("StateTransitions!flags", _transitions("diagnosis flags (alarm, isolations, reconfiguration)", flags))
         )
     return panels
+
+
+def _residual_panels(
+    signals: RunSignals, name: str, by_kind: dict[str, list[tuple[str, str]]]
+) -> list[tuple[str, dict[str, Any]]]:
+    """An estimator's residuals with their thresholds: a panel per observer (COFD), or one (UIO)."""
+    thresholds = {target: signal for signal, target in by_kind.get(DiagnosticKind.THRESHOLD, [])}
+    groups: dict[str, list[tuple[str, str]]] = {}
+    for signal, target in by_kind.get(DiagnosticKind.RESIDUAL, []):
+        groups.setdefault(target if thresholds else "", []).append((signal, target))
+    panels = []
+    for group, members in groups.items():
+        series = []
+        for i, (signal, _) in enumerate(members):
+            series.append(
+                _series(signals.path(name, signal) or "", signals.label(name, signal), COLORS[i % len(COLORS)])
+            )
+            if signal in thresholds and (p := signals.path(name, thresholds[signal])):
+                series.append(_series(p, signals.label(name, thresholds[signal]), COLORS[i % len(COLORS)], 0.8))
+        what = f"{group} residual components and their thresholds" if group else "residual r = y − C x̂"
+        panels.append((f"Plot!{name}-residual-{group}", _plot(f"{name}: {what}", series)))
+    return panels
+
+
+def _estimate_panels(
+    signals: RunSignals, name: str, by_kind: dict[str, list[tuple[str, str]]]
+) -> list[tuple[str, dict[str, Any]]]:
+    """An estimator's bias estimates (against the true fault), gain estimates and virtual output."""
+    panels = []
+    for kind, what, truth in (
+        (DiagnosticKind.BIAS_ESTIMATE, "bias estimates φ̂ against the true fault", f"{FAULTS}.fault"),
+        (DiagnosticKind.GAIN_ESTIMATE, "sensor effectiveness estimates γ̂", None),
+        (DiagnosticKind.VIRTUAL_OUTPUT, "reconciled virtual output ẑ", None),
+    ):
+        members = by_kind.get(kind, [])
+        if not members:
+            continue
+        series = []
+        for i, (signal, target) in enumerate(members):
+            series.append(
+                _series(signals.path(name, signal) or "", signals.label(name, signal), COLORS[i % len(COLORS)])
+            )
+            if truth is not None and target in signals.sensors:
+                series.append(
+                    _series(f"{truth}.{target}", f"faults.fault.{target} (true)", COLORS[i % len(COLORS)], 0.8)
+                )
+        panels.append((f"Plot!{name}-{kind}", _plot(f"{name}: {what}", series)))
+    return panels
+
+
+def _controller_panels(signals: RunSignals) -> tuple[list[tuple[str, dict[str, Any]]], list[tuple[str, str]]]:
+    """The controller's status panel (its efforts), and its reconfiguration flags."""
+    controller = signals.run.controller
+    if controller is None:
+        return [], []
+    status = [
+        (signal, d) for signal, d in controller.diagnostics.items() if signals.path("controller", signal) is not None
+    ]
+    flags = [
+        (signals.path("controller", signal) or "", signals.label("controller", signal))
+        for signal, d in status
+        if d.kind == DiagnosticKind.RECONFIGURATION
+    ]
+    efforts = [(s, d) for s, d in status if d.kind != DiagnosticKind.RECONFIGURATION]
+    if not efforts:
+        return [], flags
+    series = [
+        _series(
+            signals.path("controller", s) or "",
+            signals.label("controller", s) + (f" [{d.unit}]" if d.unit else ""),
+            COLORS[i % len(COLORS)],
+        )
+        for i, (s, d) in enumerate(efforts)
+    ]
+    return [("Plot!controller", _plot("controller status", series))], flags
 
 
 def _trajectory_panels(signals: RunSignals) -> list[tuple[str, dict[str, Any]]]:

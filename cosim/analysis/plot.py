@@ -65,6 +65,7 @@ from estimators.base import DiagnosticKind
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 
 def one_panel(
@@ -156,9 +157,7 @@ def faults(c: Canvas) -> None:
         c.faults_shaded(ax)
         c.finish(ax, ylabel)
     c.onsets_named(axes[0, 0])
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]))
-    c.save(fig, "faults", "what the faults injected (/truth/faults), each from its onset")
+    c.finish_column(fig, axes, "faults", "what the faults injected (/truth/faults), each from its onset")
 
 
 def weights(c: Canvas) -> None:
@@ -180,9 +179,7 @@ def weights(c: Canvas) -> None:
             c.curve(ax, t, w[:, i], i, f"sensor {sensor}")
         ax.set_title(name, loc="left")
         c.finish(ax, f"{labels[kind]} [1]")
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]))
-    c.save(fig, "weights", "pseudoinverse weights per sensor")
+    c.finish_column(fig, axes, "weights", "pseudoinverse weights per sensor")
 
 
 def effect_of_the_bias(c: Canvas) -> None:
@@ -211,18 +208,35 @@ def bias_estimate(c: Canvas) -> None:
     bias = s.diagnostics(DiagnosticKind.BIAS_ESTIMATE)
     if not bias:
         return
-    fig, axes = c.figure(len(s.sensors), height=2.0, sharex=True)
     fk = np.array(sorted(s.fault))
+    true = np.array([s.fault[k] for k in fk], dtype=float).reshape(len(fk), len(s.sensors))
+    fig, axes = sensor_panels(
+        c, bias, (fk * s.sample_time, true, "true fault φ"), lambda sensor: f"φ̂ on {sensor}{s.unit(sensor)}", 2.0, True
+    )
+    c.finish_column(fig, axes, "bias_estimate", "bias estimates φ̂ against the true sensor fault")
+
+
+def sensor_panels(
+    c: Canvas,
+    estimates: dict[str, tuple[np.ndarray, np.ndarray]],
+    reference: tuple[np.ndarray, np.ndarray, str],
+    ylabel: Callable[[str], str],
+    height: float,
+    keep_in_view: bool = False,
+) -> tuple[Figure, np.ndarray]:
+    """A panel per sensor: ``reference`` (its times, its values a column per sensor, its name) and
+    each estimator's column of ``estimates``; ``keep_in_view``: the bulk kept in view (``in_view``)."""
+    s = c.series
+    times, values, label = reference
+    fig, axes = c.figure(len(s.sensors), height=height, sharex=True)
     for i, (ax, sensor) in enumerate(zip(axes[:, 0], s.sensors)):
-        true = np.array([s.fault[k][i] for k in fk])
-        c.reference(ax, fk * s.sample_time, true, "true fault φ")
-        for name, (t, v) in bias.items():
+        c.reference(ax, times, values[:, i], label)
+        for name, (t, v) in estimates.items():
             c.estimator(ax, name, t, v[:, i])
-        in_view(ax, [v[:, i] for _, v in bias.values()], true)
-        c.finish(ax, f"φ̂ on {sensor}{s.unit(sensor)}")
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]))
-    c.save(fig, "bias_estimate", "bias estimates φ̂ against the true sensor fault")
+        if keep_in_view:
+            in_view(ax, [v[:, i] for _, v in estimates.values()], values[:, i])
+        c.finish(ax, ylabel(sensor))
+    return fig, axes
 
 
 #: How many times the span of what matters the values must span before ``in_view`` leaves some out.
@@ -268,9 +282,7 @@ def residual(c: Canvas) -> None:
         c.finish(linear, f"{name}: r = y − C x̂")
         c.finish(log, f"{name}: |r|{s.norm_unit_of(s.sensors)} (log)")
     c.onsets_named(axes[0, 0])
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]))
-    c.save(fig, "residual", "residual r = y − C x̂ per output and its norm; faults shaded")
+    c.finish_column(fig, axes, "residual", "residual r = y − C x̂ per output and its norm; faults shaded")
 
 
 def _reconciliators(s: RunSeries) -> list[str]:
@@ -283,17 +295,10 @@ def gain_estimate(c: Canvas) -> None:
     gains = s.diagnostics(DiagnosticKind.GAIN_ESTIMATE, _reconciliators(s))
     if not gains:
         return
-    fig, axes = c.figure(len(s.sensors), height=1.9, sharex=True)
     t_all = np.array(sorted(s.sensor_truth)) * s.sample_time
-    truth = true_gains(s, t_all)
-    for i, (ax, sensor) in enumerate(zip(axes[:, 0], s.sensors)):
-        c.reference(ax, t_all, truth[:, i], "true γ")
-        for name, (t, g) in gains.items():
-            c.estimator(ax, name, t, g[:, i])
-        c.finish(ax, f"γ̂ of {sensor} [1]")
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]))
-    c.save(fig, "gain_estimate", "sensor effectiveness γ̂ against the true gain")
+    reference = (t_all, true_gains(s, t_all), "true γ")
+    fig, axes = sensor_panels(c, gains, reference, lambda sensor: f"γ̂ of {sensor} [1]", 1.9)
+    c.finish_column(fig, axes, "gain_estimate", "sensor effectiveness γ̂ against the true gain")
 
 
 def reconciled_output(c: Canvas) -> None:
@@ -353,9 +358,7 @@ def _cofd_figure(c: Canvas, name: str, file: str) -> None:
         c.legend_above(ax, labels)
         own += labels
     fig.supylabel("|r_i| / threshold")
-    axes[-1, 0].set_xlabel(TIME)
-    c.legend(fig, list(axes[:, 0]), leave=own)
-    c.save(fig, file, f"{name}, COFD residual components over their thresholds")
+    c.finish_column(fig, axes, file, f"{name}, COFD residual components over their thresholds", leave=own)
 
 
 def trajectory(c: Canvas) -> None:

@@ -15,7 +15,7 @@ import math
 import os
 import shlex
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -113,15 +113,7 @@ def run_campaign(
         if on_start is not None:
             on_start(pool.description, pool.workers)
         todo = batches([run for run in runs if run.index not in done], batch, pool.workers)
-        for specs, outcomes in pool.results(execute_batch, todo, str(folder), keep_logs):
-            if isinstance(outcomes, BaseException):  # the worker process died running them
-                outcomes = [_died(spec, outcomes) for spec in specs]
-            for spec, outcome in zip(specs, outcomes):
-                tally.batched += bool(outcome.pop("batched", False))
-                if (why := outcome.pop("alone", None)) is not None:
-                    tally.alone[why] = tally.alone.get(why, 0) + 1
-                write_part(folder, spec.index, outcome)
-                tally.add(outcome["rows"])
+        _collect(pool.results(execute_batch, todo, str(folder), keep_logs), folder, tally)
         description, count = pool.description, pool.workers
         loop_time = time.perf_counter() - loop_start
     metadata = {
@@ -144,6 +136,20 @@ def run_campaign(
         tally.batched,
         dict(sorted(tally.alone.items(), key=lambda item: -item[1])),
     )
+
+
+def _collect(results: Iterable[tuple[Any, Any]], folder: Path, tally: _Tally) -> None:
+    """Each batch's outcomes as the engine gives them back: every run's part written, the tally told
+    (a batch whose worker process died: each of its runs failed, saying so)."""
+    for specs, outcomes in results:
+        if isinstance(outcomes, BaseException):  # the worker process died running them
+            outcomes = [_died(spec, outcomes) for spec in specs]
+        for spec, outcome in zip(specs, outcomes):
+            tally.batched += bool(outcome.pop("batched", False))
+            if (why := outcome.pop("alone", None)) is not None:
+                tally.alone[why] = tally.alone.get(why, 0) + 1
+            write_part(folder, spec.index, outcome)
+            tally.add(outcome["rows"])
 
 
 #: Settings that act on a run's own plant (its faults, noise, disturbances, inputs, initial state): runs

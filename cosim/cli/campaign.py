@@ -41,11 +41,9 @@ def arguments(p: argparse.ArgumentParser) -> None:
         "--out", "-o", required=True, metavar="DIR", help="the campaign's folder (new, or with --resume its own)"
     )
     p.add_argument("--seeds", type=common.positive, metavar="N", help="replicates 0 … N-1 instead of the file's seeds")
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="KEY=VALUE",
-        help="change the base scenario of every run, as in the file's [set] (duration=10, 'faults[0].start=5.0'); "
+    common.set_option(
+        p,
+        "change the base scenario of every run, as in the file's [set] (duration=10, 'faults[0].start=5.0'); "
         "repeat for several",
     )
     common.engine_options(p, "the campaign in DIR")

@@ -227,12 +227,14 @@ def bus_options(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--port", type=port, help="udp_multicast port (default: a free one)")
 
 
-def set_option(p: argparse.ArgumentParser) -> None:
+def set_option(p: argparse.ArgumentParser, what: str | None = None) -> None:
+    """--set KEY=VALUE, repeatable; ``what`` says what it changes (default: the scenario run)."""
     p.add_argument(
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="change the scenario: KEY a path into it (duration, faults[0].value, estimators[1].params.epsilon, "
+        help=what
+        or "change the scenario: KEY a path into it (duration, faults[0].value, estimators[1].params.epsilon, "
         'bus.fd), VALUE in TOML (5, [0.5, 0, 0], "text", true); repeat for several; validated like the file',
     )
 
@@ -429,8 +431,8 @@ def command(sub: argparse._SubParsersAction, module: ModuleType) -> argparse.Arg
     return p
 
 
-def engine_options(p: argparse.ArgumentParser, what: str) -> None:
-    """--engine, --address, --workers and --resume (of ``what``): where a campaign's runs run."""
+def cluster_options(p: argparse.ArgumentParser) -> None:
+    """--engine, --address and --workers: where a campaign's runs run."""
     p.add_argument(
         "--engine",
         choices=("dask", "inline"),
@@ -443,6 +445,11 @@ def engine_options(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument(
         "--workers", type=positive, metavar="N", help="local cluster: worker processes (default: one per core)"
     )
+
+
+def engine_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``cluster_options``, --resume (of ``what``) and --batch: how a campaign's runs run."""
+    cluster_options(p)
     p.add_argument("--resume", action="store_true", help=f"finish {what}: only the runs without results run")
     p.add_argument(
         "--batch",

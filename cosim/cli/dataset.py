@@ -42,15 +42,11 @@ def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimates", action="store_true", help="add the estimators' estimates to the signals")
     p.add_argument("--license", default="cc-by-4.0", help="the data set's licence in its card (default cc-by-4.0)")
     p.add_argument("--seeds", type=common.positive, metavar="N", help="campaigns run here: replicates 0 … N-1")
-    p.add_argument(
-        "--set", action="append", metavar="KEY=VALUE", help="campaigns run here: change every run (duration=10)"
-    )
+    common.set_option(p, "campaigns run here: change every run (duration=10)")
     p.add_argument(
         "--campaigns", metavar="DIR", help="campaigns run here go to DIR and stay (default: a temporary folder)"
     )
-    p.add_argument("--engine", choices=("dask", "inline"), default="dask", help="where campaigns run here run")
-    p.add_argument("--address", metavar="ADDR", help="join the Dask scheduler at ADDR instead of a local cluster")
-    p.add_argument("--workers", type=common.positive, metavar="N", help="local cluster: worker processes")
+    common.cluster_options(p)  # where campaigns run here run
     common.quiet_option(p)
 
 

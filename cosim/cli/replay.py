@@ -77,11 +77,9 @@ def arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", "-o", metavar="NEW.mcap", help="where to write the replay's log (default: FILE-replay-NAME.mcap)"
     )
-    p.add_argument(
-        "--set",
-        action="append",
-        metavar="KEY=VALUE",
-        help="a setting of the run's scenario the replay can honour: the replayed estimator's "
+    common.set_option(
+        p,
+        "a setting of the run's scenario the replay can honour: the replayed estimator's "
         "estimators[i].params.NAME (the same as --param NAME); anything that changes what was sent needs 'cosim run'",
     )
     common.force_option(p)

@@ -168,32 +168,8 @@ class RunRecorder:
         else:
             log.seen(self._faults, t_ns)
 
-    def foreign(
-        self,
-        tick: int,
-        t: float,
-        t_ns: int,
-        kind: str,
-        reason: str,
-        source: str,
-        length: int,
-        data: bytes,
-        frame_id: int | None = None,
-        count: int = 1,
-        seq: int | None = None,
-    ) -> None:
-        record = Foreign(
-            tick=tick,
-            t=t,
-            kind=kind,
-            reason=reason,
-            source=source,
-            id=frame_id,
-            length=length,
-            data=data.hex(),
-            count=count,
-            seq=seq,
-        )
+    def foreign(self, t_ns: int, record: Foreign) -> None:
+        """An arrival that does not belong to the run (``cosim.run.foreign_traffic`` makes the record)."""
         self.log.write(self._foreign, t_ns, record)
 
     def bus_fault(self, tick: int, t: float, t_ns: int, event: dict[str, Any]) -> None:

@@ -46,8 +46,8 @@ from cosim.plant.fmu_instance import (
     update_discrete_states,
 )
 from cosim.plant.fmu_linear import linearize
-from cosim.plant.fmu_model import FmuModel, fmpy, start_value
-from cosim.plant.statespace import StateSpacePlant
+from cosim.plant.fmu_model import FmuModel, fmpy
+from cosim.plant.fmu_plant_base import FmuPlantBase
 from estimators.model import LinearModel
 
 #: The relative tolerance of FMPy's model-exchange solver when neither the scenario nor the FMU's
@@ -66,7 +66,7 @@ class _HeldInputs:
             self.plant._inputs.set(self.plant.fmu, self.plant._u)
 
 
-class FmuPlant:
+class FmuPlant(FmuPlantBase):
     """One FMU instance advanced ``sample_time`` seconds per tick, with the ``Plant`` interface.
 
     ``duration`` is the run's stop time (the model-exchange solver's maximum step is duration/50,
@@ -85,48 +85,26 @@ class FmuPlant:
         slot: mmap.mmap | None = None,
         on_message: Callable[[FmuMessage], None] | None = None,
     ) -> None:
-        self.model = model
+        super().__init__(model, sample_time, duration, sensors, design)
         self.watch = CallWatch(model.path.name, model.version, slot)
         self.watch.on_message = on_message
-        self.warnings: list[str] = []
-        """What the linearization found doubtful (directional derivatives against differences)."""
-        self.operating_point = ""
-        """Where the last linearization was taken, where that is not the start point as it stands: the
-        equilibrium reached from it, or an affine model about it ("" at an equilibrium)."""
         self.equilibria: dict[tuple[str, bytes, bytes], np.ndarray | str] = {}
         """Where the search for an equilibrium ended from each start point searched from (or what
         stopped it)."""
-        self.info = model.info()
-        self.sample_time, self.duration = float(sample_time), float(duration)
         experiment = model.description.defaultExperiment
         self.tolerance = tolerance
         if tolerance is None and experiment is not None and experiment.tolerance is not None:
             self.tolerance = float(experiment.tolerance)
-        self.state_names = tuple(e.name for e in model.states)
-        self.actuator_names = tuple(e.name for e in model.actuators)
-        self.disturbance_names = tuple(e.name for e in model.disturbances)
         by_name = {e.name: e for e in model.sensors}
-        self.sensor_names = tuple(sensors) if sensors is not None else tuple(by_name)
         version = model.version
         self._states = Access(model.states, version)
         self._sensors = Access([by_name[n] for n in self.sensor_names], version)
         self._reading = Access(self._states.elements + self._sensors.elements, version)
         self._inputs = Access(model.actuators + model.disturbances, version)
-        self.start_inputs = np.array([start_value(e) for e in model.actuators + model.disturbances], dtype=float)
-        """The inputs' start values (actuators, then disturbance inputs): what an undriven input holds."""
-        self.design = None if design is None else StateSpacePlant(design, self.info, sample_time, self.sensor_names)
         self._unzipped = fmpy().extract(str(model.path))
         self._finalizer = weakref.finalize(self, shutil.rmtree, self._unzipped, True)
         self.fmu: Any = None
         self.reset()
-
-    @property
-    def nx(self) -> int:
-        return len(self.state_names)
-
-    @property
-    def time(self) -> float:
-        return self._k * self.sample_time
 
     def reset(self, initial: dict[str, float] | None = None) -> None:
         """A fresh instance at the start point: the FMU's start values with the scenario's

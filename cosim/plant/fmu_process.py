@@ -47,8 +47,8 @@ import numpy as np
 import cosim
 from cosim.errors import Interruption, ModelError
 from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuCallError, FmuMessage
-from cosim.plant.fmu_model import FmuModel, start_value
-from cosim.plant.statespace import StateSpacePlant
+from cosim.plant.fmu_model import FmuModel
+from cosim.plant.fmu_plant_base import FmuPlantBase
 from estimators.model import LinearModel
 
 #: Idle host processes kept for reuse, at most.
@@ -285,7 +285,7 @@ _HOSTS = _Hosts()
 _KEYS = itertools.count()
 
 
-class IsolatedFmuPlant:
+class IsolatedFmuPlant(FmuPlantBase):
     """An FMU plant whose FMU runs in a host process; ``FmuPlant``'s interface.
 
     ``interrupted`` is called while a call waits for the host (every ``POLL`` s): it raises to stop
@@ -302,21 +302,9 @@ class IsolatedFmuPlant:
         tolerance: float | None = None,
         interrupted: Callable[[], None] | None = None,
     ) -> None:
-        self.model = model
-        self.info = model.info()
-        self.sample_time, self.duration = float(sample_time), float(duration)
-        self.state_names = tuple(e.name for e in model.states)
-        self.actuator_names = tuple(e.name for e in model.actuators)
-        self.disturbance_names = tuple(e.name for e in model.disturbances)
-        self.sensor_names = tuple(sensors) if sensors is not None else tuple(e.name for e in model.sensors)
-        self.start_inputs = np.array([start_value(e) for e in model.actuators + model.disturbances], dtype=float)
-        self.design = None if design is None else StateSpacePlant(design, self.info, sample_time, self.sensor_names)
+        super().__init__(model, sample_time, duration, sensors, design)
         self.interrupted = interrupted
-        self.warnings: list[str] = []
-        self.operating_point = ""
-        """As ``FmuPlant.operating_point``."""
         self.messages: list[FmuMessage] = []
-        self._k = 0
         self._key = next(_KEYS)
         self._host: Host | None = _HOSTS.acquire(model)
         arguments = {
@@ -326,14 +314,6 @@ class IsolatedFmuPlant:
             "tolerance": tolerance,
         }
         self._x, self._y = self._call("open", str(model.path), model.settings, arguments)
-
-    @property
-    def nx(self) -> int:
-        return len(self.state_names)
-
-    @property
-    def time(self) -> float:
-        return self._k * self.sample_time
 
     def _call(self, op: str, *args: Any) -> Any:
         host = self._host

@@ -14,6 +14,7 @@ import can
 from cosim.bus.codec import Codec
 from cosim.bus.udp import ForeignDatagram
 from cosim.log.recorder import RunRecorder
+from cosim.log.topics import Foreign
 from cosim.run.outcome import flood_report
 
 RECORDS_PER_TICK = 64  # foreign arrivals logged one by one per tick; the rest as counts
@@ -59,15 +60,29 @@ class ForeignTraffic:
         k = self.tick()
         if seq is not None or self._this_tick < RECORDS_PER_TICK:
             self._this_tick += seq is None
-            self.recorder.foreign(k, *self.time(k), kind, reason, source, length, data[:64], frame_id, seq=seq)
+            t, t_ns = self.time(k)
+            record = Foreign(
+                tick=k,
+                t=t,
+                kind=kind,
+                reason=reason,
+                source=source,
+                id=frame_id,
+                length=length,
+                data=data[:64].hex(),
+                seq=seq,
+            )
+            self.recorder.foreign(t_ns, record)
         else:
             self._more[(kind, reason)] += 1
 
     def close_tick(self) -> None:
         """The tick's arrivals not logged one by one, as counts."""
         k = self.tick()
+        t, t_ns = self.time(k)
         for (kind, reason), count in self._more.items():
-            self.recorder.foreign(k, *self.time(k), kind, reason, "", 0, b"", None, count)
+            record = Foreign(tick=k, t=t, kind=kind, reason=reason, source="", length=0, data="", count=count)
+            self.recorder.foreign(t_ns, record)
         self._more.clear()
         self._this_tick = 0
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -84,28 +85,32 @@ class LiveMeasurement:
             return False
 
     def write(self, channel: str, time_ns: int, data: bytes) -> None:
-        if self.failure is not None:
-            return
-        try:
-            scorer = self._scorer or self._start()
-            self._counts[channel] += 1
+        def feed(scorer: Scorer) -> None:
             if scorer.reads(channel):
                 scorer.feed(channel, time_ns, orjson.loads(data))
             else:
                 scorer.seen(time_ns)
-        except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
-            self.failure = f"{type(error).__name__}: {error}"
+
+        self._score(channel, feed)
 
     def message(self, channel: str, time_ns: int, payload: Any) -> None:
+        def feed(scorer: Scorer) -> None:
+            if isinstance(payload, Record) and scorer.records(channel):
+                scorer.feed_record(channel, time_ns, payload)
+            else:
+                scorer.feed(channel, time_ns, orjson.loads(dumps(payload)))
+
+        self._score(channel, feed)
+
+    def _score(self, channel: str, feed: Callable[[Scorer], None]) -> None:
+        """Count a message on ``channel`` and ``feed`` it to the scorer, until scoring has failed: a
+        scoring bug stops the scoring, never the run it scores."""
         if self.failure is not None:
             return
         try:
             scorer = self._scorer or self._start()
             self._counts[channel] += 1
-            if isinstance(payload, Record) and scorer.records(channel):
-                scorer.feed_record(channel, time_ns, payload)
-            else:
-                scorer.feed(channel, time_ns, orjson.loads(dumps(payload)))
+            feed(scorer)
         except Exception as error:  # noqa: BLE001 (a scoring bug must not end the run it scores)
             self.failure = f"{type(error).__name__}: {error}"
 
