@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 from xml.etree.ElementTree import Element, SubElement
 
@@ -33,22 +32,20 @@ from pythonfmu import (
 )
 from pythonfmu.enums import Fmi2Status
 
-from cosim.run.fmu_interface import Variable, load, unit_element
+from cosim.run.fmu_interface import Adapter, Variable, unit_element
 
 TYPES = {"Float64": Real, "Int64": Integer, "Boolean": Boolean, "String": String}
-STATUS = {"ok": Fmi2Status.ok, "warning": Fmi2Status.warning, "error": Fmi2Status.error}
 
 
-class CosimSlave(Fmi2Slave):
+class CosimSlave(Adapter, Fmi2Slave):
     """A cosim slave as an FMI 2.0 co-simulation slave."""
+
+    status = {"ok": Fmi2Status.ok, "warning": Fmi2Status.warning, "error": Fmi2Status.error}
+    experiment = DefaultExperiment
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.slave = load(Path(self.resources), self._log)
-        content = self.slave.content
-        self.modelName = content["model_identifier"]
-        self.description = content["description"]
-        self.default_experiment = DefaultExperiment(0.0, content["duration"], self.slave.step_size)
+        self.start()
         self.units: dict[str, str] = {}
         """Each scalar's unit, by its name."""
         for variable in self.slave.variables:
@@ -56,9 +53,6 @@ class CosimSlave(Fmi2Slave):
                 self.register_variable(scalar, nested=False)
                 if variable.unit:
                     self.units[scalar.name] = variable.unit
-
-    def _log(self, message: str, status: str) -> None:
-        self.log(message, status=STATUS[status])
 
     def to_xml(self, model_options: dict[str, str] | None = None) -> Element:
         """pythonfmu's model description with the unit definitions (after ``CoSimulation``, where
@@ -83,16 +77,10 @@ class CosimSlave(Fmi2Slave):
                 scalar[0].set("unit", unit)
         return root
 
-    def exit_initialization_mode(self) -> None:
-        self.slave.initialize()
-
     def do_step(self, current_time: float, step_size: float) -> bool:
         if not self.slave.step(current_time, step_size):
             raise StepRefused("the step was refused (the message before says why)")
         return True
-
-    def terminate(self) -> None:
-        self.slave.terminate()
 
 
 def _scalars(v: Variable) -> Iterator[Any]:

@@ -10,7 +10,6 @@ This file is ASCII: pythonfmu3 reads it in the locale's encoding (``cosim.run.fm
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 from xml.etree.ElementTree import Element
 
@@ -30,22 +29,20 @@ from pythonfmu3 import (
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.unit import Unit
 
-from cosim.run.fmu_interface import Variable, load, unit_element
+from cosim.run.fmu_interface import Adapter, Variable, unit_element
 
 TYPES = {"Float64": Float64, "Int64": Int64, "Boolean": Boolean, "String": String}
-STATUS = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
 
 
-class CosimSlave(Fmi3Slave):
+class CosimSlave(Adapter, Fmi3Slave):
     """A cosim slave as an FMI 3.0 co-simulation slave."""
+
+    status = {"ok": Fmi3Status.ok, "warning": Fmi3Status.warning, "error": Fmi3Status.error}
+    experiment = DefaultExperiment
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.slave = load(Path(self.resources), self._log)
-        content = self.slave.content
-        self.modelName = content["model_identifier"]
-        self.description = content["description"]
-        self.default_experiment = DefaultExperiment(0.0, content["duration"], self.slave.step_size)
+        content = self.start()
         self.time = 0.0
         self.register_units([DefinedUnit(name, unit) for name, unit in content["units"].items()])
         self.register_variable(
@@ -54,20 +51,11 @@ class CosimSlave(Fmi3Slave):
         for variable in self.slave.variables:
             self.register_variable(_declared(variable), nested=False)
 
-    def _log(self, message: str, status: str) -> None:
-        self.log(message, status=STATUS[status])
-
-    def exit_initialization_mode(self) -> None:
-        self.slave.initialize()
-
     def do_step(self, current_time: float, step_size: float) -> Fmi3StepResult:
         if not self.slave.step(current_time, step_size):
             return Fmi3StepResult(status=Fmi3Status.error)
         self.time = current_time + step_size
         return Fmi3StepResult()
-
-    def terminate(self) -> None:
-        self.slave.terminate()
 
 
 class DefinedUnit(Unit):

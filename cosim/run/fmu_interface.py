@@ -200,3 +200,37 @@ def load(resources: Path, log: Log) -> Slave:
     module, _, name = SLAVES[content["slave"]].partition(":")
     slave: Slave = getattr(importlib.import_module(module), name)(content, resources, log)
     return slave
+
+
+class Adapter:
+    """What the FMI 2.0 and 3.0 adapters (``fmu_fmi2``, ``fmu_fmi3``) share, mixed in before their
+    library's slave class: the slave their resources name, the model's name, description and default
+    experiment, its messages in the log at their FMI status, initialization and termination."""
+
+    status: dict[str, Any]
+    """The FMI version's status of each of ``Log``'s: ok, warning, error."""
+    experiment: Callable[..., Any]
+    """The library's DefaultExperiment."""
+    resources: str
+    log: Callable[..., None]
+    modelName: str  # noqa: N815 (the libraries' attribute)
+    description: str
+    default_experiment: Any
+
+    def start(self) -> dict[str, Any]:
+        """Load the slave of the FMU's resources and describe the model by it; returns its content."""
+        self.slave = load(Path(self.resources), self._log)
+        content = self.slave.content
+        self.modelName = content["model_identifier"]
+        self.description = content["description"]
+        self.default_experiment = self.experiment(0.0, content["duration"], self.slave.step_size)
+        return content
+
+    def _log(self, message: str, status: str) -> None:
+        self.log(message, status=self.status[status])
+
+    def exit_initialization_mode(self) -> None:
+        self.slave.initialize()
+
+    def terminate(self) -> None:
+        self.slave.terminate()
