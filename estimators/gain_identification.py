@@ -14,7 +14,6 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.special
-from scipy.linalg import lapack
 
 from estimators.box_least_squares import box_least_squares
 from estimators.lmi import pseudo_inverse
@@ -176,28 +175,9 @@ def window_system(
         Y = Y - G @ (G.T @ Y)
         r = r - G @ (G.T @ r)
         dof -= G.shape[1]
-    basis, factor = thin_qr(Y)
+    basis, factor = np.linalg.qr(Y)
     rotated = basis.T @ r
     return WindowSystem(factor, rotated, float(max(r @ r - rotated @ rotated, 0.0)), int(dof))
-
-
-def thin_qr(Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Q (M, N) and R (N, N) of Y (M, N), M ≥ N: what ``np.linalg.qr(Y)`` returns, bit for bit (the
-    same LAPACK calls, dgeqrf then dorgqr; tested), without its checks and its mask for R (ten times
-    its arithmetic on these small matrices, and a gain search makes thousands of them)."""
-    rows, columns = Y.shape
-    if rows < columns or columns == 0:
-        return np.linalg.qr(Y)
-    factors, tau, _, _ = lapack.dgeqrf(Y)
-    factor = factors[:columns].copy()
-    factor[_below_diagonal(columns)] = 0.0
-    basis = lapack.dorgqr(factors, tau)[0]
-    return basis, factor
-
-
-@functools.lru_cache(maxsize=16)
-def _below_diagonal(size: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.tril_indices(size, -1)
 
 
 @functools.lru_cache(maxsize=1024)
