@@ -1,4 +1,4 @@
-"""The figures that docs/three-tank.md, docs/tac2024.md and the README's scenario table state, computed
+"""The figures that docs/three-tank.md, docs/tac2024.md and the scenario table (docs/scenarios.md) state, computed
 from a run of the built-in scenario they come from.
 
     python -m tests.doc_figures three-tank-reconciliation [--log FILE.mcap]
@@ -161,7 +161,8 @@ DOCUMENTS = {
 }
 
 
-# The figures the README's scenario table states, in the scenario's row.
+# The figures the scenario table (docs/scenarios.md, once the README's) states, in the scenario's row.
+SCENARIO_TABLE = "docs/scenarios.md"
 README_ROW = {
     "three-tank-reconciliation": (
         "lft_test.gamma.faulty",
@@ -177,13 +178,14 @@ README_ROW = {
 
 def undocumented(name: str) -> list[str]:
     """The ``DOCUMENTED`` values of scenario ``name`` that its document does not print, and those of
-    ``README_ROW`` that the README's row of the scenario does not."""
+    ``README_ROW`` that the scenario table's row of the scenario does not."""
     text = (ROOT / DOCUMENTS[name]).read_text()
     missing = [f"{key} = {printed}" for key, printed in DOCUMENTED[name].items() if printed not in text]
-    rows = [line for line in (ROOT / "README.md").read_text().splitlines() if line.startswith(f"| `{name}` |")]
+    table = (ROOT / SCENARIO_TABLE).read_text().splitlines()
+    rows = [line for line in table if line.startswith(f"| `{name}` |")]
     row = rows[0] if rows else ""
     return missing + [
-        f"README: {key} = {DOCUMENTED[name][key]}"
+        f"{SCENARIO_TABLE}: {key} = {DOCUMENTED[name][key]}"
         for key in README_ROW.get(name, ())
         if DOCUMENTED[name][key] not in row
     ]

@@ -196,6 +196,8 @@ class Said:
 _current: CallWatch | None = None
 """The watch of the FMI call under way (FMI 2's logger hands it the message)."""
 _FMI2_CALLBACKS: Any = None
+_FMI2_LOGGER: Any = None
+"""Our logger (kept alive: the callbacks hold only its address)."""
 
 
 def _logger2(component: Any, instance: Any, status: int, category: Any, message: Any) -> None:
@@ -204,11 +206,17 @@ def _logger2(component: Any, instance: Any, status: int, category: Any, message:
 
 
 def fmi2_callbacks() -> Any:
-    """The FMI 2 callback functions of every instance of this process (see the module's docstring)."""
-    global _FMI2_CALLBACKS
-    if _FMI2_CALLBACKS is None:
-        from ctypes import byref
+    """The FMI 2 callback functions of every instance of this process (see the module's docstring).
 
+    FMPy's native logger proxy (``addLoggerProxy``) forwards to one logger for the whole process, the
+    one registered last: FMPy's own ``simulate_fmu`` in the same process registers its own, after
+    which an instance of ours would log to it. So ours is registered again for each instance."""
+    global _FMI2_CALLBACKS, _FMI2_LOGGER
+    from ctypes import byref
+
+    from fmpy.logging import addLoggerProxy
+
+    if _FMI2_CALLBACKS is None:
         from fmpy import calloc, free
         from fmpy.fmi2 import (
             fmi2CallbackAllocateMemoryTYPE,
@@ -216,12 +224,12 @@ def fmi2_callbacks() -> Any:
             fmi2CallbackFunctions,
             fmi2CallbackLoggerTYPE,
         )
-        from fmpy.logging import addLoggerProxy
 
         callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(_logger2)
+        _FMI2_LOGGER = fmi2CallbackLoggerTYPE(_logger2)
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        addLoggerProxy(byref(callbacks))
         _FMI2_CALLBACKS = callbacks
+    _FMI2_CALLBACKS.logger = _FMI2_LOGGER  # the proxy's target is ours again, then the proxy is the logger
+    addLoggerProxy(byref(_FMI2_CALLBACKS))
     return _FMI2_CALLBACKS
