@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import re
+from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from datetime import datetime
 from decimal import Decimal, InvalidOperation
@@ -92,7 +93,7 @@ class _BadHeader(Exception):
     """A header line that says a date or setting this module cannot read (its text names the line)."""
 
 
-class _Clock:
+class _Clock(ABC):
     """A text format's times: ``see`` is shown every line of the file, ``time_ns`` gives the time
     of the last one seen (a frame's) in ns, by the clock ``kind`` (log_clock: UTC, LOCAL, NO_DATE)."""
 
@@ -102,8 +103,9 @@ class _Clock:
     def see(self, line: str, number: int) -> None:
         self.line = line
 
-    def time_ns(self) -> int:  # each format's own
-        raise NotImplementedError(f"{type(self).__name__} reads no time")
+    @abstractmethod
+    def time_ns(self) -> int:
+        """The time of the last line seen, in ns (each format's own)."""
 
 
 class _CandumpClock(_Clock):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import struct
+from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import IO, Any, Protocol, Self
 
@@ -156,7 +157,7 @@ class _Writer(Writer):
             self._Writer__finalize_chunk()  # type: ignore[attr-defined]
 
 
-class _Log:
+class _Log(ABC):
     """What a run's two logs share: a ``with`` block closes it, a topic is registered once."""
 
     _channels: dict[str, int]
@@ -167,8 +168,9 @@ class _Log:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Finish the log."""
 
     def channel(self, topic: str, schema: dict[str, Any]) -> int:
         """Register a topic with its JSON Schema (once); returns its channel id."""
@@ -176,8 +178,9 @@ class _Log:
             self._channels[topic] = self._register(topic, schema)
         return self._channels[topic]
 
+    @abstractmethod
     def _register(self, topic: str, schema: dict[str, Any]) -> int:
-        raise NotImplementedError
+        """Register a new topic; returns its channel id."""
 
 
 class McapLog(_Log):
