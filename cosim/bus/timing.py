@@ -142,6 +142,7 @@ def _fd_header(can_id: int, extended: bool, brs: bool) -> tuple[int, int]:
 _ESI_DLC = _CHUNKS[5]  # ESI = 0 and the 4 DLC bits: the 5 bits before an FD frame's data
 
 
+@lru_cache(maxsize=1 << 14)  # a frame is timed when planned, sent, logged and scored; bounded, as above
 def frame_bits(can_id: int, extended: bool, fd: bool, brs: bool, dlc: int, data: bytes) -> tuple[int, int]:
     """(bits at the nominal bit rate, bits at the data bit rate) of one data frame, stuff bits
     counted exactly, intermission included. ``dlc`` is the data length code, ``data`` the payload

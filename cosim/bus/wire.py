@@ -27,6 +27,8 @@ import copy
 from dataclasses import dataclass, field
 from typing import Any
 
+from can.util import len2dlc
+
 from cosim.bus.timing import frame_bits
 
 _INTERMISSION = 3  # bits after EOF before the next SOF: part of a frame's length, not of its delivery
@@ -71,11 +73,12 @@ class Transmission:
         return self.dropped is None and self.delivered_ns > self.frame.deadline_ns
 
 
+_DLC = tuple(int(len2dlc(length)) for length in range(65))  # a look-up: python-can's function costs µs per frame
+
+
 def dlc_of(length: int) -> int:
     """The data length code of a payload of ``length`` bytes (CAN FD lengths above 8)."""
-    from can.util import len2dlc
-
-    return int(len2dlc(length))
+    return _DLC[length]
 
 
 def bits_of(frame: WireFrame) -> tuple[int, int]:
@@ -119,8 +122,10 @@ class Wire:
                 continue
             if t >= stop_ns:
                 break
-            out += self._replace_stale(eligible)
-            eligible = [f for f in self.queue if f.queued_ns <= t]
+            dropped = self._replace_stale(eligible)
+            if dropped:
+                out += dropped
+                eligible = [f for f in self.queue if f.queued_ns <= t]
             winner = min(eligible, key=lambda f: (f.frame_id, f.queued_ns, f.seq))
             self.queue.remove(winner)
             total, delivery = self.duration_ns(winner)
@@ -131,6 +136,8 @@ class Wire:
 
     def _replace_stale(self, eligible: list[WireFrame]) -> list[Transmission]:
         """A sender's newer frame of an id replaces its older one still waiting."""
+        if len({(frame.sender, frame.frame_id) for frame in eligible}) == len(eligible):
+            return []  # the usual case: one frame per sender and id
         newest: dict[tuple[str, int], WireFrame] = {}
         for frame in sorted(eligible, key=lambda f: (f.queued_ns, f.seq)):
             newest[(frame.sender, frame.frame_id)] = frame
