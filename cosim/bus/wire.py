@@ -34,7 +34,7 @@ from cosim.bus.timing import frame_bits
 _INTERMISSION = 3  # bits after EOF before the next SOF: part of a frame's length, not of its delivery
 
 
-@dataclass
+@dataclass(eq=False)  # a frame is itself, whatever it carries: the queue finds and removes it by identity
 class WireFrame:
     """A frame offered to the wire by ``sender`` at ``queued_ns``; ``deadline_ns``: when it is late.
 
@@ -51,6 +51,8 @@ class WireFrame:
     deadline_ns: int
     payload: Any = None
     seq: int = field(default=0, compare=False)
+    bits: tuple[int, int] | None = field(default=None, compare=False, repr=False)
+    """``bits_of`` the frame, once it has been asked."""
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,11 @@ def dlc_of(length: int) -> int:
 
 def bits_of(frame: WireFrame) -> tuple[int, int]:
     """(nominal, data-rate) bits of ``frame`` on the wire, stuff bits and intermission included."""
-    return frame_bits(frame.frame_id, frame.extended, frame.fd, frame.brs, dlc_of(len(frame.data)), frame.data)
+    if frame.bits is None:
+        frame.bits = frame_bits(
+            frame.frame_id, frame.extended, frame.fd, frame.brs, dlc_of(len(frame.data)), frame.data
+        )
+    return frame.bits
 
 
 class Wire:
