@@ -4,10 +4,11 @@ runs at once.
 
 The K-run forms (``optimizer_steps``, ``select_runs``, ``scale_and_filter_runs``: arrays with a
 leading run axis, the data-dependent branches as masks) give, row for row, bit for bit what the
-one-run forms give (``tests/test_adaptive.py`` holds them against each other on inputs that take
-every branch): the same IEEE operations in the same order, the products and norms by the stacked
-kernels of ``estimators.batched``. The one-run optimizer keeps its loop over Python floats: on one
-run it is three times quicker than the array form.
+one-run forms give: the same IEEE operations in the same order, the products and norms by the
+stacked kernels of ``estimators.batched``, the column sums of squares by the same ``einsum`` with a
+run index (``tests/test_batched_steps.py`` holds the two forms against each other on inputs that
+take every branch). The one-run optimizer keeps its loop over Python floats: on one run it is about
+three times quicker than the array form.
 """
 
 from __future__ import annotations

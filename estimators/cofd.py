@@ -269,8 +269,9 @@ class COFDDiagnosis(Estimator):
         found = np.where(met, self.isolation(fired), -1)
         since[found != candidate] = t
         candidate[:] = found
-        ready = (found >= 0) & (t - since >= self.params.persistence - 1e-9)
-        isolated |= ready[:, None] & self.isolation.members[found]
+        if (found >= 0).any():  # else nothing to latch: the usual tick
+            ready = (found >= 0) & (t - since >= self.params.persistence - 1e-9)
+            isolated |= ready[:, None] & self.isolation.members[found]
         return met
 
     @classmethod

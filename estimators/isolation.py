@@ -39,8 +39,8 @@ class Isolation:
 
     def __init__(self, signatures: np.ndarray, hypotheses: Iterable[Sequence[int]]) -> None:
         self.hypotheses = [tuple(H) for H in hypotheses]
-        self.silent = np.array([~hypothesis_signature(signatures, H).ravel() for H in self.hypotheses])
-        """(hypotheses, components): True where the hypothesis cannot move the component."""
+        self.silent = np.array([~hypothesis_signature(signatures, H).ravel() for H in self.hypotheses]).T.copy()
+        """(components, hypotheses): True where the hypothesis cannot move the component."""
         self.smaller = np.array([[set(other) < set(H) for H in self.hypotheses] for other in self.hypotheses])
         """(other, H): True where ``other`` is a strict subset of H."""
         self.members = np.zeros((len(self.hypotheses) + 1, signatures.shape[2]), dtype=bool)
@@ -49,10 +49,12 @@ class Isolation:
             self.members[i, list(H)] = True
 
     def __call__(self, fired: np.ndarray) -> np.ndarray:
-        fired = fired.reshape(len(fired), 1, -1)
-        consistent = ~(fired & self.silent).any(axis=2)  # (K, hypotheses)
-        minimal = consistent & ~(consistent[:, :, None] & self.smaller).any(axis=1)
-        unique = (minimal.sum(axis=1) == 1) & fired.any(axis=(1, 2))
+        fired = fired.reshape(len(fired), -1)
+        if not fired.any():  # the usual tick
+            return np.full(len(fired), -1)
+        consistent = ~(fired @ self.silent)  # (K, hypotheses); a boolean product: any of the ands
+        minimal = consistent & ~(consistent @ self.smaller)
+        unique = (minimal.sum(axis=1) == 1) & fired.any(axis=1)
         return np.where(unique, minimal.argmax(axis=1), -1)
 
 
