@@ -65,7 +65,7 @@ def adversarial_rows(rng: np.random.Generator, p: int, runs: int) -> tuple[np.nd
 
 def test_the_optimizer_of_k_runs_is_the_one_run_optimizer_bit_for_bit_on_every_branch():
     rng = np.random.default_rng(5)
-    corners = settled = 0
+    corners = negative = settled = 0
     for _ in range(120):
         p = int(rng.integers(2, 7))
         q = int(rng.integers(1, p + 1))
@@ -75,9 +75,11 @@ def test_the_optimizer_of_k_runs_is_the_one_run_optimizer_bit_for_bit_on_every_b
             alone = np.array([optimizer_step(z[k], phi[k], Y) for k in range(len(z))])
             together = optimizer_steps(z, phi, Y)
         assert same_bits(together, alone), (p, q)
-        corners += int((np.abs(alone) == 1.0).any(axis=1).sum())  # the candidate ±eᵢ taken
+        jumped = ~(np.abs(z) == 1.0).any(axis=1)  # the candidate ±eᵢ taken from elsewhere
+        corners += int(((alone == 1.0).any(axis=1) & jumped).sum())
+        negative += int(((alone == -1.0).any(axis=1) & jumped).sum())
         settled += int(np.all(alone == z, axis=1).sum())
-    assert corners > 100 and settled > 100  # the branches were taken
+    assert corners > 100 and negative > 50 and settled > 100  # the branches were taken
     Y, _, _ = assumption2_factorization(masses_model(P3).C)
     z = np.array([0.6, -0.48, 0.64])  # φ moves no reading but the third: e₁ and e₂ both cost 0
     tie = optimizer_steps(np.array([z]), np.array([[0.0, 0.0, 1.0]]), Y)[0]
