@@ -7,8 +7,8 @@ Linear Systems", IEEE TAC 2024. The plant is x⁺ = A x + B u, y = C x + φ with
 1. the asymptotic bias estimator (7a)–(7c), ``BiasEstimator``, whose φ̂ → φ exponentially
    (Proposition 1);
 2. the optimizer z⁺ ∈ G_z(z, φ̂), a line search over the coordinate directions that decreases
-   |Γ(φ̂) z| (36)–(37e), ``optimizer_step``;
-3. the selector (17), or its logic-enhanced form (52), ``select``: s takes z unless R(z) is
+   |Γ(φ̂) z| (36)–(37e), ``estimators.adaptive_law.optimizer_step``;
+3. the selector (17), or its logic-enhanced form (52), ``adaptive_law.select``: s takes z unless R(z) is
    too close to singular (|det R(z)| ≤ ε), in which case s is held and h = 1;
 4. the observer (13) with the weighted pseudoinverse Π(s) = R(s)⁻¹ Γ(s) (14), or with residual
    injection (53): x̂⁺ = A x̂ + B u + L Π(s)(y − C x̂ − h φ̂).
@@ -34,8 +34,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.adaptive_law import (
+    optimizer_step,
+    optimizer_steps,
+    scale_and_filter,
+    scale_and_filter_runs,
+    select,
+    select_runs,
+)
 from estimators.base import Estimate, Estimator, ParameterError, initial_state
-from estimators.batched import BatchEstimate, DeviationBatch, mv
+from estimators.batched import BatchEstimate, DeviationBatch, mv, norms
 from estimators.design import (
     AssumptionError,
     assumption2_factorization,
@@ -83,107 +91,6 @@ class BiasEstimator:
     def predict(self, u: np.ndarray) -> None:
         """ξ_{k+1} without a measurement (a tick with a missing reading)."""
         self.xi = self.A @ self.xi + self.B @ u
-
-
-# -- the optimizer G_z (Section V) -------------------------------------------------------------
-
-
-def cost_matrix(Y: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """S(φ) = Γ(φ)ᵀ Γ(φ) with Γ(φ) = Yᵀ diag(φ) (eq. (14), (36a)); shape (p, p)."""
-    gamma = Y.T * phi
-    return gamma.T @ gamma
-
-
-def line_search_coefficients(z: np.ndarray, S: np.ndarray, i: int) -> tuple[float, float, float]:
-    """β₀, β₁, β₂ of eq. (37a)–(37c) for the search direction eᵢ (S symmetric).
-
-    β₀ = eᵢᵀ(I − z zᵀ) S z,  β₁ = eᵢᵀ S eᵢ − zᵀ S z,  β₂ = zᵀ(eᵢ eᵢᵀ − I) S eᵢ.
-    For f(ζ) = 𝔷ᵀ S 𝔷 with 𝔷 = (z + ζ eᵢ)/|z + ζ eᵢ|, differentiating gives
-    f′(ζ) = 2 (β₂ ζ² + β₁ ζ + β₀) / |z + ζ eᵢ|⁴, not (β₂ζ² + 2β₁ζ + β₀)/|·|⁴ as eq. (39) prints
-    (erratum, docs/errata.md): (39)–(41) and (37d) hold with β₁ replaced by β₁/2.
-    """
-    Sz = S @ z
-    zSz = z @ Sz
-    return Sz[i] - z[i] * zSz, S[i, i] - zSz, z[i] * S[i, i] - Sz[i]
-
-
-def line_search_step(beta0: float, beta1: float, beta2: float) -> float:
-    """The minimizing step ζ of (36) along eᵢ: eq. (37d), (40)–(41) with β₁/2 for β₁ (see above);
-    ±inf stands for the candidate ±eᵢ.
-
-    With b = β₁/2 and γ = b² − β₂β₀ ≥ 0, the minimizer is ζ₊ = (√γ − b)/β₂ (the right root of
-    f′ for β₂ > 0, the left one for β₂ < 0). For b > 0 it is evaluated as the equal −β₀/(√γ + b),
-    which has no cancellation and tends, as β₂ → 0, to the middle case ζ = −β₀/(2b) = −β₀/β₁ of
-    (37d); β₂ = 0 and b ≤ 0 give the third case, ±eᵢ.
-    """
-    b = 0.5 * beta1
-    root = np.sqrt(max(b * b - beta2 * beta0, 0.0))  # γ ≥ 0: f′ always changes sign; clip rounding
-    if b > 0:
-        return -beta0 / (root + b)
-    if beta2 != 0:
-        return (root - b) / beta2
-    return np.inf
-
-
-def line_search(z: np.ndarray, S: np.ndarray, i: int) -> np.ndarray:
-    """A minimizer of (36) along eᵢ: one element of G*ᵢ(z, φ) of eq. (37d) (for ±eᵢ, the one on z's side)."""
-    zeta = line_search_step(*line_search_coefficients(z, S, i))
-    if np.isinf(zeta):
-        return np.where(np.arange(z.size) == i, 1.0 if z[i] >= 0 else -1.0, 0.0)
-    candidate = z.copy()
-    candidate[i] += zeta
-    return candidate / np.linalg.norm(candidate)
-
-
-def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """z⁺ ∈ G_z(z, φ) of eq. (37e): the best of the p line-search minimizers G*ᵢ(z, φ).
-
-    O(p) once S z is known (Remark 2): the cost of each candidate follows from (36b) in closed form,
-    f(ζ) = (zᵀSz + 2ζ (Sz)ᵢ + ζ² Sᵢᵢ) / (1 + 2ζ zᵢ + ζ²). Ties go to the lowest i. When the cost is
-    already zero (z ∈ 𝒵*, for instance φ = 0) z is kept: 𝒵* is forward invariant (Proposition 2).
-    """
-    gamma = Y.T * phi  # Γ(φ); S = ΓᵀΓ is never formed, which keeps |Γ z|² accurate near zero
-    gz = gamma @ z
-    zSz = float(gz @ gz)
-    S_diag = np.einsum("ij,ij->j", gamma, gamma)
-    if zSz <= 1e-28 * max(S_diag.sum(), np.finfo(float).tiny):
-        return z
-    best_i, best_cost, best_zeta = -1, np.inf, 0.0
-    # the p candidates in Python floats: the same IEEE arithmetic, without numpy's per-scalar cost
-    for i, (zi, Szi, Sii) in enumerate(zip(z.tolist(), (gamma.T @ gz).tolist(), S_diag.tolist())):
-        beta0, beta1, beta2 = Szi - zi * zSz, Sii - zSz, zi * Sii - Szi
-        zeta = line_search_step(beta0, beta1, beta2)
-        if np.isinf(zeta):
-            cost = Sii
-        else:
-            cost = (zSz + 2 * zeta * Szi + zeta * zeta * Sii) / (1 + 2 * zeta * zi + zeta * zeta)
-        if cost < best_cost:
-            best_i, best_cost, best_zeta = i, cost, zeta
-    if np.isinf(best_zeta):
-        return np.where(np.arange(z.size) == best_i, 1.0 if z[best_i] >= 0 else -1.0, 0.0)
-    candidate = z.copy()
-    candidate[best_i] += best_zeta
-    return candidate / np.linalg.norm(candidate)
-
-
-# -- the selector (17), (52) --------------------------------------------------------------------
-
-
-def select(s: np.ndarray, z: np.ndarray, Y: np.ndarray, epsilon: float) -> tuple[np.ndarray, int]:
-    """(s⁺, h⁺) of the logic-enhanced selector (52); s⁺ alone is the selector (17).
-
-    s takes z when z is in the interior of 𝒮_ε = {|det R(z)| ≥ ε} (15), with h = 0; otherwise s is
-    held and h = 1. On the boundary |det R(z)| = ε, where (52) allows both, s is held.
-    """
-    if abs(np.linalg.det((Y.T * z) @ Y)) > epsilon:
-        return z, 0
-    return s, 1
-
-
-def scale_and_filter(phi_hat: np.ndarray, filtered: np.ndarray, tau: float, eps_phi: float) -> np.ndarray:
-    """One step of Algorithm 1: φ̂* = φ̂ / max(|φ̂|, ε_φ) (i), φ̂** ← (1 − τ) φ̂** + τ φ̂* (ii)."""
-    scaled = phi_hat / max(np.linalg.norm(phi_hat), eps_phi)
-    return (1.0 - tau) * filtered + tau * scaled
 
 
 # -- estimators ---------------------------------------------------------------------------------
@@ -341,9 +248,10 @@ class AdaptivePseudoinverseObserver(Estimator):
 
 
 class _AdaptiveBatch(DeviationBatch):
-    """K adaptive observers of one design: the observer (13), the bias estimator (7) and Π(s) of
-    each run's own selector (14) in the stacked kernels; each run's optimizer step (37e), selector
-    (17)/(52) and Algorithm 1's scaling by its own calls, as alone."""
+    """K adaptive observers of one design: the observer (13), the bias estimator (7), Π(s) of each
+    run's own selector (14) and the adaptation (Algorithm 1, the dead zone, the optimizer (37e), the
+    selector (17)/(52): ``estimators.adaptive_law``'s K-run forms) on arrays with a leading run axis;
+    a run with a missing reading predicts and holds its adaptation, as its step does."""
 
     def __init__(self, instances: Sequence[AdaptivePseudoinverseObserver]) -> None:
         super().__init__(instances)
@@ -352,48 +260,53 @@ class _AdaptiveBatch(DeviationBatch):
         self.xi = np.stack([e.bias.xi for e in instances])
         self.z = np.stack([e.z for e in instances])
         self.s = np.stack([e.s for e in instances])
-        self.h = [e.h for e in instances]
+        self.h = np.array([e.h for e in instances])
         self.phi_hat = np.stack([e.phi_hat for e in instances])
         self.phi_filtered = np.stack([e.phi_filtered for e in instances])
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:
         A, B = self.model.A, self.model.B
-        first, bias, params = self.first, self.first.bias, self.first.params
+        first, bias = self.first, self.first.bias
         x_k, xi, z, s, h = self.x, self.xi, self.z, self.s, self.h
-        whole = np.flatnonzero(~np.isnan(dy).any(axis=1))
+        missing = np.isnan(dy).any(axis=1)
+        rows = np.flatnonzero(~missing) if missing.any() else slice(None)  # the runs with every reading
         x_next = mv(A, x_k) + mv(B, du)
         xi_next = mv(bias.A, xi) + mv(bias.B, du)  # (7a) without a measurement: a run with a missing reading
         injected = np.zeros_like(x_k)
-        z_next, s_next, h_next = z.copy(), s.copy(), list(h)
-        if whole.size:
-            y = mv(first.Sigma, dy[whole])
-            phi_hat = mv(bias.output_gain, mv(bias.P_Y, y) - mv(bias.H, xi[whole])) + mv(bias.complement, y)  # (7c)
-            self.phi_hat[whole] = phi_hat
-            logic = np.array([h[r] for r in whole])[:, None]
-            innovation = y - mv(first.C, x_k[whole]) - (logic * phi_hat if params.injection else 0.0)
-            gamma = first.Y.T * s[whole][:, None, :]  # Π(s) = (Γ(s) Y)⁻¹ Γ(s), each run's s (14)
+        if not missing.all():
+            y = mv(first.Sigma, dy[rows])
+            phi_hat = mv(bias.output_gain, mv(bias.P_Y, y) - mv(bias.H, xi[rows])) + mv(bias.complement, y)  # (7c)
+            self.phi_hat[rows] = phi_hat
+            innovation = y - mv(first.C, x_k[rows]) - (h[rows][:, None] * phi_hat if first.params.injection else 0.0)
+            gamma = first.Y.T * s[rows][:, None, :]  # Π(s) = (Γ(s) Y)⁻¹ Γ(s), each run's s (14)
             allocation = np.linalg.solve(gamma @ first.Y, gamma)
-            injected[whole] = mv(first.L, np.matmul(allocation, innovation[..., None])[..., 0])
-            x_next[whole] = x_next[whole] + injected[whole]  # (13) / (53)
-            xi_next[whole] = xi_next[whole] + mv(bias.M, mv(bias.P_Y, y - mv(bias.C, xi[whole])))  # (7a)
-            for i, r in enumerate(whole):  # each run's own logic, by the same calls as alone
-                if params.filter is not None:  # Algorithm 1
-                    self.phi_filtered[r] = scale_and_filter(
-                        phi_hat[i], self.phi_filtered[r], params.filter, params.eps_phi
-                    )
-                driving = phi_hat[i] if params.filter is None else self.phi_filtered[r]
-                if np.linalg.norm(phi_hat[i]) >= params.dead_zone:
-                    z_next[r] = optimizer_step(z[r], driving, first.Y)  # (16), (37e)
-                s_next[r], h_next[r] = select(s[r], z[r], first.Y, params.epsilon)  # (17) / (52)
+            injected[rows] = mv(first.L, np.matmul(allocation, innovation[..., None])[..., 0])
+            x_next[rows] = x_next[rows] + injected[rows]  # (13) / (53)
+            xi_next[rows] = xi_next[rows] + mv(bias.M, mv(bias.P_Y, y - mv(bias.C, xi[rows])))  # (7a)
+            self.z, self.s, self.h = z.copy(), s.copy(), h.copy()
+            self.z[rows], self.s[rows], self.h[rows] = self._adapt(rows, phi_hat)
         outputs, states = self.model.outputs, self.model.states
         phi_shown = mv(first.Sigma.T, self.phi_hat)
         diagnostics = {PHI_HAT.named(o): phi_shown[:, i] for i, o in enumerate(outputs)}
         diagnostics |= {OPTIMIZER.named(o): z[:, i] for i, o in enumerate(outputs)}
         diagnostics |= {SELECTOR.named(o): s[:, i] for i, o in enumerate(outputs)}
-        diagnostics[LOGIC.name] = np.array(h, dtype=float)
+        diagnostics[LOGIC.name] = h.astype(float)
         diagnostics |= {INJECTION.named(x): injected[:, i] for i, x in enumerate(states)}
-        self.x, self.xi, self.z, self.s, self.h = x_next, xi_next, z_next, s_next, h_next
+        self.x, self.xi = x_next, xi_next
         return BatchEstimate(x_k.copy(), diagnostics)
+
+    def _adapt(self, rows: np.ndarray | slice, phi_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """z⁺, s⁺ and h⁺ of the given runs from their φ̂: Algorithm 1, the dead zone, the optimizer
+        (16), (37e) and the selector (17) / (52) on z_k, as the single step has them."""
+        Y, params = self.first.Y, self.first.params
+        z, s = self.z[rows], self.s[rows]
+        driving = phi_hat
+        if params.filter is not None:  # Algorithm 1
+            driving = scale_and_filter_runs(phi_hat, self.phi_filtered[rows], params.filter, params.eps_phi)
+            self.phi_filtered[rows] = driving
+        moving = norms(phi_hat) >= params.dead_zone  # with δ = 0 always (a finite φ̂), the paper's law
+        z_next = np.where(moving[:, None], optimizer_steps(z, driving, Y), z)
+        return (z_next, *select_runs(s, z, Y, params.epsilon))
 
 
 @dataclass(frozen=True)

@@ -49,6 +49,12 @@ def mv(matrix: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return np.matmul(matrix, vectors[..., None])[..., 0]
 
 
+def norms(vectors: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(v)`` of each row v of ``vectors`` (K, n), bit for bit: √(v·v), the dot
+    product by the stacked (1, n) @ (n, 1) product, which calls the kernel of the single ``v.dot(v)``."""
+    return np.sqrt(np.matmul(vectors[..., None, :], vectors[..., :, None])[..., 0, 0])
+
+
 class StepEach:
     """Any estimator's K instances, each stepped by its own ``step``: the batch of a kind without
     a batched step (a user's plugin written for one run)."""

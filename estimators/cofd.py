@@ -37,7 +37,7 @@ import numpy as np
 
 from estimators.allocation import FAULT_MASK, MAX_THRUSTERS, cluster_matrix, input_groups, whole
 from estimators.base import Estimate, Estimator, ParameterError
-from estimators.batched import BatchEstimate, DeviationBatch, mv
+from estimators.batched import BatchEstimate, DeviationBatch, mv, norms
 from estimators.cofd_design import (
     SHIP_CLUSTER_FAMILY,
     SHIP_F,
@@ -51,7 +51,7 @@ from estimators.cofd_design import (
     residual_bounds,
 )
 from estimators.diagnostics import Diagnostic, DiagnosticKind
-from estimators.isolation import isolate, unisolable
+from estimators.isolation import Isolation, unisolable
 from estimators.model import LinearModel
 from estimators.rotating_frame import FrameTerms
 from estimators.thresholds import FORCE, MOMENT, DeclaredEnvironment, centred_thresholds, residual_test
@@ -166,6 +166,7 @@ class COFDDiagnosis(Estimator):
         self.hypotheses = self._isolable_hypotheses(
             params.pairs if params.pairs is not None else SHIP_PAIRS if cluster else ()
         )
+        self.isolation = Isolation(self.signatures, self.hypotheses)
         self.ell = max(len(J) for J in family)
         self.thresholds, centred = self._thresholds(E)
         self.test = residual_test(
@@ -180,8 +181,8 @@ class COFDDiagnosis(Estimator):
         self.z: list[np.ndarray] | None = None
         self.y_prev = np.zeros(model.p)
         self.u_prev = np.zeros(model.m)
-        self.candidate: tuple[int, ...] | None = None
-        self.candidate_since = 0.0
+        self.candidate = np.array([-1])  # the hypothesis isolated at the last tick (an index; −1: none) ...
+        self.candidate_since = np.zeros(1)  # ... since when: one run's row of ``_diagnose``'s state
         self.t = 0.0
         self.isolated = np.zeros(len(self.groups), dtype=bool)
 
@@ -236,12 +237,42 @@ class COFDDiagnosis(Estimator):
             CONSTRAINTS_MET,
         ]
 
-    def _constraints_met(self, u: np.ndarray) -> bool:
-        """u ∈ span N (eq. (24)) to 0.1 % of |u|∞: the commands arrive quantized over the bus."""
+    def _constraints_met(self, u: np.ndarray) -> np.ndarray:
+        """Whether each run's commands u (K, m) obey the cluster constraints, u ∈ span N (eq. (24)),
+        to 0.1 % of |u|∞ (they arrive quantized over the bus); (K,) booleans.
+
+        The K least-squares fits are one call with K right-hand sides, which LAPACK need not round
+        as it rounds one: a run whose test lies within 10⁻⁶ of its tolerance (the fits agree to
+        about κ(N) ε |u|; N's columns are orthogonal, κ(N) = the ratio of their lengths) or whose u
+        is not finite is tested again by itself, so that every answer is the one-run fit's."""
         if self.N is None:
-            return True
-        projection = self.N @ np.linalg.lstsq(self.N, u, rcond=None)[0]
-        return bool(np.abs(u - projection).max() <= 1e-3 * max(np.abs(u).max(), 1e-9))
+            return np.ones(len(u), dtype=bool)
+        fit = np.linalg.lstsq(self.N, u.T, rcond=None)[0].T
+        off = np.abs(u - mv(self.N, fit)).max(axis=1)
+        size = np.abs(u).max(axis=1)
+        tolerance = 1e-3 * np.where(1e-9 > size, 1e-9, size)  # Python's max(|u|∞, 1e-9)
+        met = off <= tolerance
+        if len(u) > 1:
+            for k in np.flatnonzero(~(np.abs(off - tolerance) > 1e-6 * tolerance)):  # near, or NaN
+                met[k] = self._constraints_met(u[k : k + 1])[0]
+        return met
+
+    def _diagnose(
+        self, t: float, fired: np.ndarray, u: np.ndarray, candidate: np.ndarray, since: np.ndarray, isolated: np.ndarray
+    ) -> np.ndarray:
+        """Isolation and persistence at time t for K runs: each run's fired components (K,
+        observers, components) point to a fault while its commands u (K, m) obey (24); the same
+        fault isolated tick after tick for ``persistence`` seconds latches its thrusters in
+        ``isolated`` (K, groups). ``candidate`` and ``since`` (K,) are updated in place; returns
+        whether each run's commands obey (24)."""
+        met = self._constraints_met(u)
+        found = np.where(met, self.isolation(fired), -1)
+        since[found != candidate] = t
+        candidate[:] = found
+        if (found >= 0).any():  # else nothing to latch: the usual tick
+            ready = (found >= 0) & (t - since >= self.params.persistence - 1e-9)
+            isolated |= ready[:, None] & self.isolation.members[found]
+        return met
 
     @classmethod
     def batched(cls, instances: Sequence[Any]) -> COFDBatch:
@@ -267,12 +298,9 @@ class COFDDiagnosis(Estimator):
         x_hats = [z + o.H @ y for z, o in zip(self.z, self.observers)]
         residuals, thresholds = self.test(self.t, np.array([(y - model.C @ x)[: self.ell] for x in x_hats]), y)
         fired = np.abs(residuals) > thresholds
-        constraints_met = self._constraints_met(self.u_prev + model.u_op)  # (24) constrains the absolute inputs
-        found = isolate(fired, self.signatures, self.hypotheses) if constraints_met else None
-        if found != self.candidate:
-            self.candidate, self.candidate_since = found, self.t
-        if found is not None and self.t - self.candidate_since >= self.params.persistence - 1e-9:
-            self.isolated[list(found)] = True
+        u = (self.u_prev + model.u_op)[None]  # (24) constrains the absolute inputs
+        state = self.candidate, self.candidate_since, self.isolated[None]
+        constraints_met = self._diagnose(self.t, fired[None], u, *state)[0]
         self.y_prev, self.u_prev = y, du
         shown = np.zeros((2, MAX_OBSERVERS, MAX_COMPONENTS))  # the components beyond the family's: 0
         shown[:, : len(self.observers), : self.ell] = residuals, thresholds
@@ -366,11 +394,10 @@ class COFDBatch(DeviationBatch):
     own step.
 
     The observers' recursions, the thresholds' inertial allowance and the residual test are the same
-    arithmetic in every run (``estimators.batched.mv``, elementwise operations, NumPy's ``cos`` and
-    ``sin`` on columns); what is each run's own logic stays per run, through the same calls as alone:
-    the norm of the inertial force (``np.linalg.norm`` of the run's vector), the constraint (24) on
-    its commands (a least-squares fit), the isolation of its fired components and the persistence
-    before it latches them."""
+    arithmetic in every run (``estimators.batched.mv`` and ``norms``, elementwise operations, NumPy's
+    ``cos`` and ``sin`` on columns); the constraint (24) on each run's commands, the isolation of its
+    fired components and the persistence before it latches them are ``COFDDiagnosis._diagnose``, which
+    the single step calls with K = 1."""
 
     def __init__(self, instances: Sequence[COFDDiagnosis]) -> None:
         super().__init__(instances)
@@ -382,8 +409,8 @@ class COFDBatch(DeviationBatch):
         self.y_prev = np.stack([e.y_prev for e in instances])
         self.u_prev = np.stack([e.u_prev for e in instances])
         self.t = first.t
-        self.candidate = [e.candidate for e in instances]
-        self.candidate_since = [e.candidate_since for e in instances]
+        self.candidate = np.concatenate([e.candidate for e in instances])
+        self.candidate_since = np.concatenate([e.candidate_since for e in instances])
         self.isolated = np.stack([e.isolated for e in instances])
         test = first.test
         tests: list[Any] = [e.test for e in instances]
@@ -413,14 +440,8 @@ class COFDBatch(DeviationBatch):
         r = np.stack([(y - mv(model.C, x))[:, : first.ell] for x in x_hats], axis=1)
         residuals, thresholds = self._test(r, y)
         fired = np.abs(residuals) > thresholds
-        met = np.zeros(runs)
-        for k in range(runs):  # each run's own logic, as its step has it
-            met[k] = constraints_met = first._constraints_met(self.u_prev[k] + model.u_op)
-            found = isolate(fired[k], first.signatures, first.hypotheses) if constraints_met else None
-            if found != self.candidate[k]:
-                self.candidate[k], self.candidate_since[k] = found, self.t
-            if found is not None and self.t - self.candidate_since[k] >= first.params.persistence - 1e-9:
-                self.isolated[k, list(found)] = True
+        state = self.candidate, self.candidate_since, self.isolated
+        met = first._diagnose(self.t, fired, self.u_prev + model.u_op, *state)
         self.y_prev, self.u_prev = y, du
         shown = np.zeros((runs, 2, MAX_OBSERVERS, MAX_COMPONENTS))
         shown[:, 0, : len(first.observers), : first.ell] = residuals
@@ -434,7 +455,7 @@ class COFDBatch(DeviationBatch):
         diagnostics[ALARM.name] = fired.any(axis=(1, 2)).astype(float)
         diagnostics |= {ISOLATED.named(j): isolated[:, i] for i, j in enumerate(THRUSTERS)}
         diagnostics[FAULT_MASK.name] = (self.isolated * (1 << np.arange(groups))).sum(axis=1).astype(float)
-        diagnostics[CONSTRAINTS_MET.name] = met
+        diagnostics[CONSTRAINTS_MET.name] = met.astype(float)
         return BatchEstimate(mv(first._measured, y), diagnostics)
 
     def _frame(self, y_prev: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
@@ -466,7 +487,7 @@ class COFDBatch(DeviationBatch):
         if self.a_prev is None:
             a = np.zeros(len(y))
         else:
-            a = np.array([float(np.linalg.norm(row)) for row in mv(allowance.rate, y - self.a_prev)])
+            a = norms(mv(allowance.rate, y - self.a_prev))
         self.a_prev = y
         self.q = [d * q + g * a[:, None] for q, d, g in zip(self.q, allowance.decay, allowance.step)]
         return np.stack([mv(w, q) for w, q in zip(allowance.weights, self.q)], axis=1)

@@ -27,12 +27,35 @@ def isolate(fired: np.ndarray, signatures: np.ndarray, hypotheses: Iterable[Sequ
     threshold under that hypothesis). The answer is the unique minimal consistent hypothesis (no
     other consistent one that is not a superset of it); None when nothing fired, or when the
     consistent hypotheses leave a choice (not yet isolable, or a fault outside the hypotheses)."""
-    fired = np.asarray(fired, dtype=bool)
-    if not fired.any():
-        return None
-    consistent = [tuple(H) for H in hypotheses if not (fired & ~hypothesis_signature(signatures, H)).any()]
-    minimal = [H for H in consistent if not any(set(other) < set(H) for other in consistent)]
-    return minimal[0] if len(minimal) == 1 else None
+    isolation = Isolation(signatures, hypotheses)
+    found = int(isolation(np.asarray(fired, dtype=bool)[None])[0])
+    return None if found < 0 else isolation.hypotheses[found]
+
+
+class Isolation:
+    """``isolate`` for K runs at once, its tables made once: ``__call__`` takes the fired components
+    of each run, shape (K, observers, components), and gives each run's answer as an index into
+    ``hypotheses``, −1 for None."""
+
+    def __init__(self, signatures: np.ndarray, hypotheses: Iterable[Sequence[int]]) -> None:
+        self.hypotheses = [tuple(H) for H in hypotheses]
+        self.silent = np.array([~hypothesis_signature(signatures, H).ravel() for H in self.hypotheses]).T.copy()
+        """(components, hypotheses): True where the hypothesis cannot move the component."""
+        self.smaller = np.array([[set(other) < set(H) for H in self.hypotheses] for other in self.hypotheses])
+        """(other, H): True where ``other`` is a strict subset of H."""
+        self.members = np.zeros((len(self.hypotheses) + 1, signatures.shape[2]), dtype=bool)
+        """(hypotheses + 1, groups): each hypothesis's groups; the last row, for −1, none."""
+        for i, H in enumerate(self.hypotheses):
+            self.members[i, list(H)] = True
+
+    def __call__(self, fired: np.ndarray) -> np.ndarray:
+        fired = fired.reshape(len(fired), -1)
+        if not fired.any():  # the usual tick
+            return np.full(len(fired), -1)
+        consistent = ~(fired @ self.silent)  # (K, hypotheses); a boolean product: any of the ands
+        minimal = consistent & ~(consistent @ self.smaller)
+        unique = (minimal.sum(axis=1) == 1) & fired.any(axis=1)
+        return np.where(unique, minimal.argmax(axis=1), -1)
 
 
 def unisolable(

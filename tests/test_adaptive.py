@@ -15,14 +15,8 @@ import scipy.linalg
 
 import estimators
 from estimators import LinearModel, ParameterError
-from estimators.adaptive import (
-    BiasEstimator,
-    cost_matrix,
-    line_search,
-    line_search_coefficients,
-    optimizer_step,
-    select,
-)
+from estimators.adaptive import BiasEstimator
+from estimators.adaptive_law import cost_matrix, line_search, line_search_coefficients, optimizer_step, select
 from estimators.continuous import ObserverODE, gradient, pseudoinverse, vector_field
 from estimators.design import (
     AssumptionError,
