@@ -81,11 +81,15 @@ def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
     if zSz <= 1e-28 * max(S_diag.sum(), np.finfo(float).tiny):
         return z
     best_i, best_cost, best_zeta = -1, np.inf, 0.0
+    values = z.tolist()
+    along = _axis(values)
     # the p candidates in Python floats: the same IEEE arithmetic, without numpy's per-scalar cost
-    for i, (zi, Szi, Sii) in enumerate(zip(z.tolist(), (gamma.T @ gz).tolist(), S_diag.tolist())):
+    for i, (zi, Szi, Sii) in enumerate(zip(values, (gamma.T @ gz).tolist(), S_diag.tolist())):
         beta0, beta1, beta2 = Szi - zi * zSz, Sii - zSz, zi * Sii - Szi
         zeta = line_search_step(beta0, beta1, beta2)
-        if np.isinf(zeta):
+        if i == along:  # z = ±eᵢ: the search along eᵢ does not leave it (ζ = 0, its cost zᵀSz)
+            zeta, cost = 0.0, zSz
+        elif np.isinf(zeta):
             cost = Sii
         else:
             cost = (zSz + 2 * zeta * Szi + zeta * zeta * Sii) / (1 + 2 * zeta * zi + zeta * zeta)
@@ -96,6 +100,13 @@ def optimizer_step(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray:
     candidate = z.copy()
     candidate[best_i] += best_zeta
     return candidate / np.linalg.norm(candidate)
+
+
+def _axis(z: list[float]) -> int:
+    """i where z = ±eᵢ, else −1. The line search along eᵢ then has β₀ = β₁ = β₂ = 0 but for
+    rounding, and their quotients pick any ζ: ζ ≈ −1 would give z + ζ eᵢ ≈ 0, and a NaN z."""
+    nonzero = [i for i, v in enumerate(z) if v != 0.0]
+    return nonzero[0] if len(nonzero) == 1 else -1
 
 
 # -- the selector (17), (52) --------------------------------------------------------------------
@@ -130,6 +141,8 @@ def optimizer_steps(z: np.ndarray, phi: np.ndarray, Y: np.ndarray) -> np.ndarray
     total, tiny = S_diag.sum(axis=1), np.finfo(float).tiny
     settled = zSz <= 1e-28 * np.where(tiny > total, tiny, total)  # Python's max(total, tiny)
     zeta, cost = _candidates(z, mv(gamma.transpose(0, 2, 1), gz), S_diag, zSz[:, None])
+    along = (z != 0.0) & ((z != 0.0).sum(axis=1) == 1)[:, None]  # z = ±eᵢ: ``_axis``
+    zeta, cost = np.where(along, 0.0, zeta), np.where(along, zSz[:, None], cost)
     eligible = cost < np.inf  # as the loop's cost < best_cost from inf: never NaN, never inf
     found = eligible.any(axis=1)
     rows = np.arange(len(z))

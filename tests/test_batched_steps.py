@@ -87,6 +87,21 @@ def test_the_optimizer_of_k_runs_is_the_one_run_optimizer_bit_for_bit_on_every_b
     assert same_bits(optimizer_steps(-np.array([z]), np.array([[0.0, 0.0, 1.0]]), Y)[0], [-1.0, 0.0, 0.0])
 
 
+def test_from_z_on_an_axis_the_optimizer_never_steps_into_a_nan():
+    """z = ±eⱼ (where the candidate ±eᵢ leads): the search along eⱼ keeps z, whose β₀, β₁, β₂ are
+    rounding noise (their quotient was once any ζ, ≈ −1 in 8 % of these rows: z + ζ eⱼ ≈ 0, a NaN z
+    from then on); the step is a unit vector whose cost is at most z's, alone and together."""
+    rng = np.random.default_rng(8)
+    Y = rng.normal(size=(4, 2))
+    phi = rng.normal(size=(4000, 4))
+    z = np.eye(4)[rng.integers(0, 4, 4000)] * rng.choice([-1.0, 1.0], (4000, 1))
+    alone = np.array([optimizer_step(z[k], phi[k], Y) for k in range(len(z))])
+    assert same_bits(optimizer_steps(z, phi, Y), alone)
+    np.testing.assert_allclose(norms(alone), 1.0, rtol=1e-15)
+    cost = lambda z, phi: np.sum(((Y.T * phi) @ z) ** 2)  # noqa: E731
+    assert all(cost(alone[k], phi[k]) <= cost(z[k], phi[k]) * (1 + 1e-12) for k in range(len(z)))
+
+
 def test_the_selector_and_algorithm_1_of_k_runs_are_the_one_run_ones_at_their_thresholds():
     Y, _, _ = assumption2_factorization(masses_model(P3).C)
     rng = np.random.default_rng(6)
