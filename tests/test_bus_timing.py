@@ -8,7 +8,7 @@ import pytest
 
 from cosim import scenario
 from cosim.bus.timing import frame_bits
-from cosim.bus.wire import Wire, WireFrame
+from cosim.bus.wire import Wire, WireFrame, dlc_of
 from cosim.errors import ScenarioError
 from cosim.log.reader import LogReader
 from cosim.run import run
@@ -59,6 +59,13 @@ def test_frame_lengths_match_the_bit_by_bit_computation():
 
 def _frame(can_id, data, queued_ns, sender="a"):
     return WireFrame(can_id, False, False, False, data, sender, queued_ns, queued_ns + 10_000_000)
+
+
+def test_the_dlc_table_is_python_cans_len2dlc():
+    """Every payload length, those past CAN FD's 64 bytes included (a foreign frame may carry them)."""
+    from can.util import len2dlc
+
+    assert [dlc_of(n) for n in range(200)] == [len2dlc(n) for n in range(200)]
 
 
 def test_latencies_match_a_hand_computation():

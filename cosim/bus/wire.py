@@ -80,7 +80,7 @@ _DLC = tuple(int(len2dlc(length)) for length in range(65))  # a look-up: python-
 
 def dlc_of(length: int) -> int:
     """The data length code of a payload of ``length`` bytes (CAN FD lengths above 8)."""
-    return _DLC[length]
+    return _DLC[length] if length < len(_DLC) else _DLC[-1]  # as len2dlc: 15 for anything longer
 
 
 def bits_of(frame: WireFrame) -> tuple[int, int]:
