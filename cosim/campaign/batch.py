@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import pickle
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -48,6 +47,7 @@ from cosim.bus.codec import COMMAND, CONTROLLER, estimated_state
 from cosim.errors import CosimError
 from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
 from cosim.plant.fmu_model import is_fmu
+from cosim.plant.physics_batch import physics_of
 from cosim.run.loop import PlantSource
 from cosim.run.plan import RunPlan
 from cosim.scenario import LoadedScenario
@@ -311,6 +311,7 @@ class _Batch:
         plan = plans[0]
         s = self.scenario = plan.scenario
         self.runs = [_Run(each) for each in plans]
+        self.physics = physics_of([run.source.plant for run in self.runs])
         self.codec = plan.codec
         self.sensor_specs = [self.codec.sensor(n) for n in s.sensors]
         self.command_specs = [self.codec.command(n) for n in s.actuators]
@@ -347,9 +348,9 @@ class _Batch:
 
     def _tick(self, k: int, alive: np.ndarray) -> None:
         """Tick k of the runs still ``alive`` (a run that leaves is taken out of it)."""
-        runs, t = self.runs, self.scenario.time(k)
-        x = np.stack([run.source.plant.state() for run in runs])
-        y_true = np.stack([run.source.plant.sensors() for run in runs])  # a run that left: its last, unused
+        t = self.scenario.time(k)
+        x = self.physics.state()
+        y_true = self.physics.sensors()  # a run that left: its last, unused
         measured, sent, active = self._sensors(y_true, t)
         middle = 0.5 * (self.sensor_range[0] + self.sensor_range[1])
         self._check(k, alive, np.where(sent, measured, middle), self.sensor_range, "a sensor reading outside its range")
@@ -425,21 +426,21 @@ class _Batch:
         return values
 
     def _advance(self, k: int, t: float, rows: np.ndarray, u_cmd: np.ndarray, alive: np.ndarray) -> None:
-        """Each run's commands through its actuator faults into its physics, over tick k."""
+        """Each run's commands through its actuator faults into the physics of the runs, over tick k."""
         runs = self.runs
-        u_eff, d = {}, {}
-        for r in rows:
-            u_eff[r], _, d[r] = runs[r].source.actuate(u_cmd[r], t)
-        for r in rows:
-            source = runs[r].source
-            if all(math.isfinite(u) for u in u_eff[r].tolist()):
-                source.plant.step(u_eff[r], d[r])
-                continue
+        acted = [runs[r].source.actuate(u_cmd[r], t) for r in rows.tolist()]
+        u_eff = np.array([u for u, _, _ in acted]).reshape(len(rows), -1)
+        d = np.array([d for _, _, d in acted]).reshape(len(rows), -1)
+        finite = np.isfinite(u_eff).all(axis=1)
+        for i in np.flatnonzero(~finite).tolist():
             try:
-                source.step(k, u_eff[r], d[r])  # its own error, as alone
-            except CosimError as error:
-                runs[r].leave(k, str(error))
-                alive[r] = False
+                runs[rows[i]].source.check_inputs(k, u_eff[i])
+            except CosimError as error:  # its own error, as alone
+                runs[rows[i]].leave(k, str(error))
+                alive[rows[i]] = False
+        for r, why in self.physics.step(rows[finite], u_eff[finite], d[finite]).items():
+            runs[r].leave(k, f"the physics failed: {why}")
+            alive[r] = False
 
     def _check(
         self, k: int, alive: np.ndarray, values: np.ndarray, bounds: tuple[np.ndarray, np.ndarray] | None, why: str

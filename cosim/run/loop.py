@@ -184,13 +184,17 @@ class PlantSource:
 
     def step(self, k: int, u_eff: np.ndarray, d: np.ndarray) -> None:
         """Advance the physics over tick k with these inputs (a non-finite one is the run's error)."""
+        self.check_inputs(k, u_eff)
+        self.plant.step(u_eff, d)
+
+    def check_inputs(self, k: int, u_eff: np.ndarray) -> None:
+        """CosimError naming the first actuator whose effective input at tick k is not finite."""
         if not np.all(np.isfinite(u_eff)):
             bad = self.scenario.actuators[int(np.flatnonzero(~np.isfinite(u_eff))[0])]
             raise CosimError(
                 f"actuator {bad}: the effective input at tick {k} is not finite; check its input signal and actuator "
                 "faults"
             )
-        self.plant.step(u_eff, d)
 
     def _log_plant_messages(self, k: int, session: Session) -> None:
         take = getattr(self.plant, "take_messages", None)
