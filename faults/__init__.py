@@ -136,10 +136,19 @@ class FaultInjector:
     def actuators(self, u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The effective inputs δ ∘ u + f_a and the effectiveness factors δ (δ the product of every
         actuator fault's factors, f_a the sum of their offsets: the order of the faults does not matter)."""
-        delta, offset = np.ones(len(u)), np.zeros(len(u))
-        for model in self.actuator_faults:
-            delta = delta * model.factors(t, len(u))
-            offset = offset + model.offsets(t, len(u))
+        u_eff, delta = FaultInjector.actuators_batch([self], u[None, :], t)
+        return u_eff[0], delta[0]
+
+    @staticmethod
+    def actuators_batch(injectors: Sequence[FaultInjector], u: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``actuators`` for the K injectors of a batch (each its own faults), u of shape (K, m):
+        the effective inputs and the factors (K, m), elementwise as each run's alone."""
+        m = u.shape[1]
+        delta, offset = np.ones(u.shape), np.zeros(u.shape)
+        for r, injector in enumerate(injectors):
+            for model in injector.actuator_faults:
+                delta[r] = delta[r] * model.factors(t, m)
+                offset[r] = offset[r] + model.offsets(t, m)
         return delta * u + offset, delta
 
 

@@ -428,9 +428,10 @@ class _Batch:
     def _advance(self, k: int, t: float, rows: np.ndarray, u_cmd: np.ndarray, alive: np.ndarray) -> None:
         """Each run's commands through its actuator faults into the physics of the runs, over tick k."""
         runs = self.runs
-        acted = [runs[r].source.actuate(u_cmd[r], t) for r in rows.tolist()]
-        u_eff = np.array([u for u, _, _ in acted]).reshape(len(rows), -1)
-        d = np.array([d for _, _, d in acted]).reshape(len(rows), -1)
+        u_eff, _ = fm.FaultInjector.actuators_batch([runs[r].source.faults for r in rows.tolist()], u_cmd[rows], t)
+        d = np.zeros((len(rows), len(self.scenario.disturbance_inputs)))
+        if d.size:
+            d = np.stack([runs[r].source.disturbance(t) for r in rows.tolist()])
         finite = np.isfinite(u_eff).all(axis=1)
         for i in np.flatnonzero(~finite).tolist():
             try:

@@ -177,10 +177,13 @@ class PlantSource:
         """The commands through the actuator faults at time t: the effective inputs, the
         effectiveness factors and the disturbance inputs (signals and disturbance models)."""
         u_eff, delta = self.faults.actuators(u_cmd, t)
-        d = np.array([w(t) for w in self.disturbances]) + sum(
+        return u_eff, delta, self.disturbance(t)
+
+    def disturbance(self, t: float) -> np.ndarray:
+        """The disturbance inputs at time t: their signals plus the disturbance models' outputs."""
+        return np.array([w(t) for w in self.disturbances]) + sum(
             (b(t) for b in self.environments), np.zeros(len(self.disturbances))
         )
-        return u_eff, delta, d
 
     def step(self, k: int, u_eff: np.ndarray, d: np.ndarray) -> None:
         """Advance the physics over tick k with these inputs (a non-finite one is the run's error)."""
