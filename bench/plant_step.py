@@ -23,7 +23,15 @@ runs alone is reported too); ``after vessel``: in this process, each right after
 process-wide callback installed, as loading the vessel used to leave it. The ratios are against
 ``fresh``.
 
-Usage: python bench/plant_step.py [--json] [--ticks N] [--repeat R] [--masses-duration S] [--vessel-duration S]
+The physics of a batch's runs (``cosim.plant.physics_batch``): µs per run and tick of ``--runs``
+masses (0.01 s ticks) and three-tank (1 s ticks) plants from other initial states, each tick's
+``state``, ``sensors`` and ``step`` of all of them, stepped one by one (``PlantsEach``, what the
+runs do alone) and in one ``mujoco.batch.Batch`` call (``PhysicsBatch``), interleaved, best of
+``--repeat``; ``--ticks`` // 4 ticks of the masses, // 40 of the three tanks. The vessel (a Python
+callback) steps one by one in a batch too.
+
+Usage: python bench/plant_step.py [--json] [--ticks N] [--repeat R] [--runs K] [--masses-duration S]
+       [--vessel-duration S]
 """
 
 from __future__ import annotations
@@ -46,6 +54,7 @@ import mjcf  # noqa: E402
 from bench.common import bench_parser  # noqa: E402
 from cosim import scenario  # noqa: E402
 from cosim.plant.physics import Plant  # noqa: E402
+from cosim.plant.physics_batch import PhysicsBatch, PlantsEach  # noqa: E402
 from cosim.run import run  # noqa: E402
 from mjcf import _body_damping, vessel  # noqa: E402
 
@@ -129,6 +138,31 @@ def vessel_figures(ticks: int, repeat: int) -> dict[str, float]:
     }
 
 
+def batch_figures(ticks: int, repeat: int, runs: int) -> dict[str, float]:
+    """µs per run and tick of the masses' and the three tanks' physics, one by one and batched."""
+    figures: dict[str, float] = {}
+    for name, sample_time, n in (("masses", 0.01, max(1, ticks // 4)), ("three_tank", 1.0, max(1, ticks // 40))):
+        best = {PlantsEach: np.inf, PhysicsBatch: np.inf}
+        for _ in range(repeat):
+            for kind in best:
+                plants = [Plant(mjcf.get(name), sample_time) for _ in range(runs)]
+                for i, plant in enumerate(plants):
+                    plant.set_state(plant.state() * (1.0 + 0.01 * i))
+                physics = kind(plants)
+                rows = np.arange(runs)
+                u = np.stack([plant.data.ctrl[plant._known] for plant in plants])
+                d = np.zeros((runs, len(plants[0]._unknown)))
+                start = time.perf_counter()
+                for _ in range(n):
+                    physics.state(), physics.sensors()
+                    physics.step(rows, u, d)
+                best[kind] = min(best[kind], (time.perf_counter() - start) / (n * runs) * 1e6)
+        figures[f"{name}_each_us"], figures[f"{name}_batched_us"] = best[PlantsEach], best[PhysicsBatch]
+        figures[f"{name}_batched_ratio"] = best[PhysicsBatch] / best[PlantsEach]
+    figures["batch_runs"] = runs
+    return figures
+
+
 def shortened(name: str, duration: float) -> scenario.LoadedScenario:
     """A built-in scenario with another duration (everything else as the file says)."""
     loaded = scenario.load(name)
@@ -192,6 +226,7 @@ def main() -> int:
     parser.add_argument("--ticks", type=int, default=2000, help="vessel ticks per timing (0.1 s each)")
     parser.add_argument("--masses-duration", type=float, default=30.0, help="s of masses-bias (its full 30 s)")
     parser.add_argument("--vessel-duration", type=float, default=30.0, help="s of the vessel run before it")
+    parser.add_argument("--runs", type=int, default=16, help="plants in the physics batch")
     parser.add_argument("--child-masses", type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child_masses is not None:  # the fresh process of masses_fresh
@@ -199,6 +234,7 @@ def main() -> int:
         return 0
     figures = vessel_figures(args.ticks, args.repeat)
     figures |= masses_figures(args.masses_duration, args.vessel_duration, args.repeat)
+    figures |= batch_figures(args.ticks, args.repeat, args.runs)
     if args.json:
         print(json.dumps({k: round(v, 6) if isinstance(v, float) else v for k, v in figures.items()}))
         return 0
@@ -225,6 +261,12 @@ def main() -> int:
         ("same, old global callback", "old_global"),
     ):
         print(f"{label:<44}{f[f'masses_{key}_s']:>10.3f}{f[f'masses_{key}_ratio']:>10.3f}")
+    print(f"\nthe physics of {f['batch_runs']} runs: µs per run and tick, best of {args.repeat}")
+    print(f"{'plant':<20}{'one by one':>12}{'one Batch':>12}{'ratio':>10}")
+    for name in ("masses", "three_tank"):
+        print(
+            f"{name:<20}{f[f'{name}_each_us']:>12.1f}{f[f'{name}_batched_us']:>12.1f}{f[f'{name}_batched_ratio']:>10.3f}"
+        )
     return 0
 
 

@@ -139,7 +139,9 @@ def test_plant_step_benchmark_times_both_damping_mechanisms_and_the_masses_after
         figures,
         "vessel_step_us vessel_step_global_us vessel_step_bare_us vessel_step_held_us "
         "vessel_step_ratio masses_fresh_s masses_fresh_first_s masses_after_vessel_s "
-        "masses_after_vessel_ratio masses_old_global_s masses_old_global_ratio",
+        "masses_after_vessel_ratio masses_old_global_s masses_old_global_ratio "
+        "masses_each_us masses_batched_us masses_batched_ratio three_tank_each_us three_tank_batched_us "
+        "three_tank_batched_ratio batch_runs",
     )
     assert figures["vessel_max_abs_diff"] == 0.0  # the scoped callback is the old physics, bit for bit
     assert figures["vessel_held_max_abs_diff"] > 1e-9  # a force held over the tick is not
