@@ -239,3 +239,25 @@ def test_without_the_lmi_extra_its_case_is_named_at_once_failed_with_why_and_on_
     page = tmp_path / "board.html"
     assert main(["leaderboard", str(out), "--html", str(page)]) == 0
     assert f"<strong>not run: its 4 runs failed before any scheme ran: {why}" in html.unescape(page.read_text())
+
+
+def test_every_case_of_a_benchmark_runs_on_one_engine_started_once(tmp_path, monkeypatch):
+    """A cluster takes seconds to start (its workers import the runner): the benchmark starts one
+    and gives it to each case, which leaves it open."""
+    from cosim.campaign import benchmark, coordinator, engine
+
+    suite = small_suite(tmp_path, duration=0.5)
+    suite.write_text(
+        suite.read_text() + suite.read_text().split("\n\n", 1)[1].replace('name = "attacks"', 'name = "again"')
+    )
+    opened: list[engine.Engine] = []
+
+    def counted(name: str, workers: int | None = None, address: str | None = None) -> engine.Engine:
+        opened.append(engine.open_engine(name, workers, address))
+        return opened[-1]
+
+    monkeypatch.setattr(benchmark, "open_engine", counted)
+    monkeypatch.setattr(coordinator, "open_engine", counted)
+    record = benchmark.run_benchmark(tmp_path / "bundle", quick=True, suite_path=suite, engine="inline")
+    assert sorted(record["cases"]) == ["again", "attacks"] and record["runs"] == 4 and record["failed"] == 0
+    assert len(opened) == 1

@@ -29,7 +29,8 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError
 
 import scenarios
-from cosim.campaign.coordinator import CampaignProgress, CampaignResult, run_campaign
+from cosim.campaign.coordinator import CampaignProgress, CampaignResult, check_batch, require_extras, run_campaign
+from cosim.campaign.engine import open_engine
 from cosim.campaign.spec import Campaign, load_campaign
 from cosim.errors import CosimError, ScenarioError
 from cosim.log.metadata import versions
@@ -135,20 +136,21 @@ def run_benchmark(
         raise CosimError(f"{folder} is not empty: choose a new folder, or pass --resume to finish this bundle")
     campaigns = [(case, case_campaign(case, quick, schemes)) for case in suite.cases]  # every case checked first
     results: dict[str, CampaignResult] = {}
-    for case, campaign in campaigns:
-        if on_case is not None:
-            on_case(case, campaign)
-        case_folder = folder / "cases" / case.name
-        results[case.name] = run_campaign(
-            campaign,
-            case_folder,
-            engine=engine,
-            workers=workers,
-            address=address,
-            resume=resume and case_folder.exists(),
-            on_progress=on_progress,
-            batch=batch,
-        )
+    require_extras(engine)
+    check_batch(batch)
+    with open_engine(engine, workers, address) as pool:  # one cluster for every case: it starts once
+        for case, campaign in campaigns:
+            if on_case is not None:
+                on_case(case, campaign)
+            case_folder = folder / "cases" / case.name
+            results[case.name] = run_campaign(
+                campaign,
+                case_folder,
+                engine=pool,
+                resume=resume and case_folder.exists(),
+                on_progress=on_progress,
+                batch=batch,
+            )
     bundle = {
         "suite": suite.name,
         "version": suite.version,

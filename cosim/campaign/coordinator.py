@@ -16,11 +16,12 @@ import os
 import shlex
 import time
 from collections.abc import Callable, Iterable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cosim.campaign.engine import open_engine
+from cosim.campaign.engine import Engine, open_engine
 from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
 from cosim.campaign.spec import Campaign, RunSpec
 from cosim.campaign.worker import execute_batch
@@ -86,7 +87,7 @@ def run_campaign(
     campaign: Campaign,
     out: str | Path,
     *,
-    engine: str = "dask",
+    engine: str | Engine = "dask",
     workers: int | None = None,
     address: str | None = None,
     resume: bool = False,
@@ -97,18 +98,19 @@ def run_campaign(
 ) -> CampaignResult:
     """Run every run of ``campaign`` (those without a part, with ``resume``) and write the table.
     Runs of one configuration that differ in their seed step together in batches of ``batch``
-    (None: chosen, ``batches``; 1: one at a time); the table is the same whatever the batches."""
-    if batch is not None and batch < 1:
-        raise CosimError(f"--batch {batch}: give a positive number of runs per batch (1: one at a time)")
+    (None: chosen, ``batches``; 1: one at a time); the table is the same whatever the batches.
+    ``engine``: its name (an engine is opened for this campaign and closed after it), or an open
+    ``Engine`` that several campaigns share (``cosim benchmark``: one cluster for every case)."""
+    check_batch(batch)
     if keep_logs not in KEEP_LOGS:
         raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
-    require_extras(engine)
+    require_extras(engine if isinstance(engine, str) else "inline")
     folder = Path(out).resolve()
     _prepare(folder, campaign, resume)
     runs = campaign.runs()
     done = done_runs(folder)
     tally = _Tally(len(runs), len(done), sum(_failed(folder, index) for index in done), on_progress)
-    with open_engine(engine, workers, address) as pool:
+    with _opened(engine, workers, address) as pool:
         loop_start = time.perf_counter()
         if on_start is not None:
             on_start(pool.description, pool.workers)
@@ -136,6 +138,17 @@ def run_campaign(
         tally.batched,
         dict(sorted(tally.alone.items(), key=lambda item: -item[1])),
     )
+
+
+def check_batch(batch: int | None) -> None:
+    """CosimError for a batch size that is not a positive number of runs (None: chosen)."""
+    if batch is not None and batch < 1:
+        raise CosimError(f"--batch {batch}: give a positive number of runs per batch (1: one at a time)")
+
+
+def _opened(engine: str | Engine, workers: int | None, address: str | None) -> AbstractContextManager[Engine]:
+    """The engine to run on: a new one by name (closed after the campaign), or the one given (left open)."""
+    return nullcontext(engine) if isinstance(engine, Engine) else open_engine(engine, workers, address)
 
 
 def _collect(results: Iterable[tuple[Any, Any]], folder: Path, tally: _Tally) -> None:
