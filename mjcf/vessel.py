@@ -23,6 +23,7 @@ equal ν = [u, v, r] at ψ = 0 only (ẋ, ẏ = P(ψ) [u, v]). The sensors u, v 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -307,16 +308,26 @@ class EnvironmentDisturbance:
             swing_phases=tuple(phases[2]),
         )
 
+    @functools.cached_property
+    def _arrays(self) -> tuple[np.ndarray, ...]:
+        """The parameters as arrays, made once (a run asks for b(t) every tick)."""
+        waves = (self.frequencies, self.swing_phases, self.force_amplitudes, self.force_phases)
+        fields = (*waves, self.moment_amplitudes, self.moment_phases, self.current)
+        return tuple(np.asarray(f, dtype=float) for f in fields)
+
     def __call__(self, t: float | np.ndarray) -> np.ndarray:
         """b(t) = [b_x, b_y, b_n] at time(s) ``t`` (s): shape (3,) for a scalar t, else (len(t), 3)."""
+        w, swing_phases, force_amplitudes, force_phases, moment_amplitudes, moment_phases, current = self._arrays
         t = np.asarray(t, dtype=float)
         tt = t[..., None]  # components along the last axis
-        w = np.asarray(self.frequencies)
-        beta = self.mean_direction + self.swing * np.sin(self.swing_frequency * tt + np.asarray(self.swing_phases))
-        force = np.asarray(self.force_amplitudes) * np.sin(w * tt + np.asarray(self.force_phases))
-        moment = np.asarray(self.moment_amplitudes) * np.sin(w * tt + np.asarray(self.moment_phases))
-        b = np.stack([np.sum(force * np.cos(beta), -1), np.sum(force * np.sin(beta), -1), np.sum(moment, -1)], -1)
-        return b + np.asarray(self.current)
+        beta = self.mean_direction + self.swing * np.sin(self.swing_frequency * tt + swing_phases)
+        force = force_amplitudes * np.sin(w * tt + force_phases)
+        moment = moment_amplitudes * np.sin(w * tt + moment_phases)
+        b = np.empty(t.shape + (3,))
+        b[..., 0] = np.sum(force * np.cos(beta), -1)
+        b[..., 1] = np.sum(force * np.sin(beta), -1)
+        b[..., 2] = np.sum(moment, -1)
+        return b + current
 
 
 def environment_disturbance(
