@@ -14,6 +14,9 @@ import numpy as np
 
 from estimators.batched import mv
 
+_ADJUGATE = np.array([3, 1, 2, 0])  # R⁻¹ = [r22, −r12; −r21, r11] / det R, row by row
+_TWICE = np.array([0, 1, 0, 1])
+
 
 def _solve_twice(R: list[float], b: list[float], c: list[float]) -> tuple[list[float], list[float], list[float], float]:
     """z = R⁻¹ b, R⁻¹ (z − c), R⁻¹ (row by row) and det R, for the q×q matrix R given row by row; in
@@ -154,19 +157,22 @@ class ObserverODE:
 
 class ObserverODERuns:
     """``ObserverODE`` of K runs at once, each with its own held readings and inputs: f and ∂f/∂w of
-    w (k, n + p) for the runs ``rows`` of the K, each row bit for bit its run's ``ObserverODE``.
+    w (k, n + p) for the runs ``rows`` of the K (sorted), each row bit for bit its run's ``ObserverODE``.
 
     Each run has its own ``front`` and ``back`` (their rows of y and B u are its own), multiplied by
     NumPy's stacked products, which call the one-run ``dot``'s kernel per run; the closed forms between
-    them are elementwise on columns, in the one-run code's order (its Python floats round as NumPy's
-    elementwise operations do). With q > 2, R⁻¹ is NumPy's stacked ``inv``, a run whose R is
-    singular raising as alone (``raised``: run → what it raised; its row NaN)."""
+    them are elementwise, in the one-run code's order (its Python floats round as NumPy's elementwise
+    operations do). The cost is the number of NumPy calls, whatever K: so each formula is one call
+    over all its components where the order of operations allows. With q > 2, R⁻¹ is NumPy's
+    stacked ``inv``, and a run whose R is singular raises as alone (``raised``: run → what it
+    raised; its row NaN)."""
 
     def __init__(self, ode: ObserverODE, runs: int) -> None:
         self.ode = ode
         self.identity = ode.identity
         self.front = np.repeat(ode.front[None], runs, axis=0)
         self.back = np.repeat(ode.back[None], runs, axis=0)
+        self.ones = np.ones((runs, 1))
         self.Bu = np.zeros((runs, ode.n))
         self.raised: dict[int, str] = {}
 
@@ -181,60 +187,64 @@ class ObserverODERuns:
         one[:, ode.rY_rows] = (ode.Y * y[:, :, None]).reshape(len(y), -1)
 
     def _evaluate(self, w: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``ObserverODE._evaluate`` of each row: f, R⁻¹, det R, back v, −κ_φ |det R| g, Γ, κ_Γ (1 − |Γ|²)."""
-        ode, n, q = self.ode, self.ode.n, self.ode.q
-        front = mv(self.front[rows], w)
-        Zy, m, R_inv, det = self._solve_twice(front[:, : q * q], front[:, q * q : q * q + q], front[:, q * q + q :], rows)
-        back = mv(self.back[rows], np.concatenate([Zy, m, np.ones((len(w), 1)), w, R_inv], axis=1))
+        """``ObserverODE._evaluate`` of each row: f, R⁻¹, det R, back v, −κ_φ |det R| g, Γ, κ_Γ (1 − |Γ|²)
+        (the runs' scalars as columns, (k, 1))."""
+        ode, n = self.ode, self.ode.n
+        every = len(rows) == len(self.front)  # then no copy of the runs' matrices
+        front = np.matmul(self.front if every else self.front[rows], w[:, :, None])[:, :, 0]
+        Zy, m, R_inv, det = self._solve_twice(front, rows)
+        v = np.concatenate([Zy, m, self.ones[: len(w)], w, R_inv], axis=1)
+        back = np.matmul(self.back if every else self.back[rows], v[:, :, None])[:, :, 0]
         gamma = w[:, n:]
-        rate = (-2.0 * ode.kappa_phi) * np.abs(det)
-        descent = rate[:, None] * back[:, ode.r_rows] * back[:, ode.s_rows]
-        squares = gamma[:, 0] * gamma[:, 0]
+        descent = (-2.0 * ode.kappa_phi) * np.abs(det) * back[:, ode.r_rows] * back[:, ode.s_rows]
+        squares = gamma * gamma
+        total = squares[:, :1]
         for j in range(1, ode.p):  # left to right, as ObserverODE adds them
-            squares = squares + gamma[:, j] * gamma[:, j]
-        shrink = ode.kappa_gamma * (1.0 - squares)
-        f = np.concatenate([back[:, ode.dx_rows], descent + shrink[:, None] * gamma], axis=1)
+            total = total + squares[:, j : j + 1]
+        shrink = ode.kappa_gamma * (1.0 - total)
+        f = np.concatenate([back[:, ode.dx_rows], descent + shrink * gamma], axis=1)
         return f, R_inv, det, back, descent, gamma, shrink
 
-    def _solve_twice(
-        self, R: np.ndarray, b: np.ndarray, c: np.ndarray, rows: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``_solve_twice`` of each row: R (k, q²) row by row, b and c (k, q)."""
+    def _solve_twice(self, front: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``_solve_twice`` of each row of ``front`` v (R row by row, b, c): R⁻¹ b, R⁻¹ (z − c), R⁻¹, det R."""
+        q = self.ode.q
+        R, b, c = front[:, : q * q], front[:, q * q : q * q + q], front[:, q * q + q :]
+        if q > 2:
+            return self._solve_stacked(R, b, c, rows)
+        det = R[:, :1] * R[:, 3:] - R[:, 1:2] * R[:, 2:3] if q == 2 else R
+        k = 1.0 / det
+        np.copyto(k, math.nan, where=det == 0)  # a singular R: NaN, as alone
+        if q == 1:
+            z = b * k
+            return z, (z - c) * k, k, det
+        inverse = R.take(_ADJUGATE, axis=1) * k
+        np.negative(inverse[:, 1:3], out=inverse[:, 1:3])  # −(r12 k) = (−r12) k, exactly
+        products = inverse * b.take(_TWICE, axis=1)  # i11 b1, i12 b2, i21 b1, i22 b2
+        z = products[:, 0::2] + products[:, 1::2]
+        products = inverse * (z - c).take(_TWICE, axis=1)
+        return z, products[:, 0::2] + products[:, 1::2], inverse, det
+
+    def _solve_stacked(self, R: np.ndarray, b: np.ndarray, c: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``_solve_twice`` for q > 2, by NumPy's stacked ``inv`` and ``det``; run by run where an R is singular."""
         q = b.shape[1]
-        if q <= 2:
-            det = R[:, 0] * R[:, 3] - R[:, 1] * R[:, 2] if q == 2 else R[:, 0]
-            k = np.where(det != 0, 1.0 / det, math.nan)
-            if q == 1:
-                z = b * k[:, None]
-                return z, (z - c) * k[:, None], k[:, None], det
-            inverse = np.stack([R[:, 3] * k, -R[:, 1] * k, -R[:, 2] * k, R[:, 0] * k], axis=1)
-            i11, i12, i21, i22 = inverse.T
-            z1, z2 = i11 * b[:, 0] + i12 * b[:, 1], i21 * b[:, 0] + i22 * b[:, 1]
-            e1, e2 = z1 - c[:, 0], z2 - c[:, 1]
-            return np.stack([z1, z2], axis=1), np.stack([i11 * e1 + i12 * e2, i21 * e1 + i22 * e2], axis=1), inverse, det
         M = R.reshape(len(R), q, q)
         try:
             M_inv = np.linalg.inv(M)
         except np.linalg.LinAlgError:  # some run's R is singular: each by itself, as alone
             return self._solve_each(R, b, c, rows)
         z = mv(M_inv, b)
-        return z, mv(M_inv, z - c), M_inv.reshape(len(R), q * q), np.linalg.det(M)
+        return z, mv(M_inv, z - c), M_inv.reshape(len(R), q * q), np.linalg.det(M)[:, None]
 
-    def _solve_each(
-        self, R: np.ndarray, b: np.ndarray, c: np.ndarray, rows: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _solve_each(self, R: np.ndarray, b: np.ndarray, c: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, ...]:
         """``_solve_twice`` run by run; a run where it raises is in ``raised``, its row NaN."""
-        q = b.shape[1]
-        found = [np.full((len(R), q), math.nan), np.full((len(R), q), math.nan), np.full((len(R), q * q), math.nan)]
-        det = np.full(len(R), math.nan)
+        z, second, inverse = np.full_like(b, math.nan), np.full_like(b, math.nan), np.full_like(R, math.nan)
+        det = np.full((len(R), 1), math.nan)
         for i, run in enumerate(rows.tolist()):
             try:
-                z, second, inverse, det[i] = _solve_twice(R[i].tolist(), b[i].tolist(), c[i])
+                z[i], second[i], inverse[i], det[i] = _solve_twice(R[i].tolist(), b[i].tolist(), c[i])
             except np.linalg.LinAlgError as error:
                 self.raised[run] = f"LinAlgError: {error}"
-                continue
-            found[0][i], found[1][i], found[2][i] = z, second, inverse
-        return found[0], found[1], found[2], det
+        return z, second, inverse, det
 
     def __call__(self, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
         return self._evaluate(w, rows)[0]
@@ -245,7 +255,7 @@ class ObserverODERuns:
         f, R_inv, det, back, descent, gamma, shrink = self._evaluate(w, rows)
         k = len(w)
         rYR = np.matmul(back[:, ode.rY_rows].reshape(k, p, q), R_inv.reshape(k, q, q))  # diag(r) Y R⁻¹
-        rYR_rate = rYR * ((2.0 * ode.kappa_phi) * np.abs(det))[:, None, None]
+        rYR_rate = rYR * ((2.0 * ode.kappa_phi) * np.abs(det))[:, :, None]
         sY = back[:, ode.sY_rows].reshape(k, p, q)  # diag(s) Y
         J = np.empty((k, n + p, n + p))
         J[:, :n, :n] = ode.A_LH
@@ -257,7 +267,7 @@ class ObserverODERuns:
             np.matmul(rYR_rate, (sY - rYR).swapaxes(1, 2))
             + np.matmul(sY, rYR_rate.swapaxes(1, 2))
             + rank_two
-            + shrink[:, None, None] * ode.identity_p
+            + shrink[:, :, None] * ode.identity_p
         )
         return f, J
 

@@ -137,13 +137,17 @@ def _rosenbrock_steps(
     The stages' linear combinations are NumPy's stacked products, per run the kernel of the one-run
     ``dot``; the LU factorisation and the solves are the one-run LAPACK calls, run by run: NumPy's
     stacked ``solve`` is another build of LAPACK (its own OpenBLAS), which need not round alike."""
-    factors = [lapack.dgetrf(M)[:2] for M in ode.identity * (1.0 / (_GAMMA * h))[:, None, None] - J]
+    # each matrix stored by columns (LAPACK's order), so that dgetrf factorises it in place, uncopied
+    columns = (ode.identity * (1.0 / (_GAMMA * h))[:, None, None] - J).transpose(0, 2, 1).copy()
+    factors = [lapack.dgetrf(M.T, overwrite_a=True)[:2] for M in columns]
     c = _C34 * (1.0 / h)[:, None, None]
     stages = np.empty((len(w), 4, w.shape[1]))
 
     def solve(into: int, rhs: np.ndarray) -> np.ndarray:
-        for stage, (lu, pivots), b in zip(stages[:, into], factors, rhs):
-            stage[:] = lapack.dgetrs(lu, pivots, b)[0]
+        """Stage ``into`` of each run from its right-hand side, solved in place (dgetrs' overwrite_b)."""
+        stages[:, into] = rhs
+        for stage, (lu, pivots) in zip(stages[:, into], factors):
+            lapack.dgetrs(lu, pivots, stage, overwrite_b=True)
         return stages[:, into]
 
     U1 = solve(0, f)
@@ -174,42 +178,48 @@ def integrate_runs(
     arithmetic is the one-run code's, elementwise in its order, the error ratio's maximum a NaN
     wherever one of its terms is (as ``integrate``'s sum tells), and the factor its ``step_factor``.
     """
-    k = len(rows)
-    w_end, h_end = np.full_like(w, np.nan), np.full(k, np.nan)
+    w_end, h_end = np.full_like(w, np.nan), np.full(len(rows), np.nan)
     failed: dict[int, str] = {}
-    at = np.arange(k)  # the positions in rows (and in w_end, h_end) of the runs under way
-    t, (f, J), h = np.zeros(k), linearized, h.astype(float)
+    at = np.arange(len(rows))  # the positions in rows (and in w_end, h_end) of the runs under way
+    t, (f, J), h = np.zeros(len(rows)), linearized, h.astype(float)
     while at.size:
-        if ode.raised:
-            keep = _drop_raised(ode, rows[at], failed)
+        if ode.raised and not (keep := _keep(ode, rows[at], failed)).all():
             at, t, w, f, J, h = at[keep], t[keep], w[keep], f[keep], J[keep], h[keep]
-            if not at.size:
-                break
-        remaining = span - t
+            continue
+        runs, remaining = rows[at], span - t
         h = remaining / np.maximum(1.0, np.ceil(remaining / h - 1e-9))
-        step_and_error = _rosenbrock_steps(ode, rows[at], w, f, J, h)
+        step_and_error = _rosenbrock_steps(ode, runs, w, f, J, h)
         w_new = w + step_and_error[:, 0]
-        magnitude, scale = np.abs(w_new), size[rows[at]]
+        magnitude, scale = np.abs(w_new), size[runs]
         ratio = (np.abs(step_and_error[:, 1]) / (atol + rtol * np.where(magnitude > scale, magnitude, scale))).max(axis=1)
-        factor = np.array([step_factor(r) for r in ratio.tolist()])
         kept = ratio <= 1.0
-        t, w = np.where(kept, t + h, t), np.where(kept[:, None], w_new, w)
-        size[rows[at[kept]]] = np.maximum(size[rows[at[kept]]], np.abs(w[kept]))
+        if kept.all():
+            t, w = t + h, w_new
+            size[runs] = np.maximum(scale, magnitude)
+        else:
+            t, w = np.where(kept, t + h, t), np.where(kept[:, None], w_new, w)
+            size[runs[kept]] = np.maximum(scale[kept], magnitude[kept])
+        h = h * np.array([step_factor(r) for r in ratio.tolist()])
         done = kept & (t >= span * (1 - 1e-12))
-        h = h * factor
-        w_end[at[done]], h_end[at[done]] = w[done], h[done]
+        if done.any():
+            w_end[at[done]], h_end[at[done]] = w[done], h[done]
+            if done.all():
+                break
         again = kept & ~done
-        if again.any():
+        if again.all():
+            f, J = ode.linearized(w, runs)
+        elif again.any():
             f, J = f.copy(), J.copy()
-            f[again], J[again] = ode.linearized(w[again], rows[at[again]])
-        for run in rows[at[~done & (h < 1e-12 * span)]].tolist():  # (what raised first, if anything did)
+            f[again], J[again] = ode.linearized(w[again], runs[again])
+        going = ~done & ~(h < 1e-12 * span)
+        for run in runs[~done & ~going].tolist():  # (what raised first, if anything did)
             failed[run] = ode.raised.get(run, f"FloatingPointError: {_CANNOT}")
-        going = ~done & (h >= 1e-12 * span)
-        at, t, w, f, J, h = at[going], t[going], w[going], f[going], J[going], h[going]
+        if not going.all():
+            at, t, w, f, J, h = at[going], t[going], w[going], f[going], J[going], h[going]
     return w_end, h_end, failed
 
 
-def _drop_raised(ode: VectorFields, runs: np.ndarray, failed: dict[int, str]) -> np.ndarray:
+def _keep(ode: VectorFields, runs: np.ndarray, failed: dict[int, str]) -> np.ndarray:
     """Which of ``runs`` go on: those whose evaluation raised are moved to ``failed``."""
     keep = np.array([r not in ode.raised for r in runs.tolist()], dtype=bool)
     for r in runs[~keep].tolist():
