@@ -58,11 +58,32 @@ def test_batched_runs_are_each_run_alone_through_faults_of_their_own(gain, kappa
     its value alone."""
     runs = 8
     ys, us = cdc_runs(runs, 260, [30, 60, 61, 90, 120, 150, 400, 45], [1.0, 2.0, 0.5, 1.0, 3.0, 0.2, 1.0, -1.0])
-    ys[70, 2, 1] = ys[71:75, 3] = ys[72, 5, 0] = np.nan
+    ys[1, 6, 0] = ys[31, 0, 1] = ys[62:65, 1] = ys[92, 3, 0] = ys[100, 5, 2] = np.nan  # in transients, or not
     params = {"gain": gain.tolist(), "Y": Y_CDC.tolist(), "kappa": kappa}
     check_batched(lambda: estimators.create("adaptive-ct", cdc_model(), params, 0.02), ys, us)
     if kappa > 0:
         assert min(attempts) < runs - 1 and max(attempts) == runs  # runs sat out others' attempts
+
+
+def test_each_runs_state_in_the_batch_is_its_instances_alone():
+    """The state the batch keeps for each run, x̂, Γ, the step to try next and the error scale (the
+    largest |w_i| so far), after every tick equals that of the run's instance stepped alone: also
+    after a missing reading, which the run's own instance steps."""
+    runs = 6
+    ys, us = cdc_runs(runs, 60, [5, 10, 15, 20, 25, 30], [1.0, 2.0, 0.5, 1.0, 3.0, 0.2])
+    ys[1, 0, 0] = ys[6, 1, 1] = ys[16:18, 2] = np.nan
+    us[6, 1] = 50.0  # which drives x̂ to a size it never had, open loop
+    params = {"gain": L2.tolist(), "Y": Y_CDC.tolist(), "kappa": 10.0}
+    alone = [estimators.create("adaptive-ct", cdc_model(), params, 0.02) for _ in range(runs)]
+    batch = batch_of([estimators.create("adaptive-ct", cdc_model(), params, 0.02) for _ in range(runs)])
+    assert isinstance(batch, continuous._ContinuousBatch)
+    for k in range(len(ys)):
+        batch.step(ys[k], us[k])
+        for r, e in enumerate(alone):
+            e.step(ys[k, r], us[k, r])
+            state = (batch.x[r], batch.gamma[r], batch.h[r], batch.size[r])
+            for batched, single in zip(state, (e.x_hat, e.gamma, e.h, e.size)):
+                np.testing.assert_array_equal(batched, single, err_msg=f"tick {k}, run {r}")
 
 
 def random_model(rng: np.random.Generator, n: int, p: int, q: int) -> LinearModel:
