@@ -8,11 +8,12 @@ For ẋ = A x + B u, y = C x + φ with C = Y H, rk C = q < p:
     ∇_Γ|Z_Γ y − ẑ|²ᵀ = 2 diag(y − Y Z_Γ y) Y (Yᵀ G_Γ Y)⁻¹ (Z_Γ y − ẑ)           (8)
 
 The estimator sees y only at the sample instants; it holds y (and u) between ticks and integrates
-(6)–(7) (``estimators.continuous_ode.ObserverODE``, with its Jacobian in closed form) by an L-stable
-fourth-order Rosenbrock method under error control (``estimators.rosenbrock.integrate``): once a fault is present the adaptation (7) is stiff
-(its rate grows with κ and with the fault), which would hold an explicit method to steps far below
-the sample time. The paper gives Y and H explicitly (not orthonormal); they are parameters here,
-since the weights Γ it converges to depend on that choice.
+(6)–(7) (``estimators.continuous_ode.ObserverODE``, with its Jacobian in closed form) by an
+L-stable fourth-order Rosenbrock method under error control (``estimators.rosenbrock.integrate``):
+once a fault is present the adaptation (7) is stiff (its rate grows with κ and with the fault),
+which would hold an explicit method to steps far below the sample time. The paper gives Y and H
+explicitly (not orthonormal); they are parameters here, since the weights Γ it converges to depend
+on that choice.
 
 The runs of a batch are integrated together (``ContinuousAdaptiveObserver.batched``), each run with
 its own steps and bit for bit as alone.

@@ -191,7 +191,8 @@ def integrate_runs(
         step_and_error = _rosenbrock_steps(ode, runs, w, f, J, h)
         w_new = w + step_and_error[:, 0]
         magnitude, scale = np.abs(w_new), size[runs]
-        ratio = (np.abs(step_and_error[:, 1]) / (atol + rtol * np.where(magnitude > scale, magnitude, scale))).max(axis=1)
+        tolerance = atol + rtol * np.where(magnitude > scale, magnitude, scale)  # Python's max(s, |v|)
+        ratio = (np.abs(step_and_error[:, 1]) / tolerance).max(axis=1)
         kept = ratio <= 1.0
         if kept.all():
             t, w = t + h, w_new

@@ -11,6 +11,10 @@ import pytest
 import estimators
 import estimators.continuous as continuous
 import estimators.rosenbrock as rosenbrock
+from cosim import api
+from cosim.campaign.batch import run_batch
+from cosim.campaign.results import rows_of
+from cosim.scenario import apply
 from estimators import LinearModel
 from estimators.batched import StepEach, batch_of, check_batched
 from estimators.continuous_ode import ObserverODE, ObserverODERuns
@@ -107,8 +111,8 @@ def test_batched_runs_are_each_run_alone_for_other_output_ranks(n, p, q):
     us = rng.normal(size=(ticks, runs, 2))
     poles = [-2.0 - i for i in range(n)]
     for kappa in (0.5, 20.0):
-        make = lambda: estimators.create("adaptive-ct", model, {"poles": poles, "kappa": kappa}, 0.05)  # noqa: E731
-        check_batched(make, ys, us)
+        params = {"poles": poles, "kappa": kappa}
+        check_batched(lambda params=params: estimators.create("adaptive-ct", model, params, 0.05), ys, us)
 
 
 @pytest.mark.parametrize("q", [1, 2, 3])
@@ -202,3 +206,26 @@ def test_a_few_runs_step_one_by_one_and_the_k_run_step_is_exact_for_them_too(mon
     for runs in (1, 2):
         ys, us = cdc_runs(runs, 80, [20, 40], [1.0, 2.0])
         check_batched(make, ys, us)
+
+
+@pytest.mark.slow
+def test_a_batch_of_example_1_gives_each_runs_metrics_row_alone(monkeypatch):
+    """The CDC 2016 scenario (six adaptive-ct estimators), its fault moved to 1 s, six seeds in one
+    batch (each estimator's six instances by the K-run step) against each seed run alone: the same
+    metrics row, every float."""
+    loaded = apply(api.load("cdc2016-ex1"), [("duration", 2.5), ("faults[0].start", 1.0)])
+    seeds = list(range(continuous.BATCH_FROM))
+    integrated = []
+    integrate = continuous._ContinuousBatch._integrate
+
+    def counted(self, live, dy, du):
+        integrated.append(len(live))
+        return integrate(self, live, dy, du)
+
+    monkeypatch.setattr(continuous._ContinuousBatch, "_integrate", counted)
+    runs = run_batch(loaded, seeds)
+    assert [run.left for run in runs] == [""] * len(seeds)
+    assert len(integrated) == 6 * 125 and set(integrated) == {len(seeds)}  # six estimators, 125 ticks
+    for seed, run in zip(seeds, runs):
+        alone = rows_of(api.run(loaded, None, seed=seed, in_process=True, measure=True).metrics)
+        assert rows_of(run.metrics) == alone, seed
