@@ -75,7 +75,7 @@ def vector_field(
 BATCH_FROM = 6
 """The fewest runs stepped by the K-run step: its NumPy calls cost about 800 µs a tick whatever K
 (each a few elements where the one-run step has Python floats), plus 30 µs a run, against about
-215 µs a run alone (2 vCPUs, ``bench/estimator_step.py``); below 6 runs it would cost more."""
+215 µs a run alone (2 vCPUs, 2026-11-29, ``bench/estimator_step.py``); below 6 runs it would cost more."""
 
 
 @dataclass(frozen=True)

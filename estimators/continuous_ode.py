@@ -243,7 +243,7 @@ class ObserverODERuns:
             try:
                 z[i], second[i], inverse[i], det[i] = _solve_twice(R[i].tolist(), b[i].tolist(), c[i])
             except np.linalg.LinAlgError as error:
-                self.raised[run] = f"LinAlgError: {error}"
+                self.raised.setdefault(run, f"LinAlgError: {error}")  # (the first, as alone)
         return z, second, inverse, det
 
     def __call__(self, w: np.ndarray, rows: np.ndarray) -> np.ndarray:
