@@ -173,11 +173,9 @@ def integrate_runs(
     first step h (k,), ``size`` (K, size) updated in place at ``rows``; returns w(t + span) and the
     steps to try next, (k, size) and (k,), and the runs that raised (run → what), their rows NaN.
 
-    The runs make their attempts together, each with its own step, its own error test and its own
-    decision: a run that has reached the end of the span sits out while the others go on. The
-    arithmetic is the one-run code's, elementwise in its order, the error ratio's maximum a NaN
-    wherever one of its terms is (as ``integrate``'s sum tells), and the factor its ``step_factor``.
-    """
+    The runs make their attempts together, each with its own step, error test and decision, a run
+    done with the span sitting out while the others go on; the arithmetic is ``integrate``'s in its
+    order (the ratio's maximum NaN wherever a term is, as its sum tells; its ``step_factor``)."""
     w_end, h_end = np.full_like(w, np.nan), np.full(len(rows), np.nan)
     failed: dict[int, str] = {}
     at = np.arange(len(rows))  # the positions in rows (and in w_end, h_end) of the runs under way
