@@ -17,7 +17,7 @@ import scipy.special
 
 from estimators.box_least_squares import box_least_squares
 from estimators.lmi import pseudo_inverse
-from estimators.model_window import Projection, complement_projection, reduced_system, stacked_window
+from estimators.model_window import Projection, complement_projection, reduced_system, reduced_systems, stacked_window
 
 
 @dataclass(frozen=True)
@@ -195,9 +195,30 @@ def chi2_statistic(system: WindowSystem, beta: np.ndarray) -> float:
 def gain_standard_errors(system: WindowSystem) -> np.ndarray:
     """The standard error of each β̂_j fitted alone (the others given), 1/‖P⊥ D Y_j‖: how well the
     window resolves a change of that sensor's gain (γ̂ = 1/β̂ has about the same near γ = 1)."""
-    factor = system.factor
-    norms = np.sqrt(np.add.reduce(factor * factor, axis=0))  # np.linalg.norm(axis=0)'s arithmetic, without its checks
+    return standard_errors(system.factor[None])[0]
+
+
+def standard_errors(factors: np.ndarray) -> np.ndarray:
+    """``gain_standard_errors`` of K windows' factors (K, m, m), each run's bit for bit."""
+    norms = np.sqrt(np.add.reduce(factors * factors, axis=1))  # np.linalg.norm(axis=0)'s arithmetic, without its checks
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
+
+
+def window_tests(
+    window: GainTestWindow, y: np.ndarray, u: np.ndarray, gamma: np.ndarray, alpha: float, se_tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """What ``decide_gains`` first computes, for K whole windows with every reading (a batch's runs:
+    y (K, N, m), u (K, N, n_u), the previous γ̂ (K, m)): the statistic of γ̂ over its threshold and the
+    excitation, each (K,), each run's bit for bit; a run whose statistic is ≤ 1 keeps γ̂
+    (``consistent``) where no change is being identified."""
+    m = y.shape[2]
+    reduced = reduced_systems(window.projection, y * window.weight, u)
+    factor, rotated = reduced[:, :m, :m], reduced[:, :m, m]
+    rest = np.array([float(v) ** 2 for v in reduced[:, m, m]])
+    residual = np.matmul(factor, (1.0 / gamma)[..., None])[..., 0] - rotated  # chi2_statistic's arithmetic
+    statistic = np.matmul(residual[:, None, :], residual[:, :, None])[:, 0, 0] + rest
+    threshold = _chi2_quantile(alpha, window.projection.forced.shape[0])
+    return statistic / threshold, se_tol / np.max(standard_errors(factor), axis=1)
 
 
 def normal_inverse(columns: np.ndarray) -> np.ndarray:

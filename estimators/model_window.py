@@ -46,11 +46,18 @@ def reduced_system(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.n
     Its blocks R = R̃[:m, :m], c = R̃[:m, m] and ρ = R̃[m, m] hold all of the window's least squares in
     β: ‖W' Y β − W' r‖² = ‖R β − c‖² + ρ² for every β, and W' Y has the singular values and column
     norms of R."""
-    m, rows = y.shape[1], projection.by_sensor.shape[1]
-    columns = np.empty((m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
-    np.matmul(projection.by_sensor, y.T[:, :, None], out=columns[:m, :, None])  # W' Y: column j is W_j' y_j
-    columns[m] = projection.forced.dot(u[:-1].ravel())  # W' r
-    return lapack.dgeqrf(columns.T)[0][: m + 1] * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
+    return reduced_systems(projection, y[None], u[None])[0]
+
+
+def reduced_systems(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``reduced_system`` of K windows at once (a batch's runs): y (K, N, m), u (K, N, n_u) →
+    (K, m + 1, m + 1), each run's bit for bit (the products stacked, one QR per run)."""
+    runs, m, rows = y.shape[0], y.shape[2], projection.by_sensor.shape[1]
+    columns = np.empty((runs, m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
+    np.matmul(projection.by_sensor, np.swapaxes(y, 1, 2)[..., None], out=columns[:, :m, :, None])  # W_j' y_j
+    np.matmul(projection.forced, u[:, :-1].reshape(runs, -1, 1), out=columns[:, m, :, None])  # W' r
+    factors = np.stack([lapack.dgeqrf(c.T)[0][: m + 1] for c in columns])
+    return factors * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
 
 
 @functools.lru_cache(maxsize=16)
@@ -152,12 +159,42 @@ def window_gains(
         complement[:, kept] = basis
         projection = _projection(complement.reshape(len(basis), *y.shape), window.response)
         y = np.where(missing, 0.0, y)
-    reduced = reduced_system(projection, y * window.weight, u)
-    R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2
-    scale = np.sqrt(np.einsum("ij,ij->j", R, R))  # a zero column stays zero divided by the smallest float
-    sv = lapack.dgesvd(R / np.maximum(scale, _TINY), compute_uv=0)[1]
-    beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
-    misfit = R.dot(beta) - c
-    size = float(c.dot(c)) + rest
-    residual = float(np.sqrt((misfit.dot(misfit) + rest) / size)) if size > 0 else np.inf
+    reduced = reduced_systems(projection, (y * window.weight)[None], u[None])
+    gammas, sv, residuals = gains_of_reduced(reduced, lower, upper)
+    return gammas[0], sv[0], float(residuals[0])
+
+
+def window_gains_runs(
+    window: ModelWindow, y: np.ndarray, u: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``window_gains`` of K windows with every reading (a batch's runs): y (K, N, m), u (K, N, n_u)
+    → γ (K, m), the singular values (K, m) and the relative residuals (K,), each run's bit for bit."""
+    return gains_of_reduced(reduced_systems(window.projection, y * window.weight, u), lower, upper)
+
+
+def gains_of_reduced(
+    reduced: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What ``window_gains`` takes from K reduced systems (K, m + 1, m + 1): γ, the singular values
+    of the column-normalized regressor and the relative residual of each; the box least squares and
+    the SVD run by run, the rest on arrays. With ``failed``, a run whose least squares raises is
+    recorded there (its γ NaN) and the others go on; without, it raises."""
+    R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
+    scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
+    normalized = R / np.maximum(scale, _TINY)[:, None, :]
+    sv = np.stack([lapack.dgesvd(row, compute_uv=0)[1] for row in normalized])
+    beta = np.full(c.shape, np.nan)
+    for k, (Rk, ck) in enumerate(zip(R, c, strict=True)):
+        if failed is None:
+            beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+        elif k not in failed:
+            try:
+                beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+            except Exception as error:  # noqa: BLE001 (recorded: that run fails, as alone)
+                failed[k] = f"{type(error).__name__}: {error}"
+    misfit = np.matmul(R, beta[..., None])[..., 0] - c
+    size = np.matmul(c[:, None, :], c[:, :, None])[:, 0, 0] + rest
+    squares = np.matmul(misfit[:, None, :], misfit[:, :, None])[:, 0, 0] + rest
+    with np.errstate(divide="ignore", invalid="ignore"):
+        residual = np.where(size > 0, np.sqrt(squares / size), np.inf)
     return 1.0 / beta, sv, residual
