@@ -107,7 +107,7 @@ class DeviationBatch(ABC):
         estimate = self._step(y - point.y, u - model.u_op)
         x = estimate.x + point.x
         point.advance()
-        return BatchEstimate(x, estimate.diagnostics)
+        return BatchEstimate(x, estimate.diagnostics, estimate.failed)
 
     @abstractmethod
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:

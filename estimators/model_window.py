@@ -165,11 +165,17 @@ def window_gains(
 
 
 def window_gains_runs(
-    window: ModelWindow, y: np.ndarray, u: np.ndarray, lower: np.ndarray, upper: np.ndarray
+    window: ModelWindow,
+    y: np.ndarray,
+    u: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    failed: dict[int, str] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``window_gains`` of K windows with every reading (a batch's runs): y (K, N, m), u (K, N, n_u)
-    → γ (K, m), the singular values (K, m) and the relative residuals (K,), each run's bit for bit."""
-    return gains_of_reduced(reduced_systems(window.projection, y * window.weight, u), lower, upper)
+    → γ (K, m), the singular values (K, m) and the relative residuals (K,), each run's bit for bit;
+    ``failed`` as in ``gains_of_reduced`` (the runs it holds already are not solved)."""
+    return gains_of_reduced(reduced_systems(window.projection, y * window.weight, u), lower, upper, failed)
 
 
 def gains_of_reduced(
@@ -178,7 +184,8 @@ def gains_of_reduced(
     """What ``window_gains`` takes from K reduced systems (K, m + 1, m + 1): γ, the singular values
     of the column-normalized regressor and the relative residual of each; the box least squares and
     the SVD run by run, the rest on arrays. With ``failed``, a run whose least squares raises is
-    recorded there (its γ NaN) and the others go on; without, it raises."""
+    recorded there (its γ NaN) and the others go on, and a run it holds already is not solved;
+    without, it raises."""
     R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
     scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
     normalized = R / np.maximum(scale, _TINY)[:, None, :]

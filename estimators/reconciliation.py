@@ -27,7 +27,7 @@ virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and tha
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +41,7 @@ from estimators.lmi import DesignError, SensorFaultModel, box_coordinates_runs, 
 from estimators.lpv_design import LpvDesign, lpv_uio_design
 from estimators.model import LinearModel
 from estimators.model_window import model_window, window_gains
+from estimators.reconciliation_batch import NoReconciliationBatch, UioReconciliationBatch
 from estimators.reconciliation_runs import (
     Uio,
     excitations,
@@ -172,6 +173,10 @@ class NoReconciliation(_Reconciliator):
         super().__init__(model, params, sample_time)
         self.C_pinv = np.linalg.pinv(model.C)
 
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> NoReconciliationBatch:
+        return NoReconciliationBatch(instances)
+
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         available = ~np.isnan(y)
         y0 = np.where(available, y, 0.0)
@@ -231,6 +236,10 @@ class UioReconciliator(_Reconciliator):
         )
         self.gain_test = self._gain_test_window() if params.gain_estimator == "test" else None
         self.reset()
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> UioReconciliationBatch:
+        return UioReconciliationBatch(instances)
 
     def _gain_test_window(self) -> GainTestWindow:
         """The whitened model window of ``gain_estimator = "test"``, its parameters checked."""
