@@ -195,7 +195,9 @@ def chi2_statistic(system: WindowSystem, beta: np.ndarray) -> float:
 def gain_standard_errors(system: WindowSystem) -> np.ndarray:
     """The standard error of each β̂_j fitted alone (the others given), 1/‖P⊥ D Y_j‖: how well the
     window resolves a change of that sensor's gain (γ̂ = 1/β̂ has about the same near γ = 1)."""
-    return standard_errors(system.factor[None])[0]
+    factor = system.factor
+    norms = np.sqrt(np.add.reduce(factor * factor, axis=0))  # np.linalg.norm(axis=0)'s arithmetic, without its checks
+    return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
 
 
 def standard_errors(factors: np.ndarray) -> np.ndarray:

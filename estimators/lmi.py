@@ -160,9 +160,17 @@ def uio_matrices(
     ``Cbar``: C̄_γ, where the caller has it already.
     """
     gamma = np.asarray(gamma, dtype=float)
+    Ebar = model.Ebar
     Cbar = model.Cbar(gamma) if Cbar is None else Cbar
-    Q, T = uio_matrices_runs(model, gamma[None], Cbar[None], form=form)
-    return Q[0], T[0]
+    if form == "pinv":
+        Q = Ebar.dot(pseudo_inverse(Cbar.dot(Ebar)))
+    elif form == "lft":
+        Q = model.Ebar_G_pinv / gamma[None, :]
+    else:
+        raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
+    T = -Q.dot(Cbar)
+    T.flat[:: T.shape[0] + 1] += 1.0  # I − Q C̄, without building I
+    return Q, T
 
 
 def uio_matrices_runs(

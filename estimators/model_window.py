@@ -46,7 +46,11 @@ def reduced_system(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.n
     Its blocks R = R̃[:m, :m], c = R̃[:m, m] and ρ = R̃[m, m] hold all of the window's least squares in
     β: ‖W' Y β − W' r‖² = ‖R β − c‖² + ρ² for every β, and W' Y has the singular values and column
     norms of R."""
-    return reduced_systems(projection, y[None], u[None])[0]
+    m, rows = y.shape[1], projection.by_sensor.shape[1]
+    columns = np.empty((m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
+    np.matmul(projection.by_sensor, y.T[:, :, None], out=columns[:m, :, None])  # W' Y: column j is W_j' y_j
+    columns[m] = projection.forced.dot(u[:-1].ravel())  # W' r
+    return lapack.dgeqrf(columns.T)[0][: m + 1] * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
 
 
 def reduced_systems(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -159,9 +163,15 @@ def window_gains(
         complement[:, kept] = basis
         projection = _projection(complement.reshape(len(basis), *y.shape), window.response)
         y = np.where(missing, 0.0, y)
-    reduced = reduced_systems(projection, (y * window.weight)[None], u[None])
-    gammas, sv, residuals = gains_of_reduced(reduced, lower, upper)
-    return gammas[0], sv[0], float(residuals[0])
+    reduced = reduced_system(projection, y * window.weight, u)
+    R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2
+    scale = np.sqrt(np.einsum("ij,ij->j", R, R))  # a zero column stays zero divided by the smallest float
+    sv = lapack.dgesvd(R / np.maximum(scale, _TINY), compute_uv=0)[1]
+    beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
+    misfit = R.dot(beta) - c
+    size = float(c.dot(c)) + rest
+    residual = float(np.sqrt((misfit.dot(misfit) + rest) / size)) if size > 0 else np.inf
+    return 1.0 / beta, sv, residual
 
 
 def window_gains_runs(

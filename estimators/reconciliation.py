@@ -37,20 +37,12 @@ from scipy.linalg import lapack
 from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
 from estimators.gain_identification import GainDecision, GainTestWindow, decide_gains, gain_test_window
 from estimators.lft_design import LftDesign, lft_uio_design
-from estimators.lmi import DesignError, SensorFaultModel, box_coordinates_runs, uio_matrices_runs
+from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, box_coordinates_runs, uio_matrices
 from estimators.lpv_design import LpvDesign, lpv_uio_design
 from estimators.model import LinearModel
 from estimators.model_window import model_window, window_gains
 from estimators.reconciliation_batch import NoReconciliationBatch, UioReconciliationBatch
-from estimators.reconciliation_runs import (
-    Uio,
-    excitations,
-    matrices,
-    paper_gains,
-    published_excitation,
-    singular_values,
-    uio_steps,
-)
+from estimators.reconciliation_runs import matrices, scheduled_gains
 from estimators.sample_window import Sample, SampleWindow
 
 Matrix = tuple[tuple[float, ...], ...]
@@ -299,15 +291,15 @@ class UioReconciliator(_Reconciliator):
     def _design(self) -> None:
         """Solve (or take from the parameters) the LMI design of the observer gain."""
 
+    @abstractmethod
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         """The observer gain L at γ̂, shape (n + q, m)."""
-        return self.gains(np.asarray(gamma, dtype=float)[None])[0]
 
     @abstractmethod
     def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
-        """The observer gain L at each row of ``gammas`` (K, m), shape (K, n + q, m). With ``failed``,
-        a row whose gain cannot be formed is recorded there (by its index, with why) and left NaN;
-        without, it raises."""
+        """``gain`` at each row of ``gammas`` (K, m), shape (K, n + q, m), each run's bit for bit (a
+        batch's). With ``failed``, a row whose gain cannot be formed is recorded there (by its index,
+        with why) and left NaN; without, it raises."""
 
     def _solve(self, design: Callable[..., Any], **kwargs: Any) -> Any:
         try:
@@ -338,34 +330,32 @@ class UioReconciliator(_Reconciliator):
 
     def _observe(self, y: np.ndarray, u_bar: np.ndarray, gamma: np.ndarray, coast: bool = False) -> Sample:
         """One step of the UIO (10) with T, Q and L at ``gamma`` (Algorithm 1 step 5, Algorithm 2
-        step 4): x̂(t) = T x̄(t) + L (y(t−1) − C̄ x̂(t−1)) + Q y(t), x̄(t) = Ā x̂(t−1) + B̄ u(t−1)
-        (``uio_steps`` with K = 1). At t = 0, the UIO's own reconstruction from y(0) about x̂₀. A
-        reading that did not arrive is replaced by its prediction C̄ x̄(t); with ``coast`` all are,
-        and x̂(t) is the model's prediction x̄(t) (eq. (11): T + Q C̄ = I)."""
-        fresh = self.x_hat is None or self.previous is None
-        if self.x_hat is None or self.previous is None:
-            previous = (self.x_bar0[None], y[None], u_bar[None])  # not read: the run starts from x̂₀
+        step 4): x̂(t) = T x̄(t) + L (y(t−1) − C̄ x̂(t−1)) + Q y(t), x̄(t) = Ā x̂(t−1) + B̄ u(t−1).
+        A reading that did not arrive is replaced by its prediction C̄ x̄(t); with ``coast`` all
+        are, and x̂(t) is the model's prediction x̄(t) (eq. (11): T + Q C̄ = I)."""
+        Q, T, Cbar, L = self._uio(gamma)
+        if self.x_hat is None or self.previous is None:  # t = 0: the UIO's own reconstruction from y(0) about x̂₀
+            prior = self.x_bar0
+            x_next = T.dot(prior)
         else:
-            previous = (self.x_hat[None], self.previous[0][None], self.previous[1][None])
-        x_hat, used = uio_steps(
-            self._uio(gamma), self.Abar, self.Bbar, self.x_bar0, previous, np.array([fresh]), y[None], np.array([coast])
-        )
-        self.x_hat, self.previous = x_hat[0], (used[0], u_bar)
+            y_prev, u_prev = self.previous
+            prior = self.Abar.dot(self.x_hat) + self.Bbar.dot(u_prev)
+            x_next = T.dot(prior) + L.dot(y_prev - Cbar.dot(self.x_hat))  # eq. (10)
+        missing = np.isnan(y)
+        used = np.where(missing | coast, Cbar.dot(prior), y) if coast or missing.any() else y
+        self.x_hat = x_next + Q.dot(used)
+        self.previous = (used, u_bar)
         n = self.model.n
-        return Sample(used[0], self.x_hat[:n], self.x_hat[n:], y, u_bar)
+        return Sample(used, self.x_hat[:n], self.x_hat[n:], y, u_bar)
 
-    def _uio(self, gamma: np.ndarray) -> Uio:
-        """Q, T (eq. (11)–(14)), C̄ and L at γ̂ (K = 1), computed again only when γ̂ changes."""
+    def _uio(self, gamma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Q, T (eq. (11)–(14)), C̄ and L at γ̂, computed again only when γ̂ changes."""
         key = gamma.tobytes()
         if key != self.uio_gamma:
-            self.uio_matrices, self.uio_gamma = self.uio_runs(gamma[None]), key
+            Cbar = self.aug.Cbar(gamma)
+            Q, T = uio_matrices(self.aug, gamma, form=self.form, Cbar=Cbar)
+            self.uio_matrices, self.uio_gamma = (Q, T, Cbar, self.gain(gamma)), key
         return self.uio_matrices
-
-    def uio_runs(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> Uio:
-        """The UIO's matrices at each row of ``gammas`` (K, m); ``failed`` as in ``gains``."""
-        Cbars = self.aug.Cbars(gammas)
-        Q, T = uio_matrices_runs(self.aug, gammas, Cbars, form=self.form)
-        return Uio(Q, T, Cbars, self.gains(gammas, failed))
 
     def _tested_step(self, y: np.ndarray, u_bar: np.ndarray) -> None:
         """One tick with ``gain_estimator = "test"``. The gain test runs first, on the window up to
@@ -401,13 +391,27 @@ class UioReconciliator(_Reconciliator):
             self.history[-1] = self._observe(y, u_bar, self.gamma, coast)
 
     def _estimate_gamma(self) -> np.ndarray:
-        """The QP (53) over the window (51)–(52) (``paper_gains`` with K = 1); condition (55),
-        rank X̂_p = n, as the ratio of its extreme singular values."""
-        ys, xs, bs = (self.history.field(name)[None] for name in ("y", "x_p", "b"))
-        gamma, fit = paper_gains(ys, xs, bs, self.model.C, self.F, self.gamma[None], self.lower, self.upper)
-        self.fit = float(fit[0])
-        self.pe = float(excitations(singular_values(xs), self.model.n, self.params.pe_tol)[0])
-        return gamma[0]
+        """The QP (53) over the window (51)–(52).
+
+        φ(t) stacks X(t−i) = diag(C_y⁽ʲ⁾ x̂_p(t−i)), so φᵀφ is diagonal and (53) separates into one
+        scalar problem per sensor, min Σ_i (r_ij − γ_j s_ij)² over γ̲ ≤ γ_j ≤ γ̄, with
+        s_ij = C_y⁽ʲ⁾ x̂_p(t−i) and r_ij = y_j(t−i) − F⁽ʲ⁾ b̂(t−i); each is solved exactly by
+        clipping its unconstrained minimizer. A sensor whose regressor column is zero (rank φ < m,
+        condition (54)) keeps its previous estimate.
+        """
+        ys, xs, bs = (self.history.field(name) for name in ("y", "x_p", "b"))
+        s = xs.dot(self.model.C.T)  # (N, m)
+        r = ys - bs.dot(self.F.T)
+        energy = np.einsum("ij,ij->j", s, s)
+        gamma = np.divide(np.einsum("ij,ij->j", r, s), energy, out=self.gamma.copy(), where=energy > 0.0)
+        gamma = np.minimum(np.maximum(gamma, self.lower), self.upper)  # clipped to Γ
+        misfit = r - gamma * s
+        size = float(np.einsum("ij,ij", r, r))
+        self.fit = float(np.sqrt(np.einsum("ij,ij", misfit, misfit) / size)) if size > 0 else 0.0
+        # Condition (55): rank X̂_p = n, as the ratio of extreme singular values.
+        sv = lapack.dgesvd(xs, compute_uv=0)[1]  # as np.linalg.svd, without its checks' cost every tick
+        self.pe = self._excitation(sv, self.model.n)
+        return gamma
 
     def _estimate_gamma_on_the_model(self) -> np.ndarray:
         """γ̂ from the window through the model (``window_gains``), within Γ. A window that does not
@@ -416,7 +420,7 @@ class UioReconciliator(_Reconciliator):
         assert self.model_window is not None
         ys, us = self.history.field("measured"), self.history.field("u")
         gamma, sv, self.fit = window_gains(self.model_window, ys, us, self.lower, self.upper)
-        self.pe = float(excitations(sv[None], self.model.p, self.params.pe_tol)[0])
+        self.pe = self._excitation(sv, self.model.p)
         return gamma if self.pe > 0.0 and self.fit <= self.params.fit_tol else self.gamma
 
     def _test_gamma(self) -> GainDecision:
@@ -441,9 +445,17 @@ class UioReconciliator(_Reconciliator):
         self.episode += 1
         if self.episode >= self.params.window:
             self.reference = None  # the change is older than the window: γ̂ is tested as it is from now
-        self.pe = float(published_excitation(np.array([self.decision.excitation]))[0])
+        # se_tol over the largest standard error: ≥ 1 when the window resolves every gain; published
+        # up to 2, the channel's declared range (a well-excited window reads 2, not its exact margin).
+        self.pe = min(self.decision.excitation, 2.0) if self.decision.excitation >= 1.0 else 0.0
         self.fit = self.decision.statistic
         return self.decision
+
+    def _excitation(self, sv: np.ndarray, rank: int) -> float:
+        """σ_min/σ_max of a regressor that must have ``rank`` columns' worth of excitation; 0 when
+        that ratio is below ``pe_tol`` (the condition fails)."""
+        ratio = float(sv[-1] / sv[0]) if len(sv) >= rank and sv[0] > 0 else 0.0
+        return ratio if ratio >= self.params.pe_tol else 0.0
 
     @staticmethod
     def _bias_names(q: int) -> list[str]:
@@ -512,26 +524,19 @@ class LpvUioReconciliator(UioReconciliator):
             design: LpvDesign = self._solve(lpv_uio_design)
             self.design, self.G_vertices, self.Y_vertices = design, design.G, design.Y
 
+    def gain(self, gamma: np.ndarray) -> np.ndarray:
+        rho = box_coordinates(gamma, self.lower, self.upper)
+        l, nx, m = self.Y_vertices.shape
+        G = rho.dot(self.G_vertices.reshape(l, nx * nx)).reshape(nx, nx)  # Σ ρ_i G_i
+        # LAPACK directly: numpy.linalg.solve's checks cost as much as the 5 × 5 solve
+        lu, pivots, L, info = lapack.dgesv(G, rho.dot(self.Y_vertices.reshape(l, nx * m)).reshape(nx, m))
+        if info != 0:
+            raise np.linalg.LinAlgError(f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)")
+        return L
+
     def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
         rho = box_coordinates_runs(gammas, self.lower, self.upper)
-        l, nx, m = self.Y_vertices.shape
-        G = np.matmul(rho[:, None, :], self.G_vertices.reshape(l, nx * nx))[:, 0].reshape(-1, nx, nx)  # Σ ρ_i G_i
-        Y = np.matmul(rho[:, None, :], self.Y_vertices.reshape(l, nx * m))[:, 0].reshape(-1, nx, m)
-        gains = matrices(len(gammas), (nx, m), fortran=True)  # L as LAPACK returns it
-        gains[...] = np.nan
-        for k, gamma in enumerate(gammas):
-            if failed is not None and k in failed:
-                continue
-            # LAPACK directly: numpy.linalg.solve's checks cost as much as the 5 × 5 solve
-            lu, pivots, L, info = lapack.dgesv(G[k], Y[k])
-            if info == 0:
-                gains[k] = L
-                continue
-            why = f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)"
-            if failed is None:
-                raise np.linalg.LinAlgError(why)
-            failed[k] = f"LinAlgError: {why}"
-        return gains
+        return scheduled_gains(rho, self.G_vertices, self.Y_vertices, gammas, failed)
 
     def design_params(self) -> dict[str, Any]:
         l, nx = self.G_vertices.shape[:2]
@@ -561,8 +566,11 @@ class LftUioReconciliator(UioReconciliator):
             design: LftDesign = self._solve(lft_uio_design, multiplier=self.params.multiplier)
             self.design, self.L = design, design.L
 
+    def gain(self, gamma: np.ndarray) -> np.ndarray:
+        return self.L
+
     def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
-        gains = matrices(len(gammas), self.L.shape, fortran=not self.L.flags.c_contiguous)
+        gains = matrices(len(gammas), self.L.shape, fortran=self.L.flags.f_contiguous and not self.L.flags.c_contiguous)
         gains[...] = self.L
         return gains
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from estimators.batched import BatchEstimate, DeviationBatch, mv
 from estimators.gain_identification import window_tests
+from estimators.lmi import uio_matrices_runs
 from estimators.model_window import window_gains_runs
 from estimators.reconciliation_runs import (
     Uio,
@@ -38,6 +39,14 @@ from estimators.reconciliation_runs import (
     uio_steps,
 )
 from estimators.sample_window import Sample, SampleWindow
+
+
+def uio_runs(reconciliator: Any, gammas: np.ndarray, failed: dict[int, str] | None = None) -> Uio:
+    """A ``UioReconciliator``'s UIO matrices (its ``_uio``'s) at each row of ``gammas`` (K, m), each
+    run's bit for bit; ``failed`` as in its ``gains``."""
+    Cbars = reconciliator.aug.Cbars(gammas)
+    Q, T = uio_matrices_runs(reconciliator.aug, gammas, Cbars, form=reconciliator.form)
+    return Uio(Q, T, Cbars, reconciliator.gains(gammas, failed))
 
 
 def _why(error: Exception) -> str:
@@ -84,7 +93,7 @@ class UioReconciliationBatch(DeviationBatch):
         for instance in instances[1:]:  # one design: its windows' cached bases serve every run
             instance.gain_test, instance.model_window = first.gain_test, first.model_window
         self._take_state(instances)
-        self.uio: Uio = first.uio_runs(self.gamma)
+        self.uio: Uio = uio_runs(first, self.gamma)
         self.uio_gamma = self.gamma.copy()
         self.failed: dict[int, str] = {}
         self.retired: set[int] = set()
@@ -224,7 +233,7 @@ class UioReconciliationBatch(DeviationBatch):
             return
         failed: dict[int, str] = {}
         try:
-            formed = self.first.uio_runs(self.gamma[rows], failed)
+            formed = uio_runs(self.first, self.gamma[rows], failed)
         except Exception:  # noqa: BLE001 (one run's: find which, run by run)
             for r in rows:
                 self._refresh_row(int(r))
@@ -237,7 +246,7 @@ class UioReconciliationBatch(DeviationBatch):
     def _refresh_row(self, r: int) -> None:
         failed: dict[int, str] = {}
         try:
-            formed = self.first.uio_runs(self.gamma[r : r + 1], failed)
+            formed = uio_runs(self.first, self.gamma[r : r + 1], failed)
         except Exception as error:  # noqa: BLE001
             self.failed[r] = _why(error)
             return

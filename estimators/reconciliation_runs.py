@@ -1,9 +1,11 @@
-"""The arithmetic of the reconciliators' on-line phase (IJC 2018) over K runs at once: the UIO step
-(10) and the gain estimate (53), each with a leading run axis. A single reconciliator calls them with
-K = 1 and a batch of runs (``estimators.reconciliation_batch``) with K, so both compute each run's
-numbers by the same operations: stacked ``matmul`` (``estimators.batched.mv``: one BLAS call per
-run, the single call's),
-elementwise operations, and ``einsum`` sums per run, which add each run's terms in its own order.
+"""The arithmetic of the reconciliators' on-line phase (IJC 2018) over the K runs of a batch
+(``estimators.reconciliation_batch``): the UIO step (10), the LPV gain, the gain estimate (53), each
+with a leading run axis, and each run's numbers bit for bit what the single step computes
+(``estimators.reconciliation``) by the same operations: stacked ``matmul`` (``estimators.batched.mv``:
+one BLAS call per run, the single call's, on a matrix held in the single run's memory order),
+elementwise operations, ``einsum`` sums per run, LAPACK run by run. The single step keeps its own
+one-run form (these cost it twice its time at K = 1, in NumPy's calls); tests/test_batched_reconciliation.py
+holds the two together.
 """
 
 from __future__ import annotations
@@ -36,6 +38,36 @@ def matrices(runs: int, shape: tuple[int, ...], fortran: bool = False) -> np.nda
     if fortran:
         return np.empty((runs, shape[1], shape[0])).transpose(0, 2, 1)
     return np.empty((runs, *shape))
+
+
+def scheduled_gains(
+    rho: np.ndarray,
+    G_vertices: np.ndarray,
+    Y_vertices: np.ndarray,
+    gammas: np.ndarray,
+    failed: dict[int, str] | None = None,
+) -> np.ndarray:
+    """``LpvUioReconciliator.gain`` of K runs: L(ρ̂) = G(ρ̂)⁻¹ Y(ρ̂) with G(ρ̂) = Σ ρ_i G_i, Y(ρ̂) = Σ ρ_i Y_i
+    at each run's coordinates ρ̂ (K, l), the sums stacked, LAPACK's solve run by run; (K, n + q, m),
+    each as LAPACK returns it (Fortran order). With ``failed``, a run whose G(ρ̂) is singular is
+    recorded there and left NaN (and a run it holds already is not solved); without, it raises."""
+    l, nx, m = Y_vertices.shape
+    G = np.matmul(rho[:, None, :], G_vertices.reshape(l, nx * nx))[:, 0].reshape(-1, nx, nx)
+    Y = np.matmul(rho[:, None, :], Y_vertices.reshape(l, nx * m))[:, 0].reshape(-1, nx, m)
+    gains = matrices(len(rho), (nx, m), fortran=True)
+    gains[...] = np.nan
+    for k, gamma in enumerate(gammas):
+        if failed is not None and k in failed:
+            continue
+        lu, pivots, L, info = lapack.dgesv(G[k], Y[k])
+        if info == 0:
+            gains[k] = L
+            continue
+        why = f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)"
+        if failed is None:
+            raise np.linalg.LinAlgError(why)
+        failed[k] = f"LinAlgError: {why}"
+    return gains
 
 
 def uio_steps(
