@@ -69,11 +69,15 @@ class NoReconciliationBatch(DeviationBatch):
         available = ~np.isnan(y)
         z = np.matmul(np.where(available, y, 0.0)[:, None, :], self.Hz[:, None])[:, 0, 0]
         x = np.full((len(y), self.model.n), np.nan)
+        every = available.all(axis=1)
         for r, seen in enumerate(available):
             if r in self.failed:
                 continue
             try:
-                x[r] = np.linalg.lstsq(C[seen], y[r, seen], rcond=None)[0] + self.x_s if seen.any() else point.x
+                if every[r]:  # C[seen] and y[r, seen] are C and y[r], copied: the same numbers
+                    x[r] = np.linalg.lstsq(C, y[r], rcond=None)[0] + self.x_s
+                else:
+                    x[r] = np.linalg.lstsq(C[seen], y[r, seen], rcond=None)[0] + self.x_s if seen.any() else point.x
             except np.linalg.LinAlgError as error:
                 self.failed[r] = _why(error)
         rows = list(self.failed)

@@ -86,16 +86,17 @@ def uio_steps(
     reading that did not arrive (NaN in y (K, m)) is replaced by its prediction C̄ x̄(t); in a run
     that ``coast``s (K,) all are. Returns x̂(t) (K, n + q) and the readings used (K, m)."""
     x_hat, y_prev, u_prev = previous
-    start = np.broadcast_to(x_bar0, x_hat.shape)
     if fresh.all():
-        prior, x_next = start, np.matmul(uio.T, x_bar0)
+        prior, x_next = x_bar0, np.matmul(uio.T, x_bar0)
     else:
         prior = mv(Abar, x_hat) + mv(Bbar, u_prev)
         x_next = mv(uio.T, prior) + mv(uio.L, y_prev - mv(uio.Cbar, x_hat))  # eq. (10)
         if fresh.any():
-            prior = np.where(fresh[:, None], start, prior)
+            prior = np.where(fresh[:, None], x_bar0, prior)
             x_next = np.where(fresh[:, None], np.matmul(uio.T, x_bar0), x_next)
-    replaced = np.isnan(y) | coast[:, None]
+    replaced = np.isnan(y)
+    if coast.any():
+        replaced |= coast[:, None]
     used = np.where(replaced, mv(uio.Cbar, prior), y) if replaced.any() else y
     return x_next + mv(uio.Q, used), used
 
