@@ -50,6 +50,10 @@ def readings() -> tuple[np.ndarray, np.ndarray]:
     y[30:34, 2, 1] = np.nan  # run 2 loses sensor 2 for a while (inside its window for 24 ticks more)
     y[62, 0, :] = np.nan  # run 0 loses every reading for a tick, while identifying
     y[120, 4, 3] = np.nan
+    # Run 2 (no fault): a burst of noise on two sensors for 34 ticks, which no constant gains explain
+    # (its UIO coasts, then goes on), and an outlier once its window holds none of the burst.
+    y[36:70, 2, 2:] += np.random.default_rng(5).normal(0.0, 0.5, (34, 2))
+    y[118, 2, 2] += 0.3
     return y, u
 
 
@@ -175,3 +179,33 @@ def test_the_k_run_model_window_and_gain_test_are_the_one_run_ones():
         assert statistic[r] == chi2_statistic(full, 1.0 / previous[r]) / _chi2_quantile(1e-6, full.dof)
         assert excitation[r] == 0.05 / float(np.max(gain_standard_errors(full)))
         assert np.array_equal(standard_errors(full.factor[None])[0], gain_standard_errors(full))
+
+
+def test_the_k_run_uio_step_is_each_runs_own_with_runs_starting_coasting_or_missing_readings(lft):
+    """``uio_steps`` against ``_observe`` of each run, with some runs at their first step (from x̂₀),
+    some coasting, some missing a reading, the others stepping from their previous estimate."""
+    from estimators.reconciliation_batch import uio_runs
+    from estimators.reconciliation_runs import uio_steps
+
+    y, u = tank_runs(ONSETS + ONSETS, steps=3, seed=4)
+    u_bar = np.concatenate((u, np.ones((3, 10, 1))), axis=2)
+    runs = [make(lft, "lpv-uio-sr", x0=(1.0, -2.0, 0.5))() for _ in range(10)]  # x̂₀ ≠ 0: Ā x̂₀ ≠ x̂₀
+    gammas = np.random.default_rng(6).uniform(0.5, 1.0, (10, 4))
+    for r, run in enumerate(runs):
+        if r % 3:  # steps from an estimate of its own; every third run starts at this tick
+            run._observe(y[0, r], u_bar[0, r], gammas[r])
+    fresh = np.array([r % 3 == 0 for r in range(10)])
+    coast = np.array([r % 4 == 1 for r in range(10)])
+    readings = y[1].copy()
+    readings[[2, 5], 1] = np.nan
+    start = (runs[0].x_bar0, np.zeros(4), np.zeros(3))  # a fresh run's: not read
+    previous = tuple(
+        np.stack(rows) for rows in zip(*(start if f else (e.x_hat, *e.previous) for e, f in zip(runs, fresh)))
+    )
+    first = runs[0]
+    x_hat, used = uio_steps(
+        uio_runs(first, gammas), first.Abar, first.Bbar, first.x_bar0, previous, fresh, readings, coast
+    )
+    for r, run in enumerate(runs):
+        sample = run._observe(readings[r], u_bar[1, r], gammas[r], bool(coast[r]))
+        assert np.array_equal(x_hat[r], run.x_hat) and np.array_equal(used[r], sample.y), r
