@@ -89,6 +89,8 @@ class UioReconciliationBatch(DeviationBatch):
     """K ``UioReconciliator`` instances of one design (LPV or LFT; (53), the model window or the gain
     test): see the module's docstring."""
 
+    instances: list[Any]  # UioReconciliators (this module does not import their kind: it imports this)
+
     def __init__(self, instances: Sequence[Any]) -> None:
         super().__init__(instances)
         first = self.first = instances[0]
