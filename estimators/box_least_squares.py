@@ -13,8 +13,6 @@ import numpy as np
 import scipy.optimize
 from scipy.linalg import lapack
 
-from estimators.batched import mv
-
 _EPS = float(np.finfo(float).eps)
 
 
@@ -87,92 +85,3 @@ def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _bvls(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     solution = scipy.optimize.lsq_linear(R, c, bounds=(lower, upper), method="bvls").x
     return np.minimum(np.maximum(solution, lower), upper)  # BVLS may step past a bound by a rounding
-
-
-def box_least_squares_runs(
-    R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None = None
-) -> np.ndarray:
-    """``box_least_squares`` of K problems of one size at once (a batch's runs): R (K, k, m) (each
-    as the single call would have it: a product rounds by its memory order), c (K, k), the box
-    (m,) shared; returns β (K, m), each run's bit for bit.
-
-    The same method on arrays: LAPACK's SVD and least squares run by run, the bookkeeping of the
-    active set (which variable reaches its bound first, which held one to release) as masks over the
-    runs still iterating, the first index winning a tie as the loop over i has it. A run that is
-    rank-deficient, not finite, or not settled in 3 m + 3 iterations is handed to
-    ``box_least_squares``. With ``failed``, a run it holds is not solved (β NaN) and one whose
-    problem raises is recorded there; without, it raises."""
-    runs, k, m = R.shape
-    skip = np.zeros(runs, dtype=bool)
-    skip[list(failed or ())] = True
-    sv = np.stack([np.zeros(min(k, m)) if no else lapack.dgesvd(Rk, compute_uv=0)[1] for Rk, no in zip(R, skip)])
-    alone = skip.copy() if k >= m else np.ones(runs, dtype=bool)  # solved alone (or not at all)
-    alone |= ~(sv[:, -1] > sv[:, 0] * m * _EPS)
-    beta = np.stack([np.zeros(m) if no else _least_squares(Rk, ck) for Rk, ck, no in zip(R, c, alone, strict=True)])
-    alone |= ~np.isfinite(beta).all(axis=1) | ~np.isfinite(c).all(axis=1)
-    x = np.minimum(np.maximum(beta, lower), upper)
-    going = ~alone & (x != beta).any(axis=1)  # outside the box: the active set
-    x = _active_set(R, c, lower, upper, x, sv[:, 0], going)
-    for r in np.flatnonzero((alone | going) & ~skip):  # as the single call (after 3 m + 3 iterations: BVLS)
-        x[r] = _alone(R[r], c[r], lower, upper, failed, int(r))
-    x[skip] = np.nan
-    return x
-
-
-def _alone(
-    R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None, r: int
-) -> np.ndarray | float:
-    """Run r's problem by ``box_least_squares``; with ``failed``, an error is recorded there (β NaN)."""
-    if failed is None:
-        return box_least_squares(R, c, lower, upper)
-    try:
-        return box_least_squares(R, c, lower, upper)
-    except Exception as error:  # noqa: BLE001 (recorded: that run fails, as alone)
-        failed[r] = f"{type(error).__name__}: {error}"
-        return np.nan
-
-
-def _active_set(
-    R: np.ndarray,
-    c: np.ndarray,
-    lower: np.ndarray,
-    upper: np.ndarray,
-    x: np.ndarray,
-    sv_max: np.ndarray,
-    going: np.ndarray,
-) -> np.ndarray:
-    """``box_least_squares``'s iterations in the runs ``going`` from the clipped x (K, m); the runs
-    still going after 3 m + 3 iterations are left in ``going``."""
-    runs, m = x.shape
-    held = (x == lower) | (x == upper)
-    tolerance = 1e-12 * sv_max * (sv_max * np.max(np.abs(x), axis=1) + np.max(np.abs(c), axis=1))
-    every = np.arange(runs)
-    for _ in range(3 * m + 3):
-        rows = np.flatnonzero(going)
-        if not len(rows):
-            break
-        z = x.copy()
-        fixed = mv(R, np.where(held, x, 0.0))
-        for r in rows:
-            free = np.flatnonzero(~held[r])
-            if len(free):
-                z[r, free] = _least_squares(R[r][:, free], c[r] - fixed[r])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            edge = np.where(z < lower, lower, np.where(z > upper, upper, np.nan))
-            along = np.where(~held & ~np.isnan(edge), (edge - x) / (z - x), np.inf)
-        first = np.argmin(along, axis=1)  # the first variable z takes past a bound, along x → z
-        reach = along[every, first]
-        steps = going & (reach < 1.0)  # it reaches its bound on the way: hold it there
-        x[steps] = x[steps] + reach[steps, None] * (z[steps] - x[steps])
-        x[steps, first[steps]] = edge[steps, first[steps]]
-        held[steps, first[steps]] = True
-        settle = going & ~steps
-        x[settle] = z[settle]
-        g = mv(np.swapaxes(R, 1, 2), mv(R, x) - c)
-        inward = np.where(x <= lower, -g, g)  # > 0: moving into the box lowers the cost
-        inward = np.where(held & ~np.isnan(inward), inward, -np.inf)
-        release = np.argmax(inward, axis=1)  # the held variable its multiplier pulls hardest into the box
-        pulled = settle & (inward[every, release] > tolerance)
-        held[pulled, release[pulled]] = False
-        going[:] = steps | pulled
-    return x

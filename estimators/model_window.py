@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import lapack
 
-from estimators.box_least_squares import box_least_squares, box_least_squares_runs
+from estimators.box_least_squares import box_least_squares
 
 _TINY = float(np.finfo(float).tiny)
 
@@ -192,15 +192,23 @@ def gains_of_reduced(
     reduced: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What ``window_gains`` takes from K reduced systems (K, m + 1, m + 1): γ, the singular values
-    of the column-normalized regressor and the relative residual of each (the box least squares by
-    ``box_least_squares_runs``, LAPACK run by run, the rest on arrays). With ``failed``, a run whose
+    of the column-normalized regressor and the relative residual of each (the box least squares and
+    the SVD run by run, the rest on arrays). With ``failed``, a run whose
     least squares raises is recorded there (its γ NaN) and the others go on, and a run it holds
     already is not solved; without, it raises."""
     R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
     scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
     normalized = R / np.maximum(scale, _TINY)[:, None, :]
     sv = np.stack([lapack.dgesvd(row, compute_uv=0)[1] for row in normalized])
-    beta = box_least_squares_runs(R, c, 1.0 / upper, 1.0 / lower, failed)
+    beta = np.full(c.shape, np.nan)
+    for k, (Rk, ck) in enumerate(zip(R, c, strict=True)):  # run by run: its bookkeeping on arrays costs more
+        if failed is None:
+            beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+        elif k not in failed:
+            try:
+                beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+            except Exception as error:  # noqa: BLE001 (recorded: that run fails, as alone)
+                failed[k] = f"{type(error).__name__}: {error}"
     misfit = np.matmul(R, beta[..., None])[..., 0] - c
     size = np.matmul(c[:, None, :], c[:, :, None])[:, 0, 0] + rest
     squares = np.matmul(misfit[:, None, :], misfit[:, :, None])[:, 0, 0] + rest
