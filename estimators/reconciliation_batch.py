@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from estimators.batched import BatchEstimate, DeviationBatch, mv
-from estimators.gain_identification import window_tests
+from estimators.gain_identification import split_systems, window_equations, window_tests
 from estimators.lmi import uio_matrices_runs
 from estimators.model_window import window_gains_runs
 from estimators.reconciliation_runs import (
@@ -233,20 +233,25 @@ class UioReconciliationBatch(DeviationBatch):
     def _refresh_uio(self) -> None:
         """The UIO's matrices of the runs whose γ̂ changed since they were formed (each run's own bits)."""
         changed = (self.gamma.view(np.int64) != self.uio_gamma.view(np.int64)).any(axis=1)
-        changed[list(self.failed)] = False
+        if self.failed:
+            changed[list(self.failed)] = False
         rows = np.flatnonzero(changed)
         if not len(rows):
             return
+        every = len(rows) == len(changed)  # as with (53), whose γ̂ moves every tick
         failed: dict[int, str] = {}
         try:
-            formed = uio_runs(self.first, self.gamma[rows], failed)
+            formed = uio_runs(self.first, self.gamma if every else self.gamma[rows], failed)
         except Exception:  # noqa: BLE001 (one run's: find which, run by run)
             for r in rows:
                 self._refresh_row(int(r))
             return
-        for matrix, new in zip(self.uio, formed, strict=True):
-            matrix[rows] = new
-        self.uio_gamma[rows] = self.gamma[rows]
+        if every:
+            self.uio, self.uio_gamma = formed, self.gamma.copy()
+        else:
+            for matrix, new in zip(self.uio, formed, strict=True):
+                matrix[rows] = new
+            self.uio_gamma[rows] = self.gamma[rows]
         self.failed |= {int(rows[k]): why for k, why in failed.items()}
 
     def _refresh_row(self, r: int) -> None:
@@ -293,6 +298,22 @@ class UioReconciliationBatch(DeviationBatch):
 
         self._apart(np.flatnonzero(missing), alone)
 
+    def _shared_splits(self, apart: np.ndarray, ys: np.ndarray, us: np.ndarray) -> dict[int, list[Any]]:
+        """The split systems of the runs among ``apart`` whose gain test searches their window's
+        splits at this tick (an episode under way, begun at least min_window and fewer than N samples
+        ago, every reading of the window arrived), formed together (``split_systems``), by run."""
+        first, N = self.first, self.window
+        since = self.episode + 1
+        search = apart & self.tracking & (since >= first.params.min_window) & (since < N)
+        search &= ~np.isnan(ys).any(axis=(1, 2))
+        search[list(self.failed)] = False
+        rows = np.flatnonzero(search)
+        if not len(rows):
+            return {}
+        equations = [window_equations(first.gain_test, ys[r], us[r]) for r in rows]
+        found = split_systems(first.gain_test, equations, 1.0 / self.reference[rows])
+        return dict(zip(map(int, rows), found, strict=True))
+
     def _tested_step(self, y: np.ndarray, u_bar: np.ndarray) -> None:
         """``UioReconciliator._tested_step`` in K runs: the test of γ̂ on each run's whole window on
         arrays (``window_tests``); a run whose window rejects it, has a reading missing, or is
@@ -309,14 +330,21 @@ class UioReconciliationBatch(DeviationBatch):
         consistent = ~self.tracking & ~np.isnan(ys).any(axis=(1, 2)) & (statistic <= 1.0)
         consistent[list(self.failed)] = False
 
-        def alone(instance: Any, r: int) -> None:
-            instance._follow(instance._test_gamma(), y[r], u_bar[r])
+        every = consistent.all()
+        if not every:
+            splits = self._shared_splits(~consistent, ys, us)
 
-        self._apart(np.flatnonzero(~consistent), alone)
+            def alone(instance: Any, r: int) -> None:
+                instance._follow(instance._test_gamma(splits.get(r)), y[r], u_bar[r])
+
+            self._apart(np.flatnonzero(~consistent), alone)
         # γ̂ kept (``_test_gamma``'s bookkeeping of a consistent verdict, ``_follow``'s plain step)
         self.episode[consistent] += 1
         self.pe[consistent] = published_excitation(excitation)[consistent]
         self.fit[consistent] = statistic[consistent]
         self.unexplained[consistent] = 0
-        sample = self._observe(y, u_bar, consistent)
-        self.history.set_rows(-1, consistent, Sample(*(field[consistent] for field in sample)))
+        if every:
+            self.history[-1] = self._observe(y, u_bar)
+        else:
+            sample = self._observe(y, u_bar, consistent)
+            self.history.set_rows(-1, consistent, Sample(*(field[consistent] for field in sample)))

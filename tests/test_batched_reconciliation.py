@@ -11,7 +11,7 @@ import pytest
 
 import estimators
 from estimators.batched import batch_of, check_batched
-from estimators.gain_identification import standard_errors, window_tests
+from estimators.gain_identification import split_systems, standard_errors, window_equations, window_tests
 from estimators.lmi import box_coordinates, box_coordinates_runs
 from estimators.model_window import model_window, window_gains, window_gains_runs
 from estimators.reconciliation_batch import UioReconciliationBatch
@@ -179,6 +179,13 @@ def test_the_k_run_model_window_and_gain_test_are_the_one_run_ones():
         assert statistic[r] == chi2_statistic(full, 1.0 / previous[r]) / _chi2_quantile(1e-6, full.dof)
         assert excitation[r] == 0.05 / float(np.max(gain_standard_errors(full)))
         assert np.array_equal(standard_errors(full.factor[None])[0], gain_standard_errors(full))
+    # every split of every run's window at once, against each split's own system
+    befores = 1.0 / previous
+    splits = split_systems(test, [window_equations(test, ys[r], us[r]) for r in range(10)], befores)
+    for r in range(10):
+        for L, found in zip(range(test.min_window, 50), splits[r], strict=True):
+            one = window_system(test, ys[r], us[r], change=50 - L, before=befores[r])
+            assert all(np.array_equal(a, b) for a, b in zip(found, one, strict=True)), (r, L)
 
 
 def test_the_k_run_uio_step_is_each_runs_own_with_runs_starting_coasting_or_missing_readings(lft):
