@@ -166,7 +166,7 @@ def window_system(
     r = r - Q @ (Q.T @ r)
     dof = len(r) - Q.shape[1]
     if change is not None:
-        G = _jumps(window, L, change, Q, rows, kept.all())
+        G = _jumps(window, L, change, Q, rows, bool(kept.all()))
         Y = Y - G @ (G.T @ Y)
         r = r - G @ (G.T @ r)
         dof -= G.shape[1]
@@ -427,14 +427,12 @@ def decide_gains(
       since the window first rejected the gains before the change): none reaches back across it.
 
     Nothing is identified until the window has rejected the gains before the change for min_window
-    samples (``since``): a change seen in fewer samples is explained as well by hypotheses that place
-    it earlier.
+    samples (``since``): fewer are explained as well by hypotheses that place the change earlier.
 
     Among the accepted hypotheses with the fewest fitted gains, the likeliest is taken if they all
     agree on what changed and it resolves its gains to ``se_tol`` (``_unambiguous``), else ``ambiguous``.
-
     y (N, m), u (N, n_u) as in ``window_system``; gamma: the previous γ̂; lower, upper: the box Γ;
-    ``splits``: the splits' systems (``window_splits``), where the caller has them."""
+    ``splits``: the splits' systems (``window_splits``) where the caller has them."""
     N = window.window
     full = window_system(window, y, u)
     threshold = _chi2_quantile(alpha, full.dof)
