@@ -9,15 +9,17 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 import scipy.special
 
+from estimators.batched import mv
 from estimators.box_least_squares import box_least_squares
 from estimators.lmi import pseudo_inverse
-from estimators.model_window import Projection, complement_projection, reduced_system, stacked_window
+from estimators.model_window import Projection, complement_projection, reduced_system, reduced_systems, stacked_window
 
 
 @dataclass(frozen=True)
@@ -164,20 +166,80 @@ def window_system(
     r = r - Q @ (Q.T @ r)
     dof = len(r) - Q.shape[1]
     if change is not None:
-        G = window.jumps.get((L, change)) if kept.all() else None
-        if G is None:
-            J = np.zeros((len(r), m))  # the offsets' jumps, whitened
-            jumped = rows // m >= change
-            J[jumped, rows[jumped] % m] = window.weight[rows[jumped] % m]
-            G = _range_basis(J - Q @ (Q.T @ J))
-            if kept.all():
-                window.jumps[L, change] = G
+        G = _jumps(window, L, change, Q, rows, bool(kept.all()))
         Y = Y - G @ (G.T @ Y)
         r = r - G @ (G.T @ r)
         dof -= G.shape[1]
     basis, factor = np.linalg.qr(Y)
     rotated = basis.T @ r
     return WindowSystem(factor, rotated, float(max(r @ r - rotated @ rotated, 0.0)), int(dof))
+
+
+def _jumps(window: GainTestWindow, L: int, change: int, Q: np.ndarray, rows: np.ndarray, cached: bool) -> np.ndarray:
+    """An orthonormal basis of the offsets' jumps at sample ``change`` of the last L samples (the
+    equations ``rows`` of them that are left), projected off Q, the nuisance columns' range; kept in
+    ``window.jumps`` where every equation is (``cached``)."""
+    G = window.jumps.get((L, change)) if cached else None
+    if G is None:
+        m = window.weight.size
+        J = np.zeros((len(rows), m))  # the offsets' jumps, whitened
+        jumped = rows // m >= change
+        J[jumped, rows[jumped] % m] = window.weight[rows[jumped] % m]
+        G = _range_basis(J - Q @ (Q.T @ J))
+        if cached:
+            window.jumps[L, change] = G
+    return G
+
+
+def window_splits(window: GainTestWindow, y: np.ndarray, u: np.ndarray, before: np.ndarray) -> list[WindowSystem]:
+    """``window_system`` of the whole window (y (N, m), u (N, n_u)) with the gains changing at each
+    sample c = N − L, L = min_window … N − 1, in that order, from β = ``before``: on stacks
+    (``split_systems``) where every reading arrived, split by split where one did not."""
+    equations = window_equations(window, y, u)
+    if equations.kept.all():
+        return split_systems(window, [equations], before[None])[0]
+    N = window.window
+    return [
+        window_system(window, y, u, change=N - L, before=before, equations=equations)
+        for L in range(window.min_window, N)
+    ]
+
+
+def split_systems(
+    window: GainTestWindow, equations: Sequence[WindowEquations], befores: np.ndarray
+) -> list[list[WindowSystem]]:
+    """``window_splits`` of K whole windows with every reading (a batch's runs: their equations, and
+    their β before the change (K, m)), by run, then split: every split of every run projected and
+    factorised in one stacked product or QR per step (each matrix by the BLAS or LAPACK call of its
+    ``window_system``, so each system is that one bit for bit); only the offsets' jumps, whose basis
+    depends on the split, split by split over the runs."""
+    N, m = window.window, window.weight.size
+    changes = range(N - window.min_window, 0, -1)  # c = N − L for L = min_window … N − 1
+    Q, rows = window.bases[N - window.min_window], np.arange(N * m)
+    Y, r = np.stack([e.Y for e in equations]), np.stack([e.r for e in equations])
+    after = (rows // m)[None, :] >= np.array(changes)[:, None]  # (splits, N m): the samples after the change
+    Ys = np.where(after[:, None, :, None], Y, 0.0)  # (splits, K, N m, m)
+    rs = r - np.where(after[:, None, :], 0.0, mv(Y, befores))
+    Ys = Ys - Q @ (Q.T @ Ys)
+    rs = rs - mv(Q, mv(Q.T, rs))
+    dof = []
+    for s, change in enumerate(changes):
+        G = _jumps(window, N, change, Q, rows, True)
+        Ys[s] = Ys[s] - G @ (G.T @ Ys[s])
+        rs[s] = rs[s] - mv(G, mv(G.T, rs[s]))
+        dof.append(N * m - Q.shape[1] - G.shape[1])
+    basis, factor = np.linalg.qr(Ys)
+    rotated = mv(np.swapaxes(basis, -1, -2), rs)
+    rest = _squares(rs) - _squares(rotated)
+    return [
+        [WindowSystem(factor[s, k], rotated[s, k], float(max(rest[s, k], 0.0)), dof[s]) for s in range(len(dof))]
+        for k in range(len(equations))
+    ]
+
+
+def _squares(vectors: np.ndarray) -> np.ndarray:
+    """v @ v of each vector (…, n) by the dot kernel of the single product."""
+    return np.matmul(vectors[..., None, :], vectors[..., None])[..., 0, 0]
 
 
 @functools.lru_cache(maxsize=1024)
@@ -198,6 +260,29 @@ def gain_standard_errors(system: WindowSystem) -> np.ndarray:
     factor = system.factor
     norms = np.sqrt(np.add.reduce(factor * factor, axis=0))  # np.linalg.norm(axis=0)'s arithmetic, without its checks
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
+
+
+def standard_errors(factors: np.ndarray) -> np.ndarray:
+    """``gain_standard_errors`` of K windows' factors (K, m, m), each run's bit for bit."""
+    norms = np.sqrt(np.add.reduce(factors * factors, axis=1))  # np.linalg.norm(axis=0)'s arithmetic, without its checks
+    return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
+
+
+def window_tests(
+    window: GainTestWindow, y: np.ndarray, u: np.ndarray, gamma: np.ndarray, alpha: float, se_tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """What ``decide_gains`` first computes, for K whole windows with every reading (a batch's runs:
+    y (K, N, m), u (K, N, n_u), the previous γ̂ (K, m)): the statistic of γ̂ over its threshold and the
+    excitation, each (K,), each run's bit for bit; a run whose statistic is ≤ 1 keeps γ̂
+    (``consistent``) where no change is being identified."""
+    m = y.shape[2]
+    reduced = reduced_systems(window.projection, y * window.weight, u)
+    factor, rotated = reduced[:, :m, :m], reduced[:, :m, m]
+    rest = np.array([float(v) ** 2 for v in reduced[:, m, m]])
+    residual = np.matmul(factor, (1.0 / gamma)[..., None])[..., 0] - rotated  # chi2_statistic's arithmetic
+    statistic = np.matmul(residual[:, None, :], residual[:, :, None])[:, 0, 0] + rest
+    threshold = _chi2_quantile(alpha, window.projection.forced.shape[0])
+    return statistic / threshold, se_tol / np.max(standard_errors(factor), axis=1)
 
 
 def normal_inverse(columns: np.ndarray) -> np.ndarray:
@@ -326,6 +411,7 @@ def decide_gains(
     se_tol: float,
     reference: np.ndarray | None = None,
     since: int | None = None,
+    splits: Sequence[WindowSystem] | None = None,
 ) -> GainDecision:
     """γ̂ changes only on evidence (docs/three-tank.md, "The gain test").
 
@@ -341,13 +427,12 @@ def decide_gains(
       since the window first rejected the gains before the change): none reaches back across it.
 
     Nothing is identified until the window has rejected the gains before the change for min_window
-    samples (``since``): a change seen in fewer samples is explained as well by hypotheses that place
-    it earlier.
+    samples (``since``): fewer are explained as well by hypotheses that place the change earlier.
 
     Among the accepted hypotheses with the fewest fitted gains, the likeliest is taken if they all
     agree on what changed and it resolves its gains to ``se_tol`` (``_unambiguous``), else ``ambiguous``.
-
-    y (N, m), u (N, n_u) as in ``window_system``; gamma: the previous γ̂; lower, upper: the box Γ."""
+    y (N, m), u (N, n_u) as in ``window_system``; gamma: the previous γ̂; lower, upper: the box Γ;
+    ``splits``: the splits' systems (``window_splits``) where the caller has them."""
     N = window.window
     full = window_system(window, y, u)
     threshold = _chi2_quantile(alpha, full.dof)
@@ -362,10 +447,10 @@ def decide_gains(
         return GainDecision(gamma, "pending", statistic, excitation, N)
     previous, beta_lower, beta_upper = 1.0 / reference, 1.0 / upper, 1.0 / lower
     accepted = gain_hypotheses(full, alpha, beta_lower, beta_upper, previous, N)
-    equations = window_equations(window, y, u)  # shared by the splits
-    for L in range(window.min_window, N if since < N else window.min_window):
-        split = window_system(window, y, u, change=N - L, before=previous, equations=equations)
-        accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
+    if since < N:
+        systems = window_splits(window, y, u, previous) if splits is None else splits
+        for L, split in zip(range(window.min_window, N), systems, strict=True):
+            accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
     if accepted:
         best = _unambiguous(accepted, N, se_tol)
         if best is None:

@@ -128,6 +128,12 @@ class SensorFaultModel:
         np.multiply(np.asarray(gamma, dtype=float)[:, None], self.C, out=Cbar[:, : self.n])
         return Cbar
 
+    def Cbars(self, gammas: np.ndarray) -> np.ndarray:
+        """C̄_γ of each row of ``gammas`` (K, m), shape (K, m, n + q): ``Cbar``'s of each, bit for bit."""
+        Cbars = np.repeat(self._Cbar_template[None], len(gammas), axis=0)
+        np.multiply(np.asarray(gammas, dtype=float)[:, :, None], self.C, out=Cbars[:, :, : self.n])
+        return Cbars
+
     @functools.cached_property
     def _Cbar_template(self) -> np.ndarray:
         return np.hstack([np.zeros_like(self.C), self.F])
@@ -164,6 +170,26 @@ def uio_matrices(
         raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
     T = -Q.dot(Cbar)
     T.flat[:: T.shape[0] + 1] += 1.0  # I − Q C̄, without building I
+    return Q, T
+
+
+def uio_matrices_runs(
+    model: SensorFaultModel, gammas: np.ndarray, Cbars: np.ndarray, *, form: str = "pinv"
+) -> tuple[np.ndarray, np.ndarray]:
+    """``uio_matrices`` at each row of ``gammas`` (K, m), with their C̄_γ (K, m, n + q): Q (K, n + q, m)
+    and T (K, n + q, n + q), each run's bit for bit (the products stacked, the pseudoinverse run by
+    run); one that LAPACK cannot factor raises."""
+    Ebar = model.Ebar
+    if form == "pinv":
+        CE = np.matmul(Cbars, Ebar)
+        Q = np.matmul(Ebar, np.stack([pseudo_inverse(M) for M in CE]))
+    elif form == "lft":
+        Q = model.Ebar_G_pinv / gammas[:, None, :]
+    else:
+        raise ValueError(f"unknown form {form!r}; use 'pinv' or 'lft'")
+    T = -np.matmul(Q, Cbars)
+    diagonal = np.arange(T.shape[1])
+    T[:, diagonal, diagonal] += 1.0  # I − Q C̄, without building I
     return Q, T
 
 
@@ -224,6 +250,16 @@ def box_coordinates(gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> 
         value = min(max(value, 0.0), 1.0)
         weights = [w * factor for factor in (1.0 - value, value) for w in weights]
     return np.array(weights)
+
+
+def box_coordinates_runs(gammas: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``box_coordinates`` of each row of ``gammas`` (K, m), shape (K, 2^m): the same products in the
+    same order on arrays, each run's bit for bit."""
+    lam = np.minimum(np.maximum((np.asarray(gammas, dtype=float) - lower) / (np.asarray(upper) - lower), 0.0), 1.0)
+    weights = np.ones((len(lam), 1))
+    for value in lam.T[:, :, None]:
+        weights = np.concatenate((weights * (1.0 - value), weights * value), axis=1)
+    return weights
 
 
 # -- checks ------------------------------------------------------------------------------------

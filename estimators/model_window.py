@@ -53,6 +53,17 @@ def reduced_system(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.n
     return lapack.dgeqrf(columns.T)[0][: m + 1] * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
 
 
+def reduced_systems(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``reduced_system`` of K windows at once (a batch's runs): y (K, N, m), u (K, N, n_u) →
+    (K, m + 1, m + 1), each run's bit for bit (the products stacked, one QR per run)."""
+    runs, m, rows = y.shape[0], y.shape[2], projection.by_sensor.shape[1]
+    columns = np.empty((runs, m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
+    np.matmul(projection.by_sensor, np.swapaxes(y, 1, 2)[..., None], out=columns[:, :m, :, None])  # W_j' y_j
+    np.matmul(projection.forced, u[:, :-1].reshape(runs, -1, 1), out=columns[:, m, :, None])  # W' r
+    factors = np.stack([lapack.dgeqrf(c.T)[0][: m + 1] for c in columns])
+    return factors * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
+
+
 @functools.lru_cache(maxsize=16)
 def _upper_triangle(size: int) -> np.ndarray:
     """1 on and above the diagonal, 0 below: R̃ from LAPACK's factors (np.triu builds its mask each call)."""
@@ -160,4 +171,47 @@ def window_gains(
     misfit = R.dot(beta) - c
     size = float(c.dot(c)) + rest
     residual = float(np.sqrt((misfit.dot(misfit) + rest) / size)) if size > 0 else np.inf
+    return 1.0 / beta, sv, residual
+
+
+def window_gains_runs(
+    window: ModelWindow,
+    y: np.ndarray,
+    u: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    failed: dict[int, str] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``window_gains`` of K windows with every reading (a batch's runs): y (K, N, m), u (K, N, n_u)
+    → γ (K, m), the singular values (K, m) and the relative residuals (K,), each run's bit for bit;
+    ``failed`` as in ``gains_of_reduced`` (the runs it holds already are not solved)."""
+    return gains_of_reduced(reduced_systems(window.projection, y * window.weight, u), lower, upper, failed)
+
+
+def gains_of_reduced(
+    reduced: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What ``window_gains`` takes from K reduced systems (K, m + 1, m + 1): γ, the singular values
+    of the column-normalized regressor and the relative residual of each (the box least squares and
+    the SVD run by run, the rest on arrays). With ``failed``, a run whose
+    least squares raises is recorded there (its γ NaN) and the others go on, and a run it holds
+    already is not solved; without, it raises."""
+    R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
+    scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
+    normalized = R / np.maximum(scale, _TINY)[:, None, :]
+    sv = np.stack([lapack.dgesvd(row, compute_uv=0)[1] for row in normalized])
+    beta = np.full(c.shape, np.nan)
+    for k, (Rk, ck) in enumerate(zip(R, c, strict=True)):  # run by run: its bookkeeping on arrays costs more
+        if failed is None:
+            beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+        elif k not in failed:
+            try:
+                beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+            except Exception as error:  # noqa: BLE001 (recorded: that run fails, as alone)
+                failed[k] = f"{type(error).__name__}: {error}"
+    misfit = np.matmul(R, beta[..., None])[..., 0] - c
+    size = np.matmul(c[:, None, :], c[:, :, None])[:, 0, 0] + rest
+    squares = np.matmul(misfit[:, None, :], misfit[:, :, None])[:, 0, 0] + rest
+    with np.errstate(divide="ignore", invalid="ignore"):
+        residual = np.where(size > 0, np.sqrt(squares / size), np.inf)
     return 1.0 / beta, sv, residual

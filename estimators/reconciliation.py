@@ -27,7 +27,7 @@ virtual output of the problem statement is eq. (6), ẑ = H_z C_y x̂_p, and tha
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,12 +35,14 @@ import numpy as np
 from scipy.linalg import lapack
 
 from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
-from estimators.gain_identification import GainDecision, GainTestWindow, decide_gains, gain_test_window
+from estimators.gain_identification import GainDecision, GainTestWindow, WindowSystem, decide_gains, gain_test_window
 from estimators.lft_design import LftDesign, lft_uio_design
-from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, uio_matrices
+from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, box_coordinates_runs, uio_matrices
 from estimators.lpv_design import LpvDesign, lpv_uio_design
 from estimators.model import LinearModel
 from estimators.model_window import model_window, window_gains
+from estimators.reconciliation_batch import NoReconciliationBatch, UioReconciliationBatch
+from estimators.reconciliation_runs import matrices, scheduled_gains
 from estimators.sample_window import Sample, SampleWindow
 
 Matrix = tuple[tuple[float, ...], ...]
@@ -163,6 +165,10 @@ class NoReconciliation(_Reconciliator):
         super().__init__(model, params, sample_time)
         self.C_pinv = np.linalg.pinv(model.C)
 
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> NoReconciliationBatch:
+        return NoReconciliationBatch(instances)
+
     def _absolute_step(self, y: np.ndarray, u: np.ndarray) -> Estimate:
         available = ~np.isnan(y)
         y0 = np.where(available, y, 0.0)
@@ -222,6 +228,10 @@ class UioReconciliator(_Reconciliator):
         )
         self.gain_test = self._gain_test_window() if params.gain_estimator == "test" else None
         self.reset()
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> UioReconciliationBatch:
+        return UioReconciliationBatch(instances)
 
     def _gain_test_window(self) -> GainTestWindow:
         """The whitened model window of ``gain_estimator = "test"``, its parameters checked."""
@@ -284,6 +294,12 @@ class UioReconciliator(_Reconciliator):
     @abstractmethod
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         """The observer gain L at γ̂, shape (n + q, m)."""
+
+    @abstractmethod
+    def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
+        """``gain`` at each row of ``gammas`` (K, m), shape (K, n + q, m), each run's bit for bit (a
+        batch's). With ``failed``, a row whose gain cannot be formed is recorded there (by its index,
+        with why) and left NaN; without, it raises."""
 
     def _solve(self, design: Callable[..., Any], **kwargs: Any) -> Any:
         try:
@@ -353,7 +369,12 @@ class UioReconciliator(_Reconciliator):
         if len(self.history) < self.params.window:
             self.history[-1] = self._observe(y, u_bar, self.gamma)
             return
-        decision = self._test_gamma()
+        self._follow(self._test_gamma(), y, u_bar)
+
+    def _follow(self, decision: GainDecision, y: np.ndarray, u_bar: np.ndarray) -> None:
+        """What the gain test's ``decision`` makes of this tick (``_tested_step``): replay the
+        samples since an identified change with the new gains, or step the UIO (coasting while the
+        window is unexplained)."""
         self.unexplained = 0 if decision.verdict in ("consistent", "identified") else self.unexplained + 1
         if decision.verdict == "identified":
             self.gamma = decision.gamma
@@ -402,8 +423,9 @@ class UioReconciliator(_Reconciliator):
         self.pe = self._excitation(sv, self.model.p)
         return gamma if self.pe > 0.0 and self.fit <= self.params.fit_tol else self.gamma
 
-    def _test_gamma(self) -> GainDecision:
-        """The χ² test of the last N samples (``decide_gains``): γ̂ is kept unless they reject it."""
+    def _test_gamma(self, splits: Sequence[WindowSystem] | None = None) -> GainDecision:
+        """The χ² test of the last N samples (``decide_gains``): γ̂ is kept unless they reject it.
+        ``splits``: the window's split systems, where a batch formed them with other runs'."""
         assert self.gain_test is not None
         N = self.params.window
         ys, us = self.history.field("measured", N), self.history.field("u", N)
@@ -418,6 +440,7 @@ class UioReconciliator(_Reconciliator):
             self.params.se_tol,
             self.reference,
             1 if self.reference is None else self.episode + 1,  # samples since the episode began
+            splits,
         )
         if self.reference is None and self.decision.verdict != "consistent":
             self.reference, self.episode = self.gamma, 0  # an episode begins: the gains before the change
@@ -513,6 +536,10 @@ class LpvUioReconciliator(UioReconciliator):
             raise np.linalg.LinAlgError(f"G(ρ̂) is singular at γ̂ = {gamma.tolist()} (Theorem 1 makes it invertible)")
         return L
 
+    def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
+        rho = box_coordinates_runs(gammas, self.lower, self.upper)
+        return scheduled_gains(rho, self.G_vertices, self.Y_vertices, gammas, failed)
+
     def design_params(self) -> dict[str, Any]:
         l, nx = self.G_vertices.shape[:2]
         return {"G": self.G_vertices.reshape(l * nx, nx).tolist(), "Y": self.Y_vertices.reshape(l * nx, -1).tolist()}
@@ -543,6 +570,11 @@ class LftUioReconciliator(UioReconciliator):
 
     def gain(self, gamma: np.ndarray) -> np.ndarray:
         return self.L
+
+    def gains(self, gammas: np.ndarray, failed: dict[int, str] | None = None) -> np.ndarray:
+        gains = matrices(len(gammas), self.L.shape, fortran=self.L.flags.f_contiguous and not self.L.flags.c_contiguous)
+        gains[...] = self.L
+        return gains
 
     def design_params(self) -> dict[str, Any]:
         return {"L": self.L.tolist()}
