@@ -181,8 +181,7 @@ def uio_matrices_runs(
     run); one that LAPACK cannot factor raises."""
     Ebar = model.Ebar
     if form == "pinv":
-        CE = np.matmul(Cbars, Ebar)
-        Q = np.matmul(Ebar, np.stack([pseudo_inverse(M) for M in CE]))
+        Q = np.matmul(Ebar, pseudo_inverses(np.matmul(Cbars, Ebar)))
     elif form == "lft":
         Q = model.Ebar_G_pinv / gammas[:, None, :]
     else:
@@ -253,13 +252,39 @@ def box_coordinates(gamma: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> 
 
 
 def box_coordinates_runs(gammas: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """``box_coordinates`` of each row of ``gammas`` (K, m), shape (K, 2^m): the same products in the
-    same order on arrays, each run's bit for bit."""
+    """``box_coordinates`` of each row of ``gammas`` (K, m), shape (K, 2^m): each ρ_v the same
+    product in the same order, ((f_0 f_1) f_2) …, f_j = λ_j or 1 − λ_j by bit j of v, on arrays; each
+    run's bit for bit."""
     lam = np.minimum(np.maximum((np.asarray(gammas, dtype=float) - lower) / (np.asarray(upper) - lower), 0.0), 1.0)
-    weights = np.ones((len(lam), 1))
-    for value in lam.T[:, :, None]:
-        weights = np.concatenate((weights * (1.0 - value), weights * value), axis=1)
+    factors = np.stack((1.0 - lam, lam), axis=2)  # (K, m, 2): by coordinate, then bit
+    bits = _vertex_bits(lam.shape[1])
+    weights = factors[:, 0, bits[0]]
+    for j in range(1, lam.shape[1]):
+        weights = weights * factors[:, j, bits[j]]
     return weights
+
+
+@functools.lru_cache(maxsize=8)
+def _vertex_bits(m: int) -> np.ndarray:
+    """Bit j of each vertex index v = 0 … 2^m − 1, shape (m, 2^m)."""
+    return (np.arange(2**m)[None, :] >> np.arange(m)[:, None]) & 1
+
+
+def pseudo_inverses(Ms: np.ndarray) -> np.ndarray:
+    """``pseudo_inverse`` of each matrix of a stack (K, k, l), each bit for bit: LAPACK's SVD run by
+    run, the products on the stack (each factor held as the single call has it: Vᵀ's transpose, a
+    C-ordered view of LAPACK's Fortran array, copied in C order); a matrix with a singular value
+    below the cut by ``pseudo_inverse`` itself."""
+    found = [lapack.dgesdd(M, compute_uv=1, full_matrices=0) for M in Ms]
+    if any(info != 0 for *_, info in found):
+        bad = next(info for *_, info in found if info != 0)
+        raise np.linalg.LinAlgError(f"SVD did not converge (LAPACK dgesdd info {bad})")
+    s = np.stack([f[1] for f in found])
+    if not s.shape[1] or not np.all(s[:, -1] > 1e-15 * s[:, 0]):
+        return np.stack([pseudo_inverse(M) for M in Ms])
+    ut = np.stack([f[0].T for f in found])
+    v = np.stack([f[2].T for f in found])
+    return np.matmul(v, (1.0 / s)[:, :, None] * ut)
 
 
 # -- checks ------------------------------------------------------------------------------------

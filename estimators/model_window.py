@@ -199,7 +199,10 @@ def gains_of_reduced(
     R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
     scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
     normalized = R / np.maximum(scale, _TINY)[:, None, :]
-    sv = np.stack([lapack.dgesvd(row, compute_uv=0)[1] for row in normalized])
+    skip = failed or {}  # a run left out (a reading missing: its own projection) is not factorised
+    sv = np.stack(
+        [np.zeros(R.shape[2]) if k in skip else lapack.dgesvd(row, compute_uv=0)[1] for k, row in enumerate(normalized)]
+    )
     beta = np.full(c.shape, np.nan)
     for k, (Rk, ck) in enumerate(zip(R, c, strict=True)):  # run by run: its bookkeeping on arrays costs more
         if failed is None:

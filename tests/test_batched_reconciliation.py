@@ -216,3 +216,16 @@ def test_the_k_run_uio_step_is_each_runs_own_with_runs_starting_coasting_or_miss
     for r, run in enumerate(runs):
         sample = run._observe(readings[r], u_bar[1, r], gammas[r], bool(coast[r]))
         assert np.array_equal(x_hat[r], run.x_hat) and np.array_equal(used[r], sample.y), r
+
+
+def test_the_k_run_pseudoinverse_is_the_one_run_one_on_regular_and_singular_matrices():
+    from estimators.lmi import pseudo_inverse, pseudo_inverses
+
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        k, n = (int(v) for v in rng.integers(1, 6, 2))
+        M = rng.standard_normal((int(rng.integers(1, 7)), k, n)) * 10.0 ** rng.uniform(-3, 3, (1, 1, 1))
+        if trial % 5 == 0:
+            M[0, :, 0] = 0.0  # a singular value at 0: every run by the one-run form
+        found = pseudo_inverses(M)
+        assert all(np.array_equal(found[r], pseudo_inverse(M[r])) for r in range(len(M))), trial
