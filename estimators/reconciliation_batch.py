@@ -4,13 +4,17 @@ own step gives.
 
 Every run's state is a row of arrays: γ̂, the UIO's x̂ and the previous tick's readings and inputs,
 the window of the gain estimators (``SampleWindow`` with a run axis), the UIO's matrices at each
-run's γ̂. A tick is the K-run arithmetic that the single step also calls with K = 1
-(``estimators.reconciliation_runs``, the model window's ``window_gains_runs``, the gain test's
-``window_tests``). What a run does apart from the others is done by its own instance, its state
-lent to it for that tick (``_lend``, ``_take_back``), so that branch is written once:
+run's γ̂. A tick is K-run arithmetic (``estimators.reconciliation_runs``, the model window's
+``window_gains_runs``, the gain test's ``window_tests``), each run's numbers those of the single
+step's one-run forms, which it keeps (they cost it half its time at K = 1), held together by
+tests/test_batched_reconciliation.py. What a run does apart from the others is done by its own
+instance, its state lent to it for that tick (``_lend``, ``_take_back``), so that branch is written
+once:
 
 - the gain test of a run whose window rejects γ̂, or while it is identifying a change (the search
-  over the window's splits, the replay of the samples since the change, coasting);
+  over the window's splits, the replay of the samples since the change, coasting); the systems of
+  the splits of the runs that search at one tick are formed together (``split_systems``, which the
+  single step calls with K = 1) and handed to each run's search;
 - the model window of a run with a reading missing in its window (the projection is the run's own);
 - a run whose γ̂ changed has its UIO matrices formed again (the products stacked, the pseudoinverse
   and the LPV gain's LAPACK solve run by run).
@@ -55,7 +59,8 @@ def _why(error: Exception) -> str:
 
 class NoReconciliationBatch(DeviationBatch):
     """K ``NoReconciliation`` instances: ẑ = H_z y on arrays; x̂ = C_y⁺ y by each run's least squares
-    (NumPy's LAPACK, run by run: a least squares of several right-hand sides rounds otherwise)."""
+    (NumPy's LAPACK, run by run: one of several right-hand sides is another LAPACK call, whose
+    rounding nothing holds to the single one's)."""
 
     def __init__(self, instances: Sequence[Any]) -> None:
         super().__init__(instances)

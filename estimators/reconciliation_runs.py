@@ -4,8 +4,8 @@ with a leading run axis, and each run's numbers bit for bit what the single step
 (``estimators.reconciliation``) by the same operations: stacked ``matmul`` (``estimators.batched.mv``:
 one BLAS call per run, the single call's, on a matrix held in the single run's memory order),
 elementwise operations, ``einsum`` sums per run, LAPACK run by run. The single step keeps its own
-one-run form (these cost it twice its time at K = 1, in NumPy's calls); tests/test_batched_reconciliation.py
-holds the two together.
+one-run forms (these cost it twice its time at K = 1, in NumPy's calls);
+tests/test_batched_reconciliation.py holds the two together.
 """
 
 from __future__ import annotations
