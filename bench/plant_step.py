@@ -63,7 +63,7 @@ VARIANTS = ("scoped", "global", "bare", "held")
 
 def vessel_inputs(plant: Plant, ticks: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Cruise thrust plus 2e5 N on the bow azimuth's sway component, and b(t) of seed 0."""
-    cruise = plant.data.ctrl[plant._known].copy()
+    cruise = plant.data.ctrl[plant.actuator_index].copy()
     cruise[5] += 2e5
     b = vessel.EnvironmentDisturbance.random(0)
     return [(cruise, b(k * plant.sample_time)) for k in range(ticks)]
@@ -150,8 +150,8 @@ def batch_figures(ticks: int, repeat: int, runs: int) -> dict[str, float]:
                     plant.set_state(plant.state() * (1.0 + 0.01 * i))
                 physics = kind(plants)
                 rows = np.arange(runs)
-                u = np.stack([plant.data.ctrl[plant._known] for plant in plants])
-                d = np.zeros((runs, len(plants[0]._unknown)))
+                u = np.stack([plant.data.ctrl[plant.actuator_index] for plant in plants])
+                d = np.zeros((runs, len(plants[0].disturbance_index)))
                 start = time.perf_counter()
                 for _ in range(n):
                     physics.state(), physics.sensors()

@@ -170,7 +170,7 @@ def test_plants_leave_no_process_state_behind():
         plant = Plant(mjcf.get(name), 1.0)
         plant.reset(keyframe=plant.info.design_keyframe or None)
         plant.linearize()
-        plant.step(plant.data.ctrl[plant._known].copy())
+        plant.step(plant.data.ctrl[plant.actuator_index].copy())
         assert_state_is(state, f"the {name} plant's calls")
 
 

@@ -118,7 +118,7 @@ def test_quasi_static_reduction_is_the_slow_dynamics(plant):
     """The full linearization [levels, flows] has the inertance of the flows; its three slow
     eigenvalues (solved exactly as a 3x3 nonlinear eigenproblem, the 12x12 one spans 1e15) differ
     from the reduced model's by < 1e-5 relative."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    m, T, T_pinv = plant.model, plant.tendons, plant.tendons_pinv
     d = mujoco.MjData(m)
     q0, v0, c0 = plant.data.qpos.copy(), plant.data.qvel.copy(), plant.data.ctrl.copy()
 
@@ -158,7 +158,7 @@ def test_mujoco_forces_are_torricelli(plant):
         for name, head in zip(ORIFICES, (h[0] - h[2], h[2] - h[1], h[1])):
             pressure = tt.RHO * tt.G * abs(head) / 100.0
             assert abs(d.qfrc_passive[dof(m, name)]) < 1e-9 * pressure  # spring + damper
-        np.testing.assert_allclose(plant._tendons @ d.qvel, tt.level_rates(h, q1, q2, v), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(plant.tendons @ d.qvel, tt.level_rates(h, q1, q2, v), rtol=1e-9, atol=1e-12)
 
 
 def test_set_state_puts_the_flows_at_torricelli(plant):
@@ -168,7 +168,7 @@ def test_set_state_puts_the_flows_at_torricelli(plant):
     np.testing.assert_allclose(plant.state(), h, rtol=1e-14)
     flows = [plant.data.qvel[dof(plant.model, name)] for name in ORIFICES]
     np.testing.assert_allclose(flows, tt._flows(h / 100.0), rtol=1e-9)
-    np.testing.assert_allclose(plant._tendons @ plant.data.qvel, tt.level_rates(h, 40.0, 20.0, 0.05), rtol=1e-7)
+    np.testing.assert_allclose(plant.tendons @ plant.data.qvel, tt.level_rates(h, 40.0, 20.0, 0.05), rtol=1e-7)
 
 
 def _levels(plant: Plant, start: dict[str, float], pumps: list[float], leak: float, ticks: int) -> np.ndarray:
@@ -248,7 +248,7 @@ def test_model_parameters(plant):
     np.testing.assert_allclose(m.tendon_stiffness[level], rho * tt.G * tt.AREA / 1e4, rtol=1e-15)
     np.testing.assert_allclose(m.tendon_range[level], [0.0, tt.H_MAX])
     np.testing.assert_allclose(
-        plant._tendons,
+        plant.tendons,
         100.0 / tt.AREA * np.array([[-1, 0, 0, 1, 0, 1], [0, 1, -1, 0, 1, 1], [1, -1, 0, 0, 0, 1]]),
         rtol=1e-15,
     )

@@ -213,7 +213,7 @@ def test_threads_stepping_plants_at_once_get_the_physics_of_one_thread():
     import threading
 
     def trajectory(plant: Plant, ticks: int) -> np.ndarray:
-        u = plant.data.ctrl[plant._known].copy() * 1.3
+        u = plant.data.ctrl[plant.actuator_index].copy() * 1.3
         out = []
         for _ in range(ticks):
             plant.step(u)

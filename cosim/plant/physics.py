@@ -55,20 +55,23 @@ class Plant:
         self.sensor_zero = np.array([info.sensor(name).zero for name in self.sensor_names])
         self.actuator_names = tuple(a.name for a in info.actuators)
         self.disturbance_names = tuple(d.name for d in info.disturbances)
-        self._known = actuator_ids(self.model, self.actuator_names)
-        self._unknown = actuator_ids(self.model, self.disturbance_names)
+        self.actuator_index = actuator_ids(self.model, self.actuator_names)
+        """Where the actuators' commands go in MuJoCo's ``ctrl`` (as ``actuator_names``)."""
+        self.disturbance_index = actuator_ids(self.model, self.disturbance_names)
+        """Where the disturbance inputs go in ``ctrl`` (as ``disturbance_names``)."""
         self.state_names = tuple(s.name for s in info.states)
         self.operating_point = ""
         """What the last linearization found where its point is no equilibrium ("" where it is)."""
         # State tendons: lengths = T @ qpos (fixed tendons); T⁺ places qpos for requested lengths.
-        self._tendons = state_tendon_matrix(self.model, info)
-        self._tendons_pinv = None if self._tendons is None else np.linalg.pinv(self._tendons)
+        self.tendons = state_tendon_matrix(self.model, info)
+        """T: the state tendons' lengths are T @ qpos (None: the state is [qpos, qvel, act])."""
+        self.tendons_pinv = None if self.tendons is None else np.linalg.pinv(self.tendons)
         self.reset()
 
     @property
     def nx(self) -> int:
-        if self._tendons is not None:
-            return self._tendons.shape[0]
+        if self.tendons is not None:
+            return self.tendons.shape[0]
         return self.model.nq + self.model.nv + self.model.na
 
     @property
@@ -97,7 +100,7 @@ class Plant:
             raise ModelError(f'{self.info.model_file}: no keyframe named {keyframe!r}; add <key name="{keyframe}"/>')
         else:
             mujoco.mj_resetDataKeyframe(self.model, self.data, key)
-        if initial or self._tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
+        if initial or self.tendons is not None:  # tendon states: flows quasi-steady for the keyframe's ctrl
             x = self.state()
             for name, value in (initial or {}).items():
                 x[self.state_names.index(name)] = value
@@ -106,8 +109,8 @@ class Plant:
 
     def state(self) -> np.ndarray:
         """[qpos, qvel, act], or the state tendons' lengths; a copy."""
-        if self._tendons is not None:
-            return self._tendons @ self.data.qpos
+        if self.tendons is not None:
+            return self.tendons @ self.data.qpos
         return np.concatenate([self.data.qpos, self.data.qvel, self.data.act])
 
     def set_state(self, x: np.ndarray) -> None:
@@ -115,9 +118,9 @@ class Plant:
         least-norm change of qpos (T⁺ (x − T qpos)) and put the velocities at their quasi-steady
         values for the current ctrl (``quasi_static_velocities``)."""
         m = self.model
-        if self._tendons is not None:
-            assert self._tendons_pinv is not None
-            self.data.qpos[:] += self._tendons_pinv @ (np.asarray(x, dtype=float) - self._tendons @ self.data.qpos)
+        if self.tendons is not None:
+            assert self.tendons_pinv is not None
+            self.data.qpos[:] += self.tendons_pinv @ (np.asarray(x, dtype=float) - self.tendons @ self.data.qpos)
             with self.physics():
                 self.data.qvel[:] = quasi_static_velocities(m, self.data)
             self.forward()
@@ -134,8 +137,8 @@ class Plant:
     def step(self, ctrl: np.ndarray, disturbance: np.ndarray | None = None) -> None:
         """Hold the known inputs ``ctrl`` and the unknown inputs ``disturbance`` (default 0) for
         one sample time (zero-order hold) and advance the physics."""
-        self.data.ctrl[self._known] = ctrl
-        self.data.ctrl[self._unknown] = 0.0 if disturbance is None else disturbance
+        self.data.ctrl[self.actuator_index] = ctrl
+        self.data.ctrl[self.disturbance_index] = 0.0 if disturbance is None else disturbance
         with CALLBACKS if self.passive_forces is None else self.passive_forces:
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
             # mj_step leaves sensordata at the state before its last integration; refresh it.

@@ -67,8 +67,8 @@ class PhysicsBatch:
     def __init__(self, plants: Sequence[Plant]) -> None:
         first = plants[0]
         self.substeps = first.substeps
-        self.known, self.unknown = first._known, first._unknown
-        self.tendons = first._tendons
+        self.known, self.unknown = first.actuator_index, first.disturbance_index
+        self.tendons = first.tendons
         self.sensor_index, self.sensor_zero = first.sensor_index, first.sensor_zero
         self.batch = mujoco.batch.Batch(first.model, nsim=len(plants), nthread=1, persistent=True)
         self.batch.set_models([plant.model for plant in plants])  # FatalError: a model of another layout
@@ -115,9 +115,9 @@ def batchable(plants: Sequence[Any]) -> bool:
         p.substeps == first.substeps
         and np.array_equal(p.sensor_index, first.sensor_index)
         and np.array_equal(p.sensor_zero, first.sensor_zero)
-        and np.array_equal(p._known, first._known)
-        and np.array_equal(p._unknown, first._unknown)
-        and _same_tendons(p._tendons, first._tendons)
+        and np.array_equal(p.actuator_index, first.actuator_index)
+        and np.array_equal(p.disturbance_index, first.disturbance_index)
+        and _same_tendons(p.tendons, first.tendons)
         for p in plants[1:]
     )
 

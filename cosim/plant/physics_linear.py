@@ -54,25 +54,24 @@ def linearize(
     if method not in ("zoh", "step"):
         raise ValueError(f"unknown linearization method {method!r}; use 'zoh' or 'step'")
     with plant.physics():
-        if plant._tendons is not None:
+        if plant.tendons is not None:
             return _linearize_tendon_state(plant, x, u, dt=dt, method=method)
         return _linearize_joint_state(plant, x, u, dt=dt, method=method)
 
 
 class MujocoPlant(Protocol):
     """What the linearization reads of a sampled MuJoCo plant (``cosim.plant.physics.Plant``), and
-    ``operating_point``, which it sets (``cosim.plant.equilibrium.declared``): the private parts too,
-    for the linearization is the plant's own (``Plant.linearize``)."""
+    ``operating_point``, which it sets (``cosim.plant.equilibrium.declared``)."""
 
     info: PlantInfo
     model: mujoco.MjModel
     data: mujoco.MjData
     sensor_index: np.ndarray
     sensor_zero: np.ndarray
-    _known: np.ndarray
-    _unknown: np.ndarray
-    _tendons: np.ndarray | None
-    _tendons_pinv: np.ndarray | None
+    actuator_index: np.ndarray
+    disturbance_index: np.ndarray
+    tendons: np.ndarray | None
+    tendons_pinv: np.ndarray | None
     state_names: tuple[str, ...]
     actuator_names: tuple[str, ...]
     sensor_names: tuple[str, ...]
@@ -141,7 +140,7 @@ def _linearize_joint_state(
     jac_x = _central_difference(lambda dx: f(dx, np.zeros(nu)), ndx)
     jac_u = _central_difference(lambda du: f(np.zeros(ndx), du), nu)
     A, BE = jac_x[:ndx], jac_u[:ndx]
-    C, D = jac_x[ndx:], jac_u[ndx:, plant._known]
+    C, D = jac_x[ndx:], jac_u[ndx:, plant.actuator_index]
     if not stepped and dt is not None:
         A, BE = zoh_discretize(A, BE, dt)
     at = f(np.zeros(ndx), np.zeros(nu))  # ẋ at the point (or its change over one step), and the sensors
@@ -165,7 +164,7 @@ def _linear_model(
     x_op, ctrl, y = point
     return LinearModel(
         A,
-        BE[:, plant._known],
+        BE[:, plant.actuator_index],
         C,
         D,
         dt,
@@ -173,9 +172,9 @@ def _linear_model(
         plant.actuator_names,
         plant.sensor_names,
         x_op=x_op,
-        u_op=ctrl[plant._known],
+        u_op=ctrl[plant.actuator_index],
         y_op=y - plant.sensor_zero,
-        E=BE[:, plant._unknown],
+        E=BE[:, plant.disturbance_index],
         disturbances=plant.disturbance_names,
         drift=drift,
     )
@@ -207,7 +206,7 @@ def _linearize_tendon_state(
     simulation itself over dt (levels perturbed, velocities quasi-steady, ``mj_step``).
     Control clamping is off while differencing (a pump linearized at zero flow).
     """
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    m, T, T_pinv = plant.model, plant.tendons, plant.tendons_pinv
     assert T is not None and T_pinv is not None
     d = mujoco.MjData(m)
     d.qpos[:], d.ctrl[:], d.qvel[:] = plant.data.qpos, plant.data.ctrl, plant.data.qvel
@@ -241,7 +240,7 @@ def _quasi_static_jacobians(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(A_c, [B_c E_c], C, D) of a tendon-state plant at ``point`` = (qpos, qvel, ctrl), its
     velocities quasi-steady there: see ``_linearize_tendon_state``."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    m, T, T_pinv = plant.model, plant.tendons, plant.tendons_pinv
     assert T is not None and T_pinv is not None
     qpos0, qvel0, ctrl0 = point
     sensors, ns, nv, nu = plant.sensor_index, T.shape[0], m.nv, m.nu
@@ -267,14 +266,14 @@ def _quasi_static_jacobians(
     dv_dh = -np.linalg.solve(f_v, jac_h[:nv])
     dv_du = -np.linalg.solve(f_v, jac_u[:nv])
     C = jac_h[nv:] + jac_v[nv:] @ dv_dh
-    D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant._known]
+    D = (jac_u[nv:] + jac_v[nv:] @ dv_du)[:, plant.actuator_index]
     return T @ dv_dh, T @ dv_du, C, D
 
 
 def _require_tendon_state(plant: MujocoPlant, d: mujoco.MjData, point: tuple[np.ndarray, ...], f_h: np.ndarray) -> None:
     """Positions off the state tendons (the null space of T) must not change the forces, or the
     tendon lengths h are not a state; ``f_h`` is ∂f/∂h at ``point`` = (qpos, qvel, ctrl)."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    m, T, T_pinv = plant.model, plant.tendons, plant.tendons_pinv
     assert T is not None and T_pinv is not None
     qpos0, qvel0, ctrl0 = point
     null = np.linalg.svd(T)[2][T.shape[0] :].T * np.abs(T_pinv).max()  # moves as large as T⁺'s
@@ -295,7 +294,7 @@ def _stepped_tendon_model(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(A, [B E]) of the simulation itself over dt about ``point`` = (qpos, qvel, ctrl): levels
     perturbed, velocities quasi-steady, ``mj_step``."""
-    m, T, T_pinv = plant.model, plant._tendons, plant._tendons_pinv
+    m, T, T_pinv = plant.model, plant.tendons, plant.tendons_pinv
     assert T is not None and T_pinv is not None
     qpos0, qvel0, ctrl0 = point
     nstep = substeps(dt, m.opt.timestep, plant.info.model_file)
