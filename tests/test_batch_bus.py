@@ -166,7 +166,10 @@ def test_the_detectors_k_run_form_raises_what_the_single_detector_raises_frame_f
         inside = rng.random((runs, len(ids))) < 0.95
         forged = [
             [
-                (int(rng.integers(len(ids))), int(rng.choice([k, k - 1, k - 100, k + 1, k - 200])) % modulus)
+                (
+                    int(rng.integers(len(ids))),
+                    int(rng.choice([k, k - 1, k - 100, k + 1, k + 2, k + 3, k - 200])) % modulus,
+                )
                 for _ in range(n)
             ]
             for n in rng.integers(0, 3, runs) * (rng.random(runs) < 0.3)
