@@ -167,9 +167,11 @@ class BusBatch:
         if self.detector is not None:
             t_ns, counter = k * self.dt_ns, k % self.codec.tick_modulus
             (slo, shi), (clo, chi) = ranges
-            self.detector.frames(t_ns, counter, self.sensor_ids, arrived, (slo <= carried) & (carried <= shi))
-            in_range = (clo <= carried_commands) & (carried_commands <= chi)
-            self.detector.frames(t_ns, counter, self.command_ids, np.ones_like(in_range), in_range)
+            in_range = np.concatenate(
+                [(slo <= carried) & (carried <= shi), (clo <= carried_commands) & (carried_commands <= chi)], axis=1
+            )
+            came = np.concatenate([arrived, np.ones(carried_commands.shape, dtype=bool)], axis=1)
+            self.detector.frames(t_ns, counter, self.sensor_ids + self.command_ids, came, in_range)
             for r, forged in self._forged:
                 for _, decoded in forged:
                     assert decoded is not None  # SUPPORTED forges the run's messages only
@@ -181,16 +183,18 @@ class BusBatch:
         with their ranges: the detector checks them."""
         if self.detector is None:
             return
-        t_ns, counter = k * self.dt_ns, k % self.codec.tick_modulus
+        columns = []
         for messages, v, (lo, hi) in zip(self.estimate_messages, values, bounds):
             inside = (lo <= v) & (v <= hi)
-            columns, at = [], 0
-            for message in messages:
+            at = 0
+            for message in messages:  # a frame is out of range where one of its signals is
                 columns.append(inside[:, at : at + len(message.signals)].all(axis=1))
                 at += len(message.signals)
-            in_range = np.stack(columns, axis=1)
-            ids = [message.frame_id for message in messages]
-            self.detector.frames(t_ns, counter, ids, np.ones_like(in_range), in_range)
+        if not columns:
+            return
+        in_range = np.stack(columns, axis=1)
+        ids = [message.frame_id for messages in self.estimate_messages for message in messages]
+        self.detector.frames(k * self.dt_ns, k % self.codec.tick_modulus, ids, np.ones_like(in_range), in_range)
 
     def verdicts(self) -> BusVerdicts:
         """What the detector and SecOC said of the tick just given."""

@@ -141,11 +141,12 @@ class DetectorRuns:
         self.last_counter = np.zeros((runs, len(frame_ids)), dtype=np.int64)
         self.known = np.zeros((runs, len(frame_ids)), dtype=bool)
         self.raised = np.zeros((runs, len(IDS_CHECKS)), dtype=bool)
+        self._slices: dict[tuple[int, ...], slice | list[int]] = {}
 
     def frames(self, t_ns: int, counter: int, ids: list[int], arrived: np.ndarray, in_range: np.ndarray) -> None:
         """Each run's frames on ``ids`` (at ``t_ns`` with ``counter``) that ``arrived`` (K, ids),
         their values within their signals' ranges or not (``in_range``, K, ids)."""
-        c = [self.column[i] for i in ids]
+        c = self._columns(ids)
         period, sequence = sequence_alarms(
             t_ns - self.last_ns[:, c], counter, self.last_counter[:, c], self.dt_ns, self.codec
         )
@@ -158,6 +159,15 @@ class DetectorRuns:
         self.last_ns[:, c] = np.where(stored, t_ns, self.last_ns[:, c])
         self.last_counter[:, c] = np.where(stored, counter, self.last_counter[:, c])
         self.known[:, c] |= stored
+
+    def _columns(self, ids: list[int]) -> slice | list[int]:
+        """The columns of ``ids``: a slice where they follow each other (a view, not a copy)."""
+        found = self._slices.get(tuple(ids))
+        if found is None:
+            columns = [self.column[i] for i in ids]
+            contiguous = columns == list(range(columns[0], columns[0] + len(columns))) if columns else False
+            found = self._slices[tuple(ids)] = slice(columns[0], columns[-1] + 1) if contiguous else columns
+        return found
 
     def frame(self, r: int, t_ns: int, frame_id: int, decoded: Decoded) -> None:
         """One frame of run ``r`` (an intruder's, after the tick's genuine ones)."""
