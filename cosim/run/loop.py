@@ -20,7 +20,7 @@ are stopped and the log says how it ended.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
 
 import can
@@ -214,10 +214,10 @@ def runner_frames(
     codec: Codec,
     k: int,
     sensor_specs: Sequence[MessageSpec],
-    measured: Sequence[float],
-    sent: Sequence[bool],
+    measured: Iterable[float],
+    sent: Iterable[bool],
     command_specs: Sequence[MessageSpec],
-    commands: Sequence[float],
+    commands: Iterable[float],
 ) -> list[tuple[can.Message, Decoded | None]]:
     """The runner's frames of tick k: SYNC(k) announcing them, the sensor frames of the readings
     ``sent`` (``measured``), the command frames of ``commands`` (an open loop's input signals;
