@@ -97,6 +97,11 @@ class BusBatch:
         runs = len(plans)
         self.models = [build_bus_faults(each.scenario) for each in plans]
         self.stages = [_stage(each, models) if models else None for each, models in zip(plans, self.models)]
+        # the messages each run's intruders record (those whose bus faults ``observe`` frames)
+        self.recorded = [
+            {name for m in models if type(m).observe is not fm.BusFault.observe for name in m.targets()}
+            for models in self.models
+        ]
         self.secoc: list[SecOC] | None = None
         if plan.authenticated:
             self.secoc = [secoc for each in plans if (secoc := each.secoc()) is not None]
@@ -214,7 +219,7 @@ class BusBatch:
         secoc = self.secoc[r] if self.secoc is not None else None
         if secoc is not None:  # the frames an intruder records are recorded as signed (the others' MACs: unused)
             for frame, decoded in frames:
-                if decoded is not None and decoded.spec.name in self._recorded(r):
+                if decoded is not None and decoded.spec.name in self.recorded[r]:
                     secoc.sign(frame, k)
         applied = stage.apply(k, frames)
         self.fed[r] = k
@@ -280,21 +285,12 @@ class BusBatch:
             raise CosimError(f"its nodes would not complete tick {k} (frames announced by SYNC missing)")
         return found[0]
 
-    def _recorded(self, r: int) -> set[str]:
-        """The messages run r's intruders record (those whose bus faults ``observe`` frames)."""
-        return {
-            name
-            for model in self.models[r]
-            if type(model).observe is not fm.BusFault.observe
-            for name in model.targets()
-        }
-
     def _catch_up(self, r: int, k: int, stage: BusFaultStage) -> None:
         """Feed run r's stage the frames its recording intruders heard since it last acted: the
         recorded messages' frames of those ticks (no fault was active in them, so hearing is all
         the stage did then). Only the frames a record can still hold are needed: from (lag + 1) s
         before the last one sent (``faults.models.Replay`` forgets older ones), with a tick to spare."""
-        recorded = self._recorded(r)
+        recorded = self.recorded[r]
         if not recorded or self.fed[r] >= k - 1:
             return
         columns = [i for i, spec in enumerate(self.sensor_specs) if spec.name in recorded]
