@@ -96,7 +96,6 @@ def test_spoofing_and_replay_batched_give_each_runs_row_alone_with_the_detector_
     assert alone(attacked(ATTACKS), 3)[0]["contested_ticks"] == 70  # 30 spoofed ticks, 40 replayed
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("authentication", ["none", "secoc"])
 @pytest.mark.parametrize("name", sorted(set(FAULTS) - {"spoofing-replay"}))
 def test_the_other_attacks_and_frame_loss_batched_give_each_runs_row_alone(name, authentication):
