@@ -15,6 +15,7 @@ actuator fault u_eff = u + f_a (course notes on the UIO, eq. (11)).
 
 from __future__ import annotations
 
+import bisect
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -498,8 +499,9 @@ class Replay(BusFault):
                 self._heard.pop(0)
 
     def inject(self, t: float) -> list[tuple[str, tuple[float, ...]]]:
-        old = [values for when, values in self._heard if when <= t - self.lag + 1e-12]
-        return [(self.message, old[-1])] if old else []
+        # what it heard last by t - lag (heard in time order: a binary search, not a scan of the record)
+        last = bisect.bisect_right(self._heard, t - self.lag + 1e-12, key=lambda heard: heard[0])
+        return [(self.message, self._heard[last - 1][1])] if last else []
 
 
 #: The fault models by kind (``kinds``): built in, a module path, or a plugin's entry point.

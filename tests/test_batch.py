@@ -54,7 +54,8 @@ def test_the_papers_scenarios_are_batched():
     }
     assert {"masses-bias", "masses-faults-fd", "three-tank-reconciliation", "cdc2016-ex1", "tac2024-s2-p4"} <= batched
     assert {"uio-fault-detection", "vessel-nominal", "vessel-fault-T1-T3"} <= batched  # open and closed loops
-    assert "masses-spoofing" not in batched and "masses-bus-overload" not in batched  # the bus does more
+    assert "masses-spoofing" in batched  # its attacks, SecOC and detector on the ideal bus (test_batch_bus.py)
+    assert "masses-bus-overload" not in batched and "masses-pid-can" not in batched  # an arbitrated wire
 
 
 @pytest.mark.parametrize(
@@ -257,10 +258,10 @@ def test_runs_whose_log_is_kept_run_alone_and_the_campaign_says_why(tmp_path):
     result = run_campaign(load_campaign(tmp_path / "c.toml"), tmp_path / "o", engine="inline", keep_logs="all")
     assert result.batched == 0 and len(list((tmp_path / "o" / "logs").glob("*.mcap"))) == 4
     assert result.alone == {"its log is kept (--keep-logs all)": 4}
-    spoofed = SWEEP.replace('"masses-bias"', '"masses-spoofing"').replace("seeds = 5", "seeds = 2")
-    (tmp_path / "s.toml").write_text(spoofed.split("[[axes]]")[0])
+    wired = SWEEP.replace('"masses-bias"', '"masses-bus-overload"').replace("seeds = 5", "seeds = 2")
+    (tmp_path / "s.toml").write_text(wired.split("[[axes]]")[0])
     result = run_campaign(load_campaign(tmp_path / "s.toml"), tmp_path / "s", engine="inline", keep_logs="none")
-    assert result.alone == {"its bus faults and attacks act on frames": 2}
+    assert result.alone == {"its bus timing is arbitrated": 2}
 
 
 def smaller(name, folder):

@@ -144,5 +144,10 @@ class SecOC:
             return Rejection(frame_id, sender, REPLAYED, freshness)
         if current - freshness > WINDOW:
             return Rejection(frame_id, sender, STALE, freshness)
-        self._last[frame_id] = freshness
+        self.accept(frame_id, freshness)
         return None
+
+    def accept(self, frame_id: int, freshness: int) -> None:
+        """A frame of ``frame_id`` with ``freshness`` accepted: the id's latest (``verify``'s last
+        step; a batch, ``cosim.campaign.batch_bus``, says so of the genuine frames it does not build)."""
+        self._last[frame_id] = freshness

@@ -40,10 +40,12 @@ from typing import Any
 import numpy as np
 
 import faults as fm
-from cosim.analysis.metrics import RunMetrics
+from cosim.analysis.metrics import BusMetrics, RunMetrics
 from cosim.analysis.metrics.compute import TickScoring
 from cosim.analysis.metrics.scorer import TickBatch
 from cosim.bus.codec import COMMAND, CONTROLLER, estimated_state
+from cosim.campaign.batch_bus import BusBatch, acts
+from cosim.campaign.batch_bus import refusal as bus_refusal
 from cosim.errors import CosimError
 from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
 from cosim.plant.fmu_model import is_fmu
@@ -51,7 +53,6 @@ from cosim.plant.physics_batch import physics_of
 from cosim.run.loop import PlantSource
 from cosim.run.plan import RunPlan
 from cosim.scenario import LoadedScenario
-from cosim.scenario.faults import build_bus_faults
 from estimators.batched import BatchStep, batch_of
 
 
@@ -81,17 +82,12 @@ def refusal(plan: RunPlan) -> str | None:
         (s.bus.interface != "virtual", "its nodes run in processes of their own (a batch needs the in-process bus)"),
         (is_fmu(s.plant.model), "its plant is an FMU, which runs in a process of its own"),
         (s.controller is not None and plan.controller is None, "its controller has no linear model"),
-        (bool(build_bus_faults(s)), "its bus faults and attacks act on frames"),
-        (s.bus.timing != "ideal", "its bus timing is arbitrated"),
-        (s.bus.authentication != "none", "its frames are authenticated (SecOC)"),
-        (s.bus.intrusion_detector, "its intrusion detector reads frames"),
-        (bool(s.bus.traffic), "other traffic shares its bus"),
         (bool(s.clients), "clients share its bus"),
         (bool(plan.external_nodes), "some of its nodes are started by hand"),
         (s.timing.mode != "lockstep", "it runs in realtime"),
         (plan.model is None, "it has no linear model"),
     ]
-    return next((why for refuse, why in reasons if refuse), None)
+    return next((why for refuse, why in reasons if refuse), None) or bus_refusal(plan)
 
 
 class _Run:
@@ -115,13 +111,31 @@ class _Run:
         if not self.left:
             self.left = f"tick {k}: {why}"
 
-    def metrics(self, ticks: int) -> RunMetrics:
-        senders = {name: SenderCounts() for name in self.plan.senders}
-        result = ResultRecord("completed", ticks, None, 0, 0, "", senders, {"datagrams": 0, "frames": 0})
+    def metrics(self, ticks: int, contested: int = 0, missed: int = 0) -> RunMetrics:
+        """Its metrics after ``ticks`` ticks: ``contested`` of them (intruders' frames without
+        authentication), ``missed`` the runner's frames each node found missing."""
+        senders = {name: SenderCounts(runner_frames_missed=missed) for name in self.plan.senders}
+        lost = missed * len(senders)
+        result = ResultRecord(
+            "completed", ticks, None, lost, 0, "", senders, {"datagrams": 0, "frames": 0}, contested_ticks=contested
+        )
         found = self.scoring.metrics(RESULT, result.to_metadata())
-        # No frames were built: say so rather than report none (the topics' counts come from a log)
+        # No frames were built: say so rather than report none (the topics' counts come from a log);
+        # what the bus's own schemes said (the detector, SecOC) and the frames lost are kept
         missing = [m for m in found.missing if not m.startswith("/")] + [UNBUILT]
-        return replace(found, bus=None, channels={}, missing=missing)
+        bus = found.bus
+        kept = (
+            BusMetrics(
+                fd=bus.fd,
+                lost=bus.lost,
+                intrusion_detection=bus.intrusion_detection,
+                secoc_detection=bus.secoc_detection,
+                secoc_rejected=bus.secoc_rejected,
+            )
+            if bus is not None and (bus.intrusion_detection is not None or bus.secoc_detection is not None)
+            else None
+        )
+        return replace(found, bus=kept, channels={}, missing=missing)
 
 
 class _Estimators:
@@ -326,6 +340,12 @@ class _Batch:
         self.scores = TickBatch(
             [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
         )
+        self.raw_commands = np.zeros((len(plans), len(s.actuators)))  # an open loop's, as its input signals give them
+        self.bus = (
+            BusBatch(plans, self.sensor_specs, self.command_specs, [e.messages for e in self.estimators], self._leave)
+            if acts(plan)
+            else None
+        )
         alike: dict[str, list[int]] = {}  # runs whose sensor faults and noise are configured alike
         for r, run in enumerate(self.runs):
             alike.setdefault(repr((run.plan.scenario.noise, run.plan.scenario.faults)), []).append(r)
@@ -341,10 +361,18 @@ class _Batch:
             self._tick(k, alive)
             if on_tick is not None:
                 on_tick(k + 1, ticks)
+        bus = self.bus
         return [
-            BatchedRun(run.seed, left=run.left) if run.left else BatchedRun(run.seed, run.metrics(ticks))
-            for run in runs
+            BatchedRun(run.seed, left=run.left)
+            if run.left
+            else BatchedRun(
+                run.seed, run.metrics(ticks, *((int(bus.contested[r]), int(bus.missed[r])) if bus is not None else ()))
+            )
+            for r, run in enumerate(runs)
         ]
+
+    def _leave(self, r: int, k: int, why: str) -> None:
+        self.runs[r].leave(k, why)
 
     def _tick(self, k: int, alive: np.ndarray) -> None:
         """Tick k of the runs still ``alive`` (a run that leaves is taken out of it)."""
@@ -354,14 +382,24 @@ class _Batch:
         measured, sent, active = self._sensors(y_true, t)
         middle = 0.5 * (self.sensor_range[0] + self.sensor_range[1])
         self._check(k, alive, np.where(sent, measured, middle), self.sensor_range, "a sensor reading outside its range")
-        readings = np.where(sent, self.sensors_carried(np.where(sent, measured, 0.0)), np.nan)
+        carried = self.sensors_carried(np.where(sent, measured, 0.0))
+        readings = np.where(sent, carried, np.nan)
         self._check(k, alive, x, None, "a state that is not finite")
         u_cmd, commanded = self._commands(k, t, readings, alive)
+        bus = self.bus
+        if bus is not None:  # what the nodes take of the runner's frames, and what the bus's schemes see
+            active = [(*a, *b) for a, b in zip(active, bus.active(t))]
+            ranges = (self.sensor_range, self.command_range)
+            readings = bus.runner(k, measured, sent, carried, self.raw_commands, u_cmd, ranges, alive)
         values = self._estimates(k, readings, u_cmd, commanded, alive)
         if values is None:
             return
         rows = np.flatnonzero(alive)
-        self.scores.tick(k, rows, x, active, values)
+        verdicts = None
+        if bus is not None:
+            bus.estimates(k, values, [(e.lower, e.upper) for e in self.estimators])
+            verdicts = bus.verdicts()
+        self.scores.tick(k, rows, x, active, values, verdicts)
         self._advance(k, t, rows, u_cmd, alive)
 
     def _sensors(self, y_true: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray, list[tuple[str, ...]]]:
@@ -391,6 +429,7 @@ class _Batch:
                 ]
             ).reshape(len(runs), len(s.actuators))
             self._check(k, alive, commands, self.command_range, "an input signal outside its command's range")
+            self.raw_commands = commands
             u_cmd, commanded = self.commands_carried(commands), np.ones(len(s.actuators), dtype=bool)
         else:
             u_cmd, commanded = self.controller.step(k, readings, self.report, runs, alive), self.controller.commanded

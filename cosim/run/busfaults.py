@@ -28,6 +28,7 @@ only the genuine ones count, since every receiver drops the intruders'. What eac
 
 from __future__ import annotations
 
+import bisect
 import math
 import zlib
 from dataclasses import dataclass, field
@@ -282,11 +283,12 @@ class BusFaultStage:
 
     def _recorded_frame(self, message: str, until: float) -> Frame | None:
         """The secured frame of ``message`` a replaying intruder recorded last by ``until``, as it was."""
-        old = [data for when, data in self._recorded.get(message, []) if when <= until + 1e-12]
-        if not old:
+        heard = self._recorded.get(message, [])
+        last = bisect.bisect_right(heard, until + 1e-12, key=lambda entry: entry[0])  # heard in time order
+        if not last:
             return None
         spec = self.codec.specs[message]
         frame = can.Message(
-            arbitration_id=spec.frame_id, data=old[-1], is_extended_id=False, is_fd=True, bitrate_switch=True
+            arbitration_id=spec.frame_id, data=heard[last - 1][1], is_extended_id=False, is_fd=True, bitrate_switch=True
         )
         return frame, self.codec.decode(frame)

@@ -20,7 +20,7 @@ are stopped and the log says how it ended.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from typing import Protocol
 
 import can
@@ -28,7 +28,7 @@ import numpy as np
 
 import faults as fm
 from cosim import progress
-from cosim.bus.codec import CONTROLLER, Decoded
+from cosim.bus.codec import CONTROLLER, Codec, Decoded, MessageSpec
 from cosim.bus.transport import BusConfig
 from cosim.errors import CosimError
 from cosim.plant import build_plant
@@ -131,18 +131,12 @@ class PlantSource:
         x, y_true = self.plant.state(), self.plant.sensors()
         outcome = self.faults.sensors(y_true, t)
         self._sensed = (x, y_true, outcome)
-        sent = [
-            codec.encode_decoded(spec.name, k, (value,))
-            for spec, value, on in zip(self.sensor_specs, outcome.measured, outcome.sent)
-            if on
-        ]
-        self._commands = (
-            []
-            if self.closed_loop
-            else [codec.encode_decoded(spec.name, k, (w(t),)) for spec, w in zip(self.command_specs, self.inputs)]
+        commands = [] if self.closed_loop else [w(t) for w in self.inputs]
+        frames = runner_frames(
+            codec, k, self.sensor_specs, outcome.measured, outcome.sent, self.command_specs, commands
         )
-        sync = codec.sync(k, len(sent) + len(self._commands))
-        return [(sync, codec.decode(sync)), *sent, *self._commands]
+        self._commands = [(m, d) for m, d in frames[len(frames) - len(commands) :] if d is not None]
+        return frames
 
     def advance(self, k: int, session: Session) -> None:
         s, t = self.scenario, self.scenario.time(k)
@@ -214,6 +208,25 @@ class PlantSource:
         close = getattr(self.plant, "close", None)
         if close is not None:
             close()
+
+
+def runner_frames(
+    codec: Codec,
+    k: int,
+    sensor_specs: Sequence[MessageSpec],
+    measured: Iterable[float],
+    sent: Iterable[bool],
+    command_specs: Sequence[MessageSpec],
+    commands: Iterable[float],
+) -> list[tuple[can.Message, Decoded | None]]:
+    """The runner's frames of tick k: SYNC(k) announcing them, the sensor frames of the readings
+    ``sent`` (``measured``), the command frames of ``commands`` (an open loop's input signals;
+    none in a closed loop), each with what a receiver decodes from it. A batch
+    (``cosim.campaign.batch_bus``) builds a run's frames with it where its bus faults need them."""
+    data = [codec.encode_decoded(spec.name, k, (value,)) for spec, value, on in zip(sensor_specs, measured, sent) if on]
+    data += [codec.encode_decoded(spec.name, k, (u,)) for spec, u in zip(command_specs, commands)]
+    sync = codec.sync(k, len(data))
+    return [(sync, codec.decode(sync)), *data]
 
 
 def held_inputs(plan: RunPlan, plant: object) -> tuple[np.ndarray, np.ndarray]:

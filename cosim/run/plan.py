@@ -403,6 +403,11 @@ class RunPlan:
         s = self.scenario
         return [*self.estimators, *(c.name for c in s.clients), *([CONTROLLER] if self.controller is not None else [])]
 
+    @property
+    def own_senders(self) -> tuple[str, ...]:
+        """The DBC nodes whose frames the runner itself sends (the controller's too in an open loop)."""
+        return (RUNNER, PLANT) if self.controller is not None else (RUNNER, PLANT, CONTROLLER)
+
     def session(
         self,
         out: Path | None,
@@ -427,7 +432,7 @@ class RunPlan:
                 "units": self.units,
                 "disturbances": s.disturbance_inputs,
             },
-            own_senders=(RUNNER, PLANT) if closed_loop else (RUNNER, PLANT, CONTROLLER),
+            own_senders=self.own_senders,
             commands=closed_loop,
             registration=registration,
             sink=sink,

@@ -17,6 +17,17 @@ from cosim.log.metadata import SenderCounts
 from cosim.log.recorder import RunRecorder
 
 
+def own_ids(codec: Codec, own_senders: tuple[str, ...]) -> set[int]:
+    """The ids of the frames the runner itself sends (those of ``own_senders``, DBC nodes)."""
+    return {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
+
+
+def contests(frames: list[can.Message], own: set[int], authenticated: bool) -> bool:
+    """Whether an intruder's ``frames`` contest their tick: on the runner's ``own`` ids and
+    unauthenticated, a receiver cannot tell them from the runner's."""
+    return not authenticated and any(frame.arbitration_id in own for frame in frames)
+
+
 class Traffic(can.Listener):
     """What the runner hears during a run, with the bookkeeping behind loss, lateness and trust.
 
@@ -66,7 +77,7 @@ class Traffic(can.Listener):
         #: without authentication a receiver cannot tell it from the runner's, so the tick is contested.
         self.contested: set[int] = set()
         self._counts: Counter[tuple[str, int]] = Counter()
-        self._own = {spec.frame_id for spec in codec.specs.values() if spec.sender in own_senders}
+        self._own = own_ids(codec, own_senders)
         self._heartbeats = {spec.frame_id for spec in codec.messages(role=HEARTBEAT)}
         self._commands = {spec.frame_id for spec in codec.messages(role=COMMAND)} if commands else set()
         self.commands: dict[int, dict[str, float]] = {}  # tick counter -> the controller node's commands
@@ -148,7 +159,7 @@ class Traffic(can.Listener):
     def injected(self, tick: int, frames: list[can.Message]) -> None:
         """Frames a simulated intruder (a bus fault) put on the bus during ``tick``: on the runner's own
         ids and unauthenticated, a receiver cannot tell them from the runner's, so the tick is contested."""
-        if self.secoc is None and any(frame.arbitration_id in self._own for frame in frames):
+        if contests(frames, self._own, self.secoc is not None):
             self.contested.add(tick)
 
     def contested_warning(self) -> list[str]:

@@ -346,10 +346,17 @@ class TickBatch:
         self._active: list[tuple[str, ...]] = [() for _ in self.scorers]
 
     def tick(
-        self, k: int, rows: np.ndarray, x: np.ndarray, active: Sequence[tuple[str, ...]], values: Sequence[np.ndarray]
+        self,
+        k: int,
+        rows: np.ndarray,
+        x: np.ndarray,
+        active: Sequence[tuple[str, ...]],
+        values: Sequence[np.ndarray],
+        bus: BusVerdicts | None = None,
     ) -> None:
         """Tick k of the runs ``rows``: the truth x (K, states), each run's active faults (by run),
-        each estimator's signals as its frames carry them (K, signals)."""
+        each estimator's signals as its frames carry them (K, signals), what the bus's own schemes
+        said of the tick (``bus``: the intrusion detector's verdicts, SecOC's rejections)."""
         scorers = self.scorers
         for r in rows:
             scorer = scorers[r]
@@ -379,3 +386,30 @@ class TickBatch:
                             scorer.alarms[name], scorer.run.estimators[name], scorer.run.faults
                         )
                     scorer.diagnosis[name].add(k, outputs, scorer.active, scorer.segment)
+        if bus is not None:
+            self._bus(k, rows, bus)
+
+    def _bus(self, k: int, rows: np.ndarray, bus: BusVerdicts) -> None:
+        """The intrusion detector's and SecOC's scores of tick k, as ``Scorer._score`` scores them."""
+        for r in rows.tolist():
+            scorer = self.scorers[r]
+            if bus.ids is not None and scorer.ids:
+                verdict = dict(zip(("any", *IDS_CHECKS), bus.ids[r].tolist()))
+                for score in scorer.ids.values():
+                    score.add(k, verdict, scorer.active, scorer.segment)
+            for rejection in bus.rejections[r]:
+                scorer.bus.rejection(rejection)
+            if scorer.secoc is not None:
+                rejected = {str(rejection.message or hex(int(rejection.id))) for rejection in bus.rejections[r]}
+                outputs = {"alarm": float(bool(rejected))} | dict.fromkeys(rejected, 1.0)
+                scorer.secoc.add(k, outputs, scorer.active, scorer.segment)
+
+
+@dataclass
+class BusVerdicts:
+    """What the bus's own schemes said of one tick of K runs (a batch): the intrusion detector's
+    verdicts, (K, 1 + checks) as ``DetectorRuns.verdicts`` gives them (None: no detector), and the
+    frames SecOC rejected, per run."""
+
+    ids: np.ndarray | None
+    rejections: Sequence[Sequence[SecurityRejection]]
