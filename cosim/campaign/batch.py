@@ -16,16 +16,20 @@ What a batch computes is what a run's metrics row reads, bit for bit what the ru
 (``cosim run --seed``, or a campaign with ``--batch 1``): the values each estimator receives (the
 sensor and command frames' values as the frames carry them), its estimates as its node's frames
 carry them (saturated at their signal's range, quantized), and the truth they are scored against.
-On the in-process bus without bus faults, a run's frames all arrive in their tick, so this is the
-whole of what the bus does to them; frames, MACs and the bus load are not computed, and a batched
-run's ``RunMetrics`` holds its row's metrics, not the bus's (a run whose log is kept runs alone).
+On the in-process ideal bus without bus faults, a run's frames all arrive in their tick, so this is
+the whole of what the bus does to them; where its bus does more (attacks and losses of the
+sensors' frames, SecOC, the intrusion detector) ``cosim.campaign.batch_bus`` gives what it does.
+The frames' counts and the bus load are not computed: a batched run's ``RunMetrics`` holds its
+row's metrics, with the bus's only the detector's and SecOC's scores and the frames lost (a run
+whose log is kept runs alone).
 
 A run that would not end as a completed run of the batch (a value outside its signal's range, an
 estimate that is not a number, an estimator that raises, a non-finite input or state) leaves the
 batch at that tick and is run again alone, through the whole run (``RunPlan``, ``Session``, nodes):
 it then ends exactly as it ends alone, and the others go on. A plan the batch cannot express
-(``refusal``: node processes, an FMU plant, a closed loop, bus faults, arbitrated timing, SecOC,
-the intrusion detector, clients, realtime) runs every run alone.
+(``refusal``: node processes, an FMU plant, a controller without a linear model, clients,
+realtime; and ``batch_bus.refusal``: arbitrated timing, bus faults a batch does not emulate, SecOC
+or the detector in a closed loop, other traffic) runs every run alone.
 """
 
 from __future__ import annotations
