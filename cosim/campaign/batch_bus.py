@@ -116,7 +116,8 @@ class BusBatch:
         self._mask = np.zeros((runs, width), dtype=bool)
         self.labels: list[tuple[str, ...]] = [() for _ in plans]
         self.fed = np.full(runs, -1)  # the last tick each run's stage was given
-        self.history: list[tuple[np.ndarray, np.ndarray]] = []  # each tick's (measured, sent), for _catch_up
+        # each tick's (measured, sent), for _catch_up: kept only where an intruder records what it hears
+        self.history: list[tuple[np.ndarray, np.ndarray]] | None = [] if any(self.recorded) else None
         self.last_sent = np.full((runs, len(self.sensor_specs)), -1)  # the last tick of each genuine reading
         self.contested = np.zeros(runs, dtype=int)
         self.missed = np.zeros(runs, dtype=int)  # the runner's frames each node found missing
@@ -156,7 +157,8 @@ class BusBatch:
         whose nodes would not complete the tick leaves the batch."""
         readings = np.where(sent, carried, np.nan)
         arrived = sent.copy()
-        self.history.append((measured.copy(), sent.copy()))
+        if self.history is not None:
+            self.history.append((measured.copy(), sent.copy()))
         self.rejections = [[] for _ in self.rejections]
         self._forged = []
         acting = alive & (self._mask.any(axis=1) if self._mask.size else np.zeros_like(alive))
@@ -293,6 +295,7 @@ class BusBatch:
         recorded = self.recorded[r]
         if not recorded or self.fed[r] >= k - 1:
             return
+        assert self.history is not None  # kept since a run's intruder records
         columns = [i for i, spec in enumerate(self.sensor_specs) if spec.name in recorded]
         lag = max((getattr(m, "lag", 0.0) for m in self.models[r]), default=0.0)
         last = int(self.last_sent[r, columns].max()) if columns else -1

@@ -192,7 +192,7 @@ class Scorer:
         if k < self.next_tick:
             self.late += 1
         else:
-            self.rejected[k].add(str(rejection.message or hex(int(rejection.id))))
+            self.rejected[k].add(rejected_message(rejection))
 
     def _event(self, event: Event) -> None:
         if event.event == "frames_lost":
@@ -282,10 +282,14 @@ class Scorer:
                 if name not in self.diagnosis:
                     self.diagnosis[name] = DiagnosisScore.of(alarm, self.run.estimators[name], self.run.faults)
                 self.diagnosis[name].add(k, estimate, active, self.segment)
-        if tick.ids is not None:
+        self.score_bus(k, tick.ids, self.rejected.pop(k, set()), active)
+
+    def score_bus(self, k: int, ids: dict[str, float] | None, rejected: set[str], active: set[str]) -> None:
+        """The bus's own schemes at tick k: the intrusion detector's verdict (``ids``: its alarm and
+        each check, None where it published none) and the messages SecOC ``rejected``."""
+        if ids is not None:
             for score in self.ids.values():
-                score.add(k, tick.ids, active, self.segment)
-        rejected = self.rejected.pop(k, set())
+                score.add(k, ids, active, self.segment)
         if self.secoc is not None:
             self.secoc.add(k, {"alarm": float(bool(rejected))} | dict.fromkeys(rejected, 1.0), active, self.segment)
 
@@ -393,16 +397,15 @@ class TickBatch:
         """The intrusion detector's and SecOC's scores of tick k, as ``Scorer._score`` scores them."""
         for r in rows.tolist():
             scorer = self.scorers[r]
-            if bus.ids is not None and scorer.ids:
-                verdict = dict(zip(("any", *IDS_CHECKS), bus.ids[r].tolist()))
-                for score in scorer.ids.values():
-                    score.add(k, verdict, scorer.active, scorer.segment)
             for rejection in bus.rejections[r]:
                 scorer.bus.rejection(rejection)
-            if scorer.secoc is not None:
-                rejected = {str(rejection.message or hex(int(rejection.id))) for rejection in bus.rejections[r]}
-                outputs = {"alarm": float(bool(rejected))} | dict.fromkeys(rejected, 1.0)
-                scorer.secoc.add(k, outputs, scorer.active, scorer.segment)
+            verdict = dict(zip(("any", *IDS_CHECKS), bus.ids[r].tolist())) if bus.ids is not None else None
+            scorer.score_bus(k, verdict, {rejected_message(x) for x in bus.rejections[r]}, scorer.active)
+
+
+def rejected_message(rejection: SecurityRejection) -> str:
+    """What SecOC's score calls a rejected frame: its message, or its id where it is none of the run's."""
+    return str(rejection.message or hex(int(rejection.id)))
 
 
 @dataclass
