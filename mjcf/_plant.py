@@ -57,7 +57,8 @@ class PlantInfo:
     ``disturbance_models`` are the plant's random environments by name (a sea state): each is called
     as ``model(rng, **params)`` with a seeded numpy Generator and returns b(t), a function of time
     giving all the ``disturbances`` at once (shape (len(disturbances),)); it raises ValueError
-    naming a bad parameter.
+    naming a bad parameter. Its class may offer ``batched(realizations)``: b(t) of K realizations
+    as (K, len(disturbances)), each row bit for bit its own (a batch's runs; None where it cannot).
     """
 
     name: str

@@ -24,6 +24,7 @@ equal ν = [u, v, r] at ψ = 0 only (ẋ, ẏ = P(ψ) [u, v]). The sensors u, v 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -328,6 +329,33 @@ class EnvironmentDisturbance:
         b[..., 1] = np.sum(force * np.sin(beta), -1)
         b[..., 2] = np.sum(moment, -1)
         return b + current
+
+    @classmethod
+    def batched(cls, realizations: Sequence[EnvironmentDisturbance]) -> Callable[[float], np.ndarray] | None:
+        """b(t) of K realizations at once, (K, 3) at a time t (s), each row bit for bit its
+        realization's ``b(t)``: the same elementwise operations on their parameters stacked by row
+        (a batch's runs, each with its own sea). None where their numbers of components differ."""
+        fields = [r._arrays for r in realizations]
+        if len({f[0].shape for f in fields}) != 1:
+            return None
+        w, swing_phases, force_amplitudes, force_phases, moment_amplitudes, moment_phases, current = (
+            np.stack(column) for column in zip(*fields)
+        )
+        mean = np.array([[r.mean_direction] for r in realizations])
+        swing = np.array([[r.swing] for r in realizations])
+        swing_frequency = np.array([[r.swing_frequency] for r in realizations])
+
+        def b(t: float) -> np.ndarray:
+            beta = mean + swing * np.sin(swing_frequency * t + swing_phases)
+            force = force_amplitudes * np.sin(w * t + force_phases)
+            moment = moment_amplitudes * np.sin(w * t + moment_phases)
+            found = np.empty((len(w), 3))
+            found[:, 0] = np.sum(force * np.cos(beta), -1)
+            found[:, 1] = np.sum(force * np.sin(beta), -1)
+            found[:, 2] = np.sum(moment, -1)
+            return found + current
+
+        return b
 
 
 def environment_disturbance(

@@ -386,3 +386,19 @@ def test_disturbance_is_deterministic_in_the_seed():
     np.testing.assert_array_equal(rng.random(), np.random.default_rng(42).random())
     assert environment_disturbance(12.5, 42).shape == (3,)
     np.testing.assert_array_equal(environment_disturbance(12.5, 42), environment_disturbance(np.array([12.5]), 42)[0])
+
+
+def test_the_batched_disturbance_of_k_seas_is_each_seas_bit_for_bit():
+    seas = [
+        EnvironmentDisturbance.random(seed, current=c, wave_force=f, wave_moment=m)
+        for seed, (c, f, m) in enumerate([(2e4, 1e5, 1e6), (0.0, 0.0, 0.0), (144.0, 108.0, 108.0), (4e4, 3e5, 2e6)])
+    ]
+    b = EnvironmentDisturbance.batched(seas)
+    assert b is not None
+    for t in [0.0, 0.1, 12.5, 299.99, 1234.567, -3.0]:
+        found = b(t)
+        assert found.shape == (len(seas), 3)
+        for row, sea in zip(found, seas):
+            np.testing.assert_array_equal(row, sea(t))  # exactly: a batch's runs step as alone
+    other = EnvironmentDisturbance.random(5, components=4)
+    assert EnvironmentDisturbance.batched([seas[0], other]) is None  # another number of components: each alone

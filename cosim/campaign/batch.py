@@ -333,6 +333,7 @@ class _Batch:
         self.codec = plan.codec
         self.sensor_specs = [self.codec.sensor(n) for n in s.sensors]
         self.command_specs = [self.codec.command(n) for n in s.actuators]
+        self.actuators = s.actuators  # a property that asks the plant's description each time
         self.sensors_carried = self.codec.carried_of(self.sensor_specs)
         self.commands_carried = self.codec.carried_of(self.command_specs)
         self.sensor_range = _range(self.sensor_specs)
@@ -350,6 +351,7 @@ class _Batch:
             if acts(plan)
             else None
         )
+        self.disturbance = PlantSource.disturbances_of([run.source for run in self.runs])
         alike: dict[str, list[int]] = {}  # runs whose sensor faults and noise are configured alike
         for r, run in enumerate(self.runs):
             alike.setdefault(repr((run.plan.scenario.noise, run.plan.scenario.faults)), []).append(r)
@@ -424,17 +426,17 @@ class _Batch:
     def _commands(self, k: int, t: float, readings: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tick k's commands by actuator (what the actuators hold where none came) and which came:
         the input signals as the runner's frames carry them, or the controller node's."""
-        s, runs = self.scenario, self.runs
+        runs = self.runs
         if self.controller is None:
             commands = np.array(
                 [
-                    [w(t) for w in run.source.inputs] if alive[r] else [0.0] * len(s.actuators)
+                    [w(t) for w in run.source.inputs] if alive[r] else [0.0] * len(self.actuators)
                     for r, run in enumerate(runs)
                 ]
-            ).reshape(len(runs), len(s.actuators))
+            ).reshape(len(runs), len(self.actuators))
             self._check(k, alive, commands, self.command_range, "an input signal outside its command's range")
             self.raw_commands = commands
-            u_cmd, commanded = self.commands_carried(commands), np.ones(len(s.actuators), dtype=bool)
+            u_cmd, commanded = self.commands_carried(commands), np.ones(len(self.actuators), dtype=bool)
         else:
             u_cmd, commanded = self.controller.step(k, readings, self.report, runs, alive), self.controller.commanded
         self.held = np.where(commanded, u_cmd, self.held)
@@ -472,9 +474,7 @@ class _Batch:
         """Each run's commands through its actuator faults into the physics of the runs, over tick k."""
         runs = self.runs
         u_eff, _ = fm.FaultInjector.actuators_batch([runs[r].source.faults for r in rows.tolist()], u_cmd[rows], t)
-        d = np.zeros((len(rows), len(self.scenario.disturbance_inputs)))
-        if d.size:
-            d = np.stack([runs[r].source.disturbance(t) for r in rows.tolist()])
+        d = self.disturbance(rows, t)
         finite = np.isfinite(u_eff).all(axis=1)
         for i in np.flatnonzero(~finite).tolist():
             try:

@@ -179,6 +179,25 @@ class PlantSource:
             (b(t) for b in self.environments), np.zeros(len(self.disturbances))
         )
 
+    @staticmethod
+    def disturbances_of(sources: Sequence[PlantSource]) -> Callable[[np.ndarray, float], np.ndarray]:
+        """``disturbance`` of K runs at once (a batch's): (rows, t) → (len(rows), inputs), each row bit
+        for bit its run's. The environment models at each place, where all the runs' are of one kind
+        whose class offers ``batched(models)`` (b(t) of them all, (K, inputs)), are evaluated together."""
+        width = len(sources[0].disturbances)
+        if len({len(source.environments) for source in sources}) != 1:  # runs of other environments
+            return lambda rows, t: np.stack([sources[r].disturbance(t) for r in rows.tolist()]).reshape(-1, width)
+        environments = [_together(list(models)) for models in zip(*(source.environments for source in sources))]
+
+        def disturbance(rows: np.ndarray, t: float) -> np.ndarray:
+            signals = np.array([[w(t) for w in sources[r].disturbances] for r in rows.tolist()]).reshape(-1, width)
+            total = np.zeros((len(sources), width))
+            for b in environments:  # as ``sum`` adds them, from 0
+                total = total + b(t)
+            return signals + total[rows]
+
+        return disturbance
+
     def step(self, k: int, u_eff: np.ndarray, d: np.ndarray) -> None:
         """Advance the physics over tick k with these inputs (a non-finite one is the run's error)."""
         self.check_inputs(k, u_eff)
@@ -208,6 +227,18 @@ class PlantSource:
         close = getattr(self.plant, "close", None)
         if close is not None:
             close()
+
+
+def _together(models: list[Callable[[float], np.ndarray]]) -> Callable[[float], np.ndarray]:
+    """b(t) of K runs' environment models (K, inputs): their class's ``batched`` form where they are
+    all of one class that has one (and it takes them), else each model by itself."""
+    kind = type(models[0])
+    batched = getattr(kind, "batched", None)
+    if batched is not None and all(type(model) is kind for model in models):
+        found = batched(models)
+        if found is not None:
+            return found
+    return lambda t: np.stack([model(t) for model in models])
 
 
 def runner_frames(
