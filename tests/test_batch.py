@@ -347,3 +347,27 @@ def test_a_campaign_on_a_reference_fmu_plant_runs_alone_and_says_why(tmp_path):
     assert chosen.batched == 0 and chosen.alone == {"its plant is an FMU, which runs in a process of its own": 2}
     one = run_campaign(campaign, tmp_path / "one", engine="inline", keep_logs="none", batch=1)
     assert metrics(chosen.path).equals(metrics(one.path))
+
+
+def test_the_disturbances_of_a_batchs_runs_are_each_runs_alone_whatever_their_seas():
+    from cosim.run.loop import PlantSource
+    from cosim.scenario import load
+
+    base = load("vessel-nominal")
+    calm = apply(
+        base, [("disturbances", [{"input": "b_x", "signal": {"kind": "sine", "amplitude": 5.0, "frequency": 0.1}}])]
+    )
+    rough = apply(base, [("disturbances[0].params", {"current": 144.0, "wave_force": 108.0, "wave_moment": 108.0})])
+    sine = {"input": "b_x", "signal": {"kind": "sine", "amplitude": 5.0, "frequency": 0.1}}
+    both = apply(base, [("disturbances", [*base.scenario.model_dump()["disturbances"], sine])])
+    for members in (
+        [(base, 1), (rough, 2), (both, 3)],  # seas of one kind, together
+        [(base, 1), (calm, 2), (rough, 3)],  # a run without a sea: each by itself
+    ):
+        sources = [PlantSource(RunPlan.build(loaded, seed, interface="virtual")) for loaded, seed in members]
+        disturbance = PlantSource.disturbances_of(sources)
+        for t in (0.0, 0.1, 17.3, 250.0):
+            for rows in (np.arange(3), np.array([0, 2]), np.array([], dtype=int)):
+                found = disturbance(rows, t)
+                expected = np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(len(rows), 3)
+                np.testing.assert_array_equal(found, expected)  # bit for bit

@@ -186,7 +186,7 @@ class PlantSource:
         whose class offers ``batched(models)`` (b(t) of them all, (K, inputs)), are evaluated together."""
         width = len(sources[0].disturbances)
         if len({len(source.environments) for source in sources}) != 1:  # runs of other environments
-            return lambda rows, t: np.stack([sources[r].disturbance(t) for r in rows.tolist()]).reshape(-1, width)
+            return lambda rows, t: np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(-1, width)
         environments = [_together(list(models)) for models in zip(*(source.environments for source in sources))]
 
         def disturbance(rows: np.ndarray, t: float) -> np.ndarray:
