@@ -186,11 +186,15 @@ class PlantSource:
         whose class offers ``batched(models)`` (b(t) of them all, (K, inputs)), are evaluated together."""
         width = len(sources[0].disturbances)
         if len({len(source.environments) for source in sources}) != 1:  # runs of other environments
-            return lambda rows, t: np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(-1, width)
+            return lambda rows, t: np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(
+                len(rows), width
+            )
         environments = [_together(list(models)) for models in zip(*(source.environments for source in sources))]
 
         def disturbance(rows: np.ndarray, t: float) -> np.ndarray:
-            signals = np.array([[w(t) for w in sources[r].disturbances] for r in rows.tolist()]).reshape(-1, width)
+            signals = np.array([[w(t) for w in sources[r].disturbances] for r in rows.tolist()]).reshape(
+                len(rows), width
+            )
             total = np.zeros((len(sources), width))
             for b in environments:  # as ``sum`` adds them, from 0
                 total = total + b(t)
