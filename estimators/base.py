@@ -10,7 +10,7 @@ import math
 import types
 import typing
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
@@ -152,6 +152,14 @@ class Estimator(Configurable, ABC):
         an ``estimators.batched.BatchEstimate``, run for run bit for bit what each instance's
         ``step`` returns (``estimators.batched.check_batched`` tests that). None, the default: the
         batch steps each instance by itself (``StepEach``), which is always right."""
+        return None
+
+    def joint_batch_key(self) -> Hashable | None:
+        """Optional: what instances of this kind must share for ``batched`` to step them together
+        though their designs differ (the estimators of one scenario that differ in a gain or a
+        learning rate: a batch of K runs then steps them as one batch of E × K instances, each on its
+        own design). Equal keys (not None) of the same kind join; None, the default: ``batched``
+        takes instances of one design only, and each estimator of a batch is stepped by itself."""
         return None
 
     def design_params(self) -> dict[str, Any]:

@@ -21,7 +21,8 @@ its own steps and bit for bit as alone.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import pickle
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -212,6 +213,12 @@ class ContinuousAdaptiveObserver(Estimator):
         gamma = np.array([diagnostics[f"gamma_{o}"] for o in self.model.outputs])
         return pseudoinverse(self.Y, gamma) @ phi
 
+    def joint_batch_key(self) -> Hashable:
+        """Observers on one model, sampling, factor Y (so H) and integration settings step together
+        whatever their gain L and learning rates (``ObserverODERuns`` takes each run's)."""
+        p = self.params
+        return pickle.dumps((self.model, self.sample_time, self.Y, self.H, p.rtol, p.atol, p.min_det))
+
     @classmethod
     def batched(cls, instances: Sequence[ContinuousAdaptiveObserver]) -> _ContinuousBatch | None:
         """The K-run step from ``BATCH_FROM`` runs; fewer step each instance by itself (``StepEach``)."""
@@ -219,7 +226,8 @@ class ContinuousAdaptiveObserver(Estimator):
 
 
 class _ContinuousBatch(DeviationBatch):
-    """K observers (6)–(7) of one design, each with its own x̂, Γ, step size and error scale,
+    """K observers (6)–(7) of one design, or of one ``joint_batch_key`` (each its own L and learning
+    rates), each with its own x̂, Γ, step size and error scale,
     integrated together over each sample (``ObserverODERuns``, ``integrate_runs``: each run makes its
     own attempts, steps and decisions, bit for bit as alone). A run with a missing reading, which
     integrates the observer open loop, takes its instance's own ``_step``; a run whose step raises
@@ -232,7 +240,7 @@ class _ContinuousBatch(DeviationBatch):
         self.gamma = np.stack([e.gamma for e in instances])
         self.h = np.array([e.h for e in instances], dtype=float)
         self.size = np.stack([e.size for e in instances])
-        self.ode = ObserverODERuns(self.first.ode, len(instances))
+        self.ode = ObserverODERuns([e.ode for e in instances])
         self.failed: dict[int, str] = {}
 
     def _step(self, dy: np.ndarray, du: np.ndarray) -> BatchEstimate:

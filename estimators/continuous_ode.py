@@ -9,6 +9,7 @@ import functools
 import itertools
 import math
 import operator
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -158,6 +159,8 @@ class ObserverODE:
 class ObserverODERuns:
     """``ObserverODE`` of K runs at once, each with its own held readings and inputs: f and ∂f/∂w of
     w (k, n + p) for the runs ``rows`` of the K (sorted), each row bit for bit its run's ``ObserverODE``.
+    Each run may have a design of its own (its gain L and learning rates κ_φ, κ_Γ: the estimators of
+    one scenario that differ only in them step together); A, B, H and Y are the runs' one model's.
 
     Each run has its own ``front`` and ``back`` (their rows of y and B u are its own), multiplied by
     NumPy's stacked products, which call the one-run ``dot``'s kernel per run; the closed forms between
@@ -167,11 +170,17 @@ class ObserverODERuns:
     stacked ``inv``, and a run whose R is singular raises as alone (``raised``: run → what it
     raised; its row NaN)."""
 
-    def __init__(self, ode: ObserverODE, runs: int) -> None:
-        self.ode = ode
+    def __init__(self, odes: Sequence[ObserverODE]) -> None:
+        """One ``ObserverODE`` per run (the same object for runs of one design)."""
+        ode = self.ode = odes[0]
+        runs = len(odes)
         self.identity = ode.identity
         self.front = np.repeat(ode.front[None], runs, axis=0)
-        self.back = np.repeat(ode.back[None], runs, axis=0)
+        self.back = np.stack([each.back for each in odes])
+        self.L = np.stack([each.L for each in odes])
+        self.A_LH = np.stack([each.A_LH for each in odes])
+        self.kappa_phi = np.array([[each.kappa_phi] for each in odes])
+        self.kappa_gamma = np.array([[each.kappa_gamma] for each in odes])
         self.ones = np.ones((runs, 1))
         self.Bu = np.zeros((runs, ode.n))
         self.raised: dict[int, str] = {}
@@ -196,12 +205,13 @@ class ObserverODERuns:
         v = np.concatenate([Zy, m, self.ones[: len(w)], w, R_inv], axis=1)
         back = np.matmul(self.back if every else self.back[rows], v[:, :, None])[:, :, 0]
         gamma = w[:, n:]
-        descent = (-2.0 * ode.kappa_phi) * np.abs(det) * back[:, ode.r_rows] * back[:, ode.s_rows]
+        kappa_phi = self.kappa_phi if every else self.kappa_phi[rows]
+        descent = (-2.0 * kappa_phi) * np.abs(det) * back[:, ode.r_rows] * back[:, ode.s_rows]
         squares = gamma * gamma
         total = squares[:, :1]
         for j in range(1, ode.p):  # left to right, as ObserverODE adds them
             total = total + squares[:, j : j + 1]
-        shrink = ode.kappa_gamma * (1.0 - total)
+        shrink = (self.kappa_gamma if every else self.kappa_gamma[rows]) * (1.0 - total)
         f = np.concatenate([back[:, ode.dx_rows], descent + shrink * gamma], axis=1)
         return f, R_inv, det, back, descent, gamma, shrink
 
@@ -254,12 +264,14 @@ class ObserverODERuns:
         ode, n, p, q = self.ode, self.ode.n, self.ode.p, self.ode.q
         f, R_inv, det, back, descent, gamma, shrink = self._evaluate(w, rows)
         k = len(w)
+        every = k == len(self.front)
         rYR = np.matmul(back[:, ode.rY_rows].reshape(k, p, q), R_inv.reshape(k, q, q))  # diag(r) Y R⁻¹
-        rYR_rate = rYR * ((2.0 * ode.kappa_phi) * np.abs(det))[:, :, None]
+        kappa_phi = self.kappa_phi if every else self.kappa_phi[rows]
+        rYR_rate = rYR * ((2.0 * kappa_phi) * np.abs(det))[:, :, None]
         sY = back[:, ode.sY_rows].reshape(k, p, q)  # diag(s) Y
         J = np.empty((k, n + p, n + p))
-        J[:, :n, :n] = ode.A_LH
-        J[:, :n, n:] = np.matmul(ode.L, rYR.swapaxes(1, 2))
+        J[:, :n, :n] = self.A_LH if every else self.A_LH[rows]
+        J[:, :n, n:] = np.matmul(self.L if every else self.L[rows], rYR.swapaxes(1, 2))
         J[:, n:, :n] = np.matmul(rYR_rate, ode.H)
         outer = np.stack([descent, gamma], axis=1).swapaxes(1, 2)
         rank_two = np.matmul(outer, back[:, ode.P_rows.start : ode.gamma_rows.stop].reshape(k, 2, p))

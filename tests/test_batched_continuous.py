@@ -118,14 +118,17 @@ def test_batched_runs_are_each_run_alone_for_other_output_ranks(n, p, q):
 @pytest.mark.parametrize("q", [1, 2, 3])
 def test_the_k_run_field_and_jacobian_are_each_runs(q):
     """``ObserverODERuns`` against ``ObserverODE`` row by row on random states, readings and inputs,
-    rows in any subset: f, ∂f/∂w and det R bit for bit, NaN where R is singular (q ≤ 2); with q = 3 a
-    run whose R is singular raises alone and is in ``raised`` with what it raised."""
+    rows in any subset, runs of three designs (their own gain L and learning rates, as estimators
+    of one scenario that step together): f, ∂f/∂w and det R bit for bit, NaN where R is singular
+    (q ≤ 2); with q = 3 a run whose R is singular raises alone and is in ``raised`` with what it raised."""
     rng = np.random.default_rng(q)
     n, p, runs = 4, q + 2, 9
     A, B = rng.normal(size=(n, n)), rng.normal(size=(n, 2))
-    Y, H, L = rng.normal(size=(p, q)), rng.normal(size=(q, n)), rng.normal(size=(n, q))
-    single = ObserverODE(A, B, H, L, Y, 3.0, 2.0)
-    together = ObserverODERuns(single, runs)
+    Y, H = rng.normal(size=(p, q)), rng.normal(size=(q, n))
+    designs = [
+        ObserverODE(A, B, H, rng.normal(size=(n, q)), Y, kp, kg) for kp, kg in [(3.0, 2.0), (0.0, 0.0), (10.0, 1.5)]
+    ]
+    together = ObserverODERuns([designs[r % 3] for r in range(runs)])
     y, u = rng.normal(size=(runs, p)) * 10.0 ** rng.integers(-3, 4, size=(runs, 1)), rng.normal(size=(runs, 2))
     w = np.concatenate([rng.normal(size=(runs, n)), rng.uniform(-1.0, 1.0, (runs, p))], axis=1)
     w[3, n:] = 0.0  # R = 0: singular
@@ -135,6 +138,7 @@ def test_the_k_run_field_and_jacobian_are_each_runs(q):
     np.testing.assert_array_equal(together(w[rows], rows), f)
     dets = together.weight_det(w[rows, n:])
     for i, r in enumerate(rows.tolist()):
+        single = designs[r % 3]
         single.hold(y[r], u[r])
         np.testing.assert_array_equal(single.Bu, together.Bu[r])
         assert single.weight_det(w[r, n:]) == dets[i] or r == 3
@@ -210,11 +214,12 @@ def test_a_few_runs_step_one_by_one_and_the_k_run_step_is_exact_for_them_too(mon
 
 @pytest.mark.slow
 def test_a_batch_of_example_1_gives_each_runs_metrics_row_alone(monkeypatch):
-    """The CDC 2016 scenario (six adaptive-ct estimators), its fault moved to 1 s, six seeds in one
-    batch (each estimator's six instances by the K-run step) against each seed run alone: the same
+    """The CDC 2016 scenario (six adaptive-ct estimators: two gains, three learning rates), its
+    fault moved to 1 s, two seeds in one batch (the six estimators' 12 instances by one K-run step,
+    each on its own gain and rates: ``joint_batch_key``) against each seed run alone: the same
     metrics row, every float."""
     loaded = apply(api.load("cdc2016-ex1"), [("duration", 2.5), ("faults[0].start", 1.0)])
-    seeds = list(range(continuous.BATCH_FROM))
+    seeds = [0, 1]
     integrated = []
     integrate = continuous._ContinuousBatch._integrate
 
@@ -225,7 +230,30 @@ def test_a_batch_of_example_1_gives_each_runs_metrics_row_alone(monkeypatch):
     monkeypatch.setattr(continuous._ContinuousBatch, "_integrate", counted)
     runs = run_batch(loaded, seeds)
     assert [run.left for run in runs] == [""] * len(seeds)
-    assert len(integrated) == 6 * 125 and set(integrated) == {len(seeds)}  # six estimators, 125 ticks
+    assert len(integrated) == 125 and set(integrated) == {6 * len(seeds)}  # 125 ticks of six estimators' runs
     for seed, run in zip(seeds, runs):
         alone = rows_of(api.run(loaded, None, seed=seed, in_process=True, measure=True).metrics)
         assert rows_of(run.metrics) == alone, seed
+
+
+def test_an_estimator_that_fails_in_a_joint_step_takes_its_own_run_out_under_its_own_name(monkeypatch):
+    """The six estimators of two runs step as one batch of 12 (estimator after estimator): the
+    fifth estimator's instance of the second run raising at tick 40 takes that run out of the batch
+    naming that estimator, and the other run ends as alone."""
+    loaded = apply(api.load("cdc2016-ex1"), [("duration", 1.0)])
+    integrate = continuous._ContinuousBatch._integrate
+    ticks = []
+
+    def failing(self, live, dy, du):
+        ticks.append(None)
+        if len(ticks) == 41:
+            self.failed[4 * 2 + 1] = "RuntimeError: the integration gave up"
+        return integrate(self, live, dy, du)
+
+    monkeypatch.setattr(continuous._ContinuousBatch, "_integrate", failing)
+    first, second = run_batch(loaded, [0, 1])
+    names = [e.name for e in loaded.scenario.estimators]
+    assert second.left == f"tick 40: estimator {names[4]} raised RuntimeError: the integration gave up"
+    assert first.left == "" and rows_of(first.metrics) == rows_of(
+        api.run(loaded, None, seed=0, in_process=True, measure=True).metrics
+    )

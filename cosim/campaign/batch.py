@@ -57,7 +57,7 @@ from cosim.plant.physics_batch import physics_of
 from cosim.run.loop import PlantSource
 from cosim.run.plan import RunPlan
 from cosim.scenario import LoadedScenario
-from estimators.batched import BatchStep, batch_of
+from estimators.batched import BatchEstimate, BatchStep, batch_of
 
 
 @dataclass(frozen=True)
@@ -143,14 +143,13 @@ class _Run:
 
 
 class _Estimators:
-    """One estimator of the scenario over the batch's runs: its K instances as one batched step,
-    where its inputs come from and where its values go (its node's signals)."""
+    """One estimator of the scenario over the batch's runs: its K instances (stepped by a
+    ``_Stepped``), where their inputs come from and where their values go (its node's signals)."""
 
     def __init__(self, name: str, plans: Sequence[RunPlan], sensors: tuple[str, ...], actuators: tuple[str, ...]):
         self.name = name
-        instances = [copy.deepcopy(plan.estimators[name]) for plan in plans]  # the plan's, never stepped
-        self.batch: BatchStep = batch_of(instances)
-        model = instances[0].model
+        self.instances = [copy.deepcopy(plan.estimators[name]) for plan in plans]  # the plan's, never stepped
+        model = self.instances[0].model
         self.outputs = [sensors.index(n) if n in sensors else -1 for n in model.outputs]
         self.inputs = [actuators.index(n) if n in actuators else -1 for n in model.inputs]
         codec = plans[0].codec
@@ -161,23 +160,64 @@ class _Estimators:
         channels = [channel for message in self.messages for channel in message.channels]
         self.lower = np.array([c.minimum for c in channels])
         self.upper = np.array([c.maximum for c in channels])
-        self.carried = codec.carried_of(self.messages)
+        self.as_carried = codec.carried_of(self.messages)
         self.u = np.zeros((len(plans), model.m))  # a command that never came is 0 (as its node holds it)
         self.failed: dict[int, str] = {}
 
-    def step(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> np.ndarray:
-        """Tick k's readings (K, sensors; NaN where not sent) and commands (K, actuators; those
-        ``commanded`` arrived, the others its node holds) in; the values its frames carry out,
-        (K, signals), in ``signals`` order."""
+    def given(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Its y (K, p) and u (K, m) of tick k, from the tick's readings (K, sensors; NaN where not
+        sent) and commands (K, actuators; those ``commanded`` arrived, the others its node holds)."""
         given = [i for i in self.inputs if i >= 0 and commanded[i]]
         self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0 and commanded[i]]] = u_cmd[:, given]
         ys = np.stack([y[:, i] if i >= 0 else np.full(len(y), np.nan) for i in self.outputs], axis=1)
-        estimate = self.batch.step(ys, self.u.copy())
+        return ys, self.u.copy()
+
+    def carried(self, estimate: BatchEstimate) -> np.ndarray:
+        """The values its frames carry of its ``estimate``, (K, signals), in ``signals`` order."""
         self.failed = estimate.failed
         columns = [estimate.x[:, self.states[s]] if s in self.states else estimate.diagnostics[s] for s in self.signals]
-        values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(y), 0))
+        values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(estimate.x), 0))
         # sent at the bound it crossed (the node saturates), and as the frame carries it
-        return self.carried(np.minimum(np.maximum(values, self.lower), self.upper))
+        return self.as_carried(np.minimum(np.maximum(values, self.lower), self.upper))
+
+
+class _Stepped:
+    """Estimators of a batch stepped by one batched step: one estimator's K instances, or those of
+    several estimators whose kind steps their designs together (``Estimator.joint_batch_key``), as
+    E × K instances, estimator after estimator."""
+
+    def __init__(self, members: Sequence[_Estimators]) -> None:
+        self.members = list(members)
+        self.batch: BatchStep = batch_of([instance for member in members for instance in member.instances])
+
+    def step(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> list[np.ndarray]:
+        """Each member's values of tick k (``_Estimators.carried``), in order."""
+        given = [member.given(y, u_cmd, commanded) for member in self.members]
+        if len(given) == 1:
+            return [self.members[0].carried(self.batch.step(*given[0]))]
+        estimate = self.batch.step(np.concatenate([ys for ys, _ in given]), np.concatenate([u for _, u in given]))
+        runs = len(y)
+        return [member.carried(_rows(estimate, j * runs, runs)) for j, member in enumerate(self.members)]
+
+    @staticmethod
+    def of(estimators: Sequence[_Estimators]) -> list[_Stepped]:
+        """The batch's estimators by step: those of a kind whose joint keys agree together, each
+        other one by itself, in the order of their first member."""
+        groups: dict[Any, list[_Estimators]] = {}
+        for e in estimators:
+            key = e.instances[0].joint_batch_key()
+            groups.setdefault(e.name if key is None else (type(e.instances[0]), key), []).append(e)
+        return [_Stepped(members) for members in groups.values()]
+
+
+def _rows(estimate: BatchEstimate, start: int, count: int) -> BatchEstimate:
+    """Rows [start, start + count) of a batched ``estimate``, renumbered from 0."""
+    stop = start + count
+    return BatchEstimate(
+        estimate.x[start:stop],
+        {name: values[start:stop] for name, values in estimate.diagnostics.items()},
+        {row - start: why for row, why in estimate.failed.items() if start <= row < stop},
+    )
 
 
 class _Controller:
@@ -339,6 +379,7 @@ class _Batch:
         self.sensor_range = _range(self.sensor_specs)
         self.command_range = _range(self.command_specs)
         self.estimators = [_Estimators(name, plans, s.sensors, s.actuators) for name in plan.estimators]
+        self.stepped = _Stepped.of(self.estimators)
         self.controller = _Controller(plans, s.sensors, s.actuators) if plan.controller is not None else None
         self.report: tuple[list[str], np.ndarray] | None = None  # the diagnosis node's last values
         self.held = np.stack([run.source.u_cmd for run in self.runs])  # what the actuators hold
@@ -448,7 +489,11 @@ class _Batch:
         """Each estimator's signals of tick k as its frames carry them (None: every run left)."""
         runs = self.runs
         try:
-            values = [e.step(np.where(alive[:, None], readings, 0.0), u_cmd, commanded) for e in self.estimators]
+            y = np.where(alive[:, None], readings, 0.0)
+            found = {
+                e.name: v for group in self.stepped for e, v in zip(group.members, group.step(y, u_cmd, commanded))
+            }
+            values = [found[e.name] for e in self.estimators]
         except Exception as error:  # noqa: BLE001 (an estimator's own code: every run goes alone, as each ends alone)
             for r in np.flatnonzero(alive):
                 runs[r].leave(k, f"an estimator raised {type(error).__name__}: {error}")
