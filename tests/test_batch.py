@@ -371,3 +371,30 @@ def test_the_disturbances_of_a_batchs_runs_are_each_runs_alone_whatever_their_se
                 found = disturbance(rows, t)
                 expected = np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(len(rows), 3)
                 np.testing.assert_array_equal(found, expected)  # bit for bit
+
+
+def test_campaigns_on_one_engine_follow_each_other_without_a_gap_each_with_its_own_table(tmp_path):
+    """``run_campaigns`` (the benchmark's cases): the second campaign's batches are submitted while
+    the first's still run (its start comes before the first's end), and each table is the one the
+    campaign gives by itself."""
+    from cosim.campaign.coordinator import run_campaigns
+    from cosim.campaign.engine import open_engine
+
+    (tmp_path / "a.toml").write_text(SWEEP)
+    (tmp_path / "b.toml").write_text(
+        SWEEP.replace('name = "sweep"', 'name = "other"').replace("seed = 11", "seed = 12")
+    )
+    first, second = load_campaign(tmp_path / "a.toml"), load_campaign(tmp_path / "b.toml")
+    events: list[tuple[str, int]] = []
+    with open_engine("dask", 2) as pool:
+        results = run_campaigns(
+            [(first, tmp_path / "a", False), (second, tmp_path / "b", False)],
+            pool,
+            keep_logs="none",
+            on_begin=lambda i: events.append(("begin", i)),
+            on_done=lambda i, result: events.append(("done", i)),
+        )
+    assert events.index(("begin", 1)) < events.index(("done", 0)) < events.index(("done", 1))
+    for campaign, result, name in ((first, results[0], "a1"), (second, results[1], "b1")):
+        alone = run_campaign(campaign, tmp_path / name, engine="inline", keep_logs="none")
+        assert result.batched == 10 and metrics(result.path).equals(metrics(alone.path))

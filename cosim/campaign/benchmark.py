@@ -29,7 +29,7 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError
 
 import scenarios
-from cosim.campaign.coordinator import CampaignProgress, CampaignResult, check_batch, require_extras, run_campaign
+from cosim.campaign.coordinator import CampaignProgress, CampaignResult, check_batch, require_extras, run_campaigns
 from cosim.campaign.engine import open_engine
 from cosim.campaign.spec import Campaign, load_campaign
 from cosim.errors import CosimError, ScenarioError
@@ -126,31 +126,35 @@ def run_benchmark(
     address: str | None = None,
     resume: bool = False,
     on_case: Callable[[CaseSpec, Campaign], None] | None = None,
-    on_progress: Callable[[CampaignProgress], None] | None = None,
+    on_progress: Callable[[CaseSpec, CampaignProgress], None] | None = None,
+    on_case_done: Callable[[CaseSpec, CampaignResult], None] | None = None,
     batch: int | None = None,
 ) -> dict[str, Any]:
-    """Run every case of the suite into the bundle ``out``; returns the bundle's record."""
+    """Run every case of the suite into the bundle ``out``; returns the bundle's record. The cases
+    share one engine and follow each other without a gap (``run_campaigns``): a case's last batches
+    run beside the next case's first, so ``on_case`` (a case starts) may come before the previous
+    case's last ``on_progress`` and its ``on_case_done``."""
     suite = load_suite(suite_path)
     folder = Path(out).resolve()
     if folder.exists() and any(folder.iterdir()) and not resume:
         raise CosimError(f"{folder} is not empty: choose a new folder, or pass --resume to finish this bundle")
     campaigns = [(case, case_campaign(case, quick, schemes)) for case in suite.cases]  # every case checked first
-    results: dict[str, CampaignResult] = {}
     require_extras(engine)
     check_batch(batch)
+    cases = [case for case, _ in campaigns]
+    members = [
+        (c, folder / "cases" / case.name, resume and (folder / "cases" / case.name).exists()) for case, c in campaigns
+    ]
     with open_engine(engine, workers, address) as pool:  # one cluster for every case: it starts once
-        for case, campaign in campaigns:
-            if on_case is not None:
-                on_case(case, campaign)
-            case_folder = folder / "cases" / case.name
-            results[case.name] = run_campaign(
-                campaign,
-                case_folder,
-                engine=pool,
-                resume=resume and case_folder.exists(),
-                on_progress=on_progress,
-                batch=batch,
-            )
+        found = run_campaigns(
+            members,
+            pool,
+            batch=batch,
+            on_begin=None if on_case is None else lambda i: on_case(*campaigns[i]),
+            on_progress=None if on_progress is None else lambda i, p: on_progress(cases[i], p),
+            on_done=None if on_case_done is None else lambda i, r: on_case_done(cases[i], r),
+        )
+    results = {case.name: result for case, result in zip(cases, found)}
     bundle = {
         "suite": suite.name,
         "version": suite.version,

@@ -10,12 +10,13 @@ without a part run again.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
 import shlex
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import Any
 from cosim.campaign.engine import Engine, open_engine
 from cosim.campaign.results import TableSchema, assemble, done_runs, write_part
 from cosim.campaign.spec import Campaign, RunSpec
-from cosim.campaign.worker import execute_batch
+from cosim.campaign.worker import execute_batch_in
 from cosim.errors import CosimError
 from cosim.extras import require_all
 from cosim.log.metadata import versions
@@ -100,44 +101,135 @@ def run_campaign(
     Runs of one configuration that differ in their seed step together in batches of ``batch``
     (None: chosen, ``batches``; 1: one at a time); the table is the same whatever the batches.
     ``engine``: its name (an engine is opened for this campaign and closed after it), or an open
-    ``Engine`` that several campaigns share (``cosim benchmark``: one cluster for every case)."""
+    ``Engine`` that several campaigns share."""
     check_batch(batch)
-    if keep_logs not in KEEP_LOGS:
-        raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
+    _check_keep_logs(keep_logs)
     require_extras(engine if isinstance(engine, str) else "inline")
-    folder = Path(out).resolve()
-    _prepare(folder, campaign, resume)
-    runs = campaign.runs()
-    done = done_runs(folder)
-    tally = _Tally(len(runs), len(done), sum(_failed(folder, index) for index in done), on_progress)
+    pending = _Pending(campaign, out, resume, on_progress)
     with _opened(engine, workers, address) as pool:
-        loop_start = time.perf_counter()
         if on_start is not None:
             on_start(pool.description, pool.workers)
-        todo = batches([run for run in runs if run.index not in done], batch, pool.workers)
-        _collect(pool.results(execute_batch, todo, str(folder), keep_logs), folder, tally)
-        description, count = pool.description, pool.workers
-        loop_time = time.perf_counter() - loop_start
-    metadata = {
-        "cosim.campaign": campaign.text,
-        "cosim.campaign.name": campaign.spec.name,
-        "cosim.versions": json.dumps(versions()),
-    }
-    path = assemble(folder, [run.index for run in runs], _schema(campaign, runs), metadata)
-    return CampaignResult(
-        path,
-        len(runs),
-        tally.failed,
-        len(done),
-        time.perf_counter() - tally.start,
-        description,
-        count,
-        loop_start - tally.start,
-        loop_time,
-        tally.run_time,
-        tally.batched,
-        dict(sorted(tally.alone.items(), key=lambda item: -item[1])),
-    )
+        (result,) = _run(pool, [pending], keep_logs, batch)
+    return result
+
+
+def run_campaigns(
+    members: Sequence[tuple[Campaign, str | Path, bool]],
+    engine: Engine,
+    *,
+    keep_logs: str = "failed",
+    batch: int | None = None,
+    on_begin: Callable[[int], None] | None = None,
+    on_progress: Callable[[int, CampaignProgress], None] | None = None,
+    on_done: Callable[[int, CampaignResult], None] | None = None,
+) -> list[CampaignResult]:
+    """Several campaigns (each with its folder, and whether to resume it) on one open engine, each
+    written as ``run_campaign`` writes it. Their batches go to the engine as one stream, campaign
+    after campaign, so that one campaign's last batches run beside the next one's first: no worker
+    waits for a campaign's slowest batch before the next campaign starts (``cosim benchmark``).
+    ``on_begin(i)``: campaign i's first batch is about to be submitted; ``on_progress(i, ...)``
+    after each of its runs; ``on_done(i, result)`` once its table is written."""
+    check_batch(batch)
+    _check_keep_logs(keep_logs)
+    folders = [Path(folder).resolve() for _, folder, _ in members]
+    if len(set(folders)) != len(folders):
+        raise CosimError("run_campaigns: give each campaign a folder of its own")
+    pendings = [
+        _Pending(campaign, folder, resume, None if on_progress is None else functools.partial(on_progress, i))
+        for i, (campaign, folder, resume) in enumerate(members)
+    ]
+    return _run(engine, pendings, keep_logs, batch, on_begin, on_done)
+
+
+def _check_keep_logs(keep_logs: str) -> None:
+    if keep_logs not in KEEP_LOGS:
+        raise CosimError(f"--keep-logs {keep_logs}: choose one of {', '.join(KEEP_LOGS)}")
+
+
+class _Pending:
+    """A campaign being run: its folder (prepared), its runs, those still to run in batches, its tally."""
+
+    def __init__(
+        self, campaign: Campaign, out: str | Path, resume: bool, on_progress: Callable[[CampaignProgress], None] | None
+    ) -> None:
+        self.created = time.perf_counter()
+        self.campaign, self.folder = campaign, Path(out).resolve()
+        _prepare(self.folder, campaign, resume)
+        self.runs = campaign.runs()
+        self.done = done_runs(self.folder)
+        self.tally = _Tally(
+            len(self.runs), len(self.done), sum(_failed(self.folder, i) for i in self.done), on_progress
+        )
+        self.todo: list[list[RunSpec]] = []
+        self.waiting = 0  # batches submitted whose outcomes have not come back
+        self.begun = self.created
+
+    def begin(self, batch: int | None, workers: int) -> None:
+        """Its batches, about to be submitted; its clock (progress, ETA) starts now."""
+        self.begun = self.tally.start = time.perf_counter()
+        self.todo = batches([run for run in self.runs if run.index not in self.done], batch, workers)
+        self.waiting = len(self.todo)
+
+    def result(self, pool: Engine) -> CampaignResult:
+        """Its table, written now that every run has its part."""
+        campaign, runs, tally = self.campaign, self.runs, self.tally
+        metadata = {
+            "cosim.campaign": campaign.text,
+            "cosim.campaign.name": campaign.spec.name,
+            "cosim.versions": json.dumps(versions()),
+        }
+        path = assemble(self.folder, [run.index for run in runs], _schema(campaign, runs), metadata)
+        now = time.perf_counter()
+        return CampaignResult(
+            path,
+            len(runs),
+            tally.failed,
+            len(self.done),
+            now - self.created,
+            pool.description,
+            pool.workers,
+            self.begun - self.created,
+            now - self.begun,
+            tally.run_time,
+            tally.batched,
+            dict(sorted(tally.alone.items(), key=lambda item: -item[1])),
+        )
+
+
+def _run(
+    pool: Engine,
+    pendings: Sequence[_Pending],
+    keep_logs: str,
+    batch: int | None,
+    on_begin: Callable[[int], None] | None = None,
+    on_done: Callable[[int, CampaignResult], None] | None = None,
+) -> list[CampaignResult]:
+    """The pending campaigns' batches through ``pool`` as one stream (see ``run_campaigns``)."""
+    found: dict[int, CampaignResult] = {}
+    by_folder = {str(p.folder): i for i, p in enumerate(pendings)}
+
+    def finish(i: int) -> None:
+        found[i] = pendings[i].result(pool)
+        if on_done is not None:
+            on_done(i, found[i])
+
+    def stream() -> Iterator[tuple[str, list[RunSpec]]]:
+        for i, pending in enumerate(pendings):
+            pending.begin(batch, pool.workers)
+            if on_begin is not None:
+                on_begin(i)
+            if not pending.todo:
+                finish(i)
+            for specs in pending.todo:
+                yield str(pending.folder), specs
+
+    for (folder, specs), outcomes in pool.results(execute_batch_in, stream(), keep_logs):
+        pending = pendings[i := by_folder[folder]]
+        _collect([(specs, outcomes)], pending.folder, pending.tally)
+        pending.waiting -= 1
+        if pending.waiting == 0:
+            finish(i)
+    return [found[i] for i in range(len(pendings))]
 
 
 def check_batch(batch: int | None) -> None:

@@ -41,6 +41,12 @@ def ignore_interrupts() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def execute_batch_in(item: tuple[str, list[RunSpec]], keep_logs: str) -> list[dict[str, Any]]:
+    """``execute_batch`` of a (folder, runs) item: the engine's task when several campaigns share it."""
+    folder, specs = item
+    return execute_batch(specs, folder, keep_logs)
+
+
 def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dict[str, Any]]:
     """Run ``specs``, runs of one scenario that differ in their seed or in what acts on each run's
     plant (``coordinator.batches``), together (``cosim.campaign.batch.run_together``); returns each

@@ -98,16 +98,19 @@ def main(args: argparse.Namespace) -> int:
         f"[bold]{escape(suite.name)} v{suite.version}[/bold] ({selection}): {len(suite.cases)} cases into "
         f"{escape(str(args.out))}" + (f"; added: {', '.join(s.name for s in added)}" if added else "")
     )
-    displays: list[tuple[Progress, Callable[[CampaignProgress], None]]] = []
+    # one display, a line per case: a case's last runs finish while the next case's first run
+    displays: dict[str, Callable[[CampaignProgress], None]] = {}
+    shown: list[Progress] = []
 
     def on_case(case: CaseSpec, campaign: Campaign) -> None:
-        if displays:
-            displays[-1][0].stop()
         name = escape(campaign.spec.name)
         talk.print(f"{escape(case.track)} / [bold]{escape(case.name)}[/bold]: {campaign.size} runs of {name}")
-        progress, update = progress_display(talk, campaign.size)
-        progress.start()
-        displays.append((progress, update))
+        progress, displays[case.name] = progress_display(
+            talk, campaign.size, escape(case.name), shown[0] if shown else None
+        )
+        if not shown:
+            progress.start()
+            shown.append(progress)
 
     try:
         bundle = run_benchmark(
@@ -117,7 +120,7 @@ def main(args: argparse.Namespace) -> int:
             suite_path=args.suite or SUITE,
             **common.picked(args, "engine", "workers", "address", "resume", "batch"),
             on_case=on_case,
-            on_progress=lambda p: displays[-1][1](p),
+            on_progress=lambda case, p: displays[case.name](p),
         )
     except KeyboardInterrupt as interrupt:
         return common.interrupted(
@@ -126,8 +129,8 @@ def main(args: argparse.Namespace) -> int:
             f": the finished runs are kept in {escape(str(args.out))}; finish with the same command and --resume",
         )
     finally:
-        if displays:
-            displays[-1][0].stop()
+        for progress in shown:
+            progress.stop()
     common.warn(talk, failed_cases(bundle))
     talk.print(
         f"done: {bundle['runs']} runs, {bundle['failed']} failed; digest {bundle['digest'][:12]}; "

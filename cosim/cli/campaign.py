@@ -105,21 +105,25 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def progress_display(talk: Console, total: int) -> tuple[Progress, Callable[[CampaignProgress], None]]:
-    """A progress display of a campaign's runs, and the function that updates it."""
+def progress_display(
+    talk: Console, total: int, description: str = "runs", progress: Progress | None = None
+) -> tuple[Progress, Callable[[CampaignProgress], None]]:
+    """A progress display of a campaign's runs, and the function that updates it: a line of its
+    own in ``progress`` (several campaigns at once: the benchmark's cases), or of a new display."""
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
-    columns = (
-        TextColumn("[progress.description]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("{task.fields[failed]} failed"),
-        TextColumn("{task.fields[per_run]}"),
-        TimeElapsedColumn(),
-        TextColumn("ETA {task.fields[eta]}"),
-    )
-    progress = Progress(*columns, console=talk, transient=False, disable=talk.quiet)
-    task = progress.add_task("runs", total=total, failed=0, per_run="", eta="-")
+    if progress is None:
+        columns = (
+            TextColumn("[progress.description]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[failed]} failed"),
+            TextColumn("{task.fields[per_run]}"),
+            TimeElapsedColumn(),
+            TextColumn("ETA {task.fields[eta]}"),
+        )
+        progress = Progress(*columns, console=talk, transient=False, disable=talk.quiet)
+    task = progress.add_task(description, total=total, failed=0, per_run="", eta="-")
 
     def update(p: CampaignProgress) -> None:
         eta = "-" if p.eta_s is None else time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
