@@ -40,7 +40,7 @@ import orjson
 
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.bus.client import Client, TickFrames
-from cosim.bus.codec import CONTROLLER, Decoded, MessageSpec
+from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded, MessageSpec
 from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
 from cosim.bus.wire import Transmission
@@ -57,6 +57,7 @@ from cosim.run.traffic import Traffic
 from cosim.scenario.faults import build_bus_faults
 
 Frame = tuple[can.Message, Decoded | None]
+_SIGNED = (SYNC, NMT, HEARTBEAT)  # the control frames: their MAC is written when they are sent
 
 
 def refusal(plan: RunPlan) -> str | None:
@@ -101,6 +102,7 @@ class _RunWire:
         self.traffic.flush(0, 0.0, 0)  # the boot-ups, as the session logs them when its nodes have joined
         self.traffic.deliver = self.arbitration.answer  # from tick 0 on, what the runner hears goes over the wire
         self.marker = 0  # the tick whose heard frames are still to be handed on (``Session._marker``)
+        self.decoded: dict[int, Frame] = {}  # the frames on the run's channel in this tick, decoded, by id()
 
     def send(self, k: int, frames: list[Frame]) -> None:
         """Tick k's frames of the runner (SYNC first) onto the wire, as ``Session.send`` sends them on
@@ -117,6 +119,9 @@ class _RunWire:
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
         sign_control(self.control, k, step.send, applied)
+        # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
+        # just now, is decoded as it is sent): decoded once for all the run's nodes
+        self.decoded = {id(item[0]): item for item in step.send if item[1] is None or item[1].spec.role not in _SIGNED}
         send_all(self.bus, [frame for frame, _ in step.send])
         self.marker = k
         self._passages(step.passed)
@@ -125,7 +130,23 @@ class _RunWire:
     def take(self, name: str) -> list[TickFrames]:
         """The ticks node ``name`` completes with what its channel brought (as ``_Node.service``)."""
         client = self.nodes[name]
-        return [tick for frame in drain(client.bus, limit=sys.maxsize) for tick in client.feed(frame)]
+        return [
+            tick
+            for frame in drain(client.bus, limit=sys.maxsize)
+            if client.wants(frame)
+            for tick in client.take(frame, self._decode(frame))
+        ]
+
+    def _decode(self, frame: can.Message) -> Decoded | None:
+        """What ``Client.feed`` decodes from ``frame`` (None: nothing of the run's, or not decodable)."""
+        found = self.decoded.get(id(frame))
+        if found is None:
+            try:
+                decoded = self.codec.decode(frame)
+            except CodecError:
+                decoded = None
+            found = self.decoded[id(frame)] = (frame, decoded)  # the frame held: its id stays its own
+        return found[1]
 
     def publish(self, name: str, tick: TickFrames, values: dict[str, float], saturate: bool) -> None:
         """Node ``name``'s answer to ``tick``: its frames, then the heartbeat closing it (``_Node._publish``)."""
