@@ -18,18 +18,22 @@ sensor and command frames' values as the frames carry them), its estimates as it
 carry them (saturated at their signal's range, quantized), and the truth they are scored against.
 On the in-process ideal bus without bus faults, a run's frames all arrive in their tick, so this is
 the whole of what the bus does to them; where its bus does more (attacks and losses of the
-sensors' frames, SecOC, the intrusion detector) ``cosim.campaign.batch_bus`` gives what it does.
-The frames' counts and the bus load are not computed: a batched run's ``RunMetrics`` holds its
-row's metrics, with the bus's only the detector's and SecOC's scores and the frames lost (a run
-whose log is kept runs alone).
+sensors' frames, SecOC, the intrusion detector) ``cosim.campaign.batch_bus`` gives what it does. On
+an arbitrated wire, ``cosim.campaign.batch_wire`` drives each run's own wire, bus faults, detector
+and nodes' protocol with the frames the run sends alone (each node computes on the tick its own
+client took, and publishes what the batch computed for it), and the scores read the estimators'
+frames the wire delivered. The frames' counts and the bus load are not computed: a batched run's
+``RunMetrics`` holds its row's metrics, with the bus's only the detector's and SecOC's scores and
+the frames lost (a run whose log is kept runs alone).
 
 A run that would not end as a completed run of the batch (a value outside its signal's range, an
 estimate that is not a number, an estimator that raises, a non-finite input or state) leaves the
 batch at that tick and is run again alone, through the whole run (``RunPlan``, ``Session``, nodes):
 it then ends exactly as it ends alone, and the others go on. A plan the batch cannot express
 (``refusal``: node processes, an FMU plant, a controller without a linear model, clients,
-realtime; and ``batch_bus.refusal``: arbitrated timing, bus faults a batch does not emulate, SecOC
-or the detector in a closed loop, other traffic) runs every run alone.
+realtime; ``batch_bus.refusal``: on the ideal bus, bus faults a batch does not emulate, SecOC or the
+detector in a closed loop, other traffic; ``batch_wire.refusal``: SecOC on an arbitrated wire) runs
+every run alone.
 """
 
 from __future__ import annotations

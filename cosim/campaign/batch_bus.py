@@ -22,9 +22,10 @@ runner's, and on arrays where it is:
 - a tick with an intruder's frame on the runner's ids is contested unless the bus authenticates
   (``contests``), as ``Traffic.injected`` has it.
 
-What a batch does not emulate it refuses (``refusal``): an arbitrated wire, bus faults other than
+What a batch does not emulate on the ideal bus it refuses (``refusal``): bus faults other than
 ``SUPPORTED`` or acting on other frames than the sensors', bus faults in a closed loop, SecOC or
-the detector in a closed loop, other traffic.
+the detector in a closed loop, other traffic. An arbitrated wire is ``cosim.campaign.batch_wire``'s
+(every bus fault, open and closed loops, the detector, background traffic; it refuses SecOC).
 """
 
 from __future__ import annotations
