@@ -188,9 +188,10 @@ def assert_batched_as_alone(loaded, taps, seeds=SEEDS):
             single.bus.intrusion_detection if single.bus else None
         )
         alone = taps.of(0)
-        assert set(alone) - {"verdicts"} == {"kalman", "uniform", *(["controller"] if "controller" in alone else [])}
         mine = {node: values for (i, node), values in batched[0].items() if i == r}
-        for node in set(alone) - {"verdicts"}:
+        nodes = {e.name for e in loaded.scenario.estimators} | ({"controller"} if loaded.scenario.controller else set())
+        assert set(mine) == set(alone) - {"verdicts"} == nodes, seed
+        for node in mine:
             assert len(mine[node]) == len(alone[node]) == loaded.scenario.ticks, node
             for k, (a, b) in enumerate(zip(mine[node], alone[node])):
                 assert _same(a, b), (seed, node, k, a, b)
@@ -242,6 +243,14 @@ def test_the_equalities_are_not_vacuous(taps):
     assert found["fuzzing"][1] > 0 and "unknown" in found["fuzzing"][3]
     assert found["babbling"][2] > 50 and found["babbling"][3] == ["any", "unknown"]
     assert found["bus_off"][2] == 60 and found["bus_off"][3] == []
+
+
+def test_a_controller_reading_a_diagnosis_node_over_an_arbitrated_can_fd_wire_batched_as_alone(taps):
+    """The vessel's thrust allocation reads the COFD node's report of the tick before, on a CAN FD
+    wire at 1 Mbit/s with the detector: what each node takes (the report too) as alone."""
+    settings = [("duration", 1.0), ("bus.timing", "arbitrated"), ("bus.bitrate", 1_000_000)]
+    loaded = apply(api.load("vessel-reconfiguration"), [*settings, ("bus.intrusion_detector", True)])
+    assert_batched_as_alone(loaded, taps)
 
 
 def test_a_run_whose_intruder_forges_what_its_frame_cannot_carry_leaves_the_batch_and_ends_as_alone():
