@@ -291,3 +291,32 @@ def test_the_pids_batched_step_equals_its_single_steps_through_missing_readings_
             assert {name: values[r] for name, values in diagnostics.items()} == command.diagnostics, (k, r)
             saturated += abs(command.u[0]) == 20.0
     assert saturated > 50
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["masses-bus-faults", "masses-attack-taxonomy"])
+def test_the_arbitrated_campaigns_with_their_faults_in_1_2_s_batched_give_the_table_of_one_at_a_time(tmp_path, name):
+    """The campaign as the benchmark runs it (coordinator, worker, parts, table), its faults moved
+    into 1.2 s runs, batched against --batch 1: the same table."""
+    import pyarrow.parquet as pq
+    import tomlkit
+
+    from cosim.campaign.coordinator import run_campaign
+    from cosim.campaign.results import NONDETERMINISTIC
+    from cosim.campaign.spec import load_campaign
+    from cosim.scenario import parse_setting
+
+    document = tomlkit.parse(load_campaign(name).text)
+    faults = next(axis for axis in document["axes"] if axis["key"] == "faults")
+    for value in faults["values"]:
+        for fault in value:
+            fault.update(WINDOW)
+    path = tmp_path / f"{name}.toml"
+    path.write_text(tomlkit.dumps(document))
+    campaign = load_campaign(path, seeds=2, settings=[parse_setting("duration=1.2")])
+    tables = {
+        b: run_campaign(campaign, tmp_path / f"b{b}", engine="inline", keep_logs="none", batch=b) for b in (1, None)
+    }
+    assert tables[None].batched == tables[None].runs and tables[1].batched == 0
+    one, batched = (pq.read_table(tables[b].path).drop(list(NONDETERMINISTIC)) for b in (1, None))
+    assert one.equals(batched)
