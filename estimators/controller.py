@@ -150,23 +150,62 @@ class PidController(Controller):
 
     def step(self, y: np.ndarray, t: float, report: Mapping[str, float]) -> Command:
         y = np.asarray(y, dtype=float)[self._y]
-        error = self.reference(t) - y
-        ok = np.isfinite(y)
-        previous = y if self.previous is None else np.where(np.isfinite(self.previous), self.previous, y)
-        derivative = np.where(ok, (y - previous) / self.sample_time, 0.0)
-        u_op = self.model.u_op[self._u]
-        integral = self.integral + np.where(ok, self.sample_time * error, 0.0)
-        unclipped = u_op + self.kp * error + self.ki * integral - self.kd * derivative
-        winding_up = ((unclipped > self.upper) & (error > 0)) | ((unclipped < self.lower) & (error < 0))
-        self.integral = np.where(ok & ~winding_up, integral, self.integral)
-        command = np.clip(
-            u_op + self.kp * error + self.ki * self.integral - self.kd * derivative, self.lower, self.upper
+        self.integral, self.previous, self.u[self._u], error = self.law(
+            y, t, self.integral, self.previous, self.u[self._u]
         )
-        self.u[self._u] = np.where(ok, command, self.u[self._u])
-        self.previous = np.where(ok, y, previous)
         diagnostics = CONTROL_ERROR.values(self.model.outputs, np.zeros(self.model.p))
         diagnostics |= CONTROL_ERROR.values(self.params.outputs, np.where(np.isfinite(error), error, 0.0))
         return Command(self.u.copy(), diagnostics)
+
+    def law(
+        self, y: np.ndarray, t: float, integral: np.ndarray, previous: np.ndarray | None, held: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """One step of the loops on their readings y (loops,), or of K runs' loops (K, loops), each
+        element by the same operations: the integral, the last readings, the loops' commands (a
+        missing reading holds ``held``) and the control errors after it."""
+        error = self.reference(t) - y
+        ok = np.isfinite(y)
+        previous = y if previous is None else np.where(np.isfinite(previous), previous, y)
+        derivative = np.where(ok, (y - previous) / self.sample_time, 0.0)
+        u_op = self.model.u_op[self._u]
+        advanced = integral + np.where(ok, self.sample_time * error, 0.0)
+        unclipped = u_op + self.kp * error + self.ki * advanced - self.kd * derivative
+        winding_up = ((unclipped > self.upper) & (error > 0)) | ((unclipped < self.lower) & (error < 0))
+        integral = np.where(ok & ~winding_up, advanced, integral)
+        command = np.clip(u_op + self.kp * error + self.ki * integral - self.kd * derivative, self.lower, self.upper)
+        return integral, np.where(ok, y, previous), np.where(ok, command, held), error
+
+    @classmethod
+    def batched(cls, instances: Sequence[Any]) -> _PidRuns:
+        return _PidRuns(instances)
+
+
+class _PidRuns:
+    """K ``PidController`` instances of one design (``Controller.batched``): their states as (K, ·)
+    arrays, stepped by the same ``law`` at once (a reading never had is NaN: ``law`` takes the
+    reading itself then, as it does for a first step)."""
+
+    def __init__(self, instances: Sequence[PidController]) -> None:
+        self.pid = instances[0]
+        self.integral = np.stack([pid.integral for pid in instances])
+        self.previous = np.stack(
+            [pid.previous if pid.previous is not None else np.full(len(pid.integral), np.nan) for pid in instances]
+        )
+        self.u = np.stack([pid.u for pid in instances])
+        model, outputs = self.pid.model, self.pid.params.outputs
+        self.names = [CONTROL_ERROR.named(name) for name in model.outputs]
+        self.loops = [CONTROL_ERROR.named(name) for name in outputs]
+
+    def step(self, y: np.ndarray, t: float, reports: Sequence[Mapping[str, float]]) -> tuple[np.ndarray, dict]:
+        pid = self.pid
+        y = np.asarray(y, dtype=float)[:, pid._y]
+        self.integral, self.previous, self.u[:, pid._u], error = pid.law(
+            y, t, self.integral, self.previous, self.u[:, pid._u]
+        )
+        errors = np.where(np.isfinite(error), error, 0.0)
+        diagnostics = {name: np.zeros(len(y)) for name in self.names}
+        diagnostics |= {name: errors[:, i] for i, name in enumerate(self.loops)}
+        return self.u.copy(), diagnostics
 
 
 #: Controller kinds; each built-in kind's module is imported when the kind is first looked up.

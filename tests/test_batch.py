@@ -55,7 +55,7 @@ def test_the_papers_scenarios_are_batched():
     assert {"masses-bias", "masses-faults-fd", "three-tank-reconciliation", "cdc2016-ex1", "tac2024-s2-p4"} <= batched
     assert {"uio-fault-detection", "vessel-nominal", "vessel-fault-T1-T3"} <= batched  # open and closed loops
     assert "masses-spoofing" in batched  # its attacks, SecOC and detector on the ideal bus (test_batch_bus.py)
-    assert "masses-bus-overload" not in batched and "masses-pid-can" not in batched  # an arbitrated wire
+    assert {"masses-bus-overload", "masses-pid-can"} <= batched  # an arbitrated wire (test_batch_wire.py)
 
 
 @pytest.mark.parametrize(
@@ -215,13 +215,14 @@ def test_runs_of_other_faults_noise_and_inputs_step_together_each_as_alone(monke
         (apply(base, [("faults[0].start", 0.6), ("noise[0].std", 0.01)]), 4),
         (apply(base, [("inputs[0].signal.amplitude", 2.0)]), 5),
         (apply(base, [("estimators[0].params.poles", [0.5, 0.55, 0.6, 0.65])]), 6),  # another design
-        (apply(base, [("bus.timing", "arbitrated")]), 7),  # refused: it runs alone
+        (apply(base, [("bus.timing", "arbitrated")]), 7),  # another bus: another batch
+        (apply(base, [("bus.timing", "arbitrated"), ("bus.fd", True), ("bus.authentication", "secoc")]), 9),  # alone
         (base, 8),
     ]
     runs = run_together(members)
-    assert sizes == [5, 1]  # the poles are a design of the estimator's: another batch
-    assert [bool(run.refused) for run in runs] == [False] * 5 + [True, False]
-    assert runs[5].refused == "its bus timing is arbitrated"
+    assert sizes == [5, 1, 1]  # the poles are a design of the estimator's, the wire the bus's: other batches
+    assert [bool(run.refused) for run in runs] == [False] * 6 + [True, False]
+    assert runs[6].refused == "its frames are authenticated (SecOC) on an arbitrated wire"
     for (loaded, seed), run in zip(members, runs):
         if not run.refused:
             assert run.seed == seed and not run.left
@@ -259,9 +260,10 @@ def test_runs_whose_log_is_kept_run_alone_and_the_campaign_says_why(tmp_path):
     assert result.batched == 0 and len(list((tmp_path / "o" / "logs").glob("*.mcap"))) == 4
     assert result.alone == {"its log is kept (--keep-logs all)": 4}
     wired = SWEEP.replace('"masses-bias"', '"masses-bus-overload"').replace("seeds = 5", "seeds = 2")
-    (tmp_path / "s.toml").write_text(wired.split("[[axes]]")[0])
+    secured = wired.replace("duration = 1.0\n", 'duration = 1.0\n"bus.fd" = true\n"bus.authentication" = "secoc"\n')
+    (tmp_path / "s.toml").write_text(secured.split("[[axes]]")[0])
     result = run_campaign(load_campaign(tmp_path / "s.toml"), tmp_path / "s", engine="inline", keep_logs="none")
-    assert result.alone == {"its bus timing is arbitrated": 2}
+    assert result.alone == {"its frames are authenticated (SecOC) on an arbitrated wire": 2}
 
 
 def smaller(name, folder):

@@ -300,12 +300,22 @@ class Client:
 
     def feed(self, frame: can.Message) -> list[TickFrames]:
         """Take one frame from the bus; returns the ticks it completes."""
-        if frame.is_extended_id or frame.arbitration_id not in self._wanted:
+        if not self.wants(frame):
             return []
         try:
             decoded = self.codec.decode(frame)
         except CodecError:
             return []  # not decodable: someone else's frame with a clashing id
+        return self.take(frame, decoded)
+
+    def wants(self, frame: can.Message) -> bool:
+        """Whether ``frame`` concerns this participant, by its id (it is not decoded otherwise)."""
+        return not frame.is_extended_id and frame.arbitration_id in self._wanted
+
+    def take(self, frame: can.Message, decoded: Decoded | None) -> list[TickFrames]:
+        """A frame it ``wants``, with what the codec decodes from it (None: nothing of the run's
+        database, or not decodable), as ``feed`` takes it: the ticks it completes (a batch hands a
+        run's node each frame decoded once for all its nodes: ``cosim.campaign.batch_wire``)."""
         if decoded is None or decoded.spec.sender == self.name:  # unknown id, or our own frame back
             return []
         if decoded.spec.role in (SYNC, NMT, HEARTBEAT):

@@ -18,18 +18,22 @@ sensor and command frames' values as the frames carry them), its estimates as it
 carry them (saturated at their signal's range, quantized), and the truth they are scored against.
 On the in-process ideal bus without bus faults, a run's frames all arrive in their tick, so this is
 the whole of what the bus does to them; where its bus does more (attacks and losses of the
-sensors' frames, SecOC, the intrusion detector) ``cosim.campaign.batch_bus`` gives what it does.
-The frames' counts and the bus load are not computed: a batched run's ``RunMetrics`` holds its
-row's metrics, with the bus's only the detector's and SecOC's scores and the frames lost (a run
-whose log is kept runs alone).
+sensors' frames, SecOC, the intrusion detector) ``cosim.campaign.batch_bus`` gives what it does. On
+an arbitrated wire, ``cosim.campaign.batch_wire`` drives each run's own wire, bus faults, detector
+and nodes' protocol with the frames the run sends alone (each node computes on the tick its own
+client took, and publishes what the batch computed for it), and the scores read the estimators'
+frames the wire delivered. The frames' counts and the bus load are not computed: a batched run's
+``RunMetrics`` holds its row's metrics, with the bus's only the detector's and SecOC's scores and
+the frames lost (a run whose log is kept runs alone).
 
 A run that would not end as a completed run of the batch (a value outside its signal's range, an
 estimate that is not a number, an estimator that raises, a non-finite input or state) leaves the
 batch at that tick and is run again alone, through the whole run (``RunPlan``, ``Session``, nodes):
 it then ends exactly as it ends alone, and the others go on. A plan the batch cannot express
 (``refusal``: node processes, an FMU plant, a controller without a linear model, clients,
-realtime; and ``batch_bus.refusal``: arbitrated timing, bus faults a batch does not emulate, SecOC
-or the detector in a closed loop, other traffic) runs every run alone.
+realtime; ``batch_bus.refusal``: on the ideal bus, bus faults a batch does not emulate, SecOC or the
+detector in a closed loop, other traffic; ``batch_wire.refusal``: SecOC on an arbitrated wire) runs
+every run alone.
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ from cosim.analysis.metrics.scorer import TickBatch
 from cosim.bus.codec import COMMAND, CONTROLLER, estimated_state
 from cosim.campaign.batch_bus import BusBatch, acts
 from cosim.campaign.batch_bus import refusal as bus_refusal
+from cosim.campaign.batch_wire import WireBatch
 from cosim.errors import CosimError
 from cosim.log.metadata import RESULT, RUN, SCENARIO, ResultRecord, SenderCounts
 from cosim.plant.fmu_model import is_fmu
@@ -115,11 +120,15 @@ class _Run:
         if not self.left:
             self.left = f"tick {k}: {why}"
 
-    def metrics(self, ticks: int, contested: int = 0, missed: int = 0) -> RunMetrics:
+    def metrics(
+        self, ticks: int, contested: int = 0, missed: int = 0, senders: dict[str, SenderCounts] | None = None
+    ) -> RunMetrics:
         """Its metrics after ``ticks`` ticks: ``contested`` of them (intruders' frames without
-        authentication), ``missed`` the runner's frames each node found missing."""
-        senders = {name: SenderCounts(runner_frames_missed=missed) for name in self.plan.senders}
-        lost = missed * len(senders)
+        authentication), ``missed`` the runner's frames each node found missing (or ``senders``:
+        what each node sent, lost and missed, as its runner's traffic counts it)."""
+        if senders is None:
+            senders = {name: SenderCounts(runner_frames_missed=missed) for name in self.plan.senders}
+        lost = sum(c.lost + c.runner_frames_missed for c in senders.values())
         result = ResultRecord(
             "completed", ticks, None, lost, 0, "", senders, {"datagrams": 0, "frames": 0}, contested_ticks=contested
         )
@@ -166,9 +175,15 @@ class _Estimators:
 
     def given(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Its y (K, p) and u (K, m) of tick k, from the tick's readings (K, sensors; NaN where not
-        sent) and commands (K, actuators; those ``commanded`` arrived, the others its node holds)."""
-        given = [i for i in self.inputs if i >= 0 and commanded[i]]
-        self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0 and commanded[i]]] = u_cmd[:, given]
+        sent) and commands (K, actuators; those ``commanded`` arrived, by actuator or (K, actuators)
+        by run, the others its node holds)."""
+        if commanded.ndim == 1:
+            given = [i for i in self.inputs if i >= 0 and commanded[i]]
+            self.u[:, [j for j, i in enumerate(self.inputs) if i >= 0 and commanded[i]]] = u_cmd[:, given]
+        else:
+            for j, i in enumerate(self.inputs):
+                if i >= 0:
+                    self.u[:, j] = np.where(commanded[:, i], u_cmd[:, i], self.u[:, j])
         ys = np.stack([y[:, i] if i >= 0 else np.full(len(y), np.nan) for i in self.outputs], axis=1)
         return ys, self.u.copy()
 
@@ -176,9 +191,9 @@ class _Estimators:
         """The values its frames carry of its ``estimate``, (K, signals), in ``signals`` order."""
         self.failed = estimate.failed
         columns = [estimate.x[:, self.states[s]] if s in self.states else estimate.diagnostics[s] for s in self.signals]
-        values = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(estimate.x), 0))
+        self.raw = np.stack(columns, axis=1).astype(float) if columns else np.zeros((len(estimate.x), 0))
         # sent at the bound it crossed (the node saturates), and as the frame carries it
-        return self.as_carried(np.minimum(np.maximum(values, self.lower), self.upper))
+        return self.as_carried(np.minimum(np.maximum(self.raw, self.lower), self.upper))
 
 
 class _Stepped:
@@ -190,13 +205,14 @@ class _Stepped:
         self.members = list(members)
         self.batch: BatchStep = batch_of([instance for member in members for instance in member.instances])
 
-    def step(self, y: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray) -> list[np.ndarray]:
-        """Each member's values of tick k (``_Estimators.carried``), in order."""
-        given = [member.given(y, u_cmd, commanded) for member in self.members]
+    def step(self, inputs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+        """Each member's values of tick k (``_Estimators.carried``), in order, from its ``inputs``:
+        its readings, commands and which came (``_Estimators.given``)."""
+        given = [member.given(*each) for member, each in zip(self.members, inputs, strict=True)]
         if len(given) == 1:
             return [self.members[0].carried(self.batch.step(*given[0]))]
         estimate = self.batch.step(np.concatenate([ys for ys, _ in given]), np.concatenate([u for _, u in given]))
-        runs = len(y)
+        runs = len(given[0][0])
         return [member.carried(_rows(estimate, j * runs, runs)) for j, member in enumerate(self.members)]
 
     @staticmethod
@@ -240,6 +256,7 @@ class _Controller:
         self.command_inputs = [list(model.inputs).index(c.name) for c in channels]  # the node's _inputs
         self.columns = [actuators.index(c.name) for c in channels]
         self.status_signals = [signal for m in self.status for signal in m.signals]
+        self.signals = [signal for m in commands for signal in m.signals] + self.status_signals  # as in ``raw``
         self.carried = codec.carried_of(commands)
         self.command_range = _range(commands)
         self.status_range = _range(self.status)
@@ -248,24 +265,17 @@ class _Controller:
         self.t = s.sample_time
 
     def step(
-        self,
-        k: int,
-        readings: np.ndarray,
-        report: tuple[list[str], np.ndarray] | None,
-        runs: Sequence[_Run],
-        alive: np.ndarray,
+        self, k: int, readings: np.ndarray, given: list[dict[str, float]], runs: Sequence[_Run], alive: np.ndarray
     ) -> np.ndarray:
-        """Tick k's commands by actuator (K, actuators; the others NaN); a run whose controller
-        raises or asks for what its frames cannot carry leaves the batch."""
+        """Tick k's commands by actuator (K, actuators; the others NaN), from each run's readings and
+        the diagnosis node's report it has (``given``); a run whose controller raises or asks for
+        what its frames cannot carry leaves the batch. ``raw``: its commands and status, by ``signals``."""
         found = np.full((len(runs), len(self.commanded)), np.nan)
         u = np.zeros((len(runs), len(self.columns)))
         status = np.zeros((len(runs), len(self.status_signals)))
         t = k * self.t  # the tick's time as its node has it (the tick counter times the sample time)
         ys = np.stack([readings[:, i] if i >= 0 else np.full(len(runs), np.nan) for i in self.outputs], axis=1)
         ys = np.where(alive[:, None], ys, 0.0)
-        given: list[dict[str, float]] = (
-            [{} for _ in runs] if report is None else [dict(zip(report[0], row)) for row in report[1].tolist()]
-        )
         if self.batch is not None:
             try:
                 commands, diagnostics = self.batch.step(ys, t, given)
@@ -286,6 +296,7 @@ class _Controller:
                 alive[r] = False
         _leave_outside(k, alive, u, self.command_range, runs, "a command outside its signal's range")
         _leave_outside(k, alive, status, self.status_range, runs, "a controller status outside its signal's range")
+        self.raw = np.concatenate([u, status], axis=1)
         found[:, self.columns] = self.carried(np.where(alive[:, None], u, 0.0))
         return found
 
@@ -382,14 +393,21 @@ class _Batch:
         self.stepped = _Stepped.of(self.estimators)
         self.controller = _Controller(plans, s.sensors, s.actuators) if plan.controller is not None else None
         self.report: tuple[list[str], np.ndarray] | None = None  # the diagnosis node's last values
+        self.state_names = plan.state_names
         self.held = np.stack([run.source.u_cmd for run in self.runs])  # what the actuators hold
         self.scores = TickBatch(
             [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
         )
         self.raw_commands = np.zeros((len(plans), len(s.actuators)))  # an open loop's, as its input signals give them
+        scorers = [run.scoring.scorer for run in self.runs]
+        self.wire = (
+            WireBatch(plans, scorers, self.sensor_specs, self.command_specs, self._leave)
+            if s.bus.timing == "arbitrated"
+            else None
+        )
         self.bus = (
             BusBatch(plans, self.sensor_specs, self.command_specs, [e.messages for e in self.estimators], self._leave)
-            if acts(plan)
+            if acts(plan) and self.wire is None
             else None
         )
         self.disturbance = PlantSource.disturbances_of([run.source for run in self.runs])
@@ -402,21 +420,28 @@ class _Batch:
         s, runs = self.scenario, self.runs
         ticks = s.ticks
         alive = np.ones(len(runs), dtype=bool)
-        for k in range(ticks):
-            if not alive.any():
-                break
-            self._tick(k, alive)
-            if on_tick is not None:
-                on_tick(k + 1, ticks)
-        bus = self.bus
-        return [
-            BatchedRun(run.seed, left=run.left)
-            if run.left
-            else BatchedRun(
-                run.seed, run.metrics(ticks, *((int(bus.contested[r]), int(bus.missed[r])) if bus is not None else ()))
-            )
-            for r, run in enumerate(runs)
-        ]
+        try:
+            for k in range(ticks):
+                if not alive.any():
+                    break
+                self._tick(k, alive)
+                if on_tick is not None:
+                    on_tick(k + 1, ticks)
+            return [
+                BatchedRun(run.seed, left=run.left) if run.left else BatchedRun(run.seed, self._metrics(r, ticks))
+                for r, run in enumerate(runs)
+            ]
+        finally:
+            if self.wire is not None:
+                self.wire.close()
+
+    def _metrics(self, r: int, ticks: int) -> RunMetrics:
+        """Run r's metrics after its last tick, with what its bus counted."""
+        bus, wire, run = self.bus, self.wire, self.runs[r]
+        if wire is not None:
+            contested, senders = wire.finish(r, ticks)
+            return run.metrics(ticks, contested, senders=senders)
+        return run.metrics(ticks, *((int(bus.contested[r]), int(bus.missed[r])) if bus is not None else ()))
 
     def _leave(self, r: int, k: int, why: str) -> None:
         self.runs[r].leave(k, why)
@@ -432,13 +457,16 @@ class _Batch:
         carried = self.sensors_carried(np.where(sent, measured, 0.0))
         readings = np.where(sent, carried, np.nan)
         self._check(k, alive, x, None, "a state that is not finite")
+        if self.wire is not None:
+            self._tick_wire(k, t, x, measured, sent, active, alive)
+            return
         u_cmd, commanded = self._commands(k, t, readings, alive)
         bus = self.bus
         if bus is not None:  # what the nodes take of the runner's frames, and what the bus's schemes see
             active = [(*a, *b) for a, b in zip(active, bus.active(t))]
             ranges = (self.sensor_range, self.command_range)
             readings = bus.runner(k, measured, sent, carried, self.raw_commands, u_cmd, ranges, alive)
-        values = self._estimates(k, readings, u_cmd, commanded, alive)
+        values = self._estimates(k, [(readings, u_cmd, commanded)] * len(self.estimators), alive)
         if values is None:
             return
         rows = np.flatnonzero(alive)
@@ -479,20 +507,52 @@ class _Batch:
             self.raw_commands = commands
             u_cmd, commanded = self.commands_carried(commands), np.ones(len(self.actuators), dtype=bool)
         else:
-            u_cmd, commanded = self.controller.step(k, readings, self.report, runs, alive), self.controller.commanded
+            report = self.report
+            given = [{} for _ in runs] if report is None else [dict(zip(report[0], r)) for r in report[1].tolist()]
+            u_cmd, commanded = self.controller.step(k, readings, given, runs, alive), self.controller.commanded
         self.held = np.where(commanded, u_cmd, self.held)
         return self.held, commanded
 
+    def _tick_wire(
+        self, k: int, t: float, x: np.ndarray, measured: np.ndarray, sent: np.ndarray, active: list, alive: np.ndarray
+    ) -> None:
+        """Tick k on the runs' arbitrated buses (``batch_wire``): each node computes on what its own
+        tick brought it, and its answers go on its run's wire."""
+        wire, controller = self.wire, self.controller
+        assert wire is not None
+        if controller is None:
+            self._commands(k, t, measured, alive)  # the input signals, as given and as their frames carry them
+        wire.send(k, measured, sent, self.raw_commands, alive)
+        if controller is not None:
+            ticks, readings, _ = wire.inputs(k, CONTROLLER, alive)
+            given = [tick.upstream.get(controller.diagnosis, {}) if tick is not None else {} for tick in ticks]
+            u = controller.step(k, readings, given, self.runs, alive)
+            wire.answer(CONTROLLER, ticks, controller.signals, controller.raw, alive, saturate=False)
+            self.held = np.where(controller.commanded, u, self.held)
+        taken = [wire.inputs(k, e.name, alive) for e in self.estimators]
+        values = self._estimates(k, [(y, np.nan_to_num(u), ~np.isnan(u)) for _, y, u in taken], alive)
+        if values is None:
+            return
+        for e, (ticks, _, _) in zip(self.estimators, taken):
+            wire.answer(e.name, ticks, e.signals, e.raw, alive, saturate=True)
+        rows = np.flatnonzero(alive)
+        wire.truth(k, x, self.state_names, [(*a, *b) for a, b in zip(active, wire.active(t))], rows.tolist())
+        self._advance(k, t, rows, self.held, alive)
+
     def _estimates(
-        self, k: int, readings: np.ndarray, u_cmd: np.ndarray, commanded: np.ndarray, alive: np.ndarray
+        self, k: int, inputs: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], alive: np.ndarray
     ) -> list[np.ndarray] | None:
-        """Each estimator's signals of tick k as its frames carry them (None: every run left)."""
+        """Each estimator's signals of tick k as its frames carry them, from its ``inputs``: its
+        readings, commands and which came (``_Stepped.step``); None: every run left."""
         runs = self.runs
         try:
-            y = np.where(alive[:, None], readings, 0.0)
-            found = {
-                e.name: v for group in self.stepped for e, v in zip(group.members, group.step(y, u_cmd, commanded))
+            given = {
+                e.name: (np.where(alive[:, None], readings, 0.0), u_cmd, commanded)
+                for e, (readings, u_cmd, commanded) in zip(self.estimators, inputs, strict=True)
             }
+            found: dict[str, np.ndarray] = {}
+            for group in self.stepped:
+                found.update(zip((e.name for e in group.members), group.step([given[e.name] for e in group.members])))
             values = [found[e.name] for e in self.estimators]
         except Exception as error:  # noqa: BLE001 (an estimator's own code: every run goes alone, as each ends alone)
             for r in np.flatnonzero(alive):

@@ -22,9 +22,10 @@ runner's, and on arrays where it is:
 - a tick with an intruder's frame on the runner's ids is contested unless the bus authenticates
   (``contests``), as ``Traffic.injected`` has it.
 
-What a batch does not emulate it refuses (``refusal``): an arbitrated wire, bus faults other than
+What a batch does not emulate on the ideal bus it refuses (``refusal``): bus faults other than
 ``SUPPORTED`` or acting on other frames than the sensors', bus faults in a closed loop, SecOC or
-the detector in a closed loop, other traffic.
+the detector in a closed loop, other traffic. An arbitrated wire is ``cosim.campaign.batch_wire``'s
+(every bus fault, open and closed loops, the detector, background traffic; it refuses SecOC).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from cosim.analysis.metrics.scorer import BusVerdicts
 from cosim.bus.client import TickAssembler, TickFrames
 from cosim.bus.codec import COMMAND, SENSOR, Decoded, MessageSpec
 from cosim.bus.secoc import SecOC
+from cosim.campaign.batch_wire import refusal as wire_refusal
 from cosim.errors import CodecError, CosimError
 from cosim.log.topics import SecurityRejection
 from cosim.run.busfaults import BusFaultStage, Frame
@@ -54,13 +56,15 @@ the sensors' frames."""
 
 
 def refusal(plan: RunPlan) -> str | None:
-    """Why a batch cannot give the bus of ``plan``'s runs (None: it can, or it only carries frames)."""
+    """Why a batch cannot give the bus of ``plan``'s runs (None: it can, or it only carries frames);
+    an arbitrated wire's are ``cosim.campaign.batch_wire``'s."""
     s = plan.scenario
+    if s.bus.timing == "arbitrated":
+        return wire_refusal(plan)
     models = build_bus_faults(s)
     other = sorted({model.kind for model in models} - set(SUPPORTED))
     sensors = {plan.codec.sensor(name).name for name in s.sensors}
     reasons = [
-        (s.bus.timing != "ideal", "its bus timing is arbitrated"),
         (bool(other), f"its bus faults {', '.join(other)} act on frames in ways a batch does not emulate"),
         (any(set(m.targets()) - sensors for m in models), "its bus faults act on frames other than the sensors'"),
         (bool(models) and plan.controller is not None, "its bus faults act in a closed loop"),

@@ -154,6 +154,9 @@ class Arbitration:
             for message in source.frames(t_ns, deadline):
                 queued = round(message.timestamp * 1e9)
                 wire.offer(self._wire_frame((message, None), queued, queued + source.period_ns, source.name))
+        # what starts before t_k is decided: no frame offered from here on is queued before it, so
+        # the plan (and the wire) goes on from there, without simulating those passages twice
+        early = wire.run(t_ns)
         data = frames[1:]
         sync, inputs, planned = self._plan(k, data, t_ns, deadline)
         for frame in [sync, *data]:
@@ -163,7 +166,7 @@ class Arbitration:
             self._inputs_ns = deadline
         else:
             self._inputs_ns = max([sync_at, *(p.delivered_ns for p in planned if id(p.frame.payload) in inputs)])
-        passed = wire.run(min(self._inputs_ns, deadline))
+        passed = early + wire.run(min(self._inputs_ns, deadline))
         now = [frame for frame in data if id(frame) in inputs]
         self._on_channel.update(inputs)
         self._runner.update(id(frame) for frame in data)

@@ -115,16 +115,20 @@ class IntrusionDetector:
 
     def publish(self, recorder: RunRecorder, until: int, dt: float) -> None:
         """Write the verdicts of the ticks before ``until`` (their frames are all logged)."""
+        for tick, checks, ids in self.verdicts(until):
+            recorder.ids(tick, tick * dt, tick * self.dt_ns, checks, ids)
+
+    def verdicts(self, until: int) -> list[tuple[int, dict[str, int], list[int]]]:
+        """The verdicts of the ticks before ``until`` not given yet, each (tick, the ids each of
+        ``IDS_CHECKS`` raised on, counted; those ids): what ``publish`` writes (a batch's run, which
+        logs nothing, scores them: ``cosim.campaign.batch_wire``)."""
+        found = []
         for tick in range(self._published, until):
             alarms: dict[str, set[int]] = self._alarms.pop(tick, {})
-            recorder.ids(
-                tick,
-                tick * dt,
-                tick * self.dt_ns,
-                {check: len(alarms.get(check, ())) for check in IDS_CHECKS},
-                sorted({i for ids in alarms.values() for i in ids}),
-            )
+            checks = {check: len(alarms.get(check, ())) for check in IDS_CHECKS}
+            found.append((tick, checks, sorted({i for ids in alarms.values() for i in ids})))
         self._published = max(self._published, until)
+        return found
 
 
 class DetectorRuns:

@@ -123,6 +123,20 @@ def _create(create: Callable[..., T], spec: NodeSpec, what: str) -> T:
         raise CosimError(f"{what}: params.{error}") from None
 
 
+def node_client(spec: NodeSpec, codec: Codec, bus: can.BusABC, name: str) -> Client:
+    """The client named ``name`` a node of ``spec`` puts on ``bus``: its sample time, the nodes it
+    listens to, its keys (a batch drives a run's nodes through the same: ``cosim.campaign.batch_wire``)."""
+    return Client(
+        name,
+        codec,
+        bus,
+        sample_time=spec.sample_time,
+        upstream=spec.upstream,
+        secoc=spec.secoc(codec),
+        control=spec.control(codec),
+    )
+
+
 class _Node(ABC):
     """A participant answering each tick on a bus through its ``client``: ``answer`` publishes its
     frames for the tick and closes it with the heartbeat."""
@@ -141,15 +155,7 @@ class _Node(ABC):
         """Read the spec's database and put a client named ``name`` on ``bus``."""
         self.spec = spec
         self.codec = Codec.from_dbc(spec.dbc)
-        self.client = Client(
-            name,
-            self.codec,
-            bus,
-            sample_time=spec.sample_time,
-            upstream=spec.upstream,
-            secoc=spec.secoc(self.codec),
-            control=spec.control(self.codec),
-        )
+        self.client = node_client(spec, self.codec, bus, name)
         self.ticks = 0
 
     def _publish(self, tick: TickFrames, values: dict[str, float], saturate: bool = False) -> None:

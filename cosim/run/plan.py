@@ -436,37 +436,39 @@ class RunPlan:
             commands=closed_loop,
             registration=registration,
             sink=sink,
-            arbitration=(
-                Arbitration(
-                    self.codec,
-                    s.bus.bitrate,
-                    s.bus.data_bitrate,
-                    s.dt_ns,
-                    build_traffic(s, [f for f in bus_faults if isinstance(f, fm.BabblingNode)]),
-                    authenticated=self.authenticated,
-                )
-                if s.bus.timing == "arbitrated"
-                else None
-            ),
-            bus_faults=(
-                BusFaultStage(
-                    self.codec,
-                    bus_faults,
-                    s.seed,
-                    s.dt_ns,
-                    s.bus.bitrate,
-                    s.bus.timing == "arbitrated",
-                    authenticated=self.authenticated,
-                )
-                if bus_faults
-                else None
-            ),
+            arbitration=self.arbitration(bus_faults),
+            bus_faults=self.bus_fault_stage(bus_faults),
             secoc=self.secoc(),
             control=self.control(),
-            detector=IntrusionDetector(self.codec, s.dt_ns, frozenset(t.id for t in s.bus.traffic))
-            if s.bus.intrusion_detector
-            else None,
+            detector=self.intrusion_detector(),
         )
+
+    def arbitration(self, bus_faults: list[fm.BusFault]) -> Arbitration | None:
+        """A run's simulated wire (arbitrated timing; None: ideal), its babbling nodes among
+        ``bus_faults`` (``build_bus_faults``, the list its stage gets) on it."""
+        s = self.scenario
+        if s.bus.timing != "arbitrated":
+            return None
+        babblers = [f for f in bus_faults if isinstance(f, fm.BabblingNode)]
+        traffic = build_traffic(s, babblers)
+        return Arbitration(self.codec, s.bus.bitrate, s.bus.data_bitrate, s.dt_ns, traffic, self.authenticated)
+
+    def bus_fault_stage(self, bus_faults: list[fm.BusFault]) -> BusFaultStage | None:
+        """A run's bus faults between the runner and the receivers (None: it has none)."""
+        s = self.scenario
+        if not bus_faults:
+            return None
+        arbitrated = s.bus.timing == "arbitrated"
+        return BusFaultStage(
+            self.codec, bus_faults, s.seed, s.dt_ns, s.bus.bitrate, arbitrated, authenticated=self.authenticated
+        )
+
+    def intrusion_detector(self) -> IntrusionDetector | None:
+        """A run's key-less intrusion detector (None: ``[bus] intrusion_detector`` is off)."""
+        s = self.scenario
+        if not s.bus.intrusion_detector:
+            return None
+        return IntrusionDetector(self.codec, s.dt_ns, frozenset(t.id for t in s.bus.traffic))
 
     def run_record(self, start_time_ns: int | None = None) -> RunRecord:
         """The log's ``cosim.run`` record; ``start_time_ns``: the run's wall-clock start (UTC, ns)."""

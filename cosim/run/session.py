@@ -318,7 +318,7 @@ class Session:
                 self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
-        self._sign_control(k, frames, applied)
+        sign_control(self.control, k, frames, applied)
         if applied is not None and applied.intruders:
             self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
         if self.secoc is not None:  # the runner hears these too: intruders' frames fail
@@ -343,15 +343,6 @@ class Session:
             if applied is not None and id(item) in applied.intruders:
                 self._intruder(item[0], applied.intruders[id(item)])
         self._verdicts(k)
-
-    def _sign_control(self, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None) -> None:
-        """Sign the runner's control frames of tick k (a simulated intruder's stay as it forged them)."""
-        if self.control is None:
-            return
-        intruders = applied.intruders if applied is not None else {}
-        for item in frames:
-            if id(item) not in intruders:
-                self.control.sign(item[0], k)
 
     def _bus_faults(self, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> Applied | None:
         """Tick k's frames through the bus faults; what they did goes to /truth/bus_faults."""
@@ -414,7 +405,7 @@ class Session:
         step = self.arbitration.tick(
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
-        self._sign_control(k, step.send, applied)  # timed on the wire with the MAC at 0: the key changes no timing
+        sign_control(self.control, k, step.send, applied)  # timed on the wire with the MAC at 0: no key changes timing
         self.traffic.sent([frame for frame, _ in step.send])
         send_all(self.bus, [frame for frame, _ in step.send])
         t, t_ns = self.time(k)
@@ -595,3 +586,15 @@ class Session:
             for frame in drain(self.bus, min(0.02, end - now)):
                 traffic(frame)
                 quiet_until = time.perf_counter() + 0.1
+
+
+def sign_control(
+    control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None
+) -> None:
+    """Sign the runner's control frames of tick k (a simulated intruder's stay as it forged them)."""
+    if control is None:
+        return
+    intruders = applied.intruders if applied is not None else {}
+    for item in frames:
+        if id(item) not in intruders:
+            control.sign(item[0], k)

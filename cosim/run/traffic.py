@@ -44,7 +44,7 @@ class Traffic(can.Listener):
     def __init__(
         self,
         codec: Codec,
-        recorder: RunRecorder,
+        recorder: RunRecorder | None,
         own_senders: tuple[str, ...],
         commands: bool = False,
         echoes: bool = False,
@@ -52,13 +52,13 @@ class Traffic(can.Listener):
         secoc: SecOC | None = None,
         on_rejected: Callable[[can.Message, Rejection], None] | None = None,
         control: ControlAuth | None = None,
+        deliver: Callable[[int, float, int, can.Message, Decoded | None], None] | None = None,
     ) -> None:
         self.codec = codec
         # Control frames' MACs and SecOC: every node's frame is verified on arrival (the runner's
         # own, at sending); a rejected one is logged as it came, never used or counted as its sender's
         self.secoc, self.control, self._on_rejected = secoc, control, on_rejected
         self.rejected = 0
-        self.recorder = recorder
         self.pending: list[tuple[can.Message, Decoded | None]] = []  # arrival order
         self.closed: dict[str, int] = {}  # node -> last tick whose heartbeat arrived
         self.joined: set[str] = set()
@@ -87,8 +87,12 @@ class Traffic(can.Listener):
         self._on_foreign = on_foreign
         self.current = 0  # the tick whose frames the runner sent last
         self._distrusted: set[int] = set()  # pending frames found foreign on arrival: logged raw, never counted
-        #: Where ``flush`` puts a tick's frames: the log, or, on an arbitrated bus, the wire (which logs them).
-        self.deliver: Callable[[int, float, int, can.Message, Decoded | None], None] = recorder.frame
+        #: Where ``flush`` puts a tick's frames: the log, or, on an arbitrated bus, the wire (which logs them);
+        #: a batch's run (``cosim.campaign.batch_wire``), which logs nothing, gives its wire alone.
+        found = deliver or (recorder.frame if recorder is not None else None)
+        if found is None:
+            raise ValueError("Traffic needs a recorder or where to deliver the frames it flushes")
+        self.deliver: Callable[[int, float, int, can.Message, Decoded | None], None] = found
 
     def sent(self, frames: list[can.Message]) -> None:
         """The runner sent these (one tick's): their echoes are its own, anything else on its ids is not."""

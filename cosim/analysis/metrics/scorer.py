@@ -201,28 +201,45 @@ class Scorer:
     def _part(self, topic: str, log_time: int, msg: dict[str, Any], dt_ns: int) -> None:
         if topic == STATE:
             state = TruthState.read(msg)
-            k = int(state.tick)
-            self._tick(k).x = state.values
+            self.state(int(state.tick), state.values)
         elif topic == FAULTS:
             faults = TruthFaults.read(msg)
-            k = int(faults.tick)
-            self._tick(k).active = list(faults.active)
+            self.faults(int(faults.tick), list(faults.active))
         elif topic == IDS and self.ids:
             verdict = IntrusionVerdict.read(msg)
-            k = int(verdict.tick)
-            checks = {check: float(count > 0) for check, count in verdict.checks().items()}
-            self._tick(k).ids = {"any": float(bool(verdict.alarm))} | checks
+            self.verdict(int(verdict.tick), bool(verdict.alarm), verdict.checks())
         elif topic in self.owner:
             signals = Signals.read(msg, log_time // dt_ns)
-            k = signals.tick
-            if k < self.next_tick:
-                self.late += 1
-                return
-            self._tick(k).estimates[self.owner[topic]].update(signals.values)
-        else:
+            self.estimate(self.owner[topic], signals.tick, signals.values)
+
+    # a tick's parts, as the log's messages give them (a batched run that logs nothing hands them
+    # itself, in the order its log would hold them: ``cosim.campaign.batch_wire``)
+
+    def state(self, k: int, x: dict[str, Any]) -> None:
+        """The truth's state of tick k (``/truth/state``), by state."""
+        self._tick(k).x = x
+        self._counted(k)
+
+    def faults(self, k: int, active: list[str]) -> None:
+        """The faults active at tick k (``/truth/faults``), by label."""
+        self._tick(k).active = active
+        self._counted(k)
+
+    def verdict(self, k: int, alarm: bool, checks: Mapping[str, int]) -> None:
+        """The intrusion detector's verdict on tick k (``/cosim/ids``): its alarm, each check's ids."""
+        self._tick(k).ids = {"any": float(alarm)} | {check: float(count > 0) for check, count in checks.items()}
+        self._counted(k)
+
+    def estimate(self, name: str, k: int, values: dict[str, Any]) -> None:
+        """One of estimator ``name``'s frames of tick k, its decoded signals (``/can/<message>``)."""
+        if k < self.next_tick:
+            self.late += 1
             return
-        tick = self.pending[k]
-        tick.parts += 1
+        self._tick(k).estimates[name].update(values)
+        self._counted(k)
+
+    def _counted(self, k: int) -> None:
+        self.pending[k].parts += 1
         self.newest = max(self.newest, k)
         self._drain(self.newest - WINDOW)
 

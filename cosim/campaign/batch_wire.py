@@ -1,0 +1,310 @@
+"""The arbitrated in-process bus of a batch (``[bus] timing = "arbitrated"``): each run's own wire,
+bus faults, nodes' protocol and intrusion detector, fed tick by tick with exactly the frames the run
+puts on its bus alone.
+
+Alone, an arbitrated in-process run (``cosim.run.session.Session._send_arbitrated``) sends, at each
+tick k, the runner's frames through its ``BusFaultStage`` onto its ``Arbitration``, whose wire also
+carries the nodes' answers to tick k − 1 (as its ``Traffic`` heard them, in canonical order) and the
+periodic traffic (``[[bus.traffic]]``, babbling nodes); the frames the wire lets through in their
+tick go on the in-process channel with SYNC(k) announcing them, the late ones after, and each node
+takes what it needs (``Client.feed``: its ``TickAssembler``, SYNC's and upstream heartbeats' MACs).
+What the wire delivers is logged at its delivery time: the intrusion detector checks it there, and
+the scores read the estimators' frames from there.
+
+A batch keeps, per run, those very objects (``_RunWire``, built as ``RunPlan.session`` builds them)
+and drives them as the session does: the runner's frames (``runner_frames``) through the stage,
+``Arbitration.tick``, the control frames signed (``sign_control``), the frames on an in-process
+channel of the run's own. Each node is its ``Client`` on that channel (``node_client``, its keys
+and upstream from its ``NodeSpec``): it takes its tick as alone (which readings, which commands,
+late frames and second copies, what its heartbeat counts as missed), then publishes what the batch
+computed for it on arrays (``Client.publish``, ``done``: its frames, saturated or not, and its
+heartbeat), which the run's ``Traffic`` hears, counts and hands to the wire at the next tick. The
+wire's deliveries go to the run's ``IntrusionDetector`` and, for the estimators' frames, to its
+``Scorer`` (``Scorer.estimate``, ``verdict``, ``state``, ``faults``), in the order its log would
+hold them: a frame the wire replaced never reaches the scores, as alone.
+
+Not built, as a batched run builds no log: the frames' and passages' records, the bus load, the
+foreign frames' records. A run whose nodes would not complete a tick, or whose runner would reject
+a node's frame, leaves the batch (and runs alone).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import can
+import numpy as np
+import orjson
+
+from cosim.analysis.metrics.scorer import Scorer
+from cosim.bus.client import Client, TickFrames
+from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded, MessageSpec
+from cosim.bus.secoc import Rejection
+from cosim.bus.transport import allocate, drain, open_bus, send_all
+from cosim.bus.wire import Transmission
+from cosim.errors import CodecError, CosimError
+from cosim.log.metadata import SenderCounts
+from cosim.log.topics import Signals, message_topic
+from cosim.log.writer import dumps
+from cosim.run.arbitration import Arbitration
+from cosim.run.loop import runner_frames
+from cosim.run.node import node_client
+from cosim.run.plan import RunPlan
+from cosim.run.session import sign_control
+from cosim.run.traffic import Traffic
+from cosim.scenario.faults import build_bus_faults
+
+Frame = tuple[can.Message, Decoded | None]
+_SIGNED = (SYNC, NMT, HEARTBEAT)  # the control frames: their MAC is written when they are sent
+
+
+def refusal(plan: RunPlan) -> str | None:
+    """Why a batch cannot give the arbitrated bus of ``plan``'s runs (None: it can)."""
+    if plan.authenticated:
+        return "its frames are authenticated (SecOC) on an arbitrated wire"
+    return None
+
+
+class _RunWire:
+    """One run's bus in a batch: its wire, bus faults, detector, runner's traffic and nodes' clients."""
+
+    def __init__(self, plan: RunPlan, scorer: Scorer) -> None:
+        s = plan.scenario
+        self.codec, self.dt_ns, self.scorer = plan.codec, s.dt_ns, scorer
+        models = build_bus_faults(s)  # one list for both, as the session has it
+        arbitration = plan.arbitration(models)
+        assert arbitration is not None
+        self.arbitration: Arbitration = arbitration
+        self.stage = plan.bus_fault_stage(models)
+        self.detector = plan.intrusion_detector()
+        self.control = plan.control()
+        self.rejected = ""
+        config = allocate("virtual")  # a channel of its own
+        self.bus = open_bus(config)
+        self.traffic = Traffic(
+            self.codec,
+            None,
+            plan.own_senders,
+            plan.controller is not None,
+            on_foreign=self._foreign,
+            on_rejected=self._rejected,
+            control=self.control,
+            deliver=self._logged,
+        )
+        names = [*plan.estimators, *([CONTROLLER] if plan.controller is not None else [])]
+        self.nodes: dict[str, Client] = {}
+        for name in names:
+            self.nodes[name] = node_client(plan.node_spec(name, config), self.codec, open_bus(config), name)
+            self.nodes[name].join()
+        self._hear()
+        self.traffic.flush(0, 0.0, 0)  # the boot-ups, as the session logs them when its nodes have joined
+        self.traffic.deliver = self.arbitration.answer  # from tick 0 on, what the runner hears goes over the wire
+        self.marker = 0  # the tick whose heard frames are still to be handed on (``Session._marker``)
+        self.decoded: dict[int, Frame] = {}  # the frames on the run's channel in this tick, decoded, by id()
+
+    def send(self, k: int, frames: list[Frame]) -> None:
+        """Tick k's frames of the runner (SYNC first) onto the wire, as ``Session.send`` sends them on
+        an arbitrated bus; what the wire lets through goes on the run's channel."""
+        applied = self.stage.apply(k, frames) if self.stage is not None else None
+        if applied is not None:
+            frames = applied.frames
+            if applied.intruders:
+                self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
+        self._hear()
+        self.traffic.current = k
+        self.traffic.flush(self.marker, 0.0, 0)  # the answers to tick k − 1 onto the wire
+        step = self.arbitration.tick(
+            k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
+        )
+        sign_control(self.control, k, step.send, applied)
+        # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
+        # just now, is decoded as it is sent): decoded once for all the run's nodes
+        self.decoded = {id(item[0]): item for item in step.send if item[1] is None or item[1].spec.role not in _SIGNED}
+        send_all(self.bus, [frame for frame, _ in step.send])
+        self.marker = k
+        self._passages(step.passed)
+        self._verdicts(k)
+
+    def take(self, name: str) -> list[TickFrames]:
+        """The ticks node ``name`` completes with what its channel brought (as ``_Node.service``)."""
+        client = self.nodes[name]
+        return [
+            tick
+            for frame in drain(client.bus, limit=sys.maxsize)
+            if client.wants(frame)
+            for tick in client.take(frame, self._decode(frame))
+        ]
+
+    def _decode(self, frame: can.Message) -> Decoded | None:
+        """What ``Client.feed`` decodes from ``frame`` (None: nothing of the run's, or not decodable)."""
+        found = self.decoded.get(id(frame))
+        if found is None:
+            try:
+                decoded = self.codec.decode(frame)
+            except CodecError:
+                decoded = None
+            found = self.decoded[id(frame)] = (frame, decoded)  # the frame held: its id stays its own
+        return found[1]
+
+    def publish(self, name: str, tick: TickFrames, values: dict[str, float], saturate: bool) -> None:
+        """Node ``name``'s answer to ``tick``: its frames, then the heartbeat closing it (``_Node._publish``)."""
+        client = self.nodes[name]
+        client.publish(tick, values, saturate=saturate)
+        client.done(tick)
+
+    def truth(self, k: int, x: dict[str, Any], active: list[str]) -> None:
+        """Tick k's truth (its state, the faults active), as ``PlantSource.advance`` logs it."""
+        self.scorer.state(k, x)
+        self.scorer.faults(k, active)
+
+    def finish(self, ticks: int, senders: list[str]) -> tuple[int, dict[str, SenderCounts]]:
+        """The run's end after ``ticks`` ticks (``Session.finish``): the last answers and whatever
+        the wire still holds delivered, the verdicts of every tick given; its contested ticks and
+        what each of ``senders`` sent, lost and found missing."""
+        self._hear()
+        self.traffic.flush(self.marker, 0.0, 0)
+        self._passages(self.arbitration.finish())
+        self._verdicts(ticks)
+        return len(self.traffic.contested), self.traffic.sender_counts(ticks, senders, set(self.nodes))
+
+    def close(self) -> None:
+        for client in self.nodes.values():
+            client.bus.shutdown()
+        self.bus.shutdown()
+
+    def _hear(self) -> None:
+        """What the runner's bus holds: into its traffic (``Session.wait``)."""
+        for frame in drain(self.bus, limit=sys.maxsize):
+            self.traffic(frame)
+        self.traffic.commands.clear()  # the plant's commands are the batch's (the controller's, as carried)
+
+    def _logged(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
+        """A frame at its arrival (``Session._log_frame``): the detector sees it; an estimator's
+        frame is a part of its tick's scores, as the scorer reads it from the log."""
+        if self.detector is not None:
+            self.detector.frame(tick, t_ns, frame, decoded)
+        if decoded is None:
+            return
+        topic = message_topic(decoded.spec.name)
+        scorer = self.scorer
+        if topic in scorer.owner and scorer.reads(topic):
+            signals = Signals.read(orjson.loads(dumps(Signals.payload(decoded))), tick)
+            scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
+
+    def _passages(self, passed: list[Transmission]) -> None:
+        """Frames through the wire, at their delivery (``Session._log_passages``)."""
+        for p in passed:
+            if p.dropped is None:
+                message, decoded = p.frame.payload
+                self._logged(p.delivered_ns // self.dt_ns, p.delivered_ns / 1e9, p.delivered_ns, message, decoded)
+
+    def _verdicts(self, until: int) -> None:
+        if self.detector is not None:
+            for tick, checks, _ in self.detector.verdicts(until):
+                self.scorer.verdict(tick, any(checks.values()), checks)
+
+    def _foreign(self, frame: can.Message, reason: str) -> None:
+        if self.detector is not None:  # ``Session._foreign_heard``
+            self.detector.foreign(self.traffic.current, frame)
+
+    def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
+        why = f"the runner rejected a frame of 0x{rejection.frame_id:03X} ({rejection.reason})"
+        self.rejected = self.rejected or why
+
+
+class WireBatch:
+    """The arbitrated buses of K runs of one design (``cosim.campaign.batch._Batch``), tick by tick:
+    ``send`` the runner's frames, ``inputs`` what a node takes of its tick, ``answer`` its frames,
+    ``truth`` the tick's truth for the scores, ``finish`` the end."""
+
+    def __init__(
+        self,
+        plans: Sequence[RunPlan],
+        scorers: Sequence[Scorer],
+        sensor_specs: Sequence[MessageSpec],
+        command_specs: Sequence[MessageSpec],
+        leave: Callable[[int, int, str], None],
+    ) -> None:
+        plan = plans[0]
+        self.codec, self.scenario, self.plan = plan.codec, plan.scenario, plan
+        self.sensor_specs, self.command_specs, self.leave = list(sensor_specs), list(command_specs), leave
+        self.closed = plan.controller is not None
+        self.runs = [_RunWire(each, scorer) for each, scorer in zip(plans, scorers)]
+
+    def active(self, t: float) -> list[tuple[str, ...]]:
+        """Each run's bus faults active at t, by label (what its ``/truth/faults`` adds)."""
+        return [tuple(run.stage.active(t)) if run.stage is not None else () for run in self.runs]
+
+    def send(self, k: int, measured: np.ndarray, sent: np.ndarray, commands: np.ndarray, alive: np.ndarray) -> None:
+        """Tick k's frames of each run alive: its ``measured`` readings that are ``sent``, and in an
+        open loop its ``commands`` (the input signals, as given). A run whose frames its bus cannot
+        carry (a forged value outside its range) leaves the batch."""
+        codec, sensors, actuators = self.codec, self.sensor_specs, [] if self.closed else self.command_specs
+        for r in np.flatnonzero(alive).tolist():
+            run = self.runs[r]
+            try:
+                given = [] if self.closed else commands[r].tolist()
+                run.send(k, runner_frames(codec, k, sensors, measured[r].tolist(), sent[r].tolist(), actuators, given))
+            except (CodecError, CosimError) as error:
+                self._leave(r, k, str(error), alive)
+                continue
+            if run.rejected:
+                self._leave(r, k, run.rejected, alive)
+
+    def inputs(self, k: int, name: str, alive: np.ndarray) -> tuple[list[TickFrames | None], np.ndarray, np.ndarray]:
+        """Node ``name``'s tick k in each run alive (None in the others), with its readings (K,
+        sensors; NaN: missing) and the commands it took (K, actuators; NaN: none came). A run whose
+        node would not complete tick k (alone, the runner would wait for it in vain) leaves."""
+        s = self.scenario
+        ticks: list[TickFrames | None] = [None] * len(self.runs)
+        readings = np.full((len(self.runs), len(s.sensors)), np.nan)
+        commands = np.full((len(self.runs), len(s.actuators)), np.nan)
+        for r in np.flatnonzero(alive).tolist():
+            done = self.runs[r].take(name)
+            if [tick.tick for tick in done] != [k]:
+                why = f"its node {name} would not complete tick {k} (frames announced by SYNC missing)"
+                self._leave(r, k, why, alive)
+                continue
+            tick = ticks[r] = done[0]
+            readings[r] = [tick.sensors.get(sensor, np.nan) for sensor in s.sensors]
+            commands[r] = [tick.commands.get(actuator, np.nan) for actuator in s.actuators]
+        return ticks, readings, commands
+
+    def answer(
+        self,
+        name: str,
+        ticks: Sequence[TickFrames | None],
+        signals: Sequence[str],
+        values: np.ndarray,
+        alive: np.ndarray,
+        saturate: bool,
+    ) -> None:
+        """Node ``name``'s frames of the ticks it completed, ``values`` (K, signals) by ``signals``
+        as it computed them (before saturation and quantization: its client does both)."""
+        for r in np.flatnonzero(alive).tolist():
+            tick = ticks[r]
+            assert tick is not None  # a run whose node completed no tick has left
+            try:
+                self.runs[r].publish(name, tick, dict(zip(signals, values[r].tolist())), saturate)
+            except (CodecError, CosimError) as error:
+                self._leave(r, tick.tick, str(error), alive)
+
+    def truth(self, k: int, x: np.ndarray, states: Sequence[str], active: Sequence[tuple[str, ...]], rows: Any) -> None:
+        """Tick k's truth of the runs ``rows``: their states (K, states) and active faults."""
+        for r in rows:
+            self.runs[r].truth(k, dict(zip(states, x[r].tolist())), list(active[r]))
+
+    def finish(self, r: int, ticks: int) -> tuple[int, dict[str, SenderCounts]]:
+        """Run r's end after ``ticks`` ticks: its contested ticks and what each node sent and missed."""
+        return self.runs[r].finish(ticks, self.plan.senders)
+
+    def close(self) -> None:
+        """Every run's channel closed."""
+        for run in self.runs:
+            run.close()
+
+    def _leave(self, r: int, k: int, why: str, alive: np.ndarray) -> None:
+        self.leave(r, k, why)
+        alive[r] = False
