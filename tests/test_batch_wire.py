@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import cosim.campaign.batch as batch_module
+import cosim.campaign.batch_estimators as batch_estimators
 from cosim import api
 from cosim.campaign.batch import refusal, run_batch, run_together
 from cosim.campaign.results import rows_of
@@ -145,7 +146,7 @@ def _tap_nodes(monkeypatch, found):
 
 def _tap_batch(monkeypatch, found):
     """Batched: the rows each estimator's and the controller's batched step is handed."""
-    estimators_given, controller_step = batch_module._Estimators.given, batch_module._Controller.step
+    estimators_given, controller_step = batch_estimators.Estimators.given, batch_module._Controller.step
 
     def given_estimators(self, y, u_cmd, commanded):
         ys, u = estimators_given(self, y, u_cmd, commanded)  # what its batched step is handed
@@ -165,7 +166,7 @@ def _tap_batch(monkeypatch, found):
         finally:
             self.batch = inner
 
-    monkeypatch.setattr(batch_module._Estimators, "given", given_estimators)
+    monkeypatch.setattr(batch_estimators.Estimators, "given", given_estimators)
     monkeypatch.setattr(batch_module._Controller, "step", step_controller)
 
 
