@@ -185,6 +185,8 @@ class PlantSource:
         for bit its run's. The environment models at each place, where all the runs' are of one kind
         whose class offers ``batched(models)`` (b(t) of them all, (K, inputs)), are evaluated together."""
         width = len(sources[0].disturbances)
+        if width == 0:  # a plant without disturbance inputs (the masses, the tanks): nothing per tick
+            return lambda rows, t: np.zeros((len(rows), 0))
         if len({len(source.environments) for source in sources}) != 1:  # runs of other environments
             return lambda rows, t: np.array([sources[r].disturbance(t) for r in rows.tolist()]).reshape(
                 len(rows), width
