@@ -375,6 +375,31 @@ def test_the_disturbances_of_a_batchs_runs_are_each_runs_alone_whatever_their_se
                 np.testing.assert_array_equal(found, expected)  # bit for bit
 
 
+def test_in_a_stream_a_campaign_with_enough_work_after_it_is_not_cut_for_the_workers(tmp_path):
+    """A campaign's one group is cut in two for two workers only where nothing after it fills the
+    second: a campaign followed by more ticks runs as one batch, the last in two; a campaign
+    followed by fewer ticks than it brings is cut as when it runs alone."""
+    from cosim.campaign.coordinator import _idle_workers, _Pending, run_campaigns
+    from cosim.campaign.engine import InlineEngine
+
+    class Recording(InlineEngine):
+        workers = 2
+
+        def results(self, function, items, *args):
+            return super().results(function, (seen.append(item) or item for item in items), *args)
+
+    seen: list = []
+    (tmp_path / "a.toml").write_text(SWEEP.replace("seeds = 5", "seeds = 2"))
+    (tmp_path / "b.toml").write_text(SWEEP.replace('name = "sweep"', 'name = "b"').replace("seeds = 5", "seeds = 3"))
+    first, second = load_campaign(tmp_path / "a.toml"), load_campaign(tmp_path / "b.toml")
+    members = [(first, tmp_path / "a", False), (second, tmp_path / "b", False)]
+    run_campaigns(members, Recording(), keep_logs="none")
+    assert [(Path(folder).name, len(specs)) for folder, specs in seen] == [("a", 4), ("b", 3), ("b", 3)]
+    pendings = [_Pending(c, tmp_path / f"{name}2", False, None) for c, name in ((second, "b"), (first, "a"))]
+    assert [p.ticks for p in pendings] == [6 * 100, 4 * 100]
+    assert _idle_workers(pendings, 0, 2) == 2  # 400 ticks after its 600: b is cut as alone
+
+
 def test_campaigns_on_one_engine_follow_each_other_without_a_gap_each_with_its_own_table(tmp_path):
     """``run_campaigns`` (the benchmark's cases): the second campaign's batches are submitted while
     the first's still run (its start comes before the first's end), and each table is the one the

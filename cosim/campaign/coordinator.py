@@ -164,6 +164,17 @@ class _Pending:
         self.waiting = 0  # batches submitted whose outcomes have not come back
         self.begun = self.created
 
+    @functools.cached_property
+    def ticks(self) -> int:
+        """The ticks of its runs still to run: a rough measure of its work."""
+        base = self.campaign.base.scenario
+        total = 0
+        for run in self.runs:
+            if run.index not in self.done:
+                settings = dict(run.settings)
+                total += round(settings.get("duration", base.duration) / settings.get("sample_time", base.sample_time))
+        return total
+
     def begin(self, batch: int | None, workers: int) -> None:
         """Its batches, about to be submitted; its clock (progress, ETA) starts now."""
         self.begun = self.tally.start = time.perf_counter()
@@ -215,7 +226,7 @@ def _run(
 
     def stream() -> Iterator[tuple[str, list[RunSpec]]]:
         for i, pending in enumerate(pendings):
-            pending.begin(batch, pool.workers)
+            pending.begin(batch, _idle_workers(pendings, i, pool.workers))
             if on_begin is not None:
                 on_begin(i)
             if not pending.todo:
@@ -230,6 +241,15 @@ def _run(
         if pending.waiting == 0:
             finish(i)
     return [found[i] for i in range(len(pendings))]
+
+
+def _idle_workers(pendings: Sequence[_Pending], i: int, workers: int) -> int:
+    """The workers campaign i must keep busy by itself. A campaign is cut into more batches than it
+    needs only so that no worker waits while it runs; in a stream, the campaigns after it fill the
+    other workers where they hold at least as many ticks (runs × ticks, a rough measure of work) as
+    it does per other worker: then it runs in as few batches as it can (larger batches run faster)."""
+    after = sum(pending.ticks for pending in pendings[i + 1 :])
+    return 1 if after >= (workers - 1) * pendings[i].ticks else workers
 
 
 def check_batch(batch: int | None) -> None:
