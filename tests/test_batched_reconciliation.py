@@ -160,7 +160,8 @@ def test_the_k_run_box_coordinates_are_the_one_run_ones_on_the_box_and_off_it():
 def test_the_k_run_model_window_and_gain_test_are_the_one_run_ones():
     """``window_gains_runs`` and ``window_tests`` on windows of other runs, against ``window_gains``
     and the test ``decide_gains`` makes first (T(1/γ̂) over its threshold, the standard errors)."""
-    from estimators.gain_identification import _chi2_quantile, chi2_statistic, gain_standard_errors, window_system
+    from estimators.gain_hypotheses import chi2_quantile as _chi2_quantile
+    from estimators.gain_identification import chi2_statistic, gain_standard_errors, window_system
 
     y, u = tank_runs(ONSETS + ONSETS, steps=50, seed=3)
     ys, us = np.swapaxes(y, 0, 1), np.concatenate((np.swapaxes(u, 0, 1), np.ones((10, 50, 1))), axis=2)
