@@ -20,6 +20,7 @@ from estimators.box_least_squares import box_least_squares
 from estimators.gain_hypotheses import SystemStack, chi2_quantile, normal_inverse, stacked_hypotheses
 from estimators.gain_identification import (
     WindowSystem,
+    _unambiguous,
     gain_hypotheses,
     gain_test_window,
     searched_windows,
@@ -186,8 +187,9 @@ def test_the_gram_matrix_and_its_inverse_are_the_one_column_sets_own():
 @pytest.fixture(scope="module")
 def searched():
     """Every search the gain test made on the paper's linear plant (58) with 0.01 cm of noise: a 2 cm
-    bias from 200 s, γ1 = 0.6 from 400 s, γ2 = 0.75 from 700 s (its previous gains then not all 1),
-    as (systems, previous, samples)."""
+    bias from 200 s, γ1 = 0.6 from 400 s, γ2 = 0.75 from 700 s (its previous gains then not all 1);
+    then γ1 = 0.6 from 300 s with constant inputs at their steady state: as (systems, previous,
+    samples)."""
     found = []
     stacked = gain_identification.stacked_hypotheses
 
@@ -199,9 +201,14 @@ def searched():
 
     true = np.array([0.6, 0.75, 1.0, 1.0])
     profile = lambda k: np.where(np.array([k >= 400, k >= 700, False, False]), true, 1.0)  # noqa: E731
+    steady = np.array([8.0, -8.0])
+    level = np.linalg.solve(np.eye(3) - A, B @ steady)
     gain_identification.stacked_hypotheses = record
     try:
         simulate_noisy(gain_test_estimator(), 780, profile, lambda k: 2.0 * (k >= 200), 7)
+        # Levels that do not move: γ1's change is an offset's step as well (ambiguous windows).
+        fault = lambda k: np.where((np.arange(4) == 0) & (k >= 300), 0.6, 1.0)  # noqa: E731
+        simulate_noisy(gain_test_estimator(), 360, fault, lambda k: 0.0, 1, lambda k: steady, level, v=0.0)
     finally:
         gain_identification.stacked_hypotheses = stacked
     return found
@@ -217,16 +224,31 @@ def test_the_stacked_search_is_each_systems_own_on_the_gain_tests_windows(search
     """Each search of the run (its whole window and its splits together), then all of them in one
     stack (systems with other previous gains and samples, stopping at other sizes), against each
     system's own search: the faults are identified, after searches that accept nothing, that clip
-    a fitted gain to the box, and that put a gain back at 1."""
+    or box fitted gains, and that put a gain back at 1 (no window of these is ambiguous: the random
+    systems have those)."""
     events: Counter[str] = Counter()
     for systems, previous, samples in searched:
         events += check_stack(systems, previous, samples)
+        accepted = [h for s, p, n in zip(systems, previous, samples, strict=True) for h in searched_alone(s, p, n)]
+        if accepted:  # as decide_gains decides: several kinds of change, or gains not resolved
+            events["ambiguous window" if _unambiguous(accepted, WINDOW, 0.05) is None else "identified"] += 1
     every = [(s, p, n) for systems, previous, samples in searched for s, p, n in zip(systems, previous, samples)]
     systems, previous, samples = zip(*every, strict=True)
     check_stack(list(systems), np.array(previous), list(samples))
     assert len(searched) >= 20 and len(every) >= 500, (len(searched), len(every))
-    for event in ("accepted at size 1", "stopped by rest at size 0", "clipped", "back to 1", "ambiguous"):
+    for event in (
+        "accepted at size 1",
+        "stopped by rest at size 0",
+        "clipped",
+        "boxed",
+        "back to 1",
+        "ambiguous window",
+    ):
         assert events[event] >= 1, sorted(events.items())
+
+
+def searched_alone(system, previous, samples):
+    return gain_hypotheses(system, ALPHA, LOWER, UPPER, previous, samples)
 
 
 def test_the_windows_of_several_runs_searched_together_are_each_ones_own(searched):
