@@ -244,7 +244,7 @@ def test_the_stacked_search_is_each_systems_own_on_the_gain_tests_windows(search
         "back to 1",
         "ambiguous window",
     ):
-        assert events[event] >= 1, sorted(events.items())
+        assert events[event] >= 1, str(sorted(events.items()))
 
 
 def searched_alone(system, previous, samples):
