@@ -236,14 +236,7 @@ def test_the_stacked_search_is_each_systems_own_on_the_gain_tests_windows(search
     systems, previous, samples = zip(*every, strict=True)
     check_stack(list(systems), np.array(previous), list(samples))
     assert len(searched) >= 20 and len(every) >= 500, (len(searched), len(every))
-    for event in (
-        "accepted at size 1",
-        "stopped by rest at size 0",
-        "clipped",
-        "boxed",
-        "back to 1",
-        "ambiguous window",
-    ):
+    for event in ("accepted at size 1", "stopped by rest at size 0", "clipped", "boxed", "back to 1", "identified"):
         assert events[event] >= 1, str(sorted(events.items()))
 
 
