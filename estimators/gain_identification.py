@@ -1,7 +1,8 @@
 """Which sensor gains changed, identified by the gain test (ours: γ̂ changes only on evidence;
 docs/three-tank.md, "The gain test"): the model window's consistency equations (50), whitened by
 the readings' noise, as a χ² test of the current gains and of the hypotheses of what changed, over
-the last N samples.
+the last N samples. The hypotheses are searched in ``estimators.gain_hypotheses``, over the stack
+of a window's systems (the whole window and its splits), or of every searching run's in a batch.
 """
 
 from __future__ import annotations
