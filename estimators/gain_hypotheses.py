@@ -103,7 +103,7 @@ def stacked_hypotheses(
         rows, thresholds = rows[~hopeless], thresholds[~hopeless]
         if not len(rows):
             break
-        accepted = _search_size(stack, columns, rows, recovered[rows], thresholds, size, alpha, lower, upper)
+        accepted = _search_size(stack, columns, rows, recovered[rows], thresholds, size, lower, upper)
         for k, hypothesis in accepted:
             found[k].append(hypothesis)
         searching[[k for k, _ in accepted]] = False  # a size that accepts something ends the search
@@ -149,7 +149,6 @@ def _search_size(
     recovered: np.ndarray,
     thresholds: np.ndarray,
     size: int,
-    alpha: float,
     lower: np.ndarray,
     upper: np.ndarray,
 ) -> list[tuple[int, GainHypothesis]]:
