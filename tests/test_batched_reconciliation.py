@@ -114,6 +114,23 @@ def test_the_batched_gain_test_equals_the_single_step_while_runs_accept_identify
     assert np.abs(gammas[-1, 0] - [0.6, 1, 1, 1]).max() < 0.02 and np.abs(gammas[-1, 3] - [1, 1, 1, 0.5]).max() < 0.02
 
 
+def test_a_batch_whose_shared_gain_search_raises_has_each_run_search_alone(lft, monkeypatch):
+    """Should the gain search of all searching runs at once raise (one run's arithmetic), each run
+    searches its own window, as alone: the batch is still each run's single step."""
+    import estimators.reconciliation_batch as reconciliation_batch
+
+    calls = []
+
+    def raising(*args, **kwargs):
+        calls.append(len(args[0]))
+        raise FloatingPointError("one run's search")
+
+    monkeypatch.setattr(reconciliation_batch, "searched_windows", raising)
+    y, u = readings()
+    check_batched(make(lft, "lft-uio-sr", gain_estimator="test", noise_std=NOISE), y, u)
+    assert len(calls) > 5 and max(calls) > 1  # several runs searched at once, more than once
+
+
 def test_no_reconciliation_batched_equals_its_single_step():
     y, u = readings()
     y[40, 1, :] = np.nan  # every reading missing: the operating point
