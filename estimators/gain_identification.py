@@ -1,24 +1,21 @@
 """Which sensor gains changed, identified by the gain test (ours: γ̂ changes only on evidence;
 docs/three-tank.md, "The gain test"): the model window's consistency equations (50), whitened by
 the readings' noise, as a χ² test of the current gains and of the hypotheses of what changed, over
-the last N samples.
+the last N samples. The hypotheses are searched in ``estimators.gain_hypotheses``, over the stack
+of a window's systems (the whole window and its splits), or of every searching run's in a batch.
 """
 
 from __future__ import annotations
 
-import functools
 import itertools
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-import scipy.special
 
 from estimators.batched import mv
-from estimators.box_least_squares import box_least_squares
-from estimators.lmi import pseudo_inverse
+from estimators.gain_hypotheses import GainHypothesis, SystemStack, chi2_quantile, stacked_hypotheses
 from estimators.model_window import Projection, complement_projection, reduced_system, reduced_systems, stacked_window
 
 
@@ -242,12 +239,6 @@ def _squares(vectors: np.ndarray) -> np.ndarray:
     return np.matmul(vectors[..., None, :], vectors[..., None])[..., 0, 0]
 
 
-@functools.lru_cache(maxsize=1024)
-def _chi2_quantile(alpha: float, dof: int) -> float:
-    """The (1 − α) quantile of χ²(dof): the threshold of a test at level α."""
-    return float(scipy.special.chdtri(dof, alpha))
-
-
 def chi2_statistic(system: WindowSystem, beta: np.ndarray) -> float:
     """T(β) = ‖P⊥ D (Y β − r)‖², χ²(dof) when β is the true 1/γ."""
     residual = system.factor @ beta - system.rotated
@@ -268,6 +259,15 @@ def standard_errors(factors: np.ndarray) -> np.ndarray:
     return np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), np.inf)
 
 
+def window_systems(window: GainTestWindow, y: np.ndarray, u: np.ndarray) -> list[WindowSystem]:
+    """``window_system`` of K whole windows with every reading (a batch's runs: y (K, N, m), u (K, N,
+    n_u)), each run's bit for bit."""
+    m = y.shape[2]
+    reduced = reduced_systems(window.projection, y * window.weight, u)
+    dof = window.projection.forced.shape[0]
+    return [WindowSystem(r[:m, :m], r[:m, m], float(r[m, m]) ** 2, dof) for r in reduced]
+
+
 def window_tests(
     window: GainTestWindow, y: np.ndarray, u: np.ndarray, gamma: np.ndarray, alpha: float, se_tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -281,102 +281,60 @@ def window_tests(
     rest = np.array([float(v) ** 2 for v in reduced[:, m, m]])
     residual = np.matmul(factor, (1.0 / gamma)[..., None])[..., 0] - rotated  # chi2_statistic's arithmetic
     statistic = np.matmul(residual[:, None, :], residual[:, :, None])[:, 0, 0] + rest
-    threshold = _chi2_quantile(alpha, window.projection.forced.shape[0])
+    threshold = chi2_quantile(alpha, window.projection.forced.shape[0])
     return statistic / threshold, se_tol / np.max(standard_errors(factor), axis=1)
-
-
-def normal_inverse(columns: np.ndarray) -> np.ndarray:
-    """(XᵀX)⁺ for the fitted columns X: for one column [[1/‖x‖²]] (0 for a zero column), which is
-    what ``np.linalg.pinv`` returns for a 1 × 1 matrix, bit for bit (tested), without its SVD (tens
-    of µs a call, and a gain search makes thousands); else, and where LAPACK's SVD would rescale a
-    1 × 1 (near the ends of the floats' range: its last bit may then differ), ``pseudo_inverse``:
-    np.linalg.pinv's arithmetic without its checks (a third of its cost on these small matrices)."""
-    gram = columns.T @ columns
-    if gram.shape == (1, 1):
-        g = float(gram[0, 0])
-        if g == 0.0:
-            return np.zeros((1, 1))
-        if _UNSCALED[0] < g < _UNSCALED[1]:
-            return np.array([[1.0 / g]])
-    return pseudo_inverse(gram)
-
-
-#: Where a 1 × 1 SVD is |a| exactly (LAPACK scales matrices outside about 1e-146 to 1e146).
-_UNSCALED = (1e-100, 1e100)
-
-
-class GainHypothesis(NamedTuple):
-    """A hypothesis about a window's gains: those in ``free`` changed to unknown values, each of the
-    others is either as before (the previous γ̂) or back to 1."""
-
-    beta: np.ndarray
-    """β̂ = 1/γ̂: fitted for the sensors in ``free``, given for the others."""
-    free: tuple[int, ...]
-    statistic: float
-    """T(β̂)."""
-    p_value: float
-    """P(χ²(dof − |free|) > T(β̂)): the probability of a statistic this large if the hypothesis holds."""
-    standard_error: float
-    """The largest standard error of the fitted β̂ (0 if none is fitted)."""
-    samples: int
-    """The samples after the change the hypothesis places (the window's length if none)."""
-
-    @property
-    def kind(self) -> tuple[tuple[int, ...], tuple[bool, ...]]:
-        """Which gains it fits, and which of the others it puts at 1."""
-        return self.free, tuple(bool(b == 1.0) for j, b in enumerate(self.beta) if j not in self.free)
 
 
 def gain_hypotheses(
     system: WindowSystem, alpha: float, lower: np.ndarray, upper: np.ndarray, previous: np.ndarray, samples: int
 ) -> list[GainHypothesis]:
-    """The hypotheses with the fewest fitted gains that the window does not reject at level α; none
-    if it rejects every one (no constant gains explain it).
+    """The hypotheses with the fewest fitted gains that the window does not reject at level α
+    (``stacked_hypotheses`` of this one system); none if it rejects every one."""
+    return window_hypotheses([system], [samples], previous, alpha, lower, upper)
 
-    Each sensor's gain is either fitted (least squares; within [lower, upper] on β), or given:
-    its ``previous`` β, or 1 (healthy). With |S| gains fitted, T(β̂) ~ χ²(dof − |S|) if the
-    hypothesis holds, so a true hypothesis is rejected with probability α: a gain differs from its
-    previous value, or from 1, only if every hypothesis that keeps it is rejected."""
-    R, c = system.factor, system.rotated
-    m = R.shape[1]
-    for size in range(m + 1):
-        dof = system.dof - size
-        threshold = _chi2_quantile(alpha, dof)
-        if system.rest > threshold:
-            # Every statistic is rest + a square, and the thresholds only fall as more gains are
-            # fitted: no hypothesis of this size or larger can be accepted.
-            return []
-        accepted: list[GainHypothesis] = []
-        for free in itertools.combinations(range(m), size):
-            index = list(free)
-            columns = R[:, index]
-            covariance = normal_inverse(columns) if free else np.zeros((0, 0))
-            error = math.sqrt(max(covariance.diagonal().tolist())) if free else 0.0
-            low, high = lower[index].tolist(), upper[index].tolist()
-            recovered = [j for j in range(m) if j not in free and previous[j] != 1.0]
-            for back in itertools.product((False, True), repeat=len(recovered)):
-                beta = np.array(previous, dtype=float)
-                beta[[j for j, b in zip(recovered, back) if b]] = 1.0
-                if free:
-                    beta[index] = 0.0
-                    rhs = c - R @ beta
-                    fitted = covariance @ (columns.T @ rhs)
-                    beta[index] = fitted
-                    if any(f < a or f > b for a, f, b in zip(low, fitted.tolist(), high, strict=True)):
-                        if chi2_statistic(system, beta) > threshold:
-                            continue  # the box can only make the fit worse
-                        if size == 1:
-                            fitted = np.clip(fitted, lower[index], upper[index])
-                        else:
-                            fitted = box_least_squares(columns, rhs, lower[index], upper[index])
-                        beta[index] = fitted
-                statistic = chi2_statistic(system, beta)
-                if statistic <= threshold:
-                    p = float(scipy.special.chdtrc(dof, statistic))
-                    accepted.append(GainHypothesis(beta, free, statistic, p, error, samples))
-        if accepted:
-            return accepted
-    return []
+
+def window_hypotheses(
+    systems: Sequence[WindowSystem],
+    samples: Sequence[int],
+    previous: np.ndarray,
+    alpha: float,
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> list[GainHypothesis]:
+    """The accepted hypotheses of each of ``systems`` (one window's, with the changes they place
+    ``samples`` samples ago and β = ``previous`` before), in one stacked search, system after system."""
+    return [h for found in searched_windows([(systems, samples, previous)], alpha, lower, upper) for h in found]
+
+
+def search_systems(
+    window: GainTestWindow, full: WindowSystem, splits: Sequence[WindowSystem]
+) -> tuple[list[WindowSystem], list[int]]:
+    """What ``decide_gains`` searches: the whole window's system, then its splits' (none, or one per
+    L = min_window … N − 1), with the samples since the change each places (N for the whole window)."""
+    N = window.window
+    return [full, *splits], [N, *range(window.min_window, window.min_window + len(splits))]
+
+
+def searched_windows(
+    searches: Sequence[tuple[Sequence[WindowSystem], Sequence[int], np.ndarray]],
+    alpha: float,
+    lower: np.ndarray,
+    upper: np.ndarray,
+) -> list[list[GainHypothesis]]:
+    """``window_hypotheses`` of several windows (a batch's runs: each its systems, their samples and
+    its β before the change) in one stacked search (``stacked_hypotheses``), by window."""
+    systems = [system for found, _, _ in searches for system in found]
+    stack = SystemStack(
+        np.stack([s.factor for s in systems]),
+        np.stack([s.rotated for s in systems]),
+        np.array([s.rest for s in systems], dtype=float),
+        np.array([s.dof for s in systems]),
+        np.concatenate([np.broadcast_to(before, (len(found), before.size)) for found, _, before in searches]),
+        [n for _, counts, _ in searches for n in counts],
+    )
+    found = stacked_hypotheses(stack, alpha, lower, upper)
+    ends = np.cumsum([0] + [len(systems) for systems, _, _ in searches]).tolist()
+    return [[h for one in found[a:b] for h in one] for a, b in itertools.pairwise(ends)]
 
 
 class GainDecision(NamedTuple):
@@ -411,7 +369,7 @@ def decide_gains(
     se_tol: float,
     reference: np.ndarray | None = None,
     since: int | None = None,
-    splits: Sequence[WindowSystem] | None = None,
+    searched: Sequence[GainHypothesis] | None = None,
 ) -> GainDecision:
     """γ̂ changes only on evidence (docs/three-tank.md, "The gain test").
 
@@ -432,10 +390,11 @@ def decide_gains(
     Among the accepted hypotheses with the fewest fitted gains, the likeliest is taken if they all
     agree on what changed and it resolves its gains to ``se_tol`` (``_unambiguous``), else ``ambiguous``.
     y (N, m), u (N, n_u) as in ``window_system``; gamma: the previous γ̂; lower, upper: the box Γ;
-    ``splits``: the splits' systems (``window_splits``) where the caller has them."""
+    ``searched``: the hypotheses that the whole window and its splits accept (``searched_windows``
+    of ``search_systems``), where the caller searched them with other runs'."""
     N = window.window
     full = window_system(window, y, u)
-    threshold = _chi2_quantile(alpha, full.dof)
+    threshold = chi2_quantile(alpha, full.dof)
     statistic = chi2_statistic(full, 1.0 / gamma) / threshold
     excitation = se_tol / float(np.max(gain_standard_errors(full)))
     if reference is None:
@@ -446,11 +405,10 @@ def decide_gains(
     if since < window.min_window:
         return GainDecision(gamma, "pending", statistic, excitation, N)
     previous, beta_lower, beta_upper = 1.0 / reference, 1.0 / upper, 1.0 / lower
-    accepted = gain_hypotheses(full, alpha, beta_lower, beta_upper, previous, N)
-    if since < N:
-        systems = window_splits(window, y, u, previous) if splits is None else splits
-        for L, split in zip(range(window.min_window, N), systems, strict=True):
-            accepted += gain_hypotheses(split, alpha, beta_lower, beta_upper, previous, L)
+    if searched is None:
+        splits = window_splits(window, y, u, previous) if since < N else []
+        searched = window_hypotheses(*search_systems(window, full, splits), previous, alpha, beta_lower, beta_upper)
+    accepted = list(searched)
     if accepted:
         best = _unambiguous(accepted, N, se_tol)
         if best is None:

@@ -35,7 +35,8 @@ import numpy as np
 from scipy.linalg import lapack
 
 from estimators.base import Diagnostic, DiagnosticKind, Estimate, Estimator, ParameterError
-from estimators.gain_identification import GainDecision, GainTestWindow, WindowSystem, decide_gains, gain_test_window
+from estimators.gain_hypotheses import GainHypothesis
+from estimators.gain_identification import GainDecision, GainTestWindow, decide_gains, gain_test_window
 from estimators.lft_design import LftDesign, lft_uio_design
 from estimators.lmi import DesignError, SensorFaultModel, box_coordinates, box_coordinates_runs, uio_matrices
 from estimators.lpv_design import LpvDesign, lpv_uio_design
@@ -423,9 +424,10 @@ class UioReconciliator(_Reconciliator):
         self.pe = self._excitation(sv, self.model.p)
         return gamma if self.pe > 0.0 and self.fit <= self.params.fit_tol else self.gamma
 
-    def _test_gamma(self, splits: Sequence[WindowSystem] | None = None) -> GainDecision:
+    def _test_gamma(self, searched: Sequence[GainHypothesis] | None = None) -> GainDecision:
         """The χ² test of the last N samples (``decide_gains``): γ̂ is kept unless they reject it.
-        ``splits``: the window's split systems, where a batch formed them with other runs'."""
+        ``searched``: the hypotheses the window and its splits accept, where a batch searched them
+        with other runs'."""
         assert self.gain_test is not None
         N = self.params.window
         ys, us = self.history.field("measured", N), self.history.field("u", N)
@@ -440,7 +442,7 @@ class UioReconciliator(_Reconciliator):
             self.params.se_tol,
             self.reference,
             1 if self.reference is None else self.episode + 1,  # samples since the episode began
-            splits,
+            searched,
         )
         if self.reference is None and self.decision.verdict != "consistent":
             self.reference, self.episode = self.gamma, 0  # an episode begins: the gains before the change

@@ -12,9 +12,11 @@ instance, its state lent to it for that tick (``_lend``, ``_take_back``), so tha
 once:
 
 - the gain test of a run whose window rejects γ̂, or while it is identifying a change (the search
-  over the window's splits, the replay of the samples since the change, coasting); the systems of
-  the splits of the runs that search at one tick are formed together (``split_systems``, which the
-  single step calls with K = 1) and handed to each run's search;
+  over the window's splits, the replay of the samples since the change, coasting); the runs that
+  search at one tick search together: the systems of their windows' splits are formed together
+  (``split_systems``, which the single step calls with K = 1), every run's hypotheses on every one
+  of its systems are searched in one stacked search (``searched_windows``, which the single step
+  calls with one run), and each run's search is handed what it accepts;
 - the model window of a run with a reading missing in its window (the projection is the run's own);
 - a run whose γ̂ changed has its UIO matrices formed again (the products stacked, the pseudoinverse
   and the LPV gain's LAPACK solve run by run).
@@ -31,7 +33,14 @@ from typing import Any
 import numpy as np
 
 from estimators.batched import BatchEstimate, DeviationBatch, mv
-from estimators.gain_identification import split_systems, window_equations, window_tests
+from estimators.gain_identification import (
+    search_systems,
+    searched_windows,
+    split_systems,
+    window_equations,
+    window_systems,
+    window_tests,
+)
 from estimators.lmi import uio_matrices_runs
 from estimators.model_window import window_gains_runs
 from estimators.reconciliation_runs import (
@@ -303,21 +312,35 @@ class UioReconciliationBatch(DeviationBatch):
 
         self._apart(np.flatnonzero(missing), alone)
 
-    def _shared_splits(self, apart: np.ndarray, ys: np.ndarray, us: np.ndarray) -> dict[int, list[Any]]:
-        """The split systems of the runs among ``apart`` whose gain test searches their window's
-        splits at this tick (an episode under way, begun at least min_window and fewer than N samples
-        ago, every reading of the window arrived), formed together (``split_systems``), by run."""
+    def _shared_search(self, apart: np.ndarray, ys: np.ndarray, us: np.ndarray) -> dict[int, list[Any]]:
+        """The hypotheses that the gain test of each run among ``apart`` that searches at this tick
+        accepts (an episode under way, begun at least min_window samples ago, every reading of the
+        window arrived), by run: every run's whole window and splits (these formed together,
+        ``split_systems``) searched together (``searched_windows``). Should the stacked search raise,
+        each run searches alone, so that what raises is its own run's."""
         first, N = self.first, self.window
+        test, p = first.gain_test, first.params
         since = self.episode + 1
-        search = apart & self.tracking & (since >= first.params.min_window) & (since < N)
-        search &= ~np.isnan(ys).any(axis=(1, 2))
+        search = apart & self.tracking & (since >= p.min_window) & ~np.isnan(ys).any(axis=(1, 2))
         search[list(self.failed)] = False
         rows = np.flatnonzero(search)
         if not len(rows):
             return {}
-        equations = [window_equations(first.gain_test, ys[r], us[r]) for r in rows]
-        found = split_systems(first.gain_test, equations, 1.0 / self.reference[rows])
-        return dict(zip(map(int, rows), found, strict=True))
+        previous = 1.0 / self.reference[rows]
+        split = rows[since[rows] < N]  # the splits only while the change can be in the window
+        equations = [window_equations(test, ys[r], us[r]) for r in split]
+        formed = split_systems(test, equations, 1.0 / self.reference[split]) if len(split) else []
+        splits = dict(zip(split.tolist(), formed, strict=True))
+        fulls = window_systems(test, ys[rows], us[rows])
+        searches = [
+            (*search_systems(test, full, splits.get(r, [])), before)
+            for r, full, before in zip(rows.tolist(), fulls, previous, strict=True)
+        ]
+        try:
+            found = searched_windows(searches, p.alpha, 1.0 / first.upper, 1.0 / first.lower)
+        except Exception:  # noqa: BLE001 (one run's: each searches alone)
+            return {}
+        return dict(zip(rows.tolist(), found, strict=True))
 
     def _tested_step(self, y: np.ndarray, u_bar: np.ndarray) -> None:
         """``UioReconciliator._tested_step`` in K runs: the test of γ̂ on each run's whole window on
@@ -337,10 +360,10 @@ class UioReconciliationBatch(DeviationBatch):
 
         every = consistent.all()
         if not every:
-            splits = self._shared_splits(~consistent, ys, us)
+            searched = self._shared_search(~consistent, ys, us)
 
             def alone(instance: Any, r: int) -> None:
-                instance._follow(instance._test_gamma(splits.get(r)), y[r], u_bar[r])
+                instance._follow(instance._test_gamma(searched.get(r)), y[r], u_bar[r])
 
             self._apart(np.flatnonzero(~consistent), alone)
         # γ̂ kept (``_test_gamma``'s bookkeeping of a consistent verdict, ``_follow``'s plain step)

@@ -114,6 +114,23 @@ def test_the_batched_gain_test_equals_the_single_step_while_runs_accept_identify
     assert np.abs(gammas[-1, 0] - [0.6, 1, 1, 1]).max() < 0.02 and np.abs(gammas[-1, 3] - [1, 1, 1, 0.5]).max() < 0.02
 
 
+def test_a_batch_whose_shared_gain_search_raises_has_each_run_search_alone(lft, monkeypatch):
+    """Should the gain search of all searching runs at once raise (one run's arithmetic), each run
+    searches its own window, as alone: the batch is still each run's single step."""
+    import estimators.reconciliation_batch as reconciliation_batch
+
+    calls = []
+
+    def raising(*args, **kwargs):
+        calls.append(len(args[0]))
+        raise FloatingPointError("one run's search")
+
+    monkeypatch.setattr(reconciliation_batch, "searched_windows", raising)
+    y, u = readings()
+    check_batched(make(lft, "lft-uio-sr", gain_estimator="test", noise_std=NOISE), y, u)
+    assert len(calls) > 5 and max(calls) > 1  # several runs searched at once, more than once
+
+
 def test_no_reconciliation_batched_equals_its_single_step():
     y, u = readings()
     y[40, 1, :] = np.nan  # every reading missing: the operating point
@@ -160,7 +177,8 @@ def test_the_k_run_box_coordinates_are_the_one_run_ones_on_the_box_and_off_it():
 def test_the_k_run_model_window_and_gain_test_are_the_one_run_ones():
     """``window_gains_runs`` and ``window_tests`` on windows of other runs, against ``window_gains``
     and the test ``decide_gains`` makes first (T(1/γ̂) over its threshold, the standard errors)."""
-    from estimators.gain_identification import _chi2_quantile, chi2_statistic, gain_standard_errors, window_system
+    from estimators.gain_hypotheses import chi2_quantile as _chi2_quantile
+    from estimators.gain_identification import chi2_statistic, gain_standard_errors, window_system
 
     y, u = tank_runs(ONSETS + ONSETS, steps=50, seed=3)
     ys, us = np.swapaxes(y, 0, 1), np.concatenate((np.swapaxes(u, 0, 1), np.ones((10, 50, 1))), axis=2)

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.gain_identification import gain_test_window, normal_inverse, window_system
+from estimators.gain_hypotheses import normal_inverse
+from estimators.gain_identification import gain_test_window, window_system
 from tests.paper_three_tank import TRUE_GAINS, WINDOW, A, B, C, E, linear_window
 
 
