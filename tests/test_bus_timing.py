@@ -101,6 +101,45 @@ def test_a_newer_frame_of_an_id_replaces_the_waiting_one():
     assert passed[1].start_ns == 50_000  # replaced when the newer one was queued
 
 
+def _random_frame(rng, latest_ns):
+    """Of a few ids (so that senders' frames of one id replace each other), queued up to ``latest_ns``."""
+    data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
+    return _frame(rng.randrange(0x20), data, rng.randrange(0, latest_ns, 1000), rng.choice("ab"))
+
+
+def _state(wire):
+    return wire.idle_ns, wire._seq, [id(frame) for frame in wire.queue]
+
+
+def test_committing_a_forks_plan_is_running_the_wire_to_an_earlier_stop():
+    """``commit``: a fork's passages to a later stop, cut at any stop, are what the wire's own run
+    gives and leave it as that run does (contention, replaced frames, idle gaps, frames still
+    queued past the stop), over random queues."""
+    rng = random.Random(45)
+    for _ in range(300):
+        wire = Wire(125_000)
+        for _ in range(rng.randrange(6)):  # frames left from before, some of them queued later
+            wire.offer(_random_frame(rng, 2_000_000))
+        wire.idle_ns = rng.randrange(0, 500_000, 1000)
+        later = [_random_frame(rng, 3_000_000) for _ in range(rng.randrange(1, 10))]
+        deadline = rng.randrange(1_000_000, 5_000_000, 1000)
+        trial = wire.fork()
+        for frame in later:
+            trial.offer(frame)
+        planned = trial.run(deadline)
+        starts = [p.start_ns for p in planned]  # a stop at a passage's start: is that one in or out?
+        stop = rng.choice(starts) if starts and rng.random() < 0.5 else rng.randrange(0, deadline + 1, 1000)
+        alone = wire.fork()
+        for frame in later:
+            alone.offer(frame)
+        expected = alone.run(stop)
+        for frame in later:
+            wire.offer(frame)
+        assert wire.commit(planned, stop) == expected
+        assert _state(wire) == _state(alone)
+        assert wire.run(2**62) == alone.run(2**62)  # and it goes on alike
+
+
 def _tiny(tmp_path, **bus):
     settings = 'interface = "virtual"\nbitrate = 125000\n' + "\n".join(f"{k} = {v}" for k, v in bus.items())
     path = tmp_path / "tiny.toml"

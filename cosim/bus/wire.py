@@ -23,7 +23,6 @@ from its schedule, which frames the run's receivers get in which tick.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -156,13 +155,31 @@ class Wire:
                 dropped.append(Transmission(frame, at, at, at, "replaced by a newer frame of its id"))
         return dropped
 
-    def plan(self, stop_ns: int) -> list[Transmission]:
-        """What ``run(stop_ns)`` would return, without committing it."""
-        return copy.copy(self)._tentative(stop_ns)
+    def fork(self) -> Wire:
+        """A copy to plan on: the same clock and queue (the same frames); what it runs and is offered
+        leaves this wire as it was."""
+        trial = Wire(self.bitrate, self.data_bitrate)
+        trial.idle_ns, trial.queue, trial._seq = self.idle_ns, list(self.queue), self._seq
+        return trial
 
-    def _tentative(self, stop_ns: int) -> list[Transmission]:
-        self.queue = list(self.queue)
-        return self.run(stop_ns)
+    def commit(self, planned: list[Transmission], stop_ns: int) -> list[Transmission]:
+        """What ``run(stop_ns)`` would return and leave, taken from ``planned``: what a ``fork`` of
+        this wire ran to a later stop after being offered the frames this wire has been offered
+        since (the same objects, in the same order). The wire is deterministic, so its passages up
+        to ``stop_ns`` are a prefix of the fork's: every passage up to the last one that starts
+        before ``stop_ns`` (a replaced frame goes in the loop of the winner that follows it)."""
+        end = 0
+        for i, passage in enumerate(planned):
+            if passage.dropped is None:
+                if passage.start_ns >= stop_ns:
+                    break
+                end = i + 1
+        taken = planned[:end]
+        if taken:
+            gone = {id(passage.frame) for passage in taken}
+            self.queue = [frame for frame in self.queue if id(frame) not in gone]
+            self.idle_ns = taken[-1].end_ns  # the last one taken is a passage, not a replaced frame
+        return taken
 
     def drain(self) -> list[Transmission]:
         """Everything still queued, to the last frame (the end of a run)."""

@@ -158,15 +158,15 @@ class Arbitration:
         # the plan (and the wire) goes on from there, without simulating those passages twice
         early = wire.run(t_ns)
         data = frames[1:]
-        sync, inputs, planned = self._plan(k, data, t_ns, deadline)
-        for frame in [sync, *data]:
-            wire.offer(self._runner_frame(frame, t_ns, deadline))
+        sync, inputs, planned, offered = self._plan(k, data, t_ns, deadline)
+        for wire_frame in offered:  # as the plan offered them: its passages are the wire's to come
+            wire.offer(wire_frame)
         sync_at = next((p.delivered_ns for p in planned if p.frame.payload is sync and p.dropped is None), None)
         if sync_at is None or sync_at > deadline:
             self._inputs_ns = deadline
         else:
             self._inputs_ns = max([sync_at, *(p.delivered_ns for p in planned if id(p.frame.payload) in inputs)])
-        passed = early + wire.run(min(self._inputs_ns, deadline))
+        passed = early + wire.commit(planned, min(self._inputs_ns, deadline))
         now = [frame for frame in data if id(frame) in inputs]
         self._on_channel.update(inputs)
         self._runner.update(id(frame) for frame in data)
@@ -179,17 +179,20 @@ class Arbitration:
             self._runner.discard(id(payload))
         return Step([sync, *now, *late], passed)
 
-    def _plan(self, k: int, data: list[Frame], t_ns: int, deadline: int) -> tuple[Frame, set[int], list[Transmission]]:
-        """SYNC(k) announcing the data frames through by the deadline, those frames (by id()) and
-        the planned passages."""
+    def _plan(
+        self, k: int, data: list[Frame], t_ns: int, deadline: int
+    ) -> tuple[Frame, set[int], list[Transmission], list[WireFrame]]:
+        """SYNC(k) announcing the data frames through by the deadline, those frames (by id()), the
+        planned passages and the wire frames they were planned with (SYNC's first)."""
         counted = counted_by_receivers(data, self._senders, self.authenticated, k % self.codec.tick_modulus)
         count, seen = len(counted), []
         while True:
             message = self.codec.sync(k, count)
             sync: Frame = (message, self.codec.decode(message))
-            trial = _copy(self.wire)
-            for frame in [sync, *data]:
-                trial.offer(self._runner_frame(frame, t_ns, deadline))
+            trial = self.wire.fork()
+            offered = [self._runner_frame(frame, t_ns, deadline) for frame in [sync, *data]]
+            for wire_frame in offered:
+                trial.offer(wire_frame)
             planned = trial.run(deadline)
             through = {id(p.frame.payload) for p in planned if p.dropped is None and p.delivered_ns <= deadline}
             inputs = [id(f) for f in counted if id(f) in through]
@@ -198,7 +201,7 @@ class Arbitration:
                 # no fixed point (SYNC's stuff bits tip one frame over the deadline and back): the
                 # smaller count is announced and the frames past it are held back as late
                 uncounted = {id(f) for f in data if id(f) in through} - {id(f) for f in counted}
-                return sync, set(inputs[:count]) | uncounted, planned
+                return sync, set(inputs[:count]) | uncounted, planned, offered
             count = min(count, len(inputs)) if len(inputs) in seen else len(inputs)
 
     def finish(self) -> list[Transmission]:
@@ -207,12 +210,6 @@ class Arbitration:
             self.wire.offer(self._wire_frame(answer, self._inputs_ns, self._inputs_ns + self.dt_ns, "unknown"))
         self._answers = []
         return self.wire.drain()
-
-
-def _copy(wire: Wire) -> Wire:
-    trial = Wire(wire.bitrate, wire.data_bitrate)
-    trial.idle_ns, trial.queue, trial._seq = wire.idle_ns, list(wire.queue), wire._seq
-    return trial
 
 
 def build_traffic(scenario: object, babblers: list[fm.BabblingNode] | None = None) -> list[Periodic]:
