@@ -7,7 +7,7 @@ import pytest
 
 from cosim import scenario
 from cosim.bus.codec import OPERATIONAL, RUNNER, Decoded
-from cosim.bus.control_frames import ControlAuth, ShortCmac
+from cosim.bus.control_frames import _RECENT, ControlAuth, ShortCmac, shared_cmac
 from cosim.bus.secoc import Rejection
 from cosim.run.traffic import Traffic
 
@@ -77,6 +77,23 @@ def test_the_control_frames_cmac_is_rfc_4493s(length):
     message = bytes(range(length))
     reference = CMAC(algorithms.AES(key))
     reference.update(message)
-    assert ShortCmac(key)(message) == reference.finalize()
+    expected = reference.finalize()
+    assert ShortCmac(key)(message) == expected
     if length == 0:
         assert ShortCmac(key)(b"").hex() == "bb1d6929e95937287fa37d129b756746"
+    # the participants of one process share a key's CMAC, which remembers what it computed last
+    shared = shared_cmac(key)
+    assert shared is shared_cmac(bytes.fromhex(key.hex()))
+    assert [shared(message), shared(message), shared(b"\xff" * length)[:0], shared(message)] == [
+        expected,
+        expected,
+        b"",
+        expected,
+    ]
+
+
+def test_a_cmac_forgets_beyond_its_recent_messages():
+    cmac, plain = ShortCmac(bytes(16)), ShortCmac(bytes(16))
+    messages = [i.to_bytes(3, "big") for i in range(3 * _RECENT)]
+    assert [cmac(m) for m in messages + messages[::-1]] == [plain(m) for m in messages + messages[::-1]]
+    assert len(cmac._recent) <= _RECENT

@@ -23,6 +23,7 @@ from its schedule, which frames the run's receivers get in which tick.
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +53,9 @@ class WireFrame:
     seq: int = field(default=0, compare=False)
     bits: tuple[int, int] | None = field(default=None, compare=False, repr=False)
     """``bits_of`` the frame, once it has been asked."""
+    durations: tuple[int, int, int, int] | None = field(default=None, compare=False, repr=False)
+    """(bit rate, data bit rate, ``Wire.duration_ns``) of the frame on the last wire that asked: a
+    frame that waits is planned at every tick until it goes."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,11 @@ def bits_of(frame: WireFrame) -> tuple[int, int]:
     return frame.bits
 
 
+def _queue_order(frame: WireFrame) -> tuple[int, int]:
+    """When a frame contends from, then the order it was offered in: a sender's newest frame of an id is last."""
+    return frame.queued_ns, frame.seq
+
+
 class Wire:
     """The wire at ``bitrate`` (and ``data_bitrate`` for CAN FD data phases with BRS)."""
 
@@ -103,9 +112,17 @@ class Wire:
 
     def duration_ns(self, frame: WireFrame) -> tuple[int, int]:
         """(ns on the wire, ns from SOF to delivery) of ``frame``."""
-        nominal, fast = bits_of(frame)
-        total = round(nominal * 1e9 / self.bitrate + fast * 1e9 / self.data_bitrate)
-        return total, total - round(_INTERMISSION * 1e9 / self.bitrate)
+        known = frame.durations
+        if known is None or known[0] != self.bitrate or known[1] != self.data_bitrate:
+            nominal, fast = bits_of(frame)
+            total = round(nominal * 1e9 / self.bitrate + fast * 1e9 / self.data_bitrate)
+            known = frame.durations = (
+                self.bitrate,
+                self.data_bitrate,
+                total,
+                total - round(_INTERMISSION * 1e9 / self.bitrate),
+            )
+        return known[2], known[3]
 
     def offer(self, frame: WireFrame) -> None:
         """Queue a frame; it contends from its ``queued_ns`` on."""
@@ -115,45 +132,58 @@ class Wire:
 
     def run(self, stop_ns: int) -> list[Transmission]:
         """Simulate the wire: the transmissions that start before ``stop_ns`` (in order), and the
-        frames replaced before they could go, are taken off the queue and returned."""
+        frames replaced before they could go, are taken off the queue and returned.
+
+        Whenever the wire is idle at t, the frames queued by t contend: first a sender's older
+        frames of an id are replaced by its newest one queued by t (the replaced ones in the order
+        they were offered, each at the time its replacement was queued), then the lowest (id,
+        queue time, offer) wins and holds the wire for its duration. Frames join the contest in
+        the order of their queue times and the contenders are a heap: n frames cost O(n log n)."""
         out: list[Transmission] = []
+        if not self.queue:
+            return out
         t = self.idle_ns
-        while self.queue:
-            eligible = [f for f in self.queue if f.queued_ns <= t]
-            if not eligible:
-                t = max(t, min(f.queued_ns for f in self.queue))
+        waiting = sorted(self.queue, key=_queue_order)
+        n, i = len(waiting), 0
+        contenders: list[tuple[int, int, int, int, WireFrame]] = []  # a heap, by (id, queue time, offer)
+        holding: dict[tuple[str, int], WireFrame] = {}  # (sender, id) -> its frame contending
+        gone: set[int] = set()  # the frames taken off the queue (sent or replaced), by id()
+        while True:
+            if not holding and (i == n or waiting[i].queued_ns > t):  # nothing queued by t
+                if i == n:
+                    break
+                t = max(t, waiting[i].queued_ns)
                 if t >= stop_ns:
                     break
                 continue
             if t >= stop_ns:
                 break
-            dropped = self._replace_stale(eligible)
-            if dropped:
-                out += dropped
-                eligible = [f for f in self.queue if f.queued_ns <= t]
-            winner = min(eligible, key=lambda f: (f.frame_id, f.queued_ns, f.seq))
-            self.queue.remove(winner)
+            replaced: list[tuple[WireFrame, tuple[str, int]]] = []
+            while i < n and waiting[i].queued_ns <= t:  # the frames queued by t join
+                frame = waiting[i]
+                key = (frame.sender, frame.frame_id)
+                held = holding.get(key)
+                if held is not None:  # the sender's older frame of this id (frames join in queue order)
+                    replaced.append((held, key))
+                    gone.add(id(held))
+                holding[key] = frame
+                heapq.heappush(contenders, (frame.frame_id, frame.queued_ns, frame.seq, i, frame))
+                i += 1
+            for older, key in sorted(replaced, key=lambda item: item[0].seq):
+                at = holding[key].queued_ns
+                out.append(Transmission(older, at, at, at, "replaced by a newer frame of its id"))
+            winner = heapq.heappop(contenders)[-1]
+            while id(winner) in gone:  # replaced while it waited in the heap
+                winner = heapq.heappop(contenders)[-1]
+            gone.add(id(winner))
+            del holding[(winner.sender, winner.frame_id)]
             total, delivery = self.duration_ns(winner)
             out.append(Transmission(winner, t, t + delivery, t + total))
             t += total
             self.idle_ns = t
+        if gone:
+            self.queue = [frame for frame in self.queue if id(frame) not in gone]
         return out
-
-    def _replace_stale(self, eligible: list[WireFrame]) -> list[Transmission]:
-        """A sender's newer frame of an id replaces its older one still waiting."""
-        if len({(frame.sender, frame.frame_id) for frame in eligible}) == len(eligible):
-            return []  # the usual case: one frame per sender and id
-        newest: dict[tuple[str, int], WireFrame] = {}
-        for frame in sorted(eligible, key=lambda f: (f.queued_ns, f.seq)):
-            newest[(frame.sender, frame.frame_id)] = frame
-        dropped = []
-        for frame in eligible:
-            newer = newest[(frame.sender, frame.frame_id)]
-            if newer is not frame:
-                self.queue.remove(frame)
-                at = newer.queued_ns
-                dropped.append(Transmission(frame, at, at, at, "replaced by a newer frame of its id"))
-        return dropped
 
     def fork(self) -> Wire:
         """A copy to plan on: the same clock and queue (the same frames); what it runs and is offered
