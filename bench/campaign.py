@@ -58,6 +58,12 @@ def campaign_file(folder: Path, runs: int, duration: float, scenario: str = "mas
     return path
 
 
+def seconds(value: float) -> float:
+    """A time in seconds to four significant digits: a run of a fraction of a second keeps its
+    precision (three decimals left a 0.009 s run with one digit and its ratios off by a tenth)."""
+    return float(f"{value:.4g}")
+
+
 def rss_mb() -> float:
     """This process's resident memory now (Linux /proc)."""
     pages = int(Path("/proc/self/statm").read_text().split()[1])
@@ -162,11 +168,11 @@ def throughput(campaign, folder: Path, args: argparse.Namespace, logged: float) 
         "speedup": round(one.loop_time / many.loop_time, 3),
         "overhead_per_run_s": round(overhead, 4),
         "overhead_fraction": round(overhead / mean_run, 4),
-        "mean_run_s": round(mean_run, 3),
+        "mean_run_s": seconds(mean_run),
         "startup_s": round(many.startup_time, 2),
-        "logged_run_s": round(logged, 3),
-        "campaign_run_cost_s": round(many.loop_time * many.workers / many.runs, 3),
-        "campaign_run_cost_1w_s": round(one.loop_time / one.runs, 3),
+        "logged_run_s": seconds(logged),
+        "campaign_run_cost_s": seconds(many.loop_time * many.workers / many.runs),
+        "campaign_run_cost_1w_s": seconds(one.loop_time / one.runs),
         "cost_over_logged_run": round(many.loop_time * many.workers / many.runs / logged, 3),
         "runs": many.runs,
         "failed": one.failed + many.failed + alone.failed,
