@@ -16,12 +16,18 @@ its single step on given inputs.
 
 from __future__ import annotations
 
+import importlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+
+try:  # the gufuncs behind np.linalg, which take stacks (``lstsq_runs``)
+    _umath_linalg: Any = importlib.import_module("numpy.linalg._umath_linalg")
+except ImportError:  # pragma: no cover (every NumPy 1.x and 2.x has it)
+    _umath_linalg = None
 
 from estimators.base import Estimator
 from estimators.model import OperatingPoint
@@ -53,6 +59,26 @@ def norms(vectors: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(v)`` of each row v of ``vectors`` (K, n), bit for bit: √(v·v), the dot
     product by the stacked (1, n) @ (n, 1) product, which calls the kernel of the single ``v.dot(v)``."""
     return np.sqrt(np.matmul(vectors[..., None, :], vectors[..., :, None])[..., 0, 0])
+
+
+def _lstsq_failed(error: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+
+
+def lstsq_runs(matrix: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(matrix, b, rcond=None)[0]`` for each row b of ``vectors`` (K, m), bit for
+    bit: NumPy's own least-squares gufunc (LAPACK's gelsd) over the K systems, each solved alone
+    with the workspace the single call queries for its shape. (The public function takes one
+    system; K right-hand sides in one gelsd call are rounded otherwise.) Raises LinAlgError as
+    ``lstsq`` does, for all K: its caller then solves run by run to find which."""
+    m, n = matrix.shape
+    if _umath_linalg is None:  # a NumPy without the module: the same numbers, run by run
+        return np.array([np.linalg.lstsq(matrix, b, rcond=None)[0] for b in vectors]).reshape(len(vectors), n)
+    rcond = np.finfo(np.float64).eps * max(m, n)
+    stacked = np.broadcast_to(matrix, (len(vectors), m, n))
+    with np.errstate(call=_lstsq_failed, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        x = _umath_linalg.lstsq(stacked, vectors[:, :, None], rcond, signature="ddd->ddid")[0]
+    return x[:, :, 0]
 
 
 class StepEach:

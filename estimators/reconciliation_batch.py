@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batched import BatchEstimate, DeviationBatch, mv
+from estimators.batched import BatchEstimate, DeviationBatch, lstsq_runs, mv
 from estimators.gain_identification import (
     search_systems,
     searched_windows,
@@ -67,9 +67,10 @@ def _why(error: Exception) -> str:
 
 
 class NoReconciliationBatch(DeviationBatch):
-    """K ``NoReconciliation`` instances: ẑ = H_z y on arrays; x̂ = C_y⁺ y by each run's least squares
-    (NumPy's LAPACK, run by run: one of several right-hand sides is another LAPACK call, whose
-    rounding nothing holds to the single one's)."""
+    """K ``NoReconciliation`` instances: ẑ = H_z y on arrays; x̂ = C_y⁺ y by each run's least squares,
+    those of the runs with every reading one stacked call (``lstsq_runs``: each system its own gelsd,
+    not one gelsd of several right-hand sides, which rounds otherwise), a run missing a reading by
+    its own call."""
 
     def __init__(self, instances: Sequence[Any]) -> None:
         super().__init__(instances)
@@ -84,14 +85,20 @@ class NoReconciliationBatch(DeviationBatch):
         z = np.matmul(np.where(available, y, 0.0)[:, None, :], self.Hz[:, None])[:, 0, 0]
         x = np.full((len(y), self.model.n), np.nan)
         every = available.all(axis=1)
-        for r, seen in enumerate(available):
+        every[list(self.failed)] = False
+        alone = np.ones(len(y), dtype=bool)  # the runs whose least squares are solved run by run
+        if every.any():  # every reading there: C and y[r], the system of each such run, solved together
+            try:
+                x[every] = lstsq_runs(C, y[every]) + self.x_s
+                alone[every] = False
+            except np.linalg.LinAlgError:
+                pass  # run by run below, to know which
+        for r in np.flatnonzero(alone).tolist():
             if r in self.failed:
                 continue
+            seen = available[r]
             try:
-                if every[r]:  # C[seen] and y[r, seen] are C and y[r], copied: the same numbers
-                    x[r] = np.linalg.lstsq(C, y[r], rcond=None)[0] + self.x_s
-                else:
-                    x[r] = np.linalg.lstsq(C[seen], y[r, seen], rcond=None)[0] + self.x_s if seen.any() else point.x
+                x[r] = np.linalg.lstsq(C[seen], y[r, seen], rcond=None)[0] + self.x_s if seen.any() else point.x
             except np.linalg.LinAlgError as error:
                 self.failed[r] = _why(error)
         rows = list(self.failed)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import estimators
+import estimators.reconciliation_batch as reconciliation_batch
 from estimators.batched import batch_of, check_batched
 from estimators.gain_identification import split_systems, standard_errors, window_equations, window_tests
 from estimators.lmi import box_coordinates, box_coordinates_runs
@@ -117,7 +118,6 @@ def test_the_batched_gain_test_equals_the_single_step_while_runs_accept_identify
 def test_a_batch_whose_shared_gain_search_raises_has_each_run_search_alone(lft, monkeypatch):
     """Should the gain search of all searching runs at once raise (one run's arithmetic), each run
     searches its own window, as alone: the batch is still each run's single step."""
-    import estimators.reconciliation_batch as reconciliation_batch
 
     calls = []
 
@@ -131,7 +131,16 @@ def test_a_batch_whose_shared_gain_search_raises_has_each_run_search_alone(lft, 
     assert len(calls) > 5 and max(calls) > 1  # several runs searched at once, more than once
 
 
-def test_no_reconciliation_batched_equals_its_single_step():
+@pytest.mark.parametrize("stack", ["solved", "raises"])
+def test_no_reconciliation_batched_equals_its_single_step(stack, monkeypatch):
+    """The runs with every reading solved together, the others alone; and every run alone where the
+    stacked call raises (LAPACK's SVD not converging), as the batch then finds which run it was."""
+    if stack == "raises":
+
+        def raising(*args: object) -> None:
+            raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+
+        monkeypatch.setattr(reconciliation_batch, "lstsq_runs", raising)
     y, u = readings()
     y[40, 1, :] = np.nan  # every reading missing: the operating point
     check_batched(lambda: estimators.create("no-reconciliation", paper_model(), {"Hz": HZ}), y, u)

@@ -19,7 +19,7 @@ from estimators.adaptive_law import (
     select_runs,
 )
 from estimators.allocation import VesselController, VesselControllerParams
-from estimators.batched import check_batched, norms
+from estimators.batched import check_batched, lstsq_runs, norms
 from estimators.design import assumption2_factorization
 from estimators.isolation import Isolation, hypothesis_signature
 from tests.linear_masses import masses_model
@@ -41,6 +41,24 @@ def test_the_norms_of_k_rows_are_numpys_norm_of_each_row():
     for n in (1, 2, 3, 6, 8, 13, 40):
         v = rng.standard_normal((500, n)) * np.exp(rng.uniform(-5, 5, (500, n)))
         assert same_bits(norms(v), [np.linalg.norm(row) for row in v]), n
+
+
+def test_least_squares_of_k_runs_are_numpys_lstsq_of_each():
+    """Each system by its own gelsd, as ``np.linalg.lstsq`` solves it: tall, square, wide and rank
+    deficient matrices, right-hand sides from tiny to huge; one gelsd of K right-hand sides rounds
+    otherwise (checked here too, so that the test shows the difference it guards against)."""
+    rng = np.random.default_rng(53)
+    differs = 0
+    for m, n in ((4, 3), (3, 3), (2, 3), (6, 2), (5, 5), (8, 4)):
+        for deficient in (False, True):
+            A = rng.standard_normal((m, n))
+            if deficient:
+                A[:, -1] = A[:, 0] * 0.5  # rank below min(m, n)
+            b = rng.standard_normal((300, m)) * np.exp(rng.uniform(-8, 8, (300, 1)))
+            alone = [np.linalg.lstsq(A, row, rcond=None)[0] for row in b]
+            assert same_bits(lstsq_runs(A, b), alone), (m, n, deficient)
+            differs += not same_bits(np.linalg.lstsq(A, b.T, rcond=None)[0].T, alone)
+    assert differs > 0
 
 
 # -- the adaptation law: K runs against one ---------------------------------------------------------
