@@ -148,6 +148,7 @@ class Wire:
         contenders: list[tuple[int, int, int, int, WireFrame]] = []  # a heap, by (id, queue time, offer)
         holding: dict[tuple[str, int], WireFrame] = {}  # (sender, id) -> its frame contending
         gone: set[int] = set()  # the frames taken off the queue (sent or replaced), by id()
+        push, pop, duration = heapq.heappush, heapq.heappop, self.duration_ns
         while True:
             if not holding and (i == n or waiting[i].queued_ns > t):  # nothing queued by t
                 if i == n:
@@ -158,26 +159,28 @@ class Wire:
                 continue
             if t >= stop_ns:
                 break
-            replaced: list[tuple[WireFrame, tuple[str, int]]] = []
+            replaced: list[tuple[WireFrame, tuple[str, int]]] | None = None
             while i < n and waiting[i].queued_ns <= t:  # the frames queued by t join
                 frame = waiting[i]
                 key = (frame.sender, frame.frame_id)
                 held = holding.get(key)
                 if held is not None:  # the sender's older frame of this id (frames join in queue order)
+                    replaced = replaced or []
                     replaced.append((held, key))
                     gone.add(id(held))
                 holding[key] = frame
-                heapq.heappush(contenders, (frame.frame_id, frame.queued_ns, frame.seq, i, frame))
+                push(contenders, (frame.frame_id, frame.queued_ns, frame.seq, i, frame))
                 i += 1
-            for older, key in sorted(replaced, key=lambda item: item[0].seq):
-                at = holding[key].queued_ns
-                out.append(Transmission(older, at, at, at, "replaced by a newer frame of its id"))
-            winner = heapq.heappop(contenders)[-1]
+            if replaced:
+                for older, key in sorted(replaced, key=lambda item: item[0].seq):
+                    at = holding[key].queued_ns
+                    out.append(Transmission(older, at, at, at, "replaced by a newer frame of its id"))
+            winner = pop(contenders)[-1]
             while id(winner) in gone:  # replaced while it waited in the heap
-                winner = heapq.heappop(contenders)[-1]
+                winner = pop(contenders)[-1]
             gone.add(id(winner))
             del holding[(winner.sender, winner.frame_id)]
-            total, delivery = self.duration_ns(winner)
+            total, delivery = duration(winner)
             out.append(Transmission(winner, t, t + delivery, t + total))
             t += total
             self.idle_ns = t
