@@ -217,3 +217,18 @@ def test_encode_decoded_gives_exactly_what_a_receiver_decodes(fd):
         frame, carried = c.encode_decoded(spec.name, 99, values)
         received = c.decode(frame)
         assert carried.values == received.values and carried.tick == received.tick and carried.spec is received.spec
+
+
+def test_scenarios_with_one_database_share_its_codec_and_others_get_their_own():
+    """A campaign's runs differ in faults, noise and seeds, not in their frames: one codec for all;
+    a bit rate, a resolution or an estimator changes the database, and so the codec."""
+    from cosim import scenario
+
+    base = scenario.load("masses-bias").scenario
+    same = base.with_overrides(seed=7, faults=[])
+    assert same.codec() is base.codec()
+    assert same.codec().dbc == base.codec().dbc
+    slower = base.with_overrides(**{"bus": base.bus.model_copy(update={"bitrate": 250_000})})
+    assert slower.codec() is not base.codec() and slower.codec().bitrate == 250_000
+    fewer = base.with_overrides(estimators=base.estimators[:1])
+    assert fewer.codec() is not base.codec() and len(fewer.codec().specs) < len(base.codec().specs)

@@ -4,6 +4,7 @@ database)."""
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import warnings
@@ -386,23 +387,29 @@ class Scenario(Strict):
         return noise, faults
 
     def codec(self) -> Codec:
-        """The run's CAN database: its sensors, actuators, estimators and clients on its bus."""
+        """The run's CAN database: its sensors, actuators, estimators and clients on its bus. One
+        built for each distinct database and shared (``_database``), as ``Codec.from_dbc`` shares
+        its codecs: a campaign's runs, and the grid points its loading checks, differ in their
+        faults and seeds, not in their frames, and a database costs some 15 ms to build."""
         sensors, actuators, states = self.channels()
-        codec = Codec(
-            sensors,
-            actuators,
-            {e.name: states if ESTIMATORS[e.kind].estimates else [] for e in self.estimators},
-            diagnostics=self.diagnostic_channels(),
-            clients=self.client_channels(),
-            controller=self.controller_channels(),
-            fd=self.bus.fd,
-            bitrate=self.bus.bitrate,
-            data_bitrate=self.bus.data_bitrate,
-            cycle_time=self.sample_time,
+
+        def frozen(channels: dict[str, list[Channel]]) -> tuple[tuple[str, tuple[Channel, ...]], ...]:
+            return tuple((name, tuple(each)) for name, each in channels.items())
+
+        controller = self.controller_channels()
+        return _database(
+            tuple(sensors),
+            tuple(actuators),
+            frozen({e.name: states if ESTIMATORS[e.kind].estimates else [] for e in self.estimators}),
+            frozen(self.diagnostic_channels()),
+            frozen(self.client_channels()),
+            None if controller is None else tuple(controller),
+            self.bus.fd,
+            self.bus.bitrate,
+            self.bus.data_bitrate,
+            self.sample_time,
+            self.bus.authentication == "secoc" and self.bus.fd,  # classic CAN: refused by the scenario checks
         )
-        if self.bus.authentication == "secoc" and self.bus.fd:  # classic CAN: refused by the scenario checks
-            return Codec.from_dbc(secure_dbc(codec.dbc))
-        return codec
 
     def estimator_diagnostics(self, kind: str) -> list[Diagnostic]:
         """The diagnostics an estimator of ``kind`` publishes in this scenario (a KindError if the
@@ -496,3 +503,33 @@ def _without_nulls(data: Any) -> Any:
     if isinstance(data, list):
         return [_without_nulls(value) for value in data]
     return data
+
+
+@functools.lru_cache(maxsize=64)
+def _database(
+    sensors: tuple[Channel, ...],
+    actuators: tuple[Channel, ...],
+    estimators: tuple[tuple[str, tuple[Channel, ...]], ...],
+    diagnostics: tuple[tuple[str, tuple[Channel, ...]], ...],
+    clients: tuple[tuple[str, tuple[Channel, ...]], ...],
+    controller: tuple[Channel, ...] | None,
+    fd: bool,
+    bitrate: int,
+    data_bitrate: int,
+    cycle_time: float,
+    secured: bool,
+) -> Codec:
+    """``Scenario.codec``'s codecs, by what makes their database (a codec is read-only to its users)."""
+    codec = Codec(
+        list(sensors),
+        list(actuators),
+        {name: list(channels) for name, channels in estimators},
+        diagnostics={name: list(channels) for name, channels in diagnostics},
+        clients={name: list(channels) for name, channels in clients},
+        controller=None if controller is None else list(controller),
+        fd=fd,
+        bitrate=bitrate,
+        data_bitrate=data_bitrate,
+        cycle_time=cycle_time,
+    )
+    return Codec.from_dbc(secure_dbc(codec.dbc)) if secured else codec
