@@ -4,14 +4,18 @@ The gain estimators solve min ‖R β − c‖² over lower ≤ β ≤ upper wit
 tick, often with a bound active (a healthy sensor's β = 1 sits on it). scipy's BVLS solves it, but
 its Python set-up costs ten times the algebra of a 4 × 4 problem; the primal active-set method below
 does the same on the small system, and hands anything it cannot settle quickly to BVLS. Its
-subproblems go straight to LAPACK (numpy.linalg's checks cost more than a 4 × 4 solve).
+LAPACK calls go through ``estimators.stacked`` (numpy.linalg's checks cost more than a 4 × 4
+solve), which also lets K problems of a batch make each call once (``box_least_squares_runs``).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import scipy.optimize
-from scipy.linalg import lapack
+
+from estimators.stacked import least_squares, singular_values
 
 _EPS = float(np.finfo(float).eps)
 
@@ -30,19 +34,22 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     g_i > 0 at its upper), or stop: β then satisfies the KKT conditions, and is the minimizer (the
     only one if R has full column rank). A rank-deficient R, or a problem not settled in 3 m + 3
     iterations, goes to scipy's BVLS; so does a numerically rank-deficient R (σ_min ≤ m ε σ_max), after
-    the minimum-norm least-squares solution, if that lies in the box.
+    the minimum-norm least-squares solution, if that lies in the box; so does a subproblem whose
+    solution is not finite.
     """
     k, m = R.shape
-    sv = lapack.dgesvd(R, compute_uv=0)[1].tolist()
+    sv = singular_values(R).tolist()
     if k < m or not sv[-1] > sv[0] * m * _EPS:
         beta = np.linalg.lstsq(R, c, rcond=None)[0]
         inside = np.all(beta >= lower) and np.all(beta <= upper)
         return beta if inside else _bvls(R, c, lower, upper)
-    beta = _least_squares(R, c)
+    beta = least_squares(R, c)
     # The bookkeeping is on m numbers: Python floats and lists cost less than numpy calls there.
     lo, hi, x = lower.tolist(), upper.tolist(), beta.tolist()
     if all(a <= v <= b for a, v, b in zip(lo, x, hi, strict=True)):
         return beta
+    if not all(map(math.isfinite, x)):
+        return _bvls(R, c, lower, upper)
     x = [min(max(v, a), b) for a, v, b in zip(lo, x, hi, strict=True)]
     held = [v in (a, b) for a, v, b in zip(lo, x, hi, strict=True)]
     # A multiplier smaller than the rounding of the gradient does not release its variable.
@@ -52,7 +59,10 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
         z = list(x)
         if free:
             fixed = R.dot(np.array([v if h else 0.0 for v, h in zip(x, held, strict=True)]))
-            for i, v in zip(free, _least_squares(R[:, free], c - fixed).tolist(), strict=True):
+            solution = least_squares(R[:, free], c - fixed).tolist()
+            if not all(map(math.isfinite, solution)):
+                return _bvls(R, c, lower, upper)
+            for i, v in zip(free, solution, strict=True):
                 z[i] = v
         first, reach, bound = -1, 1.0, 0.0  # the first variable z takes past a bound, along x → z
         for i in free:
@@ -76,12 +86,96 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     return _bvls(R, c, lower, upper)
 
 
-def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """argmin ‖A x − b‖ for A (k, n) of full column rank, k ≥ n, by Householder QR (LAPACK's dgels)."""
-    solution = lapack.dgels(A, b)[1]
-    return solution[: A.shape[1]]
-
-
 def _bvls(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     solution = scipy.optimize.lsq_linear(R, c, bounds=(lower, upper), method="bvls").x
     return np.minimum(np.maximum(solution, lower), upper)  # BVLS may step past a bound by a rounding
+
+
+def box_least_squares_runs(
+    R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``box_least_squares`` of K problems (a batch's runs), each bit for bit what it gives alone.
+
+    Shapes: R (K, k, m), c (K, k), lower and upper (m,) or (K, m); returns β (K, m) and the runs
+    left to ``box_least_squares`` (bool, K; their rows of β NaN): those whose R is rank deficient or
+    has fewer rows than columns, whose numbers are not all finite, whose subproblem has no finite
+    solution, or whose active set is not settled in 3 m + 3 iterations (which go to BVLS alone too).
+
+    The same primal active-set method, its bookkeeping on (K, m) arrays: every run takes its own
+    steps (a step to the box, or a release); the singular values of all runs in one call, the
+    subproblems of the runs that hold the same variables in one call (``estimators.stacked``: each
+    run's numbers are those it gets alone), the products Rᵀ(R β − c) by NumPy's stacked matmul,
+    which calls the single product's kernel per run.
+    """
+    runs, k, m = R.shape
+    beta = np.full((runs, m), np.nan)
+    if k < m or not runs:
+        return beta, np.full(runs, k < m)
+    lo, hi = np.empty((runs, m)), np.empty((runs, m))
+    lo[:], hi[:] = lower, upper
+    # Sums: a NaN or an infinity anywhere shows in them (so can an overflow: that run goes alone too).
+    finite = np.isfinite(R.sum(axis=(1, 2)) + c.sum(axis=1) + lo.sum(axis=1) + hi.sum(axis=1))
+    sv = np.zeros((runs, m))
+    sv[finite] = singular_values(R[finite])
+    regular = finite & (sv[:, -1] > sv[:, 0] * m * _EPS)
+    x = np.zeros((runs, m))
+    x[regular] = least_squares(R[regular], c[regular])
+    unsolved = regular & ~np.isfinite(x.sum(axis=1))
+    regular &= ~unsolved
+    inside = regular & ((lo <= x) & (x <= hi)).all(axis=1)
+    beta[inside] = x[inside]
+    rows = np.flatnonzero(regular & ~inside)  # the runs still searching, and their problems:
+    R, c, lo, hi, x = R[rows], c[rows], lo[rows], hi[rows], x[rows]
+    x = np.minimum(np.maximum(x, lo), hi)
+    held = (x == lo) | (x == hi)
+    # A multiplier smaller than the rounding of the gradient does not release its variable.
+    top = sv[rows, 0]
+    tolerance = (1e-12 * top * (top * np.abs(x).max(axis=1) + np.abs(c).max(axis=1)))[:, None]
+    weights = 1 << np.arange(m)
+    for _ in range(3 * m + 3):
+        if not len(rows):
+            break
+        # Every searching run's step and its release are formed; each run then takes the one it takes.
+        z = x.copy()
+        pattern = held.dot(weights)  # the runs with one free set solve on one gather
+        if (pattern < weights[-1] * 2 - 1).any():
+            rhs = c - np.matmul(R, np.where(held, x, 0.0)[..., None])[..., 0]
+            for code in np.unique(pattern).tolist():
+                group = np.flatnonzero(pattern == code)
+                free = np.flatnonzero(~held[group[0]])
+                if len(free):
+                    z[np.ix_(group, free)] = least_squares(R[group][:, :, free], rhs[group])
+            broken = ~np.isfinite(z.sum(axis=1))  # alone, it goes to BVLS
+            if broken.any():
+                unsolved[rows[broken]] = True
+                keep = ~broken
+                rows, R, c, lo, hi, x, z, held, tolerance = (
+                    a[keep] for a in (rows, R, c, lo, hi, x, z, held, tolerance)
+                )
+                if not len(rows):
+                    break
+        edge = np.where(z < lo, lo, hi)
+        outside = ~held & ((z < lo) | (z > hi))
+        along = np.divide(edge - x, z - x, out=np.full(x.shape, np.inf), where=outside)  # where x → z meets it
+        each = np.arange(len(rows))
+        first = along.argmin(axis=1)  # the first variable z takes past a bound (the lowest index of a tie)
+        reach = along[each, first]
+        step = reach < 1.0
+        stepped = x + np.where(step, reach, 0.0)[:, None] * (z - x)
+        stepped[each, first] = edge[each, first]
+        g = np.matmul(np.swapaxes(R, 1, 2), (np.matmul(R, z[..., None])[..., 0] - c)[..., None])[..., 0]
+        inward = np.where(z <= lo, -g, g)  # > 0: moving into the box lowers the cost
+        pulled = np.where(held & (inward > tolerance), inward, -np.inf)
+        release = pulled.argmax(axis=1)  # the held variable its multiplier pulls hardest into the box
+        released = ~step & (pulled[each, release] > -np.inf)
+        done = ~step & ~released
+        beta[rows[done]] = z[done]
+        x = np.where(step[:, None], stepped, z)
+        held[each, first] |= step
+        held[each, release] &= ~released
+        if done.any():
+            keep = ~done
+            rows, R, c, lo, hi, x, held, tolerance = (a[keep] for a in (rows, R, c, lo, hi, x, held, tolerance))
+    alone = ~regular | unsolved  # not finite, rank deficient, or a subproblem unsolved
+    alone[rows] = True  # not settled in 3 m + 3 iterations
+    return beta, alone

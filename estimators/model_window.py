@@ -5,14 +5,13 @@ samples, solved for the gains by bounded least squares (docs/three-tank.md, "The
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import lapack
 
-from estimators.box_least_squares import box_least_squares
+from estimators.box_least_squares import box_least_squares, box_least_squares_runs
+from estimators.stacked import singular_values, triangular_factors
 
 _TINY = float(np.finfo(float).tiny)
 
@@ -50,7 +49,7 @@ def reduced_system(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.n
     columns = np.empty((m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
     np.matmul(projection.by_sensor, y.T[:, :, None], out=columns[:m, :, None])  # W' Y: column j is W_j' y_j
     columns[m] = projection.forced.dot(u[:-1].ravel())  # W' r
-    return lapack.dgeqrf(columns.T)[0][: m + 1] * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
+    return triangular_factors(columns.T, overwrite=True)
 
 
 def reduced_systems(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -60,16 +59,7 @@ def reduced_systems(projection: Projection, y: np.ndarray, u: np.ndarray) -> np.
     columns = np.empty((runs, m + 1, rows))  # [W' Y, W' r] column by column: the Fortran order LAPACK takes
     np.matmul(projection.by_sensor, np.swapaxes(y, 1, 2)[..., None], out=columns[:, :m, :, None])  # W_j' y_j
     np.matmul(projection.forced, u[:, :-1].reshape(runs, -1, 1), out=columns[:, m, :, None])  # W' r
-    factors = np.stack([lapack.dgeqrf(c.T)[0][: m + 1] for c in columns])
-    return factors * _upper_triangle(m + 1)  # R̃, as np.linalg.qr(system, "r")
-
-
-@functools.lru_cache(maxsize=16)
-def _upper_triangle(size: int) -> np.ndarray:
-    """1 on and above the diagonal, 0 below: R̃ from LAPACK's factors (np.triu builds its mask each call)."""
-    mask = np.triu(np.ones((size, size)))
-    mask.flags.writeable = False
-    return mask
+    return triangular_factors(np.swapaxes(columns, 1, 2), overwrite=True)
 
 
 @dataclass(frozen=True)
@@ -166,7 +156,7 @@ def window_gains(
     reduced = reduced_system(projection, y * window.weight, u)
     R, c, rest = reduced[:-1, :-1], reduced[:-1, -1], float(reduced[-1, -1]) ** 2
     scale = np.sqrt(np.einsum("ij,ij->j", R, R))  # a zero column stays zero divided by the smallest float
-    sv = lapack.dgesvd(R / np.maximum(scale, _TINY), compute_uv=0)[1]
+    sv = singular_values(R / np.maximum(scale, _TINY))
     beta = box_least_squares(R, c, 1.0 / upper, 1.0 / lower)
     misfit = R.dot(beta) - c
     size = float(c.dot(c)) + rest
@@ -192,24 +182,25 @@ def gains_of_reduced(
     reduced: np.ndarray, lower: np.ndarray, upper: np.ndarray, failed: dict[int, str] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What ``window_gains`` takes from K reduced systems (K, m + 1, m + 1): γ, the singular values
-    of the column-normalized regressor and the relative residual of each (the box least squares and
-    the SVD run by run, the rest on arrays). With ``failed``, a run whose
+    of the column-normalized regressor and the relative residual of each (the box least squares
+    by ``box_least_squares_runs``, the rest on stacks). With ``failed``, a run whose
     least squares raises is recorded there (its γ NaN) and the others go on, and a run it holds
     already is not solved; without, it raises."""
     R, c, rest = reduced[:, :-1, :-1], reduced[:, :-1, -1], np.array([float(v) ** 2 for v in reduced[:, -1, -1]])
     scale = np.sqrt(np.einsum("kij,kij->kj", R, R))  # a zero column stays zero divided by the smallest float
     normalized = R / np.maximum(scale, _TINY)[:, None, :]
     skip = failed or {}  # a run left out (a reading missing: its own projection) is not factorised
-    sv = np.stack(
-        [np.zeros(R.shape[2]) if k in skip else lapack.dgesvd(row, compute_uv=0)[1] for k, row in enumerate(normalized)]
-    )
+    solved = np.array([k not in skip for k in range(len(R))], dtype=bool)
+    sv = np.zeros(c.shape)
+    sv[solved] = singular_values(normalized[solved])
     beta = np.full(c.shape, np.nan)
-    for k, (Rk, ck) in enumerate(zip(R, c, strict=True)):  # run by run: its bookkeeping on arrays costs more
+    beta[solved], alone = box_least_squares_runs(R[solved], c[solved], 1.0 / upper, 1.0 / lower)
+    for k in np.flatnonzero(solved)[alone]:  # rank deficient, not finite or not settled: as alone
         if failed is None:
-            beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
-        elif k not in failed:
+            beta[k] = box_least_squares(R[k], c[k], 1.0 / upper, 1.0 / lower)
+        else:
             try:
-                beta[k] = box_least_squares(Rk, ck, 1.0 / upper, 1.0 / lower)
+                beta[k] = box_least_squares(R[k], c[k], 1.0 / upper, 1.0 / lower)
             except Exception as error:  # noqa: BLE001 (recorded: that run fails, as alone)
                 failed[k] = f"{type(error).__name__}: {error}"
     misfit = np.matmul(R, beta[..., None])[..., 0] - c

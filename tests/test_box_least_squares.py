@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from estimators.box_least_squares import box_least_squares
+from estimators.box_least_squares import box_least_squares, box_least_squares_runs
 
 
 def random_problem(rng: np.random.Generator, rank_deficient: bool = False):
@@ -53,3 +53,40 @@ def test_its_solution_satisfies_the_kkt_conditions():
 def test_an_unconstrained_minimizer_inside_the_box_is_returned_as_is():
     R = np.array([[2.0, 0.0], [0.0, 1.0]])
     np.testing.assert_array_equal(box_least_squares(R, np.array([1.0, 0.5]), np.zeros(2), np.ones(2)), [0.5, 0.5])
+
+
+def test_k_problems_at_once_give_each_problem_s_own_bits():
+    """``box_least_squares_runs`` of K problems of one shape: each row bit for bit
+    ``box_least_squares`` of its problem (bounds per problem or shared), or left to it (rank
+    deficient, not finite, not settled); those it settles are most of them, with bounds active."""
+    rng = np.random.default_rng(9)
+    settled = active = 0
+    for trial in range(300):
+        m = int(rng.integers(1, 6))
+        k = m + int(rng.integers(0, 3))
+        K = int(rng.integers(1, 40))
+        R = rng.normal(size=(K, k, m)) * 10.0 ** rng.uniform(-3, 3, (K, 1, m))
+        deficient = rng.random(K) < (0.05 if m > 1 else 0.0)
+        R[deficient, :, -1] = R[deficient, :, 0]
+        c = rng.normal(size=(K, k)) * 10.0 ** rng.uniform(-2, 2, (K, 1))
+        c[rng.random(K) < 0.02, 0] = np.nan
+        lower = rng.uniform(-1.0, 0.5, (K, m) if trial % 2 else m)
+        upper = lower + rng.uniform(0.01, 2.0, lower.shape)
+        beta, alone = box_least_squares_runs(R, c, lower, upper)
+        for r in range(K):
+            low, high = (lower[r], upper[r]) if trial % 2 else (lower, upper)
+            if alone[r]:
+                assert np.isnan(beta[r]).all()
+                continue
+            np.testing.assert_array_equal(beta[r], box_least_squares(R[r], c[r], low, high))
+            settled += 1
+            active += np.any((beta[r] == low) | (beta[r] == high))
+        assert alone[np.isnan(c).any(axis=1)].all()
+    assert settled > 5000 and active > 3000
+
+
+def test_k_problems_with_no_run_or_too_few_rows():
+    beta, alone = box_least_squares_runs(np.zeros((0, 3, 2)), np.zeros((0, 3)), np.zeros(2), np.ones(2))
+    assert beta.shape == (0, 2) and alone.shape == (0,)
+    beta, alone = box_least_squares_runs(np.ones((3, 1, 2)), np.ones((3, 1)), np.zeros(2), np.ones(2))
+    assert alone.all() and np.isnan(beta).all()
