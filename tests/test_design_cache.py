@@ -5,14 +5,17 @@ is in tests/test_reconciliation.py.)"""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import estimators
 from cosim import design_cache, scenario
+from cosim.run import node
 from cosim.run.plan import RunPlan, estimator_record
 from estimators import ParameterError
 
@@ -88,3 +91,37 @@ def test_thresholds_of_the_wrong_shape_are_refused_naming_the_parameter():
     model = plan.estimators["fdi"].model
     with pytest.raises(ParameterError, match=r"thresholds: expected 8 rows of 3 values, got \(1, 2\)"):
         estimators.create("cofd", model, {**spec.params, "thresholds": [[1.0, 2.0]]}, 0.1)
+
+
+@pytest.mark.parametrize("threads", [2, 4])
+def test_a_design_is_the_same_whatever_the_blas_threads(threads, monkeypatch):
+    """OpenBLAS splits a large product among its threads (one per core by default) and the split
+    moves its last bits: the vessel diagnosis's discretized observers and rotating-frame gains
+    differed in them, and its frames with them, between one BLAS thread and two (a machine with
+    another core count logged other frames). A plan, and an estimator a node builds from its
+    design, are computed on one BLAS thread: the same numbers whatever the caller's threads."""
+    from threadpoolctl import threadpool_limits
+
+    monkeypatch.setenv("COSIM_CACHE_DIR", "off")
+
+    def design(limit: int) -> dict:
+        with threadpool_limits(limits=limit, user_api="blas"):
+            estimator = RunPlan.build(scenario.load("vessel-fault-T3")).estimators["fdi"]
+            params = {**dataclasses.asdict(estimator.params), **estimator.node_params()}  # as the runner sends it
+            spec = SimpleNamespace(kind="cofd", model=estimator.model, params=params)
+            rebuilt = node._create(estimators.create, replace_sample_time(spec, estimator.sample_time), "fdi")
+        return {
+            "design": estimator.node_params(),
+            "discrete": estimator.discrete,
+            "gains": estimator.frame.gains,
+            "node's discrete": rebuilt.discrete,  # what a node derives from the design it is given
+        }
+
+    one, more = design(1), design(threads)
+    for name in one:
+        np.testing.assert_equal(more[name], one[name], err_msg=name)
+
+
+def replace_sample_time(spec: SimpleNamespace, sample_time: float | None) -> SimpleNamespace:
+    spec.sample_time = sample_time
+    return spec

@@ -29,6 +29,7 @@ import numpy as np
 
 import estimators
 from cosim import __version__
+from cosim.design_cache import one_blas_thread
 from cosim.errors import CosimError, ScenarioError
 from cosim.kinds import KindError, is_file_reference
 from estimators import Estimator, LinearModel, ParameterError
@@ -177,7 +178,8 @@ def build(content: dict[str, Any], resources: Path, values: dict[str, Any]) -> t
         kind = f"{resources / kind.partition(':')[0]}:{kind.partition(':')[2]}"
     model = LinearModel.from_dict(content["model"])
     try:
-        return estimators.create(kind, model, params, content["sample_time"]), notes
+        with one_blas_thread():  # as a node builds it
+            return estimators.create(kind, model, params, content["sample_time"]), notes
     except ParameterError as error:
         raise CosimError(f"estimator {content['name']}: params.{error}") from None
 

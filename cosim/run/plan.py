@@ -291,7 +291,13 @@ class RunPlan:
     @classmethod
     def build(cls, loaded: LoadedScenario, seed: int | None = None, **overrides: Any) -> RunPlan:
         """The plan of ``loaded`` with ``seed`` and ``overrides`` (see ``Scenario.with_overrides``),
-        validated like the file; a ScenarioError names whatever cannot be built."""
+        validated like the file; a ScenarioError names whatever cannot be built. Built on one BLAS
+        thread: the same linearization and designs on any machine (``design_cache.one_blas_thread``)."""
+        with design_cache.one_blas_thread():
+            return cls._build(loaded, seed, **overrides)
+
+    @classmethod
+    def _build(cls, loaded: LoadedScenario, seed: int | None, **overrides: Any) -> RunPlan:
         try:
             s = loaded.scenario.with_overrides(seed=seed, **overrides)
         except ScenarioError as error:
