@@ -51,9 +51,19 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     if not all(map(math.isfinite, x)):
         return _bvls(R, c, lower, upper)
     x = [min(max(v, a), b) for a, v, b in zip(lo, x, hi, strict=True)]
-    held = [v in (a, b) for a, v, b in zip(lo, x, hi, strict=True)]
     # A multiplier smaller than the rounding of the gradient does not release its variable.
     tolerance = 1e-12 * sv[0] * (sv[0] * max(map(abs, x)) + max(map(abs, c.tolist())))
+    found = _active_set(R, c, lo, hi, x, tolerance)
+    return _bvls(R, c, lower, upper) if found is None else found
+
+
+def _active_set(
+    R: np.ndarray, c: np.ndarray, lo: list[float], hi: list[float], x: list[float], tolerance: float
+) -> np.ndarray | None:
+    """``box_least_squares``'s iterations from x in the box, those at a bound held; None: not settled
+    in 3 m + 3 iterations, or a subproblem with no finite solution."""
+    m = len(x)
+    held = [v in (a, b) for a, v, b in zip(lo, x, hi, strict=True)]
     for _ in range(3 * m + 3):
         free = [i for i in range(m) if not held[i]]
         z = list(x)
@@ -61,7 +71,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
             fixed = R.dot(np.array([v if h else 0.0 for v, h in zip(x, held, strict=True)]))
             solution = least_squares(R[:, free], c - fixed).tolist()
             if not all(map(math.isfinite, solution)):
-                return _bvls(R, c, lower, upper)
+                return None
             for i, v in zip(free, solution, strict=True):
                 z[i] = v
         first, reach, bound = -1, 1.0, 0.0  # the first variable z takes past a bound, along x → z
@@ -83,7 +93,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
         if release < 0:
             return np.array(x)
         held[release] = False
-    return _bvls(R, c, lower, upper)
+    return None
 
 
 def _bvls(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -124,58 +134,76 @@ def box_least_squares_runs(
     regular &= ~unsolved
     inside = regular & ((lo <= x) & (x <= hi)).all(axis=1)
     beta[inside] = x[inside]
-    rows = np.flatnonzero(regular & ~inside)  # the runs still searching, and their problems:
-    R, c, lo, hi, x = R[rows], c[rows], lo[rows], hi[rows], x[rows]
-    x = np.minimum(np.maximum(x, lo), hi)
-    held = (x == lo) | (x == hi)
-    # A multiplier smaller than the rounding of the gradient does not release its variable.
-    top = sv[rows, 0]
-    tolerance = (1e-12 * top * (top * np.abs(x).max(axis=1) + np.abs(c).max(axis=1)))[:, None]
-    weights = 1 << np.arange(m)
+    search = _ActiveSets(np.flatnonzero(regular & ~inside), R, c, lo, hi, x, sv[:, 0])
     for _ in range(3 * m + 3):
-        if not len(rows):
+        if not len(search.rows):
             break
-        # Every searching run's step and its release are formed; each run then takes the one it takes.
-        z = x.copy()
-        pattern = held.dot(weights)  # the runs with one free set solve on one gather
-        if (pattern < weights[-1] * 2 - 1).any():
-            rhs = c - np.matmul(R, np.where(held, x, 0.0)[..., None])[..., 0]
-            for code in np.unique(pattern).tolist():
-                group = np.flatnonzero(pattern == code)
-                free = np.flatnonzero(~held[group[0]])
-                if len(free):
-                    z[np.ix_(group, free)] = least_squares(R[group][:, :, free], rhs[group])
-            broken = ~np.isfinite(z.sum(axis=1))  # alone, it goes to BVLS
-            if broken.any():
-                unsolved[rows[broken]] = True
-                keep = ~broken
-                rows, R, c, lo, hi, x, z, held, tolerance = (
-                    a[keep] for a in (rows, R, c, lo, hi, x, z, held, tolerance)
-                )
-                if not len(rows):
-                    break
+        search.iterate(beta, unsolved)
+    alone = ~regular | unsolved  # not finite, rank deficient, or a subproblem unsolved
+    alone[search.rows] = True  # not settled in 3 m + 3 iterations
+    return beta, alone
+
+
+class _ActiveSets:
+    """The runs of ``box_least_squares_runs`` still searching, a row each: their problems (R, c, the
+    box), iterates x in the box, the variables each holds at a bound, and release tolerances."""
+
+    def __init__(self, rows: np.ndarray, *problems: np.ndarray) -> None:
+        """The runs ``rows`` of R, c, lo, hi, the unconstrained minimizers x and σ_max (all runs')."""
+        R, c, lo, hi, x, top = (a[rows] for a in problems)
+        self.rows, self.R, self.c, self.lo, self.hi = rows, R, c, lo, hi
+        self.x = np.minimum(np.maximum(x, lo), hi)
+        self.held = (self.x == lo) | (self.x == hi)
+        # A multiplier smaller than the rounding of the gradient does not release its variable.
+        self.tolerance = (1e-12 * top * (top * np.abs(self.x).max(axis=1) + np.abs(self.c).max(axis=1)))[:, None]
+
+    def keep(self, kept: np.ndarray) -> None:
+        for name in ("rows", "R", "c", "lo", "hi", "x", "held", "tolerance"):
+            setattr(self, name, getattr(self, name)[kept])
+
+    def iterate(self, beta: np.ndarray, unsolved: np.ndarray) -> None:
+        """One iteration of every run: a step towards its minimizer z until a bound, or z itself
+        and a release, or done (its row of ``beta`` written, the run dropped). Every run's step and
+        release are formed; each run takes the one it takes."""
+        z, broken = self.minimizers()
+        if broken.any():  # alone, it goes to BVLS
+            unsolved[self.rows[broken]] = True
+            self.keep(~broken)
+            z = z[~broken]
+        x, lo, hi, held, R = self.x, self.lo, self.hi, self.held, self.R
         edge = np.where(z < lo, lo, hi)
         outside = ~held & ((z < lo) | (z > hi))
         along = np.divide(edge - x, z - x, out=np.full(x.shape, np.inf), where=outside)  # where x → z meets it
-        each = np.arange(len(rows))
+        each = np.arange(len(x))
         first = along.argmin(axis=1)  # the first variable z takes past a bound (the lowest index of a tie)
         reach = along[each, first]
         step = reach < 1.0
         stepped = x + np.where(step, reach, 0.0)[:, None] * (z - x)
         stepped[each, first] = edge[each, first]
-        g = np.matmul(np.swapaxes(R, 1, 2), (np.matmul(R, z[..., None])[..., 0] - c)[..., None])[..., 0]
+        g = np.matmul(np.swapaxes(R, 1, 2), (np.matmul(R, z[..., None])[..., 0] - self.c)[..., None])[..., 0]
         inward = np.where(z <= lo, -g, g)  # > 0: moving into the box lowers the cost
-        pulled = np.where(held & (inward > tolerance), inward, -np.inf)
+        pulled = np.where(held & (inward > self.tolerance), inward, -np.inf)
         release = pulled.argmax(axis=1)  # the held variable its multiplier pulls hardest into the box
         released = ~step & (pulled[each, release] > -np.inf)
         done = ~step & ~released
-        beta[rows[done]] = z[done]
-        x = np.where(step[:, None], stepped, z)
+        beta[self.rows[done]] = z[done]
+        self.x = np.where(step[:, None], stepped, z)
         held[each, first] |= step
         held[each, release] &= ~released
         if done.any():
-            keep = ~done
-            rows, R, c, lo, hi, x, held, tolerance = (a[keep] for a in (rows, R, c, lo, hi, x, held, tolerance))
-    alone = ~regular | unsolved  # not finite, rank deficient, or a subproblem unsolved
-    alone[rows] = True  # not settled in 3 m + 3 iterations
-    return beta, alone
+            self.keep(~done)
+
+    def minimizers(self) -> tuple[np.ndarray, np.ndarray]:
+        """z, each run's least squares over the variables it does not hold (the others held), the
+        runs that hold the same ones solved in one call; and the runs whose z is not finite."""
+        held, z = self.held, self.x.copy()
+        pattern = held.dot(1 << np.arange(held.shape[1]))
+        if held.all():
+            return z, np.zeros(len(z), dtype=bool)
+        rhs = self.c - np.matmul(self.R, np.where(held, self.x, 0.0)[..., None])[..., 0]
+        for code in np.unique(pattern).tolist():
+            group = np.flatnonzero(pattern == code)
+            free = np.flatnonzero(~held[group[0]])
+            if len(free):
+                z[np.ix_(group, free)] = least_squares(self.R[group][:, :, free], rhs[group])
+        return z, ~np.isfinite(z.sum(axis=1))
