@@ -33,7 +33,7 @@ def singular_values(matrices: np.ndarray) -> np.ndarray:
     """σ of each matrix of a stack (..., k, m), descending, shape (..., min(k, m)): LAPACK's gesdd
     without vectors. NaN for a matrix on which it does not converge (np.linalg.svd would raise), with
     NumPy's warning of an invalid value unless np.errstate says otherwise."""
-    if _svd is None:  # pragma: no cover
+    if _svd is None:
         try:
             return np.linalg.svd(matrices, compute_uv=False)
         except np.linalg.LinAlgError:
@@ -47,7 +47,7 @@ def triangular_factors(matrices: np.ndarray, overwrite: bool = False) -> np.ndar
     geqrf works in place: with ``overwrite``, on ``matrices`` (float64, any layout) themselves."""
     m = matrices.shape[-1]
     factored = matrices if overwrite else np.array(matrices, dtype=float)
-    if _qr_r_raw is None:  # pragma: no cover
+    if _qr_r_raw is None:
         return np.asarray(np.linalg.qr(factored, mode="r"))[..., :m, :]
     _qr_r_raw(factored, signature="d->d")
     return factored[..., :m, :] * _upper_triangle(m)
@@ -69,7 +69,7 @@ def least_squares(matrices: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     if k == n and _solve1 is not None:
         return _solve1(matrices, vectors, signature="dd->d")
     system = np.concatenate([matrices, vectors[..., None]], axis=-1)
-    if _qr_r_raw is None or _solve1 is None:  # pragma: no cover
+    if _qr_r_raw is None or _solve1 is None:
         factor = np.asarray(np.linalg.qr(system, mode="r"))
         with np.errstate(invalid="ignore"):
             try:

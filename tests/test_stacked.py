@@ -66,3 +66,19 @@ def test_overwrite_factors_the_given_array_in_place():
     work = np.asfortranarray(A[1]).copy(order="F")
     np.testing.assert_array_equal(triangular_factors(work, overwrite=True), expected[1])
     assert not np.array_equal(work, A[1])  # LAPACK's factors were written into it
+
+
+def test_without_numpy_s_gufuncs_the_public_functions_give_the_same_numbers(monkeypatch):
+    """A NumPy whose gufuncs have other names (before 2.0) goes through np.linalg, which calls the
+    same LAPACK routines: the same numbers (a singular factor NaN as well)."""
+    import estimators.stacked as stacked
+
+    rng = np.random.default_rng(5)
+    A, b, square = stack(rng, 6, 5, 3), rng.normal(size=(6, 5)), np.triu(stack(rng, 6, 3, 3))
+    expected = [singular_values(A), triangular_factors(A), least_squares(A, b), least_squares(square, b[:, :3])]
+    for name in ("_svd", "_qr_r_raw", "_solve1"):
+        monkeypatch.setattr(stacked, name, None)
+    found = [singular_values(A), triangular_factors(A), least_squares(A, b), least_squares(square, b[:, :3])]
+    for got, want in zip(found, expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert np.isnan(least_squares(np.zeros((4, 2)), np.ones(4))).all()
