@@ -12,10 +12,8 @@ $COSIM_CACHE_DIR, else $XDG_CACHE_HOME/cosim/designs, else ~/.cache/cosim/design
 ``COSIM_CACHE_DIR=off`` disables it. An unreadable or unwritable cache is ignored (the design is then
 computed).
 
-A design is computed on one BLAS thread (``one_blas_thread``): OpenBLAS splits a large product
-among its threads, one per core by default, and the split changes its last bits, which an LMI
-solver or an adaptive quadrature turns into designs apart by far more (the vessel's COFD thresholds
-by 5e-10, an LPV gain by up to 0.04), so that a machine with more cores would log other frames.
+A design is computed on one BLAS thread (``cosim.blas.one_thread``): the same numbers whatever the
+machine's core count.
 """
 
 from __future__ import annotations
@@ -30,10 +28,9 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from threadpoolctl import threadpool_limits
-
 import estimators
 from cosim import progress
+from cosim.blas import one_thread
 from estimators import Estimator, LinearModel
 
 
@@ -110,7 +107,7 @@ def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: f
     """``estimators.create`` through the cache: with the stored design if there is one, else
     designed and stored. What the runner, a replay and the plots build their estimators with."""
     cached = load(kind, params, model)
-    with one_blas_thread():
+    with one_thread():
         if cached is not None:
             return estimators.create(kind, model, {**params, **cached}, sample_time)
         with progress.step("designing (not in the design cache)"):
@@ -119,9 +116,3 @@ def create(kind: str, model: LinearModel, params: dict[str, Any], sample_time: f
     if any(name not in params for name in design):  # else the parameters carry it already
         store(kind, params, model, design)
     return estimator
-
-
-def one_blas_thread() -> threadpool_limits:
-    """A context in which BLAS (OpenBLAS, MKL, ...) computes on one thread: the same numbers on any
-    machine, whatever its core count."""
-    return threadpool_limits(limits=1, user_api="blas")

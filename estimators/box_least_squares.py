@@ -37,6 +37,7 @@ def box_least_squares(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np
     the minimum-norm least-squares solution, if that lies in the box; so does a subproblem whose
     solution is not finite.
     """
+    R, c = np.ascontiguousarray(R, dtype=float), np.asarray(c, dtype=float)  # its products' kernels: row-major
     k, m = R.shape
     sv = singular_values(R).tolist()
     if k < m or not sv[-1] > sv[0] * m * _EPS:
@@ -104,7 +105,8 @@ def _bvls(R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray) ->
 def box_least_squares_runs(
     R: np.ndarray, c: np.ndarray, lower: np.ndarray, upper: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``box_least_squares`` of K problems (a batch's runs), each bit for bit what it gives alone.
+    """``box_least_squares`` of K problems (a batch's runs), each bit for bit what it gives alone
+    (both lay R out row-major in float64, whose products' kernels depend on the layout).
 
     Shapes: R (K, k, m), c (K, k), lower and upper (m,) or (K, m); returns β (K, m) and the runs
     left to ``box_least_squares`` (bool, K; their rows of β NaN): those whose R is rank deficient or
@@ -117,6 +119,7 @@ def box_least_squares_runs(
     run's numbers are those it gets alone), the products Rᵀ(R β − c) by NumPy's stacked matmul,
     which calls the single product's kernel per run.
     """
+    R, c = np.ascontiguousarray(R, dtype=float), np.asarray(c, dtype=float)  # as ``box_least_squares`` lays them out
     runs, k, m = R.shape
     beta = np.full((runs, m), np.nan)
     if k < m or not runs:
@@ -152,12 +155,14 @@ class _ActiveSets:
         """The runs ``rows`` of R, c, lo, hi, the unconstrained minimizers x and σ_max (all runs')."""
         R, c, lo, hi, x, top = (a[rows] for a in problems)
         self.rows, self.R, self.c, self.lo, self.hi = rows, R, c, lo, hi
-        self.x = np.minimum(np.maximum(x, lo), hi)
+        x = np.where(lo > x, lo, x)  # Python's max(v, a) and min(v, b), as alone (-0.0 kept against 0.0)
+        self.x = np.where(hi < x, hi, x)
         self.held = (self.x == lo) | (self.x == hi)
         # A multiplier smaller than the rounding of the gradient does not release its variable.
         self.tolerance = (1e-12 * top * (top * np.abs(self.x).max(axis=1) + np.abs(self.c).max(axis=1)))[:, None]
 
     def keep(self, kept: np.ndarray) -> None:
+        """Only the runs where ``kept`` (a mask over the runs still searching) go on."""
         for name in ("rows", "R", "c", "lo", "hi", "x", "held", "tolerance"):
             setattr(self, name, getattr(self, name)[kept])
 
@@ -174,6 +179,7 @@ class _ActiveSets:
         edge = np.where(z < lo, lo, hi)
         outside = ~held & ((z < lo) | (z > hi))
         along = np.divide(edge - x, z - x, out=np.full(x.shape, np.inf), where=outside)  # where x → z meets it
+        along[np.isnan(along)] = np.inf  # ∞/∞ near overflow: alone, `along < reach` passes it over
         each = np.arange(len(x))
         first = along.argmin(axis=1)  # the first variable z takes past a bound (the lowest index of a tie)
         reach = along[each, first]
@@ -197,9 +203,9 @@ class _ActiveSets:
         """z, each run's least squares over the variables it does not hold (the others held), the
         runs that hold the same ones solved in one call; and the runs whose z is not finite."""
         held, z = self.held, self.x.copy()
-        pattern = held.dot(1 << np.arange(held.shape[1]))
         if held.all():
             return z, np.zeros(len(z), dtype=bool)
+        pattern = _patterns(held)
         rhs = self.c - np.matmul(self.R, np.where(held, self.x, 0.0)[..., None])[..., 0]
         for code in np.unique(pattern).tolist():
             group = np.flatnonzero(pattern == code)
@@ -207,3 +213,11 @@ class _ActiveSets:
             if len(free):
                 z[np.ix_(group, free)] = least_squares(self.R[group][:, :, free], rhs[group])
         return z, ~np.isfinite(z.sum(axis=1))
+
+
+def _patterns(held: np.ndarray) -> np.ndarray:
+    """A number for each row of ``held`` (K, m), equal for equal rows: its bits, or for m > 62 (more
+    than an int64 holds) the row's index among the distinct rows."""
+    if held.shape[1] <= 62:
+        return held.dot(1 << np.arange(held.shape[1], dtype=np.int64))
+    return np.unique(held, axis=0, return_inverse=True)[1].ravel()

@@ -4,12 +4,14 @@ A gufunc calls its LAPACK routine once per matrix of a stack, with the workspace
 the matrices' shape: a matrix gets the same numbers in a stack of K as alone (a stack of one, or a
 2-D array). So one function serves a run alone and the K runs of a batch, bit for bit, and a batch
 pays one call for K matrices where SciPy's LAPACK wrappers take one matrix a call (about 2 µs each,
-more than the arithmetic of a 4 × 4 problem). Single and batched code call these, never SciPy's
-wrappers for the same job: NumPy and SciPy ship OpenBLAS builds of their own, whose last bits can
-differ on another machine.
+more than the arithmetic of a 4 × 4 problem). The single and the batched form of a computation
+call the same one of these, never one of them SciPy's wrapper: NumPy and SciPy ship OpenBLAS builds
+of their own, whose last bits can differ on another machine. Inputs are taken as float64.
 
 The np.linalg functions call the same gufuncs after checks that cost more than a small matrix's
-arithmetic; a NumPy whose gufuncs are not found (renamed before 2.0) goes through them.
+arithmetic; a NumPy whose gufuncs are not found (renamed before 2.0) goes through them, where one
+matrix that fails (singular, not converging) makes the whole stack NaN, and a square system is
+solved by QR too.
 """
 
 from __future__ import annotations
@@ -44,9 +46,11 @@ def singular_values(matrices: np.ndarray) -> np.ndarray:
 def triangular_factors(matrices: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """R of the Householder QR of each matrix of a stack (..., k, m), k ≥ m, shape (..., m, m),
     upper triangular with exact zeros below: LAPACK's geqrf, as np.linalg.qr(matrices, "r").
-    geqrf works in place: with ``overwrite``, on ``matrices`` (float64, any layout) themselves."""
+    geqrf works in place: with ``overwrite``, on ``matrices`` themselves (any layout) if they are
+    float64 and writeable, else on a copy."""
     m = matrices.shape[-1]
-    factored = matrices if overwrite else np.array(matrices, dtype=float)
+    writeable = matrices.dtype == np.float64 and matrices.flags.writeable
+    factored = matrices if overwrite and writeable else np.array(matrices, dtype=float)
     if _qr_r_raw is None:
         return np.asarray(np.linalg.qr(factored, mode="r"))[..., :m, :]
     _qr_r_raw(factored, signature="d->d")
@@ -67,8 +71,8 @@ def least_squares(matrices: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     """
     k, n = matrices.shape[-2:]
     if k == n and _solve1 is not None:
-        return _solve1(matrices, vectors, signature="dd->d")
-    system = np.concatenate([matrices, vectors[..., None]], axis=-1)
+        return _solve1(matrices, vectors, signature="dd->d")  # casts to float64 itself
+    system = np.concatenate([matrices, vectors[..., None]], axis=-1, dtype=float)  # factored in place: float64
     if _qr_r_raw is None or _solve1 is None:
         factor = np.asarray(np.linalg.qr(system, mode="r"))
         with np.errstate(invalid="ignore"):

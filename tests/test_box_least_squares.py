@@ -90,3 +90,35 @@ def test_k_problems_with_no_run_or_too_few_rows():
     assert beta.shape == (0, 2) and alone.shape == (0,)
     beta, alone = box_least_squares_runs(np.ones((3, 1, 2)), np.ones((3, 1)), np.zeros(2), np.ones(2))
     assert alone.all() and np.isnan(beta).all()
+
+
+def test_k_problems_at_once_at_the_edges_alone_s_numbers():
+    """Cases a second review found where the K-run form left the scalar's numbers: a -0.0 clipped
+    against a bound of 0.0 (Python's max keeps -0.0), more than 62 variables (the held sets keyed by
+    bits), ∞/∞ on the way to a bound near overflow, an F-ordered stack (the products' kernels follow
+    the layout), integer inputs."""
+    bits = lambda a: np.asarray(a, dtype=float).view(np.int64)  # noqa: E731
+    cases = []
+    cases.append((np.eye(2)[None], np.array([[-0.0, 5.0]]), np.zeros(2), np.ones(2)))
+    m = 65
+    coupled = np.eye(m)
+    coupled[0, 64] = 1.0  # β0 + β64 ≈ c0
+    c = np.full((2, m), 0.5)
+    c[0, 0], c[0, 64], c[1, 0], c[1, 64] = 4.0, 2.0, -1.0, 0.25  # run 0 holds β0 and β64, run 1 β0 only
+    cases.append((np.stack([coupled, coupled]), c, np.zeros(m), np.ones(m)))
+    R = np.array([[1.0, 1.2, 0.0], [0.0, 1.0, 0.0], [0.0, 1e-7, 1.0]])
+    low, high = np.array([-1.0e308, 0.85e308, 0.0]), np.array([0.92e308, 0.86e308, 2e301])
+    with np.errstate(all="ignore"):
+        cases.append((R[None], np.array([[-0.12e308, -0.85e308, -2e300]]), low, high))
+    rng = np.random.default_rng(4)
+    triangles = np.triu(rng.normal(size=(30, 4, 4)) * 10.0 ** rng.uniform(-3, 3, (30, 1, 4)))
+    cases.append((np.asfortranarray(triangles), rng.normal(size=(30, 4)) * 3, np.full(4, 0.5), np.full(4, 1.5)))
+    cases.append((np.array([[[1, 2], [3, 4], [5, 7]]]), np.array([[1, 2, 4]]), np.array([-1.0, -1.0]), np.ones(2)))
+    for R, c, lower, upper in cases:
+        with np.errstate(all="ignore"):
+            beta, alone = box_least_squares_runs(R, c, lower, upper)
+            for r in np.flatnonzero(~alone):
+                np.testing.assert_array_equal(bits(beta[r]), bits(box_least_squares(R[r], c[r], lower, upper)))
+    integers = cases[-1][0][0], cases[-1][1][0]  # their least squares lies in the box
+    expected = np.linalg.lstsq(*(np.asarray(a, dtype=float) for a in integers), rcond=None)[0]
+    np.testing.assert_allclose(box_least_squares(*integers, -np.ones(2), np.ones(2)), expected, rtol=1e-12)

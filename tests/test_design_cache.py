@@ -125,3 +125,44 @@ def test_a_design_is_the_same_whatever_the_blas_threads(threads, monkeypatch):
 def replace_sample_time(spec: SimpleNamespace, sample_time: float | None) -> SimpleNamespace:
     spec.sample_time = sample_time
     return spec
+
+
+NODE_BUILD = """
+import hashlib, pickle, sys
+from types import SimpleNamespace
+import estimators
+from cosim.run import node
+from estimators import LinearModel
+given = pickle.load(open(sys.argv[1], "rb"))
+model = LinearModel.from_dict(given.pop("model"))
+spec = SimpleNamespace(**given, model=model)
+built = node._create(estimators.create, spec, "fdi")
+print(hashlib.sha256(pickle.dumps((built.discrete, built.frame.gains))).hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_a_node_process_builds_the_same_estimator_whatever_its_blas_threads(tmp_path, monkeypatch):
+    """A node process loads SciPy's OpenBLAS only while it builds its estimator (a lazy import),
+    after a limit on the libraries loaded so far would have been set: ``one_thread`` loads it first.
+    The vessel diagnosis a node builds under OPENBLAS_NUM_THREADS=4 is the one it builds under 1."""
+    import os
+    import pickle
+
+    monkeypatch.setenv("COSIM_CACHE_DIR", "off")
+    estimator = RunPlan.build(scenario.load("vessel-fault-T3")).estimators["fdi"]
+    params = {**dataclasses.asdict(estimator.params), **estimator.node_params()}
+    spec = tmp_path / "spec.pkl"
+    given = {"kind": "cofd", "model": estimator.model.to_dict(), "params": params, "sample_time": estimator.sample_time}
+    spec.write_bytes(pickle.dumps(given))
+    found = {
+        threads: subprocess.run(
+            [sys.executable, "-c", NODE_BUILD, str(spec)],
+            env={**os.environ, "OPENBLAS_NUM_THREADS": str(threads)},
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        for threads in (1, 4)
+    }
+    assert found[1] == found[4] and len(found[1]) == 65

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from cosim.blas import one_thread
 from cosim.bus.codec import CONTROLLER, Codec
 from cosim.run.fmu_interface import Log, Slave, carried, signals
 
@@ -47,7 +48,8 @@ class ControllerSlave(Slave):
 
         content = self.content
         model = LinearModel.from_dict(content["model"])
-        self.controller = controllers.create(content["kind"], model, content["params"], self.sample_time)
+        with one_thread():  # as a node builds it
+            self.controller = controllers.create(content["kind"], model, content["params"], self.sample_time)
         self._codec = Codec.from_dbc(self.system["dbc"]) if self.system is not None else None
         # the output of each signal: a command by its actuator's signal, a diagnostic by its own name
         self._signals = [v["signal"] for v in content["commands"]] + [v["name"] for v in content["diagnostics"]]

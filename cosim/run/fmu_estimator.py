@@ -29,7 +29,7 @@ import numpy as np
 
 import estimators
 from cosim import __version__
-from cosim.design_cache import one_blas_thread
+from cosim.blas import one_thread
 from cosim.errors import CosimError, ScenarioError
 from cosim.kinds import KindError, is_file_reference
 from estimators import Estimator, LinearModel, ParameterError
@@ -178,7 +178,7 @@ def build(content: dict[str, Any], resources: Path, values: dict[str, Any]) -> t
         kind = f"{resources / kind.partition(':')[0]}:{kind.partition(':')[2]}"
     model = LinearModel.from_dict(content["model"])
     try:
-        with one_blas_thread():  # as a node builds it
+        with one_thread():  # as a node builds it
             return estimators.create(kind, model, params, content["sample_time"]), notes
     except ParameterError as error:
         raise CosimError(f"estimator {content['name']}: params.{error}") from None

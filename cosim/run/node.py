@@ -28,12 +28,12 @@ import can
 import numpy as np
 
 import estimators
+from cosim.blas import one_thread
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import COMMAND, CONTROLLER, Codec, estimated_state
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.secoc import SecOC
 from cosim.bus.transport import BusConfig, drain, open_bus
-from cosim.design_cache import one_blas_thread
 from cosim.errors import CosimError
 from estimators import Estimator, LinearModel, ParameterError
 from estimators import controller as controllers
@@ -118,9 +118,9 @@ T = TypeVar("T")
 
 def _create(create: Callable[..., T], spec: NodeSpec, what: str) -> T:
     """The node's estimator or controller, built by ``create`` from its spec (on one BLAS thread, as
-    the runner builds it: ``design_cache.one_blas_thread``); CosimError naming it."""
+    the runner builds it: ``cosim.blas.one_thread``); CosimError naming it."""
     try:
-        with one_blas_thread():
+        with one_thread():
             return create(spec.kind, spec.model, spec.params, spec.sample_time)
     except ParameterError as error:
         raise CosimError(f"{what}: params.{error}") from None

@@ -21,6 +21,7 @@ import numpy as np
 import estimators
 import faults as fm
 from cosim import design_cache, progress
+from cosim.blas import one_thread
 from cosim.bus.codec import CONTROL, CONTROLLER, PLANT, RUNNER, Codec
 from cosim.bus.control_frames import ControlAuth, control_keys
 from cosim.bus.keys import derive_key, run_secret
@@ -292,8 +293,8 @@ class RunPlan:
     def build(cls, loaded: LoadedScenario, seed: int | None = None, **overrides: Any) -> RunPlan:
         """The plan of ``loaded`` with ``seed`` and ``overrides`` (see ``Scenario.with_overrides``),
         validated like the file; a ScenarioError names whatever cannot be built. Built on one BLAS
-        thread: the same linearization and designs on any machine (``design_cache.one_blas_thread``)."""
-        with design_cache.one_blas_thread():
+        thread: the same linearization and designs on any machine (``cosim.blas.one_thread``)."""
+        with one_thread():
             return cls._build(loaded, seed, **overrides)
 
     @classmethod

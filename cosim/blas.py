@@ -1,0 +1,23 @@
+"""BLAS on one thread, for the numbers a run must reproduce on any machine.
+
+OpenBLAS (and MKL) split a large product among their threads, one per core by default, and the split
+changes its last bits; an LMI solver, an adaptive quadrature or a discretization turns those into
+designs apart by far more (the vessel diagnosis's observers and rotating-frame gains, its residual
+frames with them, differed between one BLAS thread and two). So a run's plan (the model's
+linearization, the designs) and every estimator or controller a node or an FMU builds are computed
+on one thread (``one_thread``): the same numbers whatever the core count.
+"""
+
+from __future__ import annotations
+
+from threadpoolctl import threadpool_limits
+
+
+def one_thread() -> threadpool_limits:
+    """A context in which BLAS computes on one thread. threadpoolctl limits the libraries loaded
+    when it is entered, so NumPy's and SciPy's are loaded first (SciPy's is loaded by its first
+    ``scipy.linalg`` import, which a node may make only while it builds its estimator); a library
+    loaded inside the context (a solver's own BLAS) is not limited."""
+    import scipy.linalg  # noqa: F401 (loads SciPy's OpenBLAS, so that it is limited too)
+
+    return threadpool_limits(limits=1, user_api="blas")
