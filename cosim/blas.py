@@ -5,12 +5,19 @@ changes its last bits; an LMI solver, an adaptive quadrature or a discretization
 designs apart by far more (the vessel diagnosis's observers and rotating-frame gains, its residual
 frames with them, differed between one BLAS thread and two). So a run's plan (the model's
 linearization, the designs) and every estimator or controller a node or an FMU builds are computed
-on one thread (``one_thread``): the same numbers whatever the core count.
+on one thread (``one_thread``): the same numbers whatever the core count. So is the run itself
+(``Run.execute``, a campaign's batch; a node's or an FMU host's process from its start,
+``ONE_THREAD_ENV``): a step's products are then split alike on any machine too, and the processes
+of a campaign do not each start a thread per core.
 """
 
 from __future__ import annotations
 
 from threadpoolctl import threadpool_limits
+
+#: The environment of a process the run starts (a node, an FMU's host): its BLAS on one thread from
+#: the start, whatever it loads later.
+ONE_THREAD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def one_thread() -> threadpool_limits:

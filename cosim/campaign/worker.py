@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from cosim.blas import one_thread
 from cosim.campaign.results import rows_of
 from cosim.campaign.spec import RunSpec
 from cosim.errors import CosimError
@@ -61,7 +62,8 @@ def execute_batch(specs: list[RunSpec], folder: str, keep_logs: str) -> list[dic
     elif not specs[0].in_process:
         why = dict.fromkeys(why, "its nodes run in processes (bus = processes)")
     elif len(specs) > 1:
-        batched, why = _batch_attempts(specs)
+        with one_thread():  # as a run alone computes (cosim.blas)
+            batched, why = _batch_attempts(specs)
     each = (time.perf_counter() - start) / len(specs)
     parts = []
     for spec in specs:

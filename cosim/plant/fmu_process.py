@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 import cosim
+from cosim.blas import ONE_THREAD_ENV
 from cosim.errors import Interruption, ModelError
 from cosim.plant.fmu_calls import ANSWER, SLOT_SIZE, STEP, STEP_HEADER, FmuCallError, FmuMessage
 from cosim.plant.fmu_model import FmuModel
@@ -83,6 +84,7 @@ class Host:
         ours, theirs = Pipe()
         root = str(Path(cosim.__file__).resolve().parent.parent)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]))
+        env.update(ONE_THREAD_ENV)  # cosim.blas
         self.process = subprocess.Popen(
             [
                 sys.executable,

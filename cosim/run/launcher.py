@@ -14,6 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from cosim.blas import ONE_THREAD_ENV
 from cosim.bus.registry import alive
 from cosim.bus.transport import open_bus
 from cosim.run.node import ESTIMATOR_FAILED, ControllerNode, EstimatorFailure, EstimatorNode, NodeSpec
@@ -70,6 +71,7 @@ class ProcessNode(Participant):
                 stdout=output,
                 stderr=subprocess.STDOUT,
                 start_new_session=True,
+                env={**os.environ, **ONE_THREAD_ENV},
             )
 
     def last_output(self, lines: int = 12) -> str:

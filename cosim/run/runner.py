@@ -17,6 +17,7 @@ from typing import Any
 from uuid import uuid4
 
 from cosim import progress
+from cosim.blas import one_thread
 from cosim.bus.codec import Codec
 from cosim.bus.registry import Registration
 from cosim.bus.transport import allocate
@@ -104,7 +105,7 @@ class Run(Execution):
                 "control_keys": plan.client_keys(),
             },
         )
-        with plan.session(self.out, bus, registration, sink) as session:
+        with one_thread(), plan.session(self.out, bus, registration, sink) as session:  # cosim.blas
             self.session = session
             self._write_metadata(session)
             session.begin_log(f"{s.name} seed={s.seed} ticks={s.ticks} mode={s.timing.mode}", plan.warnings)
