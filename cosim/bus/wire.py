@@ -27,6 +27,7 @@ import heapq
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from can.util import len2dlc
 
 from cosim.bus.timing import frame_bits
@@ -123,6 +124,12 @@ class Wire:
                 total - round(_INTERMISSION * 1e9 / self.bitrate),
             )
         return known[2], known[3]
+
+    def durations_rows(self, nominal: np.ndarray, fast: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``duration_ns`` of frames of ``nominal`` and ``fast`` bits (arrays), the same integers:
+        (ns on the wire, ns from SOF to delivery)."""
+        total = np.rint(nominal * 1e9 / self.bitrate + fast * 1e9 / self.data_bitrate).astype(np.int64)
+        return total, total - round(_INTERMISSION * 1e9 / self.bitrate)
 
     def offer(self, frame: WireFrame) -> None:
         """Queue a frame; it contends from its ``queued_ns`` on."""

@@ -43,12 +43,12 @@ from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded, MessageSpec
 from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
-from cosim.bus.wire import Transmission
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import SenderCounts
 from cosim.log.topics import Signals, message_topic
 from cosim.log.writer import dumps
-from cosim.run.arbitration import Arbitration
+from cosim.run.arbitration import Arbitration, Quiet, quiet_ticks
+from cosim.run.busfaults import Applied
 from cosim.run.loop import runner_frames
 from cosim.run.node import node_client
 from cosim.run.plan import RunPlan
@@ -104,9 +104,10 @@ class _RunWire:
         self.marker = 0  # the tick whose heard frames are still to be handed on (``Session._marker``)
         self.decoded: dict[int, Frame] = {}  # the frames on the run's channel in this tick, decoded, by id()
 
-    def send(self, k: int, frames: list[Frame]) -> None:
-        """Tick k's frames of the runner (SYNC first) onto the wire, as ``Session.send`` sends them on
-        an arbitrated bus; what the wire lets through goes on the run's channel."""
+    def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
+        """Tick k's frames of the runner (SYNC first) through its bus faults, and the answers to tick
+        k − 1 onto the wire, as ``Session.send`` has them on an arbitrated bus: the frames for the
+        wire, and what the bus faults did."""
         applied = self.stage.apply(k, frames) if self.stage is not None else None
         if applied is not None:
             frames = applied.frames
@@ -115,16 +116,23 @@ class _RunWire:
         self._hear()
         self.traffic.current = k
         self.traffic.flush(self.marker, 0.0, 0)  # the answers to tick k − 1 onto the wire
-        step = self.arbitration.tick(
-            k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
-        )
-        sign_control(self.control, k, step.send, applied)
+        return frames, applied
+
+    def send(self, k: int, frames: list[Frame], applied: Applied | None, quiet: Quiet | None) -> None:
+        """The wire's tick k (``quiet``, or ``Arbitration.tick``): what it lets through goes on the
+        run's channel, what it delivered to the detector and the scores."""
+        if quiet is None:
+            step = self.arbitration.tick(
+                k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
+            )
+            quiet = Quiet(step.send, [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None])
+        sign_control(self.control, k, quiet.send, applied)
         # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
         # just now, is decoded as it is sent): decoded once for all the run's nodes
-        self.decoded = {id(item[0]): item for item in step.send if item[1] is None or item[1].spec.role not in _SIGNED}
-        send_all(self.bus, [frame for frame, _ in step.send])
+        self.decoded = {id(item[0]): item for item in quiet.send if item[1] is None or item[1].spec.role not in _SIGNED}
+        send_all(self.bus, [frame for frame, _ in quiet.send])
         self.marker = k
-        self._passages(step.passed)
+        self._passages(quiet.delivered)
         self._verdicts(k)
 
     def take(self, name: str) -> list[TickFrames]:
@@ -165,7 +173,7 @@ class _RunWire:
         what each of ``senders`` sent, lost and found missing."""
         self._hear()
         self.traffic.flush(self.marker, 0.0, 0)
-        self._passages(self.arbitration.finish())
+        self._passages([(p.delivered_ns, p.frame.payload) for p in self.arbitration.finish() if p.dropped is None])
         self._verdicts(ticks)
         return len(self.traffic.contested), self.traffic.sender_counts(ticks, senders, set(self.nodes))
 
@@ -193,12 +201,11 @@ class _RunWire:
             signals = Signals.read(orjson.loads(dumps(Signals.payload(decoded))), tick)
             scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
 
-    def _passages(self, passed: list[Transmission]) -> None:
-        """Frames through the wire, at their delivery (``Session._log_passages``)."""
-        for p in passed:
-            if p.dropped is None:
-                message, decoded = p.frame.payload
-                self._logged(p.delivered_ns // self.dt_ns, p.delivered_ns / 1e9, p.delivered_ns, message, decoded)
+    def _passages(self, delivered: list[tuple[int, Frame]]) -> None:
+        """Frames through the wire, at their delivery (ns) (``Session._log_passages``)."""
+        dt_ns = self.dt_ns
+        for at, (message, decoded) in delivered:
+            self._logged(at // dt_ns, at / 1e9, at, message, decoded)
 
     def _verdicts(self, until: int) -> None:
         if self.detector is not None:
@@ -212,6 +219,11 @@ class _RunWire:
     def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
         why = f"the runner rejected a frame of 0x{rejection.frame_id:03X} ({rejection.reason})"
         self.rejected = self.rejected or why
+
+
+def _plain(applied: Applied | None) -> bool:
+    """Whether the bus faults of a tick delayed no frame and forged none (its wire may be quiet)."""
+    return applied is None or not (applied.delays_ns or applied.intruders)
 
 
 class WireBatch:
@@ -242,11 +254,22 @@ class WireBatch:
         open loop its ``commands`` (the input signals, as given). A run whose frames its bus cannot
         carry (a forged value outside its range) leaves the batch."""
         codec, sensors, actuators = self.codec, self.sensor_specs, [] if self.closed else self.command_specs
+        prepared: list[tuple[list[Frame], Applied | None] | None] = [None] * len(self.runs)
         for r in np.flatnonzero(alive).tolist():
-            run = self.runs[r]
             try:
                 given = [] if self.closed else commands[r].tolist()
-                run.send(k, runner_frames(codec, k, sensors, measured[r].tolist(), sent[r].tolist(), actuators, given))
+                frames = runner_frames(codec, k, sensors, measured[r].tolist(), sent[r].tolist(), actuators, given)
+                prepared[r] = self.runs[r].prepare(k, frames)
+            except (CodecError, CosimError) as error:
+                self._leave(r, k, str(error), alive)
+        plain = [item[0] if item is not None and _plain(item[1]) else None for item in prepared]
+        quiet = quiet_ticks([run.arbitration for run in self.runs], k, plain)
+        for r, item in enumerate(prepared):
+            if item is None:
+                continue
+            run = self.runs[r]
+            try:
+                run.send(k, *item, quiet[r])
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
                 continue

@@ -26,14 +26,18 @@ logged); the nodes read each other's frames on the channel without the wire's de
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import can
 import numpy as np
 
 import faults as fm
 from cosim.bus.codec import RUNNER, Codec, Decoded
-from cosim.bus.wire import Transmission, Wire, WireFrame
+from cosim.bus.timing import frame_bits_rows
+from cosim.bus.wire import Transmission, Wire, WireFrame, dlc_of
+from cosim.errors import CodecError
 from cosim.run.busfaults import counted_by_receivers
 
 #: Spawn key of the periodic traffic's payload streams (the faults and disturbances use others).
@@ -55,10 +59,17 @@ class Periodic:
     fd: bool
     rng: np.random.Generator = field(compare=False)
 
+    def _first(self, begin_ns: int) -> int:
+        """The number of its first frame queued at or after ``begin_ns`` (0: the one at its start)."""
+        return -(-(max(self.start_ns, begin_ns) - self.start_ns) // self.period_ns)
+
+    def due(self, begin_ns: int, end_ns: int) -> bool:
+        """Whether it queues a frame in [begin_ns, end_ns) (``frames`` would give one)."""
+        return self.start_ns + self._first(begin_ns) * self.period_ns < min(end_ns, self.end_ns)
+
     def frames(self, begin_ns: int, end_ns: int) -> list[can.Message]:
         """Its frames queued in [begin_ns, end_ns), stamped with their queue time (``timestamp``, s)."""
-        first = max(self.start_ns, begin_ns)
-        n = -(-(first - self.start_ns) // self.period_ns)
+        n = self._first(begin_ns)
         out = []
         while (t := self.start_ns + n * self.period_ns) < min(end_ns, self.end_ns):
             data = self.rng.integers(0, 256, self.length, dtype=np.uint8).tobytes()
@@ -75,6 +86,16 @@ class Step:
 
     send: list[Frame]
     passed: list[Transmission]
+
+
+@dataclass
+class Quiet:
+    """What a quiet tick of arbitration gives (``quiet_ticks``): the frames to put on the channel
+    now, in order, and the frames the wire delivered, each with its delivery (ns), in the order of
+    the passages ``Arbitration.tick`` would give."""
+
+    send: list[Frame]
+    delivered: list[tuple[int, Frame]]
 
 
 class Arbitration:
@@ -204,12 +225,137 @@ class Arbitration:
                 return sync, set(inputs[:count]) | uncounted, planned, offered
             count = min(count, len(inputs)) if len(inputs) in seen else len(inputs)
 
+    def quiet(self, k: int, frames: list[Frame]) -> bool:
+        """Whether tick k, with the runner's ``frames`` (SYNC first; none delayed, none an
+        intruder's), is quiet on this wire (``quiet_ticks``): nothing from before on it, the
+        answers to tick k − 1 on ids of their own, no background frame due in the tick, and every
+        data frame of the runner's one that its receivers count."""
+        t_ns, data = k * self.dt_ns, frames[1:]
+        ids = [message.arbitration_id for message, _ in self._answers]
+        return (
+            not self.wire.queue
+            and not self._runner
+            and not self._on_channel
+            and all(a < b for a, b in zip(ids, ids[1:]))
+            and not any(source.due(t_ns, t_ns + self.dt_ns) for source in self.traffic)
+            and len(counted_by_receivers(data, {}, self.authenticated, k % self.codec.tick_modulus)) == len(data)
+        )
+
+    def settle(self, k: int, offered: int, idle_ns: int, inputs_ns: int) -> None:
+        """The state ``tick`` leaves after a quiet tick k in which ``offered`` frames went out,
+        the last one's receivers having it at ``inputs_ns`` and the wire idle from ``idle_ns``."""
+        self.wire.idle_ns, self.wire._seq = idle_ns, self.wire._seq + offered
+        self._inputs_ns, self._answers, self._delays, self._senders = inputs_ns, [], {}, {}
+
     def finish(self) -> list[Transmission]:
         """The end of the run: the answers heard last and everything still queued go out."""
         for answer in self._answers:
             self.wire.offer(self._wire_frame(answer, self._inputs_ns, self._inputs_ns + self.dt_ns, "unknown"))
         self._answers = []
         return self.wire.drain()
+
+
+def quiet_ticks(
+    arbitrations: Sequence[Arbitration], k: int, frames_of: Sequence[list[Frame] | None]
+) -> list[Quiet | None]:
+    """Tick k of the wires of K runs of one design (a batch) that are quiet, on arrays: for each,
+    what ``Arbitration.tick`` gives and leaves, or None where it must be run (``frames_of``: each
+    run's frames, SYNC first; None: a run to leave out).
+
+    A tick is quiet when the wire holds nothing from before, the answers to tick k − 1 (all
+    queued at q_{k−1}) are on ids of their own and go out before t_k, no background frame is due,
+    and SYNC(k) and every frame of the runner's (all queued at t_k, all counted by the receivers)
+    are delivered by t_{k+1}. Every contest is then between frames all queued when the wire
+    falls idle, so the wire sends them in the order of their ids, each from the end of the one
+    before: the answers' passages from max(idle, q_{k−1}), the runner's from the later of their
+    end and t_k, as cumulative sums of the frames' durations (``frame_bits_rows``, their stuff
+    bits on arrays). SYNC(k) then announces every frame (the fixed point of ``_plan`` at once),
+    q_k is the last delivery and the wire is committed to it: nothing is late or left queued."""
+    out: list[Quiet | None] = [None] * len(arbitrations)
+    groups: dict[tuple[tuple[Any, ...], tuple[Any, ...]], list[int]] = {}
+    for r, (arbitration, frames) in enumerate(zip(arbitrations, frames_of)):
+        if frames is not None and arbitration.quiet(k, frames):
+            key = (_layout(arbitration._answers), _layout(frames[1:]))
+            groups.setdefault(key, []).append(r)
+    for rows in groups.values():
+        found = _quiet_rows(k, [arbitrations[r] for r in rows], [frames_of[r] or [] for r in rows])
+        for r, quiet in zip(rows, found):
+            out[r] = quiet
+    return out
+
+
+def _layout(frames: list[Frame]) -> tuple[tuple[int, bool, bool, bool, int], ...]:
+    """What a frame's time on the wire depends on, but for its payload's bits."""
+    return tuple((m.arbitration_id, m.is_extended_id, m.is_fd, m.bitrate_switch, len(m.data)) for m, _ in frames)
+
+
+def _quiet_rows(k: int, arbitrations: list[Arbitration], frames_of: list[list[Frame]]) -> list[Quiet | None]:
+    """``quiet_ticks`` of runs whose answers and frames have one layout (``_layout``)."""
+    first = arbitrations[0]
+    codec, wire, t_ns = first.codec, first.wire, k * first.dt_ns
+    answers = len(first._answers)
+    try:
+        syncs = [codec.sync(k, len(frames) - 1) for frames in frames_of]
+    except CodecError:  # more frames than a SYNC can announce: each run's ``tick`` says so
+        return [None] * len(arbitrations)
+    sync_decoded = codec.decode(syncs[0])  # the same bytes in every run (each its own frame: it is signed)
+    sent = [[(sync, sync_decoded), *frames[1:]] for sync, frames in zip(syncs, frames_of)]
+    rows = [
+        [m for m, _ in arbitration._answers] + [m for m, _ in frames] for arbitration, frames in zip(arbitrations, sent)
+    ]
+    total, delivery = wire.durations_rows(*_bits_of_columns(codec, rows))
+    idle = np.array([arbitration.wire.idle_ns for arbitration in arbitrations], dtype=np.int64)
+    queued = np.array([arbitration._inputs_ns for arbitration in arbitrations], dtype=np.int64)
+    starts = np.maximum(idle, queued)[:, None] + np.cumsum(total[:, :answers], axis=1) - total[:, :answers]
+    idle = starts[:, -1] + total[:, answers - 1] if answers else idle
+    order = answers + np.argsort([m.arbitration_id for m in rows[0][answers:]], kind="stable")
+    ahead = np.cumsum(total[:, order], axis=1) - total[:, order]
+    runner = np.maximum(idle, t_ns)[:, None] + ahead
+    ok = runner[:, -1] + delivery[:, order[-1]] <= t_ns + first.dt_ns
+    if answers:
+        ok &= starts[:, -1] < t_ns  # the answers all went out before t_k
+    delivered = np.concatenate([starts + delivery[:, :answers], runner + delivery[:, order]], axis=1).tolist()
+    ends = (runner[:, -1] + total[:, order[-1]]).tolist()
+    out: list[Quiet | None] = []
+    for r, arbitration in enumerate(arbitrations):
+        if not ok[r]:
+            out.append(None)
+            continue
+        frames = [*arbitration._answers, *(sent[r][j - answers] for j in order.tolist())]
+        arbitration.settle(k, len(rows[r]), ends[r], delivered[r][-1])
+        out.append(Quiet(sent[r], list(zip(delivered[r], frames))))
+    return out
+
+
+def _bits_of_columns(codec: Codec, rows: list[list[can.Message]]) -> tuple[np.ndarray, np.ndarray]:
+    """(nominal, data-rate) bits of frames laid out alike in every row (R, F), a control frame's
+    MAC at 0 (as ``Arbitration._wire_frame`` times it): the columns of one kind and length at once."""
+    by_kind: dict[tuple[bool, bool, int], list[int]] = {}
+    for c, message in enumerate(rows[0]):
+        by_kind.setdefault((message.is_fd, message.bitrate_switch, len(message.data)), []).append(c)
+    nominal = np.empty((len(rows), len(rows[0])), dtype=np.int64)
+    fast = np.empty_like(nominal)
+    for (fd, brs, length), columns in by_kind.items():
+        payloads = np.frombuffer(
+            bytearray(b"".join(bytes(row[c].data) for c in columns for row in rows)), dtype=np.uint8
+        ).reshape(len(columns), len(rows), length)
+        for i, c in enumerate(columns):
+            message = rows[0][c]
+            control = None if message.is_extended_id else codec.control_macs.get(message.arbitration_id)
+            if control is not None:
+                payloads[i, :, control[1].mac[0] :] = 0
+        heads = [rows[0][c] for c in columns]
+        bits, fast_bits = frame_bits_rows(
+            [m.arbitration_id for m in heads],
+            [m.is_extended_id for m in heads],
+            [dlc_of(length)] * len(heads),
+            payloads,
+            fd,
+            brs,
+        )
+        nominal[:, columns] = bits.T
+        fast[:, columns] = fast_bits.T
+    return nominal, fast
 
 
 def build_traffic(scenario: object, babblers: list[fm.BabblingNode] | None = None) -> list[Periodic]:
