@@ -89,14 +89,24 @@ def answers(plan: RunPlan, k: int, rng: random.Random) -> list:
     return sorted(found, key=lambda item: item[0].arbitration_id)
 
 
-def runner(plan: RunPlan, k: int, rng: random.Random) -> list:
+def runner(plan: RunPlan, k: int, rng: random.Random) -> tuple[list, dict[int, str]]:
+    """The runner's frames of tick k (SYNC first) and the intruders' among them (by ``id()``):
+    now and then a reading not sent, an intruder's copy of a sensor's frame (of this tick, which
+    receivers distrust with the genuine one, or replayed from an earlier tick, which they do not
+    count), or two copies from one intruder (the newer replaces the older on the wire)."""
     s, codec = plan.scenario, plan.codec
     specs = [codec.sensor(name) for name in s.sensors]
     measured = [rng.uniform(-1, 1) * rng.choice([1, 1e-3]) for _ in specs]
     sent = [rng.random() > 0.05 for _ in specs]
     sync, *data = runner_frames(codec, k, specs, measured, sent, [], [])
+    intruders: dict[int, str] = {}
+    for _ in range(rng.choices([0, 1, 2], weights=[6, 3, 1])[0]):
+        spec = rng.choice(specs)
+        forged = codec.encode_decoded(spec.name, k - rng.choice([0, 0, 3]), (rng.uniform(-1, 1),))
+        intruders[id(forged)] = "intruder"
+        data.append(forged)
     rng.shuffle(data)  # as a bus fault may leave them: the wire sends them by id whatever their order
-    return [sync, *data]
+    return [sync, *data], intruders
 
 
 def shown(frame) -> tuple[int, bytes]:
@@ -114,18 +124,20 @@ def test_quiet_ticks_give_and_leave_what_each_runs_wire_gives_and_leaves(bitrate
     rngs = [random.Random(100 + r) for r in range(runs)]
     quiet = loud = 0
     for k in range(60):
-        frames_of = []
+        frames_of, senders_of = [], []
         for r in range(runs):
             for frame in answers(plan, k, rngs[r]) if k else []:
                 for arbitration in (alone[r], together[r]):
                     arbitration.answer(k, 0.0, 0, *frame)
-            frames_of.append(runner(plan, k, rngs[r]))
-        found = quiet_ticks(together, k, frames_of)
+            frames, senders = runner(plan, k, rngs[r])
+            frames_of.append(frames)
+            senders_of.append(senders)
+        found = quiet_ticks(together, k, frames_of, senders_of)
         for r in range(runs):
-            step = alone[r].tick(k, frames_of[r])
+            step = alone[r].tick(k, frames_of[r], senders=senders_of[r])
             delivered = [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None]
             if found[r] is None:
-                other = together[r].tick(k, frames_of[r])
+                other = together[r].tick(k, frames_of[r], senders=senders_of[r])
                 assert [(p.delivered_ns, shown(p.frame.payload)) for p in other.passed if p.dropped is None] == [
                     (at, shown(frame)) for at, frame in delivered
                 ]

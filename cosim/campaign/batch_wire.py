@@ -221,9 +221,9 @@ class _RunWire:
         self.rejected = self.rejected or why
 
 
-def _plain(applied: Applied | None) -> bool:
-    """Whether the bus faults of a tick delayed no frame and forged none (its wire may be quiet)."""
-    return applied is None or not (applied.delays_ns or applied.intruders)
+def _undelayed(applied: Applied | None) -> bool:
+    """Whether the bus faults of a tick delayed no frame (its wire may be quiet)."""
+    return applied is None or not applied.delays_ns
 
 
 class WireBatch:
@@ -262,8 +262,9 @@ class WireBatch:
                 prepared[r] = self.runs[r].prepare(k, frames)
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
-        plain = [item[0] if item is not None and _plain(item[1]) else None for item in prepared]
-        quiet = quiet_ticks([run.arbitration for run in self.runs], k, plain)
+        plain = [item[0] if item is not None and _undelayed(item[1]) else None for item in prepared]
+        senders = [item[1].intruders if item is not None and item[1] is not None else {} for item in prepared]
+        quiet = quiet_ticks([run.arbitration for run in self.runs], k, plain, senders)
         for r, item in enumerate(prepared):
             if item is None:
                 continue

@@ -151,8 +151,7 @@ class Arbitration:
 
     def _runner_frame(self, frame: Frame, t_ns: int, deadline: int) -> WireFrame:
         wire_frame = self._wire_frame(frame, t_ns + self._delays.get(id(frame), 0), deadline, RUNNER)
-        if id(frame) in self._senders:
-            wire_frame.sender = self._senders[id(frame)]
+        wire_frame.sender = self._sender(frame, self._senders)
         return wire_frame
 
     def tick(
@@ -225,21 +224,35 @@ class Arbitration:
                 return sync, set(inputs[:count]) | uncounted, planned, offered
             count = min(count, len(inputs)) if len(inputs) in seen else len(inputs)
 
-    def quiet(self, k: int, frames: list[Frame]) -> bool:
-        """Whether tick k, with the runner's ``frames`` (SYNC first; none delayed, none an
-        intruder's), is quiet on this wire (``quiet_ticks``): nothing from before on it, the
-        answers to tick k − 1 on ids of their own, no background frame due in the tick, and every
-        data frame of the runner's one that its receivers count."""
+    def quiet(self, k: int, frames: list[Frame], senders: dict[int, str]) -> tuple[bool, ...] | None:
+        """Which data frames of the runner's ``frames`` (SYNC first; none delayed; ``senders``: the
+        intruders' frames, by ``id()``) its receivers count, if tick k is quiet on this wire
+        (``quiet_ticks``); None if it is not: something from before still on the wire, answers to
+        tick k − 1 on one id, a background frame due in the tick, or two frames of the runner's
+        on one id from one sender (the newer replaces the older)."""
         t_ns, data = k * self.dt_ns, frames[1:]
         ids = [message.arbitration_id for message, _ in self._answers]
-        return (
-            not self.wire.queue
-            and not self._runner
-            and not self._on_channel
-            and all(a < b for a, b in zip(ids, ids[1:]))
-            and not any(source.due(t_ns, t_ns + self.dt_ns) for source in self.traffic)
-            and len(counted_by_receivers(data, {}, self.authenticated, k % self.codec.tick_modulus)) == len(data)
-        )
+        if (
+            self.wire.queue
+            or self._runner
+            or self._on_channel
+            or any(a >= b for a, b in zip(ids, ids[1:]))
+            or any(source.due(t_ns, t_ns + self.dt_ns) for source in self.traffic)
+        ):
+            return None
+        owners = {(self._sender(frame, senders), frame[0].arbitration_id) for frame in data}
+        if len(owners) < len(data):
+            return None
+        counted = counted_by_receivers(data, senders, self.authenticated, k % self.codec.tick_modulus)
+        kept = {id(frame) for frame in counted}
+        return tuple(id(frame) in kept for frame in data)
+
+    @staticmethod
+    def _sender(frame: Frame, senders: dict[int, str]) -> str:
+        """Who a frame of the runner's is sent by on the wire (``_runner_frame``)."""
+        if id(frame) in senders:
+            return senders[id(frame)]
+        return frame[1].spec.sender if frame[1] is not None else RUNNER
 
     def settle(self, k: int, offered: int, idle_ns: int, inputs_ns: int) -> None:
         """The state ``tick`` leaves after a quiet tick k in which ``offered`` frames went out,
@@ -256,29 +269,36 @@ class Arbitration:
 
 
 def quiet_ticks(
-    arbitrations: Sequence[Arbitration], k: int, frames_of: Sequence[list[Frame] | None]
+    arbitrations: Sequence[Arbitration],
+    k: int,
+    frames_of: Sequence[list[Frame] | None],
+    senders_of: Sequence[dict[int, str]] | None = None,
 ) -> list[Quiet | None]:
     """Tick k of the wires of K runs of one design (a batch) that are quiet, on arrays: for each,
     what ``Arbitration.tick`` gives and leaves, or None where it must be run (``frames_of``: each
-    run's frames, SYNC first; None: a run to leave out).
+    run's frames, SYNC first, none delayed; None: a run to leave out; ``senders_of``: each run's
+    intruders' frames, by ``id()``, as ``tick`` takes them).
 
     A tick is quiet when the wire holds nothing from before, the answers to tick k − 1 (all
     queued at q_{k−1}) are on ids of their own and go out before t_k, no background frame is due,
-    and SYNC(k) and every frame of the runner's (all queued at t_k, all counted by the receivers)
-    are delivered by t_{k+1}. Every contest is then between frames all queued when the wire
-    falls idle, so the wire sends them in the order of their ids, each from the end of the one
-    before: the answers' passages from max(idle, q_{k−1}), the runner's from the later of their
-    end and t_k, as cumulative sums of the frames' durations (``frame_bits_rows``, their stuff
-    bits on arrays). SYNC(k) then announces every frame (the fixed point of ``_plan`` at once),
-    q_k is the last delivery and the wire is committed to it: nothing is late or left queued."""
+    and SYNC(k) and every frame of the runner's (all queued at t_k) are delivered by t_{k+1}.
+    Every contest is then between frames all queued when the wire falls idle, so the wire sends
+    them by (id, offer), each from the end of the one before: the answers' passages from
+    max(idle, q_{k−1}), the runner's from the later of their end and t_k, as cumulative sums of
+    the frames' durations (``frame_bits_rows``, their stuff bits on arrays). SYNC(k) announces
+    the frames the receivers count (the fixed point of ``_plan`` at once: all are through), q_k
+    is the last delivery, and the wire is committed to it with nothing late or left queued."""
     out: list[Quiet | None] = [None] * len(arbitrations)
-    groups: dict[tuple[tuple[Any, ...], tuple[Any, ...]], list[int]] = {}
+    groups: dict[tuple[Any, ...], list[int]] = {}
     for r, (arbitration, frames) in enumerate(zip(arbitrations, frames_of)):
-        if frames is not None and arbitration.quiet(k, frames):
-            key = (_layout(arbitration._answers), _layout(frames[1:]))
+        senders = senders_of[r] if senders_of is not None else {}
+        counted = arbitration.quiet(k, frames, senders) if frames is not None else None
+        if counted is not None:
+            assert frames is not None
+            key = (_layout(arbitration._answers), _layout(frames[1:]), counted)
             groups.setdefault(key, []).append(r)
-    for rows in groups.values():
-        found = _quiet_rows(k, [arbitrations[r] for r in rows], [frames_of[r] or [] for r in rows])
+    for (_, _, counted), rows in groups.items():
+        found = _quiet_rows(k, [arbitrations[r] for r in rows], [frames_of[r] or [] for r in rows], counted)
         for r, quiet in zip(rows, found):
             out[r] = quiet
     return out
@@ -289,13 +309,16 @@ def _layout(frames: list[Frame]) -> tuple[tuple[int, bool, bool, bool, int], ...
     return tuple((m.arbitration_id, m.is_extended_id, m.is_fd, m.bitrate_switch, len(m.data)) for m, _ in frames)
 
 
-def _quiet_rows(k: int, arbitrations: list[Arbitration], frames_of: list[list[Frame]]) -> list[Quiet | None]:
-    """``quiet_ticks`` of runs whose answers and frames have one layout (``_layout``)."""
+def _quiet_rows(
+    k: int, arbitrations: list[Arbitration], frames_of: list[list[Frame]], counted: tuple[bool, ...]
+) -> list[Quiet | None]:
+    """``quiet_ticks`` of runs whose answers and frames have one layout (``_layout``), the same of
+    whose data frames ``counted``."""
     first = arbitrations[0]
     codec, wire, t_ns = first.codec, first.wire, k * first.dt_ns
     answers = len(first._answers)
     try:
-        syncs = [codec.sync(k, len(frames) - 1) for frames in frames_of]
+        syncs = [codec.sync(k, sum(counted)) for _ in frames_of]
     except CodecError:  # more frames than a SYNC can announce: each run's ``tick`` says so
         return [None] * len(arbitrations)
     sync_decoded = codec.decode(syncs[0])  # the same bytes in every run (each its own frame: it is signed)
@@ -311,10 +334,11 @@ def _quiet_rows(k: int, arbitrations: list[Arbitration], frames_of: list[list[Fr
     order = answers + np.argsort([m.arbitration_id for m in rows[0][answers:]], kind="stable")
     ahead = np.cumsum(total[:, order], axis=1) - total[:, order]
     runner = np.maximum(idle, t_ns)[:, None] + ahead
-    ok = runner[:, -1] + delivery[:, order[-1]] <= t_ns + first.dt_ns
+    arrivals = runner + delivery[:, order]  # in the order they go: q_k is the last
+    ok = arrivals[:, -1] <= t_ns + first.dt_ns
     if answers:
         ok &= starts[:, -1] < t_ns  # the answers all went out before t_k
-    delivered = np.concatenate([starts + delivery[:, :answers], runner + delivery[:, order]], axis=1).tolist()
+    delivered = np.concatenate([starts + delivery[:, :answers], arrivals], axis=1).tolist()
     ends = (runner[:, -1] + total[:, order[-1]]).tolist()
     out: list[Quiet | None] = []
     for r, arbitration in enumerate(arbitrations):
