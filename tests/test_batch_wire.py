@@ -215,6 +215,13 @@ def test_each_fault_of_the_bus_batched_gives_what_each_node_takes_and_the_detect
     assert_batched_as_alone(open_loop(BUS_FAULTS[fault], detector), taps)
 
 
+def test_a_fuzzers_frames_too_short_for_a_control_frames_mac_time_as_they_are_batched_as_alone(taps):
+    # 2-byte frames on the ids around SYNC's (its MAC from byte 5): the wire times them as they
+    # are (it raised ValueError before, alone and batched)
+    short = {"name": "fuzzing", "kind": "fuzzing", "low": 0x07F, "high": 0x081, "length": 2, "period": 0.0005}
+    assert_batched_as_alone(closed_loop([{**short, **WINDOW}]), taps)
+
+
 def test_an_overloaded_wire_with_background_traffic_batched_gives_what_each_node_takes_alone(taps):
     assert_batched_as_alone(open_loop(BUS_FAULTS["loss_x1"], True, CHATTY), taps)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import random
 
+import can
 import numpy as np
 import pytest
 
@@ -93,7 +94,8 @@ def runner(plan: RunPlan, k: int, rng: random.Random) -> tuple[list, dict[int, s
     """The runner's frames of tick k (SYNC first) and the intruders' among them (by ``id()``):
     now and then a reading not sent, an intruder's copy of a sensor's frame (of this tick, which
     receivers distrust with the genuine one, or replayed from an earlier tick, which they do not
-    count), or two copies from one intruder (the newer replaces the older on the wire)."""
+    count), two copies from one intruder (the newer replaces the older on the wire), a frame on
+    SYNC's id in its sender's name, or one on a control frame's id shorter than its MAC."""
     s, codec = plan.scenario, plan.codec
     specs = [codec.sensor(name) for name in s.sensors]
     measured = [rng.uniform(-1, 1) * rng.choice([1, 1e-3]) for _ in specs]
@@ -104,6 +106,15 @@ def runner(plan: RunPlan, k: int, rng: random.Random) -> tuple[list, dict[int, s
         spec = rng.choice(specs)
         forged = codec.encode_decoded(spec.name, k - rng.choice([0, 0, 3]), (rng.uniform(-1, 1),))
         intruders[id(forged)] = "intruder"
+        data.append(forged)
+    if rng.random() < 0.05:  # on SYNC's id in SYNC's sender's name: it replaces SYNC on the wire
+        forged = (can.Message(arbitration_id=sync[0].arbitration_id, data=bytes(8), is_extended_id=False), None)
+        intruders[id(forged)] = sync[1].spec.sender
+        data.append(forged)
+    if rng.random() < 0.1:  # a fuzzer's frame too short for the MAC of the control frame whose id it has
+        at = rng.choice(sorted(codec.control_macs))
+        forged = (can.Message(arbitration_id=at, data=bytes(rng.randrange(3)), is_extended_id=False), None)
+        intruders[id(forged)] = "fuzzer"
         data.append(forged)
     rng.shuffle(data)  # as a bus fault may leave them: the wire sends them by id whatever their order
     return [sync, *data], intruders
@@ -161,3 +172,17 @@ def test_quiet_ticks_give_and_leave_what_each_runs_wire_gives_and_leaves(bitrate
             (p.delivered_ns, p.dropped, shown(p.frame.payload)) for p in b.finish()
         ]
     assert quiet > 30 and loud > 10, (quiet, loud)  # both ways taken: the equalities say something
+
+
+def test_wires_of_other_bit_rates_in_one_call_are_each_timed_at_their_own():
+    plan = plan_of(500_000, False)
+    s, codec = plan.scenario, plan.codec
+    specs = [codec.sensor(name) for name in s.sensors]
+    rates = [500_000, 125_000, 500_000, 250_000]
+    frames_of = [runner_frames(codec, 2, specs, [0.1, 0.2, 0.3], [True] * 3, [], []) for _ in rates]
+    together = [Arbitration(codec, rate, rate, s.dt_ns) for rate in rates]
+    found = quiet_ticks(together, 2, frames_of)
+    for rate, frames, quiet in zip(rates, frames_of, found):
+        step = Arbitration(codec, rate, rate, s.dt_ns).tick(2, frames)
+        assert quiet is not None
+        assert [at for at, _ in quiet.delivered] == [p.delivered_ns for p in step.passed]

@@ -193,7 +193,7 @@ def frame_bits_rows(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``frame_bits`` of C × R frames at once, equal to it frame by frame: frame (c, r) has id
     ``can_ids[c]`` (29-bit if ``extended[c]``), data length code ``dlcs[c]`` and the payload
-    ``payloads[c, r]`` (C, R, n) uint8, all n bytes long, all CAN FD (with BRS) or all classic
+    ``payloads[c, r]`` (C, R, n) uint8, all n bytes long, all CAN FD (with BRS or without) or all classic
     (C messages, each from R runs). The bits before the data are each column's (cached); the
     automaton and the CRC step through the n byte columns on arrays: (nominal, data-rate) bits,
     each (C, R) int64."""

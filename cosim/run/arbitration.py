@@ -136,7 +136,7 @@ class Arbitration:
         control = None if message.is_extended_id else self.codec.control_macs.get(message.arbitration_id)
         if control is not None:  # timed with its MAC at 0: a run's (random) key changes no timing
             at = control[1].mac[0]
-            data = data[:at] + bytes(len(data) - at)
+            data = data[:at] + bytes(len(data[at:]))  # a frame too short for its MAC (a fuzzer's) as it is
         return WireFrame(
             message.arbitration_id,
             message.is_extended_id,
@@ -228,8 +228,8 @@ class Arbitration:
         """Which data frames of the runner's ``frames`` (SYNC first; none delayed; ``senders``: the
         intruders' frames, by ``id()``) its receivers count, if tick k is quiet on this wire
         (``quiet_ticks``); None if it is not: something from before still on the wire, answers to
-        tick k − 1 on one id, a background frame due in the tick, or two frames of the runner's
-        on one id from one sender (the newer replaces the older)."""
+        tick k − 1 on one id, a background frame due in the tick, or two frames of the tick (SYNC
+        included) on one id from one sender (the newer replaces the older)."""
         t_ns, data = k * self.dt_ns, frames[1:]
         ids = [message.arbitration_id for message, _ in self._answers]
         if (
@@ -240,8 +240,8 @@ class Arbitration:
             or any(source.due(t_ns, t_ns + self.dt_ns) for source in self.traffic)
         ):
             return None
-        owners = {(self._sender(frame, senders), frame[0].arbitration_id) for frame in data}
-        if len(owners) < len(data):
+        owners = {(self._sender(frame, senders), frame[0].arbitration_id) for frame in frames}
+        if len(owners) < len(frames):  # SYNC's included: an intruder may send on its id in its name
             return None
         counted = counted_by_receivers(data, senders, self.authenticated, k % self.codec.tick_modulus)
         kept = {id(frame) for frame in counted}
@@ -254,11 +254,12 @@ class Arbitration:
             return senders[id(frame)]
         return frame[1].spec.sender if frame[1] is not None else RUNNER
 
-    def settle(self, k: int, offered: int, idle_ns: int, inputs_ns: int) -> None:
-        """The state ``tick`` leaves after a quiet tick k in which ``offered`` frames went out,
-        the last one's receivers having it at ``inputs_ns`` and the wire idle from ``idle_ns``."""
+    def settle(self, offered: int, idle_ns: int, inputs_ns: int) -> None:
+        """The state ``tick`` leaves after a quiet tick in which ``offered`` frames went out, the
+        last one's receivers having it at ``inputs_ns`` and the wire idle from ``idle_ns`` (its
+        queue and the runner's frames in flight stay empty)."""
         self.wire.idle_ns, self.wire._seq = idle_ns, self.wire._seq + offered
-        self._inputs_ns, self._answers, self._delays, self._senders = inputs_ns, [], {}, {}
+        self._inputs_ns, self._answers = inputs_ns, []
 
     def finish(self) -> list[Transmission]:
         """The end of the run: the answers heard last and everything still queued go out."""
@@ -280,7 +281,7 @@ def quiet_ticks(
     intruders' frames, by ``id()``, as ``tick`` takes them).
 
     A tick is quiet when the wire holds nothing from before, the answers to tick k − 1 (all
-    queued at q_{k−1}) are on ids of their own and go out before t_k, no background frame is due,
+    queued at q_{k−1}) are on ids of their own and start before t_k, no background frame is due,
     and SYNC(k) and every frame of the runner's (all queued at t_k) are delivered by t_{k+1}.
     Every contest is then between frames all queued when the wire falls idle, so the wire sends
     them by (id, offer), each from the end of the one before: the answers' passages from
@@ -295,9 +296,11 @@ def quiet_ticks(
         counted = arbitration.quiet(k, frames, senders) if frames is not None else None
         if counted is not None:
             assert frames is not None
-            key = (_layout(arbitration._answers), _layout(frames[1:]), counted)
+            wire = arbitration.wire  # one design's runs share these; the key holds them all the same
+            design = (id(arbitration.codec), wire.bitrate, wire.data_bitrate, arbitration.dt_ns)
+            key = (design, _layout(arbitration._answers), _layout(frames[1:]), counted)
             groups.setdefault(key, []).append(r)
-    for (_, _, counted), rows in groups.items():
+    for (_, _, _, counted), rows in groups.items():
         found = _quiet_rows(k, [arbitrations[r] for r in rows], [frames_of[r] or [] for r in rows], counted)
         for r, quiet in zip(rows, found):
             out[r] = quiet
@@ -346,7 +349,7 @@ def _quiet_rows(
             out.append(None)
             continue
         frames = [*arbitration._answers, *(sent[r][j - answers] for j in order.tolist())]
-        arbitration.settle(k, len(rows[r]), ends[r], delivered[r][-1])
+        arbitration.settle(len(rows[r]), ends[r], delivered[r][-1])
         out.append(Quiet(sent[r], list(zip(delivered[r], frames))))
     return out
 
