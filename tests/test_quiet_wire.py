@@ -186,3 +186,19 @@ def test_wires_of_other_bit_rates_in_one_call_are_each_timed_at_their_own():
         step = Arbitration(codec, rate, rate, s.dt_ns).tick(2, frames)
         assert quiet is not None
         assert [at for at, _ in quiet.delivered] == [p.delivered_ns for p in step.passed]
+
+
+def test_a_sources_due_says_whether_its_frames_would_come_and_draws_nothing():
+    rng = random.Random(5)
+    for _ in range(300):
+        period = rng.choice([1, 7, 250_000, 1_100_000, 10_000_000, 30_000_000])
+        start = rng.choice([0, 1, rng.randrange(50_000_000), 10_000_000])
+        end = rng.choice([2**62, start + rng.randrange(1, 60_000_000)])
+        begin = rng.choice([start - 1, start, start + rng.randrange(40_000_000), end - 1, end, end + 1])
+        stop = begin + rng.choice([1, 20 * period, period, period + 1, 10_000_000 if period > 7 else 20])
+        source = Periodic("s", 0x0C0, period, 8, start, end, False, np.random.default_rng(0))
+        due = source.due(begin, stop)
+        state = source.rng.bit_generator.state
+        assert due == bool(source.frames(begin, stop)), (period, start, end, begin, stop)
+        if not due:  # frames drew nothing either: due draws nothing in any case (it takes no generator)
+            assert source.rng.bit_generator.state == state
