@@ -133,9 +133,8 @@ class Arbitration:
         message, decoded = frame
         sender = decoded.spec.sender if decoded is not None else sender
         data = bytes(message.data)
-        control = None if message.is_extended_id else self.codec.control_macs.get(message.arbitration_id)
-        if control is not None:  # timed with its MAC at 0: a run's (random) key changes no timing
-            at = control[1].mac[0]
+        at = _mac_at(self.codec, message)
+        if at is not None:
             data = data[:at] + bytes(len(data[at:]))  # a frame too short for its MAC (a fuzzer's) as it is
         return WireFrame(
             message.arbitration_id,
@@ -269,6 +268,13 @@ class Arbitration:
         return self.wire.drain()
 
 
+def _mac_at(codec: Codec, message: can.Message) -> int | None:
+    """Where a control frame's MAC starts (None: no control frame): the wire times it with the MAC
+    at 0, so that a run's (random) key changes no timing."""
+    control = None if message.is_extended_id else codec.control_macs.get(message.arbitration_id)
+    return None if control is None else control[1].mac[0]
+
+
 def quiet_ticks(
     arbitrations: Sequence[Arbitration],
     k: int,
@@ -292,10 +298,10 @@ def quiet_ticks(
     out: list[Quiet | None] = [None] * len(arbitrations)
     groups: dict[tuple[Any, ...], list[int]] = {}
     for r, (arbitration, frames) in enumerate(zip(arbitrations, frames_of)):
-        senders = senders_of[r] if senders_of is not None else {}
-        counted = arbitration.quiet(k, frames, senders) if frames is not None else None
+        if frames is None:
+            continue
+        counted = arbitration.quiet(k, frames, senders_of[r] if senders_of is not None else {})
         if counted is not None:
-            assert frames is not None
             wire = arbitration.wire  # one design's runs share these; the key holds them all the same
             design = (id(arbitration.codec), wire.bitrate, wire.data_bitrate, arbitration.dt_ns)
             key = (design, _layout(arbitration._answers), _layout(frames[1:]), counted)
@@ -367,10 +373,9 @@ def _bits_of_columns(codec: Codec, rows: list[list[can.Message]]) -> tuple[np.nd
             bytearray(b"".join(bytes(row[c].data) for c in columns for row in rows)), dtype=np.uint8
         ).reshape(len(columns), len(rows), length)
         for i, c in enumerate(columns):
-            message = rows[0][c]
-            control = None if message.is_extended_id else codec.control_macs.get(message.arbitration_id)
-            if control is not None:
-                payloads[i, :, control[1].mac[0] :] = 0
+            at = _mac_at(codec, rows[0][c])
+            if at is not None:
+                payloads[i, :, at:] = 0
         heads = [rows[0][c] for c in columns]
         bits, fast_bits = frame_bits_rows(
             [m.arbitration_id for m in heads],
