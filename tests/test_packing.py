@@ -66,5 +66,8 @@ def test_the_codec_encodes_and_decodes_through_its_packers_as_cantools_does(name
             assert decoded is not None and decoded.tick == int(theirs.pop("tick", 0)), spec.name
             theirs.pop("mac", None)  # a control frame's MAC: in the DBC, no value of the codec's
             assert list(decoded.values.items()) == list(theirs.items()), spec.name  # same values, same order
-            if carried is not None:
+            if carried is not None:  # what a receiver decodes, to the bit, in the same order (a batch hands it on)
                 assert carried.tick == decoded.tick and carried.values == decoded.values, spec.name
+                assert [(name, type(v), repr(v)) for name, v in carried.values.items()] == [
+                    (name, type(v), repr(v)) for name, v in decoded.values.items()
+                ], spec.name

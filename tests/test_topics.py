@@ -227,3 +227,37 @@ def test_every_record_is_a_slotted_dataclass_of_this_module():
     for record in RECORDS:
         assert dataclasses.is_dataclass(record) and issubclass(record, topics.Record)
         assert all("__slots__" in vars(base) for base in record.__mro__[:-1]), record  # no __dict__ per message
+
+
+def test_read_back_is_the_round_trip_through_the_log_bytes() -> None:
+    """A scorer fed as the run writes reads what a reader of the file reads: ``read_back`` gives
+    ``orjson.loads(dumps(payload))`` (same types, same bits: -0.0, subnormals, the largest doubles,
+    64-bit integers), and is a copy."""
+    import math
+    import struct
+
+    import orjson
+
+    from cosim.log.writer import dumps, read_back
+
+    rng = np.random.default_rng(7)
+    doubles = [struct.unpack("<d", rng.bytes(8))[0] for _ in range(2000)]  # every exponent, NaN and inf among them
+    special = [0.0, -0.0, 5e-324, -5e-324, 1.7976931348623157e308, math.nan, math.inf, -math.inf, 0.1, 1 / 3]
+    integers = [0, -1, 2**53 + 1, 2**63 - 1, -(2**63), 2**64 - 1]
+    payloads = [{"tick": i, "x": v, "y": -v} for i, v in enumerate(doubles + special)]
+    payloads += [{"tick": n, "flag": True, "none": None} for n in integers]
+    payloads += [{"a": [1.0, 2.0]}, {"a": {"b": math.nan}}, {"a": "text"}, {"a": np.float64(0.5)}, {}]
+    assert any(not math.isfinite(v) for v in doubles)
+    for payload in payloads:
+        expected, got = orjson.loads(dumps(payload)), read_back(payload)
+        assert got is not payload
+        assert list(got) == list(expected)
+        for key, value in expected.items():
+            assert type(got[key]) is type(value), (payload, key)
+            if isinstance(value, float):
+                assert struct.pack("<d", got[key]) == struct.pack("<d", value), (payload, key)
+            else:
+                assert got[key] == value, (payload, key)
+    for too_large in ({"n": 2**64}, {"n": -(2**63) - 1}):
+        with pytest.raises(orjson.JSONEncodeError):
+            read_back(too_large)  # as writing it would fail

@@ -241,6 +241,10 @@ class Client:
         self._outbox: list[can.Message] = []  # a lockstep node's frames of the tick, until its heartbeat
         self._joined = False
         self._announced = 0.0
+        #: Where a participant that shares its process with its receivers (a batch's run:
+        #: ``cosim.campaign.batch_wire``) leaves what each data frame it publishes decodes to, by
+        #: ``id()`` of the frame, so that they take it without decoding the frame again; None: nowhere.
+        self.decoded: dict[int, tuple[can.Message, Decoded | None]] | None = None
         # Only these frames concern a participant; telling them by id spares decoding the rest
         # (other nodes' frames, and our own frames that come back on udp_multicast).
         self._wanted = {
@@ -400,7 +404,11 @@ class Client:
             payload = [values[s] for s in spec.signals]
             if saturate:
                 payload = saturated(payload, spec.channels)
-            frame = self.codec.encode(spec.name, k, payload)
+            if self.decoded is not None and self.secoc is None:  # a SecOC trailer is written after encoding
+                frame, carried = self.codec.encode_decoded(spec.name, k, payload)
+                self.decoded[id(frame)] = (frame, carried)
+            else:
+                frame = self.codec.encode(spec.name, k, payload)
             if self.secoc is not None:
                 self.secoc.sign(frame, k)
             frames.append(frame)

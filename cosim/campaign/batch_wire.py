@@ -36,7 +36,6 @@ from typing import Any
 
 import can
 import numpy as np
-import orjson
 
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.bus.client import Client, TickFrames
@@ -46,7 +45,7 @@ from cosim.bus.transport import allocate, drain, open_bus, send_all
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import SenderCounts
 from cosim.log.topics import Signals, message_topic
-from cosim.log.writer import dumps
+from cosim.log.writer import read_back
 from cosim.run.arbitration import Arbitration, Quiet, quiet_ticks
 from cosim.run.busfaults import Applied
 from cosim.run.loop import runner_frames
@@ -81,6 +80,9 @@ class _RunWire:
         self.detector = plan.intrusion_detector()
         self.control = plan.control()
         self.rejected = ""
+        # the frames on the run's channel since its last tick began (the runner's, its nodes'),
+        # decoded once for all who take them, by id(): a frame held here keeps its id its own
+        self.decoded: dict[int, Frame] = {}
         config = allocate("virtual")  # a channel of its own
         self.bus = open_bus(config)
         self.traffic = Traffic(
@@ -92,17 +94,18 @@ class _RunWire:
             on_rejected=self._rejected,
             control=self.control,
             deliver=self._logged,
+            decode=self._decode,
         )
         names = [*plan.estimators, *([CONTROLLER] if plan.controller is not None else [])]
         self.nodes: dict[str, Client] = {}
         for name in names:
-            self.nodes[name] = node_client(plan.node_spec(name, config), self.codec, open_bus(config), name)
-            self.nodes[name].join()
+            client = self.nodes[name] = node_client(plan.node_spec(name, config), self.codec, open_bus(config), name)
+            client.decoded = self.decoded  # what its frames decode to, for the runner and the other nodes
+            client.join()
         self._hear()
         self.traffic.flush(0, 0.0, 0)  # the boot-ups, as the session logs them when its nodes have joined
         self.traffic.deliver = self.arbitration.answer  # from tick 0 on, what the runner hears goes over the wire
         self.marker = 0  # the tick whose heard frames are still to be handed on (``Session._marker``)
-        self.decoded: dict[int, Frame] = {}  # the frames on the run's channel in this tick, decoded, by id()
 
     def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
         """Tick k's frames of the runner (SYNC first) through its bus faults, and the answers to tick
@@ -128,8 +131,10 @@ class _RunWire:
             quiet = Quiet(step.send, [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None])
         sign_control(self.control, k, quiet.send, applied)
         # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
-        # just now, is decoded as it is sent): decoded once for all the run's nodes
-        self.decoded = {id(item[0]): item for item in quiet.send if item[1] is None or item[1].spec.role not in _SIGNED}
+        # just now, is decoded as it is sent): decoded once for all the run's nodes. Everything
+        # heard of the last tick is taken (``prepare``)
+        self.decoded.clear()
+        self.decoded.update((id(f[0]), f) for f in quiet.send if f[1] is None or f[1].spec.role not in _SIGNED)
         send_all(self.bus, [frame for frame, _ in quiet.send])
         self.marker = k
         self._passages(quiet.delivered)
@@ -153,7 +158,7 @@ class _RunWire:
                 decoded = self.codec.decode(frame)
             except CodecError:
                 decoded = None
-            found = self.decoded[id(frame)] = (frame, decoded)  # the frame held: its id stays its own
+            found = self.decoded[id(frame)] = (frame, decoded)
         return found[1]
 
     def publish(self, name: str, tick: TickFrames, values: dict[str, float], saturate: bool) -> None:
@@ -198,7 +203,7 @@ class _RunWire:
         topic = message_topic(decoded.spec.name)
         scorer = self.scorer
         if topic in scorer.owner and scorer.reads(topic):
-            signals = Signals.read(orjson.loads(dumps(Signals.payload(decoded))), tick)
+            signals = Signals.read(read_back(Signals.payload(decoded)), tick)
             scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
 
     def _passages(self, delivered: list[tuple[int, Frame]]) -> None:

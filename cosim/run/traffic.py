@@ -53,8 +53,12 @@ class Traffic(can.Listener):
         on_rejected: Callable[[can.Message, Rejection], None] | None = None,
         control: ControlAuth | None = None,
         deliver: Callable[[int, float, int, can.Message, Decoded | None], None] | None = None,
+        decode: Callable[[can.Message], Decoded | None] | None = None,
     ) -> None:
         self.codec = codec
+        #: What a frame decodes to (None: not decodable): the codec's, or a batch's run's, which
+        #: knows what its nodes' frames decode to (``cosim.campaign.batch_wire``)
+        self._decoder = decode or self._decode_frame
         # Control frames' MACs and SecOC: every node's frame is verified on arrival (the runner's
         # own, at sending); a rejected one is logged as it came, never used or counted as its sender's
         self.secoc, self.control, self._on_rejected = secoc, control, on_rejected
@@ -124,7 +128,7 @@ class Traffic(can.Listener):
             return
         decoded = None
         if identifier in self._heartbeats:
-            decoded = self._decode(msg)
+            decoded = self._decoder(msg)
             if decoded is not None:
                 decoded = self.codec.with_full_tick(decoded, self.current)
                 sender, state = decoded.spec.sender, decoded.values["state"]
@@ -154,7 +158,7 @@ class Traffic(can.Listener):
                         )
                     self.closed[sender] = decoded.tick
         elif identifier in self._commands:
-            decoded = self._decode(msg)
+            decoded = self._decoder(msg)
             if decoded is not None:
                 channel = decoded.spec.channels[0]
                 self.commands.setdefault(decoded.tick, {})[channel.name] = decoded.values[decoded.spec.signals[0]]
@@ -194,7 +198,7 @@ class Traffic(can.Listener):
         if self._on_foreign is not None:
             self._on_foreign(frame, reason)
 
-    def _decode(self, frame: can.Message) -> Decoded | None:
+    def _decode_frame(self, frame: can.Message) -> Decoded | None:
         try:
             return self.codec.decode(frame)
         except CodecError:
@@ -209,7 +213,7 @@ class Traffic(can.Listener):
                 taken.append((frame, None))
                 continue
             if decoded is None:
-                decoded = self._decode(frame)
+                decoded = self._decoder(frame)
             taken.append((frame, decoded))
             if decoded is None:
                 unknown = self.codec.spec_of(frame) is None
