@@ -202,3 +202,28 @@ def test_a_sources_due_says_whether_its_frames_would_come_and_draws_nothing():
         assert due == bool(source.frames(begin, stop)), (period, start, end, begin, stop)
         if not due:  # frames drew nothing either: due draws nothing in any case (it takes no generator)
             assert source.rng.bit_generator.state == state
+
+
+def test_a_sources_frames_of_an_interval_are_the_frame_by_frame_draws_of_its_stream():
+    """``Periodic.frames`` draws an interval's payloads at once: the same bytes, queue times and
+    stream position as a draw of ``integers(0, 256, length, dtype=uint8)`` frame after frame (the
+    payloads of every run with background traffic, alone or batched, and so its frame digests)."""
+    rng = random.Random(11)
+    for _ in range(400):
+        period = rng.choice([1, 7, 250_000, 1_100_000, 10_000_000])
+        start = rng.choice([0, 3, rng.randrange(50_000_000)])
+        end = rng.choice([2**62, start + rng.randrange(1, 60_000_000)])
+        begin = rng.choice([start - 1, start, start + rng.randrange(40_000_000), end - 1, end])
+        stop = begin + rng.choice([1, period, period + 1, 40 * period, 10_000_000 if period > 7 else 30])
+        length, fd = rng.choice([(n, n > 8) for n in (0, 1, 2, 3, 4, 5, 7, 8, 12, 16, 20, 24, 32, 48, 64)])
+        seed = rng.randrange(2**32)
+        source = Periodic("s", 0x0C0, period, length, start, end, fd, np.random.default_rng(seed))
+        reference = np.random.default_rng(seed)
+        expected, n = [], -(-(max(start, begin) - start) // period)
+        while (t := start + n * period) < min(stop, end):
+            expected.append((t / 1e9, reference.integers(0, 256, length, dtype=np.uint8).tobytes()))
+            n += 1
+        got = source.frames(begin, stop)
+        assert [(m.timestamp, bytes(m.data)) for m in got] == expected, (period, start, begin, length)
+        assert all(m.arbitration_id == 0x0C0 and m.is_fd == fd and not m.is_extended_id for m in got)
+        assert source.rng.bit_generator.state == reference.bit_generator.state  # the stream goes on alike
