@@ -215,6 +215,35 @@ def test_each_fault_of_the_bus_batched_gives_what_each_node_takes_and_the_detect
     assert_batched_as_alone(open_loop(BUS_FAULTS[fault], detector), taps)
 
 
+@pytest.mark.parametrize(
+    "loaded",
+    [closed_loop(TAXONOMY["injection"]), open_loop(BUS_FAULTS["loss_x1"], True)],
+    ids=["closed loop, spoofed", "open loop, frames lost"],
+)
+def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_built_is_what_it_takes_alone(
+    loaded, taps, monkeypatch
+):
+    """Where a tick's frames went on the channel as the runner built them and a node is between
+    ticks, the batch hands it the tick's values on arrays (``_RunWire.intake``); elsewhere (the
+    attack's or the fault's window, the first tick) it takes its frames one by one: both ways,
+    what each node takes in every tick is what it takes alone."""
+    from cosim.campaign.batch_wire import _RunWire
+
+    intake, ways = _RunWire.intake, defaultdict(lambda: [0, 0])
+
+    def counted(self, name, k):
+        tick = intake(self, name, k)
+        ways[name][tick is None] += 1
+        return tick
+
+    monkeypatch.setattr(_RunWire, "intake", counted)
+    assert_batched_as_alone(loaded, taps)
+    nodes = [e.name for e in loaded.scenario.estimators] + (["controller"] if loaded.scenario.controller else [])
+    assert sorted(ways) == sorted(nodes)
+    for name, (whole, one_by_one) in ways.items():
+        assert whole > 100 and one_by_one >= len(SEEDS), (name, whole, one_by_one)  # tick 0 at least
+
+
 def test_a_fuzzers_frames_too_short_for_a_control_frames_mac_time_as_they_are_batched_as_alone(taps):
     # 2-byte frames on the ids around SYNC's (its MAC from byte 5): the wire times them as they
     # are (it raised ValueError before, alone and batched)

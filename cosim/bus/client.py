@@ -148,6 +148,21 @@ class TickAssembler:
             self.pending = None
         return done
 
+    def between(self, k: int) -> bool:
+        """Whether it is between ticks k and k + 1: it took SYNC(k) last, completed that tick, and
+        holds nothing of its upstream nodes (``TickFrames`` of tick k + 1 start from nothing)."""
+        return self.pending is None and self.last_sync == k and not any(self._heard.values())
+
+    def took_whole(self, k: int) -> None:
+        """Tick k taken whole, from ``between(k − 1)``, its upstream nodes all of lag 0: SYNC(k), every
+        data frame it announced (the tick's counter, one per message) and then each upstream node's
+        frames of tick k and heartbeat (theirs, announcing them), in that order. That leaves one
+        thing changed, the last SYNC taken: the tick is closed, its upstream frames forgotten, nothing
+        counted lost, contested or distrusted (``push``, frame by frame). A batch whose runs step
+        alike has the tick's values on arrays (``cosim.campaign.batch_wire``)."""
+        assert self.between(k - 1) and not any(self.upstream.values())
+        self.last_sync = k
+
     def _hear(self, decoded: Decoded) -> None:
         heard = self._heard[decoded.spec.sender].setdefault(decoded.tick % self.codec.tick_modulus, _Heard())
         if decoded.spec.role == HEARTBEAT:
@@ -239,6 +254,8 @@ class Client:
         self._owns_bus = owns_bus
         self._published = 0
         self._outbox: list[can.Message] = []  # a lockstep node's frames of the tick, until its heartbeat
+        #: What a lockstep node sent closing its last tick: its frames, then its heartbeat.
+        self.closing: list[can.Message] = []
         self._joined = False
         self._announced = 0.0
         #: Where a participant that shares its process with its receivers (a batch's run:
@@ -425,6 +442,7 @@ class Client:
             k = tick.tick if isinstance(tick, TickFrames) else tick
             self._outbox.append(self._heartbeat_frame(OPERATIONAL, k, self._published, self.assembler.lost))
             send_all(self.bus, self._outbox)
+            self.closing = self._outbox
         self._outbox = []
         self._published = 0
 

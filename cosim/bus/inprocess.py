@@ -185,6 +185,14 @@ class InProcessBus(BusABC):
                 receiver.waiting = False
         return (receiver.queue.popleft(), False) if receiver.queue else (None, False)
 
+    def waiting(self) -> list[can.Message]:
+        """The frames received and not taken yet, in order, left where they are."""
+        return list(self._queue)
+
+    def discard(self) -> None:
+        """Drop every frame received and not taken yet (a receiver that knows what they would do)."""
+        self._queue.clear()
+
     @property
     def alone(self) -> bool:
         """No other bus is open on this channel: nothing can arrive but what is queued already."""

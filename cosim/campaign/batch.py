@@ -373,7 +373,7 @@ class _Batch:
         readings = np.where(sent, carried, np.nan)
         self._check(k, alive, x, None, "a state that is not finite")
         if self.wire is not None:
-            self._tick_wire(k, t, x, measured, sent, active, alive)
+            self._tick_wire(k, t, x, measured, sent, readings, active, alive)
             return
         u_cmd, commanded = self._commands(k, t, readings, alive)
         bus = self.bus
@@ -429,22 +429,32 @@ class _Batch:
         return self.held, commanded
 
     def _tick_wire(
-        self, k: int, t: float, x: np.ndarray, measured: np.ndarray, sent: np.ndarray, active: list, alive: np.ndarray
+        self,
+        k: int,
+        t: float,
+        x: np.ndarray,
+        measured: np.ndarray,
+        sent: np.ndarray,
+        readings: np.ndarray,
+        active: list,
+        alive: np.ndarray,
     ) -> None:
         """Tick k on the runs' arbitrated buses (``batch_wire``): each node computes on what its own
-        tick brought it, and its answers go on its run's wire."""
+        tick brought it, and its answers go on its run's wire. ``readings``: the runner's sensor
+        values as their frames carry them (NaN: not sent)."""
         wire, controller = self.wire, self.controller
         assert wire is not None
-        if controller is None:
-            self._commands(k, t, measured, alive)  # the input signals, as given and as their frames carry them
+        none = np.full((len(self.runs), len(self.actuators)), np.nan)
+        if controller is None:  # the input signals, as given and as their frames carry them
+            u_carried, _ = self._commands(k, t, measured, alive)
         wire.send(k, measured, sent, self.raw_commands, alive)
         if controller is not None:
-            ticks, readings, _ = wire.inputs(k, CONTROLLER, alive)
+            ticks, taken_readings, _ = wire.inputs(k, CONTROLLER, alive, (readings, none))
             given = [tick.upstream.get(controller.diagnosis, {}) if tick is not None else {} for tick in ticks]
-            u = controller.step(k, readings, given, self.runs, alive)
+            u_carried = controller.step(k, taken_readings, given, self.runs, alive)
             wire.answer(CONTROLLER, ticks, controller.signals, controller.raw, alive, saturate=False)
-            self.held = np.where(controller.commanded, u, self.held)
-        taken = [wire.inputs(k, e.name, alive) for e in self.estimators]
+            self.held = np.where(controller.commanded, u_carried, self.held)
+        taken = [wire.inputs(k, e.name, alive, (readings, u_carried)) for e in self.estimators]
         values = self._estimates(k, [(y, np.nan_to_num(u), ~np.isnan(u)) for _, y, u in taken], alive)
         if values is None:
             return

@@ -40,6 +40,7 @@ import numpy as np
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded, MessageSpec
+from cosim.bus.inprocess import InProcessBus
 from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
 from cosim.errors import CodecError, CosimError
@@ -106,12 +107,18 @@ class _RunWire:
         self.traffic.flush(0, 0.0, 0)  # the boot-ups, as the session logs them when its nodes have joined
         self.traffic.deliver = self.arbitration.answer  # from tick 0 on, what the runner hears goes over the wire
         self.marker = 0  # the tick whose heard frames are still to be handed on (``Session._marker``)
+        self.untouched = False  # whether the bus faults let the runner's frames of this tick through as built
+        self.clean = -1  # the last tick whose frames went on the channel as the runner built them, all in time
+        self.announced: list[can.Message] = []  # the frames the runner put on the channel in its last tick
+        self.sync: Decoded | None = None  # their SYNC, decoded, where the tick is clean
+        self.answered: dict[str, int] = {}  # node -> the last tick it answered
 
     def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
         """Tick k's frames of the runner (SYNC first) through its bus faults, and the answers to tick
         k − 1 onto the wire, as ``Session.send`` has them on an arbitrated bus: the frames for the
         wire, and what the bus faults did."""
         applied = self.stage.apply(k, frames) if self.stage is not None else None
+        self.untouched = applied is None or _passed(frames, applied)
         if applied is not None:
             frames = applied.frames
             if applied.intruders:
@@ -124,6 +131,7 @@ class _RunWire:
     def send(self, k: int, frames: list[Frame], applied: Applied | None, quiet: Quiet | None) -> None:
         """The wire's tick k (``quiet``, or ``Arbitration.tick``): what it lets through goes on the
         run's channel, what it delivered to the detector and the scores."""
+        self.clean = k if quiet is not None and self.untouched else -1
         if quiet is None:
             step = self.arbitration.tick(
                 k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
@@ -135,10 +143,57 @@ class _RunWire:
         # heard of the last tick is taken (``prepare``)
         self.decoded.clear()
         self.decoded.update((id(f[0]), f) for f in quiet.send if f[1] is None or f[1].spec.role not in _SIGNED)
-        send_all(self.bus, [frame for frame, _ in quiet.send])
+        self.announced = [frame for frame, _ in quiet.send]
+        self.sync = quiet.send[0][1] if self.clean == k else None
+        send_all(self.bus, self.announced)
         self.marker = k
         self._passages(quiet.delivered)
         self._verdicts(k)
+
+    def intake(self, name: str, k: int) -> TickFrames | None:
+        """Node ``name``'s tick k, where what its frames would do is known without taking them one by
+        one (``take``): its readings are the runner's values of the tick and its commands the
+        runner's or its upstream node's, as their frames carry them (the batch has those on
+        arrays), and the one thing they change in its client is the last SYNC it took. None where
+        that is not so (``take`` then).
+
+        So it is when: the tick's frames went on the channel as the runner built them, none held
+        back by the wire or touched by a bus fault (``clean``); the client is between ticks, took
+        SYNC(k − 1) and holds nothing of its upstream nodes (lag 0 only: the nodes that answer tick k
+        before it, as the controller answers before the estimators); the frames it wants on its
+        channel are exactly those the runner sent in the tick and then its upstream nodes' answers
+        to it (by identity), SYNC announcing every data frame; and the control frames among them
+        verify under its keys. Then SYNC(k) opens tick k, each reading and command fills it, the
+        upstream frames and heartbeats make it ready, and it closes, with nothing counted lost,
+        contested or distrusted (``TickAssembler.push``)."""
+        client = self.nodes[name]
+        assembler, bus, sync = client.assembler, client.bus, self.sync
+        if (
+            self.clean != k
+            or client.stopped
+            or client.secoc is not None
+            or not isinstance(bus, InProcessBus)
+            or not assembler.between(k - 1)
+            or any(lag != 0 or self.answered.get(node) != k for node, lag in assembler.upstream.items())
+            or sync is None
+            or sync.tick != k
+            or int(sync.values["frames"]) != len(self.announced) - 1
+        ):
+            return None
+        upstream = [self.nodes[node].closing for node in assembler.upstream]
+        expected = [*self.announced, *(frame for frames in upstream for frame in frames)]
+        wanted = [frame for frame in bus.waiting() if client.wants(frame)]
+        if len(wanted) != len(expected) or any(a is not b for a, b in zip(wanted, expected)):
+            return None
+        control = client.control
+        if control is not None and (
+            control.verify(self.announced[0], k - 1) is not None
+            or any(not frames or control.verify(frames[-1], k) is not None for frames in upstream)
+        ):
+            return None
+        bus.discard()
+        assembler.took_whole(k)
+        return TickFrames(k, len(self.announced) - 1)
 
     def take(self, name: str) -> list[TickFrames]:
         """The ticks node ``name`` completes with what its channel brought (as ``_Node.service``)."""
@@ -166,6 +221,7 @@ class _RunWire:
         client = self.nodes[name]
         client.publish(tick, values, saturate=saturate)
         client.done(tick)
+        self.answered[name] = tick.tick
 
     def truth(self, k: int, x: dict[str, Any], active: list[str]) -> None:
         """Tick k's truth (its state, the faults active), as ``PlantSource.advance`` logs it."""
@@ -226,6 +282,14 @@ class _RunWire:
         self.rejected = self.rejected or why
 
 
+def _passed(frames: list[Frame], applied: Applied) -> bool:
+    """Whether the bus faults let the runner's ``frames`` through as they were (SYNC aside, which
+    they re-announce): none lost, changed, held, delayed or joined by an intruder's."""
+    if applied.intruders or applied.delays_ns or len(applied.frames) != len(frames):
+        return False
+    return all(a is b for a, b in zip(applied.frames[1:], frames[1:]))
+
+
 def _undelayed(applied: Applied | None) -> bool:
     """Whether the bus faults of a tick delayed no frame (its wire may be quiet)."""
     return applied is None or not applied.delays_ns
@@ -282,16 +346,28 @@ class WireBatch:
             if run.rejected:
                 self._leave(r, k, run.rejected, alive)
 
-    def inputs(self, k: int, name: str, alive: np.ndarray) -> tuple[list[TickFrames | None], np.ndarray, np.ndarray]:
+    def inputs(
+        self, k: int, name: str, alive: np.ndarray, carried: tuple[np.ndarray, np.ndarray]
+    ) -> tuple[list[TickFrames | None], np.ndarray, np.ndarray]:
         """Node ``name``'s tick k in each run alive (None in the others), with its readings (K,
-        sensors; NaN: missing) and the commands it took (K, actuators; NaN: none came). A run whose
-        node would not complete tick k (alone, the runner would wait for it in vain) leaves."""
+        sensors; NaN: missing) and the commands it took (K, actuators; NaN: none came). ``carried``:
+        the readings and commands its frames carry in a run where nothing but the runner and the
+        nodes before it touched them (the runner's sensor values that are sent; its input signals,
+        or the commands of its upstream controller node; NaN where no frame is due), which it takes
+        as they are in a run where its tick is that (``_RunWire.intake``). A run whose node would not
+        complete tick k (alone, the runner would wait for it in vain) leaves."""
         s = self.scenario
         ticks: list[TickFrames | None] = [None] * len(self.runs)
         readings = np.full((len(self.runs), len(s.sensors)), np.nan)
         commands = np.full((len(self.runs), len(s.actuators)), np.nan)
         for r in np.flatnonzero(alive).tolist():
-            done = self.runs[r].take(name)
+            run = self.runs[r]
+            whole = run.intake(name, k)
+            if whole is not None:
+                ticks[r] = whole
+                readings[r], commands[r] = carried[0][r], carried[1][r]
+                continue
+            done = run.take(name)
             if [tick.tick for tick in done] != [k]:
                 why = f"its node {name} would not complete tick {k} (frames announced by SYNC missing)"
                 self._leave(r, k, why, alive)
