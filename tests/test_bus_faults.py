@@ -162,3 +162,42 @@ def test_a_babbling_node_starves_the_sensors_on_an_arbitrated_bus(tmp_path):
     assert latency["0x001"]["frames"] > 1000
     assert latency["0x102"]["dropped"] > 50  # replaced, tick after tick, while the babbler holds the wire
     assert metrics["bus"]["foreign_frames"]["0x001"] == latency["0x001"]["frames"]
+
+
+def test_an_intruders_control_frames_the_wire_delivers_late_go_as_forged(monkeypatch):
+    """The runner signs its own control frame of a tick (SYNC) and nothing else: a fuzzer's frames on
+    the heartbeats' ids that a flood holds back until a later tick go on the channel with the MAC
+    the fuzzer forged (the runner holds every sender's key: signing them let them pass)."""
+    import cosim.run.session as session_module
+    from cosim import api
+    from cosim.run.busfaults import BusFaultStage
+
+    window = {"start": 0.2, "end": 1.0}
+    faults = [
+        {"name": "flood", "kind": "babbling_node", "id": 0x001, "period": 0.0003, **window},
+        {"name": "fuzz", "kind": "fuzzing", "low": 0x700, "high": 0x703, "length": 8, "period": 0.0004, **window},
+    ]
+    loaded = scenario.apply(api.load("masses-pid-can"), [("duration", 1.2), ("faults", faults)])
+    forged: dict[int, tuple[object, bytes, int]] = {}  # id() of a fuzzer's frame -> (it, its bytes, its tick)
+    sent: list[tuple[object, bytes, int]] = []
+    apply, send_all, tick = BusFaultStage.apply, session_module.send_all, [0]
+
+    def applied(self, k, frames):
+        out = apply(self, k, frames)
+        tick[0] = k
+        for item in out.frames:
+            if id(item) in out.intruders:
+                forged[id(item[0])] = (item[0], bytes(item[0].data), k)
+        return out
+
+    def sending(bus, frames):
+        sent.extend((frame, bytes(frame.data), tick[0]) for frame in frames)
+        return send_all(bus, frames)
+
+    monkeypatch.setattr(BusFaultStage, "apply", applied)
+    monkeypatch.setattr(session_module, "send_all", sending)
+    api.run(loaded, None, seed=3, in_process=True, measure=True)
+    theirs = [(data, forged[id(frame)]) for frame, data, _ in sent if forged.get(id(frame), (None,))[0] is frame]
+    late = [k for frame, _, k in sent if forged.get(id(frame), (None,))[0] is frame and k > forged[id(frame)][2]]
+    assert len(theirs) > 100 and len(late) > 0
+    assert [data for data, _ in theirs] == [original for _, (_, original, _) in theirs]

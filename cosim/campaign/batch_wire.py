@@ -137,7 +137,7 @@ class _RunWire:
                 k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
             )
             quiet = Quiet(step.send, [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None])
-        sign_control(self.control, k, quiet.send, applied)
+        sign_control(self.control, k, quiet.send)
         # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
         # just now, is decoded as it is sent): decoded once for all the run's nodes. Everything
         # heard of the last tick is taken (``prepare``)

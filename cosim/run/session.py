@@ -27,7 +27,7 @@ from typing import Any, cast
 import can
 import numpy as np
 
-from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
+from cosim.bus.codec import CONTROLLER, NMT_STOP, SYNC, Codec, Decoded
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
@@ -318,7 +318,7 @@ class Session:
                 self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
-        sign_control(self.control, k, frames, applied)
+        sign_control(self.control, k, frames)
         if applied is not None and applied.intruders:
             self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
         if self.secoc is not None:  # the runner hears these too: intruders' frames fail
@@ -405,7 +405,7 @@ class Session:
         step = self.arbitration.tick(
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
-        sign_control(self.control, k, step.send, applied)  # timed on the wire with the MAC at 0: no key changes timing
+        sign_control(self.control, k, step.send)  # timed on the wire with the MAC at 0: no key changes timing
         self.traffic.sent([frame for frame, _ in step.send])
         send_all(self.bus, [frame for frame, _ in step.send])
         t, t_ns = self.time(k)
@@ -588,13 +588,13 @@ class Session:
                 quiet_until = time.perf_counter() + 0.1
 
 
-def sign_control(
-    control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]], applied: Applied | None
-) -> None:
-    """Sign the runner's control frames of tick k (a simulated intruder's stay as it forged them)."""
-    if control is None:
+def sign_control(control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
+    """Sign the runner's control frame among its frames of tick k: SYNC(k), the first. Any other frame
+    on a control frame's id there is an intruder's (a simulated one's, of this tick or of an earlier
+    one that the wire delivers late) and goes as it was forged: the runner holds every sender's key,
+    and signing it would let it pass."""
+    if control is None or not frames:
         return
-    intruders = applied.intruders if applied is not None else {}
-    for item in frames:
-        if id(item) not in intruders:
-            control.sign(item[0], k)
+    message, decoded = frames[0]
+    if decoded is not None and decoded.spec.role == SYNC:
+        control.sign(message, k)
