@@ -258,6 +258,7 @@ def test_read_back_is_the_round_trip_through_the_log_bytes() -> None:
                 assert struct.pack("<d", got[key]) == struct.pack("<d", value), (payload, key)
             else:
                 assert got[key] == value, (payload, key)
-    for too_large in ({"n": 2**64}, {"n": -(2**63) - 1}):
-        with pytest.raises(orjson.JSONEncodeError):
-            read_back(too_large)  # as writing it would fail
+    for unwritable in ({"n": 2**64}, {"n": -(2**63) - 1}, {1: 1.0}, {"k\ud800": 1.0}):
+        with pytest.raises((orjson.JSONEncodeError, TypeError)):
+            read_back(unwritable)  # as writing it would fail
+    assert read_back({"é": 0.5}) == {"é": 0.5}
