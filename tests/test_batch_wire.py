@@ -244,6 +244,62 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         assert whole > 100 and one_by_one >= len(SEEDS), (name, whole, one_by_one)  # tick 0 at least
 
 
+_TRAFFIC_STATE = ("pending", "closed", "joined", "left", "lost", "late", "data", "missed_by", "_lost_carried")
+_TRAFFIC_STATE += ("received", "contested", "_counts", "commands", "_distrusted", "rejected", "foreign_frames")
+
+
+@pytest.mark.parametrize(
+    "loaded",
+    [closed_loop(TAXONOMY["injection"]), open_loop(BUS_FAULTS["babbling"], True)],
+    ids=["closed loop, spoofed", "open loop, babbling node"],
+)
+def test_the_nodes_answers_heard_at_once_leave_the_runners_traffic_as_heard_one_by_one(loaded, monkeypatch):
+    """``Traffic.answered`` (the nodes' answers to a tick, as their clients sent them) against the
+    same frames heard one by one and flushed, from the same state, wherever a batch takes them at
+    once: every count, what each node's heartbeat carried, what goes on to the wire and in which
+    order. Elsewhere (the first tick, a tick whose answers are not whole) they go one by one."""
+    from cosim.run.traffic import Traffic
+
+    answered, ways = Traffic.answered, [0, 0]
+
+    def checked(self, closings, t, t_ns):
+        twin = copy.copy(self)
+        for name in _TRAFFIC_STATE:
+            setattr(twin, name, copy.deepcopy(getattr(self, name)))
+        ours, theirs = [], []
+        self.deliver, deliver = (lambda *item: ours.append(item) or deliver(*item)), self.deliver
+        try:
+            taken = answered(self, closings, t, t_ns)
+        finally:
+            self.deliver = deliver
+        ways[taken] += 1
+        if taken:
+            twin.deliver = lambda *item: theirs.append(item)
+            for frames in closings:
+                for frame, _ in frames:
+                    twin.on_message_received(frame)
+            twin.flush(twin.current, t, t_ns)
+            for name in _TRAFFIC_STATE:
+                assert getattr(self, name) == getattr(twin, name), name
+            assert [(i[:3], i[3], i[4]) for i in ours] == [(i[:3], i[3], i[4]) for i in theirs]
+        return taken
+
+    from cosim.campaign.batch_wire import _RunWire
+
+    heard, at_once = _RunWire._heard_answers, [0, 0]
+
+    def counted(self, k):
+        found = heard(self, k)
+        at_once[found] += 1
+        return found
+
+    monkeypatch.setattr(Traffic, "answered", checked)
+    monkeypatch.setattr(_RunWire, "_heard_answers", counted)
+    runs = run_batch(loaded, SEEDS)
+    assert [run.left for run in runs] == [""] * len(SEEDS)
+    assert ways[True] > 150 and at_once[True] == ways[True] and at_once[False] >= len(SEEDS), (ways, at_once)
+
+
 def test_a_fuzzers_frames_too_short_for_a_control_frames_mac_time_as_they_are_batched_as_alone(taps):
     # 2-byte frames on the ids around SYNC's (its MAC from byte 5): the wire times them as they
     # are (it raised ValueError before, alone and batched)

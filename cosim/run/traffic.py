@@ -241,6 +241,70 @@ class Traffic(can.Listener):
         for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
             self.deliver(tick, t, t_ns, frame, decoded)
 
+    def answered(self, closings: list[list[tuple[can.Message, Decoded | None]]], t: float, t_ns: int) -> bool:
+        """The answers of lockstep nodes to the current tick, heard and flushed at once: each node's
+        data frames and then the heartbeat closing them, as its client sent them, each with what it
+        decodes to (the heartbeat's tick as it carries it), in the order they came. Where each is
+        what it says (its sender's data frames of the tick; a heartbeat that verifies, announces
+        them and closes the tick for the first time, of a node that has not left) and nothing is
+        pending, hearing them one by one (``on_message_received``) and ``flush`` would count each
+        received, each data frame as its sender's and in time, none lost, close the node's tick,
+        carry on the runner's frames it found missing, and deliver them all by id: that is done,
+        and True returned. False, with nothing done, where it is not so: hear them one by one."""
+        tick = self.current
+        counter = tick % self.codec.tick_modulus
+        if self.pending or self._distrusted or self._echoes or self.secoc is not None:
+            return False
+        heard: list[tuple[str, list[tuple[can.Message, Decoded]], tuple[can.Message, Decoded]]] = []
+        for frames in closings:
+            if not frames or frames[-1][1] is None or frames[-1][0].is_extended_id:
+                return False
+            message, decoded = frames[-1]
+            if message.arbitration_id not in self._heartbeats or decoded is None:
+                return False
+            decoded = self.codec.with_full_tick(decoded, tick)
+            sender, data = decoded.spec.sender, frames[:-1]
+            if (
+                decoded.tick != tick
+                or decoded.values["state"] != OPERATIONAL
+                or sender in self.left
+                or self.closed.get(sender) == tick
+                or (sender, counter) in self._counts
+                or int(decoded.values["frames"]) != len(data)
+                or (self.control is not None and self.control.verify(message, tick) is not None)
+            ):
+                return False
+            checked: list[tuple[can.Message, Decoded]] = []
+            for frame, found in data:
+                if (
+                    found is None
+                    or frame.is_extended_id
+                    or found.spec.sender != sender
+                    or found.spec.role not in (ESTIMATE, CLIENT, COMMAND, CONTROL)
+                    or found.tick != counter
+                    or frame.arbitration_id in self._own
+                    or frame.arbitration_id in self._heartbeats
+                ):
+                    return False
+                checked.append((frame, found))
+            heard.append((sender, checked, (message, decoded)))
+        taken: list[tuple[can.Message, Decoded | None]] = []
+        for sender, ours, closing in heard:
+            self.closed[sender] = tick
+            for frame, found in ours:
+                if frame.arbitration_id in self._commands:
+                    channel = found.spec.channels[0]
+                    self.commands.setdefault(found.tick, {})[channel.name] = found.values[found.spec.signals[0]]
+            self.data[sender] += len(ours)  # Counters: none late, none lost (a count of 0 is none)
+            self.received[sender] += len(ours) + 1
+            carried = int(closing[1].values["lost"])
+            self.missed_by[sender] = self.missed_by.get(sender, 0) + (carried - self._lost_carried.get(sender, 0)) % 256
+            self._lost_carried[sender] = carried
+            taken += [*ours, closing]
+        for frame, found in sorted(taken, key=lambda item: item[0].arbitration_id):
+            self.deliver(tick, t, t_ns, frame, found)
+        return True
+
     def missing(self, sender: str, ticks: int) -> int:
         """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
         expected = ticks * len(self.codec.data_messages(sender))
