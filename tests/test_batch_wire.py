@@ -7,7 +7,7 @@ and controller are handed) and the detector's verdict on every tick."""
 from __future__ import annotations
 
 import copy
-from collections import defaultdict
+from collections import Counter, defaultdict
 from typing import Any
 
 import numpy as np
@@ -226,7 +226,8 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
     """Where a tick's frames went on the channel as the runner built them and a node is between
     ticks, the batch hands it the tick's values on arrays (``_RunWire.intake``); elsewhere (the
     attack's or the fault's window, the first tick) it takes its frames one by one: both ways,
-    what each node takes in every tick is what it takes alone."""
+    what each node takes in every tick is what it takes alone. Its answers are encoded on arrays
+    (``Codec.encode_rows``)."""
     from cosim.campaign.batch_wire import _RunWire
 
     intake, ways = _RunWire.intake, defaultdict(lambda: [0, 0])
@@ -236,12 +237,20 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         ways[name][tick is None] += 1
         return tick
 
+    encoded, published = _RunWire.publish_encoded, Counter()
+
+    def publishing(self, name, tick, frames):
+        published[name] += 1
+        return encoded(self, name, tick, frames)
+
     monkeypatch.setattr(_RunWire, "intake", counted)
+    monkeypatch.setattr(_RunWire, "publish_encoded", publishing)
     assert_batched_as_alone(loaded, taps)
     nodes = [e.name for e in loaded.scenario.estimators] + (["controller"] if loaded.scenario.controller else [])
     assert sorted(ways) == sorted(nodes)
     for name, (whole, one_by_one) in ways.items():
         assert whole > 100 and one_by_one >= len(SEEDS), (name, whole, one_by_one)  # tick 0 at least
+        assert published[name] == len(SEEDS) * loaded.scenario.ticks  # every answer encoded on arrays
 
 
 _TRAFFIC_STATE = ("pending", "closed", "joined", "left", "lost", "late", "data", "missed_by", "_lost_carried")

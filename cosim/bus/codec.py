@@ -170,6 +170,7 @@ class Codec:
         # tick counter first, then the spec's signals, in the order encode takes their values.
         # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control_frames`` fills it).
         self._packers: dict[str, Packer] = {}
+        self._carried_floats: dict[str, bool] = {}  # ``encode_rows``: whether a message's values are carried as floats
         #: Control ids with a MAC: the spec, and where its tick and MAC are.
         self.control_macs: dict[int, tuple[MessageSpec, ControlFields]] = {}
         for spec in specs:
@@ -260,6 +261,31 @@ class Codec:
         payload = self._payload(spec, tick, values)
         data, carried = self._packers[name].encode_carried(payload)
         return self._frame(spec, data), Decoded(spec, int(payload[0]), dict(zip(spec.signals, carried[1:])))
+
+    def encode_rows(self, name: str, tick: int, values: np.ndarray) -> list[tuple[can.Message, Decoded]] | None:
+        """``encode_decoded`` of K frames of message ``name`` for tick k at once: ``values`` (K,
+        signals), each in its channel's range (``encode`` checks that; this does not). Each row's
+        frame and what a receiver decodes from it, the bytes, values and their types of
+        ``encode_decoded``'s (``Packer.encode_rows``); None for a message not packed on arrays, or
+        one with a value carried as an integer."""
+        spec, packer = self.specs[name], self._packers[name]
+        counter = tick % self.tick_modulus
+        found = packer.encode_rows(np.column_stack([np.full(len(values), float(counter)), values]))
+        if found is None:
+            return None
+        payloads, carried = found
+        floats = self._carried_floats.get(name)
+        if floats is None:  # not a signal carried as an integer (an identity conversion, integer scale and offset)
+            probe = self._payload(spec, 0, [max(c.minimum, min(0.0, c.maximum)) for c in spec.channels])
+            floats = self._carried_floats[name] = all(type(v) is float for v in packer.encode_carried(probe)[1][1:])
+        if not floats:
+            return None
+        length, data = payloads.shape[1], payloads.tobytes()
+        out = []
+        for i, row in enumerate(carried[:, 1:].tolist()):
+            frame = self._frame(spec, data[i * length : (i + 1) * length])
+            out.append((frame, Decoded(spec, counter, dict(zip(spec.signals, row)))))
+        return out
 
     def carried_of(self, specs: Sequence[MessageSpec]) -> Callable[[np.ndarray], np.ndarray]:
         """The values of these messages' signals, in order, for K frames of each at once: (K,

@@ -83,6 +83,28 @@ class Packer:
         self.unpack: Callable[[bytes | bytearray], tuple[float, ...]] = compiled["unpack"]
         """The physical values, in ``names`` order."""
 
+    def encode_rows(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``encode_carried`` of K payloads at once: ``values`` (K, fields) in ``names`` order, each in
+        its signal's range; the payloads (K, length) uint8 and the values as the frames carry them
+        (K, fields), row by row the bytes and floats ``encode_carried`` gives (``carried_values``'
+        arithmetic; NumPy's ``rint`` rounds half to even as Python's ``round``). None for a message
+        it does not pack on arrays: longer than 8 bytes, a float signal, a conversion of another kind."""
+        if self.length > 8 or any(
+            f.is_float or not isinstance(f.conversion, (LinearConversion, IdentityConversion)) for f in self.fields
+        ):
+            return None
+        carried = carried_values(self.fields, values)
+        word = np.zeros(len(values), dtype=np.uint64)
+        for i, field in enumerate(self.fields):
+            conversion = field.conversion
+            if isinstance(conversion, LinearConversion):
+                raw = np.rint((values[:, i] - conversion.offset) / conversion.scale)
+            else:
+                raw = np.rint(values[:, i])
+            word |= (raw.astype(np.int64) & field.mask).astype(np.uint64) << np.uint64(field.start)
+        payloads = word.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length]
+        return payloads, carried
+
     def raw(self, field: Field, value: float) -> int | float:
         """The raw value cantools' encoder would put in the frame for ``value``."""
         return field.conversion.numeric_scaled_to_raw(value)

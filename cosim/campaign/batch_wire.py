@@ -238,9 +238,16 @@ class _RunWire:
 
     def publish(self, name: str, tick: TickFrames, values: dict[str, float], saturate: bool) -> None:
         """Node ``name``'s answer to ``tick``: its frames, then the heartbeat closing it (``_Node._publish``)."""
-        client = self.nodes[name]
-        client.publish(tick, values, saturate=saturate)
-        client.done(tick)
+        self.nodes[name].publish(tick, values, saturate=saturate)
+        self._done(name, tick)
+
+    def publish_encoded(self, name: str, tick: TickFrames, frames: list[tuple[can.Message, Decoded]]) -> None:
+        """``publish`` of frames the batch encoded (``Client.publish_encoded``)."""
+        self.nodes[name].publish_encoded(frames)
+        self._done(name, tick)
+
+    def _done(self, name: str, tick: TickFrames) -> None:
+        self.nodes[name].done(tick)
         self.answered[name] = tick.tick
         self.answering.append(name)
 
@@ -408,14 +415,58 @@ class WireBatch:
         saturate: bool,
     ) -> None:
         """Node ``name``'s frames of the ticks it completed, ``values`` (K, signals) by ``signals``
-        as it computed them (before saturation and quantization: its client does both)."""
-        for r in np.flatnonzero(alive).tolist():
+        as it computed them (before saturation and quantization: its client does both, or the
+        batch on arrays, each run's frames as its client encodes them: ``_encoded``)."""
+        rows = np.flatnonzero(alive)
+        encoded = self._encoded(name, ticks, signals, values, rows, saturate) if len(rows) else {}
+        for r in rows.tolist():
             tick = ticks[r]
             assert tick is not None  # a run whose node completed no tick has left
             try:
-                self.runs[r].publish(name, tick, dict(zip(signals, values[r].tolist())), saturate)
+                if r in encoded:
+                    self.runs[r].publish_encoded(name, tick, encoded[r])
+                else:
+                    self.runs[r].publish(name, tick, dict(zip(signals, values[r].tolist())), saturate)
             except (CodecError, CosimError) as error:
                 self._leave(r, tick.tick, str(error), alive)
+
+    def _encoded(
+        self,
+        name: str,
+        ticks: Sequence[TickFrames | None],
+        signals: Sequence[str],
+        values: np.ndarray,
+        rows: np.ndarray,
+        saturate: bool,
+    ) -> dict[int, list[tuple[can.Message, Decoded]]]:
+        """Node ``name``'s frames of tick k in the runs ``rows``, encoded on arrays (``Codec.encode_rows``),
+        by run: its messages in order, each value saturated (``saturated``'s bound where it crossed
+        one) and in range. A run with a value its frame cannot carry (NaN, or out of range unsaturated),
+        or a node whose messages are not packed on arrays, is left out: its client encodes (and refuses) it."""
+        k = next(tick.tick for r in rows.tolist() if (tick := ticks[r]) is not None)
+        if any(getattr(ticks[r], "tick", None) != k for r in rows.tolist()):
+            return {}
+        by_run: list[list[tuple[can.Message, Decoded]]] = [[] for _ in rows]
+        carried = np.ones(len(rows), dtype=bool)
+        parts = []
+        for spec in self.runs[int(rows[0])].nodes[name].messages:
+            v = values[rows][:, [signals.index(signal) for signal in spec.signals]]
+            low = np.array([c.minimum for c in spec.channels])
+            high = np.array([c.maximum for c in spec.channels])
+            if saturate:
+                v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
+            carried &= ((low <= v) & (v <= high)).all(axis=1)  # NaN: False
+            parts.append((spec, v))
+        if not carried.any():
+            return {}
+        kept = np.flatnonzero(carried)
+        for spec, v in parts:
+            frames = self.codec.encode_rows(spec.name, k, v[kept])
+            if frames is None:
+                return {}
+            for i, frame in zip(kept.tolist(), frames):
+                by_run[i].append(frame)
+        return {int(rows[i]): by_run[i] for i in kept.tolist()}
 
     def truth(self, k: int, x: np.ndarray, states: Sequence[str], active: Sequence[tuple[str, ...]], rows: Any) -> None:
         """Tick k's truth of the runs ``rows``: their states (K, states) and active faults."""
