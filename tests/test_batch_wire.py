@@ -226,8 +226,8 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
     """Where a tick's frames went on the channel as the runner built them and a node is between
     ticks, the batch hands it the tick's values on arrays (``_RunWire.intake``); elsewhere (the
     attack's or the fault's window, the first tick) it takes its frames one by one: both ways,
-    what each node takes in every tick is what it takes alone. Its answers are encoded on arrays
-    (``Codec.encode_rows``)."""
+    what each node takes in every tick is what it takes alone. Its answers and the runner's frames
+    are encoded on arrays (``Codec.encode_rows``)."""
     from cosim.campaign.batch_wire import _RunWire
 
     intake, ways = _RunWire.intake, defaultdict(lambda: [0, 0])
@@ -243,9 +243,20 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         published[name] += 1
         return encoded(self, name, tick, frames)
 
+    from cosim.campaign.batch_wire import WireBatch
+
+    runner, built = WireBatch._runner_frames, [0]
+
+    def building(self, k, measured, sent, commands, rows):
+        found = runner(self, k, measured, sent, commands, rows)
+        built[0] += len(found)
+        return found
+
     monkeypatch.setattr(_RunWire, "intake", counted)
     monkeypatch.setattr(_RunWire, "publish_encoded", publishing)
+    monkeypatch.setattr(WireBatch, "_runner_frames", building)
     assert_batched_as_alone(loaded, taps)
+    assert built[0] == len(SEEDS) * loaded.scenario.ticks  # the runner's frames, on arrays
     nodes = [e.name for e in loaded.scenario.estimators] + (["controller"] if loaded.scenario.controller else [])
     assert sorted(ways) == sorted(nodes)
     for name, (whole, one_by_one) in ways.items():

@@ -352,10 +352,14 @@ class WireBatch:
         carry (a forged value outside its range) leaves the batch."""
         codec, sensors, actuators = self.codec, self.sensor_specs, [] if self.closed else self.command_specs
         prepared: list[tuple[list[Frame], Applied | None] | None] = [None] * len(self.runs)
-        for r in np.flatnonzero(alive).tolist():
+        rows = np.flatnonzero(alive)
+        built = self._runner_frames(k, measured, sent, commands, rows) if len(rows) else {}
+        for r in rows.tolist():
             try:
                 given = [] if self.closed else commands[r].tolist()
-                frames = runner_frames(codec, k, sensors, measured[r].tolist(), sent[r].tolist(), actuators, given)
+                frames = built.get(r) or runner_frames(
+                    codec, k, sensors, measured[r].tolist(), sent[r].tolist(), actuators, given
+                )
                 prepared[r] = self.runs[r].prepare(k, frames)
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
@@ -373,6 +377,37 @@ class WireBatch:
                 continue
             if run.rejected:
                 self._leave(r, k, run.rejected, alive)
+
+    def _runner_frames(
+        self, k: int, measured: np.ndarray, sent: np.ndarray, commands: np.ndarray, rows: np.ndarray
+    ) -> dict[int, list[Frame]]:
+        """``runner_frames`` of the runs ``rows`` whose values their frames carry, their data frames
+        encoded on arrays (``Codec.encode_rows``), by run; the others are left out (``runner_frames``
+        refuses them, naming the value)."""
+        codec, closed = self.codec, self.closed
+        columns = [(spec, measured[rows, i], sent[rows, i]) for i, spec in enumerate(self.sensor_specs)]
+        if not closed:
+            every = np.ones(len(rows), dtype=bool)
+            columns += [(spec, commands[rows, j], every) for j, spec in enumerate(self.command_specs)]
+        fits = np.ones(len(rows), dtype=bool)
+        for spec, v, on in columns:
+            channel = spec.channels[0]
+            fits &= ~on | ((channel.minimum <= v) & (v <= channel.maximum))  # NaN: does not fit
+        data: list[list[Frame]] = [[] for _ in rows]
+        for spec, v, on in columns:
+            at = np.flatnonzero(fits & on)
+            if not len(at):
+                continue
+            frames = codec.encode_rows(spec.name, k, v[at][:, None])
+            if frames is None:
+                return {}
+            for i, frame in zip(at.tolist(), frames):
+                data[i].append(frame)
+        out = {}
+        for i in np.flatnonzero(fits).tolist():
+            sync = codec.sync(k, len(data[i]))
+            out[int(rows[i])] = [(sync, codec.decode(sync)), *data[i]]
+        return out
 
     def inputs(
         self, k: int, name: str, alive: np.ndarray, carried: tuple[np.ndarray, np.ndarray]
