@@ -252,58 +252,66 @@ class Traffic(can.Listener):
         carry on the runner's frames it found missing, and deliver them all by id: that is done,
         and True returned. False, with nothing done, where it is not so: hear them one by one."""
         tick = self.current
-        counter = tick % self.codec.tick_modulus
         if self.pending or self._distrusted or self._echoes or self.secoc is not None:
             return False
-        heard: list[tuple[str, list[tuple[can.Message, Decoded]], tuple[can.Message, Decoded]]] = []
-        for frames in closings:
-            if not frames or frames[-1][1] is None or frames[-1][0].is_extended_id:
-                return False
-            message, decoded = frames[-1]
-            if message.arbitration_id not in self._heartbeats or decoded is None:
-                return False
-            decoded = self.codec.with_full_tick(decoded, tick)
-            sender, data = decoded.spec.sender, frames[:-1]
-            if (
-                decoded.tick != tick
-                or decoded.values["state"] != OPERATIONAL
-                or sender in self.left
-                or self.closed.get(sender) == tick
-                or (sender, counter) in self._counts
-                or int(decoded.values["frames"]) != len(data)
-                or (self.control is not None and self.control.verify(message, tick) is not None)
-            ):
-                return False
-            checked: list[tuple[can.Message, Decoded]] = []
-            for frame, found in data:
-                if (
-                    found is None
-                    or frame.is_extended_id
-                    or found.spec.sender != sender
-                    or found.spec.role not in (ESTIMATE, CLIENT, COMMAND, CONTROL)
-                    or found.tick != counter
-                    or frame.arbitration_id in self._own
-                    or frame.arbitration_id in self._heartbeats
-                ):
-                    return False
-                checked.append((frame, found))
-            heard.append((sender, checked, (message, decoded)))
+        answers = [self._closing(frames, tick) for frames in closings]
+        heard = [answer for answer in answers if answer is not None]
+        if len(heard) < len(answers):
+            return False
         taken: list[tuple[can.Message, Decoded | None]] = []
         for sender, ours, closing in heard:
             self.closed[sender] = tick
-            for frame, found in ours:
+            for frame, data in ours:
                 if frame.arbitration_id in self._commands:
-                    channel = found.spec.channels[0]
-                    self.commands.setdefault(found.tick, {})[channel.name] = found.values[found.spec.signals[0]]
+                    channel = data.spec.channels[0]
+                    self.commands.setdefault(data.tick, {})[channel.name] = data.values[data.spec.signals[0]]
             self.data[sender] += len(ours)  # Counters: none late, none lost (a count of 0 is none)
             self.received[sender] += len(ours) + 1
             carried = int(closing[1].values["lost"])
             self.missed_by[sender] = self.missed_by.get(sender, 0) + (carried - self._lost_carried.get(sender, 0)) % 256
             self._lost_carried[sender] = carried
             taken += [*ours, closing]
-        for frame, found in sorted(taken, key=lambda item: item[0].arbitration_id):
-            self.deliver(tick, t, t_ns, frame, found)
+        for frame, decoded in sorted(taken, key=lambda item: item[0].arbitration_id):
+            self.deliver(tick, t, t_ns, frame, decoded)
         return True
+
+    def _closing(
+        self, frames: list[tuple[can.Message, Decoded | None]], tick: int
+    ) -> tuple[str, list[tuple[can.Message, Decoded]], tuple[can.Message, Decoded]] | None:
+        """A node's answer to ``tick`` (``answered``): its sender, its data frames and its heartbeat
+        (its tick in full), where each is what it says; None where not."""
+        counter = tick % self.codec.tick_modulus
+        if not frames or frames[-1][0].is_extended_id or frames[-1][0].arbitration_id not in self._heartbeats:
+            return None
+        message, decoded = frames[-1]
+        if decoded is None:
+            return None
+        decoded = self.codec.with_full_tick(decoded, tick)
+        sender = decoded.spec.sender
+        if (
+            decoded.tick != tick
+            or decoded.values["state"] != OPERATIONAL
+            or sender in self.left
+            or self.closed.get(sender) == tick
+            or (sender, counter) in self._counts
+            or int(decoded.values["frames"]) != len(frames) - 1
+            or (self.control is not None and self.control.verify(message, tick) is not None)
+        ):
+            return None
+        data: list[tuple[can.Message, Decoded]] = []
+        for frame, found in frames[:-1]:
+            if (
+                found is None
+                or frame.is_extended_id
+                or found.spec.sender != sender
+                or found.spec.role not in (ESTIMATE, CLIENT, COMMAND, CONTROL)
+                or found.tick != counter
+                or frame.arbitration_id in self._own
+                or frame.arbitration_id in self._heartbeats
+            ):
+                return None
+            data.append((frame, found))
+        return sender, data, (message, decoded)
 
     def missing(self, sender: str, ticks: int) -> int:
         """Data frames of a node that answers every tick which never arrived, over ``ticks`` ticks."""
