@@ -327,6 +327,15 @@ def test_a_fuzzers_frames_too_short_for_a_control_frames_mac_time_as_they_are_ba
     assert_batched_as_alone(closed_loop([{**short, **WINDOW}]), taps)
 
 
+def test_a_fuzzers_heartbeats_held_back_by_a_flood_batched_as_alone(taps):
+    # the wire delivers them in later ticks, as forged (the runner signs none of an intruder's)
+    faults = [
+        {"name": "flood", "kind": "babbling_node", "id": 0x001, "period": 0.0003, **WINDOW},
+        {"name": "fuzz", "kind": "fuzzing", "low": 0x700, "high": 0x703, "length": 8, "period": 0.0004, **WINDOW},
+    ]
+    assert_batched_as_alone(closed_loop(faults), taps)
+
+
 def test_an_overloaded_wire_with_background_traffic_batched_gives_what_each_node_takes_alone(taps):
     assert_batched_as_alone(open_loop(BUS_FAULTS["loss_x1"], True, CHATTY), taps)
 

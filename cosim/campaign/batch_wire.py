@@ -52,7 +52,7 @@ from cosim.run.busfaults import Applied
 from cosim.run.loop import runner_frames
 from cosim.run.node import node_client
 from cosim.run.plan import RunPlan
-from cosim.run.session import sign_control
+from cosim.run.session import forged, sign_control
 from cosim.run.traffic import Traffic
 from cosim.scenario.faults import build_bus_faults
 
@@ -151,12 +151,13 @@ class _RunWire:
         """The wire's tick k (``quiet``, or ``Arbitration.tick``): what it lets through goes on the
         run's channel, what it delivered to the detector and the scores."""
         self.clean = k if quiet is not None and self.untouched else -1
+        step = None
         if quiet is None:
             step = self.arbitration.tick(
                 k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
             )
             quiet = Quiet(step.send, [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None])
-        sign_control(self.control, k, quiet.send)
+        sign_control(self.control, k, quiet.send, forged(applied, step))
         # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
         # just now, is decoded as it is sent): decoded once for all the run's nodes. Everything
         # heard of the last tick is taken (``prepare``)

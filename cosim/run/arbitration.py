@@ -95,6 +95,8 @@ class Step:
 
     send: list[Frame]
     passed: list[Transmission]
+    forged: set[int] = field(default_factory=set)
+    """Frames of ``send`` an intruder queued in an earlier tick (by ``id()``): they go as forged."""
 
 
 @dataclass
@@ -131,6 +133,7 @@ class Arbitration:
         self._senders: dict[int, str] = {}
         self._on_channel: set[int] = set()  # runner frames already on the channel, by id()
         self._runner: set[int] = set()  # the runner's data frames still on the wire, by id()
+        self._forged: set[int] = set()  # of those, an intruder's (``senders``), by id()
         self._inputs_ns = 0  # q_{k−1}: when the receivers had the previous tick's inputs
 
     def answer(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
@@ -198,14 +201,18 @@ class Arbitration:
         now = [frame for frame in data if id(frame) in inputs]
         self._on_channel.update(inputs)
         self._runner.update(id(frame) for frame in data)
-        late = []
+        self._forged.update(id(frame) for frame in data if id(frame) in self._senders)
+        late, forged = [], set()
         for p in passed:
             payload = p.frame.payload
             if p.dropped is None and id(payload) in self._runner and id(payload) not in self._on_channel:
                 late.append(payload)  # a runner frame the wire delivers after its tick: on the channel now
+                if id(payload) in self._forged:
+                    forged.add(id(payload))
             self._on_channel.discard(id(payload))
             self._runner.discard(id(payload))
-        return Step([sync, *now, *late], passed)
+            self._forged.discard(id(payload))
+        return Step([sync, *now, *late], passed, forged)
 
     def _plan(
         self, k: int, data: list[Frame], t_ns: int, deadline: int

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +27,7 @@ from typing import Any, cast
 import can
 import numpy as np
 
-from cosim.bus.codec import CONTROLLER, NMT_STOP, SYNC, Codec, Decoded
+from cosim.bus.codec import CONTROLLER, NMT_STOP, Codec, Decoded
 from cosim.bus.control_frames import ControlAuth
 from cosim.bus.registry import Registration
 from cosim.bus.secoc import Rejection, SecOC
@@ -38,7 +38,7 @@ from cosim.errors import CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog, RecordSink, SinkLog
-from cosim.run.arbitration import Arbitration
+from cosim.run.arbitration import Arbitration, Step
 from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.foreign_traffic import ForeignTraffic
@@ -318,7 +318,7 @@ class Session:
                 self.secoc.sign(frame, k)
         applied = self._bus_faults(k, frames)
         frames = applied.frames if applied is not None else frames
-        sign_control(self.control, k, frames)
+        sign_control(self.control, k, frames, forged(applied))
         if applied is not None and applied.intruders:
             self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
         if self.secoc is not None:  # the runner hears these too: intruders' frames fail
@@ -405,7 +405,8 @@ class Session:
         step = self.arbitration.tick(
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
-        sign_control(self.control, k, step.send)  # timed on the wire with the MAC at 0: no key changes timing
+        # timed on the wire with the MAC at 0: no key changes timing
+        sign_control(self.control, k, step.send, forged(applied, step))
         self.traffic.sent([frame for frame, _ in step.send])
         send_all(self.bus, [frame for frame, _ in step.send])
         t, t_ns = self.time(k)
@@ -588,13 +589,21 @@ class Session:
                 quiet_until = time.perf_counter() + 0.1
 
 
-def sign_control(control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]]) -> None:
-    """Sign the runner's control frame among its frames of tick k: SYNC(k), the first. Any other frame
-    on a control frame's id there is an intruder's (a simulated one's, of this tick or of an earlier
-    one that the wire delivers late) and goes as it was forged: the runner holds every sender's key,
-    and signing it would let it pass."""
-    if control is None or not frames:
+def forged(applied: Applied | None, step: Step | None = None) -> set[int]:
+    """A tick's frames that are an intruder's, by ``id()``: its bus faults' (``applied``), and on an
+    arbitrated wire those of earlier ticks it delivers late (``step``)."""
+    return set(applied.intruders if applied is not None else ()) | (step.forged if step is not None else set())
+
+
+def sign_control(
+    control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]], forged: Collection[int]
+) -> None:
+    """Sign the control frames among the runner's frames of tick k, but an intruder's (``forged``,
+    by ``id()``: a simulated intruder's of this tick, or of an earlier one that the wire delivers
+    late), which go as it forged them: the runner holds every sender's key (a replay's runner sends
+    the replayed nodes' heartbeats), and signing an intruder's frame would let it pass."""
+    if control is None:
         return
-    message, decoded = frames[0]
-    if decoded is not None and decoded.spec.role == SYNC:
-        control.sign(message, k)
+    for item in frames:
+        if id(item) not in forged:
+            control.sign(item[0], k)
