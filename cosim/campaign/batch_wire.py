@@ -52,7 +52,7 @@ from cosim.run.busfaults import Applied
 from cosim.run.loop import runner_frames
 from cosim.run.node import node_client
 from cosim.run.plan import RunPlan
-from cosim.run.session import forged, sign_control
+from cosim.run.signing import forged, sign_control
 from cosim.run.traffic import Traffic
 from cosim.scenario.faults import build_bus_faults
 
@@ -157,7 +157,7 @@ class _RunWire:
                 k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
             )
             quiet = Quiet(step.send, [(p.delivered_ns, p.frame.payload) for p in step.passed if p.dropped is None])
-        sign_control(self.control, k, quiet.send, forged(applied, step))
+        sign_control(self.control, k, quiet.send, forged(applied, step.forged if step is not None else ()))
         # what a receiver decodes from each data frame (the wire's payload; a control frame, signed
         # just now, is decoded as it is sent): decoded once for all the run's nodes. Everything
         # heard of the last tick is taken (``prepare``)
@@ -186,7 +186,8 @@ class _RunWire:
         to it (by identity), SYNC announcing every data frame; and the control frames among them
         verify under its keys. Then SYNC(k) opens tick k, each reading and command fills it, the
         upstream frames and heartbeats make it ready, and it closes, with nothing counted lost,
-        contested or distrusted (``TickAssembler.push``)."""
+        contested or distrusted (``TickAssembler.push``). The ``TickFrames`` returned holds the tick
+        and its count only (what its answer needs): its values are the batch's arrays."""
         client = self.nodes[name]
         assembler, bus, sync = client.assembler, client.bus, self.sync
         if (
@@ -406,7 +407,10 @@ class WireBatch:
                 data[i].append(frame)
         out = {}
         for i in np.flatnonzero(fits).tolist():
-            sync = codec.sync(k, len(data[i]))
+            try:
+                sync = codec.sync(k, len(data[i]))
+            except CodecError:  # more frames than a SYNC announces: ``runner_frames`` says so, for that run
+                continue
             out[int(rows[i])] = [(sync, codec.decode(sync)), *data[i]]
         return out
 
@@ -482,10 +486,13 @@ class WireBatch:
         k = next(tick.tick for r in rows.tolist() if (tick := ticks[r]) is not None)
         if any(getattr(ticks[r], "tick", None) != k for r in rows.tolist()):
             return {}
+        messages = self.runs[int(rows[0])].nodes[name].messages
+        if any(signal not in signals for spec in messages for signal in spec.signals):
+            return {}  # its client names what is missing, run by run
         by_run: list[list[tuple[can.Message, Decoded]]] = [[] for _ in rows]
         carried = np.ones(len(rows), dtype=bool)
         parts = []
-        for spec in self.runs[int(rows[0])].nodes[name].messages:
+        for spec in messages:
             v = values[rows][:, [signals.index(signal) for signal in spec.signals]]
             low = np.array([c.minimum for c in spec.channels])
             high = np.array([c.maximum for c in spec.channels])

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,13 +38,14 @@ from cosim.errors import CosimError
 from cosim.log.metadata import BUS, RESULT, ResultRecord
 from cosim.log.recorder import RunRecorder
 from cosim.log.writer import LogSink, McapLog, RecordSink, SinkLog
-from cosim.run.arbitration import Arbitration, Step
+from cosim.run.arbitration import Arbitration
 from cosim.run.busfaults import Applied, BusFaultStage
 from cosim.run.detector import IntrusionDetector
 from cosim.run.foreign_traffic import ForeignTraffic
 from cosim.run.interrupts import DeferredInterrupts
 from cosim.run.launcher import Participant, remove_stale_workdirs
 from cosim.run.outcome import NodeFailure, Progress, RunResult, fell_behind, kernel_drops, last_words
+from cosim.run.signing import forged, sign_control
 from cosim.run.traffic import Traffic
 
 _POLL = 0.05  # s: how often a waiting runner checks for Ctrl-C and dead nodes
@@ -406,7 +407,7 @@ class Session:
             k, frames, applied.delays_ns if applied else None, applied.intruders if applied else None
         )
         # timed on the wire with the MAC at 0: no key changes timing
-        sign_control(self.control, k, step.send, forged(applied, step))
+        sign_control(self.control, k, step.send, forged(applied, step.forged))
         self.traffic.sent([frame for frame, _ in step.send])
         send_all(self.bus, [frame for frame, _ in step.send])
         t, t_ns = self.time(k)
@@ -587,23 +588,3 @@ class Session:
             for frame in drain(self.bus, min(0.02, end - now)):
                 traffic(frame)
                 quiet_until = time.perf_counter() + 0.1
-
-
-def forged(applied: Applied | None, step: Step | None = None) -> set[int]:
-    """A tick's frames that are an intruder's, by ``id()``: its bus faults' (``applied``), and on an
-    arbitrated wire those of earlier ticks it delivers late (``step``)."""
-    return set(applied.intruders if applied is not None else ()) | (step.forged if step is not None else set())
-
-
-def sign_control(
-    control: ControlAuth | None, k: int, frames: list[tuple[can.Message, Decoded | None]], forged: Collection[int]
-) -> None:
-    """Sign the control frames among the runner's frames of tick k, but an intruder's (``forged``,
-    by ``id()``: a simulated intruder's of this tick, or of an earlier one that the wire delivers
-    late), which go as it forged them: the runner holds every sender's key (a replay's runner sends
-    the replayed nodes' heartbeats), and signing an intruder's frame would let it pass."""
-    if control is None:
-        return
-    for item in frames:
-        if id(item) not in forged:
-            control.sign(item[0], k)
