@@ -93,14 +93,10 @@ class Packer:
             f.is_float or not isinstance(f.conversion, (LinearConversion, IdentityConversion)) for f in self.fields
         ):
             return None
-        carried = carried_values(self.fields, values)
+        carried = np.empty_like(values, dtype=float)
         word = np.zeros(len(values), dtype=np.uint64)
         for i, field in enumerate(self.fields):
-            conversion = field.conversion
-            if isinstance(conversion, LinearConversion):
-                raw = np.rint((values[:, i] - conversion.offset) / conversion.scale)
-            else:
-                raw = np.rint(values[:, i])
+            raw, carried[:, i] = _raw_and_carried(field.conversion, values[:, i])
             word |= (raw.astype(np.int64) & field.mask).astype(np.uint64) << np.uint64(field.start)
         payloads = word.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length]
         return payloads, carried
@@ -121,13 +117,24 @@ def carried_values(fields: Sequence[Field], values: np.ndarray) -> np.ndarray:
     found = np.empty_like(values, dtype=float)
     for i, field in enumerate(fields):
         conversion, v = field.conversion, values[:, i]
-        if isinstance(conversion, LinearConversion) and not conversion.is_float:
-            found[:, i] = np.rint((v - conversion.offset) / conversion.scale) * conversion.scale + conversion.offset
+        if isinstance(conversion, (LinearConversion, IdentityConversion)) and not conversion.is_float:
+            found[:, i] = _raw_and_carried(conversion, v)[1]
         elif isinstance(conversion, IdentityConversion):
-            found[:, i] = v if conversion.is_float else np.rint(v)
+            found[:, i] = v
         else:  # another kind: cantools' own methods, value by value
             found[:, i] = [conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(x), False) for x in v]
     return found
+
+
+def _raw_and_carried(conversion: Any, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An integer signal's raw values (floats, rounded) and its values as the frames carry them, on
+    arrays: ``round((v - offset) / scale)`` and ``raw * scale + offset`` (a linear conversion), or
+    ``round(v)`` for both (an identity conversion)."""
+    if isinstance(conversion, LinearConversion):
+        raw = np.rint((v - conversion.offset) / conversion.scale)
+        return raw, raw * conversion.scale + conversion.offset
+    raw = np.rint(v)
+    return raw, raw
 
 
 def uncompiled(signal: Any) -> str | None:

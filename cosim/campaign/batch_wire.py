@@ -39,7 +39,7 @@ import numpy as np
 
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.bus.client import Client, TickFrames
-from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded, MessageSpec
+from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Codec, Decoded, MessageSpec
 from cosim.bus.inprocess import InProcessBus
 from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
@@ -111,7 +111,6 @@ class _RunWire:
         self.clean = -1  # the last tick whose frames went on the channel as the runner built them, all in time
         self.announced: list[can.Message] = []  # the frames the runner put on the channel in its last tick
         self.sync: Decoded | None = None  # their SYNC, decoded, where the tick is clean
-        self.answered: dict[str, int] = {}  # node -> the last tick it answered
         self.answering: list[str] = []  # the nodes that answered the runner's last tick, in order
 
     def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
@@ -196,7 +195,7 @@ class _RunWire:
             or client.secoc is not None
             or not isinstance(bus, InProcessBus)
             or not assembler.between(k - 1)
-            or any(lag != 0 or self.answered.get(node) != k for node, lag in assembler.upstream.items())
+            or any(lag != 0 or node not in self.answering for node, lag in assembler.upstream.items())
             or sync is None
             or sync.tick != k
             or int(sync.values["frames"]) != len(self.announced) - 1
@@ -250,7 +249,6 @@ class _RunWire:
 
     def _done(self, name: str, tick: TickFrames) -> None:
         self.nodes[name].done(tick)
-        self.answered[name] = tick.tick
         self.answering.append(name)
 
     def truth(self, k: int, x: dict[str, Any], active: list[str]) -> None:
@@ -310,6 +308,36 @@ class _RunWire:
     def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
         why = f"the runner rejected a frame of 0x{rejection.frame_id:03X} ({rejection.reason})"
         self.rejected = self.rejected or why
+
+
+def _bounds(spec: MessageSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges of a message's signals, as arrays (lows, highs)."""
+    return np.array([c.minimum for c in spec.channels]), np.array([c.maximum for c in spec.channels])
+
+
+def _encoded_runs(
+    codec: Codec, k: int, rows: np.ndarray, parts: list[tuple[MessageSpec, np.ndarray, np.ndarray]]
+) -> dict[int, list[tuple[can.Message, Decoded]]]:
+    """The frames of tick k of the runs ``rows`` (by run), encoded on arrays (``Codec.encode_rows``):
+    for each message, its values (R, signals) in the runs where it is sent (``parts``: the message,
+    its values, where sent), in the order of ``parts``. A run with a value its frame cannot carry
+    (NaN, out of range) is left out, and all of them where a message is not packed on arrays: their
+    own path encodes them and names what it refuses."""
+    fits = np.ones(len(rows), dtype=bool)
+    for spec, v, on in parts:
+        low, high = _bounds(spec)
+        fits &= ~on | ((low <= v) & (v <= high)).all(axis=1)  # NaN: does not fit
+    found: list[list[tuple[can.Message, Decoded]]] = [[] for _ in rows]
+    for spec, v, on in parts:
+        at = np.flatnonzero(fits & on)
+        if not len(at):
+            continue
+        frames = codec.encode_rows(spec.name, k, v[at])
+        if frames is None:
+            return {}
+        for i, frame in zip(at.tolist(), frames):
+            found[i].append(frame)
+    return {int(rows[i]): found[i] for i in np.flatnonzero(fits).tolist()}
 
 
 def _passed(frames: list[Frame], applied: Applied) -> bool:
@@ -386,32 +414,18 @@ class WireBatch:
         """``runner_frames`` of the runs ``rows`` whose values their frames carry, their data frames
         encoded on arrays (``Codec.encode_rows``), by run; the others are left out (``runner_frames``
         refuses them, naming the value)."""
-        codec, closed = self.codec, self.closed
-        columns = [(spec, measured[rows, i], sent[rows, i]) for i, spec in enumerate(self.sensor_specs)]
-        if not closed:
+        codec = self.codec
+        parts = [(spec, measured[rows, i, None], sent[rows, i]) for i, spec in enumerate(self.sensor_specs)]
+        if not self.closed:
             every = np.ones(len(rows), dtype=bool)
-            columns += [(spec, commands[rows, j], every) for j, spec in enumerate(self.command_specs)]
-        fits = np.ones(len(rows), dtype=bool)
-        for spec, v, on in columns:
-            channel = spec.channels[0]
-            fits &= ~on | ((channel.minimum <= v) & (v <= channel.maximum))  # NaN: does not fit
-        data: list[list[Frame]] = [[] for _ in rows]
-        for spec, v, on in columns:
-            at = np.flatnonzero(fits & on)
-            if not len(at):
-                continue
-            frames = codec.encode_rows(spec.name, k, v[at][:, None])
-            if frames is None:
-                return {}
-            for i, frame in zip(at.tolist(), frames):
-                data[i].append(frame)
-        out = {}
-        for i in np.flatnonzero(fits).tolist():
+            parts += [(spec, commands[rows, j, None], every) for j, spec in enumerate(self.command_specs)]
+        out: dict[int, list[Frame]] = {}
+        for r, data in _encoded_runs(codec, k, rows, parts).items():
             try:
-                sync = codec.sync(k, len(data[i]))
+                sync = codec.sync(k, len(data))
             except CodecError:  # more frames than a SYNC announces: ``runner_frames`` says so, for that run
                 continue
-            out[int(rows[i])] = [(sync, codec.decode(sync)), *data[i]]
+            out[r] = [(sync, codec.decode(sync)), *data]
         return out
 
     def inputs(
@@ -489,27 +503,15 @@ class WireBatch:
         messages = self.runs[int(rows[0])].nodes[name].messages
         if any(signal not in signals for spec in messages for signal in spec.signals):
             return {}  # its client names what is missing, run by run
-        by_run: list[list[tuple[can.Message, Decoded]]] = [[] for _ in rows]
-        carried = np.ones(len(rows), dtype=bool)
+        every = np.ones(len(rows), dtype=bool)
         parts = []
         for spec in messages:
             v = values[rows][:, [signals.index(signal) for signal in spec.signals]]
-            low = np.array([c.minimum for c in spec.channels])
-            high = np.array([c.maximum for c in spec.channels])
             if saturate:
+                low, high = _bounds(spec)
                 v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
-            carried &= ((low <= v) & (v <= high)).all(axis=1)  # NaN: False
-            parts.append((spec, v))
-        if not carried.any():
-            return {}
-        kept = np.flatnonzero(carried)
-        for spec, v in parts:
-            frames = self.codec.encode_rows(spec.name, k, v[kept])
-            if frames is None:
-                return {}
-            for i, frame in zip(kept.tolist(), frames):
-                by_run[i].append(frame)
-        return {int(rows[i]): by_run[i] for i in kept.tolist()}
+            parts.append((spec, v, every))
+        return _encoded_runs(self.codec, k, rows, parts)
 
     def truth(self, k: int, x: np.ndarray, states: Sequence[str], active: Sequence[tuple[str, ...]], rows: Any) -> None:
         """Tick k's truth of the runs ``rows``: their states (K, states) and active faults."""

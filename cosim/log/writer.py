@@ -46,25 +46,29 @@ def dumps(payload: Any) -> bytes:
     return orjson.dumps(payload, option=_JSON_OPTIONS)
 
 
-def read_back(payload: dict[str, Any]) -> dict[str, Any]:
+def read_back(payload: Any) -> Any:
     """What a reader of the log gets for the message ``payload`` (``orjson.loads(dumps(payload))``),
-    for a scorer that reads a run's messages as they are written. A flat message of finite floats,
-    64-bit integers, booleans and None, by ASCII names, reads back as it is (orjson writes a float as the shortest
-    text that parses to the same double, -0.0 included): a copy is returned without the round trip,
-    which costs microseconds per message; anything else goes through the bytes (``tests/test_topics.py``)."""
-    for key, value in payload.items():
-        if type(key) is not str or not key.isascii():  # orjson refuses other keys, and lone surrogates
-            return orjson.loads(dumps(payload))
-        kind = type(value)
-        if kind is float:
-            if value - value != 0.0:  # NaN or ±inf: written as null
-                return orjson.loads(dumps(payload))
-        elif kind is int:
-            if not -(2**63) <= value < 2**64:
-                return orjson.loads(dumps(payload))
-        elif value is not None and kind is not bool:
-            return orjson.loads(dumps(payload))
-    return dict(payload)
+    for a scorer that reads a run's messages as they are written. A flat dict of finite floats,
+    64-bit integers, booleans and None, by ASCII names, reads back as it is (orjson writes a float as
+    the shortest text that parses to the same double, -0.0 included): a copy is returned without the
+    round trip, which costs microseconds a message; anything else goes through the bytes
+    (``tests/test_topics.py``)."""
+    if type(payload) is dict and all(_reads_back(key, value) for key, value in payload.items()):
+        return dict(payload)
+    return orjson.loads(dumps(payload))
+
+
+def _reads_back(key: Any, value: Any) -> bool:
+    """Whether a message's field is read back from its JSON as it is (orjson refuses keys other than
+    strings, lone surrogates and integers beyond 64 bits; NaN and ±inf become null)."""
+    if type(key) is not str or not key.isascii():
+        return False
+    kind = type(value)
+    if kind is float:
+        return value - value == 0.0
+    if kind is int:
+        return -(2**63) <= value < 2**64
+    return value is None or kind is bool
 
 
 class LogSink(Protocol):

@@ -29,7 +29,7 @@ from cosim.errors import CodecError, LogError
 from cosim.log.metadata import DBC_ATTACHMENT, logged_dbc
 from cosim.log.reader import LogReader
 from cosim.log.topics import FAULTS, FRAMES, STATE, Record
-from cosim.log.writer import dumps, read_back
+from cosim.log.writer import read_back
 
 MAC_SIGNAL = SECOC_SIGNALS[1]
 
@@ -98,8 +98,7 @@ class LiveMeasurement:
             if isinstance(payload, Record) and scorer.records(channel):
                 scorer.feed_record(channel, time_ns, payload)
             else:
-                message = read_back(payload) if type(payload) is dict else orjson.loads(dumps(payload))
-                scorer.feed(channel, time_ns, message)
+                scorer.feed(channel, time_ns, read_back(payload))
 
         self._score(channel, feed)
 
