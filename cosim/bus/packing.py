@@ -88,16 +88,18 @@ class Packer:
         its signal's range; the payloads (K, length) uint8 and the values as the frames carry them
         (K, fields), row by row the bytes and floats ``encode_carried`` gives (``carried_values``'
         arithmetic; NumPy's ``rint`` rounds half to even as Python's ``round``). None for a message
-        it does not pack on arrays: longer than 8 bytes, a float signal, a conversion of another kind."""
+        it does not pack on arrays: longer than 8 bytes, a float signal, a signal over 53 bits, a
+        conversion of another kind."""
         if self.length > 8 or any(
-            f.is_float or not isinstance(f.conversion, (LinearConversion, IdentityConversion)) for f in self.fields
+            f.is_float or f.length > 53 or not isinstance(f.conversion, (LinearConversion, IdentityConversion))
+            for f in self.fields
         ):
-            return None
+            return None  # (a raw value of more than 53 bits is not exact in a float)
         carried = np.empty_like(values, dtype=float)
         word = np.zeros(len(values), dtype=np.uint64)
         for i, field in enumerate(self.fields):
             raw, carried[:, i] = _raw_and_carried(field.conversion, values[:, i])
-            word |= (raw.astype(np.int64) & field.mask).astype(np.uint64) << np.uint64(field.start)
+            word |= (raw.astype(np.int64).astype(np.uint64) & np.uint64(field.mask)) << np.uint64(field.start)
         payloads = word.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length]
         return payloads, carried
 
