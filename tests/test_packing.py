@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import random
 
 import numpy as np
@@ -96,12 +97,14 @@ def test_frames_encoded_on_arrays_are_encode_decodeds_row_by_row(name):
             else [rng.uniform(c.minimum, c.maximum) for c in spec.channels]
             for trial in range(30)
         ]
-        rows = codec.encode_rows(spec.name, tick, np.array(values, dtype=float))
+        rows = codec.encode_rows([spec.name], tick, np.array(values, dtype=float))
         if rows is None:
             assert codec.fd or spec.name in {m.name for m in codec.database.messages if m.length > 8}
             continue
         packed += 1
-        for (frame, decoded), row in zip(rows, values, strict=True):
+        for found, row in zip(rows, values, strict=True):
+            assert found is not None and len(found) == 1
+            frame, decoded = found[0]
             theirs, carried = codec.encode_decoded(spec.name, tick, row)
             assert (
                 frame.arbitration_id,
@@ -121,6 +124,67 @@ def test_frames_encoded_on_arrays_are_encode_decodeds_row_by_row(name):
                 (k, type(v), repr(v)) for k, v in carried.values.items()
             ], (spec.name, row)
     assert packed > 0 or codec.fd
+
+
+@pytest.mark.parametrize("name", ["masses-pid-can", "three-tank-reconciliation", "vessel-nominal"])
+def test_several_messages_encoded_on_arrays_at_once_are_each_rows_frames_or_none_where_one_does_not_fit(name):
+    """``Codec.encode_rows`` of every data message packed on arrays at once (a node's messages, the
+    runner's sensors), some frames not sent and some values out of range or NaN: each row's frames
+    are those ``encode_decoded`` gives of the messages it sends, in order, and a row is None
+    exactly where one of the values it sends is one ``encode`` refuses (a value it does not send
+    never matters)."""
+    from cosim.errors import CodecError
+
+    codec = scenario.apply(scenario.load(name), [("bus.fd", False)]).scenario.codec()
+    lows = {spec.name: np.array([[c.minimum for c in spec.channels]]) for spec in codec.specs.values()}
+    specs = [
+        spec for spec in codec.specs.values() if spec.channels and codec.encode_rows([spec.name], 0, lows[spec.name])
+    ]
+    assert len(specs) >= 5
+    rng = random.Random(name + "/group")
+    for _ in range(8):
+        tick, chosen = rng.randrange(2**32), rng.sample(specs, min(len(specs), rng.randint(2, 7)))
+        rows, sent = [], []
+        for _ in range(40):
+            row = []
+            for spec in chosen:
+                for c in spec.channels:
+                    wild = rng.random()
+                    row.append(
+                        math.nan
+                        if wild < 0.02
+                        else c.maximum * 1.5 + 1.0
+                        if wild < 0.04
+                        else rng.uniform(c.minimum, c.maximum)
+                    )
+            rows.append(row)
+            sent.append([rng.random() < 0.8 for _ in chosen])
+        found = codec.encode_rows([spec.name for spec in chosen], tick, np.array(rows), np.array(sent))
+        assert found is not None and len(found) == len(rows)
+        for frames, row, on in zip(found, rows, sent):
+            expected, refused, at = [], False, 0
+            for spec, built in zip(chosen, on):
+                values, at = row[at : at + len(spec.channels)], at + len(spec.channels)
+                if not built:
+                    continue
+                try:
+                    expected.append(codec.encode_decoded(spec.name, tick, values))
+                except CodecError:
+                    refused = True
+            if refused:
+                assert frames is None
+                continue
+            assert frames is not None and len(frames) == len(expected)
+            for (frame, decoded), (theirs, carried) in zip(frames, expected):
+                assert (frame.arbitration_id, bytes(frame.data), frame.is_fd) == (
+                    theirs.arbitration_id,
+                    bytes(theirs.data),
+                    theirs.is_fd,
+                )
+                assert decoded.spec is carried.spec and decoded.tick == carried.tick
+                assert [(k, repr(v)) for k, v in decoded.values.items()] == [
+                    (k, repr(v)) for k, v in carried.values.items()
+                ]
 
 
 def test_frames_encoded_on_arrays_equal_cantools_on_the_public_dbcs_of_its_tests():

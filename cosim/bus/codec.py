@@ -57,7 +57,7 @@ from cosim.bus.dbc import (
     spec_from_message,
     strip_secoc_trailer,
 )
-from cosim.bus.packing import Packer, carried_values
+from cosim.bus.packing import CarriedValues, Packer, RowsPacker, rows_packer
 from cosim.bus.signals import Channel
 from cosim.errors import CodecError
 
@@ -98,6 +98,24 @@ class Decoded:
     spec: MessageSpec
     tick: int
     values: dict[str, float]
+
+
+class _RowsGroup:
+    """What ``Codec.encode_rows`` needs of some messages, as arrays: their packer (each message's
+    tick counter, then its signals), the signals' ranges, their columns among the packer's fields,
+    the message of each, and each message's signals' place among the values and its length."""
+
+    def __init__(self, packer: RowsPacker, specs: Sequence[MessageSpec], lengths: Sequence[int]) -> None:
+        self.packer, self.specs = packer, list(specs)
+        channels = [c for spec in specs for c in spec.channels]
+        self.low, self.high = np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
+        self.message_of = np.repeat(np.arange(len(specs)), [len(spec.signals) for spec in specs])
+        counters = np.cumsum([0, *(1 + len(spec.signals) for spec in specs[:-1])])
+        self.signals = np.delete(np.arange(len(channels) + len(specs)), counters)
+        self.width = len(channels) + len(specs)
+        ends = np.cumsum([len(spec.signals) for spec in specs]).tolist()
+        self.layout = [(spec, end - len(spec.signals), end) for spec, end in zip(specs, ends)]
+        self.lengths = list(lengths)
 
 
 class Codec:
@@ -170,7 +188,7 @@ class Codec:
         # tick counter first, then the spec's signals, in the order encode takes their values.
         # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control_frames`` fills it).
         self._packers: dict[str, Packer] = {}
-        self._carried_floats: dict[str, bool] = {}  # ``encode_rows``: whether a message's values are carried as floats
+        self._groups: dict[tuple[str, ...], _RowsGroup | None] = {}  # ``encode_rows``' arrays, by messages
         #: Control ids with a MAC: the spec, and where its tick and MAC are.
         self.control_macs: dict[int, tuple[MessageSpec, ControlFields]] = {}
         for spec in specs:
@@ -262,30 +280,66 @@ class Codec:
         data, carried = self._packers[name].encode_carried(payload)
         return self._frame(spec, data), Decoded(spec, int(payload[0]), dict(zip(spec.signals, carried[1:])))
 
-    def encode_rows(self, name: str, tick: int, values: np.ndarray) -> list[tuple[can.Message, Decoded]] | None:
-        """``encode_decoded`` of K frames of message ``name`` for tick k at once: ``values`` (K,
-        signals), each in its channel's range (``encode`` checks that; this does not). Each row's
-        frame and what a receiver decodes from it, the bytes, values and their types of
-        ``encode_decoded``'s (``Packer.encode_rows``); None for a message not packed on arrays, or
-        one with a value carried as an integer."""
-        spec, packer = self.specs[name], self._packers[name]
+    def encode_rows(
+        self, names: Sequence[str], tick: int, values: np.ndarray, sent: np.ndarray | None = None
+    ) -> list[list[tuple[can.Message, Decoded]] | None] | None:
+        """``encode_decoded`` of the frames of messages ``names`` for tick k in K rows at once:
+        ``values`` (K, every message's signals in turn), ``sent`` (K, messages) which frames each row
+        has (None: all). Each row's frames in the order of ``names``, each with what a receiver
+        decodes from it: the bytes, values and their types of ``encode_decoded``'s
+        (``RowsPacker``). A row is None where one of its values is outside its channel's range or
+        not a number (``encode`` names it); all are None where a message is not packed on arrays or
+        carries a value as an integer."""
+        group = self._rows_group(tuple(names))
+        if group is None:
+            return None
+        k, m = len(values), len(group.specs)
+        on = np.ones((k, m), dtype=bool) if sent is None else sent
+        sends = on[:, group.message_of]
+        fits = np.asarray((~sends | ((group.low <= values) & (values <= group.high))).all(axis=1))  # NaN: no fit
         counter = tick % self.tick_modulus
-        found = packer.encode_rows(np.column_stack([np.full(len(values), float(counter)), values]))
-        if found is None:
-            return None
-        payloads, carried = found
-        floats = self._carried_floats.get(name)
-        if floats is None:  # not a signal carried as an integer (an identity conversion, integer scale and offset)
-            probe = self._payload(spec, 0, [max(c.minimum, min(0.0, c.maximum)) for c in spec.channels])
-            floats = self._carried_floats[name] = all(type(v) is float for v in packer.encode_carried(probe)[1][1:])
-        if not floats:
-            return None
-        length, data = payloads.shape[1], payloads.tobytes()
-        out = []
-        for i, row in enumerate(carried[:, 1:].tolist()):
-            frame = self._frame(spec, data[i * length : (i + 1) * length])
-            out.append((frame, Decoded(spec, counter, dict(zip(spec.signals, row)))))
+        full = np.full((k, group.width), float(counter))
+        full[:, group.signals] = np.where(sends & fits[:, None], values, 0.0)  # 0: a frame not built
+        words, carried = group.packer.encode_rows(full)
+        data = words.astype("<u8").tobytes()
+        out: list[list[tuple[can.Message, Decoded]] | None] = []
+        for i, (row, built, fit) in enumerate(zip(carried[:, group.signals].tolist(), on.tolist(), fits.tolist())):
+            if not fit:
+                out.append(None)
+                continue
+            frames, at = [], i * m * 8
+            for j, (spec, a, b) in enumerate(group.layout):
+                if built[j]:
+                    frame = self._frame(spec, data[at + 8 * j : at + 8 * j + group.lengths[j]])
+                    frames.append((frame, Decoded(spec, counter, dict(zip(spec.signals, row[a:b])))))
+            out.append(frames)
         return out
+
+    def _rows_group(self, names: tuple[str, ...]) -> _RowsGroup | None:
+        """``encode_rows``' arrays of these messages (built once), or None where one is not packed
+        on arrays (``Packer.packs_rows``), does not carry the tick counter first or carries a
+        value as an integer."""
+        if names in self._groups:
+            return self._groups[names]
+        specs = [self.specs[name] for name in names]
+        packers = [self._packers[name] for name in names]
+        floats = all(
+            packer.names == ("tick", *spec.signals) and self._carries_floats(spec, packer)
+            for spec, packer in zip(specs, packers)
+        )
+        rows = rows_packer(packers) if floats else None
+        found = self._groups[names] = (
+            None if rows is None else _RowsGroup(rows, specs, [packer.length for packer in packers])
+        )
+        return found
+
+    def _carries_floats(self, spec: MessageSpec, packer: Packer) -> bool:
+        """Whether a message's values are carried as floats (``encode_carried``'s type of each: an
+        identity conversion of an integer signal carries an int, which ``encode_rows`` does not give)."""
+        if not packer.packs_rows:
+            return False
+        probe = self._payload(spec, 0, [max(c.minimum, min(0.0, c.maximum)) for c in spec.channels])
+        return all(type(v) is float for v in packer.encode_carried(probe)[1][1:])
 
     def carried_of(self, specs: Sequence[MessageSpec]) -> Callable[[np.ndarray], np.ndarray]:
         """The values of these messages' signals, in order, for K frames of each at once: (K,
@@ -296,7 +350,7 @@ class Codec:
             packer = self._packers[spec.name]
             by_name = dict(zip(packer.names, packer.fields))
             fields += [by_name[signal] for signal in spec.signals]
-        return functools.partial(carried_values, tuple(fields))
+        return CarriedValues(fields)
 
     def _payload(self, spec: MessageSpec, tick: int, values: Sequence[float]) -> list[float]:
         """The tick counter and the values, each checked against its channel's range."""

@@ -82,26 +82,29 @@ class Packer:
         """Signal name → physical value, as cantools decodes it (``decode_choices=False``)."""
         self.unpack: Callable[[bytes | bytearray], tuple[float, ...]] = compiled["unpack"]
         """The physical values, in ``names`` order."""
+        self._rows: RowsPacker | bool | None = None  # None: not built yet; False: not packed on arrays
 
     def encode_rows(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``encode_carried`` of K payloads at once: ``values`` (K, fields) in ``names`` order, each in
         its signal's range; the payloads (K, length) uint8 and the values as the frames carry them
-        (K, fields), row by row the bytes and floats ``encode_carried`` gives (``carried_values``'
-        arithmetic; NumPy's ``rint`` rounds half to even as Python's ``round``). None for a message
-        it does not pack on arrays: longer than 8 bytes, a float signal, a signal over 53 bits, a
-        conversion of another kind."""
-        if self.length > 8 or any(
-            f.is_float or f.length > 53 or not isinstance(f.conversion, (LinearConversion, IdentityConversion))
+        (K, fields), row by row the bytes and floats ``encode_carried`` gives. None for a message
+        it does not pack on arrays (``RowsPacker``)."""
+        if self._rows is None:  # built at first use
+            self._rows = rows_packer((self,)) or False
+        if not isinstance(self._rows, RowsPacker):
+            return None
+        rows = self._rows
+        words, carried = rows.encode_rows(values)
+        return words.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length], carried
+
+    @property
+    def packs_rows(self) -> bool:
+        """Whether ``encode_rows`` packs this message: at most 8 bytes, integer signals of at most
+        53 bits (a raw value of more is not exact in a float), linear or identity conversions."""
+        return self.length <= 8 and all(
+            not f.is_float and f.length <= 53 and isinstance(f.conversion, (LinearConversion, IdentityConversion))
             for f in self.fields
-        ):
-            return None  # (a raw value of more than 53 bits is not exact in a float)
-        carried = np.empty_like(values, dtype=float)
-        word = np.zeros(len(values), dtype=np.uint64)
-        for i, field in enumerate(self.fields):
-            raw, carried[:, i] = _raw_and_carried(field.conversion, values[:, i])
-            word |= (raw.astype(np.int64).astype(np.uint64) & np.uint64(field.mask)) << np.uint64(field.start)
-        payloads = word.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length]
-        return payloads, carried
+        )
 
     def raw(self, field: Field, value: float) -> int | float:
         """The raw value cantools' encoder would put in the frame for ``value``."""
@@ -112,31 +115,83 @@ class Packer:
         return self.encode_carried(values)[1]
 
 
-def carried_values(fields: Sequence[Field], values: np.ndarray) -> np.ndarray:
-    """Values of K frames, (K, len(fields)), as the frames carry them: ``encode_carried``'s second
-    part for each row, bit for bit (the same IEEE operations on arrays: NumPy's ``rint`` rounds half
-    to even as Python's ``round`` does, and an integer raw value times the scale is the float's)."""
-    found = np.empty_like(values, dtype=float)
-    for i, field in enumerate(fields):
-        conversion, v = field.conversion, values[:, i]
-        if isinstance(conversion, (LinearConversion, IdentityConversion)) and not conversion.is_float:
-            found[:, i] = _raw_and_carried(conversion, v)[1]
-        elif isinstance(conversion, IdentityConversion):
-            found[:, i] = v
-        else:  # another kind: cantools' own methods, value by value
-            found[:, i] = [conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(x), False) for x in v]
-    return found
+class _Columns:
+    """Integer signals' conversions as arrays, one column per field: the raw values
+    ``rint((v - offset) / scale)`` and the values as the frames carry them, ``raw * scale + offset``
+    (a linear conversion), or the raw values themselves (an identity conversion, whose scale 1 and
+    offset 0 leave v as it is). Element-wise operations give each column the bits they give it
+    alone, so every value is cantools' (NumPy's ``rint`` rounds half to even as Python's ``round``
+    does, and an integer raw value times the scale is the float's)."""
+
+    def __init__(self, conversions: Sequence[Any]) -> None:
+        linear = [isinstance(c, LinearConversion) for c in conversions]
+        self.scale = np.array([float(c.scale) if lin else 1.0 for c, lin in zip(conversions, linear)])
+        self.offset = np.array([float(c.offset) if lin else 0.0 for c, lin in zip(conversions, linear)])
+        self.identity = ~np.array(linear, dtype=bool)
+
+    def raw_and_carried(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The raw values (rounded floats) and the carried values of ``values`` (K, columns)."""
+        raw = np.rint((values - self.offset) / self.scale)
+        return raw, np.where(self.identity, raw, raw * self.scale + self.offset)
 
 
-def _raw_and_carried(conversion: Any, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An integer signal's raw values (floats, rounded) and its values as the frames carry them, on
-    arrays: ``round((v - offset) / scale)`` and ``raw * scale + offset`` (a linear conversion), or
-    ``round(v)`` for both (an identity conversion)."""
-    if isinstance(conversion, LinearConversion):
-        raw = np.rint((v - conversion.offset) / conversion.scale)
-        return raw, raw * conversion.scale + conversion.offset
-    raw = np.rint(v)
-    return raw, raw
+def _integer(conversion: Any) -> bool:
+    """Whether a signal's conversion is one ``_Columns`` computes (linear or identity, of integers)."""
+    return isinstance(conversion, (LinearConversion, IdentityConversion)) and not conversion.is_float
+
+
+class RowsPacker:
+    """``Packer.encode_carried`` of several messages for K frames each, on arrays, every field of
+    every message in one operation per step (``_Columns``): each field's raw bits shifted into
+    their place, and each message's fields OR-ed into one 64-bit word (``np.bitwise_or.reduceat``)."""
+
+    def __init__(self, packers: Sequence[Packer]) -> None:
+        fields = [f for packer in packers for f in packer.fields]
+        self.columns = _Columns([f.conversion for f in fields])
+        self.masks = np.array([f.mask for f in fields], dtype=np.uint64)
+        self.starts = np.array([f.start for f in fields], dtype=np.uint64)
+        #: The column of each message's first field.
+        self.first = np.cumsum([0, *(len(packer.fields) for packer in packers[:-1])])
+
+    def encode_rows(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``values`` (K, fields: every message's, in order), each in its signal's range: each
+        message's payload as a little-endian 64-bit word (K, messages), and the values as the
+        frames carry them (K, fields)."""
+        raw, carried = self.columns.raw_and_carried(values)
+        bits = (raw.astype(np.int64).astype(np.uint64) & self.masks) << self.starts
+        return np.bitwise_or.reduceat(bits, self.first, axis=1), carried
+
+
+def rows_packer(packers: Sequence[Packer]) -> RowsPacker | None:
+    """The ``RowsPacker`` of these messages, or None where one of them is not packed on arrays
+    (``Packer.packs_rows``)."""
+    return RowsPacker(packers) if packers and all(p.packs_rows for p in packers) else None
+
+
+class CarriedValues:
+    """Values of K frames of some fields, (K, fields), as the frames carry them: ``encode_carried``'s
+    second part for each row, bit for bit: integer signals on arrays (``_Columns``), a float
+    signal's value as it is, a conversion of another kind by cantools' own methods, value by value."""
+
+    def __init__(self, fields: Sequence[Field]) -> None:
+        conversions = [f.conversion for f in fields]
+        integer = [_integer(c) for c in conversions]
+        self.columns = _Columns([c if i else None for c, i in zip(conversions, integer)])
+        self.integer = np.array(integer, dtype=bool)
+        self.every = all(integer)
+        self.other = [
+            (i, c)
+            for i, (c, whole) in enumerate(zip(conversions, integer))
+            if not whole and not isinstance(c, IdentityConversion)
+        ]
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        if self.every:
+            return self.columns.raw_and_carried(values)[1]
+        found = np.where(self.integer, self.columns.raw_and_carried(np.where(self.integer, values, 0.0))[1], values)
+        for i, conversion in self.other:  # another kind: cantools' own methods, value by value
+            found[:, i] = [conversion.raw_to_scaled(conversion.numeric_scaled_to_raw(x), False) for x in values[:, i]]
+        return found
 
 
 def uncompiled(signal: Any) -> str | None:

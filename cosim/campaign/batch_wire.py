@@ -310,34 +310,18 @@ class _RunWire:
         self.rejected = self.rejected or why
 
 
-def _bounds(spec: MessageSpec) -> tuple[np.ndarray, np.ndarray]:
-    """The ranges of a message's signals, as arrays (lows, highs)."""
-    return np.array([c.minimum for c in spec.channels]), np.array([c.maximum for c in spec.channels])
-
-
 def _encoded_runs(
-    codec: Codec, k: int, rows: np.ndarray, parts: list[tuple[MessageSpec, np.ndarray, np.ndarray]]
+    codec: Codec, k: int, rows: np.ndarray, names: list[str], values: np.ndarray, sent: np.ndarray | None = None
 ) -> dict[int, list[tuple[can.Message, Decoded]]]:
-    """The frames of tick k of the runs ``rows`` (by run), encoded on arrays (``Codec.encode_rows``):
-    for each message, its values (R, signals) in the runs where it is sent (``parts``: the message,
-    its values, where sent), in the order of ``parts``. A run with a value its frame cannot carry
-    (NaN, out of range) is left out, and all of them where a message is not packed on arrays: their
-    own path encodes them and names what it refuses."""
-    fits = np.ones(len(rows), dtype=bool)
-    for spec, v, on in parts:
-        low, high = _bounds(spec)
-        fits &= ~on | ((low <= v) & (v <= high)).all(axis=1)  # NaN: does not fit
-    found: list[list[tuple[can.Message, Decoded]]] = [[] for _ in rows]
-    for spec, v, on in parts:
-        at = np.flatnonzero(fits & on)
-        if not len(at):
-            continue
-        frames = codec.encode_rows(spec.name, k, v[at])
-        if frames is None:
-            return {}
-        for i, frame in zip(at.tolist(), frames):
-            found[i].append(frame)
-    return {int(rows[i]): found[i] for i in np.flatnonzero(fits).tolist()}
+    """The frames of messages ``names`` for tick k of the runs ``rows`` (by run), encoded on arrays
+    (``Codec.encode_rows``): ``values`` (R, every message's signals in turn), ``sent`` (R,
+    messages) which each run sends (None: all). A run with a value its frame cannot carry (NaN, out
+    of range) is left out, and all of them where a message is not packed on arrays: their own path
+    encodes them and names what it refuses."""
+    found = codec.encode_rows(names, k, values, sent)
+    if found is None:
+        return {}
+    return {r: frames for r, frames in zip(rows.tolist(), found) if frames is not None}
 
 
 def _passed(frames: list[Frame], applied: Applied) -> bool:
@@ -414,13 +398,13 @@ class WireBatch:
         """``runner_frames`` of the runs ``rows`` whose values their frames carry, their data frames
         encoded on arrays (``Codec.encode_rows``), by run; the others are left out (``runner_frames``
         refuses them, naming the value)."""
-        codec = self.codec
-        parts = [(spec, measured[rows, i, None], sent[rows, i]) for i, spec in enumerate(self.sensor_specs)]
+        codec, specs = self.codec, [*self.sensor_specs, *([] if self.closed else self.command_specs)]
+        values, on = measured[rows], sent[rows]
         if not self.closed:
-            every = np.ones(len(rows), dtype=bool)
-            parts += [(spec, commands[rows, j, None], every) for j, spec in enumerate(self.command_specs)]
+            values = np.concatenate([values, commands[rows]], axis=1)
+            on = np.concatenate([on, np.ones((len(rows), len(self.command_specs)), dtype=bool)], axis=1)
         out: dict[int, list[Frame]] = {}
-        for r, data in _encoded_runs(codec, k, rows, parts).items():
+        for r, data in _encoded_runs(codec, k, rows, [spec.name for spec in specs], values, on).items():
             try:
                 sync = codec.sync(k, len(data))
             except CodecError:  # more frames than a SYNC announces: ``runner_frames`` says so, for that run
@@ -503,15 +487,13 @@ class WireBatch:
         messages = self.runs[int(rows[0])].nodes[name].messages
         if any(signal not in signals for spec in messages for signal in spec.signals):
             return {}  # its client names what is missing, run by run
-        every = np.ones(len(rows), dtype=bool)
-        parts = []
-        for spec in messages:
-            v = values[rows][:, [signals.index(signal) for signal in spec.signals]]
-            if saturate:
-                low, high = _bounds(spec)
-                v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
-            parts.append((spec, v, every))
-        return _encoded_runs(self.codec, k, rows, parts)
+        columns = [signals.index(signal) for spec in messages for signal in spec.signals]
+        v = values[rows][:, columns]
+        if saturate:
+            channels = [c for spec in messages for c in spec.channels]
+            low, high = np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
+            v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
+        return _encoded_runs(self.codec, k, rows, [spec.name for spec in messages], v)
 
     def truth(self, k: int, x: np.ndarray, states: Sequence[str], active: Sequence[tuple[str, ...]], rows: Any) -> None:
         """Tick k's truth of the runs ``rows``: their states (K, states) and active faults."""
