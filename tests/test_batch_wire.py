@@ -264,6 +264,71 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         assert published[name] == len(SEEDS) * loaded.scenario.ticks  # every answer encoded on arrays
 
 
+# a sensor fault from after the flood (0.9 s) until tick 111, the first tick scored whole again when
+# the scorer scores a tick left incomplete 20 ticks on: the active faults the scores had last
+# (the bias) are not those it had when it last scored a tick whole (none), which are those of tick 111
+_UNTIL_BACK = {"name": "bias", "kind": "bias", "value": [0.0, 0.01, 0.0], "start": 0.95, "end": 1.11}
+
+
+@pytest.mark.parametrize(
+    ("loaded", "window", "whole"),
+    [
+        (closed_loop(TAXONOMY["injection"]), None, 0.95),
+        (closed_loop(TAXONOMY["flooding"]), None, 0.2),
+        (closed_loop(TAXONOMY["flooding"]), 20, 0.3),
+        (closed_loop([*TAXONOMY["flooding"], _UNTIL_BACK]), 20, 0.3),
+        (open_loop(BUS_FAULTS["bus_off"], True), None, 0.95),
+    ],
+    ids=[
+        "closed loop, spoofed",
+        "closed loop, flooded",
+        "closed loop, flooded, scored 20 ticks on",
+        "closed loop, flooded, scored 20 ticks on, a bias until the tick scored whole again",
+        "open loop, bus-off",
+    ],
+)
+def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_alone(
+    loaded, window, whole, taps, monkeypatch
+):
+    """Where a tick's answers came at once on a quiet wire and the scorer holds no other tick, the
+    batch scores the tick whole from its arrays (``TickBatch``); elsewhere the scorer takes its
+    parts as the log would hold them: a flood's ticks, and every tick after it while the ticks
+    whose estimates it starved wait in the scorer (alone, they are scored when ``WINDOW`` ticks
+    old), and each run's last tick. Both ways in one run, every score as alone
+    (``assert_batched_as_alone`` compares the rows). ``whole``: the least share of ticks scored
+    whole; with a ``window`` of 20 ticks the starved ticks are scored 20 ticks on and the runs go
+    back to ticks scored whole, through faults that changed meanwhile."""
+    from cosim.analysis.metrics import scorer
+    from cosim.campaign.batch_wire import WireBatch, _RunWire
+
+    if window is not None:
+        monkeypatch.setattr(scorer, "WINDOW", window)  # alone as batched
+
+    scored, ways, last = WireBatch._scored_whole, Counter(), {}
+
+    def counted(self, k, verdicts):
+        ways["whole"] += len(verdicts)
+        ways["back"] += sum(last.get(r) == "parts" for r, _ in verdicts)
+        last.update((r, "whole") for r, _ in verdicts)
+        return scored(self, k, verdicts)
+
+    give = _RunWire._give_truth
+
+    def given(self):
+        if self.held is not None:
+            ways["parts"] += 1
+            last[self.held[2]] = "parts"
+        return give(self)
+
+    monkeypatch.setattr(WireBatch, "_scored_whole", counted)
+    monkeypatch.setattr(_RunWire, "_give_truth", given)
+    assert_batched_as_alone(loaded, taps)
+    ticks = len(SEEDS) * loaded.scenario.ticks
+    assert ways["whole"] + ways["parts"] == ticks  # every tick scored once, one way or the other
+    assert ways["whole"] >= whole * ticks and ways["parts"] >= len(SEEDS), ways
+    assert ways["back"] == (len(SEEDS) if window is not None else 0), ways
+
+
 _TRAFFIC_STATE = ("pending", "closed", "joined", "left", "lost", "late", "data", "missed_by", "_lost_carried")
 _TRAFFIC_STATE += ("received", "contested", "_counts", "commands", "_distrusted", "rejected", "foreign_frames")
 

@@ -314,9 +314,8 @@ class _Batch:
             [run.scoring.scorer for run in self.runs], {e.name: e.signals for e in self.estimators}, plan.state_names
         )
         self.raw_commands = np.zeros((len(plans), len(s.actuators)))  # an open loop's, as its input signals give them
-        scorers = [run.scoring.scorer for run in self.runs]
         self.wire = (
-            WireBatch(plans, scorers, self.sensor_specs, self.command_specs, self._leave)
+            WireBatch(plans, self.scores, self.sensor_specs, self.command_specs, self._leave)
             if s.bus.timing == "arbitrated"
             else None
         )
@@ -461,7 +460,7 @@ class _Batch:
         for e, (ticks, _, _) in zip(self.estimators, taken):
             wire.answer(e.name, ticks, e.signals, e.raw, alive, saturate=True)
         rows = np.flatnonzero(alive)
-        wire.truth(k, x, self.state_names, [(*a, *b) for a, b in zip(active, wire.active(t))], rows.tolist())
+        wire.truth(k, x, self.state_names, [(*a, *b) for a, b in zip(active, wire.active(t))], rows.tolist(), values)
         self._advance(k, t, rows, self.held, alive)
 
     def _estimates(

@@ -37,7 +37,7 @@ from typing import Any
 import can
 import numpy as np
 
-from cosim.analysis.metrics.scorer import Scorer
+from cosim.analysis.metrics.scorer import BusVerdicts, Scorer, TickBatch
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Codec, Decoded, MessageSpec
 from cosim.bus.inprocess import InProcessBus
@@ -45,6 +45,7 @@ from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import SenderCounts
+from cosim.log.recorder import IDS_CHECKS
 from cosim.log.topics import Signals, message_topic
 from cosim.log.writer import read_back
 from cosim.run.arbitration import Arbitration, Quiet, quiet_ticks
@@ -112,6 +113,10 @@ class _RunWire:
         self.announced: list[can.Message] = []  # the frames the runner put on the channel in its last tick
         self.sync: Decoded | None = None  # their SYNC, decoded, where the tick is clean
         self.answering: list[str] = []  # the nodes that answered the runner's last tick, in order
+        self.heard = False  # whether the answers to the last tick were heard at once (``_heard_answers``)
+        # a tick's truth not given to the scorer yet: (tick, states (K, states), the run's row, their
+        # names, its active faults); held until the next tick's frames say whether it is scored whole
+        self.held: tuple[int, np.ndarray, int, Sequence[str], tuple[str, ...]] | None = None
 
     def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
         """Tick k's frames of the runner (SYNC first) through its bus faults, and the answers to tick
@@ -123,7 +128,8 @@ class _RunWire:
             frames = applied.frames
             if applied.intruders:
                 self.traffic.injected(k, [item[0] for item in frames if id(item) in applied.intruders])
-        if not self._heard_answers(k):
+        self.heard = self._heard_answers(k)
+        if not self.heard:
             self._hear()
             self.traffic.current = k
             self.traffic.flush(self.marker, 0.0, 0)  # the answers to tick k − 1 onto the wire
@@ -146,9 +152,15 @@ class _RunWire:
         self.traffic.commands.clear()  # as ``_hear``
         return True
 
-    def send(self, k: int, frames: list[Frame], applied: Applied | None, quiet: Quiet | None) -> None:
+    def send(self, k: int, frames: list[Frame], applied: Applied | None, quiet: Quiet | None) -> dict[str, int] | None:
         """The wire's tick k (``quiet``, or ``Arbitration.tick``): what it lets through goes on the
-        run's channel, what it delivered to the detector and the scores."""
+        run's channel, what it delivered to the detector and the scores. Where tick k − 1 is scored
+        whole (``_whole``), the detector's verdict on it (each check's count; ``{}`` without a
+        detector) is returned instead, for the batch to score the tick (``TickBatch``); None where
+        its parts went to the scorer."""
+        whole = self._whole(k, quiet)
+        if not whole:
+            self._give_truth()
         self.clean = k if quiet is not None and self.untouched else -1
         step = None
         if quiet is None:
@@ -167,8 +179,40 @@ class _RunWire:
         self.sync = quiet.send[0][1] if self.clean == k else None
         send_all(self.bus, self.announced)
         self.marker = k
-        self._passages(quiet.delivered)
-        self._verdicts(k)
+        self._passages(quiet.delivered, scored=not whole)
+        if not whole:
+            self._verdicts(k)
+            return None
+        self.held = None
+        return self.detector.verdicts(k)[0][1] if self.detector is not None else {}
+
+    def _whole(self, k: int, quiet: Quiet | None) -> bool:
+        """Whether tick k − 1's scores are given whole at tick k (``TickBatch``, on the batch's
+        arrays) rather than part by part as the log would hold them: its truth is held and the
+        scorer holds nothing else, and the wire's tick k is quiet with the answers to tick k − 1 of
+        every node on it, heard at once. Then every estimator's frames of tick k − 1 arrive in the
+        tick, once each, with the values the batch computed (as they carry them), the detector's
+        verdict on tick k − 1 follows, and nothing else the scorer reads comes."""
+        scorer, held = self.scorer, self.held
+        return (
+            quiet is not None
+            and self.heard
+            and held is not None
+            and held[0] == k - 1
+            and not scorer.pending
+            and scorer.next_tick == k - 1
+            and scorer.expected_parts > 0
+            and len(self.answering) == len(self.nodes)
+            and (self.detector is None or self.detector.given == k - 1)
+        )
+
+    def _give_truth(self) -> None:
+        """The held truth to the scorer, as ``PlantSource.advance`` logs it."""
+        if self.held is not None:
+            k, x, r, states, active = self.held
+            self.held = None
+            self.scorer.state(k, dict(zip(states, x[r].tolist())))
+            self.scorer.faults(k, list(active))
 
     def intake(self, name: str, k: int) -> TickFrames | None:
         """Node ``name``'s tick k, where what its frames would do is known without taking them one by
@@ -251,15 +295,16 @@ class _RunWire:
         self.nodes[name].done(tick)
         self.answering.append(name)
 
-    def truth(self, k: int, x: dict[str, Any], active: list[str]) -> None:
-        """Tick k's truth (its state, the faults active), as ``PlantSource.advance`` logs it."""
-        self.scorer.state(k, x)
-        self.scorer.faults(k, active)
+    def truth(self, k: int, x: np.ndarray, r: int, states: Sequence[str], active: tuple[str, ...]) -> None:
+        """Tick k's truth (its states, row r of x, the faults active), held for the scores (``send``)."""
+        self._give_truth()
+        self.held = (k, x, r, states, active)
 
     def finish(self, ticks: int, senders: list[str]) -> tuple[int, dict[str, SenderCounts]]:
         """The run's end after ``ticks`` ticks (``Session.finish``): the last answers and whatever
         the wire still holds delivered, the verdicts of every tick given; its contested ticks and
         what each of ``senders`` sent, lost and found missing."""
+        self._give_truth()
         self._hear()
         self.traffic.flush(self.marker, 0.0, 0)
         self._passages([(p.delivered_ns, p.frame.payload) for p in self.arbitration.finish() if p.dropped is None])
@@ -277,12 +322,15 @@ class _RunWire:
             self.traffic(frame)
         self.traffic.commands.clear()  # the plant's commands are the batch's (the controller's, as carried)
 
-    def _logged(self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None) -> None:
+    def _logged(
+        self, tick: int, t: float, t_ns: int, frame: can.Message, decoded: Decoded | None, scored: bool = True
+    ) -> None:
         """A frame at its arrival (``Session._log_frame``): the detector sees it; an estimator's
-        frame is a part of its tick's scores, as the scorer reads it from the log."""
+        frame is a part of its tick's scores, as the scorer reads it from the log (unless its tick
+        is ``scored`` whole)."""
         if self.detector is not None:
             self.detector.frame(tick, t_ns, frame, decoded)
-        if decoded is None:
+        if decoded is None or not scored:
             return
         topic = message_topic(decoded.spec.name)
         scorer = self.scorer
@@ -290,11 +338,11 @@ class _RunWire:
             signals = Signals.read(read_back(Signals.payload(decoded)), tick)
             scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
 
-    def _passages(self, delivered: list[tuple[int, Frame]]) -> None:
+    def _passages(self, delivered: list[tuple[int, Frame]], scored: bool = True) -> None:
         """Frames through the wire, at their delivery (ns) (``Session._log_passages``)."""
         dt_ns = self.dt_ns
         for at, (message, decoded) in delivered:
-            self._logged(at // dt_ns, at / 1e9, at, message, decoded)
+            self._logged(at // dt_ns, at / 1e9, at, message, decoded, scored)
 
     def _verdicts(self, until: int) -> None:
         if self.detector is not None:
@@ -345,7 +393,7 @@ class WireBatch:
     def __init__(
         self,
         plans: Sequence[RunPlan],
-        scorers: Sequence[Scorer],
+        scores: TickBatch,
         sensor_specs: Sequence[MessageSpec],
         command_specs: Sequence[MessageSpec],
         leave: Callable[[int, int, str], None],
@@ -354,7 +402,9 @@ class WireBatch:
         self.codec, self.scenario, self.plan = plan.codec, plan.scenario, plan
         self.sensor_specs, self.command_specs, self.leave = list(sensor_specs), list(command_specs), leave
         self.closed = plan.controller is not None
-        self.runs = [_RunWire(each, scorer) for each, scorer in zip(plans, scorers)]
+        self.scores = scores
+        self.runs = [_RunWire(each, scorer) for each, scorer in zip(plans, scores.scorers)]
+        self._truth: tuple[int, np.ndarray, Sequence[tuple[str, ...]], Sequence[np.ndarray]] | None = None
 
     def active(self, t: float) -> list[tuple[str, ...]]:
         """Each run's bus faults active at t, by label (what its ``/truth/faults`` adds)."""
@@ -380,17 +430,40 @@ class WireBatch:
         plain = [item[0] if item is not None and _undelayed(item[1]) else None for item in prepared]
         senders = [item[1].intruders if item is not None and item[1] is not None else {} for item in prepared]
         quiet = quiet_ticks([run.arbitration for run in self.runs], k, plain, senders)
+        whole: list[tuple[int, dict[str, int]]] = []
         for r, item in enumerate(prepared):
             if item is None:
                 continue
             run = self.runs[r]
             try:
-                run.send(k, *item, quiet[r])
+                verdict = run.send(k, *item, quiet[r])
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
                 continue
             if run.rejected:
                 self._leave(r, k, run.rejected, alive)
+            elif verdict is not None:
+                whole.append((r, verdict))
+            else:
+                self.scores.forget(r)  # its scorer took the tick's parts
+        if whole:
+            self._scored_whole(k - 1, whole)
+
+    def _scored_whole(self, k: int, verdicts: list[tuple[int, dict[str, int]]]) -> None:
+        """Tick k of the runs scored whole (``_RunWire._whole``), from the batch's arrays: their
+        truth, their estimators' values as their frames carried them, the detector's ``verdicts``
+        on the tick (each check's count, by run), as ``Scorer.verdict`` takes them."""
+        assert self._truth is not None and self._truth[0] == k
+        _, x, active, values = self._truth
+        rows = np.array([r for r, _ in verdicts])
+        bus = None
+        if self.runs[verdicts[0][0]].detector is not None:
+            ids = np.zeros((len(self.runs), 1 + len(IDS_CHECKS)))
+            for r, checks in verdicts:
+                counts = [checks[check] for check in IDS_CHECKS]
+                ids[r] = [float(any(counts)), *(float(count > 0) for count in counts)]
+            bus = BusVerdicts(ids, [()] * len(self.runs))
+        self.scores.tick(k, rows, x, active, values, bus)
 
     def _runner_frames(
         self, k: int, measured: np.ndarray, sent: np.ndarray, commands: np.ndarray, rows: np.ndarray
@@ -495,10 +568,21 @@ class WireBatch:
             v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
         return _encoded_runs(self.codec, k, rows, [spec.name for spec in messages], v)
 
-    def truth(self, k: int, x: np.ndarray, states: Sequence[str], active: Sequence[tuple[str, ...]], rows: Any) -> None:
-        """Tick k's truth of the runs ``rows``: their states (K, states) and active faults."""
+    def truth(
+        self,
+        k: int,
+        x: np.ndarray,
+        states: Sequence[str],
+        active: Sequence[tuple[str, ...]],
+        rows: Any,
+        values: Sequence[np.ndarray],
+    ) -> None:
+        """Tick k's truth of the runs ``rows``: their states (K, states) and active faults, with
+        their estimators' values (each (K, signals), as their frames carry them), for the scores."""
+        x = x.copy()
+        self._truth = (k, x, active, values)
         for r in rows:
-            self.runs[r].truth(k, dict(zip(states, x[r].tolist())), list(active[r]))
+            self.runs[r].truth(k, x, r, states, active[r])
 
     def finish(self, r: int, ticks: int) -> tuple[int, dict[str, SenderCounts]]:
         """Run r's end after ``ticks`` ticks: its contested ticks and what each node sent and missed."""

@@ -86,7 +86,7 @@ class IntrusionDetector:
         self.codec, self.dt_ns, self.traffic_ids = codec, dt_ns, traffic_ids
         self._last: dict[int, tuple[int, int]] = {}  # id -> (arrival ns, tick counter) of its last frame
         self._alarms: defaultdict[int, defaultdict[str, set[int]]] = defaultdict(lambda: defaultdict(set))
-        self._published = 0  # ticks before this one have their verdict in the log
+        self.given = 0  # the ticks before this one have their verdicts given (in the log)
         self.alarms = 0
 
     def _raise(self, tick: int, check: str, frame_id: int) -> None:
@@ -123,11 +123,11 @@ class IntrusionDetector:
         ``IDS_CHECKS`` raised on, counted; those ids): what ``publish`` writes (a batch's run, which
         logs nothing, scores them: ``cosim.campaign.batch_wire``)."""
         found = []
-        for tick in range(self._published, until):
+        for tick in range(self.given, until):
             alarms: dict[str, set[int]] = self._alarms.pop(tick, {})
             checks = {check: len(alarms.get(check, ())) for check in IDS_CHECKS}
             found.append((tick, checks, sorted({i for ids in alarms.values() for i in ids})))
-        self._published = max(self._published, until)
+        self.given = max(self.given, until)
         return found
 
 

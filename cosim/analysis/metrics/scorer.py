@@ -364,7 +364,7 @@ class TickBatch:
                     list(names),
                 )
             )
-        self._active: list[tuple[str, ...]] = [() for _ in self.scorers]
+        self._active: list[tuple[str, ...] | None] = [() for _ in self.scorers]  # the last each scorer had
 
     def tick(
         self,
@@ -409,6 +409,11 @@ class TickBatch:
                     scorer.diagnosis[name].add(k, outputs, scorer.active, scorer.segment)
         if bus is not None:
             self._bus(k, rows, bus)
+
+    def forget(self, r: int) -> None:
+        """Run r's scorer was fed otherwise (its tick's parts, ``Scorer.state`` ...): its active faults
+        are compared afresh at its next tick here."""
+        self._active[r] = None
 
     def _bus(self, k: int, rows: np.ndarray, bus: BusVerdicts) -> None:
         """The intrusion detector's and SecOC's scores of tick k, as ``Scorer._score`` scores them."""
