@@ -477,12 +477,18 @@ class WireBatch:
             values = np.concatenate([values, commands[rows]], axis=1)
             on = np.concatenate([on, np.ones((len(rows), len(self.command_specs)), dtype=bool)], axis=1)
         out: dict[int, list[Frame]] = {}
+        # Their SYNC is one per count, shared: the wire announces a SYNC of its own, which is the one
+        # signed and sent (``quiet_ticks``, ``Arbitration.tick``, the bus faults' ``apply``)
+        syncs: dict[int, Frame] = {}
         for r, data in _encoded_runs(codec, k, rows, [spec.name for spec in specs], values, on).items():
-            try:
-                sync = codec.sync(k, len(data))
-            except CodecError:  # more frames than a SYNC announces: ``runner_frames`` says so, for that run
-                continue
-            out[r] = [(sync, codec.decode(sync)), *data]
+            sync = syncs.get(len(data))
+            if sync is None:
+                try:
+                    message = codec.sync(k, len(data))
+                except CodecError:  # more frames than a SYNC announces: ``runner_frames`` says so, for that run
+                    continue
+                sync = syncs[len(data)] = (message, codec.decode(message))
+            out[r] = [sync, *data]
         return out
 
     def inputs(
