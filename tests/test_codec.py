@@ -102,6 +102,21 @@ def test_sync_frame_is_canopen_style():
     assert decoded.tick == 70000 and decoded.values == {"frames": 4}  # the MAC is no value
 
 
+@pytest.mark.parametrize("fd", [False, True])
+def test_syncs_for_several_runs_are_each_the_sync_in_a_buffer_of_its_own(fd):
+    """``Codec.syncs`` (a batch's runs' SYNC of one tick): each frame is ``sync``'s, field for field,
+    and each its own data buffer, which a run's signing writes into."""
+    c = codec(fd)
+    frames = c.syncs(70000, 4, 3)
+    theirs = c.sync(70000, 4)
+    fields = ("arbitration_id", "is_extended_id", "is_fd", "bitrate_switch", "dlc", "is_remote_frame", "channel")
+    for frame in frames:
+        assert [getattr(frame, f) for f in fields] == [getattr(theirs, f) for f in fields]
+        assert frame.data == theirs.data and frame.equals(theirs, timestamp_delta=None)
+    frames[0].data[-1] ^= 0xFF
+    assert frames[1].data == frames[2].data == theirs.data != frames[0].data
+
+
 def test_a_heartbeat_carries_its_tick_mod_65536_and_the_receiver_unwraps_it():
     c = codec(True)
     decoded = c.decode(c.heartbeat("kalman", 5, 70000, frames=3, lost=300))

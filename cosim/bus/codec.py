@@ -256,6 +256,19 @@ class Codec:
             raise CodecError(f"tick {tick} has {frames} data frames; a SYNC can announce at most 255")
         return self._classic("SYNC", {"tick": tick % 2**32, "frames": frames})
 
+    def syncs(self, tick: int, frames: int, count: int) -> list[can.Message]:
+        """``count`` frames SYNC(tick) announcing ``frames``, each a message of its own (each is
+        signed in place, under its run's key), encoded once."""
+        first = self.sync(tick, frames)
+        data = bytes(first.data)
+        return [
+            first,
+            *(
+                can.Message(arbitration_id=first.arbitration_id, data=data, is_extended_id=False)
+                for _ in range(count - 1)
+            ),
+        ]
+
     def nmt(self, command: int, node: int = 0) -> can.Message:
         return self._classic("NMT", {"command": command, "node": node})
 

@@ -343,7 +343,7 @@ def _quiet_rows(
     codec, wire, t_ns = first.codec, first.wire, k * first.dt_ns
     answers = len(first._answers)
     try:
-        syncs = [codec.sync(k, sum(counted)) for _ in frames_of]
+        syncs = codec.syncs(k, sum(counted), len(frames_of))
     except CodecError:  # more frames than a SYNC can announce: each run's ``tick`` says so
         return [None] * len(arbitrations)
     sync_decoded = codec.decode(syncs[0])  # the same bytes in every run (each its own frame: it is signed)
