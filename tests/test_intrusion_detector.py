@@ -135,3 +135,27 @@ def test_without_the_detector_the_log_has_no_verdicts(tmp_path):
     assert run(loaded, out, 0, interface="virtual").status == "completed"
     metrics = compute_metrics(out)
     assert IDS not in metrics["channels"] and "intrusion_detection" not in metrics["bus"]
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_the_next_counter_raises_neither_sequence_check_whenever_it_comes(fd):
+    """``frame_checks`` skips ``sequence_alarms`` for a frame whose counter follows its id's last:
+    the rule itself raises neither the period nor the sequence check for it, however soon it comes,
+    across the counter's wrap too; any other step is left to the rule."""
+    import random
+
+    from cosim.run.detector import frame_checks, sequence_alarms
+
+    codec = scenario.load("masses-pid-can" if not fd else "masses-faults-fd").scenario.codec()
+    modulus, dt_ns = codec.tick_modulus, 10_000_000
+    rng = random.Random(fd)
+    for _ in range(3000):
+        previous = rng.choice([0, modulus - 1, rng.randrange(modulus)])
+        elapsed = rng.choice([0, 1, dt_ns // 2 - 1, dt_ns // 2, rng.randrange(3 * dt_ns)])
+        assert sequence_alarms(elapsed, (previous + 1) % modulus, previous, dt_ns, codec) == (False, False)
+        counter = rng.choice([previous, (previous + 1) % modulus, (previous - 1) % modulus, rng.randrange(modulus)])
+        period, sequence = sequence_alarms(elapsed, counter, previous, dt_ns, codec)
+        decoded = codec.decode(codec.encode(codec.sensor("x1").name, counter, [0.0]))
+        raised, in_sequence = frame_checks((1_000, previous), 1_000 + elapsed, counter, decoded, dt_ns, codec)
+        assert raised == [check for check, on in (("period", period), ("sequence", sequence)) if on]
+        assert in_sequence is not bool(sequence)

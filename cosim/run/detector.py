@@ -52,10 +52,10 @@ def sequence_alarms(elapsed_ns: Any, counter: Any, previous: Any, dt_ns: int, co
 
 def out_of_range(spec: MessageSpec, values: Mapping[str, float]) -> bool:
     """The ``range`` check: a value of the frame outside its signal's range in the DBC (or not finite)."""
-    return any(
-        not channel.minimum <= values.get(signal, math.nan) <= channel.maximum
-        for channel, signal in zip(spec.channels, spec.signals)
-    )
+    for channel, signal in zip(spec.channels, spec.signals):  # a loop: a frame has a signal or two
+        if not channel.minimum <= values.get(signal, math.nan) <= channel.maximum:
+            return True
+    return False
 
 
 def frame_checks(
@@ -66,7 +66,8 @@ def frame_checks(
     is in sequence (then the id's last)."""
     raised = []
     in_sequence = True
-    if previous is not None:
+    # the next counter raises neither check (``sequence_alarms``): the check of nearly every frame
+    if previous is not None and (counter - previous[1]) % codec.tick_modulus != 1:
         period, sequence = sequence_alarms(t_ns - previous[0], counter, previous[1], dt_ns, codec)
         if period:
             raised.append("period")
