@@ -117,6 +117,23 @@ def test_syncs_for_several_runs_are_each_the_sync_in_a_buffer_of_its_own(fd):
     assert frames[1].data == frames[2].data == theirs.data != frames[0].data
 
 
+@pytest.mark.parametrize("fd", [False, True])
+def test_a_heartbeat_encoded_again_is_a_frame_of_its_own_equal_to_the_first(fd):
+    """``Codec.heartbeat`` encodes a node's heartbeat of given values once (the runs of a batch
+    send it alike): each call gives a frame equal to the first, field for field, in a buffer of
+    its own (signed in place under each run's key); other values give their own payload."""
+    c = codec(fd)
+    first = c.heartbeat("kalman", 5, 70000, frames=3, lost=300)
+    again = c.heartbeat("kalman", 5, 70000, frames=3, lost=300)
+    fields = ("arbitration_id", "is_extended_id", "is_fd", "bitrate_switch", "dlc", "is_remote_frame", "channel")
+    assert [getattr(again, f) for f in fields] == [getattr(first, f) for f in fields] and again.data == first.data
+    assert again.data is not first.data
+    again.data[-1] ^= 0xFF
+    assert c.heartbeat("kalman", 5, 70000, frames=3, lost=300).data == first.data != again.data
+    assert c.decode(c.heartbeat("kalman", 5, 70000, frames=3, lost=301)).values["lost"] == 301 % 256
+    assert c.decode(c.heartbeat("kalman", 5, 70001, frames=3, lost=300)).tick == 70001 % 65536
+
+
 def test_a_heartbeat_carries_its_tick_mod_65536_and_the_receiver_unwraps_it():
     c = codec(True)
     decoded = c.decode(c.heartbeat("kalman", 5, 70000, frames=3, lost=300))

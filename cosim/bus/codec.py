@@ -12,6 +12,7 @@ import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import can
 import numpy as np
@@ -188,6 +189,7 @@ class Codec:
         # tick counter first, then the spec's signals, in the order encode takes their values.
         # A control frame's MAC comes last and is no value of its spec (``cosim.bus.control_frames`` fills it).
         self._packers: dict[str, Packer] = {}
+        self._heartbeats: dict[tuple[Any, ...], bytes] = {}  # the payloads of the last heartbeats encoded
         self._groups: dict[tuple[str, ...], _RowsGroup | None] = {}  # ``encode_rows``' arrays, by messages
         #: Control ids with a MAC: the spec, and where its tick and MAC are.
         self.control_macs: dict[int, tuple[MessageSpec, ControlFields]] = {}
@@ -275,10 +277,18 @@ class Codec:
     def heartbeat(self, node: str, state: int, tick: int = 0, frames: int = 0, lost: int = 0) -> can.Message:
         """A node's heartbeat closing ``tick`` (carried mod 2¹⁶), with its ``frames`` of that tick
         and the frames it found missing so far (carried mod 2⁸)."""
-        return self._classic(
-            heartbeat_message(node),
-            {"state": state, "tick": tick % 2**HEARTBEAT_TICK_BITS, "frames": min(frames, 255), "lost": lost % 256},
-        )
+        values = {"state": state, "tick": tick % 2**HEARTBEAT_TICK_BITS, "frames": min(frames, 255), "lost": lost % 256}
+        # the K runs of a batch send one node's heartbeat of a tick with the same values: encoded once
+        key = (node, *values.values())
+        data = self._heartbeats.get(key)
+        if data is not None:
+            spec = self.specs[heartbeat_message(node)]
+            return can.Message(arbitration_id=spec.frame_id, data=data, is_extended_id=False)
+        frame = self._classic(heartbeat_message(node), values)
+        if len(self._heartbeats) >= 64:
+            self._heartbeats.clear()
+        self._heartbeats[key] = bytes(frame.data)
+        return frame
 
     def encode(self, name: str, tick: int, values: Sequence[float]) -> can.Message:
         """The frame of message ``name`` for tick k carrying ``values`` (one per signal, in order)."""
