@@ -181,6 +181,7 @@ def assert_batched_as_alone(loaded, taps, seeds=SEEDS):
         taps.detectors.clear()
         single = api.run(loaded, None, seed=seed, in_process=True, measure=True).metrics
         assert rows_of(run.metrics) == rows_of(single), seed  # exact: every float, every count
+        assert run.metrics.warnings == single.warnings, seed  # e.g. estimates that came after their tick
         assert (run.metrics.contested_ticks, run.metrics.frames.lost) == (single.contested_ticks, single.frames.lost)
         assert (run.metrics.bus.intrusion_detection if run.metrics.bus else None) == (
             single.bus.intrusion_detection if single.bus else None
@@ -327,6 +328,21 @@ def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_
     assert ways["whole"] + ways["parts"] == ticks  # every tick scored once, one way or the other
     assert ways["whole"] >= whole * ticks and ways["parts"] >= len(SEEDS), ways
     assert ways["back"] == (len(SEEDS) if window is not None else 0), ways
+
+
+@pytest.mark.parametrize("detector", [False, True])
+def test_a_fuzzers_frame_of_an_estimators_message_in_a_quiet_tick_is_scored_as_alone(detector, taps):
+    """A fuzzer on an estimator's id once a tick, at its start (the wire stays quiet), with the
+    payload of that estimator's frame of tick 50: alone, the scorer reads each as the estimator's
+    estimate (of a tick already scored: counted late); batched, a tick with it is not scored whole
+    (found by a review: it was, and the fuzzer's frames were missing from the scores)."""
+    codec = api.load("masses-pid-can").scenario.codec()
+    payload = bytes(codec.encode("EST_kalman_0", 50, [5.0, -5.0]).data).hex()
+    frame_id = codec.specs["EST_kalman_0"].frame_id
+    fuzz = {"name": "fuzz", "kind": "fuzzing", "low": frame_id, "high": frame_id, "length": 8, "payload": payload}
+    loaded = apply(closed_loop([{**fuzz, "period": 0.01, **WINDOW}]), [("bus.intrusion_detector", detector)])
+    runs = assert_batched_as_alone(loaded, taps)
+    assert all("arrived after their tick was scored" in " ".join(run.metrics.warnings) for run in runs)
 
 
 _TRAFFIC_STATE = ("pending", "closed", "joined", "left", "lost", "late", "data", "missed_by", "_lost_carried")

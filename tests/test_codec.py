@@ -115,6 +115,7 @@ def test_syncs_for_several_runs_are_each_the_sync_in_a_buffer_of_its_own(fd):
         assert frame.data == theirs.data and frame.equals(theirs, timestamp_delta=None)
     frames[0].data[-1] ^= 0xFF
     assert frames[1].data == frames[2].data == theirs.data != frames[0].data
+    assert c.syncs(70000, 4, 1)[0].data == theirs.data and c.syncs(70000, 4, 0) == []
 
 
 @pytest.mark.parametrize("fd", [False, True])

@@ -242,3 +242,16 @@ def test_frames_encoded_on_arrays_equal_cantools_on_the_public_dbcs_of_its_tests
                 theirs = bytes(message.encode(dict(zip(packer.names, row)), strict=False))
                 assert bytes(payload) == theirs == packer.encode(row), (path.name, message.name, row)
     assert packed >= 20
+
+
+def test_a_message_without_signals_is_packed_on_arrays_as_zeros_and_joins_no_group():
+    """``Packer.encode_rows`` of a message without signals gives its payloads, all zeros (what
+    ``encode`` gives); ``RowsPacker``, which OR-s each message's fields from its first, takes none."""
+    from cantools.database.can import Message
+
+    from cosim.bus.packing import rows_packer
+
+    packer = Packer(Message(frame_id=0x123, name="EMPTY", length=2, signals=[]))
+    payloads, carried = packer.encode_rows(np.zeros((3, 0)))
+    assert payloads.tolist() == [list(packer.encode([]))] * 3 == [[0, 0]] * 3 and carried.shape == (3, 0)
+    assert not packer.packs_rows and rows_packer([packer]) is None

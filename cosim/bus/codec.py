@@ -263,13 +263,10 @@ class Codec:
         signed in place, under its run's key), encoded once."""
         first = self.sync(tick, frames)
         data = bytes(first.data)
-        return [
-            first,
-            *(
-                can.Message(arbitration_id=first.arbitration_id, data=data, is_extended_id=False)
-                for _ in range(count - 1)
-            ),
+        copies = [
+            can.Message(arbitration_id=first.arbitration_id, data=data, is_extended_id=False) for _ in range(1, count)
         ]
+        return [first, *copies] if count else []
 
     def nmt(self, command: int, node: int = 0) -> can.Message:
         return self._classic("NMT", {"command": command, "node": node})

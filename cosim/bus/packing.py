@@ -88,7 +88,9 @@ class Packer:
         """``encode_carried`` of K payloads at once: ``values`` (K, fields) in ``names`` order, each in
         its signal's range; the payloads (K, length) uint8 and the values as the frames carry them
         (K, fields), row by row the bytes and floats ``encode_carried`` gives. None for a message
-        it does not pack on arrays (``RowsPacker``)."""
+        it does not pack on arrays (``RowsPacker``); a message without signals has payloads of zeros."""
+        if not self.fields:
+            return np.zeros((len(values), self.length), dtype=np.uint8), np.empty((len(values), 0))
         if self._rows is None:  # built at first use
             self._rows = rows_packer((self,)) or False
         if not isinstance(self._rows, RowsPacker):
@@ -99,11 +101,16 @@ class Packer:
 
     @property
     def packs_rows(self) -> bool:
-        """Whether ``encode_rows`` packs this message: at most 8 bytes, integer signals of at most
-        53 bits (a raw value of more is not exact in a float), linear or identity conversions."""
-        return self.length <= 8 and all(
-            not f.is_float and f.length <= 53 and isinstance(f.conversion, (LinearConversion, IdentityConversion))
-            for f in self.fields
+        """Whether ``RowsPacker`` packs this message: at most 8 bytes, one signal or more (each
+        message's fields are OR-ed from its first), integer signals of at most 53 bits (a raw value
+        of more is not exact in a float), linear or identity conversions."""
+        return (
+            self.length <= 8
+            and bool(self.fields)
+            and all(
+                not f.is_float and f.length <= 53 and isinstance(f.conversion, (LinearConversion, IdentityConversion))
+                for f in self.fields
+            )
         )
 
     def raw(self, field: Field, value: float) -> int | float:

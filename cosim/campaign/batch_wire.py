@@ -117,6 +117,8 @@ class _RunWire:
         # a tick's truth not given to the scorer yet: (tick, states (K, states), the run's row, their
         # names, its active faults); held until the next tick's frames say whether it is scored whole
         self.held: tuple[int, np.ndarray, int, Sequence[str], tuple[str, ...]] | None = None
+        #: The messages whose frames the scorer reads (the estimators')
+        self.estimated = {name for name in self.codec.specs if message_topic(name) in scorer.owner}
 
     def prepare(self, k: int, frames: list[Frame]) -> tuple[list[Frame], Applied | None]:
         """Tick k's frames of the runner (SYNC first) through its bus faults, and the answers to tick
@@ -158,7 +160,7 @@ class _RunWire:
         whole (``_whole``), the detector's verdict on it (each check's count; ``{}`` without a
         detector) is returned instead, for the batch to score the tick (``TickBatch``); None where
         its parts went to the scorer."""
-        whole = self._whole(k, quiet)
+        whole = self._whole(k, frames, quiet)
         if not whole:
             self._give_truth()
         self.clean = k if quiet is not None and self.untouched else -1
@@ -186,16 +188,18 @@ class _RunWire:
         self.held = None
         return self.detector.verdicts(k)[0][1] if self.detector is not None else {}
 
-    def _whole(self, k: int, quiet: Quiet | None) -> bool:
+    def _whole(self, k: int, frames: list[Frame], quiet: Quiet | None) -> bool:
         """Whether tick k − 1's scores are given whole at tick k (``TickBatch``, on the batch's
         arrays) rather than part by part as the log would hold them: its truth is held and the
-        scorer holds nothing else, and the wire's tick k is quiet with the answers to tick k − 1 of
-        every node on it, heard at once. Then every estimator's frames of tick k − 1 arrive in the
-        tick, once each, with the values the batch computed (as they carry them), the detector's
-        verdict on tick k − 1 follows, and nothing else the scorer reads comes."""
+        scorer holds nothing else, the wire's tick k is quiet with the answers to tick k − 1 of
+        every node on it, heard at once, and none of the tick's other ``frames`` (the runner's, an
+        intruder's) is of an estimator's message. Then every estimator's frames of tick k − 1 arrive
+        in the tick, once each, with the values the batch computed (as they carry them), the
+        detector's verdict on tick k − 1 follows, and nothing else the scorer reads comes."""
         scorer, held = self.scorer, self.held
         return (
             quiet is not None
+            and not any(decoded is not None and decoded.spec.name in self.estimated for _, decoded in frames[1:])
             and self.heard
             and held is not None
             and held[0] == k - 1
