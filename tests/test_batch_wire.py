@@ -225,20 +225,20 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
     loaded, taps, monkeypatch
 ):
     """Where a tick's frames went on the channel as the runner built them and a node is between
-    ticks, the batch hands it the tick's values on arrays (``_RunWire.intake``); elsewhere (the
+    ticks, the batch hands it the tick's values on arrays (``RunWire.intake``); elsewhere (the
     attack's or the fault's window, the first tick) it takes its frames one by one: both ways,
     what each node takes in every tick is what it takes alone. Its answers and the runner's frames
     are encoded on arrays (``Codec.encode_rows``)."""
-    from cosim.campaign.batch_wire import _RunWire
+    from cosim.campaign.run_wire import RunWire
 
-    intake, ways = _RunWire.intake, defaultdict(lambda: [0, 0])
+    intake, ways = RunWire.intake, defaultdict(lambda: [0, 0])
 
     def counted(self, name, k):
         tick = intake(self, name, k)
         ways[name][tick is None] += 1
         return tick
 
-    encoded, published = _RunWire.publish_encoded, Counter()
+    encoded, published = RunWire.publish_encoded, Counter()
 
     def publishing(self, name, tick, frames):
         published[name] += 1
@@ -253,8 +253,8 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         built[0] += len(found)
         return found
 
-    monkeypatch.setattr(_RunWire, "intake", counted)
-    monkeypatch.setattr(_RunWire, "publish_encoded", publishing)
+    monkeypatch.setattr(RunWire, "intake", counted)
+    monkeypatch.setattr(RunWire, "publish_encoded", publishing)
     monkeypatch.setattr(WireBatch, "_runner_frames", building)
     assert_batched_as_alone(loaded, taps)
     assert built[0] == len(SEEDS) * loaded.scenario.ticks  # the runner's frames, on arrays
@@ -300,7 +300,8 @@ def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_
     whole; with a ``window`` of 20 ticks the starved ticks are scored 20 ticks on and the runs go
     back to ticks scored whole, through faults that changed meanwhile."""
     from cosim.analysis.metrics import scorer
-    from cosim.campaign.batch_wire import WireBatch, _RunWire
+    from cosim.campaign.batch_wire import WireBatch
+    from cosim.campaign.run_wire import RunWire
 
     if window is not None:
         monkeypatch.setattr(scorer, "WINDOW", window)  # alone as batched
@@ -313,7 +314,7 @@ def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_
         last.update((r, "whole") for r, _ in verdicts)
         return scored(self, k, verdicts)
 
-    give = _RunWire._give_truth
+    give = RunWire._give_truth
 
     def given(self):
         if self.held is not None:
@@ -322,7 +323,7 @@ def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_
         return give(self)
 
     monkeypatch.setattr(WireBatch, "_scored_whole", counted)
-    monkeypatch.setattr(_RunWire, "_give_truth", given)
+    monkeypatch.setattr(RunWire, "_give_truth", given)
     assert_batched_as_alone(loaded, taps)
     ticks = len(SEEDS) * loaded.scenario.ticks
     assert ways["whole"] + ways["parts"] == ticks  # every tick scored once, one way or the other
@@ -385,9 +386,9 @@ def test_the_nodes_answers_heard_at_once_leave_the_runners_traffic_as_heard_one_
             assert [(i[:3], i[3], i[4]) for i in ours] == [(i[:3], i[3], i[4]) for i in theirs]
         return taken
 
-    from cosim.campaign.batch_wire import _RunWire
+    from cosim.campaign.run_wire import RunWire
 
-    heard, at_once = _RunWire._heard_answers, [0, 0]
+    heard, at_once = RunWire._heard_answers, [0, 0]
 
     def counted(self, k):
         found = heard(self, k)
@@ -395,7 +396,7 @@ def test_the_nodes_answers_heard_at_once_leave_the_runners_traffic_as_heard_one_
         return found
 
     monkeypatch.setattr(Traffic, "answered", checked)
-    monkeypatch.setattr(_RunWire, "_heard_answers", counted)
+    monkeypatch.setattr(RunWire, "_heard_answers", counted)
     runs = run_batch(loaded, SEEDS)
     assert [run.left for run in runs] == [""] * len(SEEDS)
     assert ways[True] > 150 and at_once[True] == ways[True] and at_once[False] >= len(SEEDS), (ways, at_once)
