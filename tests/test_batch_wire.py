@@ -346,6 +346,27 @@ def test_a_fuzzers_frame_of_an_estimators_message_in_a_quiet_tick_is_scored_as_a
     assert all("arrived after their tick was scored" in " ".join(run.metrics.warnings) for run in runs)
 
 
+def test_the_control_frames_a_runs_nodes_verify_alike_are_verified_once_a_tick_as_each_would(taps, monkeypatch):
+    """A run's nodes taking their ticks whole verify the tick's SYNC and their upstream nodes'
+    heartbeats under the same keys: the batch verifies each once a tick (``RunWire._verifies``), and
+    every answer it gives a node is the one the node's own ``ControlAuth.verify`` gives."""
+    from cosim.campaign.run_wire import RunWire
+
+    verifies, asked = RunWire._verifies, Counter()
+
+    def checked(self, control, frame, near):
+        shared = (id(frame), near, id(control.key_of(frame))) in self.verified
+        found = verifies(self, control, frame, near)
+        assert found == (control.verify(frame, near) is None)
+        asked["shared" if shared else "verified"] += 1
+        return found
+
+    monkeypatch.setattr(RunWire, "_verifies", checked)
+    loaded = closed_loop(TAXONOMY["injection"])
+    assert_batched_as_alone(loaded, taps)
+    assert asked["shared"] > asked["verified"] > 0, asked  # three nodes share SYNC, two the controller's heartbeat
+
+
 _TRAFFIC_STATE = ("pending", "closed", "joined", "left", "lost", "late", "data", "missed_by", "_lost_carried")
 _TRAFFIC_STATE += ("received", "contested", "_counts", "commands", "_distrusted", "rejected", "foreign_frames")
 

@@ -126,6 +126,12 @@ class ControlAuth:
         tick = self._tick(fields, data, near) % 2**32
         return self._cmacs[sender](frame_id.to_bytes(2, "big") + bytes(data[:at]) + tick.to_bytes(4, "big"))[:size]
 
+    def key_of(self, frame: can.Message) -> ShortCmac | None:
+        """The key this participant signs or verifies ``frame`` under (None: no control frame, or
+        its sender's key is not held)."""
+        found = None if frame.is_extended_id else self._macs.get(frame.arbitration_id)
+        return None if found is None else self._cmacs.get(found[0].sender)
+
     def sign(self, frame: can.Message, near: int) -> None:
         """Write the MAC of a control frame sent at tick ``near`` (in place); other frames are left
         as they are, and so are frames of senders whose key this participant does not hold."""

@@ -16,6 +16,7 @@ import numpy as np
 from cosim.analysis.metrics.scorer import Scorer
 from cosim.bus.client import Client, TickFrames
 from cosim.bus.codec import CONTROLLER, HEARTBEAT, NMT, SYNC, Decoded
+from cosim.bus.control_frames import ControlAuth
 from cosim.bus.inprocess import InProcessBus
 from cosim.bus.secoc import Rejection
 from cosim.bus.transport import allocate, drain, open_bus, send_all
@@ -52,6 +53,8 @@ class RunWire:
         # the frames on the run's channel since its last tick began (the runner's, its nodes'),
         # decoded once for all who take them, by id(): a frame held here keeps its id its own
         self.decoded: dict[int, Frame] = {}
+        # what the run's nodes' control frames verified to in this tick (``_verifies``)
+        self.verified: dict[tuple[int, int, int], bool] = {}
         config = allocate("virtual")  # a channel of its own
         self.bus = open_bus(config)
         self.traffic = Traffic(
@@ -142,6 +145,7 @@ class RunWire:
         # just now, is decoded as it is sent): decoded once for all the run's nodes. Everything
         # heard of the last tick is taken (``prepare``)
         self.decoded.clear()
+        self.verified.clear()
         self.decoded.update((id(f[0]), f) for f in quiet.send if f[1] is None or f[1].spec.role not in _SIGNED)
         self.announced = [frame for frame, _ in quiet.send]
         self.answering = []
@@ -223,13 +227,24 @@ class RunWire:
             return None
         control = client.control
         if control is not None and (
-            control.verify(self.announced[0], k - 1) is not None
-            or any(not frames or control.verify(frames[-1], k) is not None for frames in upstream)
+            not self._verifies(control, self.announced[0], k - 1)
+            or any(not frames or not self._verifies(control, frames[-1], k) for frames in upstream)
         ):
             return None
         bus.discard()
         assembler.took_whole(k)
         return TickFrames(k, len(self.announced) - 1)
+
+    def _verifies(self, control: ControlAuth, frame: can.Message, near: int) -> bool:
+        """Whether a node's ``control`` verifies ``frame`` at its tick ``near``: a function of the
+        frame, the tick and the sender's key alone, so that the run's nodes holding that key (each
+        the same, from the run's secret) share the answer, found once a tick (``verified``, by the
+        frame, which the run holds until the next tick, and the key's ``ShortCmac``)."""
+        key = (id(frame), near, id(control.key_of(frame)))
+        found = self.verified.get(key)
+        if found is None:
+            found = self.verified[key] = control.verify(frame, near) is None
+        return found
 
     def take(self, name: str) -> list[TickFrames]:
         """The ticks node ``name`` completes with what its channel brought (as ``_Node.service``)."""
