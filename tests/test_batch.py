@@ -425,3 +425,23 @@ def test_campaigns_on_one_engine_follow_each_other_without_a_gap_each_with_its_o
     for campaign, result, name in ((first, results[0], "a1"), (second, results[1], "b1")):
         alone = run_campaign(campaign, tmp_path / name, engine="inline", keep_logs="none")
         assert result.batched == 10 and metrics(result.path).equals(metrics(alone.path))
+
+
+def test_a_result_record_leaves_out_the_counts_it_does_not_know():
+    """A batched run builds no frames, so its result record does not know their count: written
+    without it, read back as None with no warning (it wrote "None", read as "not an integer", a
+    warning the run alone had not); known counts are written as before."""
+    from cosim.log.metadata import ResultRecord
+
+    unknown = ResultRecord("completed", 10, None, 3, None)
+    written = unknown.to_metadata()
+    assert "frames_total" not in written and "deadline_misses" not in written and written["frames_lost"] == "3"
+    warnings: list[str] = []
+    assert ResultRecord.from_metadata(written, warnings) == unknown and warnings == []
+    known = ResultRecord("completed", 10, 42, 3, 0)
+    assert {k: known.to_metadata()[k] for k in ("ticks", "frames_total", "frames_lost", "deadline_misses")} == {
+        "ticks": "10",
+        "frames_total": "42",
+        "frames_lost": "3",
+        "deadline_misses": "0",
+    }
