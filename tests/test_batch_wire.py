@@ -355,7 +355,7 @@ def test_the_control_frames_a_runs_nodes_verify_alike_are_verified_once_a_tick_a
     verifies, asked = RunWire._verifies, Counter()
 
     def checked(self, control, frame, near):
-        shared = (id(frame), near, id(control.key_of(frame))) in self.verified
+        shared = (id(frame), near, id(control.key_of(frame))) in self.verified  # held: the very frame
         found = verifies(self, control, frame, near)
         assert found == (control.verify(frame, near) is None)
         asked["shared" if shared else "verified"] += 1

@@ -54,7 +54,7 @@ class RunWire:
         # decoded once for all who take them, by id(): a frame held here keeps its id its own
         self.decoded: dict[int, Frame] = {}
         # what the run's nodes' control frames verified to in this tick (``_verifies``)
-        self.verified: dict[tuple[int, int, int], bool] = {}
+        self.verified: dict[tuple[int, int, int], tuple[can.Message, bool]] = {}
         config = allocate("virtual")  # a channel of its own
         self.bus = open_bus(config)
         self.traffic = Traffic(
@@ -237,14 +237,16 @@ class RunWire:
 
     def _verifies(self, control: ControlAuth, frame: can.Message, near: int) -> bool:
         """Whether a node's ``control`` verifies ``frame`` at its tick ``near``: a function of the
-        frame, the tick and the sender's key alone, so that the run's nodes holding that key (each
-        the same, from the run's secret) share the answer, found once a tick (``verified``, by the
-        frame, which the run holds until the next tick, and the key's ``ShortCmac``)."""
+        frame, the tick and the sender's key alone (with the run's one codec, whose control ids
+        every node's ``ControlAuth`` reads), so that the run's nodes holding that key (each the
+        same, from the run's secret) share the answer, found once a tick: ``verified``, by the
+        frame, the tick and the key's ``ShortCmac``. The memo holds the frame itself, so that no
+        other frame can take its ``id`` before the next tick clears it."""
         key = (id(frame), near, id(control.key_of(frame)))
         found = self.verified.get(key)
-        if found is None:
-            found = self.verified[key] = control.verify(frame, near) is None
-        return found
+        if found is None or found[0] is not frame:
+            found = self.verified[key] = (frame, control.verify(frame, near) is None)
+        return found[1]
 
     def take(self, name: str) -> list[TickFrames]:
         """The ticks node ``name`` completes with what its channel brought (as ``_Node.service``)."""
