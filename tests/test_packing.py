@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cosim import scenario
-from cosim.bus.packing import Packer
+from cosim.bus.packing import Packer, rows_packer
 
 
 def _values(message, rng: random.Random, extreme: bool) -> list[float]:
@@ -190,20 +190,22 @@ def test_several_messages_encoded_on_arrays_at_once_are_each_rows_frames_or_none
 def test_frames_encoded_on_arrays_equal_cantools_on_the_public_dbcs_of_its_tests():
     """``Packer.encode_rows`` on cantools' own test databases (tests/data/dbc/cantools): every message
     it packs on arrays, at its signals' bounds and between, gives the payload cantools encodes (and
-    the compiled packer's); a signal over 53 bits, a float or a conversion of another kind is not
-    packed on arrays (None), never packed wrong."""
+    the compiled packer's), and all of a file's messages in one ``RowsPacker`` give each its own; a
+    signal over 53 bits, a float or a conversion of another kind is not packed on arrays (None),
+    never packed wrong."""
     from pathlib import Path
 
     import cantools
 
     from cosim.errors import CodecError
 
-    packed = 0
+    packed, grouped = 0, 0
     for path in sorted((Path(__file__).parent / "data" / "dbc" / "cantools").glob("*.dbc")):
         try:
             database = cantools.database.load_file(path, strict=False)
         except cantools.database.UnsupportedDatabaseFormatError:
             continue
+        together = []
         for message in database.messages:
             try:
                 packer = Packer(message)
@@ -241,15 +243,22 @@ def test_frames_encoded_on_arrays_equal_cantools_on_the_public_dbcs_of_its_tests
             for payload, row in zip(found[0], rows):
                 theirs = bytes(message.encode(dict(zip(packer.names, row)), strict=False))
                 assert bytes(payload) == theirs == packer.encode(row), (path.name, message.name, row)
-    assert packed >= 20
+            together.append((packer, np.array(rows, dtype=float), found[0]))
+        if len(together) >= 2:  # every message the file packs, in one RowsPacker: each its own bytes
+            words, _ = rows_packer([packer for packer, _, _ in together]).encode_rows(
+                np.concatenate([rows for _, rows, _ in together], axis=1)
+            )
+            payloads = words.astype("<u8").view(np.uint8).reshape(len(words), -1, 8)
+            for j, (packer, _, alone) in enumerate(together):
+                assert (payloads[:, j, : packer.length] == alone).all(), (path.name, packer.name)
+            grouped += 1
+    assert packed >= 20 and grouped >= 5
 
 
 def test_a_message_without_signals_is_packed_on_arrays_as_zeros_and_joins_no_group():
     """``Packer.encode_rows`` of a message without signals gives its payloads, all zeros (what
     ``encode`` gives); ``RowsPacker``, which OR-s each message's fields from its first, takes none."""
     from cantools.database.can import Message
-
-    from cosim.bus.packing import rows_packer
 
     packer = Packer(Message(frame_id=0x123, name="EMPTY", length=2, signals=[]))
     payloads, carried = packer.encode_rows(np.zeros((3, 0)))

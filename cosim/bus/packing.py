@@ -18,6 +18,7 @@ and random values at the signals' limits bit for bit against cantools.
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -82,7 +83,6 @@ class Packer:
         """Signal name → physical value, as cantools decodes it (``decode_choices=False``)."""
         self.unpack: Callable[[bytes | bytearray], tuple[float, ...]] = compiled["unpack"]
         """The physical values, in ``names`` order."""
-        self._rows: RowsPacker | bool | None = None  # None: not built yet; False: not packed on arrays
 
     def encode_rows(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``encode_carried`` of K payloads at once: ``values`` (K, fields) in ``names`` order, each in
@@ -91,13 +91,15 @@ class Packer:
         it does not pack on arrays (``RowsPacker``); a message without signals has payloads of zeros."""
         if not self.fields:
             return np.zeros((len(values), self.length), dtype=np.uint8), np.empty((len(values), 0))
-        if self._rows is None:  # built at first use
-            self._rows = rows_packer((self,)) or False
-        if not isinstance(self._rows, RowsPacker):
+        if self._rows is None:
             return None
-        rows = self._rows
-        words, carried = rows.encode_rows(values)
+        words, carried = self._rows.encode_rows(values)
         return words.astype("<u8").view(np.uint8).reshape(len(values), 8)[:, : self.length], carried
+
+    @functools.cached_property
+    def _rows(self) -> RowsPacker | None:
+        """This message's ``RowsPacker`` (None: not packed on arrays), built at first use."""
+        return rows_packer((self,))
 
     @property
     def packs_rows(self) -> bool:

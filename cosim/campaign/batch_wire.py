@@ -96,6 +96,10 @@ class WireBatch:
         self.scores = scores
         self.runs = [RunWire(each, scorer) for each, scorer in zip(plans, scores.scorers)]
         self._truth: tuple[int, np.ndarray, Sequence[tuple[str, ...]], Sequence[np.ndarray]] | None = None
+        # each node's messages, its signals' columns and ranges (``_layout``), by node and signals
+        self._layouts: dict[
+            tuple[str, tuple[str, ...]], tuple[list[str], list[int], np.ndarray, np.ndarray] | None
+        ] = {}
 
     def active(self, t: float) -> list[tuple[str, ...]]:
         """Each run's bus faults active at t, by label (what its ``/truth/faults`` adds)."""
@@ -254,16 +258,30 @@ class WireBatch:
         k = next(tick.tick for r in rows.tolist() if (tick := ticks[r]) is not None)
         if any(getattr(ticks[r], "tick", None) != k for r in rows.tolist()):
             return {}
-        messages = self.runs[int(rows[0])].nodes[name].messages
-        if any(signal not in signals for spec in messages for signal in spec.signals):
+        layout = self._layouts.get((name, tuple(signals)))
+        if layout is None:
+            layout = self._layouts[(name, tuple(signals))] = self._layout(name, signals)
+        if not layout:
             return {}  # its client names what is missing, run by run
-        columns = [signals.index(signal) for spec in messages for signal in spec.signals]
+        names, columns, low, high = layout
         v = values[rows][:, columns]
         if saturate:
-            channels = [c for spec in messages for c in spec.channels]
-            low, high = np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
             v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
-        return _encoded_runs(self.codec, k, rows, [spec.name for spec in messages], v)
+        return _encoded_runs(self.codec, k, rows, names, v)
+
+    def _layout(self, name: str, signals: Sequence[str]) -> tuple[list[str], list[int], np.ndarray, np.ndarray] | None:
+        """Node ``name``'s messages, the columns of their signals among ``signals`` and those
+        signals' ranges (None: a signal of its messages is not among them)."""
+        messages = self.runs[0].nodes[name].messages
+        if any(signal not in signals for spec in messages for signal in spec.signals):
+            return None
+        channels = [c for spec in messages for c in spec.channels]
+        return (
+            [spec.name for spec in messages],
+            [signals.index(signal) for spec in messages for signal in spec.signals],
+            np.array([c.minimum for c in channels]),
+            np.array([c.maximum for c in channels]),
+        )
 
     def truth(
         self,

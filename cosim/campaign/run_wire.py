@@ -170,7 +170,6 @@ class RunWire:
         scorer, held = self.scorer, self.held
         return (
             quiet is not None
-            and not any(decoded is not None and decoded.spec.name in self.estimated for _, decoded in frames[1:])
             and self.heard
             and held is not None
             and held[0] == k - 1
@@ -179,6 +178,7 @@ class RunWire:
             and scorer.expected_parts > 0
             and len(self.answering) == len(self.nodes)
             and (self.detector is None or self.detector.given == k - 1)
+            and not any(decoded is not None and decoded.spec.name in self.estimated for _, decoded in frames[1:])
         )
 
     def _give_truth(self) -> None:

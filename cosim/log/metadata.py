@@ -442,12 +442,16 @@ class ResultRecord:
     """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
 
     def to_metadata(self) -> dict[str, str]:
-        counts = {"ticks": self.ticks, "frames_total": self.frames_total, "frames_lost": self.frames_lost}
-        counts["deadline_misses"] = self.deadline_misses
+        known = {
+            "ticks": self.ticks,
+            "frames_total": self.frames_total,
+            "frames_lost": self.frames_lost,
+            "deadline_misses": self.deadline_misses,
+        }
         return {
             "status": self.status,
             # a count not known (a batched run builds no frames) is left out: read back as None, as written
-            **{key: str(value) for key, value in counts.items() if value is not None},
+            **{key: str(value) for key, value in known.items() if value is not None},
             "error": self.error,
             "senders": json.dumps({name: vars(counts) for name, counts in self.senders.items()}),
             "foreign": json.dumps(self.foreign),
