@@ -442,12 +442,7 @@ class ResultRecord:
     """Datagrams the kernel dropped before the runner read them (its receive buffer was full)."""
 
     def to_metadata(self) -> dict[str, str]:
-        known = {
-            "ticks": self.ticks,
-            "frames_total": self.frames_total,
-            "frames_lost": self.frames_lost,
-            "deadline_misses": self.deadline_misses,
-        }
+        known = {key: getattr(self, key) for key in ("ticks", "frames_total", "frames_lost", "deadline_misses")}
         return {
             "status": self.status,
             # a count not known (a batched run builds no frames) is left out: read back as None, as written
