@@ -16,6 +16,7 @@ import pytest
 import cosim.campaign.batch as batch_module
 import cosim.campaign.batch_estimators as batch_estimators
 from cosim import api
+from cosim.analysis.metrics.scorer import Scorer
 from cosim.campaign.batch import refusal, run_batch, run_together
 from cosim.campaign.results import rows_of
 from cosim.errors import CodecError
@@ -75,6 +76,7 @@ class Taps:
     def __init__(self) -> None:
         self.inputs: defaultdict[tuple[int, str], list[Any]] = defaultdict(list)
         self.detectors: list[IntrusionDetector] = []
+        self.scorers: list[Scorer] = []  # each with the detector's verdicts it scored, tick by tick
 
     def add(self, run: int, node: str, *values: Any) -> None:
         self.inputs[(run, node)].append(tuple(v.tolist() if isinstance(v, np.ndarray) else v for v in values))
@@ -82,6 +84,7 @@ class Taps:
     def of(self, run: int) -> dict[str, Any]:
         found: dict[str, Any] = {node: values for (r, node), values in self.inputs.items() if r == run}
         found["verdicts"] = self.detectors[run].history if self.detectors else None
+        found["scored"] = self.scorers[run].verdicts
         return found
 
 
@@ -115,6 +118,20 @@ def taps(monkeypatch):
 
     monkeypatch.setattr(IntrusionDetector, "__init__", created)
     monkeypatch.setattr(IntrusionDetector, "verdicts", given)
+    scorer_init, score_bus = Scorer.__init__, Scorer.score_bus
+
+    def scorer_created(self, *args, **kwargs):
+        scorer_init(self, *args, **kwargs)
+        self.verdicts = []
+        found.scorers.append(self)
+
+    def scored(self, k, ids, rejected, active):
+        if ids is not None:  # a batch without a detector scores no verdict (``TickBatch``): there is none
+            self.verdicts.append((k, ids))
+        return score_bus(self, k, ids, rejected, active)
+
+    monkeypatch.setattr(Scorer, "__init__", scorer_created)
+    monkeypatch.setattr(Scorer, "score_bus", scored)
     return found
 
 
@@ -170,15 +187,21 @@ def _tap_batch(monkeypatch, found):
     monkeypatch.setattr(batch_module._Controller, "step", step_controller)
 
 
+def objects_only(monkeypatch):
+    """No run of a batch goes steady: every tick of its bus is its objects' (``cosim.campaign.steady_wire``)."""
+    monkeypatch.setattr("cosim.campaign.steady_wire.SteadyWires._enters", lambda self, r, k: False)
+
+
 def assert_batched_as_alone(loaded, taps, seeds=SEEDS):
     """Each run's row, frames lost, contested ticks, every score of the detector, and what each of
     its nodes took and its detector said in every tick, exactly as alone."""
     runs = run_batch(loaded, seeds)
     assert [run.left for run in runs] == [""] * len(seeds)
-    batched = copy.copy(taps.inputs), list(taps.detectors)
+    batched = copy.copy(taps.inputs), list(taps.detectors), list(taps.scorers)
     for r, (seed, run) in enumerate(zip(seeds, runs)):
         taps.inputs.clear()
         taps.detectors.clear()
+        taps.scorers.clear()
         single = api.run(loaded, None, seed=seed, in_process=True, measure=True).metrics
         assert rows_of(run.metrics) == rows_of(single), seed  # exact: every float, every count
         assert run.metrics.warnings == single.warnings, seed  # e.g. estimates that came after their tick
@@ -189,12 +212,18 @@ def assert_batched_as_alone(loaded, taps, seeds=SEEDS):
         alone = taps.of(0)
         mine = {node: values for (i, node), values in batched[0].items() if i == r}
         nodes = {e.name for e in loaded.scenario.estimators} | ({"controller"} if loaded.scenario.controller else set())
-        assert set(mine) == set(alone) - {"verdicts"} == nodes, seed
+        assert set(mine) == set(alone) - {"verdicts", "scored"} == nodes, seed
         for node in mine:
             assert len(mine[node]) == len(alone[node]) == loaded.scenario.ticks, node
             for k, (a, b) in enumerate(zip(mine[node], alone[node])):
                 assert _same(a, b), (seed, node, k, a, b)
-        assert (batched[1][r].history if batched[1] else None) == alone["verdicts"], seed
+        # every verdict scored, tick by tick; the detector's own where it gave them (a steady tick's
+        # is on arrays, ``cosim.campaign.steady_wire``), with the ids it raised on
+        assert batched[2][r].verdicts == alone["scored"], seed
+        if batched[1]:
+            assert len(alone["scored"]) == loaded.scenario.ticks and alone["verdicts"] is not None
+            given = dict(((tick, repr(rest)) for tick, *rest in alone["verdicts"]))
+            assert all(given[tick] == repr(rest) for tick, *rest in batched[1][r].history), seed
     return runs
 
 
@@ -245,24 +274,49 @@ def test_a_nodes_tick_taken_whole_on_arrays_where_its_frames_are_the_runners_as_
         return encoded(self, name, tick, frames)
 
     from cosim.campaign.batch_wire import WireBatch
+    from cosim.campaign.steady_wire import SteadyWires
 
     runner, built = WireBatch._runner_frames, [0]
 
-    def building(self, k, measured, sent, commands, rows):
-        found = runner(self, k, measured, sent, commands, rows)
+    def building(self, k, values, on, rows):
+        found = runner(self, k, values, on, rows)
         built[0] += len(found)
         return found
+
+    steady, answer, steady_ticks = SteadyWires.send, SteadyWires.answer, [0]
+    materialize, materialized = SteadyWires.materialize, [0]
+
+    def materializing(self, *args):
+        materialized[0] += 1
+        return materialize(self, *args)
+
+    def sending(self, *args):
+        found = steady(self, *args)
+        steady_ticks[0] += int(found.sum())
+        return found
+
+    def answering(self, name, k, rows, names, values):
+        published[name] += len(rows)
+        return answer(self, name, k, rows, names, values)
 
     monkeypatch.setattr(RunWire, "intake", counted)
     monkeypatch.setattr(RunWire, "publish_encoded", publishing)
     monkeypatch.setattr(WireBatch, "_runner_frames", building)
+    monkeypatch.setattr(SteadyWires, "send", sending)
+    monkeypatch.setattr(SteadyWires, "answer", answering)
+    monkeypatch.setattr(SteadyWires, "materialize", materializing)
     assert_batched_as_alone(loaded, taps)
-    assert built[0] == len(SEEDS) * loaded.scenario.ticks  # the runner's frames, on arrays
+    ticks = len(SEEDS) * loaded.scenario.ticks
+    assert built[0] + steady_ticks[0] == ticks  # the runner's frames, on arrays (a steady tick's: bytes only)
+    assert steady_ticks[0] > ticks // 4, steady_ticks  # outside the attack's or the fault's window
     nodes = [e.name for e in loaded.scenario.estimators] + (["controller"] if loaded.scenario.controller else [])
     assert sorted(ways) == sorted(nodes)
     for name, (whole, one_by_one) in ways.items():
-        assert whole > 100 and one_by_one >= len(SEEDS), (name, whole, one_by_one)  # tick 0 at least
-        assert published[name] == len(SEEDS) * loaded.scenario.ticks  # every answer encoded on arrays
+        assert whole >= len(SEEDS) and one_by_one >= len(SEEDS), (name, whole, one_by_one)  # tick 0 at least
+        assert whole + one_by_one + steady_ticks[0] == ticks, name  # each node's tick taken one of three ways
+        # every answer encoded on arrays (a steady tick's, its bytes and values; a published one's, on
+        # the channel as its frames and heartbeat)
+        assert published[name] == ticks + materialized[0], name
 
 
 # a sensor fault from after the flood (0.9 s) until tick 111, the first tick scored whole again when
@@ -308,11 +362,13 @@ def test_a_tick_scored_whole_on_arrays_where_its_answers_came_at_once_scores_as_
 
     scored, ways, last = WireBatch._scored_whole, Counter(), {}
 
-    def counted(self, k, verdicts):
-        ways["whole"] += len(verdicts)
-        ways["back"] += sum(last.get(r) == "parts" for r, _ in verdicts)
-        last.update((r, "whole") for r, _ in verdicts)
-        return scored(self, k, verdicts)
+    def counted(self, k, verdicts, steady):
+        rows = [r for r, _ in verdicts] + steady.tolist()
+        ways["whole"] += len(rows)
+        ways["steady"] += len(steady)
+        ways["back"] += sum(last.get(r) == "parts" for r in rows)
+        last.update((r, "whole") for r in rows)
+        return scored(self, k, verdicts, steady)
 
     give = RunWire._give_truth
 
@@ -418,6 +474,7 @@ def test_the_nodes_answers_heard_at_once_leave_the_runners_traffic_as_heard_one_
 
     monkeypatch.setattr(Traffic, "answered", checked)
     monkeypatch.setattr(RunWire, "_heard_answers", counted)
+    objects_only(monkeypatch)  # every tick through the runs' objects, none steady (``steady_wire``)
     runs = run_batch(loaded, SEEDS)
     assert [run.left for run in runs] == [""] * len(SEEDS)
     assert ways[True] > 150 and at_once[True] == ways[True] and at_once[False] >= len(SEEDS), (ways, at_once)

@@ -310,20 +310,17 @@ class Codec:
         (``RowsPacker``). A row is None where one of its values is outside its channel's range or
         not a number (``encode`` names it); all are None where a message is not packed on arrays or
         carries a value as an integer."""
-        group = self._rows_group(tuple(names))
-        if group is None:
+        found = self.rows_payloads(names, tick, values, sent)
+        if found is None:
             return None
-        k, m = len(values), len(group.specs)
-        on = np.ones((k, m), dtype=bool) if sent is None else sent
-        sends = on[:, group.message_of]
-        fits = np.asarray((~sends | ((group.low <= values) & (values <= group.high))).all(axis=1))  # NaN: no fit
-        counter = tick % self.tick_modulus
-        full = np.full((k, group.width), float(counter))
-        full[:, group.signals] = np.where(sends & fits[:, None], values, 0.0)  # 0: a frame not built
-        words, carried = group.packer.encode_rows(full)
-        data = words.astype("<u8").tobytes()
+        payloads, carried, fits = found
+        group = self._groups[tuple(names)]
+        assert group is not None
+        counter, m = tick % self.tick_modulus, len(group.specs)
+        on = np.ones((len(values), m), dtype=bool) if sent is None else sent
+        data = payloads.tobytes()
         out: list[list[tuple[can.Message, Decoded]] | None] = []
-        for i, (row, built, fit) in enumerate(zip(carried[:, group.signals].tolist(), on.tolist(), fits.tolist())):
+        for i, (row, built, fit) in enumerate(zip(carried.tolist(), on.tolist(), fits.tolist())):
             if not fit:
                 out.append(None)
                 continue
@@ -334,6 +331,25 @@ class Codec:
                     frames.append((frame, Decoded(spec, counter, dict(zip(spec.signals, row[a:b])))))
             out.append(frames)
         return out
+
+    def rows_payloads(
+        self, names: Sequence[str], tick: int, values: np.ndarray, sent: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """What ``encode_rows`` builds its frames from, as arrays: each frame's bytes (K, messages,
+        8) uint8 (the first of them its payload; a frame not sent all 0), the values each carries
+        (K, every message's signals in turn; a frame not sent: what 0 carries) and whether each row
+        fits (its values sent in their ranges). None where ``encode_rows`` gives None."""
+        group = self._rows_group(tuple(names))
+        if group is None:
+            return None
+        k, m = len(values), len(group.specs)
+        on = np.ones((k, m), dtype=bool) if sent is None else sent
+        sends = on[:, group.message_of]
+        fits = np.asarray((~sends | ((group.low <= values) & (values <= group.high))).all(axis=1))  # NaN: no fit
+        full = np.full((k, group.width), float(tick % self.tick_modulus))
+        full[:, group.signals] = np.where(sends & fits[:, None], values, 0.0)  # 0: a frame not built
+        words, carried = group.packer.encode_rows(full)
+        return words.astype("<u8").view(np.uint8).reshape(k, m, 8), carried[:, group.signals], fits
 
     def _rows_group(self, names: tuple[str, ...]) -> _RowsGroup | None:
         """``encode_rows``' arrays of these messages (built once), or None where one is not packed
@@ -381,6 +397,14 @@ class Codec:
                 raise CodecError(_range_message(spec, signal, channel, value, tick))
             payload.append(float(value))
         return payload
+
+    def head(self, name: str) -> tuple[int, bool, bool, bool, int]:
+        """What the wire times of message ``name``'s frames but their payload: id, extended, FD and
+        BRS flags, length (``cosim.run.arbitration.bits_of_payloads``)."""
+        spec = self.specs[name]
+        classic = spec.role in (SYNC, NMT, HEARTBEAT)  # the protocol's frames are classic (``_classic``)
+        fd = self.fd and not classic
+        return spec.frame_id, False, fd, fd, self._packers[name].length
 
     def _frame(self, spec: MessageSpec, data: bytes) -> can.Message:
         return can.Message(

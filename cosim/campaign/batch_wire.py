@@ -39,8 +39,9 @@ import numpy as np
 
 from cosim.analysis.metrics.scorer import BusVerdicts, TickBatch
 from cosim.bus.client import TickFrames
-from cosim.bus.codec import Codec, Decoded, MessageSpec
+from cosim.bus.codec import CONTROLLER, Codec, Decoded, MessageSpec
 from cosim.campaign.run_wire import Frame, RunWire
+from cosim.campaign.steady_wire import SteadyWires
 from cosim.errors import CodecError, CosimError
 from cosim.log.metadata import SenderCounts
 from cosim.log.recorder import IDS_CHECKS
@@ -95,24 +96,43 @@ class WireBatch:
         self.closed = plan.controller is not None
         self.scores = scores
         self.runs = [RunWire(each, scorer) for each, scorer in zip(plans, scores.scorers)]
-        self._truth: tuple[int, np.ndarray, Sequence[tuple[str, ...]], Sequence[np.ndarray]] | None = None
+        self.runner = [*self.sensor_specs, *([] if self.closed else self.command_specs)]  # its data messages
+        stages = [[CONTROLLER]] if self.closed else []
+        self.steady = SteadyWires(self.runs, self.runner, self.scenario.ticks, [*stages, list(plan.estimators)])
+        self._sent = np.zeros((len(plans), len(self.runner)), dtype=bool)  # the runner's frames of the tick
+        # the last tick's truth: (tick, states (K, states), each run's active faults, the estimators'
+        # values, the states' names)
+        self._truth: tuple[int, np.ndarray, Sequence[tuple[str, ...]], Sequence[np.ndarray], Sequence[str]] | None = (
+            None
+        )
         # each node's messages, its signals' columns and ranges (``_layout``), by node and signals
         self._layouts: dict[
             tuple[str, tuple[str, ...]], tuple[list[str], list[int], np.ndarray, np.ndarray] | None
         ] = {}
 
     def active(self, t: float) -> list[tuple[str, ...]]:
-        """Each run's bus faults active at t, by label (what its ``/truth/faults`` adds)."""
-        return [tuple(run.stage.active(t)) if run.stage is not None else () for run in self.runs]
+        """Each run's bus faults active at t, by label (what its ``/truth/faults`` adds): none in a
+        steady tick."""
+        on = self.steady.on.tolist()
+        return [
+            tuple(run.stage.active(t)) if run.stage is not None and not on[r] else () for r, run in enumerate(self.runs)
+        ]
 
     def send(self, k: int, measured: np.ndarray, sent: np.ndarray, commands: np.ndarray, alive: np.ndarray) -> None:
         """Tick k's frames of each run alive: its ``measured`` readings that are ``sent``, and in an
         open loop its ``commands`` (the input signals, as given). A run whose frames its bus cannot
         carry (a forged value outside its range) leaves the batch."""
         codec, sensors, actuators = self.codec, self.sensor_specs, [] if self.closed else self.command_specs
+        values, on = measured, sent
+        if not self.closed:
+            values = np.concatenate([measured, commands], axis=1)
+            on = np.concatenate([sent, np.ones((len(sent), len(self.command_specs)), dtype=bool)], axis=1)
+        self._sent = on
+        held = None if self._truth is None else (self._truth[1], self._truth[4], self._truth[2])
+        steady = self.steady.send(k, values, on, alive, held)
         prepared: list[tuple[list[Frame], Applied | None] | None] = [None] * len(self.runs)
-        rows = np.flatnonzero(alive)
-        built = self._runner_frames(k, measured, sent, commands, rows) if len(rows) else {}
+        rows = np.flatnonzero(alive & ~steady)
+        built = self._runner_frames(k, values, on, rows) if len(rows) else {}
         for r in rows.tolist():
             try:
                 given = [] if self.closed else commands[r].tolist()
@@ -135,24 +155,27 @@ class WireBatch:
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
                 continue
+            self.steady.begun(r, k, verdict is not None and not run.rejected)
             if run.rejected:
                 self._leave(r, k, run.rejected, alive)
             elif verdict is not None:
                 whole.append((r, verdict))
             else:
                 self.scores.forget(r)  # its scorer took the tick's parts
-        if whole:
-            self._scored_whole(k - 1, whole)
+        steady &= alive
+        if whole or steady.any():
+            self._scored_whole(k - 1, whole, np.flatnonzero(steady))
 
-    def _scored_whole(self, k: int, verdicts: list[tuple[int, dict[str, int]]]) -> None:
-        """Tick k of the runs scored whole (``RunWire._whole``), from the batch's arrays: their
-        truth, their estimators' values as their frames carried them, the detector's ``verdicts``
-        on the tick (each check's count, by run), as ``Scorer.verdict`` takes them."""
+    def _scored_whole(self, k: int, verdicts: list[tuple[int, dict[str, int]]], steady: np.ndarray) -> None:
+        """Tick k of the runs scored whole (``RunWire._whole``) and of the ``steady`` ones (whose
+        detector raised nothing), from the batch's arrays: their truth, their estimators' values as
+        their frames carried them, the detector's ``verdicts`` on the tick (each check's count, by
+        run), as ``Scorer.verdict`` takes them."""
         assert self._truth is not None and self._truth[0] == k
-        _, x, active, values = self._truth
-        rows = np.array([r for r, _ in verdicts])
+        _, x, active, values, _ = self._truth
+        rows = np.union1d(np.array([r for r, _ in verdicts], dtype=np.int64), steady)
         bus = None
-        if self.runs[verdicts[0][0]].detector is not None:
+        if self.runs[int(rows[0])].detector is not None:
             ids = np.zeros((len(self.runs), 1 + len(IDS_CHECKS)))
             for r, checks in verdicts:
                 counts = [checks[check] for check in IDS_CHECKS]
@@ -160,22 +183,19 @@ class WireBatch:
             bus = BusVerdicts(ids, [()] * len(self.runs))
         self.scores.tick(k, rows, x, active, values, bus)
 
-    def _runner_frames(
-        self, k: int, measured: np.ndarray, sent: np.ndarray, commands: np.ndarray, rows: np.ndarray
-    ) -> dict[int, list[Frame]]:
-        """``runner_frames`` of the runs ``rows`` whose values their frames carry, their data frames
-        encoded on arrays (``Codec.encode_rows``), by run; the others are left out (``runner_frames``
-        refuses them, naming the value)."""
-        codec, specs = self.codec, [*self.sensor_specs, *([] if self.closed else self.command_specs)]
-        values, on = measured[rows], sent[rows]
-        if not self.closed:
-            values = np.concatenate([values, commands[rows]], axis=1)
-            on = np.concatenate([on, np.ones((len(rows), len(self.command_specs)), dtype=bool)], axis=1)
+    def _runner_frames(self, k: int, values: np.ndarray, on: np.ndarray, rows: np.ndarray) -> dict[int, list[Frame]]:
+        """``runner_frames`` of the runs ``rows`` whose values their frames carry (``values``, (K,
+        the runner's messages' signals), ``on`` which it sends), their data frames encoded on arrays
+        (``Codec.encode_rows``), by run; the others are left out (``runner_frames`` refuses them,
+        naming the value)."""
+        codec = self.codec
         out: dict[int, list[Frame]] = {}
         # Their SYNC is one per count, shared: the wire announces a SYNC of its own, which is the one
         # signed and sent (``quiet_ticks``, ``Arbitration.tick``, the bus faults' ``apply``)
         syncs: dict[int, Frame] = {}
-        for r, data in _encoded_runs(codec, k, rows, [spec.name for spec in specs], values, on).items():
+        for r, data in _encoded_runs(
+            codec, k, rows, [spec.name for spec in self.runner], values[rows], on[rows]
+        ).items():
             sync = syncs.get(len(data))
             if sync is None:
                 try:
@@ -197,16 +217,18 @@ class WireBatch:
         as they are in a run where its tick is that (``RunWire.intake``). A run whose node would not
         complete tick k (alone, the runner would wait for it in vain) leaves."""
         s = self.scenario
-        ticks: list[TickFrames | None] = [None] * len(self.runs)
-        readings = np.full((len(self.runs), len(s.sensors)), np.nan)
-        commands = np.full((len(self.runs), len(s.actuators)), np.nan)
-        for r in np.flatnonzero(alive).tolist():
+        steady = self.steady.on & alive
+        ticks = self.steady.tick_of(k, self._sent)
+        readings = np.where(steady[:, None], carried[0], np.nan)
+        commands = np.where(steady[:, None], carried[1], np.nan)
+        for r in np.flatnonzero(alive & ~steady).tolist():
             run = self.runs[r]
             whole = run.intake(name, k)
             if whole is not None:
                 ticks[r] = whole
                 readings[r], commands[r] = carried[0][r], carried[1][r]
                 continue
+            self.steady.missed(r)
             done = run.take(name)
             if [tick.tick for tick in done] != [k]:
                 why = f"its node {name} would not complete tick {k} (frames announced by SYNC missing)"
@@ -229,7 +251,8 @@ class WireBatch:
         """Node ``name``'s frames of the ticks it completed, ``values`` (K, signals) by ``signals``
         as it computed them (before saturation and quantization: its client does both, or the
         batch on arrays, each run's frames as its client encodes them: ``_encoded``)."""
-        rows = np.flatnonzero(alive)
+        rows = np.flatnonzero(alive & ~self.steady.on)
+        self._steady_answers(name, ticks, signals, values, alive, saturate)
         encoded = self._encoded(name, ticks, signals, values, rows, saturate) if len(rows) else {}
         for r in rows.tolist():
             tick = ticks[r]
@@ -238,9 +261,29 @@ class WireBatch:
                 if r in encoded:
                     self.runs[r].publish_encoded(name, tick, encoded[r])
                 else:
+                    self.steady.missed(r)
                     self.runs[r].publish(name, tick, dict(zip(signals, values[r].tolist())), saturate)
             except (CodecError, CosimError) as error:
                 self._leave(r, tick.tick, str(error), alive)
+
+    def _steady_answers(
+        self,
+        name: str,
+        ticks: Sequence[TickFrames | None],
+        signals: Sequence[str],
+        values: np.ndarray,
+        alive: np.ndarray,
+        saturate: bool,
+    ) -> None:
+        """``answer`` in the steady runs: their frames' bytes and values on arrays (``SteadyWires``).
+        A run with a value its frame cannot carry leaves (alone, its client names it)."""
+        rows = np.flatnonzero(alive & self.steady.on)
+        if not len(rows):
+            return
+        k = next(tick.tick for r in rows.tolist() if (tick := ticks[r]) is not None)
+        names, v = self._saturated(name, signals, values, rows, saturate)
+        for r in rows[self.steady.answer(name, k, rows, names, v)].tolist():
+            self._leave(r, k, f"its node {name} sends a value its frame cannot carry", alive)
 
     def _encoded(
         self,
@@ -263,11 +306,20 @@ class WireBatch:
             layout = self._layouts[(name, tuple(signals))] = self._layout(name, signals)
         if not layout:
             return {}  # its client names what is missing, run by run
+        return _encoded_runs(self.codec, k, rows, *self._saturated(name, signals, values, rows, saturate))
+
+    def _saturated(
+        self, name: str, signals: Sequence[str], values: np.ndarray, rows: np.ndarray, saturate: bool
+    ) -> tuple[list[str], np.ndarray]:
+        """Node ``name``'s messages and the values of their signals in ``rows``, each saturated
+        (``saturated``'s bound where it crossed one) where it saturates (its layout is known)."""
+        layout = self._layouts[(name, tuple(signals))]
+        assert layout is not None  # a node whose frames its client encodes never goes steady
         names, columns, low, high = layout
         v = values[rows][:, columns]
         if saturate:
             v = np.where(np.isnan(v), v, np.minimum(np.maximum(v, low), high))
-        return _encoded_runs(self.codec, k, rows, names, v)
+        return names, v
 
     def _layout(self, name: str, signals: Sequence[str]) -> tuple[list[str], list[int], np.ndarray, np.ndarray] | None:
         """Node ``name``'s messages, the columns of their signals among ``signals`` and those
@@ -295,12 +347,17 @@ class WireBatch:
         """Tick k's truth of the runs ``rows``: their states (K, states) and active faults, with
         their estimators' values (each (K, signals), as their frames carry them), for the scores."""
         x = x.copy()
-        self._truth = (k, x, active, values)
+        self._truth = (k, x, active, values, states)
+        on = self.steady.on
         for r in rows:
-            self.runs[r].truth(k, x, r, states, active[r])
+            if not on[r]:  # a steady run's truth is the batch's
+                self.runs[r].truth(k, x, r, states, active[r])
 
     def finish(self, r: int, ticks: int) -> tuple[int, dict[str, SenderCounts]]:
         """Run r's end after ``ticks`` ticks: its contested ticks and what each node sent and missed."""
+        if self.steady.on[r]:
+            assert self._truth is not None
+            self.steady.materialize(r, ticks, (self._truth[1], self._truth[4], self._truth[2][r]))
         return self.runs[r].finish(ticks, self.plan.senders)
 
     def close(self) -> None:

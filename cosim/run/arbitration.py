@@ -351,20 +351,13 @@ def _quiet_rows(
     rows = [
         [m for m, _ in arbitration._answers] + [m for m, _ in frames] for arbitration, frames in zip(arbitrations, sent)
     ]
-    total, delivery = wire.durations_rows(*_bits_of_columns(codec, rows))
     idle = np.array([arbitration.wire.idle_ns for arbitration in arbitrations], dtype=np.int64)
     queued = np.array([arbitration._inputs_ns for arbitration in arbitrations], dtype=np.int64)
-    starts = np.maximum(idle, queued)[:, None] + np.cumsum(total[:, :answers], axis=1) - total[:, :answers]
-    idle = starts[:, -1] + total[:, answers - 1] if answers else idle
     order = answers + np.argsort([m.arbitration_id for m in rows[0][answers:]], kind="stable")
-    ahead = np.cumsum(total[:, order], axis=1) - total[:, order]
-    runner = np.maximum(idle, t_ns)[:, None] + ahead
-    arrivals = runner + delivery[:, order]  # in the order they go: q_k is the last
-    ok = arrivals[:, -1] <= t_ns + first.dt_ns
-    if answers:
-        ok &= starts[:, -1] < t_ns  # the answers all went out before t_k
-    delivered = np.concatenate([starts + delivery[:, :answers], arrivals], axis=1).tolist()
-    ends = (runner[:, -1] + total[:, order[-1]]).tolist()
+    ok, delivered_at, ends_at = quiet_schedule(
+        wire, t_ns, first.dt_ns, _bits_of_columns(codec, rows), idle, queued, answers, order
+    )
+    delivered, ends = delivered_at.tolist(), ends_at.tolist()
     out: list[Quiet | None] = []
     for r, arbitration in enumerate(arbitrations):
         if not ok[r]:
@@ -376,28 +369,69 @@ def _quiet_rows(
     return out
 
 
+def quiet_schedule(
+    wire: Wire,
+    t_ns: int,
+    dt_ns: int,
+    bits: tuple[np.ndarray, np.ndarray],
+    idle: np.ndarray,
+    queued: np.ndarray,
+    answers: int,
+    order: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The passages of a quiet tick k (``quiet_ticks``) of R wires laid out alike: frames of
+    ``bits`` (nominal, data-rate; each (R, F)), the first ``answers`` of them the answers to tick
+    k − 1 (queued at ``queued``, in the order they go), the others the runner's, which go in
+    ``order`` (their columns, by id); each wire idle from ``idle`` (R,). Whether each is quiet,
+    each frame's delivery (ns, (R, F): the answers', then the runner's in ``order``) and when the
+    wire falls idle again, as ``Arbitration.tick`` finds them."""
+    total, delivery = wire.durations_rows(*bits)
+    starts = np.maximum(idle, queued)[:, None] + np.cumsum(total[:, :answers], axis=1) - total[:, :answers]
+    idle = starts[:, -1] + total[:, answers - 1] if answers else idle
+    ahead = np.cumsum(total[:, order], axis=1) - total[:, order]
+    runner = np.maximum(idle, t_ns)[:, None] + ahead
+    arrivals = runner + delivery[:, order]  # in the order they go: q_k is the last
+    ok = arrivals[:, -1] <= t_ns + dt_ns
+    if answers:
+        ok &= starts[:, -1] < t_ns  # the answers all went out before t_k
+    delivered = np.concatenate([starts + delivery[:, :answers], arrivals], axis=1)
+    return ok, delivered, runner[:, -1] + total[:, order[-1]]
+
+
 def _bits_of_columns(codec: Codec, rows: list[list[can.Message]]) -> tuple[np.ndarray, np.ndarray]:
-    """(nominal, data-rate) bits of frames laid out alike in every row (R, F), a control frame's
-    MAC at 0 (as ``Arbitration._wire_frame`` times it): the columns of one kind and length at once."""
+    """(nominal, data-rate) bits of frames laid out alike in every row (R, F) (``bits_of_payloads``)."""
+    heads = [(m.arbitration_id, m.is_extended_id, m.is_fd, m.bitrate_switch, len(m.data)) for m in rows[0]]
+    payloads = [
+        np.frombuffer(b"".join(bytes(row[c].data) for row in rows), dtype=np.uint8).reshape(len(rows), heads[c][4])
+        for c in range(len(heads))
+    ]
+    return bits_of_payloads(codec, heads, payloads)
+
+
+def bits_of_payloads(
+    codec: Codec, heads: Sequence[tuple[int, bool, bool, bool, int]], payloads: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(nominal, data-rate) bits of R rows of frames laid out alike (R, F): frame c has the id,
+    extended flag, FD and BRS flags and length of ``heads[c]`` and the payloads ``payloads[c]``
+    (R, length) uint8, a control frame's MAC at 0 (as ``Arbitration._wire_frame`` times it): the
+    columns of one kind and length at once (``frame_bits_rows``)."""
     by_kind: dict[tuple[bool, bool, int], list[int]] = {}
-    for c, message in enumerate(rows[0]):
-        by_kind.setdefault((message.is_fd, message.bitrate_switch, len(message.data)), []).append(c)
-    nominal = np.empty((len(rows), len(rows[0])), dtype=np.int64)
+    for c, (_, _, fd, brs, length) in enumerate(heads):
+        by_kind.setdefault((fd, brs, length), []).append(c)
+    runs = len(payloads[0]) if payloads else 0
+    nominal = np.empty((runs, len(heads)), dtype=np.int64)
     fast = np.empty_like(nominal)
     for (fd, brs, length), columns in by_kind.items():
-        payloads = np.frombuffer(
-            bytearray(b"".join(bytes(row[c].data) for c in columns for row in rows)), dtype=np.uint8
-        ).reshape(len(columns), len(rows), length)
+        data = np.stack([payloads[c] for c in columns]).astype(np.uint8)  # (C, R, length), a copy
         for i, c in enumerate(columns):
-            at = _mac_at(codec, rows[0][c])
-            if at is not None:
-                payloads[i, :, at:] = 0
-        heads = [rows[0][c] for c in columns]
+            control = None if heads[c][1] else codec.control_macs.get(heads[c][0])
+            if control is not None:
+                data[i, :, control[1].mac[0] :] = 0
         bits, fast_bits = frame_bits_rows(
-            [m.arbitration_id for m in heads],
-            [m.is_extended_id for m in heads],
-            [dlc_of(length)] * len(heads),
-            payloads,
+            [heads[c][0] for c in columns],
+            [heads[c][1] for c in columns],
+            [dlc_of(length)] * len(columns),
+            data,
             fd,
             brs,
         )
