@@ -219,14 +219,48 @@ class SteadyWires:
         if so its arrays set from them: the wire's state, the answers to tick k − 1 on the runner's
         channel, the detector's last frame per id, when a bus fault or background frame may come."""
         run = self.runs[r]
-        nodes = list(run.answering)
         if not self.columns:
             self._layout(run)
-        if nodes != self.nodes or run.marker != k - 1 or run.held is None or run.held[0] != k - 1 or run.rejected:
+        if not self._between_ticks(run, k) or not all(self._answered(run, name, k) for name in self.nodes):
             return False
+        closings = [frame for name in self.nodes for frame in run.nodes[name].closing]
+        if [id(frame) for frame in _channel(run.bus).waiting()] != [id(frame) for frame in closings]:
+            return False
+        until = _quiet_until(run, k, self.ticks)
+        if until <= k:
+            return False
+        self.until[r] = until
+        arbitration, detector = run.arbitration, run.detector
+        self.idle[r], self.offers[r], self.inputs[r] = (
+            arbitration.wire.idle_ns,
+            arbitration.wire._seq,
+            arbitration._inputs_ns,
+        )
+        self.leaving[r] = False
+        for i, name in enumerate(self.nodes):
+            client = run.nodes[name]
+            self.lost[r, i] = client.assembler.lost
+            for j, frame in enumerate(client.closing[:-1]):
+                self.payloads[name][r, j, : len(frame.data)] = np.frombuffer(bytes(frame.data), dtype=np.uint8)
+        last = detector._last if detector is not None else {}
+        for c, frame_id in enumerate(self.ids):
+            found = last.get(frame_id)
+            self.known[r, c] = found is not None
+            self.last_ns[r, c], self.last_counter[r, c] = found if found is not None else (0, 0)
+        return True
+
+    def _between_ticks(self, run: RunWire, k: int) -> bool:
+        """Whether the run's wire, traffic, scorer and detector are between ticks k − 1 and k as a
+        tick taken whole leaves them: nothing on the wire or pending, the truth of k − 1 held, the
+        scorer and the detector due to give tick k − 1, on in-process channels."""
         arbitration, traffic, scorer, detector = run.arbitration, run.traffic, run.scorer, run.detector
-        if (
-            arbitration.wire.queue
+        return not (
+            run.answering != self.nodes
+            or run.marker != k - 1
+            or run.held is None
+            or run.held[0] != k - 1
+            or run.rejected
+            or arbitration.wire.queue
             or arbitration._answers
             or arbitration._runner
             or arbitration._on_channel
@@ -240,48 +274,28 @@ class SteadyWires:
             or scorer.expected_parts <= 0
             or (detector is not None and (detector.given != k - 1 or detector._alarms))
             or not isinstance(run.bus, InProcessBus)
-        ):
-            return False
-        closings = []
-        for i, name in enumerate(nodes):
-            client = run.nodes[name]
-            closing = client.closing
-            if (
-                client.stopped
-                or client.secoc is not None
-                or not isinstance(client.bus, InProcessBus)
-                or not client.assembler.between(k - 1)
-                or any(lag != 0 for lag in client.assembler.upstream.values())
-                or client._outbox
-                or client._published
-                or name in traffic.left
-                or traffic.closed.get(name) == k - 1
-                or traffic._lost_carried.get(name, 0) != client.assembler.lost % 256
-                or len(closing) != len(self.messages[name]) + 1
-                or [frame.arbitration_id for frame in closing]
-                != [spec.frame_id for spec in self.messages[name]]
-                + [self.codec.specs[heartbeat_message(name)].frame_id]
-            ):
-                return False
-            closings += closing
-            self.lost[r, i] = client.assembler.lost
-            for j, frame in enumerate(closing[:-1]):
-                self.payloads[name][r, j, : len(frame.data)] = np.frombuffer(bytes(frame.data), dtype=np.uint8)
-        if [id(frame) for frame in run.bus.waiting()] != [id(frame) for frame in closings]:
-            return False
-        until = _quiet_until(run, k, self.ticks)
-        if until <= k:
-            return False
-        self.until[r] = until
-        wire = arbitration.wire
-        self.idle[r], self.offers[r], self.inputs[r] = wire.idle_ns, wire._seq, arbitration._inputs_ns
-        self.leaving[r] = False
-        last = detector._last if detector is not None else {}
-        for c, frame_id in enumerate(self.ids):
-            found = last.get(frame_id)
-            self.known[r, c] = found is not None
-            self.last_ns[r, c], self.last_counter[r, c] = found if found is not None else (0, 0)
-        return True
+        )
+
+    def _answered(self, run: RunWire, name: str, k: int) -> bool:
+        """Whether node ``name`` took tick k − 1 whole and answered it, each of its messages once and
+        its heartbeat, which the runner has not heard yet, with its count of missed frames as the
+        runner last heard it (so that hearing this one adds none)."""
+        client, traffic = run.nodes[name], run.traffic
+        heartbeat = self.codec.specs[heartbeat_message(name)].frame_id
+        return not (
+            client.stopped
+            or client.secoc is not None
+            or not isinstance(client.bus, InProcessBus)
+            or not client.assembler.between(k - 1)
+            or any(lag != 0 for lag in client.assembler.upstream.values())
+            or client._outbox
+            or client._published
+            or name in traffic.left
+            or traffic.closed.get(name) == k - 1
+            or traffic._lost_carried.get(name, 0) != client.assembler.lost % 256
+            or [frame.arbitration_id for frame in client.closing]
+            != [*(spec.frame_id for spec in self.messages[name]), heartbeat]
+        )
 
     def _layout(self, run: RunWire) -> None:
         """The nodes' messages, the answers on the wire by id, the detector's ids."""
