@@ -81,6 +81,9 @@ def state(run: RunWire) -> dict[str, Any]:
         found["detector"] = (dict(detector._last), detector.given, detector.alarms, repr(dict(detector._alarms)))
     if run.stage is not None:
         found["stage"] = (dict(run.stage.tec), dict(run.stage.off_until), run.stage.error_frames, len(run.stage._held))
+        for model in run.stage.models:  # what it recorded (a replay), its random stream's state
+            found[f"stage.{model.label}"] = repr({k: v for k, v in vars(model).items() if k != "_rng"})
+            found[f"stage.{model.label}.rng"] = repr(model._rng.bit_generator.state)
     scorer = run.scorer
     found["scorer"] = (scorer.next_tick, scorer.ticks, len(scorer.pending), scorer.expected_parts)
     return found
@@ -131,6 +134,7 @@ CASES = {
     "closed loop": closed_loop(TAXONOMY["none"]),
     "closed loop, spoofed": closed_loop(TAXONOMY["injection"]),
     "closed loop, flooded": closed_loop(TAXONOMY["flooding"]),
+    "closed loop, replayed": closed_loop(TAXONOMY["replay"]),
     "open loop, detector": open_loop(BUS_FAULTS["loss_x1"], True),
     "open loop, bus-off": open_loop(BUS_FAULTS["bus_off"], False),
 }
@@ -167,7 +171,11 @@ def test_a_steady_run_brought_back_to_its_objects_is_in_the_state_its_own_ticks_
             assert found[part] == expected[part], (r, k, part)
 
 
-@pytest.mark.parametrize("loaded", [CASES["closed loop"], CASES["open loop, detector"]], ids=["closed", "open"])
+@pytest.mark.parametrize(
+    "loaded",
+    [CASES["closed loop"], CASES["closed loop, replayed"], CASES["open loop, detector"]],
+    ids=["closed", "replayed", "open"],
+)
 def test_steady_runs_brought_back_every_few_ticks_give_what_they_give_alone(loaded, taps, monkeypatch):  # noqa: F811
     """The same, against each run alone: every row, what each node takes in every tick, every
     verdict scored."""

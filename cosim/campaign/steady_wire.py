@@ -1,11 +1,12 @@
 """Steady ticks of a batch's arbitrated buses, on arrays (``cosim.campaign.batch_wire``).
 
 A run's tick k is steady when nothing but the co-simulation's protocol is on its wire: no bus fault
-can act (none of its windows meets the tick, no error counter is up, no intruder records the bus),
-no background frame is due, the wire is quiet (``cosim.run.arbitration.quiet_ticks``) with the
-nodes' answers to tick k − 1 on it, every frame's values are within their ranges and every data
-frame's tick counter is the one after its id's last. Then what the run's objects would do with
-the tick is known, and none of it depends on anything but arrays the batch holds:
+can act (none of its windows meets the tick, no error counter is up; an intruder that records the
+bus hears the tick's frames, ``_observed``), no background frame is due, the wire is quiet
+(``cosim.run.arbitration.quiet_ticks``) with the nodes' answers to tick k − 1 on it, every frame's
+values are within their ranges and every data frame's tick counter is the one after its id's last.
+Then what the run's objects would do with the tick is known, and none of it depends on anything
+but arrays the batch holds:
 
 - the wire sends the answers to tick k − 1 from when they were queued, then SYNC(k) and the
   runner's frames by id, each from the end of the one before (``quiet_schedule``, with each frame's
@@ -62,7 +63,10 @@ class SteadyWires:
         self.entered = np.zeros(n, dtype=np.int64)  # the tick at which it went steady
         self.idle, self.offers, self.inputs = (np.zeros(n, dtype=np.int64) for _ in range(3))
         self.until = np.zeros(n, dtype=np.int64)  # the first tick a bus fault or background frame may meet
-        self.leaving = np.zeros(n, dtype=bool)  # an answer out of its range: its next tick is its objects'
+        self.leaving = np.zeros(n, dtype=bool)
+        self.observers: dict[
+            int, list[BusFault]
+        ] = {}  # run -> its bus faults that record the bus  # an answer out of its range: its next tick is its objects'
         self.plain = np.full(n, -1, dtype=np.int64)  # the tick its objects are taking whole so far (−1: none)
         self.nodes = [name for stage in self.stages for name in stage]  # in the order they answer
         self.messages: dict[str, list[MessageSpec]] = {}
@@ -115,7 +119,21 @@ class SteadyWires:
         for members in patterns.values():
             group = np.array(members)
             stays[group] = self._schedule(k, rows[group], payloads[group], sent[members[0]], modulus)
+        for i in [i for i, r in enumerate(rows.tolist()) if stays[i] and self.observers.get(r)]:
+            self._observed(k, self.observers[int(rows[i])], carried[i], sent[i])
         return stays
+
+    def _observed(self, k: int, observers: list[BusFault], carried: np.ndarray, sent: np.ndarray) -> None:
+        """The runner's frames of tick k (their values ``carried``, where ``sent``) to the bus faults
+        that record what goes out (``BusFault.observe``, a replaying intruder's), as
+        ``BusFaultStage.apply`` gives each genuine frame that goes out: frame by frame, each to all."""
+        t, values, at = k * self.dt_ns / 1e9, carried.tolist(), 0
+        for spec, on in zip(self.runner, sent.tolist()):
+            if on:
+                heard = tuple(values[at : at + len(spec.signals)])
+                for model in observers:
+                    model.observe(spec.name, heard, t)
+            at += len(spec.signals)
 
     def _schedule(self, k: int, rows: np.ndarray, payloads: np.ndarray, sent: np.ndarray, modulus: int) -> np.ndarray:
         """Tick k's wire of ``rows``, whose runner sends the messages ``sent`` with these bytes: which
@@ -230,6 +248,8 @@ class SteadyWires:
         if until <= k:
             return False
         self.until[r] = until
+        models = run.stage.models if run.stage is not None else []
+        self.observers[r] = [model for model in models if type(model).observe is not BusFault.observe]
         arbitration, detector = run.arbitration, run.detector
         self.idle[r], self.offers[r], self.inputs[r] = (
             arbitration.wire.idle_ns,
@@ -376,8 +396,8 @@ def _quiet_until(run: RunWire, k: int, ticks: int) -> int:
     """The first tick from k on that run's bus faults or background traffic may meet (``ticks``:
     none), as ``BusFaultStage.apply`` and ``Arbitration.tick`` decide it: a bus fault's window meets
     the tick (its forgeries' test; its being active is within it), a background frame is due; k
-    itself where its stage holds anything (an error count, a node bus-off, a frame held) or a
-    fault records the bus (``BusFault.observe``)."""
+    itself where its stage holds anything (an error count, a node bus-off, a frame held). A fault
+    that records the bus (``BusFault.observe``) hears a steady tick's frames (``_observed``)."""
     at = np.arange(k, ticks, dtype=np.int64) * run.dt_ns
     busy = np.zeros(len(at), dtype=bool)
     stage: BusFaultStage | None = run.stage
@@ -386,8 +406,6 @@ def _quiet_until(run: RunWire, k: int, ticks: int) -> int:
             return k
         t, dt = at / 1e9, run.dt_ns / 1e9
         for model in stage.models:
-            if type(model).observe is not BusFault.observe:
-                return k
             busy |= (model.start < t + dt) & (t < model.end)
     for source in run.arbitration.traffic:
         first = -(-(np.maximum(source.start_ns, at) - source.start_ns) // source.period_ns)
