@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 import cosim.campaign.steady_wire as steady_wire
+from cosim import api
 from cosim.campaign.batch import run_batch
 from cosim.campaign.batch_wire import WireBatch
 from cosim.campaign.run_wire import RunWire
 from cosim.campaign.steady_wire import SteadyWires
+from cosim.scenario import apply
 from tests.test_batch_wire import (
     BUS_FAULTS,
     SEEDS,
@@ -142,16 +144,22 @@ CASES = {
 
 @pytest.mark.parametrize("loaded", CASES.values(), ids=CASES.keys())
 @pytest.mark.parametrize("every", [1, 6])
-def test_a_steady_run_brought_back_to_its_objects_is_in_the_state_its_own_ticks_leave(loaded, every, monkeypatch):
+@pytest.mark.parametrize("window", [20, None], ids=["scored 20 ticks on", "scored when WINDOW old"])
+def test_a_steady_run_brought_back_to_its_objects_is_in_the_state_its_own_ticks_leave(
+    loaded, every, window, monkeypatch
+):
     """Runs that go steady and are brought back every ``every`` to ``every`` + 4 ticks (but in
     their last ticks), and at their end: each time, every part of their objects the next tick
     depends on (the wire's times and offers, the runner's counts and what its channel holds, each
     node's assembler, answer and channel, the detector's last frame per id and its verdicts given,
     the bus faults' counters, the scorer, the truth held) is what it is at the same tick in the
-    same runs whose every tick is their objects'."""
+    same runs whose every tick is their objects'. After a flood, the ticks whose estimates it
+    starved wait in the scorer (until they are ``window`` ticks old), and the steady ticks give the
+    scorer their parts (``SteadyWires.score``) until it holds no other tick."""
     from cosim.analysis.metrics import scorer
 
-    monkeypatch.setattr(scorer, "WINDOW", 20)  # the ticks a flood starved scored 20 ticks on: steady again after
+    if window is not None:
+        monkeypatch.setattr(scorer, "WINDOW", window)
     objects = _Recording()
     with monkeypatch.context() as patch:
         objects_only(patch)
@@ -173,11 +181,26 @@ def test_a_steady_run_brought_back_to_its_objects_is_in_the_state_its_own_ticks_
 
 @pytest.mark.parametrize(
     "loaded",
-    [CASES["closed loop"], CASES["closed loop, replayed"], CASES["open loop, detector"]],
-    ids=["closed", "replayed", "open"],
+    [CASES["closed loop"], CASES["closed loop, replayed"], CASES["closed loop, flooded"], CASES["open loop, detector"]],
+    ids=["closed", "replayed", "flooded", "open"],
 )
 def test_steady_runs_brought_back_every_few_ticks_give_what_they_give_alone(loaded, taps, monkeypatch):  # noqa: F811
     """The same, against each run alone: every row, what each node takes in every tick, every
     verdict scored."""
     _record_materialized(monkeypatch, _Recording(), 3)
     assert_batched_as_alone(loaded, taps)
+
+
+def test_answers_whose_frames_carry_a_value_past_its_range_keep_a_run_off_steady_ticks(taps):  # noqa: F811
+    """x2's estimate at ±0.7 m with a resolution of 1 mm: a node saturated at 0.7 sends 700 × 0.001
+    = 0.7000000000000001, past the range, and the detector raises its range check on that frame
+    when it arrives (in the next tick, or before it). A run whose objects took a tick whole with
+    such an answer does not go steady on it (``_enters``), nor one whose steady answer is such
+    (``answer``): the alarms and the rows are those of the run alone (found by a review: the entry
+    did not check, and the range alarms of the ticks a run entered on were lost)."""
+    loaded = apply(
+        api.load("masses-pid-can"),
+        [("duration", 2.0), ("bus.states", {"x2": {"minimum": -0.7, "maximum": 0.7, "resolution": 0.001}})],
+    )
+    runs = assert_batched_as_alone(loaded, taps, [3])
+    assert runs[0].metrics.bus.intrusion_detection["range"].false_alarms > 0  # the case is the one described

@@ -155,16 +155,21 @@ class WireBatch:
             except (CodecError, CosimError) as error:
                 self._leave(r, k, str(error), alive)
                 continue
-            self.steady.begun(r, k, verdict is not None and not run.rejected)
+            self.steady.begun(r, k, run.carried_whole and not run.rejected)
             if run.rejected:
                 self._leave(r, k, run.rejected, alive)
             elif verdict is not None:
                 whole.append((r, verdict))
             else:
                 self.scores.forget(r)  # its scorer took the tick's parts
-        steady &= alive
-        if whole or steady.any():
-            self._scored_whole(k - 1, whole, np.flatnonzero(steady))
+        scored = steady & alive  # a copy: ``steady`` is the runs' steady mask
+        if scored.any():
+            assert self._truth is not None
+            for r in self.steady.score(k, np.flatnonzero(scored), (self._truth[1], self._truth[4], self._truth[2])):
+                scored[r] = False
+                self.scores.forget(r)  # its scorer took the tick's parts
+        if whole or scored.any():
+            self._scored_whole(k - 1, whole, np.flatnonzero(scored))
 
     def _scored_whole(self, k: int, verdicts: list[tuple[int, dict[str, int]]], steady: np.ndarray) -> None:
         """Tick k of the runs scored whole (``RunWire._whole``) and of the ``steady`` ones (whose

@@ -87,6 +87,7 @@ class RunWire:
         # a tick's truth not given to the scorer yet: (tick, states (K, states), the run's row, their
         # names, its active faults); held until the next tick's frames say whether it is scored whole
         self.held: tuple[int, np.ndarray, int, Sequence[str], tuple[str, ...]] | None = None
+        self.carried_whole = False  # whether the last tick carried its answers whole (``_carried_whole``)
         #: The messages whose frames the scorer reads (the estimators')
         self.estimated = {name for name in self.codec.specs if message_topic(name) in scorer.owner}
 
@@ -161,21 +162,25 @@ class RunWire:
 
     def _whole(self, k: int, frames: list[Frame], quiet: Quiet | None) -> bool:
         """Whether tick k − 1's scores are given whole at tick k (``TickBatch``, on the batch's
-        arrays) rather than part by part as the log would hold them: its truth is held and the
-        scorer holds nothing else, the wire's tick k is quiet with the answers to tick k − 1 of
-        every node on it, heard at once, and none of the tick's other ``frames`` (the runner's, an
-        intruder's) is of an estimator's message. Then every estimator's frames of tick k − 1 arrive
-        in the tick, once each, with the values the batch computed (as they carry them), the
-        detector's verdict on tick k − 1 follows, and nothing else the scorer reads comes."""
-        scorer, held = self.scorer, self.held
+        arrays) rather than part by part as the log would hold them: the tick is carried whole
+        (``carried_whole``) and the scorer holds nothing else. Then every estimator's frames of tick
+        k − 1 arrive in the tick, once each, with the values the batch computed (as they carry
+        them), the detector's verdict on tick k − 1 follows, and nothing else the scorer reads comes."""
+        scorer = self.scorer
+        self.carried_whole = self._carried_whole(k, frames, quiet)
+        return self.carried_whole and not scorer.pending and scorer.next_tick == k - 1 and scorer.expected_parts > 0
+
+    def _carried_whole(self, k: int, frames: list[Frame], quiet: Quiet | None) -> bool:
+        """Whether tick k carries tick k − 1's answers whole: its truth is held, the wire's tick k is
+        quiet with the answers to tick k − 1 of every node on it, heard at once, the detector is to
+        give tick k − 1, and none of the tick's other ``frames`` (the runner's, an intruder's) is of
+        an estimator's message."""
+        held = self.held
         return (
             quiet is not None
             and self.heard
             and held is not None
             and held[0] == k - 1
-            and not scorer.pending
-            and scorer.next_tick == k - 1
-            and scorer.expected_parts > 0
             and len(self.answering) == len(self.nodes)
             and (self.detector is None or self.detector.given == k - 1)
             and not any(decoded is not None and decoded.spec.name in self.estimated for _, decoded in frames[1:])
@@ -318,13 +323,8 @@ class RunWire:
         is ``scored`` whole)."""
         if self.detector is not None:
             self.detector.frame(tick, t_ns, frame, decoded)
-        if decoded is None or not scored:
-            return
-        topic = message_topic(decoded.spec.name)
-        scorer = self.scorer
-        if topic in scorer.owner and scorer.reads(topic):
-            signals = Signals.read(read_back(Signals.payload(decoded)), tick)
-            scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
+        if decoded is not None and scored:
+            score_estimate(self.scorer, tick, decoded)
 
     def _passages(self, delivered: list[tuple[int, Frame]], scored: bool = True) -> None:
         """Frames through the wire, at their delivery (ns) (``Session._log_passages``)."""
@@ -344,6 +344,14 @@ class RunWire:
     def _rejected(self, frame: can.Message, rejection: Rejection) -> None:
         why = f"the runner rejected a frame of 0x{rejection.frame_id:03X} ({rejection.reason})"
         self.rejected = self.rejected or why
+
+
+def score_estimate(scorer: Scorer, tick: int, decoded: Decoded) -> None:
+    """A frame delivered in ``tick``, to the scores if it is an estimator's (as they read it from the log)."""
+    topic = message_topic(decoded.spec.name)
+    if topic in scorer.owner and scorer.reads(topic):
+        signals = Signals.read(read_back(Signals.payload(decoded)), tick)
+        scorer.estimate(scorer.owner[topic], signals.tick, signals.values)
 
 
 def _passed(frames: list[Frame], applied: Applied) -> bool:

@@ -34,13 +34,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from cosim.bus.client import TickFrames
-from cosim.bus.codec import OPERATIONAL, MessageSpec
+from cosim.bus.codec import OPERATIONAL, Decoded, MessageSpec
 from cosim.bus.dbc import heartbeat_message
 from cosim.bus.inprocess import InProcessBus
-from cosim.campaign.run_wire import RunWire
+from cosim.campaign.run_wire import RunWire, score_estimate
 from cosim.errors import CodecError
+from cosim.log.recorder import IDS_CHECKS
 from cosim.run.arbitration import bits_of_payloads, quiet_schedule
 from cosim.run.busfaults import BusFaultStage
+from cosim.run.detector import out_of_range
 from faults.models import BusFault
 
 Head = tuple[int, bool, bool, bool, int]  # a frame's id, extended, FD, BRS flags and length
@@ -72,6 +74,8 @@ class SteadyWires:
         self.messages: dict[str, list[MessageSpec]] = {}
         self.values: dict[str, np.ndarray] = {}  # node -> the values its last answers were encoded from
         self.payloads: dict[str, np.ndarray] = {}  # node -> its last answers' bytes (K, messages, 8)
+        self.carried: dict[str, np.ndarray] = {}  # node -> the values they carry
+        self.delivered = np.zeros((n, 0), dtype=np.int64)  # when the answers to the last tick arrived (ns)
         self.lost = np.zeros((n, 0), dtype=np.int64)  # each node's count of missed runner frames
         self.columns: list[tuple[int, int]] = []  # the answers on the wire by id: (node, message; −1 its heartbeat)
         self.ids: list[int] = []  # the data ids the detector follows, the answers' then the runner's
@@ -183,6 +187,7 @@ class SteadyWires:
         ok &= (~self.known[rows][:, ids] | ((counters - before) % modulus == 1)).all(axis=1)
         moved = rows[ok]
         self.idle[moved], self.inputs[moved] = ends[ok], delivered[ok, -1]
+        self.delivered[moved] = delivered[ok][:, :answers]
         self.offers[moved] += len(heads)
         self.last_ns[np.ix_(moved, ids)] = delivered[ok][:, places]
         self.last_counter[np.ix_(moved, ids)] = counters
@@ -209,11 +214,43 @@ class SteadyWires:
         payloads, carried, fits = found
         low, high = _ranges(self.messages[name])
         self.leaving[rows] |= ~((low <= carried) & (carried <= high)).all(axis=1)  # the detector's range check
-        self.values[name][rows], self.payloads[name][rows] = values, payloads
+        self.values[name][rows], self.payloads[name][rows], self.carried[name][rows] = values, payloads, carried
         return ~fits
 
+    def score(
+        self, k: int, rows: np.ndarray, truth: tuple[np.ndarray, Sequence[str], Sequence[tuple[str, ...]]]
+    ) -> list[int]:
+        """Tick k − 1 of the steady ``rows`` to their scorers where they hold another tick (a tick
+        whose estimates a flood starved, until it is ``WINDOW`` ticks old) or expect none: in the
+        parts its log would hold, in its order (``RunWire.send``: the truth, then each frame the
+        wire delivered, an estimator's to the scores, then the detector's verdict, which is clear),
+        from the arrays. The rows whose scorer took the tick so, the others are scored whole
+        (``RunWire._whole``'s test of the scorer, the rest of it holding in a steady tick)."""
+        x, states, active = truth
+        scorers, parts = [self.runs[r].scorer for r in rows.tolist()], []
+        for r, scorer in zip(rows.tolist(), scorers):
+            if scorer.pending or scorer.next_tick != k - 1 or scorer.expected_parts <= 0:
+                parts.append(r)
+        if not parts:
+            return parts
+        modulus, verdict = self.codec.tick_modulus, {check: 0 for check in IDS_CHECKS}
+        scored = [(c, self.messages[self.nodes[i]][j]) for c, (i, j) in enumerate(self.columns) if j >= 0]
+        for r in parts:
+            run = self.runs[r]
+            run.scorer.state(k - 1, dict(zip(states, x[r].tolist())))
+            run.scorer.faults(k - 1, list(active[r]))
+            for c, spec in scored:
+                name = self.nodes[self.columns[c][0]]
+                at = self._signals[name][spec.name]
+                row = self.carried[name][r, at : at + len(spec.signals)].tolist()
+                decoded = Decoded(spec, (k - 1) % modulus, dict(zip(spec.signals, row)))
+                score_estimate(run.scorer, int(self.delivered[r, c]) // self.dt_ns, decoded)
+            if run.detector is not None:
+                run.scorer.verdict(k - 1, False, verdict)
+        return parts
+
     def begun(self, r: int, k: int, whole: bool) -> None:
-        """Run r's objects began tick k: tick k − 1 scored whole (``RunWire._whole``), or not."""
+        """Run r's objects began tick k: tick k − 1's answers carried whole (``RunWire._carried_whole``), or not."""
         self.plain[r] = k if whole else -1
 
     def missed(self, r: int) -> None:
@@ -256,12 +293,21 @@ class SteadyWires:
             arbitration.wire._seq,
             arbitration._inputs_ns,
         )
-        self.leaving[r] = False
+        leaving = False
         for i, name in enumerate(self.nodes):
             client = run.nodes[name]
             self.lost[r, i] = client.assembler.lost
             for j, frame in enumerate(client.closing[:-1]):
+                decoded = run._decode(frame)
+                if decoded is None:
+                    return False
                 self.payloads[name][r, j, : len(frame.data)] = np.frombuffer(bytes(frame.data), dtype=np.uint8)
+                at = self._signals[name][decoded.spec.name]
+                self.carried[name][r, at : at + len(decoded.spec.signals)] = [
+                    decoded.values[s] for s in decoded.spec.signals
+                ]
+                leaving |= out_of_range(decoded.spec, decoded.values)  # the detector's range check, in tick k
+        self.leaving[r] = leaving
         last = detector._last if detector is not None else {}
         for c, frame_id in enumerate(self.ids):
             found = last.get(frame_id)
@@ -270,10 +316,11 @@ class SteadyWires:
         return True
 
     def _between_ticks(self, run: RunWire, k: int) -> bool:
-        """Whether the run's wire, traffic, scorer and detector are between ticks k − 1 and k as a
-        tick taken whole leaves them: nothing on the wire or pending, the truth of k − 1 held, the
-        scorer and the detector due to give tick k − 1, on in-process channels."""
-        arbitration, traffic, scorer, detector = run.arbitration, run.traffic, run.scorer, run.detector
+        """Whether the run's wire, traffic and detector are between ticks k − 1 and k as a tick taken
+        whole leaves them: nothing on the wire or pending, the truth of k − 1 held, the detector due
+        to give tick k − 1, on in-process channels. (Its scorer takes tick k − 1 as it stands:
+        ``score``.)"""
+        arbitration, traffic, detector = run.arbitration, run.traffic, run.detector
         return not (
             run.answering != self.nodes
             or run.marker != k - 1
@@ -289,9 +336,6 @@ class SteadyWires:
             or traffic._counts
             or traffic._echoes
             or traffic.secoc is not None
-            or scorer.pending
-            or scorer.next_tick != k - 1
-            or scorer.expected_parts <= 0
             or (detector is not None and (detector.given != k - 1 or detector._alarms))
             or not isinstance(run.bus, InProcessBus)
         )
@@ -321,8 +365,13 @@ class SteadyWires:
         """The nodes' messages, the answers on the wire by id, the detector's ids."""
         codec, n, nodes = self.codec, len(self.runs), self.nodes
         self.messages = {name: run.nodes[name].messages for name in nodes}
+        self._signals = {  # node -> where each of its messages' signals start among its values
+            name: dict(zip([spec.name for spec in specs], np.cumsum([0, *(len(s.signals) for s in specs)]).tolist()))
+            for name, specs in self.messages.items()
+        }
         self.values = {name: np.zeros((n, sum(len(s.signals) for s in self.messages[name]))) for name in nodes}
         self.payloads = {name: np.zeros((n, len(self.messages[name]), 8), dtype=np.uint8) for name in nodes}
+        self.carried = {name: np.zeros_like(values) for name, values in self.values.items()}
         self.lost = np.zeros((n, len(nodes)), dtype=np.int64)
         columns = [
             (spec.frame_id, i, j)
@@ -330,6 +379,7 @@ class SteadyWires:
             for j, spec in [*enumerate(self.messages[name]), (-1, codec.specs[heartbeat_message(name)])]
         ]
         self.columns = [(i, j) for _, i, j in sorted(columns)]
+        self.delivered = np.zeros((n, len(columns)), dtype=np.int64)
         self.ids = [spec.frame_id for name in nodes for spec in self.messages[name]] + [s.frame_id for s in self.runner]
         self.last_ns, self.last_counter = (np.zeros((n, len(self.ids)), dtype=np.int64) for _ in range(2))
         self.known = np.zeros((n, len(self.ids)), dtype=bool)
