@@ -99,7 +99,7 @@ class WireBatch:
         self.runner = [*self.sensor_specs, *([] if self.closed else self.command_specs)]  # its data messages
         stages = [[CONTROLLER]] if self.closed else []
         self.steady = SteadyWires(self.runs, self.runner, self.scenario.ticks, [*stages, list(plan.estimators)])
-        self._sent = np.zeros((len(plans), len(self.runner)), dtype=bool)  # the runner's frames of the tick
+        self._ticks: list[TickFrames | None] = [None] * len(plans)  # each steady run's node's tick (``inputs``)
         # the last tick's truth: (tick, states (K, states), each run's active faults, the estimators'
         # values, the states' names)
         self._truth: tuple[int, np.ndarray, Sequence[tuple[str, ...]], Sequence[np.ndarray], Sequence[str]] | None = (
@@ -127,9 +127,9 @@ class WireBatch:
         if not self.closed:
             values = np.concatenate([measured, commands], axis=1)
             on = np.concatenate([sent, np.ones((len(sent), len(self.command_specs)), dtype=bool)], axis=1)
-        self._sent = on
         held = None if self._truth is None else (self._truth[1], self._truth[4], self._truth[2])
         steady = self.steady.send(k, values, on, alive, held)
+        self._ticks = self.steady.tick_of(k, on)  # what each steady run's node takes of the tick
         prepared: list[tuple[list[Frame], Applied | None] | None] = [None] * len(self.runs)
         rows = np.flatnonzero(alive & ~steady)
         built = self._runner_frames(k, values, on, rows) if len(rows) else {}
@@ -223,7 +223,7 @@ class WireBatch:
         complete tick k (alone, the runner would wait for it in vain) leaves."""
         s = self.scenario
         steady = self.steady.on & alive
-        ticks = self.steady.tick_of(k, self._sent)
+        ticks = list(self._ticks)
         readings = np.where(steady[:, None], carried[0], np.nan)
         commands = np.where(steady[:, None], carried[1], np.nan)
         for r in np.flatnonzero(alive & ~steady).tolist():

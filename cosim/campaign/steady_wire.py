@@ -65,10 +65,8 @@ class SteadyWires:
         self.entered = np.zeros(n, dtype=np.int64)  # the tick at which it went steady
         self.idle, self.offers, self.inputs = (np.zeros(n, dtype=np.int64) for _ in range(3))
         self.until = np.zeros(n, dtype=np.int64)  # the first tick a bus fault or background frame may meet
-        self.leaving = np.zeros(n, dtype=bool)
-        self.observers: dict[
-            int, list[BusFault]
-        ] = {}  # run -> its bus faults that record the bus  # an answer out of its range: its next tick is its objects'
+        self.leaving = np.zeros(n, dtype=bool)  # an answer out of its range: its next tick is its objects'
+        self.observers: dict[int, list[BusFault]] = {}  # run -> its bus faults that record the bus (if any)
         self.plain = np.full(n, -1, dtype=np.int64)  # the tick its objects are taking whole so far (−1: none)
         self.nodes = [name for stage in self.stages for name in stage]  # in the order they answer
         self.messages: dict[str, list[MessageSpec]] = {}
@@ -101,7 +99,7 @@ class SteadyWires:
             self.materialize(r, k, None if truth is None else (truth[0], truth[1], truth[2][r]))
         for r in np.flatnonzero(entering & steady).tolist():
             self.entered[r] = k
-            self.runs[r].held = None  # its tick k − 1 is scored whole on arrays (``TickBatch``)
+            self.runs[r].held = None  # its tick k − 1 is scored from the arrays (``score``, ``TickBatch``)
         self.on = steady
         return steady
 
@@ -117,14 +115,19 @@ class SteadyWires:
         low, high = _ranges(self.runner)
         signals = np.repeat(sent, [len(spec.signals) for spec in self.runner], axis=1)
         stays &= (~signals | ((low <= carried) & (carried <= high))).all(axis=1)
-        patterns: dict[bytes, list[int]] = {}
-        for i in np.flatnonzero(stays).tolist():
-            patterns.setdefault(sent[i].tobytes(), []).append(i)
-        for members in patterns.values():
-            group = np.array(members)
-            stays[group] = self._schedule(k, rows[group], payloads[group], sent[members[0]], modulus)
-        for i in [i for i, r in enumerate(rows.tolist()) if stays[i] and self.observers.get(r)]:
-            self._observed(k, self.observers[int(rows[i])], carried[i], sent[i])
+        staying = np.flatnonzero(stays)
+        if len(staying) and (sent[staying] == sent[staying[0]]).all():  # the runner sends alike: one layout
+            groups = [staying]
+        else:
+            patterns: dict[bytes, list[int]] = {}
+            for i in staying.tolist():
+                patterns.setdefault(sent[i].tobytes(), []).append(i)
+            groups = [np.array(members) for members in patterns.values()]
+        for group in groups:
+            stays[group] = self._schedule(k, rows[group], payloads[group], sent[group[0]], modulus)
+        for i, r in enumerate(rows.tolist() if self.observers else []):
+            if r in self.observers and stays[i]:
+                self._observed(k, self.observers[r], carried[i], sent[i])
         return stays
 
     def _observed(self, k: int, observers: list[BusFault], carried: np.ndarray, sent: np.ndarray) -> None:
@@ -286,7 +289,9 @@ class SteadyWires:
             return False
         self.until[r] = until
         models = run.stage.models if run.stage is not None else []
-        self.observers[r] = [model for model in models if type(model).observe is not BusFault.observe]
+        self.observers.pop(r, None)
+        if recording := [model for model in models if type(model).observe is not BusFault.observe]:
+            self.observers[r] = recording
         arbitration, detector = run.arbitration, run.detector
         self.idle[r], self.offers[r], self.inputs[r] = (
             arbitration.wire.idle_ns,
