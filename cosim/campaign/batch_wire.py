@@ -257,7 +257,7 @@ class WireBatch:
         as it computed them (before saturation and quantization: its client does both, or the
         batch on arrays, each run's frames as its client encodes them: ``_encoded``)."""
         rows = np.flatnonzero(alive & ~self.steady.on)
-        self._steady_answers(name, ticks, signals, values, alive, saturate)
+        self._steady_answers(name, signals, values, alive, saturate)
         encoded = self._encoded(name, ticks, signals, values, rows, saturate) if len(rows) else {}
         for r in rows.tolist():
             tick = ticks[r]
@@ -272,20 +272,14 @@ class WireBatch:
                 self._leave(r, tick.tick, str(error), alive)
 
     def _steady_answers(
-        self,
-        name: str,
-        ticks: Sequence[TickFrames | None],
-        signals: Sequence[str],
-        values: np.ndarray,
-        alive: np.ndarray,
-        saturate: bool,
+        self, name: str, signals: Sequence[str], values: np.ndarray, alive: np.ndarray, saturate: bool
     ) -> None:
         """``answer`` in the steady runs: their frames' bytes and values on arrays (``SteadyWires``).
         A run with a value its frame cannot carry leaves (alone, its client names it)."""
         rows = np.flatnonzero(alive & self.steady.on)
         if not len(rows):
             return
-        k = next(tick.tick for r in rows.tolist() if (tick := ticks[r]) is not None)
+        k = self.steady.tick
         names, v = self._saturated(name, signals, values, rows, saturate)
         for r in rows[self.steady.answer(name, k, rows, names, v)].tolist():
             self._leave(r, k, f"its node {name} sends a value its frame cannot carry", alive)

@@ -62,6 +62,7 @@ class SteadyWires:
         self.runner, self.stages = list(runner), [list(stage) for stage in stages]
         n = len(runs)
         self.on = np.zeros(n, dtype=bool)  # steady: its objects stand still, its wire is these arrays
+        self.tick = -1  # the tick under way
         self.entered = np.zeros(n, dtype=np.int64)  # the tick at which it went steady
         self.idle, self.offers, self.inputs = (np.zeros(n, dtype=np.int64) for _ in range(3))
         self.until = np.zeros(n, dtype=np.int64)  # the first tick a bus fault or background frame may meet
@@ -89,6 +90,7 @@ class SteadyWires:
         brought back to them first, with ``truth``, tick k − 1's (states, their names, each run's
         active faults)). The runs steady in tick k, (K,) bool."""
         self.on &= alive
+        self.tick = k
         entering = self._entering(k, alive)
         rows = np.flatnonzero(self.on | entering)
         steady = np.zeros(len(self.runs), dtype=bool)
