@@ -14,12 +14,13 @@ but arrays the batch holds:
   is when it falls idle, how many frames it was offered and when the receivers had their inputs;
 - the runner hears each node's answer once, on time, nothing lost (``Traffic.answered``), each
   node takes its tick whole (``RunWire.intake``), the intrusion detector raises nothing and notes
-  each id's last frame (``IntrusionDetector.frame``), and the tick is scored whole (``TickBatch``).
+  each id's last frame (``IntrusionDetector.frame``), and the tick is scored whole (``TickBatch``),
+  or, where the scorer still holds an earlier tick, given to it in its parts (``score``).
 
 So a steady run's objects (``RunWire``: its wire, traffic, clients, channels, detector) are left as
 they were, and the batch keeps on arrays what the ticks change: the wire's idle time, offers and
-inputs time, the answers of the last tick (their bytes, and the values they were encoded from),
-the detector's last frame per id. A run enters after a tick its objects took whole, with their
+inputs time, the answers of the last tick (their bytes, the values they were encoded from and
+those they carry), the detector's last frame per id. A run enters after a tick its objects took whole, with their
 state what this module reads (``_enters``); where a tick is not steady, its objects are brought to
 what they would be after tick k − 1 (``materialize``: the counts, times and frames the steady ticks
 would have left, the last answers published again on its channel) and they take the tick, as they
