@@ -109,7 +109,7 @@ class _RowsGroup:
     def __init__(self, packer: RowsPacker, specs: Sequence[MessageSpec], lengths: Sequence[int]) -> None:
         self.packer, self.specs = packer, list(specs)
         channels = [c for spec in specs for c in spec.channels]
-        self.low, self.high = np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
+        self.low, self.high = ranges(specs)
         self.message_of = np.repeat(np.arange(len(specs)), [len(spec.signals) for spec in specs])
         counters = np.cumsum([0, *(1 + len(spec.signals) for spec in specs[:-1])])
         self.signals = np.delete(np.arange(len(channels) + len(specs)), counters)
@@ -441,6 +441,12 @@ class Codec:
         if at is None:  # NMT
             return Decoded(spec, 0, dict(zip(others, values)))
         return Decoded(spec, int(values[at]), dict(zip(others, values[:at] + values[at + 1 :])))
+
+
+def ranges(specs: Sequence[MessageSpec]) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges of the messages' signals, each message's in turn: (minima, maxima) arrays."""
+    channels = [c for spec in specs for c in spec.channels]
+    return np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
 
 
 def saturated(values: Sequence[float], channels: Sequence[Channel]) -> list[float]:

@@ -51,7 +51,7 @@ import faults as fm
 from cosim.analysis.metrics import BusMetrics, RunMetrics
 from cosim.analysis.metrics.compute import TickScoring
 from cosim.analysis.metrics.scorer import TickBatch
-from cosim.bus.codec import COMMAND, CONTROLLER
+from cosim.bus.codec import COMMAND, CONTROLLER, ranges
 from cosim.campaign.batch_bus import BusBatch, acts
 from cosim.campaign.batch_bus import refusal as bus_refusal
 from cosim.campaign.batch_estimators import Estimators, Stepped
@@ -173,8 +173,8 @@ class _Controller:
         self.status_signals = [signal for m in self.status for signal in m.signals]
         self.signals = [signal for m in commands for signal in m.signals] + self.status_signals  # as in ``raw``
         self.carried = codec.carried_of(commands)
-        self.command_range = _range(commands)
-        self.status_range = _range(self.status)
+        self.command_range = ranges(commands)
+        self.status_range = ranges(self.status)
         self.commanded = np.zeros(len(actuators), dtype=bool)
         self.commanded[self.columns] = True
         self.t = s.sample_time
@@ -302,8 +302,8 @@ class _Batch:
         self.actuators = s.actuators  # a property that asks the plant's description each time
         self.sensors_carried = self.codec.carried_of(self.sensor_specs)
         self.commands_carried = self.codec.carried_of(self.command_specs)
-        self.sensor_range = _range(self.sensor_specs)
-        self.command_range = _range(self.command_specs)
+        self.sensor_range = ranges(self.sensor_specs)
+        self.command_range = ranges(self.command_specs)
         self.estimators = [Estimators(name, plans, s.sensors, s.actuators) for name in plan.estimators]
         self.stepped = Stepped.of(self.estimators)
         self.controller = _Controller(plans, s.sensors, s.actuators) if plan.controller is not None else None
@@ -378,8 +378,8 @@ class _Batch:
         bus = self.bus
         if bus is not None:  # what the nodes take of the runner's frames, and what the bus's schemes see
             active = [(*a, *b) for a, b in zip(active, bus.active(t))]
-            ranges = (self.sensor_range, self.command_range)
-            readings = bus.runner(k, measured, sent, carried, self.raw_commands, u_cmd, ranges, alive)
+            bounds = (self.sensor_range, self.command_range)
+            readings = bus.runner(k, measured, sent, carried, self.raw_commands, u_cmd, bounds, alive)
         values = self._estimates(k, [(readings, u_cmd, commanded)] * len(self.estimators), alive)
         if values is None:
             return
@@ -538,8 +538,3 @@ def _leave_outside(
     for r in map(int, np.flatnonzero(alive & ~ok)):
         runs[r].leave(k, why)
     alive &= ok
-
-
-def _range(specs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
-    channels = [channel for spec in specs for channel in spec.channels]
-    return np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])

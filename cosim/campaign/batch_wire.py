@@ -39,7 +39,7 @@ import numpy as np
 
 from cosim.analysis.metrics.scorer import BusVerdicts, TickBatch
 from cosim.bus.client import TickFrames
-from cosim.bus.codec import CONTROLLER, Codec, Decoded, MessageSpec
+from cosim.bus.codec import CONTROLLER, Codec, Decoded, MessageSpec, ranges
 from cosim.campaign.run_wire import Frame, RunWire
 from cosim.campaign.steady_wire import SteadyWires
 from cosim.errors import CodecError, CosimError
@@ -326,12 +326,10 @@ class WireBatch:
         messages = self.runs[0].nodes[name].messages
         if any(signal not in signals for spec in messages for signal in spec.signals):
             return None
-        channels = [c for spec in messages for c in spec.channels]
         return (
             [spec.name for spec in messages],
             [signals.index(signal) for spec in messages for signal in spec.signals],
-            np.array([c.minimum for c in channels]),
-            np.array([c.maximum for c in channels]),
+            *ranges(messages),
         )
 
     def truth(

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cosim.bus.client import TickFrames
-from cosim.bus.codec import OPERATIONAL, Decoded, MessageSpec
+from cosim.bus.codec import OPERATIONAL, Decoded, MessageSpec, ranges
 from cosim.bus.dbc import heartbeat_message
 from cosim.bus.inprocess import InProcessBus
 from cosim.campaign.run_wire import RunWire, score_estimate
@@ -61,6 +61,7 @@ class SteadyWires:
         first = runs[0]
         self.runs, self.codec, self.dt_ns, self.ticks = list(runs), first.codec, first.dt_ns, ticks
         self.runner, self.stages = list(runner), [list(stage) for stage in stages]
+        self.runner_ranges = ranges(self.runner)
         n = len(runs)
         self.on = np.zeros(n, dtype=bool)  # steady: its objects stand still, its wire is these arrays
         self.tick = -1  # the tick under way
@@ -72,6 +73,7 @@ class SteadyWires:
         self.plain = np.full(n, -1, dtype=np.int64)  # the tick its objects are taking whole so far (−1: none)
         self.nodes = [name for stage in self.stages for name in stage]  # in the order they answer
         self.messages: dict[str, list[MessageSpec]] = {}
+        self.ranges: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # node -> its messages' signals' ranges
         self.values: dict[str, np.ndarray] = {}  # node -> the values its last answers were encoded from
         self.payloads: dict[str, np.ndarray] = {}  # node -> its last answers' bytes (K, messages, 8)
         self.carried: dict[str, np.ndarray] = {}  # node -> the values they carry
@@ -115,7 +117,7 @@ class SteadyWires:
             return np.zeros(len(rows), dtype=bool)
         payloads, carried, fits = found
         stays = fits & (self.until[rows] > k) & ~self.leaving[rows]
-        low, high = _ranges(self.runner)
+        low, high = self.runner_ranges
         signals = np.repeat(sent, [len(spec.signals) for spec in self.runner], axis=1)
         stays &= (~signals | ((low <= carried) & (carried <= high))).all(axis=1)
         staying = np.flatnonzero(stays)
@@ -218,7 +220,7 @@ class SteadyWires:
         if found is None:
             return np.ones(len(rows), dtype=bool)
         payloads, carried, fits = found
-        low, high = _ranges(self.messages[name])
+        low, high = self.ranges[name]
         self.leaving[rows] |= ~((low <= carried) & (carried <= high)).all(axis=1)  # the detector's range check
         self.values[name][rows], self.payloads[name][rows], self.carried[name][rows] = values, payloads, carried
         return ~fits
@@ -373,6 +375,7 @@ class SteadyWires:
         """The nodes' messages, the answers on the wire by id, the detector's ids."""
         codec, n, nodes = self.codec, len(self.runs), self.nodes
         self.messages = {name: run.nodes[name].messages for name in nodes}
+        self.ranges = {name: ranges(specs) for name, specs in self.messages.items()}
         self._signals = {  # node -> where each of its messages' signals start among its values
             name: dict(zip([spec.name for spec in specs], np.cumsum([0, *(len(s.signals) for s in specs)]).tolist()))
             for name, specs in self.messages.items()
@@ -443,11 +446,6 @@ class SteadyWires:
 def _channel(bus: object) -> InProcessBus:
     assert isinstance(bus, InProcessBus)  # a run enters on in-process channels only (``_enters``)
     return bus
-
-
-def _ranges(specs: Sequence[MessageSpec]) -> tuple[np.ndarray, np.ndarray]:
-    channels = [c for spec in specs for c in spec.channels]
-    return np.array([c.minimum for c in channels]), np.array([c.maximum for c in channels])
 
 
 def _quiet_until(run: RunWire, k: int, ticks: int) -> int:

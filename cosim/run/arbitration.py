@@ -145,7 +145,7 @@ class Arbitration:
         message, decoded = frame
         sender = decoded.spec.sender if decoded is not None else sender
         data = bytes(message.data)
-        at = _mac_at(self.codec, message)
+        at = _mac_at(self.codec, message.arbitration_id, message.is_extended_id)
         if at is not None:
             data = data[:at] + bytes(len(data[at:]))  # a frame too short for its MAC (a fuzzer's) as it is
         return WireFrame(
@@ -284,10 +284,10 @@ class Arbitration:
         return self.wire.drain()
 
 
-def _mac_at(codec: Codec, message: can.Message) -> int | None:
+def _mac_at(codec: Codec, frame_id: int, extended: bool) -> int | None:
     """Where a control frame's MAC starts (None: no control frame): the wire times it with the MAC
     at 0, so that a run's (random) key changes no timing."""
-    control = None if message.is_extended_id else codec.control_macs.get(message.arbitration_id)
+    control = None if extended else codec.control_macs.get(frame_id)
     return None if control is None else control[1].mac[0]
 
 
@@ -424,9 +424,9 @@ def bits_of_payloads(
     for (fd, brs, length), columns in by_kind.items():
         data = np.stack([payloads[c] for c in columns]).astype(np.uint8)  # (C, R, length), a copy
         for i, c in enumerate(columns):
-            control = None if heads[c][1] else codec.control_macs.get(heads[c][0])
-            if control is not None:
-                data[i, :, control[1].mac[0] :] = 0
+            at = _mac_at(codec, heads[c][0], heads[c][1])
+            if at is not None:
+                data[i, :, at:] = 0
         bits, fast_bits = frame_bits_rows(
             [heads[c][0] for c in columns],
             [heads[c][1] for c in columns],
