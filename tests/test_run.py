@@ -296,6 +296,40 @@ def test_sigterm_before_the_session_stops_like_ctrl_c():
     assert stopped.value.signum == signal.SIGTERM and signal.getsignal(signal.SIGTERM) is before
 
 
+def test_a_signal_while_the_run_is_on_its_way_out_only_hurries_it():
+    """The first Ctrl-C raises at the next tick boundary. A second one arriving while that raise
+    goes up through the runner's ``except`` and ``finally`` blocks, before their shield, or within
+    ``GRACE`` of the first (pressed twice in a row) must not raise (it could cut the writing of the
+    log or its result short): it only asks the run to hurry. A second one later, before any
+    boundary, still raises at once, for a run that never reaches one."""
+    from cosim.run.interrupts import GRACE, DeferredInterrupts, Interrupted
+
+    with DeferredInterrupts() as interrupts:
+        signal.raise_signal(signal.SIGINT)
+        assert interrupts.requested == signal.SIGINT and not interrupts.hurry
+        with pytest.raises(Interrupted):
+            interrupts.check()
+        time.sleep(GRACE)
+        try:
+            signal.raise_signal(signal.SIGINT)  # between the raise and the shield
+            signal.raise_signal(signal.SIGTERM)
+        except Interrupted:
+            pytest.fail("a signal on the way out raised again")
+        assert interrupts.hurry
+    with DeferredInterrupts() as interrupts:
+        try:
+            signal.raise_signal(signal.SIGINT)
+            signal.raise_signal(signal.SIGINT)  # pressed twice in a row
+        except Interrupted:
+            pytest.fail("a second signal within the grace raised")
+        assert interrupts.hurry and not interrupts.stopping
+    with DeferredInterrupts() as interrupts, pytest.raises(Interrupted) as stopped:
+        signal.raise_signal(signal.SIGINT)
+        time.sleep(GRACE)
+        signal.raise_signal(signal.SIGINT)  # stuck between boundaries: raises at once
+    assert stopped.value.signum == signal.SIGINT and interrupts.stopping
+
+
 @pytest.mark.slow
 def test_fault_tour_on_can_fd(tmp_path):
     """Every fault kind end to end on a CAN FD bus: dropped frames are absent (and not lost),

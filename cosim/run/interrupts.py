@@ -4,20 +4,27 @@ A KeyboardInterrupt raised at an arbitrary bytecode could land inside the MCAP w
 compresses or appends a chunk and leave it inconsistent. While ``DeferredInterrupts`` is active,
 SIGINT (Ctrl-C) and SIGTERM only set a flag; the runner calls ``check()`` between ticks and in
 every wait, which raises KeyboardInterrupt there. A second signal raises at once, for a run that
-no longer reaches a tick boundary, except while the run is ``shielded`` (stopping its nodes and
-writing how it ended): there a second signal only asks it to ``hurry`` (stop the nodes without
-waiting for them), so that every stop leaves a log with its result.
+no longer reaches a tick boundary, if it comes ``GRACE`` seconds or more after the first (a run
+that still ticks stops well within that). Any other further signal only asks the run to ``hurry``
+(stop its nodes without waiting for them): one within ``GRACE`` of the first (Ctrl-C pressed twice
+in a row), one while the run is ``stopping`` (a signal has been raised, and the run is on its way
+out through its ``except`` and ``finally`` blocks) and one while it is ``shielded`` (stopping its
+nodes and writing how it ended). None of them may cut the writing of the log or its result short, so
+every stop leaves a log with its result.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from cosim.errors import Interruption
+
+GRACE = 0.5  # s: a second signal sooner than this after the first only hurries the run
 
 
 class Interrupted(Interruption):
@@ -52,6 +59,8 @@ def terminate_like_ctrl_c() -> Iterator[None]:
 class DeferredInterrupts:
     def __init__(self) -> None:
         self.requested: int | None = None
+        self._requested_at = 0.0
+        self.stopping = False  # a signal has been raised: the run is ending
         self.hurry = False
         self._shielded = 0
         self._previous: dict[int, Any] = {}
@@ -69,11 +78,12 @@ class DeferredInterrupts:
 
     def _handle(self, signum: int, frame: object) -> None:
         if self.requested is not None:
-            if self._shielded:
+            if self._shielded or self.stopping or time.monotonic() - self._requested_at < GRACE:
                 self.hurry = True
                 return
+            self.stopping = True
             raise Interrupted(signum)
-        self.requested = signum
+        self.requested, self._requested_at = signum, time.monotonic()
 
     @contextmanager
     def shielded(self) -> Iterator[None]:
@@ -87,4 +97,5 @@ class DeferredInterrupts:
     def check(self) -> None:
         """Raise KeyboardInterrupt if a signal arrived since the run started (not while shielded)."""
         if self.requested is not None and not self._shielded:
+            self.stopping = True
             raise Interrupted(self.requested)
